@@ -1,0 +1,223 @@
+"""`RobotModel`: a floating-base pinocchio model with limits, feet and arm end-effector.
+
+Loaded from a URDF with a free-flyer root joint; an optional SRDF group state gives the
+reference (nominal) pose. Joints can be locked at that pose (the paper locks the last two
+Z1 joints and the gripper, section V-B).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.errors import ModelError, unknown_name
+
+GRAVITY_M_S2 = 9.81
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Everything needed to load a robot; presets are instances of this."""
+
+    name: str
+    urdf: Path
+    feet: tuple[str, ...]
+    arm_ee: str | None = None
+    srdf: Path | None = None
+    pose: str | None = None
+    locked_joints: tuple[str, ...] = ()
+    effort_limit_nm: dict[str, float] = field(default_factory=dict)
+    velocity_limit_rad_s: dict[str, float] = field(default_factory=dict)
+    position_limit_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
+    foot_radius_m: float | None = None
+
+
+class RobotModel:
+    """A legged robot (optionally with an arm) on a free-flyer root.
+
+    Attributes: `model` (pinocchio, reduced), `nq`, `nv`, `n_joints` (= nv - 6), `joint_names`
+    (actuated joints in velocity order), `feet`, `arm_ee`, `q_nominal`, `mass_kg`, and per-joint
+    limits `q_min`, `q_max`, `v_max`, `tau_max` (length `n_joints`).
+    """
+
+    def __init__(self, spec: RobotSpec):
+        self.spec = spec
+        self.name = spec.name
+        urdf = Path(spec.urdf)
+        if not urdf.is_file():
+            raise ModelError(f"URDF file not found: {urdf}")
+        if spec.srdf is not None and not Path(spec.srdf).is_file():
+            raise ModelError(f"SRDF file not found: {spec.srdf}")
+        try:
+            full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+        except (RuntimeError, ValueError) as exc:
+            raise ModelError(f"pinocchio cannot parse URDF {urdf}: {exc}") from exc
+
+        q_ref = self._reference_configuration(full, spec)
+        for joint in spec.locked_joints:
+            if not full.existJointName(joint) or joint == "root_joint":
+                raise ModelError(unknown_name("joint to lock", joint, list(full.names)[2:]))
+        lock_ids = [full.getJointId(j) for j in spec.locked_joints]
+        model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full
+        keep = [i for i in range(full.nq) if not self._q_index_locked(full, lock_ids, i)]
+        self.model: pin.Model = model
+        self.data = model.createData()
+        self.nq, self.nv = model.nq, model.nv
+        self.n_joints = model.nv - 6
+        self.joint_names: tuple[str, ...] = tuple(model.names[2:])
+        for i in range(2, model.njoints):
+            if model.joints[i].nv != 1:
+                raise ModelError(
+                    f"joint '{model.names[i]}' ({model.joints[i].shortname()}) has {model.joints[i].nv} "
+                    "DoF; wbmpc supports one-DoF revolute/prismatic joints below the free-flyer root"
+                )
+
+        self.feet = tuple(spec.feet)
+        self.arm_ee = spec.arm_ee
+        frames = [f.name for f in model.frames]
+        for frame in (*self.feet, *([self.arm_ee] if self.arm_ee else [])):
+            if not model.existFrame(frame):
+                raise ModelError(unknown_name("frame", frame, frames))
+        if len(self.feet) == 0:
+            raise ModelError("a legged robot needs at least one foot frame (--feet F1,F2,...)")
+
+        self.mass_kg = float(sum(inertia.mass for inertia in model.inertias))
+        self._set_limits(model, spec)
+        self.foot_radius_m = (
+            spec.foot_radius_m if spec.foot_radius_m is not None else _foot_radius_from_urdf(urdf, model, self.feet)
+        )
+        self.q_nominal = self._standing_configuration(np.asarray(q_ref)[keep])
+
+    # ------------------------------------------------------------------ loading helpers
+    @staticmethod
+    def _q_index_locked(full: pin.Model, lock_ids: list[int], i: int) -> bool:
+        for jid in lock_ids:
+            start = full.idx_qs[jid]
+            if start <= i < start + full.nqs[jid]:
+                return True
+        return False
+
+    @staticmethod
+    def _reference_configuration(full: pin.Model, spec: RobotSpec) -> np.ndarray:
+        q = pin.neutral(full)
+        if spec.srdf is None:
+            return q
+        if spec.pose is None:
+            raise ModelError(f"an SRDF was given ({spec.srdf}) but no pose name (--pose NAME)")
+        root = ET.parse(spec.srdf).getroot()
+        states = {s.get("name"): s for s in root.iter("group_state")}
+        if spec.pose not in states:
+            raise ModelError(
+                f"SRDF {spec.srdf} has no group_state '{spec.pose}'; available poses: {', '.join(sorted(states)) or 'none'}"
+            )
+        for joint in states[spec.pose].iter("joint"):
+            name = joint.get("name")
+            values = np.array([float(x) for x in joint.get("value", "").split()])
+            if not full.existJointName(name):
+                continue  # SRDFs often name joints of other variants; ignore them like pinocchio does
+            jid = full.getJointId(name)
+            if values.size != full.nqs[jid]:
+                raise ModelError(f"SRDF pose '{spec.pose}': joint '{name}' needs {full.nqs[jid]} values, got {values.size}")
+            q[full.idx_qs[jid] : full.idx_qs[jid] + values.size] = values
+        if q.size >= 7:
+            q[3:7] /= np.linalg.norm(q[3:7])
+        return q
+
+    def _set_limits(self, model: pin.Model, spec: RobotSpec) -> None:
+        names = list(self.joint_names)
+        iq = [model.idx_qs[model.getJointId(n)] for n in names]
+        iv = [model.idx_vs[model.getJointId(n)] for n in names]
+        self.q_min = np.array(model.lowerPositionLimit)[iq]
+        self.q_max = np.array(model.upperPositionLimit)[iq]
+        self.v_max = np.array(model.velocityLimit)[iv]
+        self.tau_max = np.array(model.effortLimit)[iv]
+        for table, target in (
+            (spec.effort_limit_nm, "tau_max"),
+            (spec.velocity_limit_rad_s, "v_max"),
+        ):
+            for joint, value in table.items():
+                if joint not in names:
+                    raise ModelError(unknown_name("joint", joint, names))
+                getattr(self, target)[names.index(joint)] = float(value)
+        for joint, (lo, hi) in spec.position_limit_rad.items():
+            if joint not in names:
+                raise ModelError(unknown_name("joint", joint, names))
+            self.q_min[names.index(joint)], self.q_max[names.index(joint)] = lo, hi
+        big = 1e10
+        self.q_min = np.maximum(self.q_min, -big)
+        self.q_max = np.minimum(self.q_max, big)
+        for label, arr in (("effort", self.tau_max), ("velocity", self.v_max)):
+            bad = [names[i] for i in np.flatnonzero(~(arr > 0) | (arr > big))]
+            if bad:
+                raise ModelError(f"joints {bad} have no positive {label} limit in the URDF; give one in the RobotSpec")
+
+    def _standing_configuration(self, q: np.ndarray) -> np.ndarray:
+        """Reference pose with the base lifted so that the lowest foot touches the ground."""
+        q = q.copy()
+        pin.framesForwardKinematics(self.model, self.data, q)
+        z_feet = [self.data.oMf[self.frame_id(f)].translation[2] for f in self.feet]
+        q[2] += self.foot_radius_m - min(z_feet)
+        return q
+
+    # ------------------------------------------------------------------ queries
+    def frame_id(self, name: str) -> int:
+        """Frame index by name; a BODY frame wins when a link and its fixed joint share the name."""
+        matches = [i for i, f in enumerate(self.model.frames) if f.name == name]
+        if not matches:
+            raise ModelError(unknown_name("frame", name, {f.name for f in self.model.frames}))
+        bodies = [i for i in matches if self.model.frames[i].type == pin.FrameType.BODY]
+        return (bodies or matches)[0]
+
+    def joint_index(self, name: str) -> int:
+        """Index of an actuated joint in the joint vectors (q_j, v_j, tau_j)."""
+        if name not in self.joint_names:
+            raise ModelError(unknown_name("joint", name, self.joint_names))
+        return self.joint_names.index(name)
+
+    @property
+    def contact_frames(self) -> tuple[str, ...]:
+        """Feet, then the arm end-effector if any: the order of the stacked contact forces F_c."""
+        return self.feet + ((self.arm_ee,) if self.arm_ee else ())
+
+    def random_configuration(self, rng: np.random.Generator) -> np.ndarray:
+        """A random configuration on the manifold within joint limits (unit quaternion)."""
+        q = self.q_nominal.copy()
+        q[:3] += rng.uniform(-1, 1, 3)
+        quat = rng.normal(size=4)
+        q[3:7] = quat / np.linalg.norm(quat)
+        lo = np.maximum(self.q_min, -np.pi)
+        hi = np.minimum(self.q_max, np.pi)
+        q[7:] = rng.uniform(lo, hi)
+        return q
+
+    def summary(self) -> dict:
+        return {
+            "robot": self.name,
+            "nq": self.nq,
+            "nv": self.nv,
+            "n_joints": self.n_joints,
+            "mass_kg": self.mass_kg,
+            "feet": list(self.feet),
+            "arm_ee": self.arm_ee,
+            "joints": list(self.joint_names),
+        }
+
+
+def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:
+    """Radius of the sphere collision of the first foot link, if the URDF has one; else 2 cm."""
+    try:
+        root = ET.parse(urdf).getroot()
+    except ET.ParseError:
+        return 0.02
+    links = {link.get("name"): link for link in root.iter("link")}
+    for foot in feet:
+        link = links.get(foot)
+        if link is None:
+            continue
+        for sphere in link.iter("sphere"):
+            return float(sphere.get("radius"))
+    return 0.02
