@@ -208,7 +208,7 @@ class RobotModel:
 
 
 def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:
-    """Radius of the sphere collision of the first foot link, if the URDF has one; else 2 cm."""
+    """Radius of the collision sphere of the first foot link, if the URDF has one; else 2 cm."""
     try:
         root = ET.parse(urdf).getroot()
     except ET.ParseError:
@@ -218,6 +218,7 @@ def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) 
         link = links.get(foot)
         if link is None:
             continue
-        for sphere in link.iter("sphere"):
-            return float(sphere.get("radius"))
+        for collision in link.iter("collision"):
+            for sphere in collision.iter("sphere"):
+                return float(sphere.get("radius"))
     return 0.02

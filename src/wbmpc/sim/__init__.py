@@ -1,0 +1,51 @@
+"""Plants: MuJoCo simulation (default) and a pinocchio contact-dynamics plant (benchmarks).
+
+Every plant implements `Plant`: `reset(q, v)`, `step(tau_joints)`, `state() -> (q, v)`,
+`time_s`, `apply_base_velocity_kick(dv_world_m_s)`, `contact_forces()` and `recording`, with
+states in pinocchio layout (see `wbmpc.sim.base`).
+"""
+
+from wbmpc.sim.base import Plant, PlantConfig, PlantDivergedError, PlantInputError, Recording
+
+__all__ = [
+    "MujocoPlant",
+    "MujocoPlantConfig",
+    "PinocchioPlant",
+    "PinocchioPlantConfig",
+    "Plant",
+    "PlantConfig",
+    "PlantDivergedError",
+    "PlantInputError",
+    "Recording",
+    "make_plant",
+]
+
+
+def __getattr__(name: str):
+    # plants are imported lazily: `import wbmpc.sim` must not pay for MuJoCo when only pinocchio is used
+    if name in ("MujocoPlant",):
+        from wbmpc.sim.mujoco_plant import MujocoPlant
+
+        return MujocoPlant
+    if name == "MujocoPlantConfig":
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        return MujocoPlantConfig
+    if name in ("PinocchioPlant", "PinocchioPlantConfig"):
+        from wbmpc.sim import pinocchio_plant
+
+        return getattr(pinocchio_plant, name)
+    raise AttributeError(f"module 'wbmpc.sim' has no attribute '{name}'")
+
+
+def make_plant(kind: str, robot, config: PlantConfig | None = None) -> Plant:
+    """A plant by name: 'mujoco' (default simulator) or 'pinocchio' (contact dynamics without MuJoCo)."""
+    if kind == "mujoco":
+        from wbmpc.sim.mujoco_plant import MujocoPlant
+
+        return MujocoPlant(robot, config)
+    if kind == "pinocchio":
+        from wbmpc.sim.pinocchio_plant import PinocchioPlant
+
+        return PinocchioPlant(robot, config)
+    raise PlantInputError(f"unknown plant '{kind}'; available plants: mujoco, pinocchio")

@@ -1,0 +1,147 @@
+"""`MujocoPlant`: the robot in a MuJoCo scene, stepped with joint torques, states in pinocchio layout.
+
+MuJoCo free joint: qpos = [p, quat wxyz], qvel = [linear velocity in WORLD, angular velocity in
+the body frame]. Pinocchio: q = [p, quat xyzw], v = [linear velocity in the BASE frame, angular
+velocity in the base frame]. Joints are matched by name, so extra scene objects with their own
+joints may appear anywhere in MuJoCo's vectors.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from wbmpc.robots import RobotModel
+from wbmpc.sim.base import (
+    PlantConfig,
+    PlantDivergedError,
+    Recording,
+    checked_state,
+    checked_torques,
+    checked_vector3,
+    quat_xyzw_to_matrix,
+    specialised_config,
+)
+from wbmpc.sim.mujoco_scene import ROBOT_CONTYPE, MujocoPlantConfig, body_names, build_model
+
+_INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+class MujocoPlant:
+    """MuJoCo simulation of `robot` (see `MujocoPlantConfig`); implements `wbmpc.sim.Plant`."""
+
+    def __init__(self, robot: RobotModel, config: PlantConfig | None = None):
+        self.robot = robot
+        self.config = specialised_config(config, MujocoPlantConfig)
+        self.model: mujoco.MjModel = build_model(robot, self.config)
+        self.data = mujoco.MjData(self.model)
+        self.recording = Recording()
+        m = self.model
+        root = m.joint("root_joint")
+        self._root_qadr, self._root_vadr = int(root.qposadr[0]), int(root.dofadr[0])
+        self._qadr = np.array([m.joint(n).qposadr[0] for n in robot.joint_names])
+        self._vadr = np.array([m.joint(n).dofadr[0] for n in robot.joint_names])
+        self._act = np.array([m.actuator(n).id for n in robot.joint_names])
+        self._foot_index = {int(m.geom(f).id): k for k, f in enumerate(robot.feet)}
+        self._body_names = body_names(robot)
+        self._steps = 0
+        self._force = np.zeros(6)
+        self.reset()
+
+    # ------------------------------------------------------------------ Plant interface
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def reset(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> None:
+        """Set the robot state (pinocchio layout; default q_nominal, v = 0); time 0; clear the recording."""
+        q, v = checked_state(self.robot, q, v)
+        mujoco.mj_resetData(self.model, self.data)
+        self.set_state(q, v)
+        self._steps = 0
+        self.recording.clear()
+        self._record()
+
+    def set_state(self, q: np.ndarray, v: np.ndarray) -> None:
+        """Overwrite the robot state without resetting time, objects or the recording."""
+        q, v = checked_state(self.robot, q, v)
+        d = self.data
+        d.qpos[self._root_qadr : self._root_qadr + 3] = q[:3]
+        d.qpos[self._root_qadr + 3 : self._root_qadr + 7] = q[[6, 3, 4, 5]]
+        d.qpos[self._qadr] = q[7:]
+        d.qvel[self._root_vadr : self._root_vadr + 3] = quat_xyzw_to_matrix(q[3:7]) @ v[:3]
+        d.qvel[self._root_vadr + 3 : self._root_vadr + 6] = v[3:6]
+        d.qvel[self._vadr] = v[6:]
+        mujoco.mj_forward(self.model, self.data)
+
+    def step(self, tau_joints: np.ndarray) -> np.ndarray:
+        """One physics step of `dt_s` with joint torques clamped to +-tau_max; returns the applied torques."""
+        tau = checked_torques(self.robot, tau_joints)
+        self.data.ctrl[self._act] = tau
+        mujoco.mj_step(self.model, self.data)
+        unstable = [w.name for w in _INSTABILITY_WARNINGS if self.data.warning[w].number > 0]
+        if unstable or not np.all(np.isfinite(self.data.qpos)):
+            t_s = self._steps * self.dt_s
+            raise PlantDivergedError(
+                f"MuJoCo became unstable after t = {t_s:.4f} s ({', '.join(unstable) or 'non-finite qpos'}; MuJoCo "
+                "reset its state); reduce dt_s, gains or velocities, then reset() the plant"
+            )
+        self._steps += 1
+        self._record()
+        return tau
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) in pinocchio layout."""
+        d = self.data
+        qw = d.qpos[self._root_qadr + 3 : self._root_qadr + 7]
+        quat_xyzw = qw[[1, 2, 3, 0]] / np.linalg.norm(qw)
+        q = np.concatenate([d.qpos[self._root_qadr : self._root_qadr + 3], quat_xyzw, d.qpos[self._qadr]])
+        v_world = d.qvel[self._root_vadr : self._root_vadr + 3]
+        v = np.concatenate(
+            [quat_xyzw_to_matrix(quat_xyzw).T @ v_world, d.qvel[self._root_vadr + 3 : self._root_vadr + 6], d.qvel[self._vadr]]
+        )
+        return q, v
+
+    def apply_base_velocity_kick(self, dv_world_m_s: np.ndarray) -> None:
+        """Add `dv_world_m_s` (m/s, world frame) to the base linear velocity (a push)."""
+        dv = checked_vector3("dv_world_m_s", dv_world_m_s)
+        self.data.qvel[self._root_vadr : self._root_vadr + 3] += dv
+        mujoco.mj_forward(self.model, self.data)
+
+    def contact_forces(self) -> np.ndarray:
+        """World-frame force (N) on each foot from the floor and scene objects, shape (n_feet, 3)."""
+        m, d = self.model, self.data
+        forces = np.zeros((len(self.robot.feet), 3))
+        geoms = d.contact.geom
+        for i in range(d.ncon):
+            g1, g2 = geoms[i]
+            for sign, foot, other in ((1.0, g2, g1), (-1.0, g1, g2)):
+                k = self._foot_index.get(int(foot))
+                if k is not None and not m.geom_contype[other] & ROBOT_CONTYPE:
+                    mujoco.mj_contactForce(m, d, i, self._force)
+                    # contact frame rows: normal (from geom1 to geom2), tangent 1, tangent 2;
+                    # the force acts on geom2 along the normal and on geom1 opposite
+                    forces[k] += sign * d.contact.frame[i].reshape(3, 3).T @ self._force[:3]
+        return forces
+
+    # ------------------------------------------------------------------ extras
+    def qpos_from_q(self, q: np.ndarray) -> np.ndarray:
+        """MuJoCo qpos (current objects kept) for a pinocchio configuration, e.g. to replay a recording."""
+        qpos = self.data.qpos.copy()
+        qpos[self._root_qadr : self._root_qadr + 3] = q[:3]
+        qpos[self._root_qadr + 3 : self._root_qadr + 7] = np.asarray(q)[[6, 3, 4, 5]]
+        qpos[self._qadr] = q[7:]
+        return qpos
+
+    def body_name(self, joint_id: int) -> str:
+        """MuJoCo body carrying pinocchio joint `joint_id` (1 = base)."""
+        return self._body_names[joint_id - 1]
+
+    def _record(self) -> None:
+        every = self.config.record_every_n_steps
+        if every and self._steps % every == 0:
+            self.recording.append(self.time_s, self.state()[0])

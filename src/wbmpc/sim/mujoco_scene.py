@@ -1,0 +1,217 @@
+"""A MuJoCo scene (MJCF) built from a `RobotModel`: same kinematics and inertias as pinocchio.
+
+One MuJoCo body per pinocchio joint, named after the link that joint carries (e.g. `base`,
+`FL_calf`); joints keep pinocchio's names (`root_joint` is the free joint); one `motor` actuator
+per joint in `robot.joint_names` order. Inertias are written with `fullinertia` at full precision.
+
+Collision filtering: robot geoms have contype=2/conaffinity=1, everything else (floor, objects)
+contype=1/conaffinity=3, so the robot touches the environment but never itself. Extra scene
+objects are MJCF `<body>` snippets added to the worldbody (their geoms inherit the environment
+defaults), or arbitrary edits through `spec_callback(spec: mujoco.MjSpec)` before compilation.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.robots import RobotModel
+from wbmpc.sim.base import PlantConfig, PlantInputError
+from wbmpc.sim.shapes import CollisionShape, robot_collision_shapes
+
+ROBOT_CONTYPE, ROBOT_CONAFFINITY = 2, 1
+ENV_CONTYPE, ENV_CONAFFINITY = 1, 3
+_JOINT_AXES = {"RX": "1 0 0", "RY": "0 1 0", "RZ": "0 0 1", "PX": "1 0 0", "PY": "0 1 0", "PZ": "0 0 1"}
+
+
+@dataclass(frozen=True)
+class MujocoPlantConfig(PlantConfig):
+    """MuJoCo scene settings on top of `PlantConfig` (units in the names).
+
+    Contacts use MuJoCo's soft-constraint model: `contact_timeconst_s` (>= 2 dt for stability) and
+    `contact_dampratio` form `solref`; `contact_solimp` is MuJoCo's impedance tuple.
+    """
+
+    contact_timeconst_s: float = 0.005
+    contact_dampratio: float = 1.0
+    contact_solimp: tuple[float, float, float, float, float] = (0.95, 0.99, 0.001, 0.5, 2.0)
+    torsional_friction_m: float = 0.0
+    integrator: str = "implicitfast"  # Euler | RK4 | implicit | implicitfast
+    cone: str = "elliptic"  # elliptic | pyramidal
+    use_urdf_collision_primitives: bool = True
+    ee_sphere_radius_m: float | None = 0.03
+    extra_bodies_mjcf: tuple[str, ...] = ()
+    spec_callback: Callable[[mujoco.MjSpec], None] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.integrator not in ("Euler", "RK4", "implicit", "implicitfast"):
+            raise PlantInputError(f"integrator must be Euler, RK4, implicit or implicitfast, got {self.integrator!r}")
+        if self.cone not in ("elliptic", "pyramidal"):
+            raise PlantInputError(f"cone must be 'elliptic' or 'pyramidal', got {self.cone!r}")
+        if not self.contact_timeconst_s >= 2 * self.dt_s:
+            raise PlantInputError(
+                f"contact_timeconst_s ({self.contact_timeconst_s}) must be >= 2 * dt_s ({2 * self.dt_s}) for a stable contact"
+            )
+
+
+def body_names(robot: RobotModel) -> list[str]:
+    """MuJoCo body name of each pinocchio joint 1..njoints-1: its link (identity-placed BODY frame)."""
+    model, names = robot.model, []
+    for jid in range(1, model.njoints):
+        links = [
+            f.name
+            for f in model.frames
+            if f.parentJoint == jid and f.type == pin.FrameType.BODY and f.placement.isIdentity(1e-12)
+        ]
+        name = next((n for n in links if n not in names), model.names[jid])
+        names.append(name)
+    return names
+
+
+def build_mjcf(robot: RobotModel, config: MujocoPlantConfig | None = None) -> str:
+    """The MJCF text of the robot on a floor (plus `config.extra_bodies_mjcf`)."""
+    config = config or MujocoPlantConfig()
+    model = robot.model
+    root = ET.Element("mujoco", model=robot.name)
+    ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="auto", balanceinertia="false")
+    ET.SubElement(
+        root,
+        "option",
+        timestep=_f(config.dt_s),
+        integrator=config.integrator,
+        cone=config.cone,
+        gravity=_v(model.gravity.linear),
+    )
+    visual = ET.SubElement(root, "visual")
+    ET.SubElement(visual, "global", offwidth="1280", offheight="720")
+    _defaults(root, config)
+    asset = ET.SubElement(root, "asset")
+    ET.SubElement(
+        asset, "texture", name="grid", type="2d", builtin="checker", rgb1=".2 .3 .4", rgb2=".3 .4 .5", width="512", height="512"
+    )
+    ET.SubElement(asset, "material", name="grid", texture="grid", texrepeat="1 1", texuniform="true", reflectance=".1")
+
+    world = ET.SubElement(root, "worldbody")
+    ET.SubElement(world, "light", name="sun", pos="0 0 5", dir="0 0 -1", directional="true")
+    ET.SubElement(world, "geom", name="floor", type="plane", size="0 0 0.05", material="grid", priority="1")
+    shapes = robot_collision_shapes(robot, config.use_urdf_collision_primitives, config.ee_sphere_radius_m)
+    _add_bodies(world, robot, shapes, body_names(robot))
+    for k, snippet in enumerate(config.extra_bodies_mjcf):
+        try:
+            world.append(ET.fromstring(snippet))
+        except ET.ParseError as exc:
+            raise PlantInputError(f"extra_bodies_mjcf[{k}] is not valid XML: {exc}") from exc
+
+    actuator = ET.SubElement(root, "actuator")
+    for name, tau in zip(robot.joint_names, robot.tau_max):
+        ET.SubElement(actuator, "motor", name=name, joint=name, gear="1", ctrlrange=_v([-tau, tau]), forcerange=_v([-tau, tau]))
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode")
+
+
+def build_model(robot: RobotModel, config: MujocoPlantConfig | None = None) -> mujoco.MjModel:
+    """Compile the scene; `config.spec_callback` may edit the `mujoco.MjSpec` first."""
+    config = config or MujocoPlantConfig()
+    spec = mujoco.MjSpec.from_string(build_mjcf(robot, config))
+    if config.spec_callback is not None:
+        config.spec_callback(spec)
+    return spec.compile()
+
+
+# --------------------------------------------------------------------------------- helpers
+def _defaults(root: ET.Element, config: MujocoPlantConfig) -> None:
+    default = ET.SubElement(root, "default")
+    friction = _v([config.friction_mu, config.torsional_friction_m, 0.0001])
+    ET.SubElement(
+        default,
+        "geom",
+        contype=str(ENV_CONTYPE),
+        conaffinity=str(ENV_CONAFFINITY),
+        condim="3",
+        friction=friction,
+        solref=_v([config.contact_timeconst_s, config.contact_dampratio]),
+        solimp=_v(config.contact_solimp),
+    )
+    ET.SubElement(default, "joint", damping=_f(config.joint_damping_nm_s_per_rad), armature=_f(config.joint_armature_kg_m2))
+    robot_class = ET.SubElement(default, "default", attrib={"class": "robot"})
+    ET.SubElement(robot_class, "geom", contype=str(ROBOT_CONTYPE), conaffinity=str(ROBOT_CONAFFINITY), rgba=".7 .7 .75 1")
+
+
+def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShape], names: list[str]) -> None:
+    model = robot.model
+    elements: dict[int, ET.Element] = {0: world}
+    limits = {n: (lo, hi) for n, lo, hi in zip(robot.joint_names, robot.q_min, robot.q_max)}
+    for jid in range(1, model.njoints):
+        placement = model.jointPlacements[jid]
+        body = ET.SubElement(
+            elements[model.parents[jid]],
+            "body",
+            name=names[jid - 1],
+            pos=_v(placement.translation),
+            quat=_v(pin.Quaternion(placement.rotation).coeffs()[[3, 0, 1, 2]]),
+        )
+        elements[jid] = body
+        inertia = model.inertias[jid]
+        I = inertia.inertia
+        ET.SubElement(
+            body,
+            "inertial",
+            pos=_v(inertia.lever),
+            mass=_f(inertia.mass),
+            fullinertia=_v([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]),
+        )
+        _add_joint(body, robot, jid, limits)
+        if jid == 1:
+            ET.SubElement(body, "camera", name="track", mode="trackcom", pos="0 -2.5 1.0", xyaxes="1 0 0 0 0.37 0.93")
+        for shape in (s for s in shapes if s.joint_id == jid):
+            _add_geom(body, shape)
+    for name in robot.contact_frames:
+        frame = model.frames[robot.frame_id(name)]
+        ET.SubElement(elements[frame.parentJoint], "site", name=name, pos=_v(frame.placement.translation), size="0.01")
+
+
+def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict) -> None:
+    model, name = robot.model, robot.model.names[jid]
+    joint = model.joints[jid]
+    short = joint.shortname()
+    if jid == 1:
+        if short != "JointModelFreeFlyer":
+            raise PlantInputError(f"the root joint must be a free flyer, got {short}")
+        ET.SubElement(body, "freejoint", name=name)
+        return
+    kind = "hinge" if "Revolute" in short or short.startswith("JointModelR") else "slide"
+    suffix = short.removeprefix("JointModel")
+    if suffix in _JOINT_AXES:
+        axis = _JOINT_AXES[suffix]
+    elif suffix in ("RevoluteUnaligned", "PrismaticUnaligned"):
+        axis = _v(joint.extract().axis)
+    else:
+        raise PlantInputError(f"joint '{name}' of type {short} has no MuJoCo equivalent in wbmpc.sim")
+    lo, hi = limits[name]
+    attrs = dict(name=name, type=kind, axis=axis)
+    if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 1e9:
+        attrs.update(range=_v([lo, hi]), limited="true")
+    ET.SubElement(body, "joint", **attrs)
+
+
+def _add_geom(body: ET.Element, shape: CollisionShape) -> None:
+    quat = pin.Quaternion(shape.rotation).coeffs()[[3, 0, 1, 2]]
+    attrs = {"class": "robot", "name": shape.name, "type": shape.kind, "size": _v(shape.size)}
+    attrs.update(pos=_v(shape.pos), quat=_v(quat))
+    if shape.is_foot:
+        attrs["rgba"] = ".2 .2 .2 1"
+    ET.SubElement(body, "geom", attrs)
+
+
+def _f(x: float) -> str:
+    return repr(float(x))
+
+
+def _v(values) -> str:
+    return " ".join(repr(float(x)) for x in np.asarray(values).ravel())

@@ -1,0 +1,152 @@
+"""Primitive collision shapes for a `RobotModel`, expressed in the frames of its pinocchio joints.
+
+Two sources, per moving body (= pinocchio joint):
+1. the URDF's own primitive collision geometry (box, cylinder, sphere) of the links merged into
+   that body (meshes are ignored), when present and allowed;
+2. otherwise shapes guessed from the kinematics: a box spanning the children's joint origins for
+   the floating base, and capsules from the joint origin to each child joint origin / frame of
+   interest for the other bodies.
+Every foot gets a sphere of `robot.foot_radius_m` at its frame (the only shape on foot links, so
+that the contact point matches the MPC's point-foot model); the arm end-effector gets an optional
+sphere. Capsules ending at a foot stop short and are thin enough to stay inside the foot sphere.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.robots import RobotModel
+
+MIN_SHAPE_SIZE_M = 0.005  # URDF shapes smaller than this in every direction (IMU boxes) are dropped
+
+
+@dataclass(frozen=True)
+class CollisionShape:
+    """A primitive in the frame of pinocchio joint `joint_id`; `size` follows MuJoCo's convention.
+
+    kind: "sphere" (radius,), "capsule" (radius, half_length), "cylinder" (radius, half_length),
+    "box" (half_x, half_y, half_z); capsule and cylinder axes are the local z axis.
+    """
+
+    name: str
+    joint_id: int
+    kind: str
+    size: tuple[float, ...]
+    pos: np.ndarray
+    rotation: np.ndarray  # 3x3, shape frame in joint frame
+    is_foot: bool = False
+
+
+def robot_collision_shapes(
+    robot: RobotModel, use_urdf_primitives: bool = True, ee_sphere_radius_m: float | None = 0.03
+) -> list[CollisionShape]:
+    """All collision shapes of the robot (see module docstring)."""
+    model = robot.model
+    shapes: list[CollisionShape] = []
+    for foot in robot.feet:
+        frame = model.frames[robot.frame_id(foot)]
+        centre = frame.placement.translation.copy()
+        shapes.append(CollisionShape(foot, frame.parentJoint, "sphere", (robot.foot_radius_m,), centre, np.eye(3), True))
+    if robot.arm_ee and ee_sphere_radius_m:
+        frame = model.frames[robot.frame_id(robot.arm_ee)]
+        centre = frame.placement.translation.copy()
+        shapes.append(CollisionShape(robot.arm_ee, frame.parentJoint, "sphere", (ee_sphere_radius_m,), centre, np.eye(3)))
+    urdf = _urdf_primitives(robot) if use_urdf_primitives else {}
+    for jid in range(1, model.njoints):
+        shapes.extend(urdf.get(jid) or _kinematic_shapes(robot, jid))
+    return shapes
+
+
+# ------------------------------------------------------------------------------- URDF primitives
+def _urdf_primitives(robot: RobotModel) -> dict[int, list[CollisionShape]]:
+    """URDF box/cylinder/sphere collisions grouped by the pinocchio joint that carries their link."""
+    try:
+        root = ET.parse(Path(robot.spec.urdf)).getroot()
+    except (ET.ParseError, OSError):
+        return {}
+    model = robot.model
+    foot_links = set(robot.feet)
+    out: dict[int, list[CollisionShape]] = {}
+    for link in root.iter("link"):
+        name = link.get("name")
+        if name in foot_links or not model.existFrame(name):
+            continue
+        frame = model.frames[robot.frame_id(name)]
+        for k, collision in enumerate(link.iter("collision")):
+            shape = _parse_primitive(collision)
+            if shape is None:
+                continue
+            kind, size, placement = shape
+            if max(size) < MIN_SHAPE_SIZE_M:
+                continue
+            pose = frame.placement * placement
+            out.setdefault(frame.parentJoint, []).append(
+                CollisionShape(
+                    f"{name}_collision{k}", frame.parentJoint, kind, size, pose.translation.copy(), pose.rotation.copy()
+                )
+            )
+    return out
+
+
+def _parse_primitive(collision: ET.Element) -> tuple[str, tuple[float, ...], pin.SE3] | None:
+    geometry = collision.find("geometry")
+    if geometry is None:
+        return None
+    origin = collision.find("origin")
+    xyz = np.array([float(x) for x in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+    rpy = np.array([float(x) for x in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+    placement = pin.SE3(pin.rpy.rpyToMatrix(rpy), xyz)
+    if (box := geometry.find("box")) is not None:
+        size = tuple(0.5 * float(x) for x in box.get("size").split())
+        return "box", size, placement
+    if (cylinder := geometry.find("cylinder")) is not None:
+        return "cylinder", (float(cylinder.get("radius")), 0.5 * float(cylinder.get("length"))), placement
+    if (sphere := geometry.find("sphere")) is not None:
+        return "sphere", (float(sphere.get("radius")),), placement
+    return None  # meshes are not used for collisions
+
+
+# ------------------------------------------------------------------------------ kinematic guesses
+def _kinematic_shapes(robot: RobotModel, jid: int) -> list[CollisionShape]:
+    model = robot.model
+    children = [model.jointPlacements[c].translation for c in range(jid + 1, model.njoints) if model.parents[c] == jid]
+    if jid == 1:  # floating base: a box spanning the hips (and arm mount), as thick as it is wide
+        if not children:
+            return []
+        pts = np.abs(np.array(children))
+        hx, hy = max(pts[:, 0].max(), 0.05), max(pts[:, 1].max(), 0.03)
+        return [CollisionShape("base_box", jid, "box", (hx, hy, hy), np.zeros(3), np.eye(3))]
+    ends = [(p, False) for p in children]
+    for name in (*robot.feet, *([robot.arm_ee] if robot.arm_ee else [])):
+        frame = model.frames[robot.frame_id(name)]
+        if frame.parentJoint == jid:
+            ends.append((frame.placement.translation, name in robot.feet))
+    shapes = []
+    for k, (end, to_foot) in enumerate(ends):
+        length = float(np.linalg.norm(end))
+        if length < 1e-6:
+            continue
+        radius = float(np.clip(0.1 * length, 0.01, 0.04))
+        if to_foot:  # stop at the top of the foot sphere and stay thin: the foot sphere makes the contact
+            radius = min(radius, 0.5 * robot.foot_radius_m)
+            end = end * (1.0 - robot.foot_radius_m / length)
+            length = float(np.linalg.norm(end))
+        shapes.append(_capsule(f"{model.names[jid]}_capsule{k}", jid, np.zeros(3), end, radius))
+    return shapes
+
+
+def _capsule(name: str, jid: int, start: np.ndarray, end: np.ndarray, radius: float) -> CollisionShape:
+    """Capsule between two points (a sphere when they are closer than the diameter)."""
+    axis = end - start
+    length = float(np.linalg.norm(axis))
+    centre = 0.5 * (start + end)
+    if length < 2 * radius:
+        return CollisionShape(name, jid, "sphere", (radius,), centre, np.eye(3))
+    z = axis / length
+    rotation = pin.Quaternion.FromTwoVectors(np.array([0.0, 0.0, 1.0]), z).matrix()
+    return CollisionShape(name, jid, "capsule", (radius, 0.5 * length), centre, rotation)
