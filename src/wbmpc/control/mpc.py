@@ -1,0 +1,282 @@
+"""`MPC`: measured state + commands + time -> `Solution` (section V-A).
+
+One OCP and one solver are built at construction; every step only packs parameters and bounds,
+warm-starts from the previous solution shifted in time (contact forces re-initialised: weight
+shared over the stance feet, zero on swing feet, section V-A2) and calls the solver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.control.solution import Solution
+from wbmpc.errors import ConfigError
+from wbmpc.gait import Gait, SwingProfile, make_gait
+from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
+from wbmpc.robots import GRAVITY_M_S2, RobotModel
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+
+
+@dataclass
+class CostWeights:
+    """Diagonal Q and R of eq. (3). Parameters of the NLP: change them between steps freely."""
+
+    base_position: tuple[float, float, float] = (10.0, 10.0, 500.0)
+    base_orientation: tuple[float, float, float] = (500.0, 500.0, 100.0)  # roll, pitch, yaw
+    leg_joint_position: float = 5.0
+    arm_joint_position: float = 20.0
+    base_linear_velocity: float = 10.0
+    base_angular_velocity: float = 10.0
+    joint_velocity: float = 0.1
+    acceleration: float = 1e-3
+    contact_force: float = 1e-4
+    joint_torque: float = 1e-4
+
+    def vectors(self, robot: RobotModel, nf: int) -> dict[str, np.ndarray]:
+        nj = robot.n_joints
+        leg = np.array([n.split("_")[0] in ("FL", "FR", "RL", "RR") or "leg" in n.lower() for n in robot.joint_names])
+        joints = np.where(leg, self.leg_joint_position, self.arm_joint_position) if robot.arm_ee else np.full(nj, self.leg_joint_position)
+        return {
+            "w_dq": np.concatenate([self.base_position, self.base_orientation, joints]),
+            "w_v": np.concatenate([[self.base_linear_velocity] * 3, [self.base_angular_velocity] * 3, [self.joint_velocity] * nj]),
+            "w_a": np.full(robot.nv, self.acceleration),
+            "w_F": np.full(nf, self.contact_force),
+            "w_tau": np.full(nj, self.joint_torque),
+        }
+
+
+@dataclass
+class MpcConfig:
+    ocp: OcpConfig = field(default_factory=OcpConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    gait: str = "trot"
+    gait_period_s: float | None = None
+    swing: SwingProfile = field(default_factory=SwingProfile)
+    friction_coefficient: float = 0.7
+    weights: CostWeights = field(default_factory=CostWeights)
+    warm_start: bool = True
+    max_base_speed_m_s: float = 1.5
+    max_yaw_rate_rad_s: float = 1.5
+    max_ee_speed_m_s: float = 1.0
+
+
+@dataclass
+class Commands:
+    """Tracking commands (section V-B): base velocity in the heading frame, arm velocity/force in world.
+
+    `ee_force_n` is the force the end-effector applies on the environment; the robot feels its
+    opposite (the contact force F_arm of eq. 2).
+    """
+
+    base_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    base_yaw_rate_rad_s: float = 0.0
+    ee_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ee_force_n: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    base_height_m: float | None = None
+
+
+class MPC:
+    """Whole-body MPC on a robot: `solve(q, v, commands, t)` returns the optimal `Solution`."""
+
+    def __init__(self, robot: RobotModel, config: MpcConfig = MpcConfig(), problem: OcpProblem | None = None,
+                 solver: NlpSolver | None = None):
+        self.robot = robot
+        self.config = config
+        if not config.friction_coefficient > 0:
+            raise ConfigError(f"friction coefficient must be positive, got {config.friction_coefficient}")
+        self.gait: Gait = make_gait(config.gait, len(robot.feet), config.gait_period_s)
+        self.problem = problem or OcpProblem(robot, config.ocp)
+        self.solver = solver or NlpSolver(self.problem, config.solver)
+        dyn, N = self.problem.dyn, self.problem.N
+        q, dq = ca.SX.sym("q", robot.nq), ca.SX.sym("dq", robot.nv)
+        self._integrate = ca.Function("integrate", [q, dq], [dyn.integrate(q, dq)]).map(N + 1)
+        q1 = ca.SX.sym("q1", robot.nq)
+        self._difference = ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1)
+        self._weights = config.weights.vectors(robot, self.problem.nf)
+        self._previous: Solution | None = None
+        self._previous_lam: tuple[np.ndarray, np.ndarray] | None = None
+        self._xy_reference: np.ndarray | None = None
+        self._yaw_reference: float | None = None
+        self._last_t: float | None = None
+
+    def reset(self) -> None:
+        """Forget the warm start and the position references (e.g. after a reset of the plant)."""
+        self._previous = None
+        self._previous_lam = None
+        self._xy_reference = None
+        self._yaw_reference = None
+        self._last_t = None
+
+    # ------------------------------------------------------------------ input checks
+    def _check(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> tuple[np.ndarray, np.ndarray]:
+        q = np.asarray(q, dtype=float).ravel()
+        v = np.asarray(v, dtype=float).ravel()
+        if q.size != self.robot.nq:
+            raise ConfigError(f"state q has {q.size} entries; {self.robot.name} needs nq = {self.robot.nq}")
+        if v.size != self.robot.nv:
+            raise ConfigError(f"state v has {v.size} entries; {self.robot.name} needs nv = {self.robot.nv}")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.isfinite(t)):
+            raise ConfigError("state or time contains NaN/inf; pass a finite measured state")
+        norm = np.linalg.norm(q[3:7])
+        if abs(norm - 1) > 1e-3:
+            raise ConfigError(f"base quaternion q[3:7] must be unit (norm {norm:.4f}); normalise the estimate")
+        q = q.copy()
+        q[3:7] /= norm
+        cfg = self.config
+        speed = float(np.linalg.norm(commands.base_velocity_m_s[:2]))
+        if speed > cfg.max_base_speed_m_s:
+            raise ConfigError(f"base velocity command {speed:.2f} m/s exceeds max_base_speed_m_s = {cfg.max_base_speed_m_s}")
+        if abs(commands.base_yaw_rate_rad_s) > cfg.max_yaw_rate_rad_s:
+            raise ConfigError(f"yaw rate command exceeds max_yaw_rate_rad_s = {cfg.max_yaw_rate_rad_s}")
+        if self.robot.arm_ee and np.linalg.norm(commands.ee_velocity_m_s) > cfg.max_ee_speed_m_s:
+            raise ConfigError(f"end-effector velocity command exceeds max_ee_speed_m_s = {cfg.max_ee_speed_m_s}")
+        for name in ("base_velocity_m_s", "ee_velocity_m_s", "ee_force_n"):
+            value = np.asarray(getattr(commands, name), dtype=float)
+            if value.shape != (3,) or not np.all(np.isfinite(value)):
+                raise ConfigError(f"command {name} must be 3 finite numbers, got {value}")
+        return q, v
+
+    # ------------------------------------------------------------------ per-step data
+    def _targets(self, q: np.ndarray, commands: Commands, t: float, node_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """dq_des per node (nominal posture, base following the commanded velocity) and v_des."""
+        robot = self.robot
+        rot = pin.Quaternion(q[3:7]).toRotationMatrix()
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        dt_since = 0.0 if self._last_t is None else max(0.0, t - self._last_t)
+        self._last_t = t
+        if self._xy_reference is None:
+            self._xy_reference, self._yaw_reference = q[:2].copy(), yaw
+        cos_y, sin_y = np.cos(self._yaw_reference), np.sin(self._yaw_reference)
+        heading = np.array([[cos_y, -sin_y, 0], [sin_y, cos_y, 0], [0, 0, 1]])
+        v_world = heading @ np.asarray(commands.base_velocity_m_s, dtype=float)
+        self._xy_reference = self._xy_reference + v_world[:2] * dt_since
+        self._yaw_reference = self._yaw_reference + commands.base_yaw_rate_rad_s * dt_since
+        # keep the references within reach of the robot (no wind-up after a push)
+        offset = self._xy_reference - q[:2]
+        if np.linalg.norm(offset) > 0.3:
+            self._xy_reference = q[:2] + 0.3 * offset / np.linalg.norm(offset)
+        targets = np.tile(robot.q_nominal, (len(node_times), 1))
+        targets[:, :2] = self._xy_reference + np.outer(node_times, v_world[:2])
+        if commands.base_height_m is not None:
+            targets[:, 2] = commands.base_height_m
+        yaws = self._yaw_reference + commands.base_yaw_rate_rad_s * node_times
+        targets[:, 3:7] = np.column_stack([np.zeros_like(yaws), np.zeros_like(yaws), np.sin(yaws / 2), np.cos(yaws / 2)])
+        dq_des = np.asarray(self._difference(np.tile(q, (len(node_times), 1)).T, targets.T))
+        v_des = np.zeros(robot.nv)
+        v_des[:3] = rot.T @ v_world
+        v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
+        return dq_des, v_des
+
+    def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
+        """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
+        N, n_feet = self.problem.N, len(self.robot.feet)
+        forces = np.zeros((N, self.problem.nf))
+        on_robot = -np.asarray(commands.ee_force_n, dtype=float)
+        support = self.robot.mass_kg * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
+        stance = contact[:N]
+        n_stance = np.maximum(stance.sum(axis=1, keepdims=True), 1)
+        forces[:, 2 : 3 * n_feet : 3] = stance * support / n_stance
+        if self.robot.arm_ee:
+            forces[:, 3 * n_feet : 3 * n_feet + 3] = on_robot
+        return forces
+
+    def schedule(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Node times, contact flags and swing v_z references of the horizon starting at t."""
+        node_times = self.problem.config.grid.node_times_s
+        times = t + node_times
+        contact = self.gait.contact(times)
+        progress = self.gait.swing_phase(times)
+        swing_vz = self.config.swing.vertical_velocity(progress, self.gait.swing_duration_s)
+        return node_times, contact, swing_vz
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0) -> Solution:
+        commands = commands or Commands()
+        q, v = self._check(q, v, commands, t)
+        problem, N = self.problem, self.problem.N
+        node_times, contact, swing_vz = self.schedule(t)
+        dq_des, v_des = self._targets(q, commands, t, node_times)
+        forces = self._force_guess(contact, commands)
+        values = {
+            "q_ref": q,
+            "rot_ref": pin.Quaternion(q[3:7]).toRotationMatrix(),
+            "dt": problem.config.grid.dt_s,
+            "dq_des": dq_des,
+            "v_des": v_des,
+            "F_des": forces.T,
+            "mu": [self.config.friction_coefficient],
+            **self._weights,
+        }
+        p = problem.params.pack(values)
+        lbx, ubx, lbg, ubg = problem.bounds(StageBounds(
+            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
+            ee_velocity_m_s=np.asarray(commands.ee_velocity_m_s, dtype=float),
+            ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
+        ))
+        x0 = self._initial_guess(q, v, t, node_times, forces)
+        lam_g0, lam_x0 = self._previous_lam if (self.config.warm_start and self._previous_lam) else (None, None)
+        result = self.solver.solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0)
+        solution = self._unpack(result.x, q, t, node_times, contact, result.stats)
+        if solution.success:
+            self._previous = solution
+            self._previous_lam = (result.lam_g, result.lam_x)
+        return solution
+
+    def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:
+        problem, idx = self.problem, self.problem.idx
+        x0 = np.zeros(problem.n_variables)
+        previous = self._previous if self.config.warm_start else None
+        if previous is None:
+            x0[idx["v"]] = v
+        else:
+            # shift the previous trajectories to the new node times (clamped at the horizon end)
+            new_times = t + node_times
+            q_prev_ref = np.tile(q, (len(node_times), 1))
+            dq_prev = np.asarray(self._difference(q_prev_ref.T, previous.q.T)).T  # previous nodes w.r.t. new q
+            old_times = previous.t_s + previous.node_times_s
+            x0[idx["dq"]] = _interp_rows(new_times, old_times, dq_prev)
+            x0[idx["v"]] = _interp_rows(new_times, old_times, previous.v)
+            x0[idx["a"]] = _interp_rows(new_times[:-1], old_times[:-1], previous.a)
+            if "tau" in idx:
+                n_tau = previous.tau.shape[0]
+                x0[idx["tau"]] = _interp_rows(new_times[:n_tau], old_times[:n_tau], previous.tau)
+            x0[idx["dq"][0]] = 0.0
+            x0[idx["v"][0]] = v
+        x0[idx["F"]] = forces
+        return x0
+
+    def _unpack(self, x: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
+        idx = self.problem.idx
+        dq = x[idx["dq"]]
+        q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, dq.T)).T
+        tau = x[idx["tau"]] if "tau" in idx else np.zeros((0, self.robot.n_joints))
+        finite = np.all(np.isfinite(x))
+        return Solution(
+            t_s=t,
+            node_times_s=node_times.copy(),
+            q=q_traj,
+            v=x[idx["v"]],
+            a=x[idx["a"]],
+            forces=x[idx["F"]],
+            tau=tau,
+            contact=contact,
+            stats=stats,
+            success=bool(stats.success and finite),
+        )
+
+
+def _interp_rows(new_times: np.ndarray, old_times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Linear interpolation of per-node rows at new times, held constant beyond the ends."""
+    out = np.empty((len(new_times), values.shape[1]))
+    pos = np.clip(np.searchsorted(old_times, new_times) - 1, 0, len(old_times) - 2) if len(old_times) > 1 else None
+    if pos is None:
+        out[:] = values[0]
+        return out
+    t0, t1 = old_times[pos], old_times[pos + 1]
+    w = np.clip((new_times - t0) / np.maximum(t1 - t0, 1e-12), 0.0, 1.0)[:, None]
+    out[:] = (1 - w) * values[pos] + w * values[pos + 1]
+    return out

@@ -1,0 +1,44 @@
+"""`Solution`: the optimal trajectories of one MPC step over the horizon."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wbmpc.solvers.nlp import SolverStats
+
+
+@dataclass
+class Solution:
+    """q (N+1, nq), v (N+1, nv), a (N, nv), forces (N, nf), tau (n_torque_nodes, n_joints).
+
+    Times are absolute: node k is at `t_s + node_times_s[k]`. Forces are world-frame forces on the
+    robot at `robot.contact_frames`. Use only when `success` is true.
+    """
+
+    t_s: float
+    node_times_s: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    forces: np.ndarray
+    tau: np.ndarray
+    contact: np.ndarray
+    stats: SolverStats
+    success: bool
+
+    @property
+    def dt_s(self) -> np.ndarray:
+        return np.diff(self.node_times_s)
+
+    def as_dict(self) -> dict:
+        return {
+            "t_s": self.t_s,
+            "dt_s": self.dt_s.tolist(),
+            "success": self.success,
+            "status": self.stats.status,
+            "iterations": self.stats.iterations,
+            "solve_ms": self.stats.solve_time_s * 1e3,
+            "max_constraint_violation": self.stats.max_constraint_violation,
+        }

@@ -1,0 +1,121 @@
+"""Gait schedules sampled on any time grid, and the swing-foot vertical velocity spline (eq. 6).
+
+A gait is periodic: foot i is in stance while its phase (t / period + offset_i) mod 1 is below
+the duty factor, in swing otherwise. The MPC samples the schedule on its (non-uniform) node
+times; the swing reference v_z^ref is the derivative of a cubic height profile through lift-off,
+apex and touch-down, with the lift-off and touch-down velocities as boundary conditions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wbmpc.errors import ConfigError, unknown_name
+
+
+@dataclass(frozen=True)
+class Gait:
+    """Periodic contact pattern for feet in `robot.feet` order (FL, FR, RL, RR for quadrupeds)."""
+
+    name: str
+    period_s: float
+    duty_factor: float  # share of the period in stance
+    phase_offsets: tuple[float, ...]  # per foot, in periods
+
+    def __post_init__(self):
+        if not self.period_s > 0:
+            raise ConfigError(f"gait period must be positive, got {self.period_s}")
+        if not 0 < self.duty_factor <= 1:
+            raise ConfigError(f"gait duty factor must be in (0, 1], got {self.duty_factor}")
+
+    @property
+    def swing_duration_s(self) -> float:
+        return (1 - self.duty_factor) * self.period_s
+
+    def swing_phase(self, times_s: np.ndarray) -> np.ndarray:
+        """(len(times), n_feet) progress through swing in [0, 1), or -1 where the foot is in stance."""
+        times = np.asarray(times_s, dtype=float)[:, None]
+        phase = np.mod(times / self.period_s + np.asarray(self.phase_offsets)[None, :], 1.0)
+        if self.duty_factor >= 1:
+            return -np.ones_like(phase)
+        progress = (phase - self.duty_factor) / (1 - self.duty_factor)
+        return np.where(phase < self.duty_factor, -1.0, progress)
+
+    def contact(self, times_s: np.ndarray) -> np.ndarray:
+        """(len(times), n_feet) 1.0 where the foot is in stance."""
+        return (self.swing_phase(times_s) < 0).astype(float)
+
+
+@dataclass(frozen=True)
+class SwingProfile:
+    """Cubic-spline swing height: apex height, lift-off and touch-down vertical velocities."""
+
+    apex_height_m: float = 0.08
+    liftoff_velocity_m_s: float = 0.0
+    touchdown_velocity_m_s: float = 0.0
+
+    def vertical_velocity(self, progress: np.ndarray, swing_duration_s: float) -> np.ndarray:
+        """v_z^ref at swing progress s in [0, 1) (eq. 6); zero where progress < 0 (stance).
+
+        Two cubic pieces: 0 -> apex on s in [0, 0.5] and apex -> 0 on [0.5, 1], each with zero
+        vertical velocity at the apex and the given lift-off / touch-down velocities.
+        """
+        s = np.asarray(progress, dtype=float)
+        T = swing_duration_s / 2  # duration of one piece
+        h = self.apex_height_m
+        out = np.zeros_like(s)
+        up = (s >= 0) & (s < 0.5)
+        down = s >= 0.5
+        out[up] = _cubic_velocity(s[up] / 0.5, 0.0, h, self.liftoff_velocity_m_s * T, 0.0) / T
+        out[down] = _cubic_velocity((s[down] - 0.5) / 0.5, h, 0.0, 0.0, self.touchdown_velocity_m_s * T) / T
+        return out
+
+    def height(self, progress: np.ndarray) -> np.ndarray:
+        """Reference swing height above the ground at swing progress s (for plots)."""
+        s = np.asarray(progress, dtype=float)
+        h = self.apex_height_m
+        out = np.zeros_like(s)
+        up = (s >= 0) & (s < 0.5)
+        down = s >= 0.5
+        out[up] = _cubic_position(s[up] / 0.5, 0.0, h, 0.0, 0.0)
+        out[down] = _cubic_position((s[down] - 0.5) / 0.5, h, 0.0, 0.0, 0.0)
+        return out
+
+
+def _hermite(x, p0, p1, m0, m1):
+    h00 = 2 * x**3 - 3 * x**2 + 1
+    h10 = x**3 - 2 * x**2 + x
+    h01 = -2 * x**3 + 3 * x**2
+    h11 = x**3 - x**2
+    return h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1
+
+
+def _cubic_position(x, p0, p1, m0, m1):
+    return _hermite(x, p0, p1, m0, m1)
+
+
+def _cubic_velocity(x, p0, p1, m0, m1):
+    """d/dx of the cubic Hermite segment (per unit of normalised time)."""
+    d00 = 6 * x**2 - 6 * x
+    d10 = 3 * x**2 - 4 * x + 1
+    d01 = -6 * x**2 + 6 * x
+    d11 = 3 * x**2 - 2 * x
+    return d00 * p0 + d10 * m0 + d01 * p1 + d11 * m1
+
+
+def make_gait(name: str, n_feet: int, period_s: float | None = None) -> Gait:
+    """Named gaits: `stand`, `trot` (diagonal pairs, 0.8 s), `walk` (one foot at a time, 1.2 s)."""
+    if name == "stand":
+        return Gait("stand", period_s or 1.0, 1.0, tuple([0.0] * n_feet))
+    if n_feet != 4 and name in ("trot", "walk"):
+        raise ConfigError(f"gait '{name}' is defined for 4 feet; this robot has {n_feet}")
+    if name == "trot":  # FL+RR, FR+RL
+        return Gait("trot", period_s or 0.8, 0.5, (0.0, 0.5, 0.5, 0.0))
+    if name == "walk":  # lateral-sequence walk: RL, FL, RR, FR
+        return Gait("walk", period_s or 1.2, 0.75, (0.5, 0.0, 0.75, 0.25))
+    raise ConfigError(unknown_name("gait", name, GAIT_NAMES))
+
+
+GAIT_NAMES = ("stand", "trot", "walk")

@@ -1,0 +1,136 @@
+"""NLP solvers on the stage-wise OCP: Fatrop (structure-exploiting) and IPOPT, built once.
+
+Fatrop detects the stage structure from the variable order (x0, u0, x1, ...) and the
+gap-closing rows, which `OcpProblem` marks in `equality`. Whether another row is an equality
+or an inequality is read from lbg/ubg at every call, so contact switches need no rebuild.
+A failed solve never raises: its status is returned.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.ocp.problem import OcpProblem
+
+SOLVERS = ("fatrop", "ipopt")
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    name: str = "fatrop"
+    tolerance: float = 1e-6
+    max_iterations: int = 100
+    time_limit_s: float | None = None  # IPOPT stops itself; Fatrop runs are flagged afterwards
+    print_level: int = 0
+    extra_options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.name not in SOLVERS:
+            raise ConfigError(f"unknown solver '{self.name}'; available solvers: {', '.join(SOLVERS)}")
+        if not self.tolerance > 0:
+            raise ConfigError(f"solver tolerance must be positive, got {self.tolerance}")
+        if self.max_iterations < 1:
+            raise ConfigError(f"max_iterations must be >= 1, got {self.max_iterations}")
+
+
+@dataclass
+class SolverStats:
+    status: str
+    success: bool
+    iterations: int
+    solve_time_s: float
+    max_constraint_violation: float
+    cost: float
+
+
+@dataclass
+class NlpResult:
+    x: np.ndarray
+    lam_g: np.ndarray
+    lam_x: np.ndarray
+    stats: SolverStats
+
+
+def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
+    common = {"expand": True, "print_time": False, "error_on_fail": False}
+    if config.name == "fatrop":
+        opts = {
+            **common,
+            "structure_detection": "auto",
+            "equality": [bool(e) for e in problem.equality],
+            "fatrop": {
+                "print_level": config.print_level,
+                "tol": config.tolerance,
+                "max_iter": config.max_iterations,
+                "mu_init": 1e-1,
+            },
+        }
+    else:
+        opts = {
+            **common,
+            "ipopt": {
+                "print_level": config.print_level,
+                "sb": "yes",
+                "tol": config.tolerance,
+                "max_iter": config.max_iterations,
+                "mu_init": 1e-1,
+                **({"max_wall_time": config.time_limit_s} if config.time_limit_s else {}),
+            },
+        }
+    for key, value in config.extra_options.items():
+        if isinstance(value, dict) and isinstance(opts.get(key), dict):
+            opts[key] = {**opts[key], **value}
+        else:
+            opts[key] = value
+    return opts
+
+
+class NlpSolver:
+    """A casadi nlpsol for one OCP structure; `solve` takes numeric p, bounds and an initial guess."""
+
+    def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None):
+        self.problem = problem
+        self.config = config
+        self.solver = solver or ca.nlpsol(f"ocp_{config.name}", config.name, problem.nlp, solver_options(problem, config))
+        self._g = ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False})
+
+    def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
+        g = np.asarray(self._g(x, p)).ravel()
+        viol_g = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
+        viol_x = np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)
+        return float(max(viol_g.max(initial=0), viol_x.max(initial=0)))
+
+    def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None) -> NlpResult:
+        args = {"p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg, "x0": x0}
+        if lam_g0 is not None:
+            args["lam_g0"] = lam_g0
+        if lam_x0 is not None:
+            args["lam_x0"] = lam_x0
+        start = time.perf_counter()
+        out = self.solver(**args)
+        elapsed = time.perf_counter() - start
+        stats = self.solver.stats()
+        x = np.asarray(out["x"]).ravel()
+        status = str(stats.get("return_status", "unknown"))
+        success = bool(stats.get("success", False)) and bool(np.all(np.isfinite(x)))
+        if self.config.time_limit_s and elapsed > self.config.time_limit_s and success:
+            status = "time_limit_exceeded"
+        viol = self.constraint_violation(x, p, lbx, ubx, lbg, ubg) if np.all(np.isfinite(x)) else float("inf")
+        return NlpResult(
+            x=x,
+            lam_g=np.asarray(out["lam_g"]).ravel(),
+            lam_x=np.asarray(out["lam_x"]).ravel(),
+            stats=SolverStats(
+                status=status,
+                success=success,
+                iterations=int(stats.get("iter_count", -1)),
+                solve_time_s=float(stats.get("t_wall_total", elapsed)) if "t_wall_total" in stats else elapsed,
+                max_constraint_violation=viol,
+                cost=float(out["f"]),
+            ),
+        )
