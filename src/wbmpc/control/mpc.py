@@ -32,9 +32,9 @@ class CostWeights:
     base_linear_velocity: float = 10.0
     base_angular_velocity: float = 10.0
     joint_velocity: float = 0.1
-    acceleration: float = 1e-3
-    contact_force: float = 1e-4
-    joint_torque: float = 1e-4
+    acceleration: float = 1e-2
+    contact_force: float = 1e-3
+    joint_torque: float = 1e-3
 
     def vectors(self, robot: RobotModel, nf: int) -> dict[str, np.ndarray]:
         nj = robot.n_joints
@@ -228,40 +228,36 @@ class MPC:
 
     def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:
         problem, idx = self.problem, self.problem.idx
-        x0 = np.zeros(problem.n_variables)
+        guess = {"v": np.tile(v, (len(idx["v"]), 1)), "F": forces}
         previous = self._previous if self.config.warm_start else None
-        if previous is None:
-            x0[idx["v"]] = v
-        else:
+        if previous is not None:
             # shift the previous trajectories to the new node times (clamped at the horizon end)
             new_times = t + node_times
             q_prev_ref = np.tile(q, (len(node_times), 1))
             dq_prev = np.asarray(self._difference(q_prev_ref.T, previous.q.T)).T  # previous nodes w.r.t. new q
             old_times = previous.t_s + previous.node_times_s
-            x0[idx["dq"]] = _interp_rows(new_times, old_times, dq_prev)
-            x0[idx["v"]] = _interp_rows(new_times, old_times, previous.v)
-            x0[idx["a"]] = _interp_rows(new_times[:-1], old_times[:-1], previous.a)
+            guess["dq"] = _interp_rows(new_times, old_times, dq_prev)
+            guess["dq"][0] = 0.0
+            guess["v"] = _interp_rows(new_times, old_times, previous.v)
+            guess["v"][0] = v
+            guess["a"] = _interp_rows(new_times[:-1], old_times[:-1], previous.a)
             if "tau" in idx:
                 n_tau = previous.tau.shape[0]
-                x0[idx["tau"]] = _interp_rows(new_times[:n_tau], old_times[:n_tau], previous.tau)
-            x0[idx["dq"][0]] = 0.0
-            x0[idx["v"][0]] = v
-        x0[idx["F"]] = forces
-        return x0
+                guess["tau"] = _interp_rows(new_times[:n_tau], old_times[:n_tau], previous.tau)
+        return problem.pack(guess)
 
     def _unpack(self, x: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        idx = self.problem.idx
-        dq = x[idx["dq"]]
-        q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, dq.T)).T
-        tau = x[idx["tau"]] if "tau" in idx else np.zeros((0, self.robot.n_joints))
+        parts = self.problem.unpack(x)
+        q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, parts["dq"].T)).T
+        tau = parts["tau"] if "tau" in parts else np.zeros((0, self.robot.n_joints))
         finite = np.all(np.isfinite(x))
         return Solution(
             t_s=t,
             node_times_s=node_times.copy(),
             q=q_traj,
-            v=x[idx["v"]],
-            a=x[idx["a"]],
-            forces=x[idx["F"]],
+            v=parts["v"],
+            a=parts["a"],
+            forces=parts["F"],
             tau=tau,
             contact=contact,
             stats=stats,

@@ -12,8 +12,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import casadi as ca
+import numpy as np
 
 from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.robots import GRAVITY_M_S2
 from wbmpc.symbolic import Configuration, Motion, SymbolicDynamics
 
 
@@ -68,6 +70,17 @@ class Formulation(ABC):
     def kinematics(self, node: Node, q_ref: ca.SX, rot_ref: ca.SX) -> tuple[Configuration, Motion]:
         """Configuration and generalized velocity of the node (for contact and arm constraints)."""
 
+    def variable_scales(self) -> dict[str, np.ndarray]:
+        """Typical magnitude of each part: the NLP variable is part / scale (better conditioning)."""
+        robot = self.dyn.robot
+        force = np.full(self.nf, robot.mass_kg * GRAVITY_M_S2 / max(len(robot.feet), 1))
+        return {"F": force, "tau": np.asarray(robot.tau_max, dtype=float)}
+
+    def dynamics_row_scale(self, n_rows: int) -> np.ndarray:
+        """Rows of eq. (5) are divided by the weight (base rows) and the torque limits (joint rows)."""
+        robot = self.dyn.robot
+        return np.concatenate([np.full(6, robot.mass_kg * GRAVITY_M_S2), robot.tau_max])[:n_rows]
+
     def joint_torques(self, node: Node) -> ca.SX | None:
         """Joint torques the controller applies at node k (k < n_torque_nodes), if represented."""
         return node.get("tau")
@@ -98,9 +111,8 @@ class WholeBodyInverse(Formulation):
 
     def dynamics_rows(self, node):
         tau = self.dyn.rnea(node.config, node.motion, node["a"], node["F"])
-        if node.get("tau") is not None:
-            return tau - ca.vertcat(ca.SX.zeros(6), node["tau"])
-        return tau[:6]
+        rows = tau - ca.vertcat(ca.SX.zeros(6), node["tau"]) if node.get("tau") is not None else tau[:6]
+        return rows / self.dynamics_row_scale(rows.shape[0])
 
 
 FORMULATIONS: dict[str, type[Formulation]] = {WholeBodyInverse.name: WholeBodyInverse}

@@ -91,20 +91,25 @@ class OcpProblem:
 
         # decision variables in stage order, with index bookkeeping
         blocks, offset = [], 0
-        self.index: dict[str, list[np.ndarray]] = {}
+        index: dict[str, list[np.ndarray]] = {}
+        scales = form.variable_scales()
+        x_scale: list[np.ndarray] = []
         nodes: list[Node] = []
         for k in range(N + 1):
             parts = {}
             layout = form.state_parts() + (form.input_parts(k) if k < N else [])
             for name, size in layout:
                 sym = ca.SX.sym(f"{name}_{k}", size)
-                parts[name] = sym
+                scale = np.asarray(scales.get(name, np.ones(size)), dtype=float)
+                parts[name] = sym * scale if name in scales else sym  # NLP variable = part / scale
                 blocks.append(sym)
-                self.index.setdefault(name, []).append(np.arange(offset, offset + size))
+                x_scale.append(scale)
+                index.setdefault(name, []).append(np.arange(offset, offset + size))
                 offset += size
             nodes.append(Node(k, parts))
         self.n_variables = offset
-        self.idx = {name: np.array(rows) for name, rows in self.index.items()}
+        self.idx = {name: np.array(rows) for name, rows in index.items()}
+        self.x_scale = np.concatenate(x_scale)
         state_names = [n for n, _ in form.state_parts()]
 
         rows: dict[str, list] = {name: [] for name in ("gap", "x0", "dynamics", "foot_vel", "ee_vel", "cone")}
@@ -120,6 +125,7 @@ class OcpProblem:
 
         cost = 0
         feet = self.robot.feet
+        force_scale = np.asarray(scales.get("F", np.ones(nf)), dtype=float)
         for k, node in enumerate(nodes):
             node.config, node.motion = form.kinematics(node, q_ref, rot_ref)
             x_k = ca.vertcat(*[node[n] for n in state_names])
@@ -139,7 +145,9 @@ class OcpProblem:
             if k < N:
                 forces = node["F"] if "F" in node.parts else None
                 if forces is not None:
-                    cone = [mu**2 * forces[3 * i + 2] ** 2 - forces[3 * i] ** 2 - forces[3 * i + 1] ** 2 for i in range(self.n_feet)]
+                    # friction cone in units of the force scale (rows of order one, not N^2)
+                    unit = forces[: 3 * self.n_feet] / force_scale[: 3 * self.n_feet]
+                    cone = [mu**2 * unit[3 * i + 2] ** 2 - unit[3 * i] ** 2 - unit[3 * i + 1] ** 2 for i in range(self.n_feet)]
                     add("cone", ca.vertcat(*cone))
             # eq. (3): diagonal tracking cost; terminal cost = stage cost on the state
             v_k = node.motion.v
@@ -216,7 +224,20 @@ class OcpProblem:
         if self.rows["cone"].size:
             ubg[self.rows["cone"]] = INF
             lbg[self.rows["cone"]] = np.where(contact[:N], 0.0, -INF)
-        return lbx, ubx, lbg, ubg
+        return lbx / self.x_scale, ubx / self.x_scale, lbg, ubg
+
+    # ------------------------------------------------------------------ variables <-> trajectories
+    def unpack(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """NLP vector -> physical trajectories per part, shape (nodes with that part, size)."""
+        physical = np.asarray(x, dtype=float) * self.x_scale
+        return {name: physical[index] for name, index in self.idx.items()}
+
+    def pack(self, parts: dict[str, np.ndarray]) -> np.ndarray:
+        """Physical trajectories per part -> NLP vector (parts not given are zero)."""
+        x = np.zeros(self.n_variables)
+        for name, value in parts.items():
+            x[self.idx[name]] = value
+        return x / self.x_scale
 
 
 def _stack_rows(blocks: list[np.ndarray]) -> np.ndarray:

@@ -26,6 +26,7 @@ class SolverConfig:
     tolerance: float = 1e-6
     max_iterations: int = 100
     time_limit_s: float | None = None  # IPOPT stops itself; Fatrop runs are flagged afterwards
+    barrier_init: float = 1e-3  # initial barrier parameter mu: small suits warm-started MPC
     print_level: int = 0
     extra_options: dict = field(default_factory=dict)
 
@@ -56,6 +57,20 @@ class NlpResult:
     stats: SolverStats
 
 
+_FATROP_FLAGS = {0: "Solve_Succeeded", 1: "Maximum_Iterations_Exceeded", 2: "Solved_To_Acceptable_Level",
+                 4: "Line_Search_Failed", 5: "Step_Computation_Failed"}
+
+
+def _status(name: str, stats: dict) -> tuple[str, bool]:
+    """Readable status and success flag; an acceptable-level stop counts as converged."""
+    if name == "fatrop":
+        flag = stats.get("fatrop", {}).get("return_flag", None) if isinstance(stats.get("fatrop"), dict) else None
+        status = _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}") if flag is not None else str(stats.get("return_status"))
+        return status, bool(stats.get("success", False)) or flag == 2
+    status = str(stats.get("return_status", "unknown"))
+    return status, bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
+
+
 def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
     common = {"expand": True, "print_time": False, "error_on_fail": False}
     if config.name == "fatrop":
@@ -67,7 +82,7 @@ def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
                 "print_level": config.print_level,
                 "tol": config.tolerance,
                 "max_iter": config.max_iterations,
-                "mu_init": 1e-1,
+                "mu_init": config.barrier_init,
             },
         }
     else:
@@ -78,7 +93,7 @@ def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
                 "sb": "yes",
                 "tol": config.tolerance,
                 "max_iter": config.max_iterations,
-                "mu_init": 1e-1,
+                "mu_init": config.barrier_init,
                 **({"max_wall_time": config.time_limit_s} if config.time_limit_s else {}),
             },
         }
@@ -105,19 +120,34 @@ class NlpSolver:
         viol_x = np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)
         return float(max(viol_g.max(initial=0), viol_x.max(initial=0)))
 
+    def _failure(self, x0, status: str) -> NlpResult:
+        nan = np.full_like(np.asarray(x0, dtype=float), np.nan)
+        return NlpResult(nan, np.zeros(self.problem.n_constraints), np.zeros_like(nan),
+                         SolverStats(status, False, 0, 0.0, float("inf"), float("nan")))
+
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None) -> NlpResult:
+        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why.
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x0))):
+            return self._failure(x0, "invalid_input_nan")
+        if not np.all(np.isfinite(np.asarray(self._g(x0, p)))):
+            return self._failure(x0, "invalid_input_nan_constraints")
+        if np.any(np.asarray(lbx) > np.asarray(ubx)) or np.any(np.asarray(lbg) > np.asarray(ubg)):
+            return self._failure(x0, "invalid_bounds")
         args = {"p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg, "x0": x0}
         if lam_g0 is not None:
             args["lam_g0"] = lam_g0
         if lam_x0 is not None:
             args["lam_x0"] = lam_x0
         start = time.perf_counter()
-        out = self.solver(**args)
+        try:
+            out = self.solver(**args)
+        except RuntimeError as exc:  # errors inside the solver are reported, not raised
+            return self._failure(x0, f"solver_exception: {str(exc).splitlines()[-1][:200]}")
         elapsed = time.perf_counter() - start
         stats = self.solver.stats()
         x = np.asarray(out["x"]).ravel()
-        status = str(stats.get("return_status", "unknown"))
-        success = bool(stats.get("success", False)) and bool(np.all(np.isfinite(x)))
+        status, success = _status(self.config.name, stats)
+        success = success and bool(np.all(np.isfinite(x)))
         if self.config.time_limit_s and elapsed > self.config.time_limit_s and success:
             status = "time_limit_exceeded"
         viol = self.constraint_violation(x, p, lbx, ubx, lbg, ubg) if np.all(np.isfinite(x)) else float("inf")

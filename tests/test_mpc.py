@@ -1,0 +1,143 @@
+"""The whole-body inverse-dynamics MPC: sizes, dynamic consistency of its solutions, warm start."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wbmpc.bench.dynamics import world_forces_to_pinocchio
+from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.errors import ConfigError
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.solvers.nlp import SolverConfig
+
+SMALL = OcpConfig(grid=TimeGrid(n_intervals=8, dt_first_s=0.01, dt_last_s=0.06))
+
+
+def test_paper_configuration_has_1226_decision_variables(b1z1):
+    assert OcpProblem(b1z1, OcpConfig()).n_variables == 1226
+
+
+@pytest.fixture(scope="module")
+def trot_mpc(b1z1):
+    return MPC(b1z1, MpcConfig(ocp=SMALL, gait="trot"))
+
+
+@pytest.fixture(scope="module")
+def trot_solution(trot_mpc, b1z1):
+    commands = Commands(base_velocity_m_s=np.array([0.2, 0, 0]), ee_velocity_m_s=np.array([0.05, 0, 0]),
+                        ee_force_n=np.array([10.0, 0, 0]))
+    # t = 0.3 s: FL/RR in stance, FR/RL in swing with the apex inside the horizon
+    return trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), commands, t=0.3), commands
+
+
+def _kinematics(robot, q, v):
+    data = robot.model.createData()
+    pin.forwardKinematics(robot.model, data, q, v)
+    pin.updateFramePlacements(robot.model, data)
+    return data
+
+
+def test_solution_converges(trot_solution):
+    solution, _ = trot_solution
+    assert solution.success, solution.stats
+    assert solution.stats.max_constraint_violation < 1e-5
+    assert np.all(np.isfinite(solution.tau))
+
+
+def test_pinocchio_rnea_confirms_the_solution(trot_solution, b1z1):
+    solution, _ = trot_solution
+    weight = b1z1.mass_kg * 9.81
+    for k in range(len(solution.a)):
+        data = _kinematics(b1z1, solution.q[k], solution.v[k])
+        fext = world_forces_to_pinocchio(b1z1, data, solution.forces[k])
+        tau = pin.rnea(b1z1.model, data, solution.q[k], solution.v[k], solution.a[k], fext)
+        assert np.abs(tau[:6]).max() < 1e-5 * weight, (k, tau[:6])
+        if k < len(solution.tau):
+            np.testing.assert_allclose(tau[6:], solution.tau[k], atol=1e-4)
+
+
+def test_contacts_friction_and_swing(trot_solution, trot_mpc, b1z1):
+    solution, commands = trot_solution
+    mu = trot_mpc.config.friction_coefficient
+    _, contact, swing_vz = trot_mpc.schedule(solution.t_s)
+    n_feet = len(b1z1.feet)
+    assert contact[0].tolist() == [1, 0, 0, 1]
+    for k in range(1, len(solution.q)):
+        data = _kinematics(b1z1, solution.q[k], solution.v[k])
+        for i, foot in enumerate(b1z1.feet):
+            vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(foot), pin.LOCAL_WORLD_ALIGNED).linear
+            if contact[k, i]:
+                np.testing.assert_allclose(vel, 0, atol=1e-6)  # stance feet do not move
+            else:
+                assert vel[2] == pytest.approx(swing_vz[k, i], abs=1e-6)  # swing follows the spline
+    forces = solution.forces[:, : 3 * n_feet].reshape(-1, n_feet, 3)
+    stance = contact[: len(forces)].astype(bool)
+    assert np.all(forces[stance][:, 2] >= -1e-6)
+    tangential = np.linalg.norm(forces[stance][:, :2], axis=1)
+    assert np.all(tangential <= mu * forces[stance][:, 2] + 1e-4)
+    np.testing.assert_allclose(forces[~stance], 0, atol=1e-6)
+    assert np.any(swing_vz[1:] > 0.1)  # the horizon really contains a lift-off
+
+
+def test_arm_follows_its_commands(trot_solution, b1z1):
+    solution, commands = trot_solution
+    arm = solution.forces[:, -3:]
+    np.testing.assert_allclose(arm, -commands.ee_force_n[None, :].repeat(len(arm), 0), atol=1e-6)
+    for k in range(1, len(solution.q)):
+        data = _kinematics(b1z1, solution.q[k], solution.v[k])
+        vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(b1z1.arm_ee), pin.LOCAL_WORLD_ALIGNED).linear
+        np.testing.assert_allclose(vel, commands.ee_velocity_m_s, atol=1e-6)
+
+
+def test_limits_hold(trot_solution, b1z1):
+    solution, _ = trot_solution
+    assert np.all(solution.q[1:, 7:] >= b1z1.q_min - 1e-6) and np.all(solution.q[1:, 7:] <= b1z1.q_max + 1e-6)
+    assert np.all(np.abs(solution.v[1:, 6:]) <= b1z1.v_max + 1e-6)
+    assert np.all(np.abs(solution.tau) <= b1z1.tau_max + 1e-6)
+    assert solution.tau.shape == (3, b1z1.n_joints)
+
+
+def test_ipopt_finds_the_same_solution(trot_mpc, trot_solution, b1z1):
+    solution, commands = trot_solution
+    ipopt = MPC(b1z1, MpcConfig(ocp=SMALL, solver=SolverConfig(name="ipopt")), problem=trot_mpc.problem)
+    other = ipopt.solve(b1z1.q_nominal, np.zeros(b1z1.nv), commands, t=0.3)
+    assert other.success
+    np.testing.assert_allclose(other.tau, solution.tau, atol=1e-2)
+
+
+def test_warm_start_needs_fewer_iterations(b1z1, trot_mpc):
+    cold = MPC(b1z1, MpcConfig(ocp=SMALL, warm_start=False), problem=trot_mpc.problem, solver=trot_mpc.solver)
+    warm = MPC(b1z1, MpcConfig(ocp=SMALL, warm_start=True), problem=trot_mpc.problem, solver=trot_mpc.solver)
+    iterations = {}
+    for name, mpc in (("cold", cold), ("warm", warm)):
+        q, v, total = b1z1.q_nominal.copy(), np.zeros(b1z1.nv), 0
+        for step in range(6):
+            solution = mpc.solve(q, v, Commands(), t=step / 80)
+            assert solution.success
+            total += solution.stats.iterations
+            q = pin.integrate(b1z1.model, solution.q[0], solution.v[0] / 80)
+            v = solution.v[0] + solution.a[0] / 80
+        iterations[name] = total
+    assert iterations["warm"] < iterations["cold"], iterations
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(q=np.full(23, np.nan)), "NaN"),
+    (dict(q=np.zeros(7)), "needs nq = 23"),
+    (dict(v=np.zeros(3)), "needs nv = 22"),
+    (dict(commands=Commands(base_velocity_m_s=np.array([5.0, 0, 0]))), "exceeds max_base_speed"),
+    (dict(commands=Commands(ee_velocity_m_s=np.array([0, 0, 3.0]))), "exceeds max_ee_speed"),
+])
+def test_bad_input_is_rejected_before_solving(trot_mpc, b1z1, bad, message):
+    args = dict(q=b1z1.q_nominal, v=np.zeros(b1z1.nv), commands=Commands())
+    args.update(bad)
+    with pytest.raises(ConfigError, match=message):
+        trot_mpc.solve(args["q"], args["v"], args["commands"], t=0.0)
+
+
+def test_unknown_gait_and_negative_dt(b1z1):
+    with pytest.raises(ConfigError, match="unknown gait 'pace'"):
+        MPC(b1z1, MpcConfig(ocp=SMALL, gait="pace"))
+    with pytest.raises(ConfigError, match="positive"):
+        OcpConfig(grid=TimeGrid(dt_first_s=-0.01))
