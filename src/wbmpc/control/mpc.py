@@ -25,21 +25,20 @@ from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 class CostWeights:
     """Diagonal Q and R of eq. (3). Parameters of the NLP: change them between steps freely."""
 
-    base_position: tuple[float, float, float] = (10.0, 10.0, 500.0)
-    base_orientation: tuple[float, float, float] = (500.0, 500.0, 100.0)  # roll, pitch, yaw
-    leg_joint_position: float = 5.0
-    arm_joint_position: float = 20.0
-    base_linear_velocity: float = 10.0
-    base_angular_velocity: float = 10.0
-    joint_velocity: float = 0.1
-    acceleration: float = 1e-2
-    contact_force: float = 1e-3
-    joint_torque: float = 1e-3
+    base_position: tuple[float, float, float] = (100.0, 100.0, 2000.0)
+    base_orientation: tuple[float, float, float] = (2000.0, 2000.0, 500.0)  # roll, pitch, yaw
+    leg_joint_position: float = 20.0
+    arm_joint_position: float = 50.0
+    base_linear_velocity: float = 20.0
+    base_angular_velocity: float = 20.0
+    joint_velocity: float = 0.5
+    acceleration: float = 1e-3
+    contact_force: float = 1e-5  # weak pull towards the weight shared over the stance feet
+    joint_torque: float = 1e-4
 
     def vectors(self, robot: RobotModel, nf: int) -> dict[str, np.ndarray]:
         nj = robot.n_joints
-        leg = np.array([n.split("_")[0] in ("FL", "FR", "RL", "RR") or "leg" in n.lower() for n in robot.joint_names])
-        joints = np.where(leg, self.leg_joint_position, self.arm_joint_position) if robot.arm_ee else np.full(nj, self.leg_joint_position)
+        joints = np.where(robot.leg_joint_mask, self.leg_joint_position, self.arm_joint_position)
         return {
             "w_dq": np.concatenate([self.base_position, self.base_orientation, joints]),
             "w_v": np.concatenate([[self.base_linear_velocity] * 3, [self.base_angular_velocity] * 3, [self.joint_velocity] * nj]),

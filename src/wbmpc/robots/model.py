@@ -179,6 +179,17 @@ class RobotModel:
         return self.joint_names.index(name)
 
     @property
+    def leg_joint_mask(self) -> np.ndarray:
+        """True for joints on a chain from the root to a foot; the others belong to the arm."""
+        legs = set()
+        for foot in self.feet:
+            joint = self.model.frames[self.frame_id(foot)].parentJoint
+            while joint > 1:
+                legs.add(self.model.names[joint])
+                joint = self.model.parents[joint]
+        return np.array([name in legs for name in self.joint_names])
+
+    @property
     def contact_frames(self) -> tuple[str, ...]:
         """Feet, then the arm end-effector if any: the order of the stacked contact forces F_c."""
         return self.feet + ((self.arm_ee,) if self.arm_ee else ())
