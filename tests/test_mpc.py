@@ -74,10 +74,10 @@ def test_contacts_friction_and_swing(trot_solution, trot_mpc, b1z1):
     forces = solution.forces[:, : 3 * n_feet].reshape(-1, n_feet, 3)
     stance = contact[: len(forces)].astype(bool)
     assert np.all(forces[stance][:, 2] >= -1e-6)
-    # the cone is imposed on forces scaled by the weight share: allow the solver's 1e-6 on that scale
-    scale_sq = (b1z1.mass_kg * 9.81 / n_feet) ** 2
-    tangential_sq = (forces[stance][:, :2] ** 2).sum(axis=1)
-    assert np.all(tangential_sq <= mu**2 * forces[stance][:, 2] ** 2 + 1e-6 * scale_sq)
+    # the cone is imposed on forces scaled by the weight share with a smoothing of 1e-3 of that scale
+    scale = b1z1.mass_kg * 9.81 / n_feet
+    tangential = np.linalg.norm(forces[stance][:, :2], axis=1)
+    assert np.all(tangential <= mu * forces[stance][:, 2] + 1e-3 * scale)
     np.testing.assert_allclose(forces[~stance], 0, atol=1e-6)
     assert np.any(swing_vz[1:] > 0.1)  # the horizon really contains a lift-off
 

@@ -70,6 +70,51 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    """Closed-loop scenario: progress on stderr, summary, metrics.json + plots + replay in --out."""
+    from pathlib import Path
+
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.scenarios import (RunConfig, ScenarioOptions, make_scenario, prepare_output_dir, run_scenario,
+                                 write_outputs)
+
+    robot = robot_from_args(args)
+    make_scenario(args.scenario, robot)  # unknown scenario or missing arm: exit 2 before building
+    if args.duration is not None and not args.duration > 0:
+        raise WbmpcError(f"--duration must be positive, got {args.duration}")
+    out_dir = Path(args.out or f"runs/{args.scenario}")
+    if not args.no_outputs:
+        prepare_output_dir(out_dir)
+    options = ScenarioOptions(speed_m_s=args.speed, push_speed_m_s=args.push_speed, push_time_s=args.push_time,
+                              push_direction_deg=args.push_direction)
+    config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
+                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
+                       gains=PdGains(kp_leg=args.kp, kd_leg=args.kd))
+    print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
+
+    def progress(share: float) -> None:
+        bar = int(30 * min(share, 1.0))
+        print(f"\r[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
+
+    result = run_scenario(robot, config, progress=progress)
+    print(file=sys.stderr)
+    paths = write_outputs(robot, result, out_dir) if not args.no_outputs else []
+    m = result.metrics
+    lines = [
+        f"scenario {m['scenario']}: {'FELL at %.2f s' % m['fell_at_s'] if m['fell'] else 'stayed up'} "
+        f"over {m['duration_s']:.2f} s",
+        f"  base drift {m['base_drift_cm_s']:.2f} cm/s, base velocity RMSE {m['base_vel_rmse']:.3f} m/s",
+        f"  max torque / limit {m['max_torque_ratio']:.2f}; MPC {m['mpc_solves']} solves, {m['mpc_failures']} failed, "
+        f"solve {m['solve_ms']['mean']:.1f} ms mean ({m['solve_ms']['max']:.1f} max), {m['iterations_mean']:.1f} iterations",
+    ]
+    if m.get("ee_pos_rmse_m") is not None:
+        lines.append(f"  end-effector position RMSE {100 * m['ee_pos_rmse_m']:.2f} cm")
+    if paths:
+        lines.append(f"  wrote {len(paths)} files to {out_dir}/ (metrics.json, plots, replay.html)")
+    _emit(args, m, "\n".join(lines))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -78,6 +123,27 @@ def build_parser() -> argparse.ArgumentParser:
     _add_robot_options(info)
     info.set_defaults(func=cmd_info)
 
+    from wbmpc.scenarios import SCENARIOS
+
+    run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay")
+    run.add_argument("scenario", help=f"one of: {', '.join(SCENARIOS)}")
+    _add_robot_options(run)
+    run.add_argument("--duration", type=float, help="simulated seconds (scenario default otherwise)")
+    run.add_argument("--delay", default="none", help="none | measured | realtime | a fixed delay in ms")
+    run.add_argument("--plant", default="mujoco", help="mujoco (default) | pinocchio")
+    run.add_argument("--out", help="output directory (default runs/SCENARIO)")
+    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--nodes", type=int, default=15)
+    run.add_argument("--uniform-dt", type=float, help="uniform time steps of this many ms instead of geometric")
+    run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
+    run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
+    run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
+    run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
+    run.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10)")
+    run.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10)")
+    run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
+    run.set_defaults(func=cmd_run)
+
     bench = sub.add_parser("bench", help="benchmarks")
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
@@ -85,7 +151,36 @@ def build_parser() -> argparse.ArgumentParser:
     dyn.add_argument("--samples", type=int, default=100)
     dyn.add_argument("--seed", type=int, default=0)
     dyn.set_defaults(func=cmd_bench_dynamics)
+
+    # solve / bench mpc: logic in wbmpc.bench.mpc (imported when the command runs)
+    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time")
+    _add_robot_options(solve)
+    solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
+    solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
+    solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
+    solve.add_argument("--solver", default="fatrop", help="fatrop (default) or ipopt")
+    solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
+    solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
+    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args))
+
+    mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
+    _add_robot_options(mpc)
+    mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
+    mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
+    mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
+    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated; the first (fatrop if listed) is the reference")
+    mpc.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15)")
+    mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
+    mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args))
     return parser
+
+
+def _bench_mpc():
+    from wbmpc.bench import mpc
+
+    return mpc
 
 
 def main(argv: list[str] | None = None) -> int:

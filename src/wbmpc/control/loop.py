@@ -12,7 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -53,6 +53,12 @@ class LoopConfig:
         if not value >= 0:
             raise ConfigError(f"a fixed delay must be >= 0 ms, got {value}")
         return value / 1e3
+
+
+class CommandSource(Protocol):
+    """Commands at time t given the measured state (feedback commands such as arm tracking need it)."""
+
+    def __call__(self, t: float, q: np.ndarray, v: np.ndarray) -> Commands: ...
 
 
 @dataclass
@@ -140,19 +146,19 @@ class ClosedLoop:
         return not (height_ok and upright)
 
     # ------------------------------------------------------------------ run
-    def run(self, duration_s: float, commands: Callable[[float], Commands] | None = None,
+    def run(self, duration_s: float, commands: CommandSource | None = None,
             events: list[Event] | None = None, progress: Callable[[float], None] | None = None) -> RunLog:
         if not duration_s > 0:
             raise ConfigError(f"duration must be positive, got {duration_s}")
-        commands = commands or (lambda t: Commands())
+        commands = commands or (lambda t, q, v: Commands())
         events = sorted(events or [], key=lambda e: e.time_s)
         if self.config.delay == "realtime":
             return self._run_realtime(duration_s, commands, events, progress)
         return self._run_simulated_time(duration_s, commands, events, progress)
 
-    def _solve(self, log: RunLog, t: float, commands: Callable[[float], Commands]) -> Solution:
+    def _solve(self, log: RunLog, t: float, commands: CommandSource) -> Solution:
         q, v = self._measure()
-        command = commands(t)
+        command = commands(t, q, v)
         start = time.perf_counter()
         solution = self.mpc.solve(q, v, command, t)
         wall = time.perf_counter() - start
@@ -197,16 +203,21 @@ class ClosedLoop:
             raise ConfigError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
         pending: list[tuple[float, Solution]] = []
         next_mpc, next_control = t0 + mpc_period, t0
+        solver_free_at = t0  # with a delay, the single solver is busy until its solution is out
         tau = np.zeros(self.robot.n_joints)
         while plant.time_s - t0 < duration_s - 1e-9:
             t = plant.time_s
             self._apply_events(events, t)
-            if t >= next_mpc - 1e-9:
+            if t >= next_mpc - 1e-9 and t >= solver_free_at - 1e-9:
                 solution = self._solve(log, t, commands)
-                next_mpc += mpc_period
+                delay = 0.0 if cfg.delay == "none" else (
+                    solution.wall_time_s if cfg.delay == "measured" else cfg.fixed_delay_s)
+                solver_free_at = t + delay
+                if delay > mpc_period:
+                    log.late_solutions += 1
+                while next_mpc <= t + 1e-9:
+                    next_mpc += mpc_period
                 if solution.success:
-                    delay = 0.0 if cfg.delay == "none" else (
-                        solution.wall_time_s if cfg.delay == "measured" else cfg.fixed_delay_s)
                     log.delay_ms.append(delay * 1e3)
                     pending.append((t + delay, solution))
             while pending and pending[0][0] <= t + 1e-9:

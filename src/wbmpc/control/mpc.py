@@ -61,6 +61,7 @@ class MpcConfig:
     max_base_speed_m_s: float = 1.5
     max_yaw_rate_rad_s: float = 1.5
     max_ee_speed_m_s: float = 1.0
+    fallback_solver: str | None = "ipopt"  # re-solves a step the main solver failed; None disables
 
 
 @dataclass
@@ -97,7 +98,7 @@ class MPC:
         self._difference = ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1)
         self._weights = config.weights.vectors(robot, self.problem.nf)
         self._previous: Solution | None = None
-        self._previous_lam: tuple[np.ndarray, np.ndarray] | None = None
+        self._fallback: NlpSolver | None = None
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
@@ -105,7 +106,6 @@ class MPC:
     def reset(self) -> None:
         """Forget the warm start and the position references (e.g. after a reset of the plant)."""
         self._previous = None
-        self._previous_lam = None
         self._xy_reference = None
         self._yaw_reference = None
         self._last_t = None
@@ -211,18 +211,28 @@ class MPC:
             **self._weights,
         }
         p = problem.params.pack(values)
-        lbx, ubx, lbg, ubg = problem.bounds(StageBounds(
+        stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
             ee_velocity_m_s=np.asarray(commands.ee_velocity_m_s, dtype=float),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
-        ))
+        )
         x0 = self._initial_guess(q, v, t, node_times, forces)
-        lam_g0, lam_x0 = self._previous_lam if (self.config.warm_start and self._previous_lam) else (None, None)
-        result = self.solver.solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0)
+        bounds = problem.bounds(stage_bounds)
+        result = self.solver.solve(p, *bounds, x0)
+        if not result.stats.success and self.config.fallback_solver:
+            # Fatrop's Riccati recursion stalls on degenerate problems (e.g. right after a strong push,
+            # with arm joints at their velocity limits) where IPOPT's regularised factorisation copes:
+            # re-solve the very same NLP once with the fallback solver, built on first need.
+            if self._fallback is None:
+                self._fallback = NlpSolver(problem, SolverConfig(name=self.config.fallback_solver, max_iterations=300))
+            retry = self._fallback.solve(p, *bounds, x0)
+            retry.stats.status = f"{retry.stats.status} ({self.config.fallback_solver} fallback after {result.stats.status})"
+            retry.stats.solve_time_s += result.stats.solve_time_s
+            retry.stats.iterations += result.stats.iterations
+            result = retry
         solution = self._unpack(result.x, q, t, node_times, contact, result.stats)
         if solution.success:
             self._previous = solution
-            self._previous_lam = (result.lam_g, result.lam_x)
         return solution
 
     def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:

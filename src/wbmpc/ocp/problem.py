@@ -29,6 +29,7 @@ from wbmpc.robots import RobotModel
 from wbmpc.symbolic import SymbolicDynamics
 
 INF = np.inf
+CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 
 
 @dataclass(frozen=True)
@@ -145,9 +146,14 @@ class OcpProblem:
             if k < N:
                 forces = node["F"] if "F" in node.parts else None
                 if forces is not None:
-                    # friction cone in units of the force scale (rows of order one, not N^2)
+                    # friction cone (eq. 6) in units of the force scale, written as the smoothed second-order
+                    # cone mu F_z >= sqrt(F_x^2 + F_y^2 + eps^2) - eps: same set up to eps^2 / (2 |F_t|),
+                    # but its gradient never vanishes (the squared form is degenerate at F = 0, where
+                    # unloaded stance feet sit, and stalled Fatrop after pushes)
                     unit = forces[: 3 * self.n_feet] / force_scale[: 3 * self.n_feet]
-                    cone = [mu**2 * unit[3 * i + 2] ** 2 - unit[3 * i] ** 2 - unit[3 * i + 1] ** 2 for i in range(self.n_feet)]
+                    eps = CONE_SMOOTHING
+                    cone = [mu * unit[3 * i + 2] - ca.sqrt(unit[3 * i] ** 2 + unit[3 * i + 1] ** 2 + eps**2) + eps
+                            for i in range(self.n_feet)]
                     add("cone", ca.vertcat(*cone))
             # eq. (3): diagonal tracking cost; terminal cost = stage cost on the state
             v_k = node.motion.v

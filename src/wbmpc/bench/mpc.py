@@ -1,0 +1,481 @@
+"""MPC solve benchmarks: one OCP from the nominal stance (`wbmpc solve`) and a receding-horizon
+benchmark in closed loop (`wbmpc bench mpc`, section V-A).
+
+`bench mpc` runs each requested solver for N MPC steps (80 Hz) in closed loop on a plant, then
+re-solves the states recorded in the reference run (Fatrop, warm-started) with:
+- the other solvers on the very same NLP (`problem=` shared): the Fatrop-vs-IPOPT speedup of
+  section V-A1 (paper: over 10x);
+- Fatrop without warm start (V-A2; paper: 15-20 % less solve time with it);
+- Fatrop on a uniform grid of the same horizon (IV-C: geometric 10-100 ms vs fixed 40 ms).
+The re-solves are interleaved state by state (warm, cold, uniform, IPOPT, ...) so that the load
+of the machine affects every variant alike; each variant keeps its own warm start across states.
+Every MPC here runs without the fallback solver, so times and failures are the named solver's own.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from wbmpc.errors import ConfigError, unknown_name
+
+MPC_RATE_HZ = 80.0
+PLANTS = ("pinocchio", "mujoco")
+
+
+# ---------------------------------------------------------------------------- configuration
+def grid_for(nodes: int, uniform_dt_ms: float | None = None):
+    """Paper grid (geometric 10 ms -> 100 ms) on `nodes` nodes, or uniform steps of `uniform_dt_ms`."""
+    from wbmpc.ocp.grid import TimeGrid
+
+    if not isinstance(nodes, int) or nodes < 2:
+        raise ConfigError(f"--nodes must be an integer >= 2 (one interval at least), got {nodes}")
+    if uniform_dt_ms is not None:
+        if not (math.isfinite(uniform_dt_ms) and uniform_dt_ms > 0):
+            raise ConfigError(f"--uniform-dt must be a positive number of milliseconds, got {uniform_dt_ms}")
+        return TimeGrid.uniform_steps(nodes - 1, uniform_dt_ms / 1e3)
+    return TimeGrid(n_intervals=nodes - 1)
+
+
+def check_names(formulation: str | None = None, gait: str | None = None, solvers: list[str] | None = None,
+                plant: str | None = None) -> None:
+    """Fail fast (before any build) on unknown names, listing what exists."""
+    from wbmpc.gait import GAIT_NAMES
+    from wbmpc.ocp.formulations import FORMULATIONS
+    from wbmpc.solvers.nlp import SOLVERS
+
+    if formulation is not None and formulation not in FORMULATIONS:
+        raise ConfigError(unknown_name("formulation", formulation, FORMULATIONS))
+    if gait is not None and gait not in GAIT_NAMES:
+        raise ConfigError(unknown_name("gait", gait, GAIT_NAMES))
+    for name in solvers or []:
+        if name not in SOLVERS:
+            raise ConfigError(unknown_name("solver", name, SOLVERS))
+    if plant is not None and plant not in PLANTS:
+        raise ConfigError(unknown_name("plant", plant, PLANTS))
+
+
+def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str = "fatrop", nodes: int = 15,
+               uniform_dt_ms: float | None = None, warm_start: bool = True):
+    from wbmpc.control import MpcConfig
+    from wbmpc.ocp.problem import OcpConfig
+    from wbmpc.solvers.nlp import SolverConfig
+
+    check_names(formulation=formulation, gait=gait, solvers=[solver])
+    grid = grid_for(nodes, uniform_dt_ms)
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid), solver=SolverConfig(name=solver),
+                       gait=gait, warm_start=warm_start)
+    if any(f.name == "fallback_solver" for f in fields(MpcConfig)):
+        # measure the requested solver alone: a failed step stays a failure (no re-solve by another solver)
+        config = replace(config, fallback_solver=None)
+    return config
+
+
+def _finite(value) -> float | None:
+    """JSON has no inf/NaN: non-finite numbers become null."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _stats(values) -> dict:
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return {"mean": None, "std": None, "max": None}
+    return {"mean": float(values.mean()), "std": float(values.std()), "max": float(values.max())}
+
+
+def _machine() -> dict:
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    return {"cpus": os.cpu_count(), "loadavg_1_5_15": [round(x, 2) for x in load]}
+
+
+# ---------------------------------------------------------------------------- wbmpc solve
+def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", nodes: int = 15,
+                  solver: str = "fatrop", uniform_dt_ms: float | None = None, t: float = 0.0) -> dict:
+    """Build one OCP and solve it once from the nominal stance (q_nominal, v = 0) at gait time t."""
+    from wbmpc.control import MPC, Commands
+
+    if not math.isfinite(t) or t < 0:
+        raise ConfigError(f"--t must be a finite time >= 0 s, got {t}")
+    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms)
+    start = time.perf_counter()
+    mpc = MPC(robot, config)
+    build_s = time.perf_counter() - start
+    solution = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t)
+    stats = solution.stats
+    return {
+        "formulation": formulation,
+        "solver": solver,
+        "decision_variables": int(mpc.problem.n_variables),
+        "status": str(stats.status),
+        "success": bool(solution.success),
+        "iterations": int(stats.iterations),
+        "solve_ms": float(stats.solve_time_s * 1e3),
+        "max_constraint_violation": _finite(stats.max_constraint_violation),
+        "robot": robot.name,
+        "gait": gait,
+        "nodes": nodes,
+        "grid": f"uniform {uniform_dt_ms:g} ms" if uniform_dt_ms else "geometric 10-100 ms",
+        "horizon_s": float(config.ocp.grid.horizon_s),
+        "t_s": t,
+        "build_s": build_s,
+    }
+
+
+def solve_text(report: dict) -> str:
+    viol = report["max_constraint_violation"]
+    return (f"{report['formulation']} OCP of {report['robot']} ({report['nodes']} nodes, {report['grid']}, "
+            f"{report['gait']} at t = {report['t_s']:g} s): {report['decision_variables']} decision variables, "
+            f"built in {report['build_s']:.1f} s\n"
+            f"{report['solver']}: {report['status']} in {report['iterations']} iterations, "
+            f"{report['solve_ms']:.1f} ms, max constraint violation "
+            f"{'inf' if viol is None else f'{viol:.1e}'}")
+
+
+def cli_solve(args) -> int:
+    from wbmpc.cli import robot_from_args
+
+    check_names(formulation=args.formulation, gait=args.gait, solvers=[args.solver])
+    grid_for(args.nodes, args.uniform_dt)  # validate before loading anything heavy
+    robot = robot_from_args(args)
+    report = solve_nominal(robot, args.formulation, args.gait, args.nodes, args.solver, args.uniform_dt, args.t)
+    _output(args, report, solve_text(report))
+    return 0 if report["success"] else 1
+
+
+# ---------------------------------------------------------------------------- wbmpc bench mpc
+@dataclass
+class _Recorder:
+    """Stands in for an MPC inside `ClosedLoop` and records every (q, v, commands, t) it solves."""
+
+    mpc: object
+    states: list = field(default_factory=list)
+    eval_ms: list = field(default_factory=list)
+
+    @property
+    def robot(self):
+        return self.mpc.robot
+
+    def solve(self, q, v, commands=None, t=0.0):
+        self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t)))
+        solution = self.mpc.solve(q, v, commands, t)
+        self.eval_ms.append(_function_eval_ms(self.mpc))
+        return solution
+
+
+def _function_eval_ms(mpc) -> float:
+    """Wall time of the last solve spent in CasADi's NLP function evaluations (f, g, jacobians, Hessian).
+
+    Solve time minus this is the solver's own linear algebra and logic (what Fatrop's Riccati
+    recursion speeds up); function evaluations are what C code generation speeds up.
+    """
+    try:
+        stats = mpc.solver.solver.stats()
+    except (AttributeError, RuntimeError):
+        return float("nan")
+    return 1e3 * sum(float(v) for k, v in stats.items() if k.startswith("t_wall_nlp_"))
+
+
+class _NullStream:
+    def write(self, text: str) -> None:
+        pass
+
+    def flush(self) -> None:
+        pass
+
+
+class _Progress:
+    """`[#####     ] 50% label` on stderr, redrawn in place when the percentage changes."""
+
+    def __init__(self, total: float, stream=None, width: int = 30):
+        self.total, self.done, self.width = max(total, 1e-9), 0.0, width
+        self.stream = stream or sys.stderr
+        self._shown: tuple | None = None
+
+    def update(self, done: float, label: str = "") -> None:
+        self.done = min(done, self.total)
+        share = self.done / self.total
+        percent = int(100 * share)
+        if (percent, label) == self._shown:
+            return
+        self._shown = (percent, label)
+        bar = "#" * int(round(self.width * share))
+        self.stream.write(f"\r[{bar:<{self.width}}] {percent:3d}% {label:<40}")
+        self.stream.flush()
+
+    def close(self) -> None:
+        self.stream.write("\n")
+        self.stream.flush()
+
+
+def _run_summary(solutions_ms, iterations, success, n_variables, eval_ms=None) -> dict:
+    iterations = np.asarray(iterations, dtype=float)
+    solve = np.asarray(solutions_ms, dtype=float)
+    evals = np.asarray(eval_ms if eval_ms is not None else [], dtype=float)
+    split = evals.size == solve.size and solve.size > 0 and np.all(np.isfinite(evals))
+    return {
+        "steps": int(len(solutions_ms)),
+        "decision_variables": int(n_variables),
+        "solve_ms": _stats(solutions_ms),
+        "iterations": {"mean": float(iterations.mean()) if iterations.size else None,
+                       "max": int(iterations.max()) if iterations.size else None},
+        "failures": int(len(success) - int(np.sum(success))),
+        # mean split of the solve time: CasADi function evaluations vs the solver itself
+        "function_eval_ms_mean": float(evals.mean()) if split else None,
+        "solver_only_ms_mean": float((solve - evals).mean()) if split else None,
+    }
+
+
+def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[[float], None]) -> tuple[dict, list, list]:
+    """N MPC steps at 80 Hz on a fresh plant from the nominal stance: summary, recorded states, iterations."""
+    from wbmpc.control.loop import ClosedLoop, LoopConfig
+    from wbmpc.sim import make_plant
+
+    plant = make_plant(plant_kind, robot)
+    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    recorder = _Recorder(mpc)
+    duration = steps / MPC_RATE_HZ
+    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none")).run(
+        duration, progress=on_progress)
+    arrays = log.arrays()
+    n = min(steps, len(arrays["solve_ms"]))
+    summary = _run_summary(arrays["solve_ms"][:n], arrays["iterations"][:n], arrays["success"][:n],
+                           mpc.problem.n_variables, recorder.eval_ms[:n])
+    summary.update({"fell": bool(log.fell), "simulated_s": float(n / MPC_RATE_HZ), "wall_s": float(log.wall_time_s)})
+    return summary, recorder.states[:n], [int(i) for i in arrays["iterations"][:n]]
+
+
+def _percent_reduction(reference: float | None, reduced: float | None) -> float | None:
+    if reference is None or reduced is None or reference == 0:
+        return None
+    return float(100.0 * (reference - reduced) / reference)
+
+
+def _ratio(numerator: float | None, denominator: float | None) -> float | None:
+    if numerator is None or denominator is None or denominator == 0:
+        return None
+    return float(numerator / denominator)
+
+
+def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocchio",
+              solvers: tuple[str, ...] = ("fatrop", "ipopt"), nodes: int = 15, uniform_dt_ms: float | None = None,
+              show_progress: bool = True) -> dict:
+    """Closed-loop receding-horizon benchmark plus same-state comparisons (see module docstring)."""
+    from wbmpc.control import MPC
+    from wbmpc.ocp.problem import OcpProblem
+
+    solvers = tuple(dict.fromkeys(solvers))  # unique, in order
+    if not solvers:
+        raise ConfigError("--solvers needs at least one solver, e.g. fatrop,ipopt")
+    if not isinstance(steps, int) or steps < 1:
+        raise ConfigError(f"--steps must be an integer >= 1, got {steps}")
+    check_names(gait=gait, solvers=list(solvers), plant=plant)
+    grid = grid_for(nodes)
+    if uniform_dt_ms is None:
+        # about the same horizon, in whole ms: 40 ms for the paper's 15 nodes (0.56 s)
+        uniform_dt_ms = float(max(1, round(1e3 * grid.horizon_s / (nodes - 1))))
+    grid_for(nodes, uniform_dt_ms)
+    reference = "fatrop" if "fatrop" in solvers else solvers[0]
+
+    machine_start = _machine()
+    wall_start = time.perf_counter()
+    n_resolve = 3 + (len(solvers) - 1)  # warm, cold, uniform, other solvers
+    progress = _Progress(len(solvers) * steps + n_resolve * steps + 0.5 * (len(solvers) + 2),
+                         stream=sys.stderr if show_progress else _NullStream())
+    done = 0.0
+
+    # one OCP build shared by every solver on the paper grid
+    progress.update(done, "building the OCP")
+    start = time.perf_counter()
+    problem = OcpProblem(robot, mpc_config(gait=gait, nodes=nodes).ocp)
+    build = {"problem_s": time.perf_counter() - start}
+    mpcs = {}
+    for name in solvers:
+        progress.update(done, f"building {name}")
+        start = time.perf_counter()
+        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes), problem=problem)
+        build[f"{name}_s"] = time.perf_counter() - start
+        done += 0.5
+
+    # closed loop per solver (the reference first: its states are re-solved below)
+    runs, states, reference_iterations = {}, [], []
+    for name in (reference,) + tuple(s for s in solvers if s != reference):
+        base = done
+
+        def on_progress(share, base=base, name=name):
+            progress.update(base + share * steps, f"closed loop {name}")
+
+        runs[name], recorded, iterations = _closed_loop(robot, mpcs[name], plant, steps, on_progress)
+        if name == reference:
+            states, reference_iterations = recorded, iterations
+        done = base + steps
+        progress.update(done, f"closed loop {name}")
+
+    # same states, re-solved sequentially by each variant (own warm start), interleaved per state
+    progress.update(done, "building cold / uniform variants")
+    start = time.perf_counter()
+    variants = {reference: mpcs[reference]}
+    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False),
+                                        problem=problem)
+    variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes,
+                                                             uniform_dt_ms=uniform_dt_ms))
+    for name in solvers:
+        if name != reference:
+            variants[name] = mpcs[name]
+    build["variants_s"] = time.perf_counter() - start
+    done += 1.0
+    for mpc in variants.values():
+        mpc.reset()
+    records = {label: {"ms": [], "it": [], "ok": [], "eval": []} for label in variants}
+    for i, (q, v, commands, t) in enumerate(states):
+        for label, mpc in variants.items():
+            solution = mpc.solve(q, v, commands, t)
+            records[label]["ms"].append(solution.stats.solve_time_s * 1e3)
+            records[label]["it"].append(int(solution.stats.iterations))
+            records[label]["ok"].append(solution.success)
+            records[label]["eval"].append(_function_eval_ms(mpc))
+            done += 1
+            progress.update(done, f"same states {i + 1}/{len(states)}")
+    progress.update(progress.total, "done")
+    progress.close()
+
+    same = {label: _run_summary(r["ms"], r["it"], r["ok"], variants[label].problem.n_variables, r["eval"])
+            for label, r in records.items()}
+    warm, cold, uniform = same[reference], same[f"{reference}_cold"], same[f"{reference}_uniform"]
+    fatrop_vs_ipopt = None
+    if "fatrop" in records and "ipopt" in records:
+        ratios = np.asarray(records["ipopt"]["ms"]) / np.maximum(np.asarray(records["fatrop"]["ms"]), 1e-9)
+        fatrop_vs_ipopt = {
+            "fatrop_solve_ms": same["fatrop"]["solve_ms"],
+            "ipopt_solve_ms": same["ipopt"]["solve_ms"],
+            "fatrop_iterations_mean": same["fatrop"]["iterations"]["mean"],
+            "ipopt_iterations_mean": same["ipopt"]["iterations"]["mean"],
+            "time_ratio": _ratio(same["ipopt"]["solve_ms"]["mean"], same["fatrop"]["solve_ms"]["mean"]),
+            "time_ratio_median": float(np.median(ratios)) if ratios.size else None,
+            # the same ratio without CasADi's function evaluations (what the solvers themselves cost)
+            "solver_only_time_ratio": _ratio(same["ipopt"]["solver_only_ms_mean"], same["fatrop"]["solver_only_ms_mean"]),
+        }
+    return {
+        "robot": robot.name,
+        "gait": gait,
+        "plant": plant,
+        "delay": "none",
+        "mpc_rate_hz": MPC_RATE_HZ,
+        "steps": steps,
+        "nodes": nodes,
+        "decision_variables": int(problem.n_variables),
+        "solvers": runs,
+        "same_states": {
+            "reference_solver": reference,
+            "states": len(states),
+            "runs": same,
+            "fatrop_vs_ipopt": fatrop_vs_ipopt,
+            "warm_vs_cold": {
+                "warm": {"solve_ms": warm["solve_ms"], "iterations_mean": warm["iterations"]["mean"],
+                         "failures": warm["failures"]},
+                "cold": {"solve_ms": cold["solve_ms"], "iterations_mean": cold["iterations"]["mean"],
+                         "failures": cold["failures"]},
+                "iteration_reduction_pct": _percent_reduction(cold["iterations"]["mean"], warm["iterations"]["mean"]),
+                "time_reduction_pct": _percent_reduction(cold["solve_ms"]["mean"], warm["solve_ms"]["mean"]),
+            },
+            "adaptive_vs_uniform": {
+                "adaptive": {"grid": "geometric 10-100 ms", "horizon_s": float(grid.horizon_s),
+                             "solve_ms": warm["solve_ms"], "iterations_mean": warm["iterations"]["mean"],
+                             "failures": warm["failures"]},
+                "uniform": {"grid": f"uniform {uniform_dt_ms:g} ms",
+                            "horizon_s": float(variants[f"{reference}_uniform"].problem.config.grid.horizon_s),
+                            "solve_ms": uniform["solve_ms"], "iterations_mean": uniform["iterations"]["mean"],
+                            "failures": uniform["failures"]},
+                "time_ratio": _ratio(uniform["solve_ms"]["mean"], warm["solve_ms"]["mean"]),
+            },
+            # determinism check: re-solving the recorded states reproduces the closed-loop iterations
+            "warm_resolve_matches_closed_loop": records[reference]["it"] == reference_iterations,
+        },
+        "build_s": build,
+        "machine": {"start": machine_start, "end": _machine()},
+        "wall_s": time.perf_counter() - wall_start,
+    }
+
+
+def _fmt(value, spec: str = ".1f") -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def bench_markdown(report: dict) -> str:
+    lines = [f"## MPC benchmark: {report['robot']}, {report['gait']} in closed loop on the {report['plant']} plant "
+             f"({report['steps']} steps at {report['mpc_rate_hz']:g} Hz, {report['nodes']} nodes, "
+             f"{report['decision_variables']} decision variables)", "",
+             "| solver | steps | solve ms mean | std | max | of which f/g/jac/hess evals | solver only "
+             "| iterations mean | max | failures | fell |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name, r in report["solvers"].items():
+        ms, it = r["solve_ms"], r["iterations"]
+        lines.append(f"| {name} | {r['steps']} | {_fmt(ms['mean'])} | {_fmt(ms['std'])} | {_fmt(ms['max'])} | "
+                     f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
+                     f"{_fmt(it['mean'], '.2f')} | {_fmt(it['max'], 'd')} | {r['failures']} | {r['fell']} |")
+    same = report["same_states"]
+    lines += ["", f"Same {same['states']} states of the {same['reference_solver']} run, re-solved in sequence "
+                  "(each variant warm-started from its own previous solution unless cold):", "",
+              "| variant | solve ms mean | std | max | of which evals | solver only | iterations mean | failures |",
+              "|---|---|---|---|---|---|---|---|"]
+    for label, r in same["runs"].items():
+        ms = r["solve_ms"]
+        lines.append(f"| {label} | {_fmt(ms['mean'])} | {_fmt(ms['std'])} | {_fmt(ms['max'])} | "
+                     f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
+                     f"{_fmt(r['iterations']['mean'], '.2f')} | {r['failures']} |")
+    lines.append("")
+    fvi = same["fatrop_vs_ipopt"]
+    if fvi:
+        lines.append(f"- IPOPT / Fatrop solve time: {_fmt(fvi['time_ratio'], '.2f')}x (mean), "
+                     f"{_fmt(fvi['time_ratio_median'], '.2f')}x (median per state), "
+                     f"{_fmt(fvi['solver_only_time_ratio'], '.2f')}x without function evaluations; paper: > 10x")
+    wc = same["warm_vs_cold"]
+    lines.append(f"- warm start vs cold: {_fmt(wc['iteration_reduction_pct'])} % fewer iterations, "
+                 f"{_fmt(wc['time_reduction_pct'])} % less solve time; paper: 15-20 % less time")
+    au = same["adaptive_vs_uniform"]
+    lines.append(f"- {au['uniform']['grid']} / geometric grid solve time: {_fmt(au['time_ratio'], '.2f')}x "
+                 f"(same horizon {au['adaptive']['horizon_s']:.2f} s)")
+    m = report["machine"]
+    lines.append(f"- machine: {m['start']['cpus']} CPUs, load average {m['start']['loadavg_1_5_15']} at start, "
+                 f"{m['end']['loadavg_1_5_15']} at end; wall time {report['wall_s']:.0f} s")
+    return "\n".join(lines)
+
+
+def cli_bench_mpc(args) -> int:
+    from wbmpc.cli import robot_from_args
+
+    solvers = [s.strip() for s in (args.solvers or "").split(",") if s.strip()]
+    if not solvers:
+        raise ConfigError("--solvers needs at least one solver, e.g. fatrop,ipopt")
+    check_names(gait=args.gait, solvers=solvers, plant=args.plant)
+    if args.steps < 1:
+        raise ConfigError(f"--steps must be >= 1, got {args.steps}")
+    grid_for(args.nodes, args.uniform_dt)
+    robot = robot_from_args(args)
+    report = bench_mpc(robot, steps=args.steps, gait=args.gait, plant=args.plant, solvers=tuple(solvers),
+                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress)
+    if args.out:
+        path = Path(args.out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=2) + "\n")
+    _output(args, report, bench_markdown(report))
+    return 0
+
+
+def _output(args, payload: dict, human: str) -> None:
+    """--json: one JSON object on stdout, human text on stderr; otherwise human text on stdout."""
+    if args.json:
+        print(json.dumps(payload))
+        print(human, file=sys.stderr)
+    else:
+        print(human)

@@ -1,0 +1,157 @@
+"""Named closed-loop scenarios: commands, disturbances and the metrics each one adds.
+
+`stand`, `trot-in-place`, `trot-forward` (0.2 m/s), `push` (lateral base velocity kick while
+trotting in place, section VI-B1 / Fig. 4) and `arm-track` (trot forward while the end-effector
+tracks a low/high reference, Fig. 3; position error becomes a velocity command by feedback).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.control.loop import Event, RunLog
+from wbmpc.control.mpc import Commands
+from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.robots import RobotModel
+from wbmpc.scenarios.metrics import frame_positions
+
+
+@dataclass
+class ScenarioOptions:
+    """User-tunable knobs shared by the scenarios (CLI flags)."""
+
+    speed_m_s: float = 0.2
+    push_speed_m_s: float = 0.8
+    push_direction_deg: float = 90.0  # 90 = to the robot's left (lateral)
+    push_time_s: float = 2.0
+    arm_amplitude_m: float = 0.15
+    arm_period_s: float = 4.0
+    arm_feedback_gain_1_s: float = 4.0
+
+
+@dataclass
+class Scenario:
+    name: str
+    description: str
+    gait: str
+    default_duration_s: float
+    needs_arm: bool = False
+    options: ScenarioOptions = field(default_factory=ScenarioOptions)
+
+    def commands(self, robot: RobotModel):
+        return lambda t, q, v: Commands()
+
+    def events(self, robot: RobotModel) -> list[Event]:
+        return []
+
+    def ee_reference(self, robot: RobotModel):
+        """Callable t -> EE position reference (world), or None."""
+        return None
+
+    def extra_metrics(self, robot: RobotModel, log: RunLog) -> dict:
+        return {}
+
+
+class Stand(Scenario):
+    def __init__(self, options: ScenarioOptions):
+        super().__init__("stand", "stand still on four feet", "stand", 3.0, options=options)
+
+
+class TrotInPlace(Scenario):
+    def __init__(self, options: ScenarioOptions):
+        super().__init__("trot-in-place", "trot without moving (base drift, section VI-B2)", "trot", 10.0, options=options)
+
+
+class TrotForward(Scenario):
+    def __init__(self, options: ScenarioOptions):
+        super().__init__("trot-forward", "trot forward at the commanded speed", "trot", 6.0, options=options)
+
+    def commands(self, robot):
+        velocity = np.array([self.options.speed_m_s, 0.0, 0.0])
+        return lambda t, q, v: Commands(base_velocity_m_s=velocity)
+
+
+class Push(Scenario):
+    def __init__(self, options: ScenarioOptions):
+        super().__init__("push", "lateral base velocity kick while trotting in place (Fig. 4)", "trot", 5.0, options=options)
+
+    def events(self, robot):
+        angle = np.deg2rad(self.options.push_direction_deg)
+        speed = self.options.push_speed_m_s
+
+        def kick(plant):
+            q, _ = plant.state()
+            rot = pin.Quaternion(q[3:7]).toRotationMatrix()
+            heading = np.arctan2(rot[1, 0], rot[0, 0])
+            plant.apply_base_velocity_kick(speed * np.array([np.cos(heading + angle), np.sin(heading + angle), 0.0]))
+
+        return [Event(self.options.push_time_s, kick)]
+
+    def extra_metrics(self, robot, log):
+        a = log.arrays()
+        after = a["t"] >= self.options.push_time_s
+        return {
+            "push_speed_m_s": self.options.push_speed_m_s,
+            "push_time_s": self.options.push_time_s,
+            "max_torque_ratio_after_push": float(np.max(np.abs(a["tau"][after]) / robot.tau_max)) if after.any() else None,
+        }
+
+
+class ArmTrack(Scenario):
+    def __init__(self, options: ScenarioOptions):
+        super().__init__("arm-track", "trot forward while the end-effector tracks a low/high reference (Fig. 3)",
+                         "trot", 8.0, needs_arm=True, options=options)
+        self._start: np.ndarray | None = None
+
+    def _reference(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        o = self.options
+        w = 2 * np.pi / o.arm_period_s
+        start = self._start
+        position = start + np.array([o.speed_m_s * t, 0.0, o.arm_amplitude_m * np.sin(w * t)])
+        velocity = np.array([o.speed_m_s, 0.0, o.arm_amplitude_m * w * np.cos(w * t)])
+        return position, velocity
+
+    def ee_reference(self, robot):
+        if self._start is None:
+            self._start = frame_positions(robot, robot.q_nominal[None, :], robot.arm_ee)[0]
+        return lambda t: self._reference(t)[0]
+
+    def commands(self, robot):
+        self.ee_reference(robot)
+        data = robot.model.createData()
+        fid = robot.frame_id(robot.arm_ee)
+        base = np.array([self.options.speed_m_s, 0.0, 0.0])
+        gain = self.options.arm_feedback_gain_1_s
+
+        def command(t, q, v):
+            pin.framesForwardKinematics(robot.model, data, q)
+            position, velocity = self._reference(t)
+            ee_velocity = velocity + gain * (position - data.oMf[fid].translation)
+            speed = np.linalg.norm(ee_velocity)
+            if speed > 0.9:  # stay inside the MPC's command limit
+                ee_velocity *= 0.9 / speed
+            return Commands(base_velocity_m_s=base, ee_velocity_m_s=ee_velocity)
+
+        return command
+
+    def extra_metrics(self, robot, log):
+        a = log.arrays()
+        ee = frame_positions(robot, a["q"], robot.arm_ee)
+        reference = np.array([self._reference(t - a["t"][0])[0] for t in a["t"]])
+        error = np.linalg.norm(ee - reference, axis=1)
+        return {"ee_pos_rmse_m": float(np.sqrt(np.mean(error**2))), "ee_pos_max_err_m": float(error.max())}
+
+
+SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, Push, ArmTrack)}
+
+
+def make_scenario(name: str, robot: RobotModel, options: ScenarioOptions | None = None) -> Scenario:
+    if name not in SCENARIOS:
+        raise ConfigError(unknown_name("scenario", name, SCENARIOS))
+    scenario = SCENARIOS[name](options or ScenarioOptions())
+    if scenario.needs_arm and robot.arm_ee is None:
+        raise ConfigError(f"scenario '{name}' needs a robot with an arm (--arm-ee); {robot.name} has none")
+    return scenario

@@ -1,0 +1,76 @@
+"""Scenario metrics from a closed-loop `RunLog` (keys of `metrics.json`, see DESIGN.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.control.loop import RunLog
+from wbmpc.robots import RobotModel
+
+
+def heading_rotation(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def base_world_velocity(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(n, 3) base linear velocity in world coordinates from pinocchio-layout states."""
+    out = np.empty((len(q), 3))
+    for i in range(len(q)):
+        out[i] = pin.Quaternion(q[i, 3:7]).toRotationMatrix() @ v[i, :3]
+    return out
+
+
+def frame_positions(robot: RobotModel, q: np.ndarray, frame: str) -> np.ndarray:
+    data = robot.model.createData()
+    fid = robot.frame_id(frame)
+    out = np.empty((len(q), 3))
+    for i in range(len(q)):
+        pin.framesForwardKinematics(robot.model, data, q[i])
+        out[i] = data.oMf[fid].translation
+    return out
+
+
+def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
+    a = log.arrays()
+    t, q, v = a["t"], a["q"], a["v"]
+    duration = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    # commanded base velocity (heading frame of the start) integrated over the run
+    yaw0 = _yaw(q[0])
+    cmd_t = np.array(log.mpc_t)
+    cmd_v = np.array([c.base_velocity_m_s for c in log.commands])
+    cmd_world = cmd_v @ heading_rotation(yaw0).T
+    cmd_at_t = np.stack([np.interp(t, cmd_t, cmd_world[:, k]) for k in range(3)], axis=1)
+    commanded_path = np.concatenate([[0.0], np.cumsum(cmd_at_t[:-1, 0] * np.diff(t))]), \
+        np.concatenate([[0.0], np.cumsum(cmd_at_t[:-1, 1] * np.diff(t))])
+    displacement = q[-1, :2] - q[0, :2] - np.array([commanded_path[0][-1], commanded_path[1][-1]])
+    vel_world = base_world_velocity(q, v)
+    solve = a["solve_ms"]
+    n_solves = len(solve)
+    return {
+        "scenario": scenario,
+        "robot": robot.name,
+        "fell": bool(log.fell),
+        "fell_at_s": log.fell_at_s,
+        "duration_s": duration,
+        "base_drift_cm_s": float(100 * np.linalg.norm(displacement) / duration) if duration > 0 else None,
+        "base_vel_rmse": float(np.sqrt(np.mean(np.sum((vel_world[:, :2] - cmd_at_t[:, :2]) ** 2, axis=1)))),
+        "ee_pos_rmse_m": None,
+        "ee_force_err_rel": None,
+        "max_torque_ratio": float(np.max(np.abs(a["tau"]) / robot.tau_max)),
+        "max_feedforward_torque_ratio": float(np.max(np.abs(a["tau_ff"]) / robot.tau_max)),
+        "solve_ms": {"mean": float(np.mean(solve)), "std": float(np.std(solve)), "max": float(np.max(solve))},
+        "iterations_mean": float(np.mean(a["iterations"])),
+        "mpc_failures": int(log.mpc_failures),
+        "mpc_solves": n_solves,
+        "mpc_rate_hz": float(n_solves / duration) if duration > 0 else None,
+        "late_solution_share": float(log.late_solutions / max(n_solves, 1)),
+        "delay_ms_mean": float(np.mean(log.delay_ms)) if log.delay_ms else 0.0,
+        "wall_time_s": log.wall_time_s,
+    }
+
+
+def _yaw(q: np.ndarray) -> float:
+    rot = pin.Quaternion(q[3:7]).toRotationMatrix()
+    return float(np.arctan2(rot[1, 0], rot[0, 0]))

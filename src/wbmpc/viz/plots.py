@@ -1,0 +1,423 @@
+"""Diagnostic plots of a closed-loop run (`wbmpc.control.loop.RunLog`), written as PNG files.
+
+`save_plots(robot, log, out_dir)` writes what a legged-robotics engineer checks first:
+
+- `base_velocity.png`  base velocity in the heading frame (and yaw rate) against the commands
+- `ee_position.png`    arm end-effector position (pinocchio FK) against an optional reference
+- `joint_torques.png`  applied torques per leg and for the arm with their limits; the rear calf
+                       joints (the first to saturate on B1 + Z1, section VI) in a highlighted panel
+- `foot_heights.png`   foot clearance (pinocchio FK) with the planned stance phases shaded
+- `contact_forces.png` measured normal contact forces with the planned stance phases shaded
+- `solver.png`         solve time and iterations per MPC step against the 80 Hz budget
+
+Figures are drawn on the Agg canvas directly (no pyplot state, no display needed).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+import pinocchio as pin
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from wbmpc.errors import ConfigError
+
+DPI = 110
+MPC_BUDGET_MS = 1e3 / 80.0  # the paper's MPC rate (section V-B)
+REAR_CALF_JOINTS = ("RL_calf_joint", "RR_calf_joint")
+COMMAND_STYLE = dict(color="black", linestyle="--", linewidth=1.4)
+STANCE_COLOR = "#9ecae1"
+HIGHLIGHT_COLOR = "#c0392b"
+
+
+# ----------------------------------------------------------------------------- kinematics helpers
+def frame_positions(robot, q: np.ndarray, frames: Sequence[str]) -> dict[str, np.ndarray]:
+    """World positions (n, 3) of named frames for every configuration row of `q` (pinocchio FK)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    model = robot.model
+    data = model.createData()
+    ids = [robot.frame_id(name) for name in frames]
+    out = {name: np.empty((q.shape[0], 3)) for name in frames}
+    for k, qk in enumerate(q):
+        pin.forwardKinematics(model, data, qk)
+        for name, fid in zip(frames, ids):
+            out[name][k] = pin.updateFramePlacement(model, data, fid).translation
+    return out
+
+
+def _rotations(q: np.ndarray) -> np.ndarray:
+    """Base rotation matrices (n, 3, 3) from the quaternions (x, y, z, w) in q[:, 3:7]."""
+    x, y, z, w = (q[:, 3 + i] for i in range(4))
+    norm = np.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def base_velocity_heading(q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Base linear velocity in the heading (yaw-only) frame (n, 3) and world yaw rate (n,).
+
+    `v[:, :6]` is pinocchio's free-flyer velocity: linear and angular velocity in the base frame.
+    """
+    rot = _rotations(q)
+    v_world = np.einsum("nij,nj->ni", rot, v[:, :3])
+    omega_world = np.einsum("nij,nj->ni", rot, v[:, 3:6])
+    yaw = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    v_heading = np.stack([c * v_world[:, 0] + s * v_world[:, 1], -s * v_world[:, 0] + c * v_world[:, 1], v_world[:, 2]], axis=-1)
+    return v_heading, omega_world[:, 2]
+
+
+def leg_joint_groups(robot) -> list[tuple[str, list[int]]]:
+    """(foot name, joint indices from the root to that foot) for every foot."""
+    groups = []
+    for foot in robot.feet:
+        joint = robot.model.frames[robot.frame_id(foot)].parentJoint
+        chain = []
+        while joint > 1:
+            chain.append(robot.joint_index(robot.model.names[joint]))
+            joint = robot.model.parents[joint]
+        groups.append((foot, sorted(chain)))
+    return groups
+
+
+def _short_names(names: Sequence[str]) -> list[str]:
+    """Joint labels without their common prefix ('FL_') and the '_joint' suffix."""
+    prefix = os.path.commonprefix(list(names)) if len(names) > 1 else ""
+    if prefix and not prefix.endswith(("_", "-", ".")):
+        prefix = prefix[: max(prefix.rfind("_"), prefix.rfind("-"), prefix.rfind(".")) + 1]
+    out = []
+    for name in names:
+        label = name[len(prefix):]
+        for suffix in ("_joint", "_JOINT", "Joint"):
+            if label.endswith(suffix) and len(label) > len(suffix):
+                label = label[: -len(suffix)]
+        out.append(label or name)
+    return out
+
+
+# ----------------------------------------------------------------------------- figure helpers
+def _figure(width: float, height: float) -> Figure:
+    """A figure on the Agg canvas with a tight (constrained) layout that also fits outside legends."""
+    fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _figure_legend(fig: Figure, ax) -> None:
+    """One legend for stacked panels, below them (so it never hides data)."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(handles), fontsize=8, frameon=False)
+
+
+def _stance_intervals(mpc_t: np.ndarray, stance: np.ndarray, t_end: float) -> list[tuple[float, float]]:
+    """Time intervals where a planned-contact column is 1 (each MPC step holds until the next)."""
+    intervals = []
+    start = None
+    edges = np.append(mpc_t, max(t_end, mpc_t[-1]) if mpc_t.size else t_end)
+    for k, on in enumerate(stance > 0.5):
+        if on and start is None:
+            start = edges[k]
+        if not on and start is not None:
+            intervals.append((start, edges[k]))
+            start = None
+    if start is not None:
+        intervals.append((start, edges[-1]))
+    return intervals
+
+
+def _shade_stance(ax, intervals: Iterable[tuple[float, float]], label: str | None = "planned stance") -> None:
+    for k, (a, b) in enumerate(intervals):
+        ax.axvspan(a, b, color=STANCE_COLOR, alpha=0.35, linewidth=0, label=label if k == 0 else None)
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((a - b) ** 2))) if a.size else float("nan")
+
+
+def _command_series(log, n_mpc: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Commanded heading-frame base velocity (m, 3) and yaw rate (m,) per MPC step, if logged."""
+    commands = list(getattr(log, "commands", []) or [])[:n_mpc]
+    if not commands or len(commands) != n_mpc:
+        return None
+    lin = np.array([np.asarray(c.base_velocity_m_s, dtype=float).ravel()[:3] for c in commands])
+    yaw = np.array([float(getattr(c, "base_yaw_rate_rad_s", 0.0)) for c in commands])
+    return lin, yaw
+
+
+def _hold(mpc_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Zero-order hold of per-MPC-step values at the control ticks `t`."""
+    idx = np.clip(np.searchsorted(mpc_t, t + 1e-9, side="right") - 1, 0, len(mpc_t) - 1)
+    return values[idx]
+
+
+# ----------------------------------------------------------------------------- the plots
+def plot_base_velocity(robot, data: dict, log, path: Path) -> Path:
+    t, q, v = data["t"], data["q"], data["v"]
+    v_heading, yaw_rate = base_velocity_heading(q, v)
+    mpc_t = data["mpc_t"]
+    commanded = _command_series(log, mpc_t.size) if mpc_t.size else None
+    fig = _figure(11, 6.5)
+    axes = fig.subplots(2, 2, sharex=True).ravel()
+    series = [(v_heading[:, i], f"$v_{axis}$", "m/s") for i, axis in enumerate("xyz")] + [(yaw_rate, r"$\omega_z$", "rad/s")]
+    titles = ["forward (heading x)", "lateral (heading y)", "vertical (z)", "yaw rate"]
+    for i, (ax, (meas, sym, unit), title) in enumerate(zip(axes, series, titles)):
+        ax.plot(t, meas, color=f"C{i}", linewidth=1.0, label=f"measured {sym}")
+        text = ""
+        if commanded is not None:
+            cmd = commanded[0][:, i] if i < 3 else commanded[1]
+            ax.step(np.append(mpc_t, t[-1]), np.append(cmd, cmd[-1]), where="post", label=f"commanded {sym}", **COMMAND_STYLE)
+            text = f"RMSE {_rmse(meas, _hold(mpc_t, cmd, t)):.3f} {unit}"
+        ax.set_title(f"{title}" + (f"  ({text})" if text else ""), fontsize=10)
+        ax.set_ylabel(f"{sym} [{unit}]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    for ax in axes[2:]:
+        ax.set_xlabel("time [s]")
+    fig.suptitle(f"{robot.name}: base velocity in the heading frame vs command", fontsize=12)
+    return _save(fig, path)
+
+
+def plot_ee_position(robot, data: dict, path: Path, ee_reference: Callable | None) -> Path:
+    t, q = data["t"], data["q"]
+    ee = frame_positions(robot, q, [robot.arm_ee])[robot.arm_ee]
+    ref = None
+    if ee_reference is not None:
+        ref = np.array([np.asarray(ee_reference(float(tk)), dtype=float).ravel()[:3] for tk in t])
+    rows = 4 if ref is not None else 3
+    fig = _figure(10, 2.0 * rows + 1.0)
+    axes = fig.subplots(rows, 1, sharex=True)
+    for i, axis in enumerate("xyz"):
+        ax = axes[i]
+        ax.plot(t, ee[:, i], color=f"C{i}", linewidth=1.2, label=f"measured {axis} (FK)")
+        if ref is not None:
+            ax.plot(t, ref[:, i], label=f"reference {axis}", **COMMAND_STYLE)
+        ax.set_ylabel(f"{axis} [m]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    if ref is not None:
+        err_mm = 1e3 * np.linalg.norm(ee - ref, axis=1)
+        axes[3].plot(t, err_mm, color="C3", linewidth=1.2, label="|p - p_ref|")
+        axes[3].set_ylabel("error [mm]")
+        axes[3].grid(True, alpha=0.3)
+        axes[3].legend(loc="best", fontsize=8)
+        rmse = float(np.sqrt(np.mean(np.sum((ee - ref) ** 2, axis=1))))
+        title = f"{robot.name}: end-effector '{robot.arm_ee}' position vs reference (RMSE {1e3 * rmse:.1f} mm)"
+    else:
+        title = f"{robot.name}: end-effector '{robot.arm_ee}' position (world frame)"
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title, fontsize=12)
+    return _save(fig, path)
+
+
+def _torque_panel(ax, t, tau, limits, labels, title) -> None:
+    for k, (label, limit) in enumerate(zip(labels, limits)):
+        color = f"C{k % 10}"
+        ax.plot(t, tau[:, k], color=color, linewidth=1.0, label=label)
+        for sign in (1, -1):
+            ax.axhline(sign * limit, color=color, linestyle="--", linewidth=1.0, alpha=0.7)
+    top = 1.1 * max(np.max(limits), np.max(np.abs(tau)) if tau.size else 0.0)
+    ax.set_ylim(-top, top)
+    ax.set_title(title, fontsize=10)
+    ax.set_ylabel("torque [Nm]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, title="dashed: ±limit", title_fontsize=7)
+
+
+def plot_joint_torques(robot, data: dict, path: Path) -> Path:
+    t, tau = data["t"], data["tau"]
+    names = list(robot.joint_names)
+    panels: list[tuple[str, list[int]]] = [(f"leg '{foot}'", idx) for foot, idx in leg_joint_groups(robot) if idx]
+    arm = [i for i, is_leg in enumerate(robot.leg_joint_mask) if not is_leg]
+    if arm:
+        panels.append(("arm", arm))
+    rear = [names.index(j) for j in REAR_CALF_JOINTS if j in names]
+    n = len(panels) + (1 if rear else 0)
+    cols = 2 if n > 1 else 1
+    rows = int(np.ceil(n / cols))
+    fig = _figure(6.0 * cols, 2.9 * rows + 0.6)
+    axes = np.atleast_1d(fig.subplots(rows, cols, sharex=True, squeeze=False).ravel())
+    for ax, (title, idx) in zip(axes, panels):
+        peak = np.max(np.abs(tau[:, idx]) / robot.tau_max[idx]) if tau.size else 0.0
+        _torque_panel(ax, t, tau[:, idx], robot.tau_max[idx], _short_names([names[i] for i in idx]),
+                      f"{title}: peak {100 * peak:.0f}% of limit")
+    if rear:
+        ax = axes[len(panels)]
+        limits = robot.tau_max[rear]
+        ratio = np.abs(tau[:, rear]) / limits
+        peak = float(np.max(ratio)) if ratio.size else 0.0
+        labels = [names[i].removesuffix("_joint") for i in rear]
+        _torque_panel(ax, t, tau[:, rear], limits, labels,
+                      f"REAR CALVES (saturate first): peak {100 * peak:.0f}% of limit")
+        if "tau_ff" in data and data["tau_ff"].shape == tau.shape:
+            for k, i in enumerate(rear):
+                ax.plot(t, data["tau_ff"][:, i], color=f"C{k}", linewidth=0.8, linestyle=":", alpha=0.9)
+        near = np.any(ratio > 0.9, axis=1)
+        if np.any(near):
+            ax.fill_between(t, 0, 1, where=near, transform=ax.get_xaxis_transform(), color=HIGHLIGHT_COLOR,
+                            alpha=0.18, linewidth=0, label="> 90% of limit")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, title="dashed: ±limit\ndotted: feed-fwd", title_fontsize=7)
+        for spine in ax.spines.values():
+            spine.set_edgecolor(HIGHLIGHT_COLOR)
+            spine.set_linewidth(2.0)
+        ax.title.set_color(HIGHLIGHT_COLOR)
+        ax.title.set_fontweight("bold")
+    for ax in axes[n:]:
+        ax.remove()
+    for ax in axes[:n][-cols:]:
+        ax.set_xlabel("time [s]")
+        ax.xaxis.set_tick_params(labelbottom=True)
+    fig.suptitle(f"{robot.name}: applied joint torques vs limits", fontsize=12)
+    return _save(fig, path)
+
+
+def _planned_intervals(robot, data: dict) -> list[list[tuple[float, float]]] | None:
+    planned, mpc_t, t = data["planned_contact"], data["mpc_t"], data["t"]
+    if planned.ndim != 2 or planned.shape[0] != mpc_t.size or planned.shape[1] != len(robot.feet) or not mpc_t.size:
+        return None
+    return [_stance_intervals(mpc_t, planned[:, i], float(t[-1])) for i in range(len(robot.feet))]
+
+
+def _measured_contact(data: dict, n_feet: int, threshold_n: float = 5.0) -> np.ndarray | None:
+    forces = data["contact_forces"]
+    if forces.ndim != 3 or forces.shape[1] < n_feet or forces.shape[0] != data["t"].size:
+        return None
+    return forces[:, :n_feet, 2] > threshold_n
+
+
+def plot_foot_heights(robot, data: dict, path: Path) -> Path:
+    t, q = data["t"], data["q"]
+    feet = list(robot.feet)
+    pos = frame_positions(robot, q, feet)
+    intervals = _planned_intervals(robot, data)
+    measured = _measured_contact(data, len(feet))
+    fig = _figure(10, 1.7 * len(feet) + 1.2)
+    axes = np.atleast_1d(fig.subplots(len(feet), 1, sharex=True, squeeze=False).ravel())
+    for i, (ax, foot) in enumerate(zip(axes, feet)):
+        if intervals is not None:
+            _shade_stance(ax, intervals[i])
+        ax.plot(t, 100 * (pos[foot][:, 2] - robot.foot_radius_m), color=f"C{i}", linewidth=1.2, label="foot height (FK)")
+        if measured is not None and np.any(measured[:, i]):
+            ax.fill_between(t, 0, 0.08, where=measured[:, i], transform=ax.get_xaxis_transform(), color="0.25",
+                            linewidth=0, label="measured contact")
+        ax.axhline(0.0, color="0.5", linewidth=0.8)
+        ax.set_ylabel(f"{foot}\n[cm]")
+        ax.grid(True, alpha=0.3)
+    _figure_legend(fig, axes[0])
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{robot.name}: foot height above ground (sole) with planned contact schedule", fontsize=12)
+    return _save(fig, path)
+
+
+def plot_contact_forces(robot, data: dict, path: Path) -> Path:
+    t, forces = data["t"], data["contact_forces"]
+    feet = list(robot.feet)
+    intervals = _planned_intervals(robot, data)
+    fig = _figure(10, 1.7 * len(feet) + 1.2)
+    axes = np.atleast_1d(fig.subplots(len(feet), 1, sharex=True, sharey=True, squeeze=False).ravel())
+    weight = robot.mass_kg * 9.81
+    share = stance_at_t = None
+    planned = data["planned_contact"]
+    if intervals is not None:
+        stance_at_t = _hold(data["mpc_t"], planned > 0.5, t)
+        share = weight / np.maximum(stance_at_t.sum(axis=1), 1)
+    for i, (ax, foot) in enumerate(zip(axes, feet)):
+        if intervals is not None:
+            _shade_stance(ax, intervals[i])
+        ax.plot(t, forces[:, i, 2], color=f"C{i}", linewidth=1.0, label="normal force $f_z$")
+        ax.plot(t, np.linalg.norm(forces[:, i, :2], axis=1), color="0.4", linewidth=0.8, label="tangential $|f_{xy}|$")
+        if share is not None:
+            ax.plot(t, np.where(stance_at_t[:, i], share, np.nan), color="0.2", linestyle=":", linewidth=1.2,
+                    label="weight / planned stance feet")
+        ax.set_ylabel(f"{foot}\n[N]")
+        ax.grid(True, alpha=0.3)
+    _figure_legend(fig, axes[0])
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{robot.name}: measured contact forces (world) with planned contact schedule", fontsize=12)
+    return _save(fig, path)
+
+
+def plot_solver(robot, data: dict, path: Path, budget_ms: float = MPC_BUDGET_MS) -> Path:
+    mpc_t, solve_ms, iterations = data["mpc_t"], data["solve_ms"].astype(float), data["iterations"]
+    success = data["success"].astype(bool) if data["success"].size == mpc_t.size else np.ones(mpc_t.size, bool)
+    fig = _figure(10, 6)
+    ax_ms, ax_it = fig.subplots(2, 1, sharex=True)
+    ax_ms.plot(mpc_t, solve_ms, "o-", color="C0", markersize=2.5, linewidth=0.8, label="solve time")
+    ax_ms.axhline(budget_ms, color=HIGHLIGHT_COLOR, linestyle="--", linewidth=1.4,
+                  label=f"{1e3 / budget_ms:.0f} Hz budget ({budget_ms:.1f} ms)")
+    over = solve_ms > budget_ms
+    if np.any(over):
+        ax_ms.plot(mpc_t[over], solve_ms[over], "o", color="C1", markersize=4, label=f"over budget ({int(over.sum())})")
+    if np.any(~success):
+        ax_ms.plot(mpc_t[~success], solve_ms[~success], "x", color=HIGHLIGHT_COLOR, markersize=8, markeredgewidth=2,
+                   label=f"failed ({int((~success).sum())})")
+    ax_ms.set_ylabel("solve time [ms]")
+    ax_ms.set_ylim(bottom=0, top=max(1.15 * budget_ms, 1.1 * float(np.max(solve_ms)) if solve_ms.size else 0))
+    if solve_ms.size:
+        ax_ms.set_title(f"solve time: mean {np.mean(solve_ms):.2f} ± {np.std(solve_ms):.2f} ms, "
+                        f"max {np.max(solve_ms):.2f} ms, {int(over.sum())}/{solve_ms.size} over budget", fontsize=10)
+    ax_ms.grid(True, alpha=0.3)
+    ax_ms.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    if mpc_t.size > 1:
+        width = 0.8 * float(np.median(np.diff(mpc_t)))
+    else:
+        width = 0.01
+    ax_it.bar(mpc_t, iterations, width=width, color=np.where(success, "C2", HIGHLIGHT_COLOR), align="edge")
+    ax_it.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax_it.set_ylabel("iterations")
+    ax_it.set_xlabel("time [s]")
+    if iterations.size:
+        ax_it.set_title(f"solver iterations per MPC step: mean {np.mean(iterations):.1f}, max {int(np.max(iterations))}", fontsize=10)
+    ax_it.grid(True, alpha=0.3)
+    fig.suptitle(f"{robot.name}: MPC solver statistics ({mpc_t.size} steps)", fontsize=12)
+    return _save(fig, path)
+
+
+# ----------------------------------------------------------------------------- entry point
+def save_plots(robot, log, out_dir, ee_reference: Callable[[float], np.ndarray] | None = None,
+               budget_ms: float = MPC_BUDGET_MS) -> list[Path]:
+    """Write the diagnostic PNGs of a run into `out_dir` (created) and return their paths.
+
+    `ee_reference(t) -> (3,)` is the end-effector position reference in world, if any. The
+    end-effector plot is skipped for robots without an arm, the solver plot for logs without
+    MPC steps.
+    """
+    data = log.arrays()
+    t = data["t"]
+    if t.size < 2:
+        raise ConfigError(f"the run log has {t.size} control ticks; plots need at least 2")
+    if data["q"].shape != (t.size, robot.nq) or data["v"].shape != (t.size, robot.nv):
+        raise ConfigError(
+            f"the run log does not match robot '{robot.name}': q {data['q'].shape}, v {data['v'].shape}, "
+            f"expected ({t.size}, {robot.nq}) and ({t.size}, {robot.nv})"
+        )
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [plot_base_velocity(robot, data, log, out / "base_velocity.png")]
+    if robot.arm_ee:
+        paths.append(plot_ee_position(robot, data, out / "ee_position.png", ee_reference))
+    if data["tau"].shape == (t.size, robot.n_joints):
+        paths.append(plot_joint_torques(robot, data, out / "joint_torques.png"))
+    paths.append(plot_foot_heights(robot, data, out / "foot_heights.png"))
+    if data["contact_forces"].ndim == 3 and data["contact_forces"].shape[0] == t.size:
+        paths.append(plot_contact_forces(robot, data, out / "contact_forces.png"))
+    if data["mpc_t"].size:
+        paths.append(plot_solver(robot, data, out / "solver.png", budget_ms))
+    return paths

@@ -1,0 +1,74 @@
+"""`wbmpc solve` and `wbmpc bench mpc`: JSON contracts (DESIGN.md), sizes and the error path."""
+
+import json
+
+import pytest
+
+from wbmpc.cli import main
+
+SOLVE_KEYS = {"formulation", "solver", "decision_variables", "status", "success", "iterations", "solve_ms",
+              "max_constraint_violation"}
+
+
+def _run_json(capsys, argv):
+    code = main(argv)
+    captured = capsys.readouterr()
+    return code, json.loads(captured.out), captured.err
+
+
+def test_solve_small_horizon_json(capsys):
+    code, report, err = _run_json(capsys, ["solve", "--json", "--nodes", "6"])
+    assert code == 0
+    assert SOLVE_KEYS <= set(report)
+    assert report["success"] is True, report
+    assert report["decision_variables"] > 0
+    assert report["iterations"] >= 1 and report["solve_ms"] > 0
+    assert report["max_constraint_violation"] < 1e-5
+    assert (report["formulation"], report["solver"], report["nodes"]) == ("wb_inverse", "fatrop", 6)
+    assert "decision variables" in err  # human text goes to stderr with --json
+
+
+def test_solve_default_has_the_papers_1226_variables(capsys):
+    code, report, _ = _run_json(capsys, ["solve", "--json"])
+    assert code == 0
+    assert report["decision_variables"] == 1226
+    assert report["success"] is True, report
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["solve", "--nodes", "1"], ["--nodes", ">= 2"]),
+    (["solve", "--solver", "osqp"], ["unknown solver 'osqp'", "fatrop", "ipopt"]),
+    (["solve", "--gait", "gallop"], ["unknown gait 'gallop'", "trot"]),
+    (["solve", "--formulation", "srbd"], ["unknown formulation 'srbd'", "wb_inverse"]),
+    (["solve", "--uniform-dt", "0"], ["--uniform-dt"]),
+    (["bench", "mpc", "--solvers", "fatrop,osqp"], ["unknown solver 'osqp'"]),
+    (["bench", "mpc", "--plant", "gazebo"], ["unknown plant 'gazebo'", "pinocchio"]),
+    (["bench", "mpc", "--steps", "0"], ["--steps"]),
+])
+def test_bad_input_exits_2_with_a_message(capsys, argv, words):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("wbmpc: error:")
+    for word in words:
+        assert word in err
+
+
+def test_bench_mpc_quick_smoke(capsys, tmp_path):
+    out = tmp_path / "bench.json"
+    code, report, err = _run_json(capsys, ["bench", "mpc", "--steps", "3", "--solvers", "fatrop", "--json",
+                                           "--out", str(out)])
+    assert code == 0
+    assert json.loads(out.read_text()) == report
+    run = report["solvers"]["fatrop"]
+    assert run["steps"] == 3 and run["failures"] == 0 and run["decision_variables"] == 1226
+    assert set(run["solve_ms"]) == {"mean", "std", "max"} and set(run["iterations"]) == {"mean", "max"}
+    same = report["same_states"]
+    assert same["states"] == 3
+    assert set(same["runs"]) == {"fatrop", "fatrop_cold", "fatrop_uniform"}
+    assert same["fatrop_vs_ipopt"] is None  # IPOPT not requested
+    assert same["warm_resolve_matches_closed_loop"] is True
+    for key in ("iteration_reduction_pct", "time_reduction_pct"):
+        assert key in same["warm_vs_cold"]
+    assert same["adaptive_vs_uniform"]["uniform"]["grid"] == "uniform 40 ms"
+    assert same["adaptive_vs_uniform"]["time_ratio"] > 0
+    assert "100%" in err  # progress bar on stderr

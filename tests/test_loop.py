@@ -1,0 +1,110 @@
+"""Deployment pipeline: eq. 9 interpolation, eq. 10 PD, a short closed-loop run and `wbmpc run`."""
+
+import json
+
+import numpy as np
+import pytest
+
+from wbmpc.cli import main
+from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control.interpolator import JointReference, interpolate, pd_torque
+from wbmpc.control.loop import ClosedLoop, LoopConfig
+from wbmpc.control.solution import Solution
+from wbmpc.errors import ConfigError
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig
+from wbmpc.sim import make_plant
+from wbmpc.solvers.nlp import SolverStats
+
+SMALL = OcpConfig(grid=TimeGrid(n_intervals=8, dt_first_s=0.01, dt_last_s=0.06))
+
+
+def _synthetic_solution(nq=9, nv=8, nj=2) -> Solution:
+    rng = np.random.default_rng(0)
+    n = 4
+    q = rng.normal(size=(n + 1, nq))
+    return Solution(t_s=1.0, node_times_s=np.array([0.0, 0.01, 0.03, 0.06, 0.1]), q=q, v=rng.normal(size=(n + 1, nv)),
+                    a=rng.normal(size=(n, nv)), forces=np.zeros((n, 3)), tau=rng.normal(size=(3, nj)),
+                    contact=np.ones((n + 1, 1)), stats=SolverStats("ok", True, 1, 0.0, 0.0, 0.0), success=True)
+
+
+def test_interpolation_follows_eq_9():
+    sol = _synthetic_solution()
+    ref = interpolate(sol, 1.004)  # 4 ms into the first 10 ms step
+    np.testing.assert_allclose(ref.tau_ff, sol.tau[0] + (sol.tau[1] - sol.tau[0]) * 0.4)
+    np.testing.assert_allclose(ref.q_des, sol.q[0, 7:] + sol.v[0, 6:] * 0.004)
+    np.testing.assert_allclose(ref.v_des, sol.v[0, 6:] + sol.a[0, 6:] * 0.004)
+    assert ref.segment == 0
+
+
+def test_late_solution_is_interpolated_between_t1_and_t2():
+    sol = _synthetic_solution()
+    ref = interpolate(sol, 1.015)  # t1 = 1.01 passed, t2 = 1.03
+    np.testing.assert_allclose(ref.tau_ff, sol.tau[1] + (sol.tau[2] - sol.tau[1]) * 0.25)
+    np.testing.assert_allclose(ref.q_des, sol.q[1, 7:] + sol.v[1, 6:] * 0.005)
+    np.testing.assert_allclose(ref.v_des, sol.v[1, 6:] + sol.a[1, 6:] * 0.005)
+    assert ref.segment == 1
+    held = interpolate(sol, 1.5)  # far beyond t2: held at t2, never extrapolated
+    np.testing.assert_allclose(held.tau_ff, sol.tau[2])
+
+
+def test_pd_adds_feedback_and_clamps_to_limits():
+    ref = JointReference(tau_ff=np.array([10.0, -10.0]), q_des=np.array([0.1, 0.0]), v_des=np.zeros(2), segment=0)
+    tau = pd_torque(ref, q_j=np.zeros(2), v_j=np.array([0.0, 1.0]), kp=np.array([100.0, 0.0]),
+                    kd=np.array([0.0, 5.0]), tau_max=np.array([15.0, 100.0]))
+    np.testing.assert_allclose(tau, [15.0, -15.0])  # 10 + 100*0.1 = 20 clamped to 15; -10 - 5*1
+
+
+def test_short_trot_stays_up_in_mujoco(b1z1):
+    mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="trot"))
+    plant = make_plant("mujoco", b1z1)
+    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
+    log = ClosedLoop(mpc, plant, LoopConfig(delay="none")).run(0.8)
+    a = log.arrays()
+    assert not log.fell
+    assert log.mpc_failures == 0
+    assert a["q"][:, 2].min() > 0.85 * b1z1.q_nominal[2]
+    assert np.all(np.abs(a["tau"]) <= b1z1.tau_max + 1e-9)
+    # the planned swing legs really lift: some foot was in the air (zero contact force) at some time
+    assert (np.linalg.norm(a["contact_forces"], axis=2) < 1e-6).any()
+
+
+def test_fixed_delay_applies_solutions_late(b1z1):
+    mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="stand"))
+    plant = make_plant("pinocchio", b1z1)
+    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
+    log = ClosedLoop(mpc, plant, LoopConfig(delay="20")).run(0.1)
+    assert all(d == pytest.approx(20.0) for d in log.delay_ms)
+    assert log.late_solutions > 0  # 20 ms > the 12.5 ms period: the single solver skips ticks
+    assert not log.fell
+
+
+def test_bad_loop_inputs():
+    with pytest.raises(ConfigError, match="unknown delay 'soon'"):
+        LoopConfig(delay="soon")
+    with pytest.raises(ConfigError, match=">= 0 ms"):
+        LoopConfig(delay="-5")
+
+
+def test_run_command_writes_metrics_with_the_contract_keys(tmp_path, capsys):
+    code = main(["run", "stand", "--duration", "0.15", "--nodes", "6", "--out", str(tmp_path), "--json"])
+    assert code == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    for key in ("scenario", "fell", "duration_s", "base_drift_cm_s", "base_vel_rmse", "ee_pos_rmse_m",
+                "ee_force_err_rel", "max_torque_ratio", "solve_ms", "mpc_failures"):
+        assert key in metrics
+    assert set(metrics["solve_ms"]) >= {"mean", "std", "max"}
+    assert json.loads(capsys.readouterr().out)["scenario"] == "stand"
+    assert (tmp_path / "replay.html").stat().st_size > 1000
+    assert len(list(tmp_path.glob("*.png"))) >= 4
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "moonwalk"], "unknown scenario 'moonwalk'"),
+    (["run", "stand", "--duration", "0"], "--duration must be positive"),
+    (["run", "stand", "--out", "/proc/wbmpc_cannot_write"], "cannot write to output directory"),
+    (["run", "arm-track", "--robot", "a1"], "needs a robot with an arm"),
+])
+def test_run_command_bad_input_exits_2(argv, message, capsys):
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
