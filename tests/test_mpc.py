@@ -143,3 +143,13 @@ def test_unknown_gait_and_negative_dt(b1z1):
         MPC(b1z1, MpcConfig(ocp=SMALL, gait="pace"))
     with pytest.raises(ConfigError, match="positive"):
         OcpConfig(grid=TimeGrid(dt_first_s=-0.01))
+
+
+def test_arm_is_carried_along_by_default(trot_mpc, b1z1):
+    """Without an arm velocity command the end-effector moves with the commanded base velocity."""
+    solution = trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(base_velocity_m_s=np.array([0.2, 0, 0])), t=0.3)
+    assert solution.success
+    data = _kinematics(b1z1, solution.q[3], solution.v[3])
+    vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(b1z1.arm_ee), pin.LOCAL_WORLD_ALIGNED).linear
+    np.testing.assert_allclose(vel, [0.2, 0.0, 0.0], atol=1e-6)
+    assert solution.v[-1, 0] > 0.1  # and the base really speeds up over the horizon

@@ -68,13 +68,15 @@ class MpcConfig:
 class Commands:
     """Tracking commands (section V-B): base velocity in the heading frame, arm velocity/force in world.
 
+    `ee_velocity_m_s=None` (default) moves the end-effector with the commanded base velocity, so
+    the arm is carried along when the robot walks; an array makes it a world-frame command (eq. 7).
     `ee_force_n` is the force the end-effector applies on the environment; the robot feels its
     opposite (the contact force F_arm of eq. 2).
     """
 
     base_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
     base_yaw_rate_rad_s: float = 0.0
-    ee_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ee_velocity_m_s: np.ndarray | None = None
     ee_force_n: np.ndarray = field(default_factory=lambda: np.zeros(3))
     base_height_m: float | None = None
 
@@ -131,9 +133,12 @@ class MPC:
             raise ConfigError(f"base velocity command {speed:.2f} m/s exceeds max_base_speed_m_s = {cfg.max_base_speed_m_s}")
         if abs(commands.base_yaw_rate_rad_s) > cfg.max_yaw_rate_rad_s:
             raise ConfigError(f"yaw rate command exceeds max_yaw_rate_rad_s = {cfg.max_yaw_rate_rad_s}")
-        if self.robot.arm_ee and np.linalg.norm(commands.ee_velocity_m_s) > cfg.max_ee_speed_m_s:
+        if self.robot.arm_ee and commands.ee_velocity_m_s is not None and \
+                np.linalg.norm(commands.ee_velocity_m_s) > cfg.max_ee_speed_m_s:
             raise ConfigError(f"end-effector velocity command exceeds max_ee_speed_m_s = {cfg.max_ee_speed_m_s}")
         for name in ("base_velocity_m_s", "ee_velocity_m_s", "ee_force_n"):
+            if getattr(commands, name) is None:
+                continue
             value = np.asarray(getattr(commands, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
                 raise ConfigError(f"command {name} must be 3 finite numbers, got {value}")
@@ -168,6 +173,7 @@ class MPC:
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
+        self._base_velocity_world = v_world
         return dq_des, v_des
 
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
@@ -213,7 +219,8 @@ class MPC:
         p = problem.params.pack(values)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
-            ee_velocity_m_s=np.asarray(commands.ee_velocity_m_s, dtype=float),
+            ee_velocity_m_s=(self._base_velocity_world if commands.ee_velocity_m_s is None
+                             else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
