@@ -194,6 +194,18 @@ class RobotModel:
         """Feet, then the arm end-effector if any: the order of the stacked contact forces F_c."""
         return self.feet + ((self.arm_ee,) if self.arm_ee else ())
 
+    def frame_trajectories(self, q: np.ndarray, frames) -> dict[str, np.ndarray]:
+        """World positions (n, 3) of the named frames for every configuration row of `q` (FK)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        data = self.model.createData()
+        ids = {name: self.frame_id(name) for name in frames}
+        out = {name: np.empty((q.shape[0], 3)) for name in frames}
+        for k, qk in enumerate(q):
+            pin.forwardKinematics(self.model, data, qk)
+            for name, fid in ids.items():
+                out[name][k] = pin.updateFramePlacement(self.model, data, fid).translation
+        return out
+
     def random_configuration(self, rng: np.random.Generator) -> np.ndarray:
         """A random configuration on the manifold within joint limits (unit quaternion)."""
         q = self.q_nominal.copy()

@@ -16,7 +16,6 @@ from wbmpc.control.loop import Event, RunLog
 from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.robots import RobotModel
-from wbmpc.scenarios.metrics import frame_positions
 
 
 @dataclass
@@ -116,7 +115,7 @@ class ArmTrack(Scenario):
 
     def ee_reference(self, robot):
         if self._start is None:
-            self._start = frame_positions(robot, robot.q_nominal[None, :], robot.arm_ee)[0]
+            self._start = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
         return lambda t: self._reference(t)[0]
 
     def commands(self, robot):
@@ -139,7 +138,7 @@ class ArmTrack(Scenario):
 
     def extra_metrics(self, robot, log):
         a = log.arrays()
-        ee = frame_positions(robot, a["q"], robot.arm_ee)
+        ee = robot.frame_trajectories(a["q"], [robot.arm_ee])[robot.arm_ee]
         reference = np.array([self._reference(t - a["t"][0])[0] for t in a["t"]])
         error = np.linalg.norm(ee - reference, axis=1)
         return {"ee_pos_rmse_m": float(np.sqrt(np.mean(error**2))), "ee_pos_max_err_m": float(error.max())}

@@ -22,16 +22,6 @@ def base_world_velocity(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def frame_positions(robot: RobotModel, q: np.ndarray, frame: str) -> np.ndarray:
-    data = robot.model.createData()
-    fid = robot.frame_id(frame)
-    out = np.empty((len(q), 3))
-    for i in range(len(q)):
-        pin.framesForwardKinematics(robot.model, data, q[i])
-        out[i] = data.oMf[fid].translation
-    return out
-
-
 def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
     a = log.arrays()
     t, q, v = a["t"], a["q"], a["v"]

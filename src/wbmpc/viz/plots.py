@@ -38,16 +38,7 @@ HIGHLIGHT_COLOR = "#c0392b"
 # ----------------------------------------------------------------------------- kinematics helpers
 def frame_positions(robot, q: np.ndarray, frames: Sequence[str]) -> dict[str, np.ndarray]:
     """World positions (n, 3) of named frames for every configuration row of `q` (pinocchio FK)."""
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    model = robot.model
-    data = model.createData()
-    ids = [robot.frame_id(name) for name in frames]
-    out = {name: np.empty((q.shape[0], 3)) for name in frames}
-    for k, qk in enumerate(q):
-        pin.forwardKinematics(model, data, qk)
-        for name, fid in zip(frames, ids):
-            out[name][k] = pin.updateFramePlacement(model, data, fid).translation
-    return out
+    return robot.frame_trajectories(q, frames)
 
 
 def _rotations(q: np.ndarray) -> np.ndarray:
