@@ -2,14 +2,13 @@
 
 Delay modes: `none` (the simulation waits for the solver, section VI-B1), `measured` (the
 solver's wall time elapses in simulation before its solution applies, VI-B2), a fixed delay in
-milliseconds, and `realtime` (the MPC runs in its own thread while the simulation advances at
-wall-clock speed; CasADi releases the GIL while it solves). Until a newer solution is ready the
+milliseconds, and `realtime` (the MPC runs in its own process while the simulation advances at
+wall-clock speed). Until a newer solution is ready the
 last good one keeps being interpolated; failed solves are counted and never applied.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
@@ -161,16 +160,19 @@ class ClosedLoop:
         command = commands(t, q, v)
         start = time.perf_counter()
         solution = self.mpc.solve(q, v, command, t)
-        wall = time.perf_counter() - start
+        solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
+        self._log_solution(log, t, command, solution)
+        return solution
+
+    @staticmethod
+    def _log_solution(log: RunLog, t: float, command: Commands, solution: Solution) -> None:
         log.mpc_t.append(t)
-        log.solve_ms.append(solution.stats.solve_time_s * 1e3 if solution.stats.solve_time_s else wall * 1e3)
+        log.solve_ms.append(solution.stats.solve_time_s * 1e3 if solution.stats.solve_time_s else solution.wall_time_s * 1e3)
         log.iterations.append(solution.stats.iterations)
         log.success.append(solution.success)
         log.status.append(solution.stats.status)
         log.commands.append(command)
         log.planned_contact.append(solution.contact[0].copy())
-        solution.wall_time_s = wall  # type: ignore[attr-defined]
-        return solution
 
     def _control_tick(self, log: RunLog, active: Solution, t: float) -> np.ndarray:
         q, v = self._measure()
@@ -235,61 +237,87 @@ class ClosedLoop:
         return log
 
     def _run_realtime(self, duration_s, commands, events, progress) -> RunLog:
-        """Simulation paced by the wall clock; the MPC thread solves as fast as it can, at most at its rate."""
+        """Simulation paced by the wall clock while the MPC solves in its own process.
+
+        A process, not a thread: the simulation loop is Python and would starve a solver thread of
+        the GIL. The worker builds its own MPC from the robot spec and config (a few seconds before
+        the clock starts); each new solve starts at the next MPC tick after the previous one ended.
+        """
+        import multiprocessing
+
         cfg, plant = self.config, self.plant
         log = RunLog()
-        lock = threading.Lock()
-        shared: dict = {"latest": None, "stop": False}
-        t0 = plant.time_s
-        first = self._solve(log, t0, commands)
-        if not first.success:
-            raise ConfigError(f"the MPC failed on the initial state ({first.stats.status})")
-        shared["latest"] = first
-        mpc_period = 1.0 / cfg.mpc_rate_hz
-        wall_start = time.perf_counter()
-
-        def worker():
-            next_due = mpc_period
-            while not shared["stop"]:
-                elapsed = time.perf_counter() - wall_start
-                if elapsed < next_due:
-                    time.sleep(min(next_due - elapsed, 0.002))
-                    continue
-                if elapsed > next_due + mpc_period:
-                    log.late_solutions += 1  # the previous solve overran a whole period
-                next_due += mpc_period * max(1, np.floor((elapsed - next_due) / mpc_period) + 1)
-                with lock:
-                    t = plant.time_s
-                solution = self._solve(log, t, commands)
-                if solution.success:
-                    with lock:
-                        shared["latest"] = solution
-                        log.delay_ms.append(solution.wall_time_s * 1e3)
-
-        thread = threading.Thread(target=worker, daemon=True)
-        thread.start()
-        control_period = 1.0 / cfg.control_rate_hz
-        next_control = t0
-        tau = np.zeros(self.robot.n_joints)
+        context = multiprocessing.get_context("spawn")
+        conn, child_conn = context.Pipe()
+        worker = context.Process(target=_mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn), daemon=True)
+        worker.start()
         try:
+            if not conn.poll(300) or conn.recv() != "ready":
+                raise ConfigError("the real-time MPC process did not start (see its error above)")
+            t0 = plant.time_s
+            active = self._solve(log, t0, commands)
+            if not active.success:
+                raise ConfigError(f"the MPC failed on the initial state ({active.stats.status})")
+            mpc_period, control_period = 1.0 / cfg.mpc_rate_hz, 1.0 / cfg.control_rate_hz
+            next_mpc, next_control = t0 + mpc_period, t0
+            busy, request = False, None
+            tau = np.zeros(self.robot.n_joints)
+            wall_start = time.perf_counter()
             while plant.time_s - t0 < duration_s - 1e-9:
-                lag = (plant.time_s - t0) - (time.perf_counter() - wall_start)
+                t = plant.time_s
+                lag = (t - t0) - (time.perf_counter() - wall_start)
                 if lag > 0:
                     time.sleep(lag)
-                with lock:
-                    t = plant.time_s
-                    self._apply_events(events, t)
-                    if t >= next_control - 1e-9:
-                        tau = self._control_tick(log, shared["latest"], t)
-                        next_control += control_period
-                        if self._fallen(log.q[-1]):
-                            log.fell, log.fell_at_s = True, t - t0
-                            break
-                    plant.step(tau)
-                if progress:
-                    progress((plant.time_s - t0) / duration_s)
+                self._apply_events(events, t)
+                if busy and conn.poll():
+                    solution = conn.recv()
+                    busy = False
+                    self._log_solution(log, request[0], request[1], solution)
+                    log.delay_ms.append(solution.wall_time_s * 1e3)
+                    if solution.wall_time_s > mpc_period:
+                        log.late_solutions += 1
+                    if solution.success:
+                        active = solution
+                if not busy and t >= next_mpc - 1e-9:
+                    q, v = self._measure()
+                    command = commands(t, q, v)
+                    conn.send((q, v, command, t))
+                    busy, request = True, (t, command)
+                    while next_mpc <= t + 1e-9:
+                        next_mpc += mpc_period
+                if t >= next_control - 1e-9:
+                    tau = self._control_tick(log, active, t)
+                    next_control += control_period
+                    if self._fallen(log.q[-1]):
+                        log.fell, log.fell_at_s = True, t - t0
+                        break
+                    if progress:
+                        progress((t - t0) / duration_s)
+                plant.step(tau)
+            log.wall_time_s = time.perf_counter() - wall_start
         finally:
-            shared["stop"] = True
-            thread.join(timeout=5)
-        log.wall_time_s = time.perf_counter() - wall_start
+            try:
+                conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+            worker.join(timeout=5)
+            if worker.is_alive():
+                worker.terminate()
         return log
+
+
+def _mpc_worker(spec, mpc_config, conn) -> None:
+    """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests."""
+    from wbmpc.robots import RobotModel
+
+    mpc = MPC(RobotModel(spec), mpc_config)
+    conn.send("ready")
+    while True:
+        message = conn.recv()
+        if message is None:
+            return
+        q, v, command, t = message
+        start = time.perf_counter()
+        solution = mpc.solve(q, v, command, t)
+        solution.wall_time_s = time.perf_counter() - start
+        conn.send(solution)
