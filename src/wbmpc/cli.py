@@ -161,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--solver", default="fatrop", help="fatrop (default) or ipopt")
     solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
     solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
-    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args))
+    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args, robot_from_args))
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
     _add_robot_options(mpc)
@@ -173,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args))
+    mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))
     return parser
 
 

@@ -142,9 +142,7 @@ def solve_text(report: dict) -> str:
             f"{'inf' if viol is None else f'{viol:.1e}'}")
 
 
-def cli_solve(args) -> int:
-    from wbmpc.cli import robot_from_args
-
+def cli_solve(args, robot_from_args) -> int:
     check_names(formulation=args.formulation, gait=args.gait, solvers=[args.solver])
     grid_for(args.nodes, args.uniform_dt)  # validate before loading anything heavy
     robot = robot_from_args(args)
@@ -451,9 +449,7 @@ def bench_markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def cli_bench_mpc(args) -> int:
-    from wbmpc.cli import robot_from_args
-
+def cli_bench_mpc(args, robot_from_args) -> int:
     solvers = [s.strip() for s in (args.solvers or "").split(",") if s.strip()]
     if not solvers:
         raise ConfigError("--solvers needs at least one solver, e.g. fatrop,ipopt")
