@@ -188,6 +188,19 @@ class ClosedLoop:
         log.contact_forces.append(self.plant.contact_forces())
         return tau
 
+    def _low_level(self, log, active, t, next_control, tau, t0, duration_s, progress):
+        """The 500 Hz loop (eqs. 9-10) when due: returns (torques to hold, next tick, fell)."""
+        if t < next_control - 1e-9:
+            return tau, next_control, False
+        tau = self._control_tick(log, active, t)
+        next_control += 1.0 / self.config.control_rate_hz
+        if self._fallen(log.q[-1]):
+            log.fell, log.fell_at_s = True, t - t0
+            return tau, next_control, True
+        if progress:
+            progress((t - t0) / duration_s)
+        return tau, next_control, False
+
     def _apply_events(self, events: list[Event], t: float) -> None:
         for event in events:
             if not event.done and t >= event.time_s:
@@ -198,7 +211,7 @@ class ClosedLoop:
         cfg, plant = self.config, self.plant
         log = RunLog()
         wall_start = time.perf_counter()
-        mpc_period, control_period = 1.0 / cfg.mpc_rate_hz, 1.0 / cfg.control_rate_hz
+        mpc_period = 1.0 / cfg.mpc_rate_hz
         t0 = plant.time_s
         active = self._solve(log, t0, commands)
         if not active.success:
@@ -224,14 +237,9 @@ class ClosedLoop:
                     pending.append((t + delay, solution))
             while pending and pending[0][0] <= t + 1e-9:
                 active = pending.pop(0)[1]
-            if t >= next_control - 1e-9:
-                tau = self._control_tick(log, active, t)
-                next_control += control_period
-                if self._fallen(log.q[-1]):
-                    log.fell, log.fell_at_s = True, t - t0
-                    break
-                if progress:
-                    progress((t - t0) / duration_s)
+            tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress)
+            if fell:
+                break
             plant.step(tau)
         log.wall_time_s = time.perf_counter() - wall_start
         return log
@@ -258,7 +266,7 @@ class ClosedLoop:
             active = self._solve(log, t0, commands)
             if not active.success:
                 raise ConfigError(f"the MPC failed on the initial state ({active.stats.status})")
-            mpc_period, control_period = 1.0 / cfg.mpc_rate_hz, 1.0 / cfg.control_rate_hz
+            mpc_period = 1.0 / cfg.mpc_rate_hz
             next_mpc, next_control = t0 + mpc_period, t0
             busy, request = False, None
             tau = np.zeros(self.robot.n_joints)
@@ -285,14 +293,9 @@ class ClosedLoop:
                     busy, request = True, (t, command)
                     while next_mpc <= t + 1e-9:
                         next_mpc += mpc_period
-                if t >= next_control - 1e-9:
-                    tau = self._control_tick(log, active, t)
-                    next_control += control_period
-                    if self._fallen(log.q[-1]):
-                        log.fell, log.fell_at_s = True, t - t0
-                        break
-                    if progress:
-                        progress((t - t0) / duration_s)
+                tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress)
+                if fell:
+                    break
                 plant.step(tau)
             log.wall_time_s = time.perf_counter() - wall_start
         finally:
