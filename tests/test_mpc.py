@@ -153,3 +153,22 @@ def test_arm_is_carried_along_by_default(trot_mpc, b1z1):
     vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(b1z1.arm_ee), pin.LOCAL_WORLD_ALIGNED).linear
     np.testing.assert_allclose(vel, [0.2, 0.0, 0.0], atol=1e-6)
     assert solution.v[-1, 0] > 0.1  # and the base really speeds up over the horizon
+
+
+@pytest.mark.parametrize("robot_name, gait", [("go2", "trot"), ("a1", "walk"), ("b1_z1_full", "stand")])
+def test_other_robots_and_gaits_solve_consistently(robot_name, gait):
+    """Any legged robot with a URDF: legs-only robots, the six-joint arm, three-legged stance phases."""
+    from wbmpc.robots import load_robot
+
+    robot = load_robot(robot_name)
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait=gait))
+    solution = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.1)
+    assert solution.success, solution.stats
+    weight = robot.mass_kg * 9.81
+    for k in range(len(solution.a)):
+        data = _kinematics(robot, solution.q[k], solution.v[k])
+        fext = world_forces_to_pinocchio(robot, data, solution.forces[k])
+        tau = pin.rnea(robot.model, data, solution.q[k], solution.v[k], solution.a[k], fext)
+        assert np.abs(tau[:6]).max() < 1e-5 * weight
+    stance_per_node = solution.contact[:-1].sum(axis=1)
+    assert stance_per_node.min() >= (3 if gait == "walk" else 2)
