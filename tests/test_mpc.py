@@ -172,3 +172,14 @@ def test_other_robots_and_gaits_solve_consistently(robot_name, gait):
         assert np.abs(tau[:6]).max() < 1e-5 * weight
     stance_per_node = solution.contact[:-1].sum(axis=1)
     assert stance_per_node.min() >= (3 if gait == "walk" else 2)
+
+
+def test_state_past_its_limits_stays_solvable(trot_mpc, b1z1):
+    """A measurement beyond a joint limit (possible after a push) must not make the OCP infeasible."""
+    q, v = b1z1.q_nominal.copy(), np.zeros(b1z1.nv)
+    j = b1z1.joint_index("joint1")
+    q[7 + j] = b1z1.q_max[j] + 0.02  # past the position limit ...
+    v[6 + j] = 1.2 * b1z1.v_max[j]  # ... and still moving outwards faster than allowed
+    solution = trot_mpc.solve(q, v, Commands(), t=0.0)
+    assert solution.success, solution.stats
+    assert solution.v[-1, 6 + j] <= b1z1.v_max[j] + 1e-6  # brought back within the limits later on

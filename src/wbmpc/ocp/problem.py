@@ -29,6 +29,7 @@ from wbmpc.robots import RobotModel
 from wbmpc.symbolic import SymbolicDynamics
 
 INF = np.inf
+EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 
 
@@ -185,14 +186,27 @@ class OcpProblem:
         ubg = np.zeros(self.n_constraints)
         contact = np.asarray(data.contact, dtype=bool)
         # eq. (8): joint position / velocity limits on nodes 1..N, torque limits on k < 3
+        # The first nodes follow from the measurement (dq_1 = v_0 dt_0; velocities change only by
+        # a dt): over the first EARLY_NODES nodes the limits are widened to contain the coasting
+        # extrapolation of the measured state, or a state past a limit (e.g. after a push) would
+        # make the whole OCP infeasible. Later nodes keep the true limits (eq. 8).
+        early = slice(0, min(EARLY_NODES, self.N))
         if "dq" in self.idx:
             joint_dq = self.idx["dq"][1:, 6:]
             lbx[joint_dq] = robot.q_min - data.q_ref[7:]
             ubx[joint_dq] = robot.q_max - data.q_ref[7:]
+            if self.formulation.state_parts()[:2] == [("dq", self.nv), ("v", self.nv)]:
+                coasting = np.outer(self.config.grid.node_times_s[1:], data.v0[6:])[early]
+                rows = joint_dq[early]
+                lbx[rows] = np.minimum(lbx[rows], np.minimum(coasting, 0.0) - 1e-6)
+                ubx[rows] = np.maximum(ubx[rows], np.maximum(coasting, 0.0) + 1e-6)
         if "v" in self.idx:
             joint_v = self.idx["v"][1:, 6:]
             lbx[joint_v] = -robot.v_max
             ubx[joint_v] = robot.v_max
+            overspeed = np.maximum(robot.v_max, np.abs(data.v0[6:]))
+            lbx[joint_v[early]] = -overspeed
+            ubx[joint_v[early]] = overspeed
         if "tau" in self.idx:
             lbx[self.idx["tau"]] = -robot.tau_max
             ubx[self.idx["tau"]] = robot.tau_max
