@@ -149,10 +149,10 @@ class MPC:
         return q, v
 
     # ------------------------------------------------------------------ per-step data
-    def _targets(self, q: np.ndarray, commands: Commands, t: float, node_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """dq_des per node (nominal posture, base following the commanded velocity) and v_des."""
+    def _targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t: float, node_times: np.ndarray):
+        """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the
+        commanded base velocity in world coordinates."""
         robot = self.robot
-        rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
         dt_since = 0.0 if self._last_t is None else max(0.0, t - self._last_t)
         self._last_t = t
@@ -177,8 +177,7 @@ class MPC:
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
-        self._base_velocity_world = v_world
-        return dq_des, v_des
+        return dq_des, v_des, v_world
 
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
@@ -206,13 +205,14 @@ class MPC:
     def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0) -> Solution:
         commands = commands or Commands()
         q, v = self._check(q, v, commands, t)
-        problem, N = self.problem, self.problem.N
+        problem = self.problem
         node_times, contact, swing_vz = self.schedule(t)
-        dq_des, v_des = self._targets(q, commands, t, node_times)
+        rot = pin.Quaternion(q[3:7]).toRotationMatrix()
+        dq_des, v_des, base_velocity_world = self._targets(q, rot, commands, t, node_times)
         forces = self._force_guess(contact, commands)
         values = {
             "q_ref": q,
-            "rot_ref": pin.Quaternion(q[3:7]).toRotationMatrix(),
+            "rot_ref": rot,
             "dt": problem.config.grid.dt_s,
             "dq_des": dq_des,
             "v_des": v_des,
@@ -223,7 +223,7 @@ class MPC:
         p = problem.params.pack(values)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
-            ee_velocity_m_s=(self._base_velocity_world if commands.ee_velocity_m_s is None
+            ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
         )

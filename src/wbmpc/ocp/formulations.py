@@ -9,7 +9,7 @@ as path constraint (eq. 5).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -27,7 +27,6 @@ class Node:
     parts: dict[str, ca.SX]
     config: Configuration | None = None
     motion: Motion | None = None
-    extra: dict = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> ca.SX:
         return self.parts[name]
@@ -81,9 +80,9 @@ class Formulation(ABC):
         robot = self.dyn.robot
         return np.concatenate([np.full(6, robot.mass_kg * GRAVITY_M_S2), robot.tau_max])[:n_rows]
 
-    def joint_torques(self, node: Node) -> ca.SX | None:
-        """Joint torques the controller applies at node k (k < n_torque_nodes), if represented."""
-        return node.get("tau")
+    @abstractmethod
+    def initial_state(self, v0: np.ndarray) -> np.ndarray:
+        """x_0 for the measured generalized velocity (the configuration is the reference q_hat)."""
 
 
 class WholeBodyInverse(Formulation):
@@ -104,6 +103,9 @@ class WholeBodyInverse(Formulation):
 
     def transition(self, node, dt):
         return ca.vertcat(node["dq"] + dt * node["v"], node["v"] + dt * node["a"])
+
+    def initial_state(self, v0):
+        return np.concatenate([np.zeros(self.nv), v0])
 
     def kinematics(self, node, q_ref, rot_ref):
         cfg = self.dyn.configuration_from_increment(rot_ref, q_ref, node["dq"])

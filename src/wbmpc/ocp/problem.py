@@ -174,7 +174,6 @@ class OcpProblem:
         self.equality = np.zeros(n_rows, dtype=bool)  # structural equalities (gap rows) for Fatrop
         self.equality[self.rows["gap"].ravel()] = True
         self.state_names = state_names
-        self._nodes = nodes
 
     # ------------------------------------------------------------------ per-step data
     def bounds(self, data: StageBounds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -195,7 +194,7 @@ class OcpProblem:
             joint_dq = self.idx["dq"][1:, 6:]
             lbx[joint_dq] = robot.q_min - data.q_ref[7:]
             ubx[joint_dq] = robot.q_max - data.q_ref[7:]
-            if self.formulation.state_parts()[:2] == [("dq", self.nv), ("v", self.nv)]:
+            if "v" in self.state_names:  # Euler: dq_{k+1} = dq_k + v_k dt_k
                 coasting = np.outer(self.config.grid.node_times_s[1:], data.v0[6:])[early]
                 rows = joint_dq[early]
                 lbx[rows] = np.minimum(lbx[rows], np.minimum(coasting, 0.0) - 1e-6)
@@ -222,12 +221,10 @@ class OcpProblem:
                 force = np.zeros(3) if data.ee_force_on_robot_n is None else data.ee_force_on_robot_n
                 lbx[arm_f] = force
                 ubx[arm_f] = force
-        # node 0 = measured state (dq = 0, v = v0)
-        x0_rows = self.rows["x0"][0]
-        x0 = np.concatenate([np.zeros(self.nv), data.v0]) if self.state_names == ["dq", "v"] else None
-        if x0 is not None:
-            lbg[x0_rows] = x0
-            ubg[x0_rows] = x0
+        # node 0 = measured state
+        x0 = self.formulation.initial_state(data.v0)
+        lbg[self.rows["x0"][0]] = x0
+        ubg[self.rows["x0"][0]] = x0
         # eq. (6) foot velocities on nodes 1..N: stance 0, swing v_z = reference, v_xy free
         foot_rows = self.rows["foot_vel"].reshape(N, nf, 3)
         swing = ~contact[1:]
