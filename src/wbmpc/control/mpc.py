@@ -103,6 +103,7 @@ class MPC:
         q1 = ca.SX.sym("q1", robot.nq)
         self._difference = ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1)
         self._weights = config.weights.vectors(robot, self.problem.nf)
+        self._trajectories = self.problem.trajectory_function()
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
         self._xy_reference: np.ndarray | None = None
@@ -241,47 +242,53 @@ class MPC:
             retry.stats.solve_time_s += result.stats.solve_time_s
             retry.stats.iterations += result.stats.iterations
             result = retry
-        solution = self._unpack(result.x, q, t, node_times, contact, result.stats)
+        solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
         if solution.success:
             self._previous = solution
         return solution
 
     def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:
+        """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous
+        solution's variables shifted to the new node times (any formulation), forces re-initialised."""
         problem, idx = self.problem, self.problem.idx
-        guess = {"v": np.tile(v, (len(idx["v"]), 1)), "F": forces}
+        x0 = problem.formulation.initial_state(q, v)
+        guess, offset = {}, 0
+        for name, size in problem.formulation.state_parts():
+            guess[name] = np.tile(x0[offset : offset + size], (len(idx[name]), 1))
+            offset += size
+        for name, value in (("v", v), ("vj", v[6:])):
+            if name in idx and name not in problem.state_names:
+                guess[name] = np.tile(value, (len(idx[name]), 1))
         previous = self._previous if self.config.warm_start else None
         if previous is not None:
-            # shift the previous trajectories to the new node times (clamped at the horizon end)
-            new_times = t + node_times
-            q_prev_ref = np.tile(q, (len(node_times), 1))
-            dq_prev = np.asarray(self._difference(q_prev_ref.T, previous.q.T)).T  # previous nodes w.r.t. new q
-            old_times = previous.t_s + previous.node_times_s
-            guess["dq"] = _interp_rows(new_times, old_times, dq_prev)
-            guess["dq"][0] = 0.0
-            guess["v"] = _interp_rows(new_times, old_times, previous.v)
-            guess["v"][0] = v
-            guess["a"] = _interp_rows(new_times[:-1], old_times[:-1], previous.a)
-            if "tau" in idx:
-                n_tau = previous.tau.shape[0]
-                guess["tau"] = _interp_rows(new_times[:n_tau], old_times[:n_tau], previous.tau)
+            new_times, old_times = t + node_times, previous.t_s + previous.node_times_s
+            parts = problem.unpack(previous.x)
+            # the previous configurations re-expressed as increments on the new reference q
+            parts["dq"] = np.asarray(self._difference(np.tile(q, (len(node_times), 1)).T, previous.q.T)).T
+            for name, values in parts.items():
+                if name != "F":
+                    guess[name] = _interp_rows(new_times[: len(values)], old_times[: len(values)], values)
+            for name in problem.state_names:  # node 0 is the measurement
+                guess[name][0] = x0[problem.state_offsets[name]]
+        guess["F"] = forces
         return problem.pack(guess)
 
-    def _unpack(self, x: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        parts = self.problem.unpack(x)
-        q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, parts["dq"].T)).T
-        tau = parts["tau"] if "tau" in parts else np.zeros((0, self.robot.n_joints))
-        finite = np.all(np.isfinite(x))
+    def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
+        dq, v, a, forces, tau = (np.asarray(m).T for m in self._trajectories(x, p))
+        q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, dq.T)).T
+        finite = np.all(np.isfinite(x)) and np.all(np.isfinite(tau))
         return Solution(
             t_s=t,
             node_times_s=node_times.copy(),
             q=q_traj,
-            v=parts["v"],
-            a=parts["a"],
-            forces=parts["F"],
+            v=v,
+            a=a,
+            forces=forces,
             tau=tau,
             contact=contact,
             stats=stats,
             success=bool(stats.success and finite),
+            x=np.asarray(x, dtype=float),
         )
 
 

@@ -13,6 +13,9 @@ from wbmpc.solvers.nlp import SolverStats
 class Solution:
     """q (N+1, nq), v (N+1, nv), a (N, nv), forces (N, nf), tau (n_torque_nodes, n_joints).
 
+    For velocity-level formulations v_N repeats v_{N-1}, a comes from differences of v and tau is
+    the inverse dynamics of the plan.
+
     Times are absolute: node k is at `t_s + node_times_s[k]`. Forces are world-frame forces on the
     robot at `robot.contact_frames`. Use only when `success` is true.
     """
@@ -27,6 +30,7 @@ class Solution:
     contact: np.ndarray
     stats: SolverStats
     success: bool
+    x: np.ndarray | None = None  # the NLP solution vector (scaled variables), for warm starts
 
     @property
     def dt_s(self) -> np.ndarray:

@@ -1,9 +1,23 @@
-"""Dynamics formulations: what a stage's state and input are and how the dynamics are imposed.
+"""Dynamics formulations (Table I): what a stage's state and input are and how the dynamics enter.
 
-Every formulation shares the OCP machinery (gait, contact, arm, limits, cost); it only defines
-its state/input parts, the state transition and the dynamics path rows. `wb_inverse` is the
-paper's (section IV-B1): x = [dq, v], u = [a, F, tau (k < 3)], explicit Euler (eq. 4) and RNEA
-as path constraint (eq. 5).
+Every formulation shares the OCP machinery (gait, contact, arm, limits, cost); it only defines its
+state/input parts, the state transition, the dynamics path rows and how to read q, v, a and the
+joint torques off a node. All of them carry the configuration as an increment dq on the reference
+q_hat (eq. 4) and use explicit Euler steps.
+
+| name                  | x         | u            | dynamics                                          |
+|-----------------------|-----------|--------------|---------------------------------------------------|
+| `wb_inverse`          | [dq, v]   | [a, F, tau_j]| path: [0; tau_j] = RNEA(q, v, a, F) (eq. 5)        |
+| `wb_forward`          | [dq, v]   | [tau_j, F]   | transition: a = M^-1([0; tau_j] + J^T F - b)       |
+| `centroidal_vel_path` | [h, dq]   | [v, F]       | path: h = A(q) v                                   |
+| `centroidal_vel`      | [h, dq]   | [v_j, F]     | transition: v_b = A_b^-1 (h - A_j v_j)             |
+| `centroidal_acc_path` | [dq, v]   | [a, F]       | path: hdot(F) = Adot v + A a                       |
+| `centroidal_acc`      | [dq, v]   | [a_j, F]     | transition: a_b = A_b^-1 (hdot(F) - Adot v - A_j a_j) |
+
+The centroidal ones evolve h with hdot = [sum F + m g; sum (p_i - c) x F_i]. Joint torques appear as
+variables only where the formulation has them (`tau` on k < 3 for `wb_inverse`, every node for
+`wb_forward`); the centroidal ones bound the quasi-static estimate g_j(q) - J_j^T F on k < 3
+instead, as the paper does (section VI-A).
 """
 
 from __future__ import annotations
@@ -27,6 +41,8 @@ class Node:
     parts: dict[str, ca.SX]
     config: Configuration | None = None
     motion: Motion | None = None
+    acceleration: ca.SX | None = None  # generalized acceleration of an input node, built once
+
 
     def __getitem__(self, name: str) -> ca.SX:
         return self.parts[name]
@@ -48,6 +64,7 @@ class Formulation(ABC):
         self.nj = dyn.nv - 6
         self.nf = dyn.n_forces
         self.n_torque_nodes = n_torque_nodes
+        self._momentum_fn: ca.Function | None = None
 
     @abstractmethod
     def state_parts(self) -> list[tuple[str, int]]:
@@ -59,18 +76,46 @@ class Formulation(ABC):
 
     @abstractmethod
     def transition(self, node: Node, dt) -> ca.SX:
-        """x_{k+1} as a function of x_k, u_k and the step dt_k."""
+        """x_{k+1} as a function of x_k, u_k and the step dt_k (same order as `state_parts`);
+        `node.acceleration` is set when the formulation has one."""
 
     def dynamics_rows(self, node: Node) -> ca.SX:
-        """Equality rows (= 0) imposing the dynamics on node k (path formulations)."""
+        """Equality rows (= 0) imposing the dynamics on node k (path formulations), scaled."""
         return ca.SX(0, 1)
 
-    @abstractmethod
-    def kinematics(self, node: Node, q_ref: ca.SX, rot_ref: ca.SX) -> tuple[Configuration, Motion]:
-        """Configuration and generalized velocity of the node (for contact and arm constraints)."""
+    def velocity(self, node: Node) -> ca.SX | None:
+        """Generalized velocity of the node (None where it is an input the last node lacks)."""
+        return node.get("v")
+
+    def acceleration(self, node: Node) -> ca.SX | None:
+        """Generalized acceleration of an input node (None for velocity-level formulations)."""
+        return node.get("a")
+
+    def kinematics(self, node: Node, q_ref: ca.SX, rot_ref: ca.SX) -> None:
+        """Sets the node's configuration q_hat (+) dq, its motion and acceleration (built once, shared
+        by the dynamics, contact, arm and cost rows)."""
+        node.config = self.dyn.configuration_from_increment(rot_ref, q_ref, node["dq"])
+        v = self.velocity(node)
+        node.motion = Motion(node.config, v) if v is not None else None
+        has_input = node.get("F") is not None  # every formulation's input carries the contact forces
+        node.acceleration = self.acceleration(node) if (has_input and node.motion is not None) else None
+
+    def torque_estimate(self, node: Node) -> ca.SX | None:
+        """Joint torques to bound on k < n_torque_nodes when they are no variables: the
+        quasi-static estimate tau_j = g_j(q) - J_j^T F (gravity compensation and contact Jacobian)."""
+        if node.get("tau") is not None:
+            return None
+        zero = ca.SX.zeros(self.nv)
+        return self.dyn.rnea(node.config, Motion(node.config, zero), zero, node["F"])[6:]
+
+    def joint_torques(self, node: Node, a: ca.SX) -> ca.SX:
+        """Joint torques to apply (eq. 10's tau_ff): the variable, or inverse dynamics of the plan."""
+        if node.get("tau") is not None:
+            return node["tau"]
+        return self.dyn.rnea(node.config, node.motion, a, node["F"])[6:]
 
     def variable_scales(self) -> dict[str, np.ndarray]:
-        """Typical magnitude of each part: the NLP variable is part / scale (better conditioning)."""
+        """Typical magnitude of each input part: the NLP variable is part / scale."""
         robot = self.dyn.robot
         force = np.full(self.nf, robot.mass_kg * GRAVITY_M_S2 / max(len(robot.feet), 1))
         return {"F": force, "tau": np.asarray(robot.tau_max, dtype=float)}
@@ -80,9 +125,24 @@ class Formulation(ABC):
         robot = self.dyn.robot
         return np.concatenate([np.full(6, robot.mass_kg * GRAVITY_M_S2), robot.tau_max])[:n_rows]
 
-    @abstractmethod
-    def initial_state(self, v0: np.ndarray) -> np.ndarray:
-        """x_0 for the measured generalized velocity (the configuration is the reference q_hat)."""
+    def initial_state(self, q_ref: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """x_0 for the measured state (the configuration is the reference q_hat, so dq_0 = 0)."""
+        values = {"dq": np.zeros(self.nv), "v": v0}
+        if any(name == "h" for name, _ in self.state_parts()):
+            values["h"] = self.centroidal_momentum(q_ref, v0)
+        return np.concatenate([values[name] for name, _ in self.state_parts()])
+
+    def centroidal_momentum(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Numeric h_com = A(q) v with the same symbolic algorithm the constraints use."""
+        if self._momentum_fn is None:
+            q_sym, v_sym = ca.SX.sym("q", self.dyn.nq), ca.SX.sym("v", self.nv)
+            cfg = self.dyn.configuration(q_sym)
+            self._momentum_fn = ca.Function("h", [q_sym, v_sym], [self.dyn.centroidal_momentum(cfg, Motion(cfg, v_sym))])
+        return np.asarray(self._momentum_fn(q, v)).ravel()
+
+    def _euler_dq_v(self, node: Node, dt) -> ca.SX:
+        """Explicit Euler on [dq, v] (eq. 4)."""
+        return ca.vertcat(node["dq"] + dt * node["v"], node["v"] + dt * node.acceleration)
 
 
 class WholeBodyInverse(Formulation):
@@ -90,7 +150,7 @@ class WholeBodyInverse(Formulation):
 
     name = "wb_inverse"
     dynamics_as = "path"
-    description = "whole-body inverse dynamics, RNEA as path constraint"
+    description = "whole-body inverse dynamics, RNEA as path constraint (ours)"
 
     def state_parts(self):
         return [("dq", self.nv), ("v", self.nv)]
@@ -102,14 +162,7 @@ class WholeBodyInverse(Formulation):
         return parts
 
     def transition(self, node, dt):
-        return ca.vertcat(node["dq"] + dt * node["v"], node["v"] + dt * node["a"])
-
-    def initial_state(self, v0):
-        return np.concatenate([np.zeros(self.nv), v0])
-
-    def kinematics(self, node, q_ref, rot_ref):
-        cfg = self.dyn.configuration_from_increment(rot_ref, q_ref, node["dq"])
-        return cfg, Motion(cfg, node["v"])
+        return self._euler_dq_v(node, dt)
 
     def dynamics_rows(self, node):
         tau = self.dyn.rnea(node.config, node.motion, node["a"], node["F"])
@@ -117,7 +170,117 @@ class WholeBodyInverse(Formulation):
         return rows / self.dynamics_row_scale(rows.shape[0])
 
 
-FORMULATIONS: dict[str, type[Formulation]] = {WholeBodyInverse.name: WholeBodyInverse}
+class WholeBodyForward(Formulation):
+    """x = [dq, v], u = [tau_j, F]; a = FD(q, v, tau_j, F) (CRBA + sparse LTDL) in the transition."""
+
+    name = "wb_forward"
+    dynamics_as = "transition"
+    description = "whole-body forward dynamics in the state transition"
+
+    def state_parts(self):
+        return [("dq", self.nv), ("v", self.nv)]
+
+    def input_parts(self, k):
+        return [("tau", self.nj), ("F", self.nf)]
+
+    def acceleration(self, node):
+        return self.dyn.forward_dynamics(node.config, node.motion, node["tau"], node["F"])
+
+    def transition(self, node, dt):
+        return self._euler_dq_v(node, dt)
+
+
+class CentroidalVelocityPath(Formulation):
+    """x = [h, dq], u = [v, F]; h_{k+1} = h_k + dt hdot(F); path rows A(q) v - h = 0."""
+
+    name = "centroidal_vel_path"
+    dynamics_as = "path"
+    description = "centroidal momentum, h = A(q) v as path constraint"
+
+    def state_parts(self):
+        return [("h", 6), ("dq", self.nv)]
+
+    def input_parts(self, k):
+        return [("v", self.nv), ("F", self.nf)]
+
+    def transition(self, node, dt):
+        hdot = self.dyn.centroidal_wrench(node.config, node["F"])
+        return ca.vertcat(node["h"] + dt * hdot, node["dq"] + dt * node.motion.v)
+
+    def dynamics_rows(self, node):
+        residual = self.dyn.centroidal_momentum(node.config, node.motion) - node["h"]
+        return residual / self.dyn.robot.mass_kg
+
+
+class CentroidalVelocity(CentroidalVelocityPath):
+    """x = [h, dq], u = [v_j, F]; v_b = A_b^-1 (h - A_j v_j) inside the transition (and kinematics)."""
+
+    name = "centroidal_vel"
+    dynamics_as = "transition"
+    description = "centroidal momentum, base velocity from A_b^-1 in the transition"
+
+    def input_parts(self, k):
+        return [("vj", self.nj), ("F", self.nf)]
+
+    def velocity(self, node):
+        if node.get("vj") is None:
+            return None
+        joints = ca.vertcat(ca.SX.zeros(6), node["vj"])
+        joint_momentum = self.dyn.centroidal_momentum(node.config, Motion(node.config, joints))
+        base = self.dyn.centroidal_base_inverse(node.config, node["h"] - joint_momentum)
+        return ca.vertcat(base, node["vj"])
+
+    def dynamics_rows(self, node):
+        return ca.SX(0, 1)
+
+
+class CentroidalAccelerationPath(Formulation):
+    """x = [dq, v], u = [a, F]; path rows hdot(F) - (Adot v + A a) = 0."""
+
+    name = "centroidal_acc_path"
+    dynamics_as = "path"
+    description = "centroidal momentum rate, hdot = Adot v + A a as path constraint"
+
+    def state_parts(self):
+        return [("dq", self.nv), ("v", self.nv)]
+
+    def input_parts(self, k):
+        return [("a", self.nv), ("F", self.nf)]
+
+    def transition(self, node, dt):
+        return self._euler_dq_v(node, dt)
+
+    def dynamics_rows(self, node):
+        hdot = self.dyn.centroidal_wrench(node.config, node["F"])
+        residual = hdot - self.dyn.centroidal_momentum_rate(node.config, node.motion, node["a"])
+        return residual / (self.dyn.robot.mass_kg * GRAVITY_M_S2)
+
+
+class CentroidalAcceleration(CentroidalAccelerationPath):
+    """x = [dq, v], u = [a_j, F]; a_b = A_b^-1 (hdot(F) - Adot v - A_j a_j) inside the transition."""
+
+    name = "centroidal_acc"
+    dynamics_as = "transition"
+    description = "centroidal momentum rate, base acceleration from A_b^-1 in the transition"
+
+    def input_parts(self, k):
+        return [("aj", self.nj), ("F", self.nf)]
+
+    def acceleration(self, node):
+        joints = ca.vertcat(ca.SX.zeros(6), node["aj"])
+        bias = self.dyn.centroidal_momentum_rate(node.config, node.motion, joints)  # Adot v + A_j a_j
+        hdot = self.dyn.centroidal_wrench(node.config, node["F"])
+        return ca.vertcat(self.dyn.centroidal_base_inverse(node.config, hdot - bias), node["aj"])
+
+    def dynamics_rows(self, node):
+        return ca.SX(0, 1)
+
+
+FORMULATIONS: dict[str, type[Formulation]] = {
+    cls.name: cls
+    for cls in (WholeBodyInverse, WholeBodyForward, CentroidalVelocityPath, CentroidalVelocity,
+                CentroidalAccelerationPath, CentroidalAcceleration)
+}
 
 
 def make_formulation(name: str, dyn: SymbolicDynamics, n_torque_nodes: int) -> Formulation:

@@ -27,6 +27,23 @@ class ParameterPack:
         return self._symbols[name]
 
     @property
+    def names(self) -> list[str]:
+        return list(self._symbols)
+
+    def shape(self, name: str) -> tuple[int, int]:
+        return self._symbols[name].shape
+
+    def select(self, p, name: str, column: int | None = None):
+        """Block `name` (flattened column-major) of a flat parameter vector `p` (SX or MX), or one
+        of its columns."""
+        block = self._slices[name]
+        if column is None:
+            return p[block.start : block.stop]
+        rows = self._symbols[name].shape[0]
+        start = block.start + column * rows
+        return p[start : start + rows]
+
+    @property
     def size(self) -> int:
         return self._size
 

@@ -22,15 +22,17 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from wbmpc.errors import ConfigError
 from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.parameters import ParameterPack
 from wbmpc.robots import RobotModel
-from wbmpc.symbolic import SymbolicDynamics
+from wbmpc.symbolic import Motion, SymbolicDynamics
 
 INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "foot_vel", "ee_vel", "cone")
 
 
 @dataclass(frozen=True)
@@ -59,7 +61,13 @@ class StageBounds:
 
 
 class OcpProblem:
-    """Builds the NLP once; `bounds()` and `parameters` map per-step task data onto it."""
+    """Builds the NLP once; `bounds()` and `parameters` map per-step task data onto it.
+
+    Each stage k is one casadi Function of (x_k, u_k, p_k) -> (f(x_k, u_k), path rows, cost); stages
+    of the same kind (first, torque nodes, plain, terminal) share one Function. `nlp` inlines them
+    into one SX expression graph (fastest in the virtual machine); `stagewise_nlp()` calls them from
+    MX, so derivatives and generated C exist once per stage kind (what code generation compiles).
+    """
 
     def __init__(self, robot: RobotModel, config: OcpConfig = OcpConfig(), dyn: SymbolicDynamics | None = None):
         self.robot = robot
@@ -70,110 +78,221 @@ class OcpProblem:
         self.nv, self.nj, self.nf = self.dyn.nv, self.dyn.nv - 6, self.dyn.n_forces
         self.n_feet = len(robot.feet)
         self.has_arm = robot.arm_ee is not None
-        self._build()
+        self._layout()
+        self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
+        self.nlp = self._assemble(ca.SX)
+        self._stagewise: dict | None = None
 
-    # ------------------------------------------------------------------ build
-    def _build(self) -> None:
+    # ------------------------------------------------------------------ layout
+    def _layout(self) -> None:
+        """Global parameters, decision-variable order (x0, u0, x1, ..., xN) and scales."""
         N, nv, nf = self.N, self.nv, self.nf
         form = self.formulation
         params = ParameterPack()
-        q_ref = params.add("q_ref", self.dyn.nq)
-        rot_ref = params.add("rot_ref", 3, 3)
-        dt = params.add("dt", N)
-        dq_des = params.add("dq_des", nv, N + 1)
-        v_des = params.add("v_des", nv)
-        f_des = params.add("F_des", nf, N)
-        w_dq = params.add("w_dq", nv)
-        w_v = params.add("w_v", nv)
-        w_a = params.add("w_a", nv)
-        w_f = params.add("w_F", nf)
-        w_tau = params.add("w_tau", self.nj)
-        mu = params.add("mu", 1)
+        params.add("q_ref", self.dyn.nq)
+        params.add("rot_ref", 3, 3)
+        params.add("dt", 1, N)
+        params.add("dq_des", nv, N + 1)
+        params.add("v_des", nv)
+        params.add("F_des", nf, N)
+        params.add("w_dq", nv)
+        params.add("w_v", nv)
+        params.add("w_a", nv)
+        params.add("w_F", nf)
+        params.add("w_tau", self.nj)
+        params.add("mu", 1)
         self.params = params
-
-        # decision variables in stage order, with index bookkeeping
-        blocks, offset = [], 0
-        index: dict[str, list[np.ndarray]] = {}
+        self.state_names = [name for name, _ in form.state_parts()]
+        self.nx = sum(size for _, size in form.state_parts())
+        bounds = np.cumsum([0] + [size for _, size in form.state_parts()])
+        self.state_offsets = {name: slice(bounds[i], bounds[i + 1]) for i, name in enumerate(self.state_names)}
         scales = form.variable_scales()
+        if any(name in scales for name in self.state_names):
+            raise ConfigError("state parts must stay unscaled: Fatrop needs x_{k+1} with coefficient 1 in the gap rows")
+        offset = 0
+        index: dict[str, list[np.ndarray]] = {}
         x_scale: list[np.ndarray] = []
-        nodes: list[Node] = []
+        self.stage_slices: list[tuple[slice, slice]] = []  # (state, input) of each node in x
         for k in range(N + 1):
-            parts = {}
+            start = offset
             layout = form.state_parts() + (form.input_parts(k) if k < N else [])
             for name, size in layout:
-                sym = ca.SX.sym(f"{name}_{k}", size)
-                scale = np.asarray(scales.get(name, np.ones(size)), dtype=float)
-                parts[name] = sym * scale if name in scales else sym  # NLP variable = part / scale
-                blocks.append(sym)
-                x_scale.append(scale)
+                x_scale.append(np.asarray(scales.get(name, np.ones(size)), dtype=float))
                 index.setdefault(name, []).append(np.arange(offset, offset + size))
                 offset += size
-            nodes.append(Node(k, parts))
+            self.stage_slices.append((slice(start, start + self.nx), slice(start + self.nx, offset)))
         self.n_variables = offset
         self.idx = {name: np.array(rows) for name, rows in index.items()}
         self.x_scale = np.concatenate(x_scale)
-        state_names = [n for n, _ in form.state_parts()]
 
-        rows: dict[str, list] = {name: [] for name in ("gap", "x0", "dynamics", "foot_vel", "ee_vel", "cone")}
-        g, n_rows = [], 0
+    def _stage_kind(self, k: int) -> tuple[bool, bool, bool]:
+        """(has input, has torque rows/variables, is the measured node) — nodes of one kind share a Function."""
+        return k < self.N, k < min(self.config.n_torque_nodes, self.N), k == 0
 
-        def add(tag: str, expr: ca.SX) -> np.ndarray:
-            nonlocal n_rows
-            index = np.arange(n_rows, n_rows + expr.shape[0])
-            g.append(expr)
-            n_rows += expr.shape[0]
-            rows[tag].append(index)
-            return index
+    def _stage_parameters(self, p, k: int):
+        """The slice of the global parameter vector stage k reads (its own dt, targets and forces)."""
+        N, params = self.N, self.params
+        names = params.names
+        columns = {"dt": min(k, N - 1), "dq_des": k, "F_des": min(k, N - 1)}
+        return ca.vertcat(*[params.select(p, name, columns.get(name)) for name in names])
 
-        cost = 0
-        feet = self.robot.feet
-        force_scale = np.asarray(scales.get("F", np.ones(nf)), dtype=float)
-        for k, node in enumerate(nodes):
-            node.config, node.motion = form.kinematics(node, q_ref, rot_ref)
-            x_k = ca.vertcat(*[node[n] for n in state_names])
+    def stage_function(self, k: int) -> tuple[ca.Function, list[tuple[str, int]]]:
+        """The SX Function of node k's kind and the tags of its path rows, built on first need."""
+        kind = self._stage_kind(k)
+        if kind not in self._stage_functions:
+            self._stage_functions[kind] = self._build_stage(k)
+        return self._stage_functions[kind]
+
+    def _build_stage(self, k: int) -> tuple[ca.Function, list[tuple[str, int]]]:
+        form, N, nf = self.formulation, self.N, self.n_feet
+        has_input, has_torque, first = self._stage_kind(k)
+        local = ParameterPack()
+        for name in self.params.names:
+            rows, cols = self.params.shape(name)
+            local.add(name, rows, cols if name == "rot_ref" else 1)
+        q_ref, rot_ref, dt, mu = local["q_ref"], local["rot_ref"], local["dt"], local["mu"]
+        layout = form.state_parts() + (form.input_parts(k) if has_input else [])
+        x = ca.SX.sym("x", self.nx)
+        u = ca.SX.sym("u", sum(size for name, size in layout) - self.nx)
+        scales = form.variable_scales()
+        parts, offset, variables = {}, 0, ca.vertcat(x, u)
+        for name, size in layout:
+            sym = variables[offset : offset + size]
+            parts[name] = sym * scales[name] if name in scales else sym  # NLP variable = part / scale
+            offset += size
+        node = Node(k, parts)
+        form.kinematics(node, q_ref, rot_ref)
+
+        rows: list[tuple[str, ca.SX]] = []
+        if first:
+            rows.append(("x0", x))
+        if has_input:
+            dynamics = form.dynamics_rows(node)
+            if dynamics.shape[0]:
+                rows.append(("dynamics", dynamics))
+            if has_torque:
+                estimate = form.torque_estimate(node)
+                if estimate is not None:
+                    rows.append(("torque", estimate / self.robot.tau_max))
+        if not first and node.motion is not None:
+            feet = [self.dyn.frame_linear_velocity(node.config, node.motion, f) for f in self.robot.feet]
+            rows.append(("foot_vel", ca.vertcat(*feet)))
+            if self.has_arm:
+                rows.append(("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee)))
+        if has_input:
+            # friction cone (eq. 6) in units of the force scale, written as the smoothed second-order
+            # cone mu F_z >= sqrt(F_x^2 + F_y^2 + eps^2) - eps: same set up to eps^2 / (2 |F_t|), but
+            # its gradient never vanishes (the squared form is degenerate at F = 0, where unloaded
+            # stance feet sit, and stalled Fatrop after pushes)
+            unit = parts["F"][: 3 * nf] / scales["F"][: 3 * nf]
+            eps = CONE_SMOOTHING
+            cone = [mu * unit[3 * i + 2] - ca.sqrt(unit[3 * i] ** 2 + unit[3 * i + 1] ** 2 + eps**2) + eps
+                    for i in range(nf)]
+            rows.append(("cone", ca.vertcat(*cone)))
+
+        # eq. (3): diagonal tracking cost; the terminal cost is the stage cost on the state
+        cost = ca.dot(local["w_dq"], (node["dq"] - local["dq_des"]) ** 2)
+        if node.motion is not None:
+            cost += ca.dot(local["w_v"], (node.motion.v - local["v_des"]) ** 2)
+        if has_input:
+            w_a = local["w_a"]
+            cost += ca.dot(w_a, node["a"] ** 2) if node.get("a") is not None else 0
+            cost += ca.dot(w_a[6:], node["aj"] ** 2) if node.get("aj") is not None else 0
+            cost += ca.dot(local["w_F"], (node["F"] - local["F_des"]) ** 2)
+            cost += ca.dot(local["w_tau"], node["tau"] ** 2) if node.get("tau") is not None else 0
+        next_state = form.transition(node, dt) if has_input else ca.SX(0, 1)
+        path = ca.vertcat(*[expr for _, expr in rows]) if rows else ca.SX(0, 1)
+        name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
+        function = ca.Function(name, [x, u, local.vector], [next_state, path, cost], ["x", "u", "p"], ["x_next", "g", "cost"])
+        return function, [(tag, expr.shape[0]) for tag, expr in rows]
+
+    def _assemble(self, sym_type) -> dict:
+        """The NLP with each stage Function called once per node (SX: inlined; MX: kept as calls)."""
+        N = self.N
+        x = sym_type.sym("x", self.n_variables)
+        p = sym_type.sym("p", self.params.size)
+        rows: dict[str, list[np.ndarray]] = {tag: [] for tag in ROW_TAGS}
+        row_nodes: dict[str, list[int]] = {tag: [] for tag in ROW_TAGS}
+        g, cost, n_rows = [], 0, 0
+        for k in range(N + 1):
+            function, tags = self.stage_function(k)
+            state, inputs = self.stage_slices[k]
+            next_state, path, stage_cost = function(x[state], x[inputs], self._stage_parameters(p, k))
+            cost += stage_cost
             if k < N:
-                x_next = ca.vertcat(*[nodes[k + 1][n] for n in state_names])
-                add("gap", x_next - form.transition(node, dt[k]))
-                if k == 0:
-                    add("x0", x_k)
-                dyn_rows = form.dynamics_rows(node)
-                if dyn_rows.shape[0]:
-                    add("dynamics", dyn_rows)
-            if k >= 1:
-                foot_vel = [self.dyn.frame_linear_velocity(node.config, node.motion, f) for f in feet]
-                add("foot_vel", ca.vertcat(*foot_vel))
-                if self.has_arm:
-                    add("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee))
-            if k < N:
-                forces = node["F"] if "F" in node.parts else None
-                if forces is not None:
-                    # friction cone (eq. 6) in units of the force scale, written as the smoothed second-order
-                    # cone mu F_z >= sqrt(F_x^2 + F_y^2 + eps^2) - eps: same set up to eps^2 / (2 |F_t|),
-                    # but its gradient never vanishes (the squared form is degenerate at F = 0, where
-                    # unloaded stance feet sit, and stalled Fatrop after pushes)
-                    unit = forces[: 3 * self.n_feet] / force_scale[: 3 * self.n_feet]
-                    eps = CONE_SMOOTHING
-                    cone = [mu * unit[3 * i + 2] - ca.sqrt(unit[3 * i] ** 2 + unit[3 * i + 1] ** 2 + eps**2) + eps
-                            for i in range(self.n_feet)]
-                    add("cone", ca.vertcat(*cone))
-            # eq. (3): diagonal tracking cost; terminal cost = stage cost on the state
-            v_k = node.motion.v
-            cost += ca.dot(w_dq, (node.get("dq") - dq_des[:, k]) ** 2) if "dq" in node.parts else 0
-            cost += ca.dot(w_v, (v_k - v_des) ** 2)
-            if k < N:
-                if node.get("a") is not None:
-                    cost += ca.dot(w_a, node["a"] ** 2)
-                if node.get("F") is not None:
-                    cost += ca.dot(w_f, (node["F"] - f_des[:, k]) ** 2)
-                if node.get("tau") is not None:
-                    cost += ca.dot(w_tau, node["tau"] ** 2)
-
+                g.append(x[self.stage_slices[k + 1][0]] - next_state)
+                rows["gap"].append(np.arange(n_rows, n_rows + self.nx))
+                row_nodes["gap"].append(k)
+                n_rows += self.nx
+            g.append(path)
+            for tag, size in tags:
+                rows[tag].append(np.arange(n_rows, n_rows + size))
+                row_nodes[tag].append(k)
+                n_rows += size
         self.rows = {tag: _stack_rows(idx) for tag, idx in rows.items()}
+        self.row_nodes = {tag: np.array(nodes, dtype=int) for tag, nodes in row_nodes.items()}
         self.n_constraints = n_rows
-        self.nlp = {"x": ca.vertcat(*blocks), "p": params.vector, "f": cost, "g": ca.vertcat(*g)}
         self.equality = np.zeros(n_rows, dtype=bool)  # structural equalities (gap rows) for Fatrop
         self.equality[self.rows["gap"].ravel()] = True
-        self.state_names = state_names
+        return {"x": x, "p": p, "f": cost, "g": ca.vertcat(*g)}
+
+    def stagewise_nlp(self) -> dict:
+        """The same NLP in MX with one call per node to the shared stage Functions (for codegen)."""
+        if self._stagewise is None:
+            self._stagewise = self._assemble(ca.MX)
+        return self._stagewise
+
+    def instructions_per_constraint(self) -> int:
+        """Instructions of the dynamics constraint of one input node (Table I column): the path rows
+        of a plain stage for path formulations, its transition for transition formulations."""
+        function, _ = self.stage_function(min(self.config.n_torque_nodes, self.N - 1))
+        x, u, p = (ca.SX.sym(n, function.size1_in(i)) for i, n in enumerate(("x", "u", "p")))
+        node_x_next, path, _ = function(x, u, p)
+        tags = dict(self.stage_function(min(self.config.n_torque_nodes, self.N - 1))[1])
+        if self.formulation.dynamics_as == "path":
+            expr = path[: tags.get("dynamics", 0)]
+        else:
+            expr = node_x_next
+        return int(ca.Function("dynamics", [x, u, p], [expr]).n_instructions())
+
+    def trajectory_function(self) -> ca.Function:
+        """(x, p) -> dq (nv, N+1), v (nv, N+1), a (nv, N), F (nf, N), tau_j (nj, n_torque_nodes):
+        the physical trajectories of any formulation (velocity-level ones get a by differences and
+        the inverse-dynamics torques of that plan)."""
+        form, N = self.formulation, self.N
+        x = ca.SX.sym("x", self.n_variables)
+        p = ca.SX.sym("p", self.params.size)
+        q_ref = ca.reshape(self.params.select(p, "q_ref"), self.dyn.nq, 1)
+        rot_ref = ca.reshape(self.params.select(p, "rot_ref"), 3, 3)
+        dt = self.params.select(p, "dt")
+        physical = x * self.x_scale
+        nodes = []
+        for k in range(N + 1):
+            node = Node(k, {name: physical[rows[k]] for name, rows in self.idx.items() if k < len(rows)})
+            form.kinematics(node, q_ref, rot_ref)
+            nodes.append(node)
+        velocities = [n.motion.v if n.motion is not None else None for n in nodes]
+        for k in range(N + 1):
+            if velocities[k] is None:
+                velocities[k] = velocities[k - 1]
+        accelerations = []
+        for k in range(N):
+            a = nodes[k].acceleration
+            accelerations.append(a if a is not None else (velocities[k + 1] - velocities[k]) / dt[k])
+        n_tau = min(self.config.n_torque_nodes, N)
+        torques = []
+        for k in range(n_tau):
+            if nodes[k].motion is None:
+                nodes[k].motion = Motion(nodes[k].config, velocities[k])
+            torques.append(form.joint_torques(nodes[k], accelerations[k]))
+        outputs = [
+            ca.horzcat(*[n["dq"] for n in nodes]),
+            ca.horzcat(*velocities),
+            ca.horzcat(*accelerations),
+            ca.horzcat(*[nodes[k]["F"] for k in range(N)]),
+            ca.horzcat(*torques),
+        ]
+        return ca.Function("trajectories", [x, p], outputs, ["x", "p"], ["dq", "v", "a", "F", "tau"])
 
     # ------------------------------------------------------------------ per-step data
     def bounds(self, data: StageBounds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -199,16 +318,22 @@ class OcpProblem:
                 rows = joint_dq[early]
                 lbx[rows] = np.minimum(lbx[rows], np.minimum(coasting, 0.0) - 1e-6)
                 ubx[rows] = np.maximum(ubx[rows], np.maximum(coasting, 0.0) + 1e-6)
-        if "v" in self.idx:
-            joint_v = self.idx["v"][1:, 6:]
-            lbx[joint_v] = -robot.v_max
-            ubx[joint_v] = robot.v_max
-            overspeed = np.maximum(robot.v_max, np.abs(data.v0[6:]))
-            lbx[joint_v[early]] = -overspeed
-            ubx[joint_v[early]] = overspeed
+        # joint velocities: states from node 1 on, inputs (velocity-level formulations) on every node
+        for name, columns in (("v", slice(6, None)), ("vj", slice(None))):
+            if name in self.idx:
+                joint_v = self.idx[name][1:, columns] if name in self.state_names else self.idx[name][:, columns]
+                lbx[joint_v] = -robot.v_max
+                ubx[joint_v] = robot.v_max
+                overspeed = np.maximum(robot.v_max, np.abs(data.v0[6:]))
+                lbx[joint_v[early]] = -overspeed
+                ubx[joint_v[early]] = overspeed
+        n_tau = self.config.n_torque_nodes
         if "tau" in self.idx:
-            lbx[self.idx["tau"]] = -robot.tau_max
-            ubx[self.idx["tau"]] = robot.tau_max
+            lbx[self.idx["tau"][:n_tau]] = -robot.tau_max
+            ubx[self.idx["tau"][:n_tau]] = robot.tau_max
+        if self.rows["torque"].size:  # estimated torques of the centroidal formulations, in limits
+            lbg[self.rows["torque"]] = -1.0
+            ubg[self.rows["torque"]] = 1.0
         # eq. (6) forces: stance F_z >= 0, swing F = 0; eq. (7): arm force fixed to the command
         if "F" in self.idx:
             feet_f = self.idx["F"][:, : 3 * nf].reshape(N, nf, 3)
@@ -222,13 +347,14 @@ class OcpProblem:
                 lbx[arm_f] = force
                 ubx[arm_f] = force
         # node 0 = measured state
-        x0 = self.formulation.initial_state(data.v0)
+        x0 = self.formulation.initial_state(data.q_ref, data.v0)
         lbg[self.rows["x0"][0]] = x0
         ubg[self.rows["x0"][0]] = x0
         # eq. (6) foot velocities on nodes 1..N: stance 0, swing v_z = reference, v_xy free
-        foot_rows = self.rows["foot_vel"].reshape(N, nf, 3)
-        swing = ~contact[1:]
-        vz = np.where(swing, data.swing_vz_m_s[1:], 0.0)
+        foot_nodes = self.row_nodes["foot_vel"]
+        foot_rows = self.rows["foot_vel"].reshape(len(foot_nodes), nf, 3)
+        swing = ~contact[foot_nodes]
+        vz = np.where(swing, data.swing_vz_m_s[foot_nodes], 0.0)
         lbg[foot_rows[..., 2]] = vz
         ubg[foot_rows[..., 2]] = vz
         lbg[foot_rows[..., :2]] = np.where(swing[..., None], -INF, 0.0)

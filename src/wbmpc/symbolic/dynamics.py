@@ -466,6 +466,35 @@ class SymbolicDynamics:
             moment[p] = moment[p] + ca.mtimes(rot, moment[i]) + sp.cross(t, f_parent)
         return self._to_centroidal_frame(cfg, force[1], moment[1])
 
+    def base_rotational_inertia_about_com(self, cfg: Configuration) -> ca.SX:
+        """3x3 locked-body rotational inertia about the CoM, base axes (composite inertia of CRBA)."""
+        composite = self._composite_inertias(cfg)[1]
+        cx = sp.skew(self.com_local(cfg))
+        return composite[3:6, 3:6] + self.total_mass * ca.mtimes(cx, cx)
+
+    def centroidal_base_inverse(self, cfg: Configuration, momentum: ca.SX) -> ca.SX:
+        """v_b = A_b(q)^-1 y: base twist (local frame) whose centroidal momentum is y (world, about CoM).
+
+        A_b maps the base twist to the momentum of the robot frozen as one rigid body:
+        h_lin = m R (v + w x c), h_ang = R I_c w. Inverting it needs only the 3x3 I_c (Table I rows 4, 6).
+        """
+        c = self.com_local(cfg)
+        rt = cfg.base_rotation.T
+        lin, ang = ca.mtimes(rt, momentum[0:3]), ca.mtimes(rt, momentum[3:6])
+        omega = ca.mtimes(_inverse_3x3(self.base_rotational_inertia_about_com(cfg)), ang)
+        return ca.vertcat(lin / self.total_mass - sp.cross(omega, c), omega)
+
+    def centroidal_wrench(self, cfg: Configuration, forces: ca.SX) -> ca.SX:
+        """dh_com/dt from the contact forces (world, at `contact_frames`) and gravity, about the CoM."""
+        com = self.com(cfg)
+        lin = sp.const(self.total_mass * self.gravity)
+        ang = ca.SX.zeros(3)
+        for i, frame in enumerate(self.contact_frames):
+            f = forces[3 * i : 3 * i + 3]
+            lin = lin + f
+            ang = ang + sp.cross(self.frame_placement(cfg, frame)[0] - com, f)
+        return ca.vertcat(lin, ang)
+
     # ------------------------------------------------------------------ casadi Functions
     def functions(self) -> dict[str, ca.Function]:
         """casadi.Function of every algorithm with pinocchio-layout inputs (for checks and benchmarks)."""
@@ -497,9 +526,21 @@ class SymbolicDynamics:
             "centroidal_momentum_rate": ca.Function(
                 "centroidal_momentum_rate", [q, v, a], [self.centroidal_momentum_rate(cfg, motion, a)]
             ),
+            "centroidal_base_inverse": ca.Function(
+                "centroidal_base_inverse", [q, forces[:6]], [self.centroidal_base_inverse(cfg, forces[:6])]
+            ),
+            "centroidal_wrench": ca.Function("centroidal_wrench", [q, forces], [self.centroidal_wrench(cfg, forces)]),
             "integrate": ca.Function("integrate", [q, dq], [self.integrate(q, dq)]),
             "difference": ca.Function("difference", [q, q1], [self.difference(q, q1)]),
         }
+
+
+def _inverse_3x3(m: ca.SX) -> ca.SX:
+    """Inverse of a 3x3 matrix by cofactors (rows of the inverse are cross products of columns)."""
+    c0, c1, c2 = m[:, 0], m[:, 1], m[:, 2]
+    r0, r1, r2 = sp.cross(c1, c2), sp.cross(c2, c0), sp.cross(c0, c1)
+    det = ca.dot(c0, r0)
+    return ca.horzcat(r0, r1, r2).T / det
 
 
 def _dot_const(axis: np.ndarray, vec: ca.SX):
