@@ -89,7 +89,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                               push_direction_deg=args.push_direction)
     config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
-                       gains=PdGains(kp_leg=args.kp, kd_leg=args.kd))
+                       gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
+                       compiled=args.compiled)
     print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
 
     def progress(share: float) -> None:
@@ -142,6 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10)")
     run.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10)")
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
+    run.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse; see bench table1)")
+    run.add_argument("--compiled", action="store_true",
+                     help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
     run.set_defaults(func=cmd_run)
 
     bench = sub.add_parser("bench", help="benchmarks")
@@ -161,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--solver", default="fatrop", help="fatrop (default) or ipopt")
     solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
     solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
+    solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
     solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args, robot_from_args))
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
@@ -174,7 +179,33 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))
+
+    solvers = bench_sub.add_parser("solvers", help="Fatrop vs IPOPT, warm vs cold, adaptive vs uniform grid, "
+                                                   "solve time vs number of nodes")
+    _add_robot_options(solvers)
+    solvers.add_argument("--steps", type=int, default=40, help="MPC steps per closed-loop run (default 40)")
+    solvers.add_argument("--nodes-list", default="6,10,15,20,25", help="horizon sizes of the scaling sweep")
+    solvers.add_argument("--compiled", action="store_true", help="compare compiled solvers (C generated and cached)")
+    solvers.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
+    solvers.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    solvers.set_defaults(func=lambda args: _bench_module("solvers").cli_bench_solvers(args, robot_from_args))
+
+    table1 = bench_sub.add_parser("table1", help="the paper's Table I: six formulations before/after compilation")
+    _add_robot_options(table1)
+    table1.add_argument("--steps", type=int, default=100, help="MPC steps of the closed-loop trot (default 100)")
+    table1.add_argument("--formulations", help="comma-separated subset (default: all six)")
+    table1.add_argument("--no-compile", action="store_true", help="skip code generation (pre-compiled times only)")
+    table1.add_argument("--markdown", action="store_true", help="print the markdown table (beside the paper's values)")
+    table1.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
+    table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
     return parser
+
+
+def _bench_module(name: str):
+    import importlib
+
+    return importlib.import_module(f"wbmpc.bench.{name}")
 
 
 def _bench_mpc():

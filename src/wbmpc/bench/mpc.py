@@ -64,14 +64,14 @@ def check_names(formulation: str | None = None, gait: str | None = None, solvers
 
 
 def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str = "fatrop", nodes: int = 15,
-               uniform_dt_ms: float | None = None, warm_start: bool = True):
+               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False):
     from wbmpc.control import MpcConfig
     from wbmpc.ocp.problem import OcpConfig
     from wbmpc.solvers.nlp import SolverConfig
 
     check_names(formulation=formulation, gait=gait, solvers=[solver])
     grid = grid_for(nodes, uniform_dt_ms)
-    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid), solver=SolverConfig(name=solver),
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid), solver=SolverConfig(name=solver, compiled=compiled),
                        gait=gait, warm_start=warm_start)
     if any(f.name == "fallback_solver" for f in fields(MpcConfig)):
         # measure the requested solver alone: a failed step stays a failure (no re-solve by another solver)
@@ -101,13 +101,14 @@ def _machine() -> dict:
 
 # ---------------------------------------------------------------------------- wbmpc solve
 def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", nodes: int = 15,
-                  solver: str = "fatrop", uniform_dt_ms: float | None = None, t: float = 0.0) -> dict:
+                  solver: str = "fatrop", uniform_dt_ms: float | None = None, t: float = 0.0,
+                  compiled: bool = False) -> dict:
     """Build one OCP and solve it once from the nominal stance (q_nominal, v = 0) at gait time t."""
     from wbmpc.control import MPC, Commands
 
     if not math.isfinite(t) or t < 0:
         raise ConfigError(f"--t must be a finite time >= 0 s, got {t}")
-    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms)
+    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms, compiled=compiled)
     start = time.perf_counter()
     mpc = MPC(robot, config)
     build_s = time.perf_counter() - start
@@ -129,6 +130,9 @@ def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", no
         "horizon_s": float(config.ocp.grid.horizon_s),
         "t_s": t,
         "build_s": build_s,
+        "compiled": mpc.solver.is_compiled,
+        "compile": (mpc.solver.compile_report.as_dict() if mpc.solver.is_compiled
+                    else {"error": mpc.solver.compile_error} if compiled else None),
     }
 
 
@@ -138,7 +142,7 @@ def solve_text(report: dict) -> str:
             f"{report['gait']} at t = {report['t_s']:g} s): {report['decision_variables']} decision variables, "
             f"built in {report['build_s']:.1f} s\n"
             f"{report['solver']}: {report['status']} in {report['iterations']} iterations, "
-            f"{report['solve_ms']:.1f} ms, max constraint violation "
+            f"{report['solve_ms']:.1f} ms{' (compiled)' if report.get('compiled') else ''}, max constraint violation "
             f"{'inf' if viol is None else f'{viol:.1e}'}")
 
 
@@ -146,7 +150,8 @@ def cli_solve(args, robot_from_args) -> int:
     check_names(formulation=args.formulation, gait=args.gait, solvers=[args.solver])
     grid_for(args.nodes, args.uniform_dt)  # validate before loading anything heavy
     robot = robot_from_args(args)
-    report = solve_nominal(robot, args.formulation, args.gait, args.nodes, args.solver, args.uniform_dt, args.t)
+    report = solve_nominal(robot, args.formulation, args.gait, args.nodes, args.solver, args.uniform_dt, args.t,
+                           compiled=args.compiled)
     _output(args, report, solve_text(report))
     return 0 if report["success"] else 1
 
@@ -267,7 +272,7 @@ def _ratio(numerator: float | None, denominator: float | None) -> float | None:
 
 def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocchio",
               solvers: tuple[str, ...] = ("fatrop", "ipopt"), nodes: int = 15, uniform_dt_ms: float | None = None,
-              show_progress: bool = True) -> dict:
+              show_progress: bool = True, compiled: bool = False) -> dict:
     """Closed-loop receding-horizon benchmark plus same-state comparisons (see module docstring)."""
     from wbmpc.control import MPC
     from wbmpc.ocp.problem import OcpProblem
@@ -301,7 +306,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     for name in solvers:
         progress.update(done, f"building {name}")
         start = time.perf_counter()
-        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes), problem=problem)
+        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled), problem=problem)
         build[f"{name}_s"] = time.perf_counter() - start
         done += 0.5
 
@@ -323,10 +328,11 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     progress.update(done, "building cold / uniform variants")
     start = time.perf_counter()
     variants = {reference: mpcs[reference]}
-    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False),
+    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False,
+                                                                   compiled=compiled),
                                         problem=problem)
     variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes,
-                                                             uniform_dt_ms=uniform_dt_ms))
+                                                             uniform_dt_ms=uniform_dt_ms, compiled=compiled))
     for name in solvers:
         if name != reference:
             variants[name] = mpcs[name]
@@ -367,6 +373,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
         "robot": robot.name,
         "gait": gait,
         "plant": plant,
+        "compiled": compiled,
         "delay": "none",
         "mpc_rate_hz": MPC_RATE_HZ,
         "steps": steps,

@@ -80,8 +80,37 @@ class OcpProblem:
         self.has_arm = robot.arm_ee is not None
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
-        self.nlp = self._assemble(ca.SX)
+        self._nlp: dict | None = None
         self._stagewise: dict | None = None
+
+    @property
+    def nlp(self) -> dict:
+        """The NLP {x, p, f, g} in SX with the stages inlined (built on first use)."""
+        if self._nlp is None:
+            self._nlp = self._assemble(ca.SX)
+        return self._nlp
+
+    def _assembled(self) -> "OcpProblem":
+        """Row bookkeeping exists once the NLP is assembled."""
+        _ = self.nlp
+        return self
+
+    @property
+    def rows(self) -> dict[str, np.ndarray]:
+        return self._assembled()._rows
+
+    @property
+    def row_nodes(self) -> dict[str, np.ndarray]:
+        return self._assembled()._row_nodes
+
+    @property
+    def n_constraints(self) -> int:
+        return self._assembled()._n_constraints
+
+    @property
+    def equality(self) -> np.ndarray:
+        """Structural equalities (gap rows) for Fatrop's structure detection."""
+        return self._assembled()._equality
 
     # ------------------------------------------------------------------ layout
     def _layout(self) -> None:
@@ -129,7 +158,7 @@ class OcpProblem:
         """(has input, has torque rows/variables, is the measured node) — nodes of one kind share a Function."""
         return k < self.N, k < min(self.config.n_torque_nodes, self.N), k == 0
 
-    def _stage_parameters(self, p, k: int):
+    def stage_parameters(self, p, k: int):
         """The slice of the global parameter vector stage k reads (its own dt, targets and forces)."""
         N, params = self.N, self.params
         names = params.names
@@ -217,7 +246,7 @@ class OcpProblem:
         for k in range(N + 1):
             function, tags = self.stage_function(k)
             state, inputs = self.stage_slices[k]
-            next_state, path, stage_cost = function(x[state], x[inputs], self._stage_parameters(p, k))
+            next_state, path, stage_cost = function(x[state], x[inputs], self.stage_parameters(p, k))
             cost += stage_cost
             if k < N:
                 g.append(x[self.stage_slices[k + 1][0]] - next_state)
@@ -229,11 +258,11 @@ class OcpProblem:
                 rows[tag].append(np.arange(n_rows, n_rows + size))
                 row_nodes[tag].append(k)
                 n_rows += size
-        self.rows = {tag: _stack_rows(idx) for tag, idx in rows.items()}
-        self.row_nodes = {tag: np.array(nodes, dtype=int) for tag, nodes in row_nodes.items()}
-        self.n_constraints = n_rows
-        self.equality = np.zeros(n_rows, dtype=bool)  # structural equalities (gap rows) for Fatrop
-        self.equality[self.rows["gap"].ravel()] = True
+        self._rows = {tag: _stack_rows(idx) for tag, idx in rows.items()}
+        self._row_nodes = {tag: np.array(nodes, dtype=int) for tag, nodes in row_nodes.items()}
+        self._n_constraints = n_rows
+        self._equality = np.zeros(n_rows, dtype=bool)
+        self._equality[self._rows["gap"].ravel()] = True
         return {"x": x, "p": p, "f": cost, "g": ca.vertcat(*g)}
 
     def stagewise_nlp(self) -> dict:

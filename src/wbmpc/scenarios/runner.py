@@ -33,6 +33,8 @@ class RunConfig:
     gains: PdGains = field(default_factory=PdGains)
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
     solver: str = "fatrop"
+    formulation: str = "wb_inverse"
+    compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
     seed: int = 0
 
     def __post_init__(self):
@@ -52,7 +54,8 @@ class ScenarioResult:
 def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms else TimeGrid(n_intervals=n)
-    return MpcConfig(ocp=OcpConfig(grid=grid), gait=scenario.gait, solver=SolverConfig(name=config.solver))
+    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled))
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float], None] | None = None,

@@ -9,6 +9,7 @@ A failed solve never raises: its status is returned.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -16,6 +17,7 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
 
 SOLVERS = ("fatrop", "ipopt")
 
@@ -29,6 +31,8 @@ class SolverConfig:
     barrier_init: float = 1e-3  # initial barrier parameter mu: small suits warm-started MPC
     print_level: int = 0
     extra_options: dict = field(default_factory=dict)
+    compiled: bool = False  # generate C, compile (cached) and load it; falls back to the VM on failure
+    codegen: CodegenConfig = field(default_factory=CodegenConfig)
 
     def __post_init__(self):
         if self.name not in SOLVERS:
@@ -111,8 +115,28 @@ class NlpSolver:
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None):
         self.problem = problem
         self.config = config
+        self.compile_report: CompileReport | None = None
+        self.compile_error: str | None = None
+        if solver is None and config.compiled:
+            solver = self._compiled_solver()
         self.solver = solver or ca.nlpsol(f"ocp_{config.name}", config.name, problem.nlp, solver_options(problem, config))
         self._g = ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False})
+
+    @property
+    def is_compiled(self) -> bool:
+        return self.compile_report is not None
+
+    def _compiled_solver(self) -> ca.Function | None:
+        """nlpsol on the compiled library, or None (with a warning) when compiling is impossible."""
+        try:
+            self.compile_report = compile_nlp(self.problem, self.config.name, self.config.codegen)
+        except CompileError as exc:
+            self.compile_error = str(exc)
+            warnings.warn(f"compiled solver unavailable, using the non-compiled one: {exc}", RuntimeWarning, stacklevel=3)
+            return None
+        options = solver_options(self.problem, self.config)
+        options.pop("expand")
+        return ca.nlpsol(f"ocp_{self.config.name}_compiled", self.config.name, str(self.compile_report.library), options)
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         g = np.asarray(self._g(x, p)).ravel()

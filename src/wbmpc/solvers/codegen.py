@@ -1,0 +1,210 @@
+"""C code generation of the NLP, compiled once into a shared library and cached by content hash.
+
+Generating C for the expanded NLP (what `nlpsol.generate_dependencies` does) writes every node's
+derivatives separately: ~40 MB of C for 15 nodes. Here the oracle functions the solver calls
+(`nlp_f`, `nlp_g`, `nlp_grad_f`, `nlp_jac_g`, `nlp_hess_l`, `nlp_grad`) are assembled in MX from
+per-stage SX derivatives — value, gradient, Jacobian and Lagrangian Hessian of each stage kind —
+so each kind's code exists once. The Hessian is block diagonal in (x_k, u_k) because the gap rows
+x_{k+1} - f(x_k, u_k) are linear in x_{k+1}. All task data stay runtime inputs (p and bounds).
+
+The library lands in the user cache directory (`$WBMPC_CACHE_DIR`, else `$XDG_CACHE_HOME/wbmpc`,
+else `~/.cache/wbmpc`) under the hash of its C source and compiler command: a second run with the
+same problem structure loads it without compiling.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import resource
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+
+from wbmpc.errors import WbmpcError
+from wbmpc.ocp.problem import OcpProblem
+
+
+class CompileError(WbmpcError, RuntimeError):
+    """Code generation or compilation failed (no compiler, time or memory limit, compiler error)."""
+
+
+@dataclass(frozen=True)
+class CodegenConfig:
+    compiler: str = "gcc"
+    flags: tuple[str, ...] = ("-O1",)  # -O1: ~1 min for b1_z1; -O2/-O3 compile longer for little gain
+    timeout_s: float = 900.0
+    memory_limit_mb: float | None = 8000.0  # address-space limit of the compiler process
+    cache_dir: Path | None = None  # None: default_cache_dir()
+
+
+@dataclass
+class CompileReport:
+    library: Path
+    cached: bool
+    source_mb: float
+    compile_s: float = 0.0  # 0 when loaded from the cache
+    peak_memory_mb: float = 0.0
+    generate_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"library": str(self.library), "cached": self.cached, "source_mb": round(self.source_mb, 2),
+                "compile_s": round(self.compile_s, 2), "peak_memory_mb": round(self.peak_memory_mb, 1),
+                "generate_s": round(self.generate_s, 2)}
+
+
+def default_cache_dir() -> Path:
+    if os.environ.get("WBMPC_CACHE_DIR"):
+        return Path(os.environ["WBMPC_CACHE_DIR"])
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "wbmpc"
+
+
+def _stage_derivatives(function: ca.Function) -> dict[str, ca.Function]:
+    """Value, cost gradient, Jacobian and Lagrangian (gradient, Hessian) of one stage kind in z = [x_k; u_k]."""
+    n_x, n_u, n_p = function.size1_in(0), function.size1_in(1), function.size1_in(2)
+    z, p = ca.SX.sym("z", n_x + n_u), ca.SX.sym("p", n_p)
+    next_state, rows, cost = function(z[:n_x], z[n_x:], p)
+    sigma = ca.SX.sym("sigma")
+    lam_gap, lam_rows = ca.SX.sym("lam_gap", next_state.shape[0]), ca.SX.sym("lam_rows", rows.shape[0])
+    lagrangian = sigma * cost - ca.dot(lam_gap, next_state) + ca.dot(lam_rows, rows)  # gap rows: x_{k+1} - f
+    hessian, gradient = ca.hessian(lagrangian, z)
+    name = function.name()
+    return {
+        "value": ca.Function(f"{name}_value", [z, p], [next_state, rows, cost]),
+        "cost_gradient": ca.Function(f"{name}_cost_gradient", [z, p], [cost, ca.gradient(cost, z)]),
+        "jacobian": ca.Function(f"{name}_jacobian", [z, p], [ca.jacobian(next_state, z), ca.jacobian(rows, z)]),
+        "lagrangian": ca.Function(f"{name}_lagrangian", [z, p, sigma, lam_gap, lam_rows], [gradient, hessian]),
+    }
+
+
+def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Function]:
+    """The oracle functions casadi's `nlpsol` loads from a library, built from stage derivatives.
+
+    Signatures follow the solver plugin: Fatrop takes the full Hessian and `nlp_hess_l` also returns
+    the Lagrangian gradient; IPOPT takes its upper triangle and `nlp_grad_f` also returns f.
+    """
+    N, nx, n = problem.N, problem.nx, problem.n_variables
+    x, p = ca.MX.sym("x", n), ca.MX.sym("p", problem.params.size)
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", problem.n_constraints)
+    derivatives: dict[str, dict[str, ca.Function]] = {}
+    cost, rows, cost_gradient, jacobian_rows, lagrangian_gradient, hessian_blocks = 0, [], [], [], [], []
+    row, previous_lam_gap = 0, None
+    for k in range(N + 1):
+        function, _ = problem.stage_function(k)
+        d = derivatives.setdefault(function.name(), _stage_derivatives(function))
+        state, inputs = problem.stage_slices[k]
+        z = x[state.start : inputs.stop]
+        n_z, before, after = inputs.stop - state.start, state.start, n - inputs.stop
+        p_k = problem.stage_parameters(p, k)
+        next_state, path, stage_cost = d["value"](z, p_k)
+        n_gap, n_path = (nx if k < N else 0), path.shape[0]
+        lam_gap, lam_path = lam_g[row : row + n_gap], lam_g[row + n_gap : row + n_gap + n_path]
+        gradient, hessian = d["lagrangian"](z, p_k, lam_f, lam_gap, lam_path)
+        if previous_lam_gap is not None:  # x_k enters the previous gap rows with coefficient +1
+            gradient = gradient + ca.vertcat(previous_lam_gap, ca.MX(n_z - nx, 1))
+        jac_next, jac_path = d["jacobian"](z, p_k)
+        if k < N:
+            rows.append(x[problem.stage_slices[k + 1][0]] - next_state)
+            jacobian_rows.append(ca.horzcat(ca.MX(nx, before), -jac_next, ca.MX.eye(nx), ca.MX(nx, after - nx)))
+        rows.append(path)
+        jacobian_rows.append(ca.horzcat(ca.MX(n_path, before), jac_path, ca.MX(n_path, after)))
+        cost += stage_cost
+        cost_gradient.append(d["cost_gradient"](z, p_k)[1])
+        lagrangian_gradient.append(gradient)
+        hessian_blocks.append(hessian)
+        previous_lam_gap = lam_gap
+        row += n_gap + n_path
+    g = ca.vertcat(*rows)
+    gamma = lam_f * cost + ca.dot(lam_g, g)
+    hessian = ca.diagcat(*hessian_blocks)
+    grad_f = ca.vertcat(*cost_gradient)
+    xp, xpl = ["x", "p"], ["x", "p", "lam_f", "lam_g"]
+    if solver == "fatrop":
+        grad_f_fn = ca.Function("nlp_grad_f", [x, p], [grad_f], xp, ["grad_f_x"])
+        hess_fn = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.vertcat(*lagrangian_gradient), hessian], xpl,
+                              ["grad_gamma_x", "hess_gamma_x_x"])
+    else:
+        grad_f_fn = ca.Function("nlp_grad_f", [x, p], [cost, grad_f], xp, ["f", "grad_f_x"])
+        hess_fn = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(hessian)], xpl, ["triu_hess_gamma_x_x"])
+    return [
+        ca.Function("nlp", [x, p], [cost, g], xp, ["f", "g"]),
+        ca.Function("nlp_f", [x, p], [cost], xp, ["f"]),
+        ca.Function("nlp_g", [x, p], [g], xp, ["g"]),
+        grad_f_fn,
+        ca.Function("nlp_jac_g", [x, p], [g, ca.vertcat(*jacobian_rows)], xp, ["g", "jac_g_x"]),
+        hess_fn,
+        # called once per solve for the parameter multipliers: plain MX reverse mode is enough
+        ca.Function("nlp_grad", [x, p, lam_f, lam_g], [cost, g, ca.gradient(gamma, x), ca.gradient(gamma, p)], xpl,
+                    ["f", "g", "grad_gamma_x", "grad_gamma_p"]),
+    ]
+
+
+def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float, float]:
+    """Run the compiler with a time and memory limit; (seconds, peak resident MB)."""
+    compiler = shutil.which(config.compiler)
+    if compiler is None:
+        raise CompileError(f"no C compiler '{config.compiler}' on PATH: install gcc (e.g. apt install gcc) "
+                           "or run without --compiled")
+    partial = library.with_suffix(f".{os.getpid()}.tmp")
+    command = [compiler, *config.flags, "-shared", "-fPIC", str(source), "-o", str(partial), "-lm"]
+    limit = None if config.memory_limit_mb is None else int(config.memory_limit_mb * 2**20)
+
+    def limit_memory():  # runs in the child before exec
+        if limit is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    start = time.perf_counter()
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=limit_memory)
+    try:
+        _, stderr = process.communicate(timeout=config.timeout_s)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.communicate()
+        partial.unlink(missing_ok=True)
+        raise CompileError(f"compiling {source.name} took over {config.timeout_s:.0f} s; raise CodegenConfig.timeout_s "
+                           "or use the non-compiled solver") from None
+    elapsed = time.perf_counter() - start
+    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    if process.returncode != 0:
+        partial.unlink(missing_ok=True)
+        message = stderr.decode(errors="replace").strip().splitlines()[-3:]
+        memory_hint = " (out of memory? raise CodegenConfig.memory_limit_mb)" if "memory" in " ".join(message).lower() else ""
+        raise CompileError(f"{config.compiler} failed on {source.name}{memory_hint}: {' | '.join(message)}")
+    os.replace(partial, library)
+    return elapsed, peak_mb
+
+
+def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConfig = CodegenConfig()) -> CompileReport:
+    """Generate the NLP's C code, compile it unless the cache has it, and return where it is."""
+    start = time.perf_counter()
+    functions = nlp_functions(problem, solver)
+    generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": False})
+    for function in functions:
+        generator.add(function)
+    code = generator.dump()
+    generate_s = time.perf_counter() - start
+    key = hashlib.sha256("\n".join([ca.__version__, config.compiler, *config.flags, code]).encode()).hexdigest()[:16]
+    cache = Path(config.cache_dir or default_cache_dir())
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CompileError(f"cannot create the cache directory {cache}: {exc.strerror}; set WBMPC_CACHE_DIR") from exc
+    stem = f"{problem.config.formulation}_{solver}_{key}"
+    library = cache / f"{stem}.so"
+    source_mb = len(code) / 1e6
+    if library.exists():
+        return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s)
+    source = cache / f"{stem}.c"
+    source.write_text(code)
+    try:
+        compile_s, peak_mb = _compile(source, library, config)
+    finally:
+        source.unlink(missing_ok=True)
+    return CompileReport(library, cached=False, source_mb=source_mb, compile_s=compile_s, peak_memory_mb=peak_mb,
+                         generate_s=generate_s)
