@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wbmpc.cli import main
-from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control import MPC, MpcConfig
 from wbmpc.control.interpolator import JointReference, interpolate, pd_torque
 from wbmpc.control.loop import ClosedLoop, LoopConfig
 from wbmpc.control.solution import Solution

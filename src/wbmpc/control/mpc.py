@@ -65,7 +65,8 @@ class MpcConfig:
     max_base_speed_m_s: float = 1.5
     max_yaw_rate_rad_s: float = 1.5
     max_ee_speed_m_s: float = 1.0
-    fallback_solver: str | None = "ipopt"  # re-solves a step the main solver failed; None disables
+    recovery_barrier_init: float | None = 0.1  # a fresh Fatrop with this initial barrier re-solves a failed step
+    fallback_solver: str | None = "ipopt"  # then re-solves a step still failed; None disables
 
 
 @dataclass
@@ -104,6 +105,7 @@ class MPC:
         self._difference = ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1)
         self._weights = config.weights.vectors(robot, self.problem.nf)
         self._trajectories = self.problem.trajectory_function()
+        self._data = robot.model.createData()
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
         self._xy_reference: np.ndarray | None = None
@@ -180,6 +182,17 @@ class MPC:
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
         return dq_des, v_des, v_world
 
+    def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
+        """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
+        model, data, robot = self.robot.model, self._data, self.robot
+        pin.forwardKinematics(model, data, q, v)
+
+        def velocity(frame):
+            return pin.getFrameVelocity(model, data, robot.frame_id(frame), pin.LOCAL_WORLD_ALIGNED).linear
+
+        return {"foot_velocity_m_s": np.array([velocity(foot) for foot in robot.feet]),
+                "ee_velocity_measured_m_s": velocity(robot.arm_ee) if robot.arm_ee else None}
+
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
         N, n_feet = self.problem.N, len(self.robot.feet)
@@ -227,25 +240,38 @@ class MPC:
             ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
+            **self._measured_frame_velocities(q, v),
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
         bounds = problem.bounds(stage_bounds)
         result = self.solver.solve(p, *bounds, x0)
-        if not result.stats.success and self.config.fallback_solver:
-            # Fatrop's Riccati recursion stalls on degenerate problems (e.g. right after a strong push,
-            # with arm joints at their velocity limits) where IPOPT's regularised factorisation copes:
-            # re-solve the very same NLP once with the fallback solver, built on first need.
-            if self._fallback is None:
-                self._fallback = NlpSolver(problem, SolverConfig(name=self.config.fallback_solver, max_iterations=300))
-            retry = self._fallback.solve(p, *bounds, x0)
-            retry.stats.status = f"{retry.stats.status} ({self.config.fallback_solver} fallback after {result.stats.status})"
-            retry.stats.solve_time_s += result.stats.solve_time_s
-            retry.stats.iterations += result.stats.iterations
-            result = retry
+        if not result.stats.success:
+            result = self._recover(result, p, bounds, x0)
         solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
         if solution.success:
             self._previous = solution
         return solution
+
+    def _recover(self, failed, p, bounds, x0):
+        """Re-solve a failed step: first a fresh Fatrop starting from a larger barrier parameter (it
+        copes with the degenerate problems right after strong pushes where the warm-started small
+        barrier stalls), then the fallback solver (IPOPT's regularised factorisation), built on first need."""
+        result, attempts = failed, [failed.stats.status]
+        spent_s, iterations = failed.stats.solve_time_s, failed.stats.iterations
+        if self.config.recovery_barrier_init and self.solver.config.name == "fatrop":
+            fresh = self.solver.recreated(barrier_init=self.config.recovery_barrier_init)
+            result = fresh.solve(p, *bounds, x0)
+            spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
+            attempts.append(f"fatrop mu_init {self.config.recovery_barrier_init:g}: {result.stats.status}")
+        if not result.stats.success and self.config.fallback_solver:
+            if self._fallback is None:
+                self._fallback = NlpSolver(self.problem, SolverConfig(name=self.config.fallback_solver, max_iterations=300))
+            result = self._fallback.solve(p, *bounds, x0)
+            spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
+            attempts.append(f"{self.config.fallback_solver}: {result.stats.status}")
+        result.stats.status = f"{result.stats.status} (recovery after {'; '.join(attempts[:-1])})"
+        result.stats.solve_time_s, result.stats.iterations = spent_s, iterations
+        return result
 
     def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:
         """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous

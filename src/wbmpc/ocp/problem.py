@@ -31,6 +31,7 @@ from wbmpc.symbolic import Motion, SymbolicDynamics
 
 INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
+BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 ROW_TAGS = ("gap", "x0", "dynamics", "torque", "foot_vel", "ee_vel", "cone")
 
@@ -58,6 +59,8 @@ class StageBounds:
     swing_vz_m_s: np.ndarray  # (N+1, n_feet) vertical velocity reference of swing feet
     ee_velocity_m_s: np.ndarray | None = None  # (3,) world
     ee_force_on_robot_n: np.ndarray | None = None  # (3,) world, force acting on the robot
+    foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
+    ee_velocity_measured_m_s: np.ndarray | None = None  # (3,) measured world end-effector velocity
 
 
 class OcpProblem:
@@ -173,7 +176,7 @@ class OcpProblem:
         return self._stage_functions[kind]
 
     def _build_stage(self, k: int) -> tuple[ca.Function, list[tuple[str, int]]]:
-        form, N, nf = self.formulation, self.N, self.n_feet
+        form, nf = self.formulation, self.n_feet
         has_input, has_torque, first = self._stage_kind(k)
         local = ParameterPack()
         for name in self.params.names:
@@ -272,16 +275,17 @@ class OcpProblem:
         return self._stagewise
 
     def instructions_per_constraint(self) -> int:
-        """Instructions of the dynamics constraint of one input node (Table I column): the path rows
-        of a plain stage for path formulations, its transition for transition formulations."""
-        function, _ = self.stage_function(min(self.config.n_torque_nodes, self.N - 1))
-        x, u, p = (ca.SX.sym(n, function.size1_in(i)) for i, n in enumerate(("x", "u", "p")))
-        node_x_next, path, _ = function(x, u, p)
-        tags = dict(self.stage_function(min(self.config.n_torque_nodes, self.N - 1))[1])
+        """Instructions of the dynamics constraint of one plain input node (Table I column): its
+        dynamics path rows for path formulations, its state transition for transition formulations."""
+        function, tags = self.stage_function(min(self.config.n_torque_nodes, self.N - 1))
+        x, u, p = (ca.SX.sym(name, function.size1_in(i)) for i, name in enumerate(("x", "u", "p")))
+        next_state, path, _ = function(x, u, p)
         if self.formulation.dynamics_as == "path":
-            expr = path[: tags.get("dynamics", 0)]
+            sizes = dict(tags)
+            start = sum(size for tag, size in tags[: [tag for tag, _ in tags].index("dynamics")])
+            expr = path[start : start + sizes["dynamics"]]
         else:
-            expr = node_x_next
+            expr = next_state
         return int(ca.Function("dynamics", [x, u, p], [expr]).n_instructions())
 
     def trajectory_function(self) -> ca.Function:
@@ -356,6 +360,12 @@ class OcpProblem:
                 overspeed = np.maximum(robot.v_max, np.abs(data.v0[6:]))
                 lbx[joint_v[early]] = -overspeed
                 ubx[joint_v[early]] = overspeed
+        # velocity-level formulations: the first input's joint velocities are the measured ones (the
+        # base velocity follows from the measured momentum), so the plan starts from the robot's motion
+        for name, columns in (("v", slice(6, None)), ("vj", slice(None))):
+            if name in self.idx and name not in self.state_names:
+                lbx[self.idx[name][0, columns]] = data.v0[6:]
+                ubx[self.idx[name][0, columns]] = data.v0[6:]
         n_tau = self.config.n_torque_nodes
         if "tau" in self.idx:
             lbx[self.idx["tau"][:n_tau]] = -robot.tau_max
@@ -388,15 +398,39 @@ class OcpProblem:
         ubg[foot_rows[..., 2]] = vz
         lbg[foot_rows[..., :2]] = np.where(swing[..., None], -INF, 0.0)
         ubg[foot_rows[..., :2]] = np.where(swing[..., None], INF, 0.0)
+        if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
+            stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
+            self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
+                                         np.asarray(data.foot_velocity_m_s)[None], stance)
         if self.has_arm:
             velocity = np.zeros(3) if data.ee_velocity_m_s is None else data.ee_velocity_m_s
             lbg[self.rows["ee_vel"]] = velocity
             ubg[self.rows["ee_vel"]] = velocity
+            if data.ee_velocity_measured_m_s is not None:
+                ee_rows = self.rows["ee_vel"]
+                self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), self.row_nodes["ee_vel"], velocity[None],
+                                             np.asarray(data.ee_velocity_measured_m_s)[None])
         # friction cone: active in stance, free in swing
         if self.rows["cone"].size:
             ubg[self.rows["cone"]] = INF
             lbg[self.rows["cone"]] = np.where(contact[:N], 0.0, -INF)
         return lbx / self.x_scale, ubx / self.x_scale, lbg, ubg
+
+    def _blend_from_measurement(self, lbg, ubg, rows, nodes, target, measured, mask=None) -> None:
+        """Move the targets of equality rows "velocity = target" on the first nodes onto the path that
+        goes linearly from the measured velocity to the target over BLEND_TIME_S.
+
+        A foot or end-effector measured far from its constraint (e.g. right after a push) cannot
+        reach it within the first 10 ms step without forces beyond the friction cone and the
+        torque limits; requiring it makes the OCP infeasible. The rows stay equalities (Fatrop's
+        stage structure is unchanged) and later nodes keep eqs. (6)-(7) exactly.
+        """
+        decay = np.clip(1.0 - self.config.grid.node_times_s[nodes] / BLEND_TIME_S, 0.0, 1.0)
+        shape = (len(nodes),) + np.shape(target)[1:]
+        path = np.broadcast_to(target + decay.reshape((-1,) + (1,) * (len(shape) - 1)) * (measured - target), shape)
+        path = (path[mask] if mask is not None else path).ravel()
+        lbg[rows] = path
+        ubg[rows] = path
 
     # ------------------------------------------------------------------ variables <-> trajectories
     def unpack(self, x: np.ndarray) -> dict[str, np.ndarray]:

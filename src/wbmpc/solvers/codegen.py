@@ -19,6 +19,7 @@ import os
 import resource
 import shutil
 import subprocess
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -160,17 +161,26 @@ def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float,
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
     start = time.perf_counter()
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=limit_memory)
-    try:
-        _, stderr = process.communicate(timeout=config.timeout_s)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.communicate()
-        partial.unlink(missing_ok=True)
-        raise CompileError(f"compiling {source.name} took over {config.timeout_s:.0f} s; raise CodegenConfig.timeout_s "
-                           "or use the non-compiled solver") from None
+    log = tempfile.TemporaryFile()
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log, preexec_fn=limit_memory)
+    deadline = start + config.timeout_s
+    while True:  # wait4 gives this compiler's own peak memory (getrusage would give all children's)
+        pid, status, usage = os.wait4(process.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.perf_counter() > deadline:
+            process.kill()
+            os.wait4(process.pid, 0)
+            partial.unlink(missing_ok=True)
+            raise CompileError(f"compiling {source.name} took over {config.timeout_s:.0f} s; raise "
+                               "CodegenConfig.timeout_s or use the non-compiled solver")
+        time.sleep(0.05)
     elapsed = time.perf_counter() - start
-    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    process.returncode = os.waitstatus_to_exitcode(status)
+    log.seek(0)
+    stderr = log.read()
+    log.close()
+    peak_mb = usage.ru_maxrss / 1024
     if process.returncode != 0:
         partial.unlink(missing_ok=True)
         message = stderr.decode(errors="replace").strip().splitlines()[-3:]

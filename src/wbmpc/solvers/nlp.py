@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -125,6 +125,23 @@ class NlpSolver:
     @property
     def is_compiled(self) -> bool:
         return self.compile_report is not None
+
+    def recreated(self, **changes) -> "NlpSolver":
+        """A fresh solver on the same problem (and compiled library) with some settings changed.
+
+        CasADi 3.8's Fatrop plugin rebuilds its Fatrop instance whenever the per-stage counts of
+        equalities and inequalities change (contact switches) and the rebuilt instance runs with
+        Fatrop's default options (e.g. max_iter 1000): only a new nlpsol honours them again.
+        """
+        config = replace(self.config, **changes)
+        if self.compile_report is None:
+            return NlpSolver(self.problem, replace(config, compiled=False))
+        options = solver_options(self.problem, config)
+        options.pop("expand")
+        solver = ca.nlpsol(f"ocp_{config.name}_compiled", config.name, str(self.compile_report.library), options)
+        fresh = NlpSolver(self.problem, replace(config, compiled=False), solver=solver)
+        fresh.compile_report = self.compile_report
+        return fresh
 
     def _compiled_solver(self) -> ca.Function | None:
         """nlpsol on the compiled library, or None (with a warning) when compiling is impossible."""
