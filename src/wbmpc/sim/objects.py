@@ -191,8 +191,14 @@ class Board:
     orientation: str = "vertical"
     face_m: tuple[float, float, float] = (0.5, 0.0, 0.8)
     size_m: tuple[float, float] = (1.0, 0.8)  # in-plane extent
+    centre_offset_m: tuple[float, float] = (0.0, 0.0)  # board centre from `face_m`, along `plane_axes`
     thickness_m: float = 0.04
     friction_mu: float = 0.3
+    contact_timeconst_s: float = 0.02  # a wiping pad is soft
+    # contacts act from this distance on, and the geom sits this much behind `face_m` so the
+    # effective surface is at `face_m`: without it, sliding with friction chatters (contact lost
+    # and re-made every few steps)
+    contact_margin_m: float = 0.003
     name: str = "board"
 
     def __post_init__(self):
@@ -213,18 +219,22 @@ class Board:
         return np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
     def bodies_mjcf(self, robot):
-        face = np.asarray(self.face_m, dtype=float)
+        face = np.asarray(self.face_m, dtype=float) - self.normal * self.contact_margin_m
+        face = face + self.plane_axes.T @ np.asarray(self.centre_offset_m, dtype=float)
         centre = face - self.normal * self.thickness_m / 2
         half = np.abs(self.plane_axes.T @ (np.asarray(self.size_m) / 2)) + np.abs(self.normal) * self.thickness_m / 2
         bodies = [
             f'<body name="{self.name}" pos="{_vec(centre)}"><geom name="{self.name}" type="box" size="{_vec(half)}" '
-            f'friction="{_friction(self.friction_mu)}" priority="2" rgba=".95 .95 .95 1"/></body>'
+            f'friction="{_friction(self.friction_mu)}" priority="2" solref="{_vec([self.contact_timeconst_s, 1.0])}" '
+            f'margin="{self.contact_margin_m!r}" '
+            'rgba=".95 .95 .95 1"/></body>'
         ]
-        if self.orientation == "horizontal":  # a table: the top rests on a block down to the floor
+        if self.orientation == "horizontal":  # a table: the top rests on a block under its far edge
             height = centre[2] - self.thickness_m / 2
+            leg = min(0.1, half[0])
             bodies.append(
-                f'<body name="{self.name}_stand" pos="{_vec([centre[0], centre[1], height / 2])}">'
-                f'<geom name="{self.name}_stand" type="box" size="{_vec([half[0] * 0.8, half[1] * 0.8, height / 2])}" '
+                f'<body name="{self.name}_stand" pos="{_vec([centre[0] + half[0] - leg, centre[1], height / 2])}">'
+                f'<geom name="{self.name}_stand" type="box" size="{_vec([leg, half[1] * 0.8, height / 2])}" '
                 'rgba=".5 .4 .3 1"/></body>'
             )
         return bodies
