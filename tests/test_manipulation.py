@@ -51,9 +51,10 @@ def test_slack_cable_has_no_tension_and_a_taut_one_pulls_the_end_effector(robot)
             plant.step(np.zeros(robot.n_joints))
         _, tension = scene.recording.series("load", "tension_n")
         _, force = scene.recording.series("load", "force_n")
-        if taut:
-            assert tension[-1] > 1.0
-            assert force[-1][0] < 0  # the end-effector pulls the cable back towards itself
+        if taut:  # stretched at the start: the cable jerks the load (and then may go slack)
+            k = int(np.argmax(tension))
+            assert tension[k] > 1.0
+            assert force[k][0] < 0  # the end-effector pulls the cable back towards itself
         else:
             assert np.all(tension == 0.0)
 
@@ -97,8 +98,8 @@ def test_bad_options_raise_before_a_run(options, match):
 def test_force_beyond_the_arm_torque_limits_is_rejected_and_near_it_warned(robot):
     with pytest.raises(ConfigError, match="joint"):
         make_scenario("pull", robot, ScenarioOptions(load_kg=40.0))
-    with pytest.raises(ConfigError, match="torque limits"):
-        make_scenario("wipe", robot, ScenarioOptions(force_n=200.0))
+    with pytest.raises(ConfigError, match="tip the robot"):
+        make_scenario("push-box", robot, ScenarioOptions(force_n=300.0))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         make_scenario("pull", robot, ScenarioOptions(load_kg=28.0))

@@ -71,8 +71,24 @@ def static_arm_torques(robot: RobotModel, force_applied_n: np.ndarray, q: np.nda
     return tau[~robot.leg_joint_mask]
 
 
+def support_centre_of_pressure(robot: RobotModel, force_applied_n: np.ndarray) -> np.ndarray:
+    """Ground centre of pressure (x, y) holding the nominal pose statically against gravity and the
+    end-effector applying `force_applied_n` (moment balance of eq. 2 without motion)."""
+    q = robot.q_nominal
+    weight = robot.mass_kg * GRAVITY_M_S2
+    com = pin.centerOfMass(robot.model, robot.model.createData(), q)
+    p_ee = nominal_ee_position(robot)
+    on_robot = -np.asarray(force_applied_n, dtype=float)
+    reaction_z = weight - on_robot[2]
+    if reaction_z <= 0:
+        return np.array([np.inf, np.inf])
+    moment = np.cross(com, [0.0, 0.0, -weight]) + np.cross(p_ee, on_robot)
+    return np.array([moment[1], -moment[0]]) / reaction_z
+
+
 def check_arm_force(robot: RobotModel, force_applied_n: np.ndarray, what: str) -> np.ndarray:
-    """Raise `ConfigError` when the arm cannot hold the force target at its nominal pose; warn near the limit.
+    """Raise `ConfigError` when the arm cannot hold the force target at its nominal pose, or the
+    force would tip the standing robot over its feet; warn near the arm's torque limits.
 
     Returns the ratio |tau| / tau_max per arm joint."""
     tau = static_arm_torques(robot, force_applied_n)
@@ -85,6 +101,12 @@ def check_arm_force(robot: RobotModel, force_applied_n: np.ndarray, what: str) -
               f"pose (limit {limits[worst]:.1f} Nm)")
     if ratio[worst] > 1.0:
         raise ConfigError(f"{detail}: beyond the arm's torque limits; lower the force (--force-n) or the load (--load-kg)")
+    feet = robot.frame_trajectories(robot.q_nominal, list(robot.feet))
+    xy = np.array([feet[f][0, :2] for f in robot.feet])
+    cop = support_centre_of_pressure(robot, force_applied_n)
+    if not (np.all(cop >= xy.min(axis=0)) and np.all(cop <= xy.max(axis=0))):
+        raise ConfigError(f"{what} of {magnitude:.1f} N would tip the robot over: the centre of pressure it needs "
+                          f"({cop[0]:.2f}, {cop[1]:.2f}) m lies outside the feet; lower the force (--force-n)")
     if ratio[worst] > TORQUE_WARNING_RATIO:
         warnings.warn(f"{detail}: {100 * ratio[worst]:.0f} % of the limit, little margin left for motion", stacklevel=2)
     return ratio
