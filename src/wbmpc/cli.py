@@ -80,6 +80,7 @@ def _scenario_options(args: argparse.Namespace):
         force_n=args.force_n, box_kg=args.box_kg, board=args.board, board_friction_mu=args.board_friction,
         wipe_pattern=args.pattern, wipe_size_m=args.wipe_size, wipe_period_s=args.wipe_period,
         hand_force_n=args.hand_force, compliant_kp_arm=args.compliant_kp_arm, compliant_kd_arm=args.compliant_kd_arm,
+        compliant_return_gain_1_s=args.compliant_return,
     )
 
 
@@ -203,6 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
     manip.add_argument("--hand-force", type=float, default=30.0, help="compliant: peak force of the external hand, N")
     manip.add_argument("--compliant-kp-arm", type=float, default=2.0, help="compliant: arm joint Kp")
     manip.add_argument("--compliant-kd-arm", type=float, default=0.3, help="compliant: arm joint Kd")
+    manip.add_argument("--compliant-return", type=float, default=0.5, metavar="1/S",
+                       help="compliant: gain of the slow return to the nominal end-effector place (0 = none)")
     run.set_defaults(func=cmd_run)
 
     bench = sub.add_parser("bench", help="benchmarks")

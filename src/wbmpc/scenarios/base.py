@@ -41,6 +41,7 @@ class ScenarioOptions:
     hand_force_n: float = 30.0  # compliant: peak force of the external hand
     compliant_kp_arm: float = 2.0
     compliant_kd_arm: float = 0.3
+    compliant_return_gain_1_s: float = 0.5  # 0: the paper's pure zero end-effector velocity target
 
     def __post_init__(self):
         if self.gait is not None and self.gait not in GAIT_NAMES:
@@ -51,7 +52,8 @@ class ScenarioOptions:
                 raise ConfigError(f"--{name.replace('_kg', '-kg').replace('_', '-')} must be a positive mass in kg, got {value}")
         if self.force_n is not None and not (np.isfinite(self.force_n) and self.force_n > 0):
             raise ConfigError(f"--force-n is the magnitude of the end-effector force target and must be positive, got {self.force_n}")
-        for name in ("load_friction_mu", "board_friction_mu", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm"):
+        for name in ("load_friction_mu", "board_friction_mu", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm",
+                     "compliant_return_gain_1_s"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ConfigError(f"{name} must be >= 0, got {value}")

@@ -537,8 +537,24 @@ class Compliant(Scenario):
         return replace(gains, kp_arm=self.options.compliant_kp_arm, kd_arm=self.options.compliant_kd_arm)
 
     def commands(self, robot):
-        zero = np.zeros(3)
-        return lambda t, q, v: Commands(ee_velocity_m_s=zero.copy(), ee_force_n=zero.copy())
+        """Zero force target; the velocity target is zero too, plus (when `compliant_return_gain_1_s` > 0)
+        a slow drift back to the nominal end-effector place on the base once the hand lets go: pure
+        zero leaves the arm wherever it was pushed, at a joint limit after a strong push, where the
+        OCP degenerates (Fatrop stalls, the IPOPT fallback takes seconds per solve)."""
+        ee = _EeState(robot)
+        offset = _yaw_rotation(robot.q_nominal).T @ (nominal_ee_position(robot) - robot.q_nominal[:3])
+        gain = self.options.compliant_return_gain_1_s
+
+        def command(t, q, v):
+            velocity = np.zeros(3)
+            if gain > 0:
+                velocity = gain * (q[:3] + _yaw_rotation(q) @ offset - ee.position(q))
+                speed = np.linalg.norm(velocity)
+                if speed > 0.1:
+                    velocity *= 0.1 / speed
+            return Commands(ee_velocity_m_s=velocity, ee_force_n=np.zeros(3))
+
+        return command
 
     def extra_metrics(self, robot, log):
         a = log.arrays()
