@@ -12,8 +12,8 @@ coordinates, which the MPC never sees (it treats the arm force as a fixed input,
   the end-effector sphere on the box.
 - `Board`: a fixed board (vertical like a whiteboard, or horizontal like a table) with its own
   friction. Measured: contact force of the end-effector sphere on the board.
-- `ExternalHand`: a scripted force on the end-effector point (a person pushing the gripper).
-  Measured: the force the hand applies.
+- `ExternalHand`: a scripted hand moving the end-effector through a capped spring-damper (a
+  person pushing the gripper). Measured: the force the hand applies.
 
 `Scene` groups objects, turns them into a `MujocoPlantConfig` and records every measurement.
 """
@@ -250,46 +250,86 @@ class Board:
 
 
 @dataclass(frozen=True)
-class ExternalHand:
-    """A scripted hand pushing the end-effector point: piecewise-linear force profile in world.
+class HandPush:
+    """One push of the hand: from `start_s` it moves `travel_m` (world) in `move_s`, holds for
+    `hold_s`, then lets go."""
 
-    `times_s` and `forces_n` (one 3-vector per time) define the force; it is zero outside.
+    start_s: float
+    travel_m: tuple[float, float, float]
+    move_s: float = 0.8
+    hold_s: float = 0.5
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + self.move_s + self.hold_s
+
+
+@dataclass(frozen=True)
+class ExternalHand:
+    """A scripted hand moving the end-effector: during each `HandPush` a point moves from where the
+    end-effector was at the push's start, coupled to the end-effector point by a spring-damper (a
+    person's arm is compliant too) whose force is capped at `max_force_n`; between pushes the hand
+    lets go. A compliant arm follows with little force; a stiff one needs the cap.
     """
 
-    times_s: tuple[float, ...] = (1.0, 1.5, 2.5, 3.0)
-    forces_n: tuple[tuple[float, float, float], ...] = ((0, 0, 0), (-30, 0, 0), (-30, 0, 0), (0, 0, 0))
+    pushes: tuple[HandPush, ...] = (HandPush(1.0, (-0.12, 0.0, 0.0)),)
+    stiffness_n_m: float = 400.0
+    damping_n_s_m: float = 40.0
+    max_force_n: float = 30.0
     name: str = "hand"
 
     def __post_init__(self):
-        if len(self.times_s) != len(self.forces_n) or len(self.times_s) < 2:
-            raise ConfigError("the hand script needs as many force vectors as times (at least 2)")
-        if np.any(np.diff(self.times_s) < 0):
-            raise ConfigError(f"hand script times must increase, got {self.times_s}")
+        for a, b in zip(self.pushes, self.pushes[1:]):
+            if b.start_s < a.end_s:
+                raise ConfigError(f"hand pushes overlap: one starts at {b.start_s} s before the previous ends ({a.end_s} s)")
+        for push in self.pushes:
+            if not (push.move_s > 0 and push.hold_s >= 0):
+                raise ConfigError(f"a hand push needs move_s > 0 and hold_s >= 0, got {push}")
+        _positive("hand stiffness (N/m)", self.stiffness_n_m)
+        _positive("hand damping (N s/m)", self.damping_n_s_m, allow_zero=True)
+        _positive("hand force cap (N)", self.max_force_n)
+        object.__setattr__(self, "_state", {})
 
-    def force_at(self, t_s: float) -> np.ndarray:
-        times, forces = np.asarray(self.times_s, dtype=float), np.asarray(self.forces_n, dtype=float)
-        if t_s < times[0] or t_s > times[-1]:
+    def push_at(self, t_s: float) -> HandPush | None:
+        return next((p for p in self.pushes if p.start_s <= t_s <= p.end_s), None)
+
+    def force_on_ee(self, t_s: float, ee_m: np.ndarray, ee_velocity_m_s: np.ndarray) -> np.ndarray:
+        """Force (N, world) of the hand on the end-effector at `ee_m` moving at `ee_velocity_m_s`."""
+        push = self.push_at(t_s)
+        if push is None:
+            self._state.clear()
             return np.zeros(3)
-        return np.array([np.interp(t_s, times, forces[:, k]) for k in range(3)])
+        if self._state.get("push") is not push:
+            self._state.update(push=push, start=np.array(ee_m, dtype=float))
+        share = min((t_s - push.start_s) / push.move_s, 1.0)
+        travel = np.asarray(push.travel_m, dtype=float)
+        velocity = travel / push.move_s if share < 1.0 else np.zeros(3)
+        target = self._state["start"] + share * travel
+        force = self.stiffness_n_m * (target - ee_m) + self.damping_n_s_m * (velocity - ee_velocity_m_s)
+        size = np.linalg.norm(force)
+        return force * (self.max_force_n / size) if size > self.max_force_n else force
+
+    def before_step(self, plant) -> None:
+        m, d = plant.model, plant.data
+        body = m.body(plant.ee_body).id
+        site = m.site(EE_SITE).id
+        velocity = np.zeros(6)
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, site, velocity, 0)
+        point = d.site_xpos[site]
+        force = self.force_on_ee(plant.time_s, point, velocity[3:])
+        self._state["last"] = force
+        # xfrc_applied acts at the body's centre of mass: add the moment of the force about it
+        d.xfrc_applied[body, :3] = force
+        d.xfrc_applied[body, 3:] = np.cross(point - d.xipos[body], force)
+
+    def measure(self, plant):
+        return {"hand_force_n": np.array(self._state.get("last", np.zeros(3)))}
 
     def bodies_mjcf(self, robot):
         return []
 
     def edit_spec(self, spec, robot):
         _add_ee_site(spec, robot)
-
-    def before_step(self, plant) -> None:
-        d = plant.data
-        body = plant.model.body(plant.ee_body).id
-        force = self.force_at(plant.time_s)
-        point = d.site(EE_SITE).xpos
-        # xfrc_applied acts at the body's centre of mass: add the moment of the force about it
-        d.xfrc_applied[body, :3] = force
-        d.xfrc_applied[body, 3:] = np.cross(point - d.xipos[body], force)
-
-    def measure(self, plant):
-        # the hand pushes the end-effector: the end-effector applies the opposite on the hand
-        return {"hand_force_n": self.force_at(plant.time_s)}
 
 
 def _add_ee_site(spec: mujoco.MjSpec, robot: RobotModel) -> None:
