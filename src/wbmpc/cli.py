@@ -151,10 +151,16 @@ def _run_sweep(args: argparse.Namespace, robot, config, out_dir) -> int:
 
     loads = parse_loads(args.sweep)
     print(f"wbmpc run pull --sweep: loads {loads} kg, robot {robot.name}", file=sys.stderr)
-    report = pull_sweep(robot, loads, config, progress=lambda load, s: _progress(s, f"{load:5.1f} kg "))
+    def on_row(report: dict) -> None:
+        row = report["rows"][-1]
+        print(f"\r{row['load_kg']:5.1f} kg: " + ("rejected" if "rejected" in row else
+              f"{'pulled' if row['pulled'] else 'NOT pulled'}, fell {row['fell']}, load moved {row['load_moved_m']:.2f} m")
+              + " " * 20, file=sys.stderr)
+        if not args.no_outputs:
+            (out_dir / "sweep.json").write_text(json.dumps(report, indent=2))
+
+    report = pull_sweep(robot, loads, config, progress=lambda load, s: _progress(s, f"{load:5.1f} kg "), on_row=on_row)
     print(file=sys.stderr)
-    if not args.no_outputs:
-        (out_dir / "sweep.json").write_text(json.dumps(report, indent=2))
     _emit(args, report, sweep_table(report))
     return 0
 

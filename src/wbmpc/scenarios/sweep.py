@@ -34,8 +34,11 @@ def parse_loads(text: str) -> list[float]:
 
 
 def pull_sweep(robot: RobotModel, loads_kg: list[float], config: RunConfig,
-               progress: Callable[[float, float], None] | None = None) -> dict:
-    """Run `pull` for each load; returns {"gait", "rows": [...], "max_pulled_kg"}."""
+               progress: Callable[[float, float], None] | None = None,
+               on_row: Callable[[dict], None] | None = None) -> dict:
+    """Run `pull` for each load; returns {"gait", "rows": [...], "max_pulled_kg"}.
+
+    `on_row(report so far)` is called after every load (a long sweep keeps what it measured)."""
     if config.scenario != "pull":
         raise ConfigError(f"the load sweep runs the pull scenario, not {config.scenario!r}")
     mpc: MPC | None = None
@@ -47,16 +50,22 @@ def pull_sweep(robot: RobotModel, loads_kg: list[float], config: RunConfig,
             scenario = make_scenario("pull", robot, run_config.options)
         except ConfigError as exc:
             row.update({"rejected": str(exc), "pulled": False})
-            rows.append(row)
-            continue
-        mpc = mpc or MPC(robot, mpc_config_for(scenario, run_config))
-        result = run_scenario(robot, run_config, progress=(lambda s, m=load: progress(m, s)) if progress else None, mpc=mpc)
-        row.update({k: result.metrics.get(k) for k in ROW_KEYS})
+        else:
+            mpc = mpc or MPC(robot, mpc_config_for(scenario, run_config))
+            result = run_scenario(robot, run_config, mpc=mpc,
+                                  progress=(lambda s, m=load: progress(m, s)) if progress else None)
+            row.update({k: result.metrics.get(k) for k in ROW_KEYS})
+            row["solve_ms_mean"] = result.metrics["solve_ms"]["mean"]
         rows.append(row)
+        if on_row:
+            on_row(_report(config, rows))
+    return _report(config, rows)
+
+
+def _report(config: RunConfig, rows: list[dict]) -> dict:
     pulled = [r["load_kg"] for r in rows if r.get("pulled")]
-    gait = config.options.gait or "trot"
-    return {"scenario": "pull", "gait": gait, "load_friction_mu": config.options.load_friction_mu,
-            "duration_s": config.duration_s, "rows": rows, "max_pulled_kg": max(pulled) if pulled else None}
+    return {"scenario": "pull", "gait": config.options.gait or "trot", "load_friction_mu": config.options.load_friction_mu,
+            "duration_s": config.duration_s, "rows": list(rows), "max_pulled_kg": max(pulled) if pulled else None}
 
 
 def sweep_table(report: dict) -> str:
