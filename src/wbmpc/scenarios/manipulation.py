@@ -248,7 +248,8 @@ class Pull(_ForceTask):
     object_name = "load"
     RAMP_S = (0.2, 1.0)
     MOVE_START_S = 1.2
-    STANCE_RETRACT_M = 0.12
+    STANCE_RETRACT_M = 0.03
+    STANCE_BASE_SHIFT_M = 0.05
     SLACK_M = 0.01
     HOOK_HEIGHT_M = 0.1
 
@@ -291,11 +292,17 @@ class Pull(_ForceTask):
         return self.gait != "stand"
 
     def commands(self, robot):
+        """Walking: base backwards at the pull speed, the end-effector held at its place on the base.
+        Stance: the body leans back by STANCE_BASE_SHIFT_M while the arm retracts STANCE_RETRACT_M
+        relative to it (more arm retraction alone drives joint2 into its lower limit, where the OCP
+        degenerates), so the end-effector moves back at the pull speed."""
         force = self.target_force(robot)
         ee = _EeState(robot)
         offset0 = _yaw_rotation(robot.q_nominal).T @ (nominal_ee_position(robot) - robot.q_nominal[:3])
         speed = self.options.pull_speed_m_s
-        retract_end = self.MOVE_START_S + self.STANCE_RETRACT_M / max(speed, 1e-9)
+        travel = self.STANCE_RETRACT_M + self.STANCE_BASE_SHIFT_M
+        window = travel / max(speed, 1e-9)
+        retract_end = self.MOVE_START_S + window
 
         def command(t, q, v):
             moving = t >= self.MOVE_START_S
@@ -307,8 +314,10 @@ class Pull(_ForceTask):
                 base_velocity[0] = -speed
                 ee_velocity_ref = heading @ base_velocity
             elif not self.walking and moving:
-                offset[0] -= speed * (min(t, retract_end) - self.MOVE_START_S)
+                share = (min(t, retract_end) - self.MOVE_START_S) / window
+                offset[0] -= self.STANCE_RETRACT_M * share
                 if t < retract_end:
+                    base_velocity[0] = -self.STANCE_BASE_SHIFT_M / window
                     ee_velocity_ref = heading @ np.array([-speed, 0.0, 0.0])
             # hold the end-effector at its (retracting) place relative to the base, in the heading frame
             p_ref = q[:3] + heading @ offset
@@ -327,7 +336,8 @@ class Pull(_ForceTask):
         if self.walking:
             expected = self.options.pull_speed_m_s * max(t_end - self.MOVE_START_S, 0.0)
         else:
-            expected = min(self.STANCE_RETRACT_M, self.options.pull_speed_m_s * max(t_end - self.MOVE_START_S, 0.0))
+            expected = min(self.STANCE_RETRACT_M + self.STANCE_BASE_SHIFT_M,
+                           self.options.pull_speed_m_s * max(t_end - self.MOVE_START_S, 0.0))
         late = t >= self.force_window_start_s
         out.update({
             "load_kg": self.options.load_kg,
