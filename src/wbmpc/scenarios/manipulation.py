@@ -6,14 +6,15 @@ The velocity command comes from a position reference by feedback (v = v_ref + K 
 except along a contact normal, where the force target alone presses the end-effector on.
 
 - `pull`: a load on the floor tied to the end-effector by a cable; the robot walks backwards
-  (`--gait trot|walk`) or, in stance (`--gait stand`), retracts the arm. The force target is the
+  (`--gait trot|walk`) or, in stance (`--gait stand`), leans back and retracts the arm. The force target is the
   cable tension that makes the load slide: T = mu m g / (cos(theta) + mu sin(theta)) along the
   cable (theta above horizontal), unless `--force-n` sets it.
 - `push-box`: trotting in place, press a box against a wall with `--force-n` (default 20 N).
 - `wipe`: standing, move over a board in a circle or figure-eight pressing with `--force-n`
   (default 10 N) along the normal; the target also contains the board's friction along the motion.
-- `compliant`: arm PD gains lowered, end-effector velocity and force targets zero; a scripted
-  hand pushes the end-effector back, left and down.
+- `compliant`: arm PD gains lowered, end-effector force target zero and velocity target zero
+  plus a slow return to the nominal place (`--compliant-return 0` for the paper's pure zero); a
+  scripted hand moves the end-effector back, left and down through a capped spring.
 
 Force metric (all scenarios with a force target): `ee_force_err_rel` = mean over the time the
 full target is applied of |F_meas . u - F_target| / F_target, where F_meas is the force the
