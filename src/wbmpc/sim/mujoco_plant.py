@@ -49,12 +49,12 @@ class MujocoPlant:
         self._force = np.zeros(6)
         self._step_hooks: list = []
         self.ee_body: str | None = None
-        self._ee_geom: int | None = None
+        self._ee_geoms: set[int] = set()
         if robot.arm_ee:
             frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
             self.ee_body = self._body_names[frame.parentJoint - 1]
-            geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, robot.arm_ee)
-            self._ee_geom = int(geom) if geom >= 0 else None
+            body = m.body(self.ee_body).id
+            self._ee_geoms = {g for g in range(m.ngeom) if m.geom_bodyid[g] == body}
         self.reset()
 
     # ------------------------------------------------------------------ Plant interface
@@ -148,16 +148,17 @@ class MujocoPlant:
         self._step_hooks.append(hook)
 
     def ee_contact_force(self, geom_names) -> np.ndarray:
-        """World-frame force (N) ON the arm end-effector geom from contacts with the named geoms."""
-        if self._ee_geom is None:
-            raise PlantInputError("this scene has no end-effector collision geom (ee_sphere_radius_m is None or no arm)")
+        """World-frame force (N) ON the arm's last link (the end-effector sphere and the gripper's
+        shapes) from contacts with the named geoms."""
+        if not self._ee_geoms:
+            raise PlantInputError("the arm's last link has no collision geom (ee_sphere_radius_m is None or no arm)")
         m, d = self.model, self.data
         others = {int(m.geom(name).id) for name in geom_names}
         force = np.zeros(3)
         for i in range(d.ncon):
             g1, g2 = (int(g) for g in d.contact.geom[i])
             for sign, ee, other in ((1.0, g2, g1), (-1.0, g1, g2)):
-                if ee == self._ee_geom and other in others:
+                if ee in self._ee_geoms and other in others:
                     mujoco.mj_contactForce(m, d, i, self._force)
                     force += sign * d.contact.frame[i].reshape(3, 3).T @ self._force[:3]
         return force
