@@ -70,34 +70,56 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scenario_options(args: argparse.Namespace):
+    from wbmpc.scenarios import ScenarioOptions
+
+    return ScenarioOptions(
+        speed_m_s=args.speed, push_speed_m_s=args.push_speed, push_time_s=args.push_time,
+        push_direction_deg=args.push_direction, gait=args.gait, load_kg=args.load_kg,
+        load_friction_mu=args.load_friction, cable_length_m=args.cable_length, pull_speed_m_s=args.pull_speed,
+        force_n=args.force_n, box_kg=args.box_kg, board=args.board, board_friction_mu=args.board_friction,
+        wipe_pattern=args.pattern, wipe_size_m=args.wipe_size, wipe_period_s=args.wipe_period,
+        hand_force_n=args.hand_force, compliant_kp_arm=args.compliant_kp_arm, compliant_kd_arm=args.compliant_kd_arm,
+        compliant_return_gain_1_s=args.compliant_return,
+    )
+
+
+def _progress(share: float, label: str = "") -> None:
+    bar = int(30 * min(share, 1.0))
+    print(f"\r{label}[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     """Closed-loop scenario: progress on stderr, summary, metrics.json + plots + replay in --out."""
+    import warnings
     from pathlib import Path
 
     from wbmpc.control.interpolator import PdGains
-    from wbmpc.scenarios import (RunConfig, ScenarioOptions, make_scenario, prepare_output_dir, run_scenario,
-                                 write_outputs)
+    from wbmpc.scenarios import RunConfig, make_scenario, prepare_output_dir, run_scenario, write_outputs
 
     robot = robot_from_args(args)
-    make_scenario(args.scenario, robot)  # unknown scenario or missing arm: exit 2 before building
+    options = _scenario_options(args)
+    if args.sweep is not None and args.scenario != "pull":
+        raise WbmpcError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if args.sweep is None:
+            make_scenario(args.scenario, robot, options)  # bad input or missing arm: exit 2 before building
+    for w in caught:
+        print(f"wbmpc: warning: {w.message}", file=sys.stderr)
     if args.duration is not None and not args.duration > 0:
         raise WbmpcError(f"--duration must be positive, got {args.duration}")
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         prepare_output_dir(out_dir)
-    options = ScenarioOptions(speed_m_s=args.speed, push_speed_m_s=args.push_speed, push_time_s=args.push_time,
-                              push_direction_deg=args.push_direction)
     config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
                        gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
                        compiled=args.compiled)
+    if args.sweep is not None:
+        return _run_sweep(args, robot, config, out_dir)
     print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
-
-    def progress(share: float) -> None:
-        bar = int(30 * min(share, 1.0))
-        print(f"\r[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
-
-    result = run_scenario(robot, config, progress=progress)
+    result = run_scenario(robot, config, progress=_progress)
     print(file=sys.stderr)
     paths = write_outputs(robot, result, out_dir) if not args.no_outputs else []
     m = result.metrics
@@ -110,9 +132,37 @@ def cmd_run(args: argparse.Namespace) -> int:
     ]
     if m.get("ee_pos_rmse_m") is not None:
         lines.append(f"  end-effector position RMSE {100 * m['ee_pos_rmse_m']:.2f} cm")
+    if m.get("ee_force_err_rel") is not None:
+        lines.append(f"  end-effector force: measured {m['ee_force_measured_mean_n']:.1f} N vs target "
+                     f"{m['ee_force_target_mean_n']:.1f} N, mean error {100 * m['ee_force_err_rel']:.1f} % of the target")
+    if m.get("load_moved_m") is not None:
+        lines.append(f"  load {m['load_kg']:.1f} kg moved {m['load_moved_m']:.3f} m of {m['load_expected_move_m']:.3f} m "
+                     f"({'pulled' if m['pulled'] else 'NOT pulled'})")
+    if m.get("ee_yield_m") is not None:
+        lines.append(f"  end-effector yielded {', '.join(f'{100 * y:.1f}' for y in m['ee_yield_m'])} cm to the hand; "
+                     f"max base tilt {m['base_tilt_max_deg']:.1f} deg")
     if paths:
         lines.append(f"  wrote {len(paths)} files to {out_dir}/ (metrics.json, plots, replay.html)")
     _emit(args, m, "\n".join(lines))
+    return 0
+
+
+def _run_sweep(args: argparse.Namespace, robot, config, out_dir) -> int:
+    from wbmpc.scenarios.sweep import parse_loads, pull_sweep, sweep_table
+
+    loads = parse_loads(args.sweep)
+    print(f"wbmpc run pull --sweep: loads {loads} kg, robot {robot.name}", file=sys.stderr)
+    def on_row(report: dict) -> None:
+        row = report["rows"][-1]
+        print(f"\r{row['load_kg']:5.1f} kg: " + ("rejected" if "rejected" in row else
+              f"{'pulled' if row['pulled'] else 'NOT pulled'}, fell {row['fell']}, load moved {row['load_moved_m']:.2f} m")
+              + " " * 20, file=sys.stderr)
+        if not args.no_outputs:
+            (out_dir / "sweep.json").write_text(json.dumps(report, indent=2))
+
+    report = pull_sweep(robot, loads, config, progress=lambda load, s: _progress(s, f"{load:5.1f} kg "), on_row=on_row)
+    print(file=sys.stderr)
+    _emit(args, report, sweep_table(report))
     return 0
 
 
@@ -146,6 +196,26 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse; see bench table1)")
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
+    run.add_argument("--gait", help="override the scenario's gait: stand, trot or walk (pull: stand = pull in stance)")
+    manip = run.add_argument_group("loco-manipulation (pull, push-box, wipe, compliant)")
+    manip.add_argument("--load-kg", type=float, default=10.0, help="pull: mass of the load on the floor, kg")
+    manip.add_argument("--load-friction", type=float, default=0.3, help="pull: load-floor friction coefficient")
+    manip.add_argument("--cable-length", type=float, default=1.6, help="pull: cable length, m")
+    manip.add_argument("--pull-speed", type=float, default=0.1, help="pull: backwards walking (or arm) speed, m/s")
+    manip.add_argument("--sweep", metavar="KG,KG,...", help="pull: run each load and report the largest pulled")
+    manip.add_argument("--force-n", type=float, help="end-effector force target, N (pull: the load's sliding "
+                       "tension; push-box: 20; wipe: 10 normal)")
+    manip.add_argument("--box-kg", type=float, default=5.0, help="push-box: mass of the box, kg")
+    manip.add_argument("--board", default="vertical", help="wipe: vertical (whiteboard) or horizontal (table)")
+    manip.add_argument("--board-friction", type=float, default=0.3, help="wipe: board friction coefficient")
+    manip.add_argument("--pattern", default="circle", help="wipe: circle or eight")
+    manip.add_argument("--wipe-size", type=float, default=0.1, help="wipe: pattern radius, m")
+    manip.add_argument("--wipe-period", type=float, default=4.0, help="wipe: pattern period, s")
+    manip.add_argument("--hand-force", type=float, default=30.0, help="compliant: peak force of the external hand, N")
+    manip.add_argument("--compliant-kp-arm", type=float, default=2.0, help="compliant: arm joint Kp")
+    manip.add_argument("--compliant-kd-arm", type=float, default=0.3, help="compliant: arm joint Kd")
+    manip.add_argument("--compliant-return", type=float, default=0.5, metavar="1/S",
+                       help="compliant: gain of the slow return to the nominal end-effector place (0 = none)")
     run.set_defaults(func=cmd_run)
 
     bench = sub.add_parser("bench", help="benchmarks")

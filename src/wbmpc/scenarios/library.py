@@ -2,56 +2,22 @@
 
 `stand`, `trot-in-place`, `trot-forward` (0.2 m/s), `push` (lateral base velocity kick while
 trotting in place, section VI-B1 / Fig. 4) and `arm-track` (trot forward while the end-effector
-tracks a low/high reference, Fig. 3; position error becomes a velocity command by feedback).
+tracks a low/high reference, Fig. 3; position error becomes a velocity command by feedback);
+the loco-manipulation tasks of section VI-C (`pull`, `push-box`, `wipe`, `compliant`) live in
+`wbmpc.scenarios.manipulation`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.loop import Event, RunLog
+from wbmpc.control.loop import Event
 from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.robots import RobotModel
-
-
-@dataclass
-class ScenarioOptions:
-    """User-tunable knobs shared by the scenarios (CLI flags)."""
-
-    speed_m_s: float = 0.2
-    push_speed_m_s: float = 0.8
-    push_direction_deg: float = 90.0  # 90 = to the robot's left (lateral)
-    push_time_s: float = 2.0
-    arm_amplitude_m: float = 0.15
-    arm_period_s: float = 4.0
-    arm_feedback_gain_1_s: float = 4.0
-
-
-@dataclass
-class Scenario:
-    name: str
-    description: str
-    gait: str
-    default_duration_s: float
-    needs_arm: bool = False
-    options: ScenarioOptions = field(default_factory=ScenarioOptions)
-
-    def commands(self, robot: RobotModel):
-        return lambda t, q, v: Commands()
-
-    def events(self, robot: RobotModel) -> list[Event]:
-        return []
-
-    def ee_reference(self, robot: RobotModel):
-        """Callable t -> EE position reference (world), or None."""
-        return None
-
-    def extra_metrics(self, robot: RobotModel, log: RunLog) -> dict:
-        return {}
+from wbmpc.scenarios.base import Scenario, ScenarioOptions
+from wbmpc.scenarios.manipulation import Compliant, Pull, PushBox, Wipe
 
 
 class Stand(Scenario):
@@ -144,7 +110,8 @@ class ArmTrack(Scenario):
         return {"ee_pos_rmse_m": float(np.sqrt(np.mean(error**2))), "ee_pos_max_err_m": float(error.max())}
 
 
-SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, Push, ArmTrack)}
+SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, Push, ArmTrack,
+                                                                 Pull, PushBox, Wipe, Compliant)}
 
 
 def make_scenario(name: str, robot: RobotModel, options: ScenarioOptions | None = None) -> Scenario:
@@ -153,4 +120,5 @@ def make_scenario(name: str, robot: RobotModel, options: ScenarioOptions | None 
     scenario = SCENARIOS[name](options or ScenarioOptions())
     if scenario.needs_arm and robot.arm_ee is None:
         raise ConfigError(f"scenario '{name}' needs a robot with an arm (--arm-ee); {robot.name} has none")
+    scenario.check(robot)
     return scenario

@@ -50,6 +50,8 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "ee_force_err_rel": None,
         "max_torque_ratio": float(np.max(np.abs(a["tau"]) / robot.tau_max)),
         "max_feedforward_torque_ratio": float(np.max(np.abs(a["tau_ff"]) / robot.tau_max)),
+        "torque_margin_per_joint": {name: float(1.0 - r) for name, r in
+                                    zip(robot.joint_names, np.max(np.abs(a["tau"]) / robot.tau_max, axis=0))},
         "solve_ms": {"mean": float(np.mean(solve)), "std": float(np.std(solve)), "max": float(np.max(solve))},
         "iterations_mean": float(np.mean(a["iterations"])),
         "mpc_failures": int(log.mpc_failures),

@@ -16,7 +16,8 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import RobotModel
-from wbmpc.scenarios.library import Scenario, ScenarioOptions, make_scenario
+from wbmpc.scenarios.base import Scenario, ScenarioOptions
+from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.sim import make_plant
 from wbmpc.solvers.nlp import SolverConfig
@@ -62,10 +63,19 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
                  mpc: MPC | None = None) -> ScenarioResult:
     scenario = make_scenario(config.scenario, robot, config.options)
     duration = config.duration_s or scenario.default_duration_s
+    scene = scenario.scene(robot)
+    if scene is not None and config.plant != "mujoco":
+        raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config))
-    plant = make_plant(config.plant, robot)
+    if mpc.config.gait != scenario.gait:
+        raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
+    mpc.reset()
+    plant = make_plant(config.plant, robot, scene.plant_config() if scene is not None else None)
+    if scene is not None:
+        scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=config.gains, seed=config.seed))
+    gains = scenario.pd_gains(config.gains)
+    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress)
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
@@ -99,5 +109,6 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
     reference = result.scenario.ee_reference(robot)
     paths += save_plots(robot, result.log, out_dir, ee_reference=reference)
     arrays = result.log.arrays()
+    paths += result.scenario.extra_plots(robot, result.log, out_dir)
     paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html"))
     return paths

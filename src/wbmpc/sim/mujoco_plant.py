@@ -15,6 +15,7 @@ from wbmpc.robots import RobotModel
 from wbmpc.sim.base import (
     PlantConfig,
     PlantDivergedError,
+    PlantInputError,
     Recording,
     checked_state,
     checked_torques,
@@ -46,6 +47,14 @@ class MujocoPlant:
         self._body_names = body_names(robot)
         self._steps = 0
         self._force = np.zeros(6)
+        self._step_hooks: list = []
+        self.ee_body: str | None = None
+        self._ee_geoms: set[int] = set()
+        if robot.arm_ee:
+            frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
+            self.ee_body = self._body_names[frame.parentJoint - 1]
+            body = m.body(self.ee_body).id
+            self._ee_geoms = {g for g in range(m.ngeom) if m.geom_bodyid[g] == body}
         self.reset()
 
     # ------------------------------------------------------------------ Plant interface
@@ -82,6 +91,8 @@ class MujocoPlant:
         """One physics step of `dt_s` with joint torques clamped to +-tau_max; returns the applied torques."""
         tau = checked_torques(self.robot, tau_joints)
         self.data.ctrl[self._act] = tau
+        for hook in self._step_hooks:
+            hook.before_step(self)
         mujoco.mj_step(self.model, self.data)
         unstable = [w.name for w in _INSTABILITY_WARNINGS if self.data.warning[w].number > 0]
         if unstable or not np.all(np.isfinite(self.data.qpos)):
@@ -92,6 +103,8 @@ class MujocoPlant:
             )
         self._steps += 1
         self._record()
+        for hook in self._step_hooks:
+            hook.after_step(self)
         return tau
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -129,6 +142,27 @@ class MujocoPlant:
         return forces
 
     # ------------------------------------------------------------------ extras
+    def add_step_hook(self, hook) -> None:
+        """`hook.before_step(plant)` runs before and `hook.after_step(plant)` after every physics step
+        (scripted forces on scene objects, measurements; see `wbmpc.sim.objects`)."""
+        self._step_hooks.append(hook)
+
+    def ee_contact_force(self, geom_names) -> np.ndarray:
+        """World-frame force (N) ON the arm's last link (the end-effector sphere and the gripper's
+        shapes) from contacts with the named geoms."""
+        if not self._ee_geoms:
+            raise PlantInputError("the arm's last link has no collision geom (ee_sphere_radius_m is None or no arm)")
+        m, d = self.model, self.data
+        others = {int(m.geom(name).id) for name in geom_names}
+        force = np.zeros(3)
+        for i in range(d.ncon):
+            g1, g2 = (int(g) for g in d.contact.geom[i])
+            for sign, ee, other in ((1.0, g2, g1), (-1.0, g1, g2)):
+                if ee in self._ee_geoms and other in others:
+                    mujoco.mj_contactForce(m, d, i, self._force)
+                    force += sign * d.contact.frame[i].reshape(3, 3).T @ self._force[:3]
+        return force
+
     def qpos_from_q(self, q: np.ndarray) -> np.ndarray:
         """MuJoCo qpos (current objects kept) for a pinocchio configuration, e.g. to replay a recording."""
         qpos = self.data.qpos.copy()

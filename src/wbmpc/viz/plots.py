@@ -9,6 +9,7 @@
 - `foot_heights.png`   foot clearance (pinocchio FK) with the planned stance phases shaded
 - `contact_forces.png` measured normal contact forces with the planned stance phases shaded
 - `solver.png`         solve time and iterations per MPC step against the 80 Hz budget
+- `ee_force.png`       (manipulation scenarios) measured end-effector force against its target
 
 Figures are drawn on the Agg canvas directly (no pyplot state, no display needed).
 """
@@ -377,6 +378,30 @@ def plot_solver(robot, data: dict, path: Path, budget_ms: float = MPC_BUDGET_MS)
         ax_it.set_title(f"solver iterations per MPC step: mean {np.mean(iterations):.1f}, max {int(np.max(iterations))}", fontsize=10)
     ax_it.grid(True, alpha=0.3)
     fig.suptitle(f"{robot.name}: MPC solver statistics ({mpc_t.size} steps)", fontsize=12)
+    return _save(fig, path)
+
+
+def plot_ee_force(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray, path: Path,
+                  title: str = "end-effector force") -> Path:
+    """Force the end-effector applies on an object (measured in simulation, along the target's
+    direction) against the MPC's force target of eq. (7), and the relative error."""
+    fig = _figure(9, 5)
+    ax, ax_err = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
+    ax.plot(t, measured_n, linewidth=0.8, label="measured (simulation)")
+    ax.plot(t, target_n, label="MPC target", **COMMAND_STYLE)
+    ax.set_ylabel("force [N]")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    active = target_n > 1e-6
+    rel = np.full_like(measured_n, np.nan)
+    rel[active] = 100 * (measured_n[active] - target_n[active]) / target_n[active]
+    ax_err.plot(t, rel, linewidth=0.8, color=HIGHLIGHT_COLOR)
+    ax_err.axhline(10, color="gray", linestyle=":", linewidth=1)
+    ax_err.axhline(-10, color="gray", linestyle=":", linewidth=1)
+    ax_err.set_ylabel("error [% of target]")
+    ax_err.set_xlabel("time [s]")
+    ax_err.grid(alpha=0.3)
+    _figure_legend(fig, ax)
     return _save(fig, path)
 
 
