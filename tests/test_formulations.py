@@ -33,8 +33,8 @@ def robot():
 @pytest.fixture(scope="module", params=list(PAPER_COUNTS))
 def planned(request, robot):
     """One trot OCP (t = 0.1 s: a diagonal pair in swing) solved from a moving state."""
-    config = MpcConfig(ocp=OcpConfig(formulation=request.param, grid=TimeGrid(n_intervals=5, dt_first_s=0.01,
-                                                                              dt_last_s=0.04)),
+    config = MpcConfig(ocp=OcpConfig(formulation=request.param, grid=TimeGrid(n_intervals=8, dt_first_s=0.01,
+                                                                              dt_last_s=0.06)),
                        gait="trot", fallback_solver=None)
     mpc = MPC(robot, config)
     v0 = np.zeros(robot.nv)

@@ -8,7 +8,7 @@ from wbmpc.bench.dynamics import world_forces_to_pinocchio
 from wbmpc.control import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
-from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.ocp.problem import BLEND_TIME_S, OcpConfig, OcpProblem
 from wbmpc.solvers.nlp import SolverConfig
 
 SMALL = OcpConfig(grid=TimeGrid(n_intervals=8, dt_first_s=0.01, dt_last_s=0.06))
@@ -86,10 +86,13 @@ def test_arm_follows_its_commands(trot_solution, b1z1):
     solution, commands = trot_solution
     arm = solution.forces[:, -3:]
     np.testing.assert_allclose(arm, -commands.ee_force_n[None, :].repeat(len(arm), 0), atol=1e-6)
+    # from rest, the end-effector velocity goes linearly to the command over BLEND_TIME_S, then holds it (eq. 7)
+    blend = np.clip(solution.node_times_s / BLEND_TIME_S, 0.0, 1.0)
     for k in range(1, len(solution.q)):
         data = _kinematics(b1z1, solution.q[k], solution.v[k])
         vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(b1z1.arm_ee), pin.LOCAL_WORLD_ALIGNED).linear
-        np.testing.assert_allclose(vel, commands.ee_velocity_m_s, atol=1e-6)
+        np.testing.assert_allclose(vel, blend[k] * commands.ee_velocity_m_s, atol=1e-6)
+    assert blend[-1] == 1.0
 
 
 def test_limits_hold(trot_solution, b1z1):
@@ -149,7 +152,8 @@ def test_arm_is_carried_along_by_default(trot_mpc, b1z1):
     """Without an arm velocity command the end-effector moves with the commanded base velocity."""
     solution = trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(base_velocity_m_s=np.array([0.2, 0, 0])), t=0.3)
     assert solution.success
-    data = _kinematics(b1z1, solution.q[3], solution.v[3])
+    k = int(np.argmax(solution.node_times_s >= BLEND_TIME_S))  # past the blend from the measured velocity
+    data = _kinematics(b1z1, solution.q[k], solution.v[k])
     vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(b1z1.arm_ee), pin.LOCAL_WORLD_ALIGNED).linear
     np.testing.assert_allclose(vel, [0.2, 0.0, 0.0], atol=1e-6)
     assert solution.v[-1, 0] > 0.1  # and the base really speeds up over the horizon
@@ -183,3 +187,20 @@ def test_state_past_its_limits_stays_solvable(trot_mpc, b1z1):
     solution = trot_mpc.solve(q, v, Commands(), t=0.0)
     assert solution.success, solution.stats
     assert solution.v[-1, 6 + j] <= b1z1.v_max[j] + 1e-6  # brought back within the limits later on
+
+
+def test_state_right_after_a_push_is_solvable(trot_mpc, b1z1):
+    """A 0.8 m/s lateral base kick with the feet still sliding (section VI-B1): the stance feet are
+    brought to rest over BLEND_TIME_S (a fresh Fatrop recovers if the warm one stalls)."""
+    v = np.zeros(b1z1.nv)
+    v[1] = 0.8
+    solution = trot_mpc.solve(b1z1.q_nominal, v, Commands(), t=0.5)
+    assert solution.success, solution.stats
+    _, contact, _ = trot_mpc.schedule(0.5)
+    for k in np.flatnonzero(solution.node_times_s >= BLEND_TIME_S):
+        data = _kinematics(b1z1, solution.q[k], solution.v[k])
+        for i, foot in enumerate(b1z1.feet):
+            if contact[k, i]:
+                vel = pin.getFrameVelocity(b1z1.model, data, b1z1.frame_id(foot), pin.LOCAL_WORLD_ALIGNED).linear
+                np.testing.assert_allclose(vel, 0.0, atol=1e-6)
+    assert np.all(np.abs(solution.tau) <= b1z1.tau_max + 1e-6)

@@ -269,7 +269,8 @@ class MPC:
             result = self._fallback.solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
             attempts.append(f"{self.config.fallback_solver}: {result.stats.status}")
-        result.stats.status = f"{result.stats.status} (recovery after {'; '.join(attempts[:-1])})"
+        if len(attempts) > 1:
+            result.stats.status = f"{result.stats.status} (recovery after {'; '.join(attempts[:-1])})"
         result.stats.solve_time_s, result.stats.iterations = spent_s, iterations
         return result
 
