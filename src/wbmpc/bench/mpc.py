@@ -474,6 +474,13 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     return 0
 
 
+def write_report(path: Path, report: dict, text: str) -> None:
+    """A benchmark's JSON report at `path` and its markdown beside it (same name, .md)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=2) + "\n")
+    path.with_suffix(".md").write_text(text + "\n")
+
+
 def _output(args, payload: dict, human: str) -> None:
     """--json: one JSON object on stdout, human text on stderr; otherwise human text on stdout."""
     if args.json:

@@ -5,13 +5,12 @@ grid (all from `bench mpc`'s same-state re-solves), and solve time against the n
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from wbmpc.bench.mpc import _closed_loop, _output, _Progress, _NullStream, bench_markdown, bench_mpc, grid_for, mpc_config
+from wbmpc.bench.mpc import write_report, _closed_loop, _output, _Progress, _NullStream, bench_markdown, bench_mpc, grid_for, mpc_config
 from wbmpc.errors import ConfigError
 
 
@@ -83,9 +82,6 @@ def cli_bench_solvers(args, robot_from_args) -> int:
                            show_progress=not args.no_progress)
     text = solvers_markdown(report)
     if args.out:
-        path = Path(args.out)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(report, indent=2) + "\n")
-        path.with_suffix(".md").write_text(text + "\n")
+        write_report(Path(args.out), report, text)
     _output(args, report, text)
     return 0

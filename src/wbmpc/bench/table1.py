@@ -11,13 +11,12 @@ paper's values.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from wbmpc.bench.mpc import MPC_RATE_HZ, _closed_loop, _machine, _output, _Progress, _NullStream, _stats, mpc_config
+from wbmpc.bench.mpc import write_report, MPC_RATE_HZ, _closed_loop, _machine, _output, _Progress, _NullStream, _stats, mpc_config
 from wbmpc.errors import ConfigError, unknown_name
 
 # Table I of the paper (B2 + Z1, 15 nodes): instructions, decision variables, solve ms mean (std)
@@ -182,10 +181,7 @@ def cli_bench_table1(args, robot_from_args) -> int:
                           show_progress=not args.no_progress)
     text = table1_markdown(report)
     if args.out:
-        path = Path(args.out)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(report, indent=2) + "\n")
-        path.with_suffix(".md").write_text(text + "\n")
+        write_report(Path(args.out), report, text)
     if args.markdown and not args.json:
         print(text)
         return 0
