@@ -27,7 +27,7 @@ from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.parameters import ParameterPack
 from wbmpc.robots import RobotModel
-from wbmpc.symbolic import Motion, SymbolicDynamics
+from wbmpc.symbolic import SymbolicDynamics
 
 INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
@@ -68,8 +68,8 @@ class OcpProblem:
 
     Each stage k is one casadi Function of (x_k, u_k, p_k) -> (f(x_k, u_k), path rows, cost); stages
     of the same kind (first, torque nodes, plain, terminal) share one Function. `nlp` inlines them
-    into one SX expression graph (fastest in the virtual machine); `stagewise_nlp()` calls them from
-    MX, so derivatives and generated C exist once per stage kind (what code generation compiles).
+    into one SX expression graph (fastest in the virtual machine); code generation differentiates
+    each kind once instead (`solvers/codegen.py`).
     """
 
     def __init__(self, robot: RobotModel, config: OcpConfig = OcpConfig(), dyn: SymbolicDynamics | None = None):
@@ -84,13 +84,12 @@ class OcpProblem:
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
-        self._stagewise: dict | None = None
 
     @property
     def nlp(self) -> dict:
         """The NLP {x, p, f, g} in SX with the stages inlined (built on first use)."""
         if self._nlp is None:
-            self._nlp = self._assemble(ca.SX)
+            self._nlp = self._assemble()
         return self._nlp
 
     def _assembled(self) -> "OcpProblem":
@@ -238,11 +237,11 @@ class OcpProblem:
         function = ca.Function(name, [x, u, local.vector], [next_state, path, cost], ["x", "u", "p"], ["x_next", "g", "cost"])
         return function, [(tag, expr.shape[0]) for tag, expr in rows]
 
-    def _assemble(self, sym_type) -> dict:
-        """The NLP with each stage Function called once per node (SX: inlined; MX: kept as calls)."""
+    def _assemble(self) -> dict:
+        """The NLP with each stage Function called (inlined) once per node, and the row bookkeeping."""
         N = self.N
-        x = sym_type.sym("x", self.n_variables)
-        p = sym_type.sym("p", self.params.size)
+        x = ca.SX.sym("x", self.n_variables)
+        p = ca.SX.sym("p", self.params.size)
         rows: dict[str, list[np.ndarray]] = {tag: [] for tag in ROW_TAGS}
         row_nodes: dict[str, list[int]] = {tag: [] for tag in ROW_TAGS}
         g, cost, n_rows = [], 0, 0
@@ -267,12 +266,6 @@ class OcpProblem:
         self._equality = np.zeros(n_rows, dtype=bool)
         self._equality[self._rows["gap"].ravel()] = True
         return {"x": x, "p": p, "f": cost, "g": ca.vertcat(*g)}
-
-    def stagewise_nlp(self) -> dict:
-        """The same NLP in MX with one call per node to the shared stage Functions (for codegen)."""
-        if self._stagewise is None:
-            self._stagewise = self._assemble(ca.MX)
-        return self._stagewise
 
     def instructions_per_constraint(self) -> int:
         """Instructions of the dynamics constraint of one plain input node (Table I column): its
@@ -314,9 +307,7 @@ class OcpProblem:
             accelerations.append(a if a is not None else (velocities[k + 1] - velocities[k]) / dt[k])
         n_tau = min(self.config.n_torque_nodes, N)
         torques = []
-        for k in range(n_tau):
-            if nodes[k].motion is None:
-                nodes[k].motion = Motion(nodes[k].config, velocities[k])
+        for k in range(n_tau):  # input nodes: every formulation has their motion
             torques.append(form.joint_torques(nodes[k], accelerations[k]))
         outputs = [
             ca.horzcat(*[n["dq"] for n in nodes]),

@@ -176,12 +176,12 @@ def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float,
                                "CodegenConfig.timeout_s or use the non-compiled solver")
         time.sleep(0.05)
     elapsed = time.perf_counter() - start
-    process.returncode = os.waitstatus_to_exitcode(status)
+    exit_code = process.returncode = os.waitstatus_to_exitcode(status)  # reaped by wait4: tell Popen
     log.seek(0)
     stderr = log.read()
     log.close()
     peak_mb = usage.ru_maxrss / 1024
-    if process.returncode != 0:
+    if exit_code != 0:
         partial.unlink(missing_ok=True)
         message = stderr.decode(errors="replace").strip().splitlines()[-3:]
         memory_hint = " (out of memory? raise CodegenConfig.memory_limit_mb)" if "memory" in " ".join(message).lower() else ""
