@@ -110,6 +110,11 @@ class OcpProblem:
         return self._assembled()._n_constraints
 
     @property
+    def stage_row_starts(self) -> np.ndarray:
+        """First constraint row of each stage (its gap rows, then its path rows)."""
+        return self._assembled()._stage_row_starts
+
+    @property
     def equality(self) -> np.ndarray:
         """Structural equalities (gap rows) for Fatrop's structure detection."""
         return self._assembled()._equality
@@ -245,7 +250,9 @@ class OcpProblem:
         rows: dict[str, list[np.ndarray]] = {tag: [] for tag in ROW_TAGS}
         row_nodes: dict[str, list[int]] = {tag: [] for tag in ROW_TAGS}
         g, cost, n_rows = [], 0, 0
+        self._stage_row_starts = np.zeros(N + 1, dtype=int)
         for k in range(N + 1):
+            self._stage_row_starts[k] = n_rows
             function, tags = self.stage_function(k)
             state, inputs = self.stage_slices[k]
             next_state, path, stage_cost = function(x[state], x[inputs], self.stage_parameters(p, k))

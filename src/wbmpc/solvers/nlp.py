@@ -32,6 +32,7 @@ class SolverConfig:
     print_level: int = 0
     extra_options: dict = field(default_factory=dict)
     compiled: bool = False  # generate C, compile (cached) and load it; falls back to the VM on failure
+    solver_per_structure: bool = True  # Fatrop: one nlpsol per row-count pattern keeps our options (see NlpSolver)
     codegen: CodegenConfig = field(default_factory=CodegenConfig)
 
     def __post_init__(self):
@@ -110,29 +111,72 @@ def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
 
 
 class NlpSolver:
-    """A casadi nlpsol for one OCP structure; `solve` takes numeric p, bounds and an initial guess."""
+    """A casadi nlpsol for one OCP structure; `solve` takes numeric p, bounds and an initial guess.
+
+    Fatrop: casadi 3.8's plugin rebuilds its Fatrop instance whenever the per-stage numbers of
+    equality and inequality rows change (every contact switch) and the rebuilt instance ignores
+    our options (tol, mu_init, max_iter: Fatrop's defaults 1e-8, 0.1, 1000 apply instead). So one
+    nlpsol is kept per row-count pattern (`structure_key`): each keeps its Fatrop instance and our
+    options, and no step pays for a rebuild. A trot has a few dozen patterns per gait period;
+    `prepare` creates them ahead of a real-time loop (about 0.1 s each when compiled).
+    """
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None):
         self.problem = problem
         self.config = config
         self.compile_report: CompileReport | None = None
         self.compile_error: str | None = None
+        self._source: dict | str = problem.nlp
         if solver is None and config.compiled:
             solver = self._compiled_solver()
-        self.solver = solver or ca.nlpsol(f"ocp_{config.name}", config.name, problem.nlp, solver_options(problem, config))
+        self.solver = solver or self._new_nlpsol()
+        self._by_structure: dict[bytes, ca.Function] = {}
+        self._unclaimed: ca.Function | None = self.solver  # the first solver serves the first pattern seen
         self._g = ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False})
+        self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
+
+    def _new_nlpsol(self) -> ca.Function:
+        options = solver_options(self.problem, self.config)
+        if isinstance(self._source, str):  # a compiled library: its functions are already expanded
+            options.pop("expand")
+        suffix = "_compiled" if isinstance(self._source, str) else ""
+        return ca.nlpsol(f"ocp_{self.config.name}{suffix}", self.config.name, self._source, options)
+
+    def structure_key(self, lbx, ubx, lbg, ubg) -> bytes:
+        """Per-stage numbers of equality and inequality rows (bounds included), as casadi's Fatrop
+        plugin counts them: lb == ub is an equality, a row with both bounds infinite is skipped."""
+        def counts(lower, upper, starts):
+            lower, upper = np.asarray(lower), np.asarray(upper)
+            equal = lower == upper
+            bounded = ~equal & ~(np.isneginf(lower) & np.isposinf(upper))
+            return np.add.reduceat(equal, starts), np.add.reduceat(bounded, starts)
+
+        eq_g, ineq_g = counts(lbg, ubg, self.problem.stage_row_starts)
+        eq_x, ineq_x = counts(lbx, ubx, self._stage_x_starts)
+        return np.stack([eq_g + eq_x, ineq_g + ineq_x]).astype(np.int32).tobytes()
+
+    def _solver_for(self, lbx, ubx, lbg, ubg) -> ca.Function:
+        if self.config.name != "fatrop" or not self.config.solver_per_structure:
+            return self.solver
+        key = self.structure_key(lbx, ubx, lbg, ubg)
+        solver = self._by_structure.get(key)
+        if solver is None:
+            solver, self._unclaimed = (self._unclaimed or self._new_nlpsol()), None
+            self._by_structure[key] = solver
+        return solver
+
+    def prepare(self, bounds) -> int:
+        """Create the solvers of these (lbx, ubx, lbg, ubg) patterns now; the number of solvers held."""
+        for lbx, ubx, lbg, ubg in bounds:
+            self._solver_for(lbx, ubx, lbg, ubg)
+        return max(len(self._by_structure), 1)
 
     @property
     def is_compiled(self) -> bool:
         return self.compile_report is not None
 
     def recreated(self, **changes) -> "NlpSolver":
-        """A fresh solver on the same problem (and compiled library) with some settings changed.
-
-        CasADi 3.8's Fatrop plugin rebuilds its Fatrop instance whenever the per-stage counts of
-        equalities and inequalities change (contact switches) and the rebuilt instance runs with
-        Fatrop's default options (e.g. max_iter 1000): only a new nlpsol honours them again.
-        """
+        """A fresh solver on the same problem (and compiled library) with some settings changed."""
         config = replace(self.config, **changes)
         if self.compile_report is None:
             return NlpSolver(self.problem, replace(config, compiled=False))
@@ -140,7 +184,7 @@ class NlpSolver:
         options.pop("expand")
         solver = ca.nlpsol(f"ocp_{config.name}_compiled", config.name, str(self.compile_report.library), options)
         fresh = NlpSolver(self.problem, replace(config, compiled=False), solver=solver)
-        fresh.compile_report = self.compile_report
+        fresh.compile_report, fresh._source = self.compile_report, str(self.compile_report.library)
         return fresh
 
     def _compiled_solver(self) -> ca.Function | None:
@@ -151,9 +195,8 @@ class NlpSolver:
             self.compile_error = str(exc)
             warnings.warn(f"compiled solver unavailable, using the non-compiled one: {exc}", RuntimeWarning, stacklevel=3)
             return None
-        options = solver_options(self.problem, self.config)
-        options.pop("expand")
-        return ca.nlpsol(f"ocp_{self.config.name}_compiled", self.config.name, str(self.compile_report.library), options)
+        self._source = str(self.compile_report.library)
+        return self._new_nlpsol()
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         g = np.asarray(self._g(x, p)).ravel()
@@ -179,6 +222,7 @@ class NlpSolver:
             args["lam_g0"] = lam_g0
         if lam_x0 is not None:
             args["lam_x0"] = lam_x0
+        self.solver = self._solver_for(lbx, ubx, lbg, ubg)
         start = time.perf_counter()
         try:
             out = self.solver(**args)

@@ -1,0 +1,99 @@
+"""Fast linear algebra under Fatrop (the AVX2 BLASFEO) and Fatrop options kept across contact switches."""
+
+import ctypes
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, MpcConfig
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, StageBounds
+from wbmpc.robots import load_robot
+from wbmpc.solvers import blasfeo
+from wbmpc.solvers.nlp import SolverConfig
+
+SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
+
+
+def test_the_active_blasfeo_is_the_only_one_loaded():
+    """After a Fatrop solve the process holds exactly the BLASFEO the status names: never both."""
+    status = blasfeo.status()
+    robot = load_robot("go2")
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="stand"))
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv)).success
+    loaded = blasfeo._loaded("libblasfeo")
+    if status.active == "avx2":
+        assert loaded == [status.library]
+    else:
+        assert len(loaded) == 1 and Path(loaded[0]).parent.name == "casadi"
+
+
+@pytest.mark.skipif(not blasfeo.library_path().exists(), reason="the AVX2 BLASFEO is not installed (wbmpc setup)")
+def test_avx2_blasfeo_gives_the_generic_solution():
+    ok, detail = blasfeo.verify(blasfeo.library_path())
+    assert ok, detail
+    assert "iterations" in detail
+
+
+def test_verification_rejects_a_broken_library(tmp_path):
+    broken = tmp_path / "libblasfeo.so.0"
+    broken.write_bytes(b"\x7fELF not really a library")
+    ok, detail = blasfeo.verify(broken)
+    assert not ok
+    assert "crashed" in detail
+
+
+def test_bad_mode_is_refused(monkeypatch):
+    monkeypatch.setattr(blasfeo, "_status", None)
+    monkeypatch.setenv("WBMPC_BLASFEO", "fastest")
+    with pytest.raises(Exception, match="auto, generic or avx2"):
+        blasfeo.activate()
+
+
+def test_cpu_flags_are_read():
+    assert isinstance(blasfeo.cpu_has_avx2_fma(), bool)
+    assert ctypes.sizeof(ctypes.c_void_p) == 8
+
+
+@pytest.fixture(scope="module")
+def switching():
+    """go2 switching between four feet in stance and a trot pair in swing: the per-stage row counts
+    change (trot and walk keep them constant, a stop or a start of the gait does not)."""
+    robot = load_robot("go2")
+    config = MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(max_iterations=2), recovery_barrier_init=None,
+                       fallback_solver=None)
+    mpc = MPC(robot, config)
+    node_times = mpc.problem.config.grid.node_times_s
+    stance = np.ones((len(node_times), 4), dtype=bool)
+    trot = stance.copy()
+    trot[2:, [1, 2]] = False
+    schedules = {"stand": stance, "trot": trot}
+    mpc.pattern = "stand"
+    mpc.schedule = lambda t: (node_times, schedules[mpc.pattern], np.zeros((len(node_times), 4)))
+    keys = {name: mpc.solver.structure_key(*mpc.problem.bounds(StageBounds(
+        v0=np.zeros(robot.nv), q_ref=robot.q_nominal, contact=contact, swing_vz_m_s=np.zeros(contact.shape))))
+        for name, contact in schedules.items()}
+    return robot, mpc, keys
+
+
+def test_structure_key_counts_rows_like_casadi(switching):
+    robot, mpc, keys = switching
+    stand, trot = (np.frombuffer(keys[name], dtype=np.int32).reshape(2, -1) for name in ("stand", "trot"))
+    assert stand.shape == (2, mpc.problem.N + 1)
+    # a swing foot trades F_z >= 0 and its cone row (2 inequalities) for F_x = F_y = 0 (2 more equalities;
+    # F_z = 0 replaces v_z = 0): per swing foot +1 equality, -2 inequalities, from node 2 on
+    np.testing.assert_array_equal(trot[0, 2:-1] - stand[0, 2:-1], 2)
+    np.testing.assert_array_equal(trot[1, 2:-1] - stand[1, 2:-1], -4)
+    np.testing.assert_array_equal(trot[:, :2], stand[:, :2])
+
+
+def test_options_hold_after_contact_switches(switching):
+    """max_iter = 2 must bind on every pattern, also when a pattern comes back (casadi 3.8 forgets it)."""
+    robot, mpc, keys = switching
+    for pattern in ("stand", "trot", "stand", "trot"):
+        mpc.pattern = pattern
+        mpc.reset()
+        mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+        assert mpc.solver.solver.stats()["iter_count"] <= 3, pattern
+    assert set(mpc.solver._by_structure) == set(keys.values())
