@@ -95,7 +95,9 @@ def _stats(values) -> dict:
 
 def _machine() -> dict:
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
-    return {"cpus": os.cpu_count(), "loadavg_1_5_15": [round(x, 2) for x in load]}
+    from wbmpc.solvers import blasfeo
+
+    return {"cpus": os.cpu_count(), "loadavg_1_5_15": [round(x, 2) for x in load], "blasfeo": blasfeo.status().active}
 
 
 # ---------------------------------------------------------------------------- wbmpc solve
@@ -168,10 +170,15 @@ class _Recorder:
     def robot(self):
         return self.mpc.robot
 
+    splits: list = field(default_factory=list)
+    cpu_ms: list = field(default_factory=list)
+
     def solve(self, q, v, commands=None, t=0.0):
         self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t)))
         solution = self.mpc.solve(q, v, commands, t)
         self.eval_ms.append(_function_eval_ms(self.mpc))
+        self.splits.append(dict(solution.stats.split_ms))
+        self.cpu_ms.append(1e3 * solution.stats.cpu_time_s)
         return solution
 
 
@@ -220,6 +227,14 @@ class _Progress:
         self.stream.flush()
 
 
+def _split_summary(splits: list[dict], cpu_ms: list[float]) -> dict:
+    """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`, plus `python` around the solver)."""
+    keys = dict.fromkeys(k for split in splits for k in split)
+    means = {k: float(np.mean([split.get(k, 0.0) for split in splits])) for k in keys}
+    return {"parts_ms_mean": means, "step_ms_mean": float(sum(means.values())) if means else None,
+            "solver_cpu_ms": _stats(cpu_ms) if cpu_ms else None}
+
+
 def _run_summary(solutions_ms, iterations, success, n_variables, eval_ms=None) -> dict:
     iterations = np.asarray(iterations, dtype=float)
     solve = np.asarray(solutions_ms, dtype=float)
@@ -253,7 +268,8 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     n = min(steps, len(arrays["solve_ms"]))
     summary = _run_summary(arrays["solve_ms"][:n], arrays["iterations"][:n], arrays["success"][:n],
                            mpc.problem.n_variables, recorder.eval_ms[:n])
-    summary.update({"fell": bool(log.fell), "simulated_s": float(n / MPC_RATE_HZ), "wall_s": float(log.wall_time_s)})
+    summary.update({"fell": bool(log.fell), "simulated_s": float(n / MPC_RATE_HZ), "wall_s": float(log.wall_time_s),
+                    "split": _split_summary(recorder.splits[:n], recorder.cpu_ms[:n])})
     return summary, recorder.states[:n], [int(i) for i in arrays["iterations"][:n]]
 
 
@@ -427,6 +443,13 @@ def bench_markdown(report: dict) -> str:
         lines.append(f"| {name} | {r['steps']} | {_fmt(ms['mean'])} | {_fmt(ms['std'])} | {_fmt(ms['max'])} | "
                      f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
                      f"{_fmt(it['mean'], '.2f')} | {_fmt(it['max'], 'd')} | {r['failures']} | {r['fell']} |")
+    lines += ["", "Where a closed-loop step's time goes (mean ms; `python`: parameters, bounds, warm start and "
+                  "unpacking around the solver; solver CPU time is robust to other load on the machine):", ""]
+    for name, r in report["solvers"].items():
+        split = r.get("split") or {}
+        parts = ", ".join(f"{k} {v:.1f}" for k, v in (split.get("parts_ms_mean") or {}).items())
+        cpu = split.get("solver_cpu_ms") or {}
+        lines.append(f"- {name}: {parts}; solver CPU {_fmt(cpu.get('mean'))} ms mean ({_fmt(cpu.get('max'))} max)")
     same = report["same_states"]
     lines += ["", f"Same {same['states']} states of the {same['reference_solver']} run, re-solved in sequence "
                   "(each variant warm-started from its own previous solution unless cold):", "",
@@ -465,7 +488,8 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     grid_for(args.nodes, args.uniform_dt)
     robot = robot_from_args(args)
     report = bench_mpc(robot, steps=args.steps, gait=args.gait, plant=args.plant, solvers=tuple(solvers),
-                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress)
+                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress,
+                       compiled=args.compiled)
     if args.out:
         path = Path(args.out)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -9,6 +9,7 @@ last good one keeps being interpolated; failed solves are counted and never appl
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
@@ -89,6 +90,8 @@ class RunLog:
     commands: list = field(default_factory=list)
     planned_contact: list = field(default_factory=list)
     late_solutions: int = 0
+    sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
+    mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
     fell: bool = False
     fell_at_s: float | None = None
     wall_time_s: float = 0.0
@@ -257,8 +260,12 @@ class ClosedLoop:
         log = RunLog()
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
-        worker = context.Process(target=_mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn), daemon=True)
+        cpus = _cpu_split()
+        worker = context.Process(target=_mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1]),
+                                 daemon=True)
         worker.start()
+        if cpus[0]:
+            os.sched_setaffinity(0, cpus[0])
         try:
             if not conn.poll(300) or conn.recv() != "ready":
                 raise ConfigError("the real-time MPC process did not start (see its error above)")
@@ -270,7 +277,9 @@ class ClosedLoop:
             next_mpc, next_control = t0 + mpc_period, t0
             busy, request = False, None
             tau = np.zeros(self.robot.n_joints)
-            wall_start = time.perf_counter()
+            conn.send("cpu")
+            mpc_cpu_start = conn.recv()
+            wall_start, cpu_start = time.perf_counter(), time.process_time()
             while plant.time_s - t0 < duration_s - 1e-9:
                 t = plant.time_s
                 lag = (t - t0) - (time.perf_counter() - wall_start)
@@ -298,7 +307,14 @@ class ClosedLoop:
                     break
                 plant.step(tau)
             log.wall_time_s = time.perf_counter() - wall_start
+            log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
+            if busy:  # the worker answers in order: drain the solve in flight first
+                conn.recv()
+            conn.send("cpu")
+            log.mpc_cpu_share = (conn.recv() - mpc_cpu_start) / max(log.wall_time_s, 1e-9)
         finally:
+            if cpus[0]:
+                os.sched_setaffinity(0, cpus[0] | cpus[1])
             try:
                 conn.send(None)
             except (BrokenPipeError, OSError):
@@ -309,16 +325,34 @@ class ClosedLoop:
         return log
 
 
-def _mpc_worker(spec, mpc_config, conn) -> None:
-    """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests."""
+def _cpu_split() -> tuple[set[int], set[int]]:
+    """(simulation CPUs, MPC CPUs): one core each where there are two or more, so neither starves
+    the other; empty sets (no pinning) on a single core or where affinity is not supported."""
+    try:
+        available = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return set(), set()
+    if len(available) < 2:
+        return set(), set()
+    return {available[0]}, set(available[1:])
+
+
+def _mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
+    """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests
+    ("cpu" asks for the process's CPU time so far)."""
     from wbmpc.robots import RobotModel
 
+    if cpus:
+        os.sched_setaffinity(0, cpus)
     mpc = MPC(RobotModel(spec), mpc_config)
     conn.send("ready")
     while True:
         message = conn.recv()
         if message is None:
             return
+        if message == "cpu":
+            conn.send(time.process_time())
+            continue
         q, v, command, t = message
         start = time.perf_counter()
         solution = mpc.solve(q, v, command, t)

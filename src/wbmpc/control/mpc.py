@@ -7,6 +7,7 @@ shared over the stance feet, zero on swing feet, section V-A2) and calls the sol
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -217,6 +218,7 @@ class MPC:
 
     # ------------------------------------------------------------------ solve
     def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0) -> Solution:
+        start = time.perf_counter()
         commands = commands or Commands()
         q, v = self._check(q, v, commands, t)
         problem = self.problem
@@ -250,6 +252,8 @@ class MPC:
         solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
         if solution.success:
             self._previous = solution
+        # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
+        result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
         return solution
 
     def _recover(self, failed, p, bounds, x0):

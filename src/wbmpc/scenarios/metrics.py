@@ -60,6 +60,8 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "late_solution_share": float(log.late_solutions / max(n_solves, 1)),
         "delay_ms_mean": float(np.mean(log.delay_ms)) if log.delay_ms else 0.0,
         "wall_time_s": log.wall_time_s,
+        "sim_cpu_share": log.sim_cpu_share,  # real time: simulation process CPU / wall (must not starve the MPC)
+        "mpc_cpu_share": log.mpc_cpu_share,
     }
 
 

@@ -77,7 +77,8 @@ def _stage_derivatives(function: ca.Function) -> dict[str, ca.Function]:
     hessian, gradient = ca.hessian(lagrangian, z)
     name = function.name()
     return {
-        "value": ca.Function(f"{name}_value", [z, p], [next_state, rows, cost]),
+        "value": ca.Function(f"{name}_value", [z, p], [next_state, rows]),
+        "cost": ca.Function(f"{name}_cost", [z, p], [cost]),  # nlp_f alone: no dynamics evaluated
         "cost_gradient": ca.Function(f"{name}_cost_gradient", [z, p], [cost, ca.gradient(cost, z)]),
         "jacobian": ca.Function(f"{name}_jacobian", [z, p], [ca.jacobian(next_state, z), ca.jacobian(rows, z)]),
         "lagrangian": ca.Function(f"{name}_lagrangian", [z, p, sigma, lam_gap, lam_rows], [gradient, hessian]),
@@ -103,7 +104,8 @@ def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Functi
         z = x[state.start : inputs.stop]
         n_z, before, after = inputs.stop - state.start, state.start, n - inputs.stop
         p_k = problem.stage_parameters(p, k)
-        next_state, path, stage_cost = d["value"](z, p_k)
+        next_state, path = d["value"](z, p_k)
+        stage_cost = d["cost"](z, p_k)
         n_gap, n_path = (nx if k < N else 0), path.shape[0]
         lam_gap, lam_path = lam_g[row : row + n_gap], lam_g[row + n_gap : row + n_gap + n_path]
         gradient, hessian = d["lagrangian"](z, p_k, lam_f, lam_gap, lam_path)

@@ -52,6 +52,34 @@ class SolverStats:
     solve_time_s: float
     max_constraint_violation: float
     cost: float
+    cpu_time_s: float = 0.0  # CPU time of the solving thread: robust to other processes on the machine
+    split_ms: dict = field(default_factory=dict)  # where the solve time went (see `time_split_ms`)
+
+
+def time_split_ms(name: str, stats: dict, elapsed_s: float) -> dict:
+    """Where one solve's wall time went, in ms.
+
+    `functions`: CasADi's NLP function evaluations (what code generation speeds up);
+    Fatrop only: `linear_algebra` (search directions: the Riccati recursion on BLASFEO),
+    `initialization` (first evaluations and the initial dual estimate), `interface` (Fatrop's
+    evaluation callbacks beyond the functions themselves: casadi copying blocks into BLASFEO
+    matrices), `line_search_and_rest` (the remainder inside Fatrop); every solver: `outside_solver`
+    (casadi's nlpsol around the solver: argument checks, copies, statistics).
+    """
+    functions = 1e3 * sum(float(v) for k, v in stats.items() if k.startswith("t_wall_nlp_"))
+    split = {"functions": functions}
+    fatrop = stats.get("fatrop") if isinstance(stats.get("fatrop"), dict) else None
+    if name == "fatrop" and fatrop:
+        inside = 1e3 * float(fatrop.get("time_total", 0.0))
+        callbacks = 1e3 * sum(float(fatrop.get(f"eval_{k}_time", 0.0)) for k in ("hess", "jac", "cv", "grad", "obj"))
+        split.update(linear_algebra=1e3 * float(fatrop.get("compute_sd_time", 0.0)),
+                     initialization=1e3 * float(fatrop.get("initialization_time", 0.0)),
+                     interface=max(callbacks - functions, 0.0))
+        split["line_search_and_rest"] = max(inside - split["linear_algebra"] - split["initialization"] - callbacks, 0.0)
+        split["outside_solver"] = max(1e3 * elapsed_s - inside, 0.0)
+    else:
+        split["solver"] = max(1e3 * elapsed_s - functions, 0.0)
+    return split
 
 
 @dataclass
@@ -132,7 +160,9 @@ class NlpSolver:
         self.solver = solver or self._new_nlpsol()
         self._by_structure: dict[bytes, ca.Function] = {}
         self._unclaimed: ca.Function | None = self.solver  # the first solver serves the first pattern seen
-        self._g = ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False})
+        # constraint values for the input checks and the violation report: compiled when the solver is
+        self._g = (ca.external("nlp_g", self._source) if isinstance(self._source, str) else
+                   ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False}))
         self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
 
     def _new_nlpsol(self) -> ca.Function:
@@ -223,12 +253,12 @@ class NlpSolver:
         if lam_x0 is not None:
             args["lam_x0"] = lam_x0
         self.solver = self._solver_for(lbx, ubx, lbg, ubg)
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         try:
             out = self.solver(**args)
         except RuntimeError as exc:  # errors inside the solver are reported, not raised
             return self._failure(x0, f"solver_exception: {str(exc).splitlines()[-1][:200]}")
-        elapsed = time.perf_counter() - start
+        elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
         stats = self.solver.stats()
         x = np.asarray(out["x"]).ravel()
         status, success = _status(self.config.name, stats)
@@ -247,5 +277,7 @@ class NlpSolver:
                 solve_time_s=float(stats.get("t_wall_total", elapsed)) if "t_wall_total" in stats else elapsed,
                 max_constraint_violation=viol,
                 cost=float(out["f"]),
+                cpu_time_s=cpu,
+                split_ms=time_split_ms(self.config.name, stats, elapsed),
             ),
         )
