@@ -263,7 +263,17 @@ class ClosedLoop:
         cpus = _cpu_split()
         worker = context.Process(target=_mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1]),
                                  daemon=True)
-        worker.start()
+        single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+        saved = {name: os.environ.get(name) for name in single_threaded}
+        os.environ.update(single_threaded)  # the worker inherits it: no BLAS threads competing with the solver
+        try:
+            worker.start()
+        finally:
+            for name, value in saved.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
         if cpus[0]:
             os.sched_setaffinity(0, cpus[0])
         try:
@@ -289,6 +299,8 @@ class ClosedLoop:
                 if busy and conn.poll():
                     solution = conn.recv()
                     busy = False
+                    elapsed = max(time.perf_counter() - wall_start, 1e-9)
+                    log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / elapsed
                     self._log_solution(log, request[0], request[1], solution)
                     log.delay_ms.append(solution.wall_time_s * 1e3)
                     if solution.wall_time_s > mpc_period:
@@ -308,10 +320,6 @@ class ClosedLoop:
                 plant.step(tau)
             log.wall_time_s = time.perf_counter() - wall_start
             log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
-            if busy:  # the worker answers in order: drain the solve in flight first
-                conn.recv()
-            conn.send("cpu")
-            log.mpc_cpu_share = (conn.recv() - mpc_cpu_start) / max(log.wall_time_s, 1e-9)
         finally:
             if cpus[0]:
                 os.sched_setaffinity(0, cpus[0] | cpus[1])
@@ -357,4 +365,5 @@ def _mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
         start = time.perf_counter()
         solution = mpc.solve(q, v, command, t)
         solution.wall_time_s = time.perf_counter() - start
+        solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
         conn.send(solution)

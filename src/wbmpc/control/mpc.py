@@ -107,6 +107,8 @@ class MPC:
         self._weights = config.weights.vectors(robot, self.problem.nf)
         self._trajectories = self.problem.trajectory_function()
         self._data = robot.model.createData()
+        self._foot_ids = [robot.frame_id(foot) for foot in robot.feet]
+        self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
         self._xy_reference: np.ndarray | None = None
@@ -185,14 +187,14 @@ class MPC:
 
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
-        model, data, robot = self.robot.model, self._data, self.robot
+        model, data = self.robot.model, self._data
         pin.forwardKinematics(model, data, q, v)
 
-        def velocity(frame):
-            return pin.getFrameVelocity(model, data, robot.frame_id(frame), pin.LOCAL_WORLD_ALIGNED).linear
+        def velocity(frame_id):
+            return pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
 
-        return {"foot_velocity_m_s": np.array([velocity(foot) for foot in robot.feet]),
-                "ee_velocity_measured_m_s": velocity(robot.arm_ee) if robot.arm_ee else None}
+        return {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
+                "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
 
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
