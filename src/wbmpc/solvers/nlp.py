@@ -19,7 +19,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
 
-SOLVERS = ("fatrop", "ipopt")
+SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
 
 
 @dataclass(frozen=True)
@@ -113,6 +113,8 @@ class NlpSolver:
     """A casadi nlpsol for one OCP structure; `solve` takes numeric p, bounds and an initial guess."""
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None):
+        if config.name == "rti":
+            raise ConfigError("the 'rti' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
         self.config = config
         self.compile_report: CompileReport | None = None
