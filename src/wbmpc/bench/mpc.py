@@ -181,6 +181,9 @@ def _function_eval_ms(mpc) -> float:
     Solve time minus this is the solver's own linear algebra and logic (what Fatrop's Riccati
     recursion speeds up); function evaluations are what C code generation speeds up.
     """
+    timing = getattr(mpc.solver, "last_timing", None)
+    if timing:  # RTI: linearisation (g, its Jacobian, cost gradient and Hessian) + the evaluation at the step
+        return timing["linearize_ms"] + timing["evaluate_ms"]
     try:
         stats = mpc.solver.solver.stats()
     except (AttributeError, RuntimeError):
@@ -465,7 +468,8 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     grid_for(args.nodes, args.uniform_dt)
     robot = robot_from_args(args)
     report = bench_mpc(robot, steps=args.steps, gait=args.gait, plant=args.plant, solvers=tuple(solvers),
-                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress)
+                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress,
+                       compiled=args.compiled)
     if args.out:
         path = Path(args.out)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -32,7 +32,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
 from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats
-from wbmpc.solvers.qp import QpConfig, StructuredQp
+from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,8 @@ class RtiConfig:
     def __post_init__(self):
         if self.sqp_iterations < 1:
             raise ConfigError(f"sqp_iterations must be >= 1, got {self.sqp_iterations}")
+        if self.qp_mode not in HPIPM_MODES:
+            raise ConfigError(f"unknown HPIPM mode '{self.qp_mode}'; available modes: {', '.join(HPIPM_MODES)}")
         if not self.hessian_regularization >= 0:
             raise ConfigError(f"hessian_regularization must be >= 0, got {self.hessian_regularization}")
 
@@ -125,7 +127,7 @@ class RtiSolver:
             return self._failure(x0, "invalid_input_nan")
         if np.any(np.asarray(lbx) > np.asarray(ubx)) or np.any(np.asarray(lbg) > np.asarray(ubg)):
             return self._failure(x0, "invalid_bounds")
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         linearize_s = qp_s = 0.0
         qp_iterations, lam_g, lam_x, status, success = 0, None, None, "not_started", False
         for _ in range(self.rti.sqp_iterations):
@@ -159,7 +161,8 @@ class RtiSolver:
         evaluate_s = time.perf_counter() - tic
         elapsed = time.perf_counter() - start
         self.last_timing = {"linearize_ms": 1e3 * linearize_s, "qp_ms": 1e3 * qp_s, "evaluate_ms": 1e3 * evaluate_s,
-                            "other_ms": 1e3 * (elapsed - linearize_s - qp_s - evaluate_s)}
+                            "other_ms": 1e3 * (elapsed - linearize_s - qp_s - evaluate_s),
+                            "cpu_ms": 1e3 * (time.process_time() - cpu_start)}  # this process's CPU time (load-independent)
         if success and self.config.time_limit_s and elapsed > self.config.time_limit_s:
             status = "time_limit_exceeded"  # as NlpSolver: flagged, the step itself is fine
         n = self.problem.n_constraints
