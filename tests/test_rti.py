@@ -63,7 +63,10 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
     problem, (p, lbx, ubx, lbg, ubg, x0), _ = fixed_state
     solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1))
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0)
-    assert not result.stats.success and result.stats.status == "QP_Maximum_Iterations_Exceeded"
+    assert not result.stats.success
+    assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed: "
+                                   "QP_Maximum_Iterations_Exceeded)")
+    assert result.stats.iterations == 2  # one per mode
     assert np.all(np.isnan(result.x)) and result.stats.max_constraint_violation == np.inf
     bad = solver.solve(p, lbx, ubx, lbg, ubg, np.full_like(x0, np.nan))
     assert not bad.stats.success and bad.stats.status == "invalid_input_nan"

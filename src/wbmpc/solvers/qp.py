@@ -32,7 +32,7 @@ class QpConfig:
     """HPIPM settings. Tolerances of 1e-6 on every residual: HPIPM's defaults (1e-8 on the
     complementarity) cost up to 100 interior-point iterations on this problem from a cold start."""
 
-    mode: str = "balance"
+    mode: str = "speed"
     tolerance: float = 1e-6
     max_iterations: int = 100
     infinity: float = 1e8  # bounds beyond this are treated as absent

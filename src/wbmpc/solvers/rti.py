@@ -41,14 +41,16 @@ class RtiConfig:
 
     sqp_iterations: int = 1  # 1 = real-time iteration; more iterate at the same data (tests, benchmarks)
     hessian_regularization: float = 1e-6  # delta of H + delta I: keeps HPIPM's Riccati recursion positive definite
-    qp_mode: str = "balance"  # HPIPM mode ("speed" failed on some go2 trot QPs): speed_abs, speed, balance, robust
+    qp_mode: str = "speed"  # HPIPM mode: speed_abs, speed, balance, robust
+    fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
 
     def __post_init__(self):
         if self.sqp_iterations < 1:
             raise ConfigError(f"sqp_iterations must be >= 1, got {self.sqp_iterations}")
-        if self.qp_mode not in HPIPM_MODES:
-            raise ConfigError(f"unknown HPIPM mode '{self.qp_mode}'; available modes: {', '.join(HPIPM_MODES)}")
+        for mode in (self.qp_mode, self.fallback_qp_mode):
+            if mode is not None and mode not in HPIPM_MODES:
+                raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
         if not self.hessian_regularization >= 0:
             raise ConfigError(f"hessian_regularization must be >= 0, got {self.hessian_regularization}")
 
@@ -85,9 +87,11 @@ class RtiSolver:
         self._nlp, self._jacobian, self._gradient = functions["nlp"], functions["nlp_jac_g"], functions["nlp_grad_f"]
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
         self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
-        self.qp = StructuredQp(problem, self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1),
-                               QpConfig(mode=self.rti.qp_mode, tolerance=config.tolerance,
-                                        max_iterations=config.max_iterations))
+        sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
+        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=config.tolerance, max_iterations=config.max_iterations)
+        self.qp = StructuredQp(problem, *sparsity, qp_config)
+        self.fallback_qp = (StructuredQp(problem, *sparsity, replace(qp_config, mode=self.rti.fallback_qp_mode))
+                            if self.rti.fallback_qp_mode not in (None, self.rti.qp_mode) else None)
 
     @property
     def is_compiled(self) -> bool:
@@ -134,14 +138,21 @@ class RtiSolver:
             tic = time.perf_counter()
             g, J = self._jacobian(x, p)
             g = np.asarray(g).ravel()
-            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(J.nonzeros()))):
+            if not (np.all(np.isfinite(g)) and J.is_regular()):  # is_regular: no NaN/inf, checked in C++
                 return self._failure(x0, "invalid_input_nan_constraints")
             gradient = self._gradient(x, p)
             H = self._hessian(x, p)
             linearize_s += time.perf_counter() - tic
-            result = self.qp.solve(H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
+            qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
+            result = self.qp.solve(*qp_data)
             qp_s += result.solve_time_s
             qp_iterations += max(result.iterations, 0)
+            if not result.success and self.fallback_qp is not None:
+                first = result.status
+                result = self.fallback_qp.solve(*qp_data)
+                qp_s += result.solve_time_s
+                qp_iterations += max(result.iterations, 0)
+                result.status = f"{result.status} ({self.rti.fallback_qp_mode} after {self.rti.qp_mode}: {first})"
             status, success = result.status, result.success
             if not success:
                 break
