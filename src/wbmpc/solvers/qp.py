@@ -14,7 +14,7 @@ uses the BLASFEO that CasADi loads: run with the AVX2 build on the library path 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -36,6 +36,11 @@ class QpConfig:
     tolerance: float = 1e-6
     max_iterations: int = 100
     infinity: float = 1e8  # bounds beyond this are treated as absent
+    # initial barrier mu0 and the primal guess (d = 0: the linearisation point) as HPIPM's starting point:
+    # 4.0 instead of 5.4 interior-point iterations per closed-loop trot step (mu0 10 -> 100; 1e3 and up: more)
+    barrier_init: float = 100.0
+    warm_start: bool = True
+    hpipm_options: dict = field(default_factory=dict)  # further HPIPM arguments (mu0, warm_start, ...)
 
     def __post_init__(self):
         if self.mode not in HPIPM_MODES:
@@ -78,7 +83,8 @@ class StructuredQp:
         options = {
             **dims, "inf": config.infinity, "error_on_fail": False, "print_time": False,
             "hpipm": {"mode": config.mode, "iter_max": config.max_iterations, "res_g_max": tol, "res_b_max": tol,
-                      "res_d_max": tol, "res_m_max": tol},
+                      "res_d_max": tol, "res_m_max": tol, "mu0": config.barrier_init,
+                      "warm_start": int(config.warm_start), **config.hpipm_options},
         }
         self.conic = ca.conic("ocp_qp_hpipm", "hpipm", {"h": hessian, "a": jacobian}, options)
 

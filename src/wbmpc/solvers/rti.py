@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 
 import casadi as ca
 import numpy as np
@@ -43,6 +43,7 @@ class RtiConfig:
     hessian_regularization: float = 1e-6  # delta of H + delta I: keeps HPIPM's Riccati recursion positive definite
     qp_mode: str = "speed"  # HPIPM mode: speed_abs, speed, balance, robust
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
+    qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
 
     def __post_init__(self):
@@ -88,7 +89,8 @@ class RtiSolver:
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
         self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
         sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
-        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=config.tolerance, max_iterations=config.max_iterations)
+        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=config.tolerance, max_iterations=config.max_iterations,
+                             hpipm_options=dict(self.rti.qp_options))
         self.qp = StructuredQp(problem, *sparsity, qp_config)
         self.fallback_qp = (StructuredQp(problem, *sparsity, replace(qp_config, mode=self.rti.fallback_qp_mode))
                             if self.rti.fallback_qp_mode not in (None, self.rti.qp_mode) else None)
