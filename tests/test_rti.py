@@ -99,3 +99,23 @@ def test_rti_trot_stays_up_in_mujoco(b1z1):
     assert np.all(np.abs(a["tau"]) <= b1z1.tau_max + 1e-9)
     assert (np.linalg.norm(a["contact_forces"], axis=2) < 1e-6).any()  # the swing legs really lift
     assert np.all(a["iterations"] >= 1)  # QP iterations of the single SQP step
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("formulation", ["wb_forward", "centroidal_vel_path", "centroidal_vel", "centroidal_acc_path",
+                                         "centroidal_acc"])
+def test_iterated_rti_converges_on_every_formulation(formulation):
+    """The cost Hessian is Gauss-Newton only for [q, v] states; for [h, q] states it is the exact cost
+    Hessian. Either way the SQP fixed point is Fatrop's solution."""
+    robot = load_robot("go2")
+    ocp = OcpConfig(formulation=formulation, grid=SMALL.grid)
+    v0 = np.zeros(robot.nv)
+    v0[:3] = [0.1, -0.05, 0.0]
+    fatrop = MPC(robot, MpcConfig(ocp=ocp, fallback_solver=None, solver=SolverConfig(tolerance=1e-9, max_iterations=300)))
+    reference = fatrop.solve(robot.q_nominal, v0, t=0.0)
+    assert reference.success, reference.stats.status
+    rti = MPC(robot, MpcConfig(ocp=ocp, fallback_solver=None, solver=SolverConfig(
+        name="rti", extra_options={"sqp_iterations": 15, "step_tolerance": 0.0})), problem=fatrop.problem)
+    solution = rti.solve(robot.q_nominal, v0, t=0.0)
+    assert solution.success, solution.stats.status
+    np.testing.assert_allclose(solution.x, reference.x, atol=1e-5)
