@@ -61,7 +61,7 @@ def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state):
 
 def test_failed_qp_is_reported_not_raised(fixed_state):
     problem, (p, lbx, ubx, lbg, ubg, x0), _ = fixed_state
-    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1))
+    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_barrier_init": None}))
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0)
     assert not result.stats.success
     assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed: "
@@ -70,6 +70,15 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
     assert np.all(np.isnan(result.x)) and result.stats.max_constraint_violation == np.inf
     bad = solver.solve(p, lbx, ubx, lbg, ubg, np.full_like(x0, np.nan))
     assert not bad.stats.success and bad.stats.status == "invalid_input_nan"
+
+
+def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
+    problem, data, reference = fixed_state
+    result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1)).solve(*data)
+    assert result.stats.success
+    assert result.stats.status.endswith("(fatrop recovery after rti: QP_Maximum_Iterations_Exceeded (balance after "
+                                        "speed: QP_Maximum_Iterations_Exceeded))")
+    np.testing.assert_allclose(result.x, reference.x, atol=1e-4)  # converged to Fatrop's (default) tolerance
 
 
 def test_bad_rti_settings_name_the_fix(fixed_state):

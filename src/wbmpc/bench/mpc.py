@@ -71,7 +71,10 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
 
     check_names(formulation=formulation, gait=gait, solvers=[solver])
     grid = grid_for(nodes, uniform_dt_ms)
-    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid), solver=SolverConfig(name=solver, compiled=compiled),
+    # measure the requested solver alone: RTI without its Fatrop recovery of failed QPs either
+    extra = {"recovery_barrier_init": None} if solver == "rti" else {}
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid),
+                       solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
     config = replace(config, fallback_solver=None, recovery_barrier_init=None)

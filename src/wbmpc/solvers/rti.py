@@ -32,7 +32,7 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
-from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats
+from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats, solver_options
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
 
 
@@ -46,6 +46,9 @@ class RtiConfig:
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
+    # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
+    # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
+    recovery_barrier_init: float | None = 0.1
 
     def __post_init__(self):
         if self.sqp_iterations < 1:
@@ -77,6 +80,7 @@ class RtiSolver:
         self.compile_report: CompileReport | None = None
         self.compile_error: str | None = None
         self.last_timing: dict[str, float] = {}
+        self._recovery: NlpSolver | None = None
         nlp = problem.nlp
         x, p = nlp["x"], nlp["p"]
         functions = self._compiled_functions() if config.compiled else None
@@ -114,6 +118,30 @@ class RtiSolver:
     def recreated(self, **changes) -> "RtiSolver":
         """A fresh RTI solver with some settings changed (same compiled library through the cache)."""
         return RtiSolver(self.problem, replace(self.config, **changes), self.rti)
+
+    def _recovery_solver(self) -> NlpSolver:
+        """Fatrop on the same problem, built on first need; compiled on the RTI's library. A fresh
+        nlpsol per failure when compiled: CasADi's Fatrop loses its options after contact switches."""
+        if self._recovery is None:
+            config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init, max_iterations=300)
+            if self.compile_report is None:
+                self._recovery = NlpSolver(self.problem, config)
+            else:
+                options = solver_options(self.problem, config)
+                options.pop("expand")
+                nlpsol = ca.nlpsol("ocp_fatrop_compiled", "fatrop", str(self.compile_report.library), options)
+                self._recovery = NlpSolver(self.problem, config, solver=nlpsol)
+                self._recovery.compile_report = self.compile_report
+                return self._recovery
+        return self._recovery.recreated() if self._recovery.is_compiled else self._recovery
+
+    def _recover(self, failed: NlpResult, p, lbx, ubx, lbg, ubg, x0) -> NlpResult:
+        result = self._recovery_solver().solve(p, lbx, ubx, lbg, ubg, x0)
+        result.stats.status = f"{result.stats.status} (fatrop recovery after rti: {failed.stats.status})"
+        result.stats.solve_time_s += failed.stats.solve_time_s
+        result.stats.iterations += failed.stats.iterations
+        self.last_timing["recovery_ms"] = 1e3 * (result.stats.solve_time_s - failed.stats.solve_time_s)
+        return result
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         g = np.asarray(self._nlp(x, p)[1]).ravel()
@@ -180,13 +208,16 @@ class RtiSolver:
         if success and self.config.time_limit_s and elapsed > self.config.time_limit_s:
             status = "time_limit_exceeded"  # as NlpSolver: flagged, the step itself is fine
         n = self.problem.n_constraints
-        return NlpResult(
+        result = NlpResult(
             x=x,
             lam_g=lam_g if lam_g is not None else np.zeros(n),
             lam_x=lam_x if lam_x is not None else np.zeros_like(x),
             stats=SolverStats(status=status, success=success, iterations=qp_iterations, solve_time_s=elapsed,
                               max_constraint_violation=viol, cost=cost),
         )
+        if not success and self.rti.recovery_barrier_init is not None:
+            result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
+        return result
 
 
 def _violation(x, g, lbx, ubx, lbg, ubg) -> float:
