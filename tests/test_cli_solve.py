@@ -44,6 +44,7 @@ def test_solve_default_has_the_papers_1226_variables(capsys):
     (["bench", "mpc", "--solvers", "fatrop,osqp"], ["unknown solver 'osqp'"]),
     (["bench", "mpc", "--plant", "gazebo"], ["unknown plant 'gazebo'", "pinocchio"]),
     (["bench", "mpc", "--steps", "0"], ["--steps"]),
+    (["run", "stand", "--solver", "sqp"], ["unknown solver 'sqp'", "rti"]),
 ])
 def test_bad_input_exits_2_with_a_message(capsys, argv, words):
     assert main(argv) == 2
@@ -55,7 +56,7 @@ def test_bad_input_exits_2_with_a_message(capsys, argv, words):
 
 def test_bench_mpc_quick_smoke(capsys, tmp_path):
     out = tmp_path / "bench.json"
-    code, report, err = _run_json(capsys, ["bench", "mpc", "--steps", "3", "--solvers", "fatrop", "--json",
+    code, report, err = _run_json(capsys, ["bench", "mpc", "--steps", "3", "--solvers", "fatrop,rti", "--json",
                                            "--out", str(out)])
     assert code == 0
     assert json.loads(out.read_text()) == report
@@ -64,8 +65,11 @@ def test_bench_mpc_quick_smoke(capsys, tmp_path):
     assert set(run["solve_ms"]) == {"mean", "std", "max"} and set(run["iterations"]) == {"mean", "max"}
     same = report["same_states"]
     assert same["states"] == 3
-    assert set(same["runs"]) == {"fatrop", "fatrop_cold", "fatrop_uniform"}
+    assert set(same["runs"]) == {"fatrop", "fatrop_cold", "fatrop_uniform", "rti"}
     assert same["fatrop_vs_ipopt"] is None  # IPOPT not requested
+    rti = report["solvers"]["rti"]
+    assert rti["failures"] == 0 and rti["step_cpu_ms"]["mean"] > 0 and rti["function_eval_ms_mean"] > 0
+    assert same["rti_vs_fatrop"]["time_ratio"] > 0
     assert same["warm_resolve_matches_closed_loop"] is True
     for key in ("iteration_reduction_pct", "time_reduction_pct"):
         assert key in same["warm_vs_cold"]

@@ -123,16 +123,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"wbmpc: warning: {w.message}", file=sys.stderr)
     if args.duration is not None and not args.duration > 0:
         raise WbmpcError(f"--duration must be positive, got {args.duration}")
+    from wbmpc.bench.mpc import check_names
+
+    check_names(solvers=[args.solver])
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         prepare_output_dir(out_dir)
     config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
                        gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
-                       compiled=args.compiled)
+                       compiled=args.compiled, solver=args.solver)
     if args.sweep is not None:
         return _run_sweep(args, robot, config, out_dir)
-    print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
+    print(f"wbmpc run {args.scenario}: robot {robot.name}, solver {args.solver}{' (compiled)' if args.compiled else ''}, "
+          f"delay {args.delay}, plant {args.plant}", file=sys.stderr)
     result = run_scenario(robot, config, progress=_progress)
     print(file=sys.stderr)
     paths = write_outputs(robot, result, out_dir) if not args.no_outputs else []
@@ -216,6 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse; see bench table1)")
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
+    run.add_argument("--solver", default="fatrop",
+                     help="fatrop (default, converged), ipopt, or rti (one SQP iteration per step on HPIPM's QP)")
     run.add_argument("--gait", help="override the scenario's gait: stand, trot or walk (pull: stand = pull in stance)")
     manip = run.add_argument_group("loco-manipulation (pull, push-box, wipe, compliant)")
     manip.add_argument("--load-kg", type=float, default=10.0, help="pull: mass of the load on the floor, kg")
@@ -252,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
     solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
-    solve.add_argument("--solver", default="fatrop", help="fatrop (default) or ipopt")
+    solve.add_argument("--solver", default="fatrop", help="fatrop (default), ipopt or rti (one SQP iteration)")
     solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
     solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
     solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
@@ -263,9 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
-    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated; the first (fatrop if listed) is the reference")
+    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, ipopt, rti; the first (fatrop if listed) is the reference")
     mpc.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15)")
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
+    mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated, compiled and cached)")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")

@@ -71,7 +71,10 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
 
     check_names(formulation=formulation, gait=gait, solvers=[solver])
     grid = grid_for(nodes, uniform_dt_ms)
-    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid), solver=SolverConfig(name=solver, compiled=compiled),
+    # measure the requested solver alone: RTI without its Fatrop recovery of failed QPs either
+    extra = {"recovery_barrier_init": None} if solver == "rti" else {}
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid),
+                       solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
     config = replace(config, fallback_solver=None, recovery_barrier_init=None)
@@ -165,21 +168,28 @@ class _Recorder:
     mpc: object
     states: list = field(default_factory=list)
     eval_ms: list = field(default_factory=list)
+    cpu_ms: list = field(default_factory=list)
+    splits: list = field(default_factory=list)
 
     @property
     def robot(self):
         return self.mpc.robot
 
-    splits: list = field(default_factory=list)
-    cpu_ms: list = field(default_factory=list)
-
     def solve(self, q, v, commands=None, t=0.0):
         self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t)))
-        solution = self.mpc.solve(q, v, commands, t)
+        solution, cpu_ms = _timed_solve(self.mpc, q, v, commands, t)
         self.eval_ms.append(_function_eval_ms(self.mpc))
         self.splits.append(dict(solution.stats.split_ms))
-        self.cpu_ms.append(1e3 * solution.stats.cpu_time_s)
+        self.cpu_ms.append(cpu_ms)
         return solution
+
+
+def _timed_solve(mpc, q, v, commands, t):
+    """One MPC step and the CPU time this process spent in it (ms): unlike wall time, it does not grow
+    when other processes share the cores (single-threaded solvers)."""
+    start = time.process_time()
+    solution = mpc.solve(q, v, commands, t)
+    return solution, 1e3 * (time.process_time() - start)
 
 
 def _function_eval_ms(mpc) -> float:
@@ -188,6 +198,9 @@ def _function_eval_ms(mpc) -> float:
     Solve time minus this is the solver's own linear algebra and logic (what Fatrop's Riccati
     recursion speeds up); function evaluations are what C code generation speeds up.
     """
+    timing = getattr(mpc.solver, "last_timing", None)
+    if timing:  # RTI: linearisation (g, its Jacobian, cost gradient and Hessian) + the evaluation at the step
+        return timing["linearize_ms"] + timing["evaluate_ms"]
     try:
         stats = mpc.solver.solver.stats()
     except (AttributeError, RuntimeError):
@@ -227,15 +240,14 @@ class _Progress:
         self.stream.flush()
 
 
-def _split_summary(splits: list[dict], cpu_ms: list[float]) -> dict:
+def _split_summary(splits: list[dict]) -> dict:
     """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`, plus `python` around the solver)."""
     keys = dict.fromkeys(k for split in splits for k in split)
     means = {k: float(np.mean([split.get(k, 0.0) for split in splits])) for k in keys}
-    return {"parts_ms_mean": means, "step_ms_mean": float(sum(means.values())) if means else None,
-            "solver_cpu_ms": _stats(cpu_ms) if cpu_ms else None}
+    return {"parts_ms_mean": means, "step_ms_mean": float(sum(means.values())) if means else None}
 
 
-def _run_summary(solutions_ms, iterations, success, n_variables, eval_ms=None) -> dict:
+def _run_summary(solutions_ms, iterations, success, n_variables, eval_ms=None, cpu_ms=None) -> dict:
     iterations = np.asarray(iterations, dtype=float)
     solve = np.asarray(solutions_ms, dtype=float)
     evals = np.asarray(eval_ms if eval_ms is not None else [], dtype=float)
@@ -250,6 +262,7 @@ def _run_summary(solutions_ms, iterations, success, n_variables, eval_ms=None) -
         # mean split of the solve time: CasADi function evaluations vs the solver itself
         "function_eval_ms_mean": float(evals.mean()) if split else None,
         "solver_only_ms_mean": float((solve - evals).mean()) if split else None,
+        "step_cpu_ms": _stats(cpu_ms if cpu_ms is not None else []),  # whole MPC step, this process's CPU
     }
 
 
@@ -267,9 +280,9 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))
     summary = _run_summary(arrays["solve_ms"][:n], arrays["iterations"][:n], arrays["success"][:n],
-                           mpc.problem.n_variables, recorder.eval_ms[:n])
+                           mpc.problem.n_variables, recorder.eval_ms[:n], recorder.cpu_ms[:n])
     summary.update({"fell": bool(log.fell), "simulated_s": float(n / MPC_RATE_HZ), "wall_s": float(log.wall_time_s),
-                    "split": _split_summary(recorder.splits[:n], recorder.cpu_ms[:n])})
+                    "split": _split_summary(recorder.splits[:n])})
     return summary, recorder.states[:n], [int(i) for i in arrays["iterations"][:n]]
 
 
@@ -355,10 +368,11 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     done += 1.0
     for mpc in variants.values():
         mpc.reset()
-    records = {label: {"ms": [], "it": [], "ok": [], "eval": []} for label in variants}
+    records = {label: {"ms": [], "it": [], "ok": [], "eval": [], "cpu": []} for label in variants}
     for i, (q, v, commands, t) in enumerate(states):
         for label, mpc in variants.items():
-            solution = mpc.solve(q, v, commands, t)
+            solution, cpu_ms = _timed_solve(mpc, q, v, commands, t)
+            records[label]["cpu"].append(cpu_ms)
             records[label]["ms"].append(solution.stats.solve_time_s * 1e3)
             records[label]["it"].append(int(solution.stats.iterations))
             records[label]["ok"].append(solution.success)
@@ -368,7 +382,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     progress.update(progress.total, "done")
     progress.close()
 
-    same = {label: _run_summary(r["ms"], r["it"], r["ok"], variants[label].problem.n_variables, r["eval"])
+    same = {label: _run_summary(r["ms"], r["it"], r["ok"], variants[label].problem.n_variables, r["eval"], r["cpu"])
             for label, r in records.items()}
     warm, cold, uniform = same[reference], same[f"{reference}_cold"], same[f"{reference}_uniform"]
     fatrop_vs_ipopt = None
@@ -383,6 +397,14 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             "time_ratio_median": float(np.median(ratios)) if ratios.size else None,
             # the same ratio without CasADi's function evaluations (what the solvers themselves cost)
             "solver_only_time_ratio": _ratio(same["ipopt"]["solver_only_ms_mean"], same["fatrop"]["solver_only_ms_mean"]),
+        }
+    rti_vs_fatrop = None
+    if "fatrop" in same and "rti" in same:  # same states: one RTI step vs a converged Fatrop solve
+        rti_vs_fatrop = {
+            "fatrop_solve_ms": same["fatrop"]["solve_ms"], "rti_solve_ms": same["rti"]["solve_ms"],
+            "fatrop_step_cpu_ms": same["fatrop"]["step_cpu_ms"], "rti_step_cpu_ms": same["rti"]["step_cpu_ms"],
+            "time_ratio": _ratio(same["fatrop"]["solve_ms"]["mean"], same["rti"]["solve_ms"]["mean"]),
+            "cpu_ratio": _ratio(same["fatrop"]["step_cpu_ms"]["mean"], same["rti"]["step_cpu_ms"]["mean"]),
         }
     return {
         "robot": robot.name,
@@ -400,6 +422,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             "states": len(states),
             "runs": same,
             "fatrop_vs_ipopt": fatrop_vs_ipopt,
+            "rti_vs_fatrop": rti_vs_fatrop,
             "warm_vs_cold": {
                 "warm": {"solve_ms": warm["solve_ms"], "iterations_mean": warm["iterations"]["mean"],
                          "failures": warm["failures"]},
@@ -436,29 +459,31 @@ def bench_markdown(report: dict) -> str:
              f"({report['steps']} steps at {report['mpc_rate_hz']:g} Hz, {report['nodes']} nodes, "
              f"{report['decision_variables']} decision variables)", "",
              "| solver | steps | solve ms mean | std | max | of which f/g/jac/hess evals | solver only "
-             "| iterations mean | max | failures | fell |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| step CPU ms mean | max | iterations mean | max | failures | fell |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in report["solvers"].items():
-        ms, it = r["solve_ms"], r["iterations"]
+        ms, it, cpu = r["solve_ms"], r["iterations"], r.get("step_cpu_ms") or {}
         lines.append(f"| {name} | {r['steps']} | {_fmt(ms['mean'])} | {_fmt(ms['std'])} | {_fmt(ms['max'])} | "
                      f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
+                     f"{_fmt(cpu.get('mean'))} | {_fmt(cpu.get('max'))} | "
                      f"{_fmt(it['mean'], '.2f')} | {_fmt(it['max'], 'd')} | {r['failures']} | {r['fell']} |")
     lines += ["", "Where a closed-loop step's time goes (mean ms; `python`: parameters, bounds, warm start and "
-                  "unpacking around the solver; solver CPU time is robust to other load on the machine):", ""]
+                  "unpacking around the solver):", ""]
     for name, r in report["solvers"].items():
         split = r.get("split") or {}
         parts = ", ".join(f"{k} {v:.1f}" for k, v in (split.get("parts_ms_mean") or {}).items())
-        cpu = split.get("solver_cpu_ms") or {}
-        lines.append(f"- {name}: {parts}; solver CPU {_fmt(cpu.get('mean'))} ms mean ({_fmt(cpu.get('max'))} max)")
+        lines.append(f"- {name}: {parts or 'not reported by this solver'}")
     same = report["same_states"]
     lines += ["", f"Same {same['states']} states of the {same['reference_solver']} run, re-solved in sequence "
                   "(each variant warm-started from its own previous solution unless cold):", "",
-              "| variant | solve ms mean | std | max | of which evals | solver only | iterations mean | failures |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| variant | solve ms mean | std | max | of which evals | solver only | step CPU ms mean "
+              "| iterations mean | failures |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for label, r in same["runs"].items():
         ms = r["solve_ms"]
         lines.append(f"| {label} | {_fmt(ms['mean'])} | {_fmt(ms['std'])} | {_fmt(ms['max'])} | "
                      f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
+                     f"{_fmt((r.get('step_cpu_ms') or {}).get('mean'))} | "
                      f"{_fmt(r['iterations']['mean'], '.2f')} | {r['failures']} |")
     lines.append("")
     fvi = same["fatrop_vs_ipopt"]
@@ -466,6 +491,11 @@ def bench_markdown(report: dict) -> str:
         lines.append(f"- IPOPT / Fatrop solve time: {_fmt(fvi['time_ratio'], '.2f')}x (mean), "
                      f"{_fmt(fvi['time_ratio_median'], '.2f')}x (median per state), "
                      f"{_fmt(fvi['solver_only_time_ratio'], '.2f')}x without function evaluations; paper: > 10x")
+    rvf = same.get("rti_vs_fatrop")
+    if rvf:
+        lines.append(f"- converged Fatrop / one RTI step: {_fmt(rvf['time_ratio'], '.2f')}x wall time, "
+                     f"{_fmt(rvf['cpu_ratio'], '.2f')}x CPU time (RTI step {_fmt(rvf['rti_solve_ms']['mean'])} ms mean, "
+                     f"{_fmt(rvf['rti_solve_ms']['max'])} max; target <= 5 / 10 ms)")
     wc = same["warm_vs_cold"]
     lines.append(f"- warm start vs cold: {_fmt(wc['iteration_reduction_pct'])} % fewer iterations, "
                  f"{_fmt(wc['time_reduction_pct'])} % less solve time; paper: 15-20 % less time")

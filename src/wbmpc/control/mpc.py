@@ -19,6 +19,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.gait import Gait, SwingProfile, make_gait
 from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
+from wbmpc.solvers import make_solver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 
 
@@ -98,7 +99,7 @@ class MPC:
             raise ConfigError(f"friction coefficient must be positive, got {config.friction_coefficient}")
         self.gait: Gait = make_gait(config.gait, len(robot.feet), config.gait_period_s)
         self.problem = problem or OcpProblem(robot, config.ocp)
-        self.solver = solver or NlpSolver(self.problem, config.solver)
+        self.solver = solver or make_solver(self.problem, config.solver)
         dyn, N = self.problem.dyn, self.problem.N
         q, dq = ca.SX.sym("q", robot.nq), ca.SX.sym("dq", robot.nv)
         self._integrate = ca.Function("integrate", [q, dq], [dyn.integrate(q, dq)]).map(N + 1)

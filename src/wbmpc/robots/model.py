@@ -165,7 +165,16 @@ class RobotModel:
 
     # ------------------------------------------------------------------ queries
     def frame_id(self, name: str) -> int:
-        """Frame index by name; a BODY frame wins when a link and its fixed joint share the name."""
+        """Frame index by name; a BODY frame wins when a link and its fixed joint share the name.
+
+        Remembered per name: the MPC asks for the feet and the end-effector at every step, and the
+        scan over all frames cost ~0.5 ms of CPU per step on b1_z1."""
+        cache = self.__dict__.setdefault("_frame_ids", {})
+        if name not in cache:
+            cache[name] = self._find_frame(name)
+        return cache[name]
+
+    def _find_frame(self, name: str) -> int:
         matches = [i for i, f in enumerate(self.model.frames) if f.name == name]
         if not matches:
             raise ModelError(unknown_name("frame", name, {f.name for f in self.model.frames}))

@@ -1,6 +1,22 @@
-"""Solvers on the stage-wise OCP. Importing this package first puts the fast BLASFEO under Fatrop
-and HPIPM where it is installed (`wbmpc setup`) and verified: see `blasfeo.py`."""
+"""Solvers on the stage-wise OCP: `make_solver` picks Fatrop/IPOPT (`nlp.py`) or RTI (`rti.py`).
+
+Importing this package first puts the fast BLASFEO under Fatrop and HPIPM where it is installed
+(`wbmpc setup`) and verified: see `blasfeo.py`.
+"""
+
+from __future__ import annotations
 
 from wbmpc.solvers.blasfeo import activate as _activate_fast_blasfeo
 
 _activate_fast_blasfeo()
+
+
+def make_solver(problem, config):
+    """The solver `config.name` names, built once for `problem` (NlpSolver or RtiSolver)."""
+    if config.name == "rti":
+        from wbmpc.solvers.rti import RtiSolver
+
+        return RtiSolver(problem, config)
+    from wbmpc.solvers.nlp import NlpSolver
+
+    return NlpSolver(problem, config)

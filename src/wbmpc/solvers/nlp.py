@@ -19,7 +19,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
 
-SOLVERS = ("fatrop", "ipopt")
+SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
 
 
 @dataclass(frozen=True)
@@ -150,6 +150,8 @@ class NlpSolver:
     """
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None):
+        if config.name == "rti":
+            raise ConfigError("the 'rti' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
         self.config = config
         self.compile_report: CompileReport | None = None

@@ -1,0 +1,226 @@
+"""Real-time iteration (RTI): one SQP iteration per MPC step on a structured QP (`--solver rti`).
+
+The paper names SQP as future work for speed. An RTI step linearises the OCP (eq. 1, same
+formulation, constraints and bounds as the Fatrop mode) at the MPC's warm start — the previous
+solution shifted in time with node 0 at the measured state — and takes the full step of one QP
+(`solvers/qp.py`, HPIPM):
+
+    H = Hessian of the cost (eq. 3) + delta I,  gradient = grad f(x_lin),  J = dg/dx(x_lin).
+
+For the [q, v] formulations (wb_inverse, wb_forward, centroidal_acc*) the cost is a diagonal
+quadratic in the variables, so this Hessian is the Gauss-Newton one: positive definite, and the
+constraint curvature (RNEA, kinematics, friction cone) is left out, so no multipliers are needed
+to linearise and the QP stays convex. For the [h_com, q] formulations it is the exact cost Hessian
+(positive definite on the go2 tests). Iterated at a fixed state the step converges (linearly) to
+the KKT point Fatrop finds, on all six formulations (tests/test_rti.py). The Jacobian and cost gradient come from the same per-stage
+derivatives as the compiled Fatrop solver (`solvers/codegen.py`: one compiled library, cached);
+without `compiled` they are evaluated in CasADi's SX virtual machine.
+
+`RtiSolver` has `NlpSolver`'s interface (`solve(p, lbx, ubx, lbg, ubg, x0) -> NlpResult`, stats,
+failure reporting); its last step's time split is in `last_timing`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field, fields, replace
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
+from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats, solver_options
+from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
+
+
+@dataclass(frozen=True)
+class RtiConfig:
+    """Settings of the RTI step (pass them as `SolverConfig(name="rti", extra_options={...})`)."""
+
+    sqp_iterations: int = 1  # 1 = real-time iteration; more iterate at the same data (tests, benchmarks)
+    hessian_regularization: float = 1e-6  # delta of H + delta I: keeps HPIPM's Riccati recursion positive definite
+    qp_mode: str = "speed"  # HPIPM mode: speed_abs, speed, balance, robust
+    fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
+    qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
+    step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
+    # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
+    # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
+    recovery_barrier_init: float | None = 0.1
+
+    def __post_init__(self):
+        if self.sqp_iterations < 1:
+            raise ConfigError(f"sqp_iterations must be >= 1, got {self.sqp_iterations}")
+        for mode in (self.qp_mode, self.fallback_qp_mode):
+            if mode is not None and mode not in HPIPM_MODES:
+                raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
+        if not self.hessian_regularization >= 0:
+            raise ConfigError(f"hessian_regularization must be >= 0, got {self.hessian_regularization}")
+
+    @classmethod
+    def from_options(cls, options: dict) -> "RtiConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ConfigError(f"unknown RTI option(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+        return cls(**options)
+
+
+class RtiSolver:
+    """One SQP iteration with a Gauss-Newton Hessian per call, built once per OCP structure."""
+
+    def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(name="rti"), rti: RtiConfig | None = None):
+        if config.name != "rti":
+            raise ConfigError(f"RtiSolver needs SolverConfig(name='rti'), got '{config.name}'")
+        self.problem = problem
+        self.config = config
+        self.rti = rti or RtiConfig.from_options(config.extra_options)
+        self.compile_report: CompileReport | None = None
+        self.compile_error: str | None = None
+        self.last_timing: dict[str, float] = {}
+        self._recovery: NlpSolver | None = None
+        nlp = problem.nlp
+        x, p = nlp["x"], nlp["p"]
+        functions = self._compiled_functions() if config.compiled else None
+        if functions is None:
+            functions = {
+                "nlp": ca.Function("nlp", [x, p], [nlp["f"], nlp["g"]]),
+                "nlp_jac_g": ca.Function("nlp_jac_g", [x, p], [nlp["g"], ca.jacobian(nlp["g"], x)]),
+                "nlp_grad_f": ca.Function("nlp_grad_f", [x, p], [ca.gradient(nlp["f"], x)]),
+            }
+        self._nlp, self._jacobian, self._gradient = functions["nlp"], functions["nlp_jac_g"], functions["nlp_grad_f"]
+        hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
+        self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
+        sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
+        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=config.tolerance, max_iterations=config.max_iterations,
+                             hpipm_options=dict(self.rti.qp_options))
+        self.qp = StructuredQp(problem, *sparsity, qp_config)
+        self.fallback_qp = (StructuredQp(problem, *sparsity, replace(qp_config, mode=self.rti.fallback_qp_mode))
+                            if self.rti.fallback_qp_mode not in (None, self.rti.qp_mode) else None)
+
+    @property
+    def is_compiled(self) -> bool:
+        return self.compile_report is not None
+
+    def _compiled_functions(self) -> dict[str, ca.Function] | None:
+        """The compiled library the Fatrop solver uses (same code, same cache entry), or None."""
+        try:
+            self.compile_report = compile_nlp(self.problem, "fatrop", self.config.codegen)
+        except CompileError as exc:
+            self.compile_error = str(exc)
+            warnings.warn(f"compiled RTI unavailable, using the non-compiled one: {exc}", RuntimeWarning, stacklevel=3)
+            return None
+        library = str(self.compile_report.library)
+        return {name: ca.external(name, library) for name in ("nlp", "nlp_jac_g", "nlp_grad_f")}
+
+    def recreated(self, **changes) -> "RtiSolver":
+        """A fresh RTI solver with some settings changed (same compiled library through the cache)."""
+        return RtiSolver(self.problem, replace(self.config, **changes), self.rti)
+
+    def _recovery_solver(self) -> NlpSolver:
+        """Fatrop on the same problem, built on first need; compiled on the RTI's library. A fresh
+        nlpsol per failure when compiled: CasADi's Fatrop loses its options after contact switches."""
+        if self._recovery is None:
+            config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init, max_iterations=300)
+            if self.compile_report is None:
+                self._recovery = NlpSolver(self.problem, config)
+            else:
+                options = solver_options(self.problem, config)
+                options.pop("expand")
+                nlpsol = ca.nlpsol("ocp_fatrop_compiled", "fatrop", str(self.compile_report.library), options)
+                self._recovery = NlpSolver(self.problem, config, solver=nlpsol)
+                self._recovery.compile_report = self.compile_report
+                return self._recovery
+        return self._recovery.recreated() if self._recovery.is_compiled else self._recovery
+
+    def _recover(self, failed: NlpResult, p, lbx, ubx, lbg, ubg, x0) -> NlpResult:
+        result = self._recovery_solver().solve(p, lbx, ubx, lbg, ubg, x0)
+        result.stats.status = f"{result.stats.status} (fatrop recovery after rti: {failed.stats.status})"
+        result.stats.solve_time_s += failed.stats.solve_time_s
+        result.stats.iterations += failed.stats.iterations
+        self.last_timing["recovery_ms"] = 1e3 * (result.stats.solve_time_s - failed.stats.solve_time_s)
+        return result
+
+    def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
+        g = np.asarray(self._nlp(x, p)[1]).ravel()
+        return _violation(x, g, lbx, ubx, lbg, ubg)
+
+    def _failure(self, x0, status: str) -> NlpResult:
+        nan = np.full_like(np.asarray(x0, dtype=float), np.nan)
+        return NlpResult(nan, np.zeros(self.problem.n_constraints), np.zeros_like(nan),
+                         SolverStats(status, False, 0, 0.0, float("inf"), float("nan")))
+
+    def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None) -> NlpResult:
+        """Linearise at x0, solve the QP, take the full step (repeated `sqp_iterations` times).
+
+        `stats.iterations` counts HPIPM's interior-point iterations of all QPs of the call.
+        """
+        x = np.asarray(x0, dtype=float).copy()
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x))):
+            return self._failure(x0, "invalid_input_nan")
+        if np.any(np.asarray(lbx) > np.asarray(ubx)) or np.any(np.asarray(lbg) > np.asarray(ubg)):
+            return self._failure(x0, "invalid_bounds")
+        start, cpu_start = time.perf_counter(), time.process_time()
+        linearize_s = qp_s = 0.0
+        qp_iterations, lam_g, lam_x, status, success = 0, None, None, "not_started", False
+        for _ in range(self.rti.sqp_iterations):
+            tic = time.perf_counter()
+            g, J = self._jacobian(x, p)
+            g = np.asarray(g).ravel()
+            if not (np.all(np.isfinite(g)) and J.is_regular()):  # is_regular: no NaN/inf, checked in C++
+                return self._failure(x0, "invalid_input_nan_constraints")
+            gradient = self._gradient(x, p)
+            H = self._hessian(x, p)
+            linearize_s += time.perf_counter() - tic
+            qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
+            result = self.qp.solve(*qp_data)
+            qp_s += result.solve_time_s
+            qp_iterations += max(result.iterations, 0)
+            if not result.success and self.fallback_qp is not None:
+                first = result.status
+                result = self.fallback_qp.solve(*qp_data)
+                qp_s += result.solve_time_s
+                qp_iterations += max(result.iterations, 0)
+                result.status = f"{result.status} ({self.rti.fallback_qp_mode} after {self.rti.qp_mode}: {first})"
+            status, success = result.status, result.success
+            if not success:
+                break
+            x = x + result.step
+            lam_g, lam_x = result.lam_g, result.lam_x
+            if self.rti.sqp_iterations > 1 and np.max(np.abs(result.step), initial=0.0) < self.rti.step_tolerance:
+                break
+        tic = time.perf_counter()
+        if success:
+            f, g = self._nlp(x, p)
+            cost, g = float(f), np.asarray(g).ravel()
+            finite = bool(np.all(np.isfinite(g)))
+            viol = _violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
+            success = finite
+        else:
+            x, cost, viol = np.full_like(x, np.nan), float("nan"), float("inf")
+        evaluate_s = time.perf_counter() - tic
+        elapsed = time.perf_counter() - start
+        self.last_timing = {"linearize_ms": 1e3 * linearize_s, "qp_ms": 1e3 * qp_s, "evaluate_ms": 1e3 * evaluate_s,
+                            "other_ms": 1e3 * (elapsed - linearize_s - qp_s - evaluate_s),
+                            "cpu_ms": 1e3 * (time.process_time() - cpu_start)}  # this process's CPU time (load-independent)
+        if success and self.config.time_limit_s and elapsed > self.config.time_limit_s:
+            status = "time_limit_exceeded"  # as NlpSolver: flagged, the step itself is fine
+        n = self.problem.n_constraints
+        result = NlpResult(
+            x=x,
+            lam_g=lam_g if lam_g is not None else np.zeros(n),
+            lam_x=lam_x if lam_x is not None else np.zeros_like(x),
+            stats=SolverStats(status=status, success=success, iterations=qp_iterations, solve_time_s=elapsed,
+                              max_constraint_violation=viol, cost=cost),
+        )
+        if not success and self.rti.recovery_barrier_init is not None:
+            result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
+        return result
+
+
+def _violation(x, g, lbx, ubx, lbg, ubg) -> float:
+    viol_g = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
+    viol_x = np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)
+    return float(max(viol_g.max(initial=0), viol_x.max(initial=0)))
