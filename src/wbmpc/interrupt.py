@@ -1,0 +1,47 @@
+"""Ctrl-C (SIGINT) as a flag that long loops poll, so that an interrupted run keeps what it measured.
+
+CasADi's Fatrop interface swallows a KeyboardInterrupt raised inside a solve (the solve goes on
+and succeeds) and its IPOPT interface turns it into a failed solve (`NonIpopt_Exception_Thrown`)
+that the MPC would re-solve: the default Python handler never stops a closed-loop run. Inside
+`catch_interrupt()` a Ctrl-C only sets `requested`; the loop checks it every control tick and
+stops within one MPC solve. A second Ctrl-C raises KeyboardInterrupt at once (the escape hatch).
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+from typing import Iterator
+
+
+class InterruptFlag:
+    """Set by SIGINT while installed; `requested` is what loops poll."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.installed = False
+
+    def __call__(self) -> bool:
+        return self.requested
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested:  # second Ctrl-C: stop now, whatever is running
+            raise KeyboardInterrupt
+        self.requested = True
+
+
+@contextmanager
+def catch_interrupt() -> Iterator[InterruptFlag]:
+    """Within the block, SIGINT sets the yielded flag instead of raising (main thread only; elsewhere
+    the flag is never set and Ctrl-C keeps its usual meaning). The previous handler is restored after."""
+    flag = InterruptFlag()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+    previous = signal.signal(signal.SIGINT, flag._handle)
+    flag.installed = True
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
