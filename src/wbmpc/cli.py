@@ -131,10 +131,8 @@ def _run_config(args: argparse.Namespace):
 
 def cmd_run(args: argparse.Namespace) -> int:
     """Closed-loop scenario: progress on stderr, summary, metrics.json + plots + replay in --out."""
-    import warnings
-    from pathlib import Path
-
-    from wbmpc.scenarios import SCENARIOS, check_output_dir, make_scenario, run_scenario, write_outputs
+    from wbmpc.interrupt import catch_interrupt
+    from wbmpc.scenarios import SCENARIOS
 
     if args.scenario not in SCENARIOS:
         from wbmpc.errors import unknown_name
@@ -148,6 +146,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         from wbmpc.scenarios.sweep import parse_loads
 
         loads = parse_loads(args.sweep)
+    with catch_interrupt() as stop:  # Ctrl-C from here on: stop the run, keep what it measured
+        return _run(args, config, loads, stop)
+
+
+def _run(args: argparse.Namespace, config, loads, stop) -> int:
+    import warnings
+    from pathlib import Path
+
+    from wbmpc.scenarios import SCENARIOS, check_output_dir, make_scenario, run_scenario, write_outputs
+
     robot = robot_from_args(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -159,7 +167,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if not args.no_outputs:
         check_output_dir(out_dir)
     if loads is not None:
-        return _run_sweep(args, robot, config, loads, out_dir)
+        return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, delay {args.delay}, "
@@ -171,7 +179,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             bar.update(share * duration)
             bar.set_recoveries(recoveries)
 
-        result = run_scenario(robot, config, progress=progress)
+        result = run_scenario(robot, config, progress=progress, stop=stop)
         m = result.metrics
         bar.close(complete=not (m["fell"] or m["interrupted"]))
     if m["interrupted"]:
@@ -221,7 +229,7 @@ def _fmt(value, spec: str = ".1f") -> str:
     return "-" if value is None else format(value, spec)
 
 
-def _run_sweep(args: argparse.Namespace, robot, config, loads: list[float], out_dir) -> int:
+def _run_sweep(args: argparse.Namespace, robot, config, loads: list[float], out_dir, stop) -> int:
     from wbmpc.progress import ProgressBar
     from wbmpc.scenarios.outputs import MANIFEST, remove_previous_outputs, replace_file
     from wbmpc.scenarios.sweep import pull_sweep, sweep_table
@@ -246,7 +254,7 @@ def _run_sweep(args: argparse.Namespace, robot, config, loads: list[float], out_
         bar.set_recoveries(recoveries)
 
     with bar:
-        report = pull_sweep(robot, loads, config, progress=progress, on_row=on_row)
+        report = pull_sweep(robot, loads, config, progress=progress, on_row=on_row, stop=stop)
         bar.close(complete=not report["interrupted"])
     _emit(args, report, sweep_table(report))
     return EXIT_INTERRUPTED if report["interrupted"] else EXIT_OK

@@ -45,3 +45,13 @@ def catch_interrupt() -> Iterator[InterruptFlag]:
         yield flag
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def stop_flag(stop=None) -> Iterator:
+    """`stop` itself when given (the caller already catches Ctrl-C), else a fresh `catch_interrupt()` flag."""
+    if stop is not None:
+        yield stop
+        return
+    with catch_interrupt() as flag:
+        yield flag

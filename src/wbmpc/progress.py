@@ -8,6 +8,7 @@ run comes one tick before its end).
 
 from __future__ import annotations
 
+import os
 import sys
 
 from tqdm import tqdm
@@ -21,7 +22,9 @@ class ProgressBar:
         self.total = max(float(total), 1e-9)
         self.stream = stream if stream is not None else sys.stderr
         count = "{n:.1f}/{total:.1f}" + (f" {unit}" if unit else "")
-        self._bar = tqdm(total=self.total, desc=description, file=self.stream, leave=True, dynamic_ncols=True,
+        sized = _terminal_columns(self.stream) > 0  # a pty without a size (e.g. under `script`) reports 0
+        self._bar = tqdm(total=self.total, desc=description, file=self.stream, leave=True, dynamic_ncols=sized,
+                         ncols=None if sized else 100, nrows=None if sized else 24,
                          disable=None if enabled is None else not enabled, mininterval=0.25,
                          bar_format="{desc}{percentage:3.0f}%|{bar}| " + count + " [{elapsed}<{remaining}{postfix}]")
         self._recoveries = 0
@@ -61,3 +64,10 @@ class ProgressBar:
 
     def __exit__(self, *exc) -> None:
         self._bar.close()
+
+
+def _terminal_columns(stream) -> int:
+    try:
+        return os.get_terminal_size(stream.fileno()).columns
+    except (AttributeError, OSError, ValueError):
+        return 0

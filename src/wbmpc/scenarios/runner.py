@@ -12,7 +12,7 @@ from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
 from wbmpc.control.mpc import MPC, MpcConfig
 from wbmpc.errors import ConfigError, check_number, unknown_name
-from wbmpc.interrupt import catch_interrupt
+from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
@@ -89,6 +89,13 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config))
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
+    with stop_flag(stop) as stop:
+        if stop():  # Ctrl-C while building (CasADi's C++ build does not raise): stop before running
+            raise KeyboardInterrupt
+        return _run(robot, config, scenario, scene, mpc, duration, progress, stop)
+
+
+def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
     plant = make_plant(config.plant, robot, scene.plant_config() if scene is not None else None)
     if scene is not None:
@@ -96,8 +103,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     gains = scenario.pd_gains(config.gains)
     loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
-    with catch_interrupt() as flag:
-        log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop or flag)
+    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
     if not log.t:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)

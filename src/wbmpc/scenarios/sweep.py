@@ -12,7 +12,7 @@ from typing import Callable
 
 from wbmpc.control.mpc import MPC
 from wbmpc.errors import ConfigError
-from wbmpc.interrupt import catch_interrupt
+from wbmpc.interrupt import stop_flag
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.runner import RunConfig, mpc_config_for, run_scenario
@@ -45,8 +45,7 @@ def pull_sweep(robot: RobotModel, loads_kg: list[float], config: RunConfig,
         raise ConfigError(f"the load sweep runs the pull scenario, not {config.scenario!r}")
     mpc: MPC | None = None
     rows, interrupted = [], False
-    with catch_interrupt() as flag:
-        stop = stop or flag
+    with stop_flag(stop) as stop:
         for load in loads_kg:
             if stop():
                 interrupted = True
