@@ -1,4 +1,4 @@
-"""`wbmpc solve` and `wbmpc bench mpc`: JSON contracts (DESIGN.md), sizes and the error path."""
+"""`wbmpc solve` and `wbmpc bench mpc`: JSON reports, sizes and the error path."""
 
 import json
 

@@ -172,4 +172,4 @@ def test_compliant_arm_yields_to_the_hand_and_the_robot_stays_up(robot):
     assert m["ee_yield_m"] and m["ee_yield_m"][0] > 0.03  # followed the hand back (6 cm by 1.5 s)
     assert m["hand_force_peak_n"][0] < m["hand_force_cap_n"]  # without the hand having to force it
     assert all(k in m for k in CONTRACT_KEYS)
-    json.dumps(m)  # metrics.json-serialisable
+    json.dumps(m, allow_nan=False)  # strict JSON as written: no NaN/Infinity in any metric

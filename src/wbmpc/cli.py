@@ -2,9 +2,9 @@
 
 With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
 text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
-fell, the load was not pulled, the solve did not converge), 2 bad input (the message names the
-option and the fix; nothing is built or written), 130 interrupted by Ctrl-C (a run keeps and
-writes what it measured so far).
+fell, the load was not pulled, the solve did not converge, the simulation diverged), 2 bad input
+(the message names the option and the fix; nothing is built or written), 130 interrupted by
+Ctrl-C (a run keeps and writes what it measured so far).
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import argparse
 import sys
 
 from wbmpc import __version__
-from wbmpc.errors import ConfigError, WbmpcError
+from wbmpc.errors import ConfigError, ModelError, WbmpcError
 from wbmpc.strict_json import to_json
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load was not pulled, "
-              "or the solve did not converge", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              "the solve did not converge or the simulation diverged", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES.items())
 
@@ -61,11 +61,11 @@ def robot_from_args(args: argparse.Namespace):
 
     if args.urdf:
         if not args.feet:
-            raise WbmpcError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
+            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
         return RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
     given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
     if given:
-        raise WbmpcError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
+        raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
                          f"{'s' if len(given) == 1 else ''} --urdf; "
                          f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
     return load_robot(args.robot)
@@ -183,7 +183,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
         m = result.metrics
         bar.close(complete=not (m["fell"] or m["interrupted"]))
     if m["interrupted"]:
-        print(f"wbmpc: interrupted at {m['duration_s']:.2f} s of {duration:g} s; keeping what was measured",
+        where = "" if args.no_outputs else f", writing it to {out_dir}/ (Ctrl-C again to skip)"
+        print(f"wbmpc: interrupted at {m['duration_s']:.2f} s of {duration:g} s; keeping what was measured{where}",
               file=sys.stderr)
     paths = write_outputs(robot, result, out_dir) if not args.no_outputs else []
     failure = result.scenario.failure(m)
@@ -401,17 +402,31 @@ def _bench_mpc():
     return mpc
 
 
+def _dispatch(args: argparse.Namespace) -> int:
+    try:
+        return int(args.func(args) or 0)
+    except BaseException:
+        from wbmpc.progress import close_all
+
+        close_all()
+        raise
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of `wbmpc` and `python -m wbmpc`; returns the exit code (see `EXIT_CODES`)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        return _dispatch(args)
     except ConfigError as exc:
         print(f"wbmpc: error: {exc.worded(FIELD_FLAGS)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except WbmpcError as exc:
+    except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except WbmpcError as exc:  # e.g. the simulation diverged: the run failed, the input was fine
+        print(f"wbmpc: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         print("wbmpc: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

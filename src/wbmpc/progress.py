@@ -71,3 +71,9 @@ def _terminal_columns(stream) -> int:
         return os.get_terminal_size(stream.fileno()).columns
     except (AttributeError, OSError, ValueError):
         return 0
+
+
+def close_all() -> None:
+    """Close every open bar (before an error message, so that it starts on its own line)."""
+    for bar in list(getattr(tqdm, "_instances", ())):
+        bar.close()

@@ -95,4 +95,6 @@ def sweep_table(report: dict) -> str:
                      f"{f(r['ee_force_err_rel'] and 100 * r['ee_force_err_rel'], '8.1f')} "
                      f"{f(r['torque_ratio_joint3'], '7.2f')}")
     lines.append(f"largest load pulled: {report['max_pulled_kg']} kg")
+    if report.get("interrupted"):
+        lines.append("(interrupted by Ctrl-C: loads after the last row were not run)")
     return "\n".join(lines)
