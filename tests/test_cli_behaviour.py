@@ -74,6 +74,7 @@ def go2_files():
     (["run", "wipe", "--force-n", "1e6"], "--force-n must be <= 10000 N"),
     (["run", "wipe", "--wipe-period", "0"], "--wipe-period must be > 0 s"),
     (["run", "stand", "--sweep", "10"], "--sweep runs the pull scenario"),
+    (["run", "pull", "--sweep", "10,inf"], "--sweep loads must be masses in kg in (0, 1000], got [inf]"),
     (["bench", "dynamics", "--samples", "0"], "--samples must be >= 1"),  # claimed error 0 over no samples
     (["solve", "--t", "nan"], "--t must be a finite number"),
     (["info", "--feet", "a,b"], "--feet describes a custom robot and needs --urdf"),

@@ -28,9 +28,9 @@ def parse_loads(text: str) -> list[float]:
         raise ConfigError(f"--sweep takes comma-separated masses in kg, e.g. 6,10,14,18; got {text!r}") from None
     if not loads:
         raise ConfigError("--sweep needs at least one load in kg")
-    bad = [x for x in loads if not x > 0]
+    bad = [x for x in loads if not 0 < x <= 1000]  # also NaN and inf
     if bad:
-        raise ConfigError(f"--sweep loads must be positive masses in kg, got {bad}")
+        raise ConfigError(f"--sweep loads must be masses in kg in (0, 1000], got {bad}")
     return sorted(loads)
 
 
