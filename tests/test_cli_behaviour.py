@@ -163,6 +163,26 @@ def test_mpc_refuses_impossible_commands_before_solving(monkeypatch):
         mpc.solve(q, v, command)
 
 
+def test_ctrl_c_inside_a_solve_is_delivered_after_it():
+    from wbmpc.interrupt import catch_interrupt, deliver_after
+
+    before = signal.getsignal(signal.SIGINT)
+    assert before is signal.default_int_handler
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with deliver_after():
+            signal.raise_signal(signal.SIGINT)  # as if it came while CasADi runs
+            done.append("the call went on")
+    assert done == ["the call went on"]
+    with catch_interrupt() as flag:
+        with deliver_after():
+            signal.raise_signal(signal.SIGINT)
+        assert flag.requested  # given to the run's flag, not raised
+        with pytest.raises(KeyboardInterrupt):  # a second Ctrl-C is the hard stop
+            signal.raise_signal(signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is before  # restored
+
+
 def test_strict_json_turns_non_finite_numbers_into_null():
     text = to_json({"a": float("nan"), "b": [float("inf"), 1.5], "c": np.float64(2.0), "d": np.arange(2),
                     "e": np.bool_(True), "f": None})

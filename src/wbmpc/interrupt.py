@@ -2,9 +2,11 @@
 
 CasADi's Fatrop interface swallows a KeyboardInterrupt raised inside a solve (the solve goes on
 and succeeds) and its IPOPT interface turns it into a failed solve (`NonIpopt_Exception_Thrown`)
-that the MPC would re-solve: the default Python handler never stops a closed-loop run. Inside
-`catch_interrupt()` a Ctrl-C only sets `requested`; the loop checks it every control tick and
-stops within one MPC solve. A second Ctrl-C raises KeyboardInterrupt at once (the escape hatch).
+that the MPC would re-solve: the default Python handler never stops a closed-loop run. Hence:
+- `deliver_after()` wraps every solve (`NlpSolver.solve`): a Ctrl-C during the solve is held and
+  given to the previous handler when the solve returns (KeyboardInterrupt by default);
+- inside `catch_interrupt()` a Ctrl-C only sets `requested`; the loop checks it every control tick
+  and stops within one MPC solve, keeping its log. A second Ctrl-C raises KeyboardInterrupt.
 """
 
 from __future__ import annotations
@@ -55,3 +57,22 @@ def stop_flag(stop=None) -> Iterator:
         return
     with catch_interrupt() as flag:
         yield flag
+
+
+@contextmanager
+def deliver_after() -> Iterator[None]:
+    """Hold Ctrl-C during a call into code that would swallow it (a CasADi solve) and deliver it after.
+
+    The SIGINT handler that was installed before runs once the call returns: Python's default raises
+    KeyboardInterrupt, an `InterruptFlag` sets its flag. Main thread only (signals go nowhere else)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append((signum, frame)))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received and callable(previous):
+            previous(*received[0])

@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from wbmpc.errors import ConfigError
+from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
 
@@ -181,7 +182,8 @@ class NlpSolver:
             args["lam_x0"] = lam_x0
         start = time.perf_counter()
         try:
-            out = self.solver(**args)
+            with deliver_after():  # CasADi's Fatrop swallows Ctrl-C, its IPOPT turns it into a failed solve
+                out = self.solver(**args)
         except RuntimeError as exc:  # errors inside the solver are reported, not raised
             return self._failure(x0, f"solver_exception: {str(exc).splitlines()[-1][:200]}")
         elapsed = time.perf_counter() - start
