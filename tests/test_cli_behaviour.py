@@ -285,6 +285,26 @@ def test_a_fall_exits_1(tmp_path, capsys):
     assert "achieved MPC rate" in captured.err
 
 
+def test_sweep_of_loads_the_arm_cannot_hold_exits_1_with_its_report(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")  # from an earlier single run: stale here
+    assert main(["run", "pull", "--sweep", "500,900", "--out", str(out), "--json"]) == EXIT_FAILED
+    report = json.loads(capsys.readouterr().out)
+    assert [r["load_kg"] for r in report["rows"]] == [500.0, 900.0]
+    assert all("beyond the arm's torque limits" in r["rejected"] for r in report["rows"])
+    assert report["max_pulled_kg"] is None and report["interrupted"] is False
+    assert json.loads((out / "sweep.json").read_text()) == report
+    assert not (out / "metrics.json").exists()
+
+
+def test_sweep_stops_at_once_when_asked(b1z1):
+    from wbmpc.scenarios.sweep import pull_sweep
+
+    report = pull_sweep(b1z1, [6.0, 10.0], RunConfig(scenario="pull"), stop=lambda: True)
+    assert report["interrupted"] is True and report["rows"] == []
+
+
 def test_ctrl_c_stops_the_run_keeps_the_metrics_and_exits_130():
     """SIGINT to a running `wbmpc run` (stderr on a pseudo-terminal, so the bar shows the loop running)."""
     master, slave = pty.openpty()

@@ -17,7 +17,7 @@ from wbmpc.errors import ConfigError, ModelError, WbmpcError
 from wbmpc.strict_json import to_json
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load was not pulled, "
+EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
               "the solve did not converge or the simulation diverged", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES.items())
@@ -258,7 +258,9 @@ def _run_sweep(args: argparse.Namespace, robot, config, loads: list[float], out_
         report = pull_sweep(robot, loads, config, progress=progress, on_row=on_row, stop=stop)
         bar.close(complete=not report["interrupted"])
     _emit(args, report, sweep_table(report))
-    return EXIT_INTERRUPTED if report["interrupted"] else EXIT_OK
+    if report["interrupted"]:
+        return EXIT_INTERRUPTED
+    return EXIT_OK if report["max_pulled_kg"] is not None else EXIT_FAILED  # no load pulled: the task failed
 
 
 def _scenario_list() -> str:
