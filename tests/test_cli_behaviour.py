@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -208,13 +209,15 @@ def test_progress_bar_is_silent_in_logs_and_complete_on_a_terminal():
     assert log.getvalue() == "a message\n"  # only the message: no bar in a file or pipe
 
     term = _Terminal()
-    bar = ProgressBar(2.0, "run ", unit="s", stream=term)
-    bar.update(0.5)
-    bar.set_recoveries(3)
-    bar.update(1.996)  # the last control tick comes one tick before the end
-    bar.write("a message")
-    bar.close(complete=True)
+    with ProgressBar(2.0, "run ", unit="s", stream=term) as bar:
+        bar.update(0.5)
+        bar.set_recoveries(3)
+        bar.update(1.9)  # a run ends one control tick before its duration: never 100 % on its own
+        bar.write("a message")
+        warnings.warn("compiled solver unavailable", RuntimeWarning)  # above the bar as well
+        bar.close(complete=True)
     text = term.getvalue()
+    assert "wbmpc: warning: compiled solver unavailable" in text.replace("\r", "\n").split("\n")
     assert "100%" in text and "2.0/2.0 s" in text and "3 recovered steps" in text
     assert "a message" in text.replace("\r", "\n").split("\n")  # on its own line, not glued onto the bar
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 from tqdm import tqdm
 
@@ -60,9 +61,14 @@ class ProgressBar:
         self._bar.close()
 
     def __enter__(self) -> "ProgressBar":
+        """Within `with bar:` Python warnings are written above the bar too."""
+        self._warnings = warnings.catch_warnings()
+        self._warnings.__enter__()
+        warnings.showwarning = lambda message, category, *args, **kwargs: self.write(f"wbmpc: warning: {message}")
         return self
 
     def __exit__(self, *exc) -> None:
+        self._warnings.__exit__(*exc)
         self._bar.close()
 
 
