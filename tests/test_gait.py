@@ -41,6 +41,13 @@ def test_geometric_grid_matches_paper():
 def test_bad_gait_and_grid_inputs():
     with pytest.raises(ConfigError, match="unknown gait 'gallop'.*trot"):
         make_gait("gallop", 4)
-    with pytest.raises(ConfigError, match="positive"):
+    with pytest.raises(ConfigError, match="dt_first_s must be > 0 s"):
         TimeGrid(dt_first_s=-0.01)
+    with pytest.raises(ConfigError, match="dt_last_s must be <= 0.5 s"):
+        TimeGrid(dt_last_s=1e6)  # Fatrop hangs on such steps
+    with pytest.raises(ConfigError, match="n_intervals must be <= 99"):
+        TimeGrid(n_intervals=100_000)
+    for period in (0.0, float("nan"), -1.0):  # 0 used to fall back to the default period silently
+        with pytest.raises(ConfigError, match="gait_period_s must be"):
+            make_gait("trot", 4, period)
     assert set(GAIT_NAMES) == {"stand", "trot", "walk"}

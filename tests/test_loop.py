@@ -80,10 +80,13 @@ def test_fixed_delay_applies_solutions_late(b1z1):
 
 
 def test_bad_loop_inputs():
-    with pytest.raises(ConfigError, match="unknown delay 'soon'"):
+    with pytest.raises(ConfigError, match="delay must be none, measured, realtime or a number of ms; got 'soon'"):
         LoopConfig(delay="soon")
     with pytest.raises(ConfigError, match=">= 0 ms"):
         LoopConfig(delay="-5")
+    for delay in ("inf", "nan", "1e9"):
+        with pytest.raises(ConfigError, match="delay must be"):
+            LoopConfig(delay=delay)
 
 
 def test_run_command_writes_metrics_with_the_contract_keys(tmp_path, capsys):
@@ -101,8 +104,8 @@ def test_run_command_writes_metrics_with_the_contract_keys(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["run", "moonwalk"], "unknown scenario 'moonwalk'"),
-    (["run", "stand", "--duration", "0"], "--duration must be positive"),
-    (["run", "stand", "--out", "/proc/wbmpc_cannot_write"], "cannot write to output directory"),
+    (["run", "stand", "--duration", "0"], "--duration must be > 0 s"),
+    (["run", "stand", "--out", "/proc/wbmpc_cannot_write"], "--out directory /proc/wbmpc_cannot_write cannot be created or written"),
     (["run", "arm-track", "--robot", "a1"], "needs a robot with an arm"),
 ])
 def test_run_command_bad_input_exits_2(argv, message, capsys):

@@ -89,9 +89,9 @@ def test_low_pass_keeps_a_constant_and_damps_alternation():
 
 # --------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("options, match", [
-    (dict(load_kg=-2.0), "load-kg"),
-    (dict(force_n=-5.0), "force-n"),
-    (dict(box_kg=0.0), "box-kg"),
+    (dict(load_kg=-2.0), "load_kg must be > 0 kg"),  # the CLI words it as --load-kg
+    (dict(force_n=-5.0), "force_n must be > 0 N"),
+    (dict(box_kg=0.0), "box_kg must be > 0 kg"),
     (dict(board="diagonal"), "board"),
     (dict(gait="gallop"), "gait"),
 ])
@@ -123,7 +123,7 @@ def test_cli_rejects_negative_load_with_exit_2():
     proc = subprocess.run([sys.executable, "-m", "wbmpc.cli", "run", "pull", "--load-kg", "-3", "--no-outputs"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
-    assert "--load-kg must be a positive mass" in proc.stderr
+    assert "--load-kg must be > 0 kg, got -3" in proc.stderr
 
 
 def test_sweep_loads_are_parsed_and_checked():
@@ -172,4 +172,4 @@ def test_compliant_arm_yields_to_the_hand_and_the_robot_stays_up(robot):
     assert m["ee_yield_m"] and m["ee_yield_m"][0] > 0.03  # followed the hand back (6 cm by 1.5 s)
     assert m["hand_force_peak_n"][0] < m["hand_force_cap_n"]  # without the hand having to force it
     assert all(k in m for k in CONTRACT_KEYS)
-    json.dumps(m)  # metrics.json-serialisable
+    json.dumps(m, allow_nan=False)  # strict JSON as written: no NaN/Infinity in any metric

@@ -1,28 +1,55 @@
-"""The `wbmpc` command: info, solve, run and benchmarks (contracts in DESIGN.md).
+"""The `wbmpc` command: robot info, one OCP solve, closed-loop scenarios and benchmarks.
 
-With --json exactly one JSON object goes to stdout; human-readable text goes to stderr.
-Bad input exits with code 2 and a message naming the problem and the fix.
+With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
+text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
+fell, the load was not pulled, the solve did not converge, the simulation diverged), 2 bad input
+(the message names the option and the fix; nothing is built or written), 130 interrupted by
+Ctrl-C (a run keeps and writes what it measured so far).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
-from wbmpc.errors import WbmpcError
+from wbmpc import __version__
+from wbmpc.errors import ConfigError, ModelError, WbmpcError
+from wbmpc.strict_json import to_json
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
+              "the solve did not converge or the simulation diverged", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
+EPILOG = "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES.items())
+
+# config fields -> the options that set them, so that errors name what the user typed
+FIELD_FLAGS = {
+    "duration_s": "--duration", "delay": "--delay", "plant": "--plant", "nodes": "--nodes", "seed": "--seed",
+    "uniform_dt_ms": "--uniform-dt", "kp_leg": "--kp", "kd_leg": "--kd", "speed_m_s": "--speed",
+    "push_speed_m_s": "--push-speed", "push_time_s": "--push-time", "push_direction_deg": "--push-direction",
+    "gait": "--gait", "load_kg": "--load-kg", "load_friction_mu": "--load-friction", "cable_length_m": "--cable-length",
+    "pull_speed_m_s": "--pull-speed", "force_n": "--force-n", "box_kg": "--box-kg", "board": "--board",
+    "board_friction_mu": "--board-friction", "wipe_pattern": "--pattern", "wipe_size_m": "--wipe-size",
+    "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
+    "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
+    "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t",
+}
+CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
 
 
 def _add_robot_options(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("robot")
-    group.add_argument("--robot", default="b1_z1", help="preset: b1_z1 (default), b1_z1_full, b1, go2, a1")
-    group.add_argument("--urdf", help="custom robot URDF (overrides --robot)")
-    group.add_argument("--srdf", help="SRDF with the reference pose of a custom robot")
-    group.add_argument("--pose", help="SRDF group_state name used as nominal pose")
-    group.add_argument("--feet", help="comma-separated foot frame names of a custom robot")
-    group.add_argument("--arm-ee", help="arm end-effector frame of a custom robot")
-    group.add_argument("--lock", help="comma-separated joints to lock at the reference pose")
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    from wbmpc.robots.presets import PRESET_NAMES
+
+    group = parser.add_argument_group("robot (a preset, or a custom URDF with the options below it)")
+    group.add_argument("--robot", default="b1_z1", choices=PRESET_NAMES, metavar="NAME",
+                       help=f"preset: {', '.join(PRESET_NAMES)} (default b1_z1: B1 + Z1 arm, 22 DoF as in the paper)")
+    group.add_argument("--urdf", metavar="FILE", help="custom robot URDF (replaces --robot; needs --feet)")
+    group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
+    group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
+    group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
+    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot: arm end-effector frame")
+    group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout (human text on stderr)")
 
 
 def _split(text: str | None) -> list[str]:
@@ -34,14 +61,19 @@ def robot_from_args(args: argparse.Namespace):
 
     if args.urdf:
         if not args.feet:
-            raise WbmpcError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
+            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
         return RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
+    given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
+    if given:
+        raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
+                         f"{'s' if len(given) == 1 else ''} --urdf; "
+                         f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
     return load_robot(args.robot)
 
 
 def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
     if args.json:
-        print(json.dumps(payload))
+        print(to_json(payload))
         print(human, file=sys.stderr)
     else:
         print(human)
@@ -57,7 +89,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
-    return 0
+    return EXIT_OK
 
 
 def cmd_setup(args: argparse.Namespace) -> int:
@@ -71,7 +103,9 @@ def cmd_setup(args: argparse.Namespace) -> int:
 
 def cmd_bench_dynamics(args: argparse.Namespace) -> int:
     from wbmpc.bench.dynamics import validate_dynamics
+    from wbmpc.errors import check_number
 
+    check_number("samples", args.samples, low=1, high=100_000)  # before loading the robot
     robot = robot_from_args(args)
     report = validate_dynamics(robot, samples=args.samples, seed=args.seed)
     lines = [f"symbolic dynamics of {robot.name} vs pinocchio ({args.samples} random states)"]
@@ -81,7 +115,7 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
     rnea = report["functions"]["rnea"]["instructions"]
     lines.append(f"  RNEA: {rnea} instructions = {rnea / paper:.2f}x the paper's Pinocchio-CasADi RNEA ({paper})")
     _emit(args, report, "\n".join(lines))
-    return 0
+    return EXIT_OK
 
 
 def _scenario_options(args: argparse.Namespace):
@@ -98,56 +132,96 @@ def _scenario_options(args: argparse.Namespace):
     )
 
 
-def _progress(share: float, label: str = "") -> None:
-    bar = int(30 * min(share, 1.0))
-    print(f"\r{label}[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
+def _run_config(args: argparse.Namespace):
+    """Every run option checked (config dataclasses) before a robot or an OCP is built."""
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.scenarios import RunConfig
+
+    return RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
+                     nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=_scenario_options(args),
+                     gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
+                     compiled=args.compiled, solver=args.solver)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     """Closed-loop scenario: progress on stderr, summary, metrics.json + plots + replay in --out."""
+    from wbmpc.interrupt import catch_interrupt
+    from wbmpc.scenarios import SCENARIOS
+
+    if args.scenario not in SCENARIOS:
+        from wbmpc.errors import unknown_name
+
+        raise ConfigError(unknown_name("scenario", args.scenario, SCENARIOS))
+    if args.sweep is not None and args.scenario != "pull":
+        raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
+    config = _run_config(args)
+    loads = None
+    if args.sweep is not None:
+        from wbmpc.scenarios.sweep import parse_loads
+
+        loads = parse_loads(args.sweep)
+    with catch_interrupt() as stop:  # Ctrl-C from here on: stop the run, keep what it measured
+        return _run(args, config, loads, stop)
+
+
+def _run(args: argparse.Namespace, config, loads, stop) -> int:
     import warnings
     from pathlib import Path
 
-    from wbmpc.control.interpolator import PdGains
-    from wbmpc.scenarios import RunConfig, make_scenario, prepare_output_dir, run_scenario, write_outputs
+    from wbmpc.scenarios import SCENARIOS, check_output_dir, make_scenario, run_scenario, write_outputs
 
     robot = robot_from_args(args)
-    options = _scenario_options(args)
-    if args.sweep is not None and args.scenario != "pull":
-        raise WbmpcError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if args.sweep is None:
-            make_scenario(args.scenario, robot, options)  # bad input or missing arm: exit 2 before building
+        if loads is None:
+            make_scenario(args.scenario, robot, config.options)  # bad input or missing arm: exit 2 before building
     for w in caught:
         print(f"wbmpc: warning: {w.message}", file=sys.stderr)
-    if args.duration is not None and not args.duration > 0:
-        raise WbmpcError(f"--duration must be positive, got {args.duration}")
-    from wbmpc.bench.mpc import check_names
-
-    check_names(solvers=[args.solver])
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
-        prepare_output_dir(out_dir)
-    config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
-                       nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
-                       gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
-                       compiled=args.compiled, solver=args.solver)
-    if args.sweep is not None:
-        return _run_sweep(args, robot, config, out_dir)
-    print(f"wbmpc run {args.scenario}: robot {robot.name}, solver {args.solver}{' (compiled)' if args.compiled else ''}, "
-          f"delay {args.delay}, plant {args.plant}", file=sys.stderr)
-    result = run_scenario(robot, config, progress=_progress)
-    print(file=sys.stderr)
+        check_output_dir(out_dir)
+    if loads is not None:
+        return _run_sweep(args, robot, config, loads, out_dir, stop)
+    scenario = SCENARIOS[args.scenario](config.options)
+    duration = config.duration_s or scenario.default_duration_s
+    print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {args.solver}"
+          f"{' (compiled)' if args.compiled else ''}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
+    from wbmpc.progress import ProgressBar
+
+    with ProgressBar(duration, args.scenario + " ", unit="s") as bar:
+        def progress(share: float, recoveries: int) -> None:
+            bar.update(share * duration)
+            bar.set_recoveries(recoveries)
+
+        result = run_scenario(robot, config, progress=progress, stop=stop)
+        m = result.metrics
+        bar.close(complete=not (m["fell"] or m["interrupted"]))
+    if m["interrupted"]:
+        where = "" if args.no_outputs else f", writing it to {out_dir}/ (Ctrl-C again to skip)"
+        print(f"wbmpc: interrupted at {m['duration_s']:.2f} s of {duration:g} s; keeping what was measured{where}",
+              file=sys.stderr)
     paths = write_outputs(robot, result, out_dir) if not args.no_outputs else []
-    m = result.metrics
+    failure = result.scenario.failure(m)
+    _emit(args, m, "\n".join(_run_summary(m, failure, paths, out_dir)))
+    if m["interrupted"]:
+        return EXIT_INTERRUPTED
+    return EXIT_FAILED if failure else EXIT_OK
+
+
+def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str]:
+    state = "INTERRUPTED" if m["interrupted"] else f"FELL at {m['fell_at_s']:.2f} s" if m["fell"] else "stayed up"
+    solve = m["solve_ms"]
     lines = [
-        f"scenario {m['scenario']}: {'FELL at %.2f s' % m['fell_at_s'] if m['fell'] else 'stayed up'} "
-        f"over {m['duration_s']:.2f} s",
-        f"  base drift {m['base_drift_cm_s']:.2f} cm/s, base velocity RMSE {m['base_vel_rmse']:.3f} m/s",
-        f"  max torque / limit {m['max_torque_ratio']:.2f}; MPC {m['mpc_solves']} solves, {m['mpc_failures']} failed, "
-        f"solve {m['solve_ms']['mean']:.1f} ms mean ({m['solve_ms']['max']:.1f} max), {m['iterations_mean']:.1f} iterations",
+        f"scenario {m['scenario']}: {state} over {m['duration_s']:.2f} s",
+        f"  base drift {_fmt(m['base_drift_cm_s'], '.2f')} cm/s, base velocity RMSE {m['base_vel_rmse']:.3f} m/s",
+        f"  max torque / limit {m['max_torque_ratio']:.2f}; MPC {m['mpc_solves']} solves, {m['mpc_recoveries']} "
+        f"recovered by a re-solve, {m['mpc_failures']} failed; solve {_fmt(solve['mean'])} ms mean "
+        f"({_fmt(solve['max'])} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("delay") != "none":
+        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
+                     f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
+                     f"mean delay {m['delay_ms_mean']:.1f} ms")
     if m.get("ee_pos_rmse_m") is not None:
         lines.append(f"  end-effector position RMSE {100 * m['ee_pos_rmse_m']:.2f} cm")
     if m.get("ee_force_err_rel") is not None:
@@ -161,34 +235,65 @@ def cmd_run(args: argparse.Namespace) -> int:
                      f"max base tilt {m['base_tilt_max_deg']:.1f} deg")
     if paths:
         lines.append(f"  wrote {len(paths)} files to {out_dir}/ (metrics.json, plots, replay.html)")
-    _emit(args, m, "\n".join(lines))
-    return 0
+    if failure:
+        lines.append(f"  FAILED: {failure} (exit code {EXIT_FAILED})")
+    return lines
 
 
-def _run_sweep(args: argparse.Namespace, robot, config, out_dir) -> int:
-    from wbmpc.scenarios.sweep import parse_loads, pull_sweep, sweep_table
+def _fmt(value, spec: str = ".1f") -> str:
+    return "-" if value is None else format(value, spec)
 
-    loads = parse_loads(args.sweep)
+
+def _run_sweep(args: argparse.Namespace, robot, config, loads: list[float], out_dir, stop) -> int:
+    from wbmpc.progress import ProgressBar
+    from wbmpc.scenarios.outputs import MANIFEST, remove_previous_outputs, replace_file
+    from wbmpc.scenarios.sweep import pull_sweep, sweep_table
+
     print(f"wbmpc run pull --sweep: loads {loads} kg, robot {robot.name}", file=sys.stderr)
+    if not args.no_outputs:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        remove_previous_outputs(out_dir)
+        replace_file(out_dir / MANIFEST, to_json({"files": ["sweep.json"]}))
+    bar = ProgressBar(len(loads), "pull sweep ", unit="loads")
+
     def on_row(report: dict) -> None:
         row = report["rows"][-1]
-        print(f"\r{row['load_kg']:5.1f} kg: " + ("rejected" if "rejected" in row else
-              f"{'pulled' if row['pulled'] else 'NOT pulled'}, fell {row['fell']}, load moved {row['load_moved_m']:.2f} m")
-              + " " * 20, file=sys.stderr)
+        bar.write(f"{row['load_kg']:5.1f} kg: " + ("rejected" if "rejected" in row else
+                  f"{'pulled' if row['pulled'] else 'NOT pulled'}, fell {row['fell']}, load moved {row['load_moved_m']:.2f} m"
+                  + (" (interrupted)" if row.get("interrupted") else "")))
         if not args.no_outputs:
-            (out_dir / "sweep.json").write_text(json.dumps(report, indent=2))
+            replace_file(out_dir / "sweep.json", to_json(report, indent=2))
 
-    report = pull_sweep(robot, loads, config, progress=lambda load, s: _progress(s, f"{load:5.1f} kg "), on_row=on_row)
-    print(file=sys.stderr)
+    def progress(load: float, share: float, recoveries: int) -> None:
+        bar.update(loads.index(load) + share, f"{load:5.1f} kg ")
+        bar.set_recoveries(recoveries)
+
+    with bar:
+        report = pull_sweep(robot, loads, config, progress=progress, on_row=on_row, stop=stop)
+        bar.close(complete=not report["interrupted"])
     _emit(args, report, sweep_table(report))
-    return 0
+    if report["interrupted"]:
+        return EXIT_INTERRUPTED
+    return EXIT_OK if report["max_pulled_kg"] is not None else EXIT_FAILED  # no load pulled: the task failed
+
+
+def _scenario_list() -> str:
+    from wbmpc.scenarios import SCENARIOS, ScenarioOptions
+
+    rows = [cls(ScenarioOptions()) for cls in SCENARIOS.values()]
+    return "scenarios (default duration):\n" + "\n".join(
+        f"  {s.name:<14} {s.default_duration_s:4g} s  {s.description}" for s in rows)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0])
+    formatter = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0], epilog=EPILOG,
+                                     formatter_class=formatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    info = sub.add_parser("info", help="robot model summary")
+    info = sub.add_parser("info", help="robot model summary", description="Robot model summary: nq, nv, joints, "
+                          "mass, feet, arm end-effector.", epilog=EPILOG, formatter_class=formatter)
     _add_robot_options(info)
     info.set_defaults(func=cmd_info)
 
@@ -200,24 +305,34 @@ def build_parser() -> argparse.ArgumentParser:
 
     from wbmpc.scenarios import SCENARIOS
 
-    run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay")
-    run.add_argument("scenario", help=f"one of: {', '.join(SCENARIOS)}")
+    run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay",
+                         description="Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 Hz) and write "
+                         "metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps what was "
+                         "measured and exits 130.", epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
+    run.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)} (listed below)")
     _add_robot_options(run)
-    run.add_argument("--duration", type=float, help="simulated seconds (scenario default otherwise)")
-    run.add_argument("--delay", default="none", help="none | measured | realtime | a fixed delay in ms")
-    run.add_argument("--plant", default="mujoco", help="mujoco (default) | pinocchio")
-    run.add_argument("--out", help="output directory (default runs/SCENARIO)")
-    run.add_argument("--seed", type=int, default=0)
-    run.add_argument("--nodes", type=int, default=15)
-    run.add_argument("--uniform-dt", type=float, help="uniform time steps of this many ms instead of geometric")
+    run.add_argument("--duration", type=float, metavar="S",
+                     help="simulated seconds, at most 3600 (default: the scenario's, listed below)")
+    run.add_argument("--delay", default="none", help="none (default: the simulation waits for the solver) | measured "
+                     "(the solve's wall time elapses) | realtime (solver in its own process, wall-clock paced) | "
+                     "a fixed delay of 0-1000 ms")
+    run.add_argument("--plant", default="mujoco", choices=("mujoco", "pinocchio"),
+                     help="simulator: mujoco (default) or pinocchio (rigid contacts, no scene objects)")
+    run.add_argument("--out", metavar="DIR", help="output directory (default runs/SCENARIO); files of an earlier "
+                     "wbmpc run there are replaced, other files are left alone")
+    run.add_argument("--seed", type=int, default=0, help="seed of the measurement noise (default 0)")
+    run.add_argument("--nodes", type=int, default=15, help="horizon nodes, 2-100 (default 15 = the paper's)")
+    run.add_argument("--uniform-dt", type=float, metavar="MS",
+                     help="uniform time steps of MS ms (0-500) instead of the geometric 10-100 ms grid")
     run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
     run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
     run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
-    run.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10)")
-    run.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10)")
+    run.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10), Nm/rad >= 0 (default 0)")
+    run.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10), Nm s/rad >= 0 (default 5)")
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
-    run.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse; see bench table1)")
+    run.add_argument("--formulation", default="wb_inverse", help="OCP formulation of Table I (default wb_inverse; "
+                     "see bench table1)")
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
     run.add_argument("--solver", default="fatrop",
@@ -244,16 +359,17 @@ def build_parser() -> argparse.ArgumentParser:
                        help="compliant: gain of the slow return to the nominal end-effector place (0 = none)")
     run.set_defaults(func=cmd_run)
 
-    bench = sub.add_parser("bench", help="benchmarks")
+    bench = sub.add_parser("bench", help="benchmarks", epilog=EPILOG, formatter_class=formatter)
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
     _add_robot_options(dyn)
-    dyn.add_argument("--samples", type=int, default=100)
-    dyn.add_argument("--seed", type=int, default=0)
+    dyn.add_argument("--samples", type=int, default=100, help="random states compared, 1-100000 (default 100)")
+    dyn.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
     dyn.set_defaults(func=cmd_bench_dynamics)
 
     # solve / bench mpc: logic in wbmpc.bench.mpc (imported when the command runs)
-    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time")
+    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time",
+                           epilog=EPILOG, formatter_class=formatter)
     _add_robot_options(solve)
     solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
     solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
@@ -274,7 +390,6 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
-    mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated, compiled and cached)")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))
 
@@ -312,14 +427,34 @@ def _bench_mpc():
     return mpc
 
 
+def _dispatch(args: argparse.Namespace) -> int:
+    try:
+        return int(args.func(args) or 0)
+    except BaseException:
+        from wbmpc.progress import close_all
+
+        close_all()
+        raise
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of `wbmpc` and `python -m wbmpc`; returns the exit code (see `EXIT_CODES`)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
-    except WbmpcError as exc:
+        return _dispatch(args)
+    except ConfigError as exc:
+        print(f"wbmpc: error: {exc.worded(FIELD_FLAGS)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except WbmpcError as exc:  # e.g. the simulation diverged: the run failed, the input was fine
+        print(f"wbmpc: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("wbmpc: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.errors import ConfigError, check_number, unknown_name
 
 
 @dataclass(frozen=True)
@@ -25,8 +25,7 @@ class Gait:
     phase_offsets: tuple[float, ...]  # per foot, in periods
 
     def __post_init__(self):
-        if not self.period_s > 0:
-            raise ConfigError(f"gait period must be positive, got {self.period_s}")
+        check_number("period_s", self.period_s, low=0.0, high=10.0, low_open=True, unit="s")
         if not 0 < self.duty_factor <= 1:
             raise ConfigError(f"gait duty factor must be in (0, 1], got {self.duty_factor}")
 
@@ -106,15 +105,19 @@ def _cubic_velocity(x, p0, p1, m0, m1):
 
 
 def make_gait(name: str, n_feet: int, period_s: float | None = None) -> Gait:
-    """Named gaits: `stand`, `trot` (diagonal pairs, 0.8 s), `walk` (one foot at a time, 1.2 s)."""
+    """Named gaits: `stand`, `trot` (diagonal pairs, 0.8 s), `walk` (one foot at a time, 1.2 s).
+
+    `period_s=None` takes the gait's default period; any other value is checked (0 is refused)."""
+    if period_s is not None:
+        check_number("gait_period_s", period_s, low=0.0, high=10.0, low_open=True, unit="s")
     if name == "stand":
-        return Gait("stand", period_s or 1.0, 1.0, tuple([0.0] * n_feet))
+        return Gait("stand", 1.0 if period_s is None else period_s, 1.0, tuple([0.0] * n_feet))
     if n_feet != 4 and name in ("trot", "walk"):
         raise ConfigError(f"gait '{name}' is defined for 4 feet; this robot has {n_feet}")
     if name == "trot":  # FL+RR, FR+RL
-        return Gait("trot", period_s or 0.8, 0.5, (0.0, 0.5, 0.5, 0.0))
+        return Gait("trot", 0.8 if period_s is None else period_s, 0.5, (0.0, 0.5, 0.5, 0.0))
     if name == "walk":  # lateral-sequence walk: RL, FL, RR, FR
-        return Gait("walk", period_s or 1.2, 0.75, (0.5, 0.0, 0.75, 0.25))
+        return Gait("walk", 1.2 if period_s is None else period_s, 0.75, (0.5, 0.0, 0.75, 0.25))
     raise ConfigError(unknown_name("gait", name, GAIT_NAMES))
 
 

@@ -12,6 +12,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.errors import ConfigError, check_number
 from wbmpc.robots import RobotModel
 from wbmpc.symbolic import Motion, SymbolicDynamics
 
@@ -115,6 +116,9 @@ def random_samples(robot: RobotModel, n_forces: int, count: int, seed: int) -> l
 
 def validate_dynamics(robot: RobotModel, samples: int = 100, seed: int = 0) -> dict:
     """Instruction counts and max scale-aware errors of every symbolic function vs pinocchio."""
+    if isinstance(samples, bool) or not isinstance(samples, int):
+        raise ConfigError.for_field("samples", f"must be an integer, got {samples!r}")
+    check_number("samples", samples, low=1, high=100_000)  # an error over no samples would read 0
     dyn = SymbolicDynamics(robot)
     functions = dyn.functions()
     references = _references(robot)

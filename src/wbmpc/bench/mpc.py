@@ -14,7 +14,6 @@ Every MPC here runs without recovery re-solves, so times and failures are the na
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import sys
@@ -25,7 +24,9 @@ from typing import Callable
 
 import numpy as np
 
-from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.errors import ConfigError, check_number, unknown_name
+from wbmpc.progress import ProgressBar
+from wbmpc.strict_json import to_json
 
 MPC_RATE_HZ = 80.0
 PLANTS = ("pinocchio", "mujoco")
@@ -36,11 +37,13 @@ def grid_for(nodes: int, uniform_dt_ms: float | None = None):
     """Paper grid (geometric 10 ms -> 100 ms) on `nodes` nodes, or uniform steps of `uniform_dt_ms`."""
     from wbmpc.ocp.grid import TimeGrid
 
-    if not isinstance(nodes, int) or nodes < 2:
-        raise ConfigError(f"--nodes must be an integer >= 2 (one interval at least), got {nodes}")
+    from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S
+
+    if isinstance(nodes, bool) or not isinstance(nodes, int):
+        raise ConfigError.for_field("nodes", f"must be an integer >= 2, got {nodes!r}")
+    check_number("nodes", nodes, low=2, high=MAX_INTERVALS + 1)
     if uniform_dt_ms is not None:
-        if not (math.isfinite(uniform_dt_ms) and uniform_dt_ms > 0):
-            raise ConfigError(f"--uniform-dt must be a positive number of milliseconds, got {uniform_dt_ms}")
+        check_number("uniform_dt_ms", uniform_dt_ms, low=0.0, high=1e3 * MAX_STEP_S, low_open=True, unit="ms")
         return TimeGrid.uniform_steps(nodes - 1, uniform_dt_ms / 1e3)
     return TimeGrid(n_intervals=nodes - 1)
 
@@ -110,8 +113,7 @@ def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", no
     """Build one OCP and solve it once from the nominal stance (q_nominal, v = 0) at gait time t."""
     from wbmpc.control import MPC, Commands
 
-    if not math.isfinite(t) or t < 0:
-        raise ConfigError(f"--t must be a finite time >= 0 s, got {t}")
+    check_number("t", t, low=0.0, high=1e6, unit="s")
     config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms, compiled=compiled)
     start = time.perf_counter()
     mpc = MPC(robot, config)
@@ -208,38 +210,6 @@ def _function_eval_ms(mpc) -> float:
     return 1e3 * sum(float(v) for k, v in stats.items() if k.startswith("t_wall_nlp_"))
 
 
-class _NullStream:
-    def write(self, text: str) -> None:
-        pass
-
-    def flush(self) -> None:
-        pass
-
-
-class _Progress:
-    """`[#####     ] 50% label` on stderr, redrawn in place when the percentage changes."""
-
-    def __init__(self, total: float, stream=None, width: int = 30):
-        self.total, self.done, self.width = max(total, 1e-9), 0.0, width
-        self.stream = stream or sys.stderr
-        self._shown: tuple | None = None
-
-    def update(self, done: float, label: str = "") -> None:
-        self.done = min(done, self.total)
-        share = self.done / self.total
-        percent = int(100 * share)
-        if (percent, label) == self._shown:
-            return
-        self._shown = (percent, label)
-        bar = "#" * int(round(self.width * share))
-        self.stream.write(f"\r[{bar:<{self.width}}] {percent:3d}% {label:<40}")
-        self.stream.flush()
-
-    def close(self) -> None:
-        self.stream.write("\n")
-        self.stream.flush()
-
-
 def _split_summary(splits: list[dict]) -> dict:
     """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`, plus `python` around the solver)."""
     keys = dict.fromkeys(k for split in splits for k in split)
@@ -276,7 +246,7 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     recorder = _Recorder(mpc)
     duration = steps / MPC_RATE_HZ
     log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none")).run(
-        duration, progress=on_progress)
+        duration, progress=lambda share, _recoveries: on_progress(share))
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))
     summary = _run_summary(arrays["solve_ms"][:n], arrays["iterations"][:n], arrays["success"][:n],
@@ -321,8 +291,8 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     machine_start = _machine()
     wall_start = time.perf_counter()
     n_resolve = 3 + (len(solvers) - 1)  # warm, cold, uniform, other solvers
-    progress = _Progress(len(solvers) * steps + n_resolve * steps + 0.5 * (len(solvers) + 2),
-                         stream=sys.stderr if show_progress else _NullStream())
+    progress = ProgressBar(len(solvers) * steps + n_resolve * steps + 0.5 * (len(solvers) + 2), unit="solves",
+                           enabled=None if show_progress else False)
     done = 0.0
 
     # one OCP build shared by every solver on the paper grid
@@ -379,8 +349,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             records[label]["eval"].append(_function_eval_ms(mpc))
             done += 1
             progress.update(done, f"same states {i + 1}/{len(states)}")
-    progress.update(progress.total, "done")
-    progress.close()
+    progress.close(complete=True)
 
     same = {label: _run_summary(r["ms"], r["it"], r["ok"], variants[label].problem.n_variables, r["eval"], r["cpu"])
             for label, r in records.items()}
@@ -513,8 +482,7 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     if not solvers:
         raise ConfigError("--solvers needs at least one solver, e.g. fatrop,ipopt")
     check_names(gait=args.gait, solvers=solvers, plant=args.plant)
-    if args.steps < 1:
-        raise ConfigError(f"--steps must be >= 1, got {args.steps}")
+    check_number("steps", args.steps, low=1, high=100_000)
     grid_for(args.nodes, args.uniform_dt)
     robot = robot_from_args(args)
     report = bench_mpc(robot, steps=args.steps, gait=args.gait, plant=args.plant, solvers=tuple(solvers),
@@ -523,7 +491,7 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     if args.out:
         path = Path(args.out)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(report, indent=2) + "\n")
+        path.write_text(to_json(report, indent=2) + "\n")
     _output(args, report, bench_markdown(report))
     return 0
 
@@ -531,14 +499,14 @@ def cli_bench_mpc(args, robot_from_args) -> int:
 def write_report(path: Path, report: dict, text: str) -> None:
     """A benchmark's JSON report at `path` and its markdown beside it (same name, .md)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=2) + "\n")
+    path.write_text(to_json(report, indent=2) + "\n")
     path.with_suffix(".md").write_text(text + "\n")
 
 
 def _output(args, payload: dict, human: str) -> None:
     """--json: one JSON object on stdout, human text on stderr; otherwise human text on stdout."""
     if args.json:
-        print(json.dumps(payload))
+        print(to_json(payload))
         print(human, file=sys.stderr)
     else:
         print(human)

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.bench.mpc import write_report, _closed_loop, _output, _Progress, _NullStream, bench_markdown, bench_mpc, grid_for, mpc_config
+from wbmpc.progress import ProgressBar
+from wbmpc.bench.mpc import write_report, _closed_loop, _output, bench_markdown, bench_mpc, grid_for, mpc_config
 from wbmpc.errors import ConfigError
 
 
@@ -48,9 +49,9 @@ def bench_solvers(robot, steps: int = 40, nodes_list: list[int] | None = None, c
         raise ConfigError(f"--steps must be an integer >= 1, got {steps}")
     start = time.perf_counter()
     comparison = bench_mpc(robot, steps=steps, compiled=compiled, show_progress=show_progress)
-    progress = _Progress(len(nodes_list), stream=None if show_progress else _NullStream())
+    progress = ProgressBar(len(nodes_list), unit="runs", enabled=None if show_progress else False)
     scaling = node_scaling(robot, nodes_list, steps, compiled, progress.update)
-    progress.close()
+    progress.close(complete=True)
     return {"robot": robot.name, "compiled": compiled, "comparison": comparison, "node_scaling": scaling,
             "wall_s": time.perf_counter() - start}
 

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.bench.mpc import write_report, MPC_RATE_HZ, _closed_loop, _machine, _output, _Progress, _NullStream, _stats, mpc_config
+from wbmpc.progress import ProgressBar
+from wbmpc.bench.mpc import write_report, MPC_RATE_HZ, _closed_loop, _machine, _output, _stats, mpc_config
 from wbmpc.errors import ConfigError, unknown_name
 
 # Table I of the paper (B2 + Z1, 15 nodes): instructions, decision variables, solve ms mean (std)
@@ -116,7 +117,7 @@ def bench_table1(robot, steps: int = 100, formulations: list[str] | None = None,
             raise ConfigError(unknown_name("formulation", name, FORMULATIONS))
     if not isinstance(steps, int) or steps < 1:
         raise ConfigError(f"--steps must be an integer >= 1, got {steps}")
-    progress = _Progress(len(names), stream=None if show_progress else _NullStream())
+    progress = ProgressBar(len(names), unit="formulations", enabled=None if show_progress else False)
     machine_start, wall_start = _machine(), time.perf_counter()
     rows = []
     for i, name in enumerate(names):
@@ -124,7 +125,7 @@ def bench_table1(robot, steps: int = 100, formulations: list[str] | None = None,
         rows.append(table1_row(robot, name, steps, compiled,
                                lambda share, i=i, name=name: progress.update(i + 0.5 * share, f"{name}: closed loop")))
         progress.update(i + 1, f"{name}: done")
-    progress.close()
+    progress.close(complete=True)
     return {"robot": robot.name, "steps": steps, "nodes": 15, "plant": "pinocchio", "mpc_rate_hz": MPC_RATE_HZ,
             "rows": rows, "machine": {"start": machine_start, "end": _machine()},
             "wall_s": time.perf_counter() - wall_start}

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wbmpc.control.solution import Solution
+from wbmpc.errors import check_number
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,10 @@ class PdGains:
     kd_leg: float = 5.0
     kp_arm: float = 20.0
     kd_arm: float = 1.0
+
+    def __post_init__(self):
+        for name in ("kp_leg", "kd_leg", "kp_arm", "kd_arm"):
+            check_number(name, getattr(self, name), low=0.0, high=1e4)
 
     def vectors(self, is_arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         kp = np.where(is_arm, self.kp_arm, self.kp_leg)

@@ -20,9 +20,12 @@ import pinocchio as pin
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
 from wbmpc.control.solution import Solution
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, check_number
 
 DELAY_MODES = ("none", "measured", "realtime")
+RECOVERY_MARK = "(recovery after"  # in the status of a step that needed a recovery re-solve
+
+Progress = Callable[[float, int], None]  # (share of the run done, recovered steps so far)
 
 
 @dataclass(frozen=True)
@@ -44,15 +47,22 @@ class LoopConfig:
 
     @property
     def fixed_delay_s(self) -> float | None:
-        if self.delay in DELAY_MODES:
-            return None
-        try:
-            value = float(self.delay)
-        except (TypeError, ValueError):
-            raise ConfigError(f"unknown delay '{self.delay}'; use none, measured, realtime or a number of ms") from None
-        if not value >= 0:
-            raise ConfigError(f"a fixed delay must be >= 0 ms, got {value}")
-        return value / 1e3
+        return fixed_delay_s(self.delay)
+
+
+MAX_FIXED_DELAY_MS = 1000.0
+
+
+def fixed_delay_s(delay: str) -> float | None:
+    """The delay in seconds for a number of ms, None for the named modes; refuses anything else."""
+    if delay in DELAY_MODES:
+        return None
+    try:
+        value = float(delay)
+    except (TypeError, ValueError):
+        raise ConfigError.for_field("delay", f"must be none, measured, realtime or a number of ms; got '{delay}'") from None
+    check_number("delay", value, low=0.0, high=MAX_FIXED_DELAY_MS, unit="ms")
+    return value / 1e3
 
 
 class CommandSource(Protocol):
@@ -92,6 +102,7 @@ class RunLog:
     late_solutions: int = 0
     sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
     mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
+    interrupted: bool = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
     fell: bool = False
     fell_at_s: float | None = None
     wall_time_s: float = 0.0
@@ -106,6 +117,11 @@ class RunLog:
     @property
     def mpc_failures(self) -> int:
         return int(len(self.success) - np.sum(self.success))
+
+    @property
+    def mpc_recoveries(self) -> int:
+        """Steps whose first solve failed and a recovery re-solve succeeded (`MPC._recover`)."""
+        return sum(1 for ok, status in zip(self.success, self.status) if ok and RECOVERY_MARK in str(status))
 
 
 class ClosedLoop:
@@ -149,14 +165,17 @@ class ClosedLoop:
 
     # ------------------------------------------------------------------ run
     def run(self, duration_s: float, commands: CommandSource | None = None,
-            events: list[Event] | None = None, progress: Callable[[float], None] | None = None) -> RunLog:
+            events: list[Event] | None = None, progress: Progress | None = None,
+            stop: Callable[[], bool] | None = None) -> RunLog:
+        """Run for `duration_s` simulated seconds or until the robot falls or `stop()` turns true
+        (polled every control tick, e.g. `wbmpc.interrupt.InterruptFlag`; the log then has `interrupted`)."""
         if not duration_s > 0:
             raise ConfigError(f"duration must be positive, got {duration_s}")
         commands = commands or (lambda t, q, v: Commands())
         events = sorted(events or [], key=lambda e: e.time_s)
         if self.config.delay == "realtime":
-            return self._run_realtime(duration_s, commands, events, progress)
-        return self._run_simulated_time(duration_s, commands, events, progress)
+            return self._run_realtime(duration_s, commands, events, progress, stop)
+        return self._run_simulated_time(duration_s, commands, events, progress, stop)
 
     def _solve(self, log: RunLog, t: float, commands: CommandSource) -> Solution:
         q, v = self._measure()
@@ -191,8 +210,8 @@ class ClosedLoop:
         log.contact_forces.append(self.plant.contact_forces())
         return tau
 
-    def _low_level(self, log, active, t, next_control, tau, t0, duration_s, progress):
-        """The 500 Hz loop (eqs. 9-10) when due: returns (torques to hold, next tick, fell)."""
+    def _low_level(self, log, active, t, next_control, tau, t0, duration_s, progress, stop=None):
+        """The 500 Hz loop (eqs. 9-10) when due: returns (torques to hold, next tick, end the run)."""
         if t < next_control - 1e-9:
             return tau, next_control, False
         tau = self._control_tick(log, active, t)
@@ -201,7 +220,10 @@ class ClosedLoop:
             log.fell, log.fell_at_s = True, t - t0
             return tau, next_control, True
         if progress:
-            progress((t - t0) / duration_s)
+            progress((t - t0) / duration_s, log.mpc_recoveries)
+        if stop is not None and stop():
+            log.interrupted = True
+            return tau, next_control, True
         return tau, next_control, False
 
     def _apply_events(self, events: list[Event], t: float) -> None:
@@ -210,7 +232,7 @@ class ClosedLoop:
                 event.action(self.plant)
                 event.done = True
 
-    def _run_simulated_time(self, duration_s, commands, events, progress) -> RunLog:
+    def _run_simulated_time(self, duration_s, commands, events, progress, stop=None) -> RunLog:
         cfg, plant = self.config, self.plant
         log = RunLog()
         wall_start = time.perf_counter()
@@ -240,14 +262,14 @@ class ClosedLoop:
                     pending.append((t + delay, solution))
             while pending and pending[0][0] <= t + 1e-9:
                 active = pending.pop(0)[1]
-            tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress)
+            tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress, stop)
             if fell:
                 break
             plant.step(tau)
         log.wall_time_s = time.perf_counter() - wall_start
         return log
 
-    def _run_realtime(self, duration_s, commands, events, progress) -> RunLog:
+    def _run_realtime(self, duration_s, commands, events, progress, stop=None) -> RunLog:
         """Simulation paced by the wall clock while the MPC solves in its own process.
 
         A process, not a thread: the simulation loop is Python and would starve a solver thread of
@@ -277,7 +299,13 @@ class ClosedLoop:
         if cpus[0]:
             os.sched_setaffinity(0, cpus[0])
         try:
-            if not conn.poll(300) or conn.recv() != "ready":
+            for _ in range(1500):  # up to 300 s for the worker's build, Ctrl-C honoured meanwhile
+                if conn.poll(0.2) or (stop is not None and stop()) or not worker.is_alive():
+                    break
+            if stop is not None and stop():
+                log.interrupted = True
+                return log
+            if not conn.poll(0) or conn.recv() != "ready":
                 raise ConfigError("the real-time MPC process did not start (see its error above)")
             t0 = plant.time_s
             active = self._solve(log, t0, commands)
@@ -314,7 +342,8 @@ class ClosedLoop:
                     busy, request = True, (t, command)
                     while next_mpc <= t + 1e-9:
                         next_mpc += mpc_period
-                tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress)
+                tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress,
+                                                          stop)
                 if fell:
                     break
                 plant.step(tau)
@@ -348,8 +377,11 @@ def _cpu_split() -> tuple[set[int], set[int]]:
 def _mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
     """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests
     ("cpu" asks for the process's CPU time so far)."""
+    import signal
+
     from wbmpc.robots import RobotModel
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent decides
     if cpus:
         os.sched_setaffinity(0, cpus)
     mpc = MPC(RobotModel(spec), mpc_config)

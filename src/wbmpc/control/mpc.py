@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.solution import Solution
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import Gait, SwingProfile, make_gait
 from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
@@ -41,6 +41,11 @@ class CostWeights:
     acceleration: float = 1e-2
     contact_force: float = 1e-3  # pull towards the weight shared over the stance feet
     joint_torque: float = 1e-3
+
+    def __post_init__(self):
+        for name, value in vars(self).items():
+            for item in np.atleast_1d(np.asarray(value, dtype=float)):
+                check_number(f"weights.{name}", float(item), low=0.0)
 
     def vectors(self, robot: RobotModel, nf: int) -> dict[str, np.ndarray]:
         nj = robot.n_joints
@@ -69,6 +74,15 @@ class MpcConfig:
     max_ee_speed_m_s: float = 1.0
     recovery_barrier_init: float | None = 0.1  # a fresh Fatrop with this initial barrier re-solves a failed step
     fallback_solver: str | None = "ipopt"  # then re-solves a step still failed; None disables
+    max_ee_force_n: float | None = None  # largest end-effector force command; None: the robot's weight
+
+    def __post_init__(self):
+        check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
+        check_number("friction_coefficient", self.friction_coefficient, low=0.0, high=5.0, low_open=True)
+        for name in ("max_base_speed_m_s", "max_yaw_rate_rad_s", "max_ee_speed_m_s"):
+            check_number(name, getattr(self, name), low=0.0, low_open=True)
+        check_number("recovery_barrier_init", self.recovery_barrier_init, low=0.0, low_open=True, allow_none=True)
+        check_number("max_ee_force_n", self.max_ee_force_n, low=0.0, low_open=True, unit="N", allow_none=True)
 
 
 @dataclass
@@ -86,6 +100,19 @@ class Commands:
     ee_velocity_m_s: np.ndarray | None = None
     ee_force_n: np.ndarray = field(default_factory=lambda: np.zeros(3))
     base_height_m: float | None = None
+
+    def __post_init__(self):
+        """Refuse NaN/inf and wrong shapes here: a NaN command would give NaN torques."""
+        for name in ("base_velocity_m_s", "ee_velocity_m_s", "ee_force_n"):
+            value = getattr(self, name)
+            if value is None and name == "ee_velocity_m_s":
+                continue
+            array = np.asarray(value, dtype=float)
+            if array.shape != (3,) or not np.all(np.isfinite(array)):
+                raise ConfigError.for_field(name, f"must be 3 finite numbers, got {value!r}")
+            setattr(self, name, array)
+        check_number("base_yaw_rate_rad_s", self.base_yaw_rate_rad_s, unit="rad/s")
+        check_number("base_height_m", self.base_height_m, low=0.0, low_open=True, unit="m", allow_none=True)
 
 
 class MPC:
@@ -153,6 +180,19 @@ class MPC:
             value = np.asarray(getattr(commands, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
                 raise ConfigError(f"command {name} must be 3 finite numbers, got {value}")
+        if not np.isfinite(commands.base_yaw_rate_rad_s):
+            raise ConfigError(f"command base_yaw_rate_rad_s must be finite, got {commands.base_yaw_rate_rad_s}")
+        force = float(np.linalg.norm(commands.ee_force_n))
+        limit = cfg.max_ee_force_n or self.robot.mass_kg * GRAVITY_M_S2
+        if force > limit:
+            raise ConfigError(f"end-effector force command {force:.4g} N exceeds {limit:.0f} N (the robot's weight unless "
+                              "MpcConfig.max_ee_force_n says otherwise): the robot cannot apply it; lower the force")
+        if commands.base_height_m is not None:
+            nominal = self.robot.q_nominal[2]
+            if not 0.4 * nominal <= commands.base_height_m <= 1.3 * nominal:
+                raise ConfigError(f"base height command {commands.base_height_m:g} m is outside "
+                                  f"{0.4 * nominal:.2f}-{1.3 * nominal:.2f} m (40-130 % of the nominal "
+                                  f"{nominal:.2f} m of {self.robot.name})")
         return q, v
 
     # ------------------------------------------------------------------ per-step data

@@ -6,7 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, check_number
+
+MAX_INTERVALS = 99  # 100 nodes: the NLP grows linearly and its build takes minutes beyond that
+MAX_STEP_S = 0.5  # longer steps leave the gait and the dynamics unresolved (Fatrop stalls)
 
 
 @dataclass(frozen=True)
@@ -19,10 +22,11 @@ class TimeGrid:
     uniform: bool = False
 
     def __post_init__(self):
-        if self.n_intervals < 1:
-            raise ConfigError(f"the horizon needs at least one interval, got {self.n_intervals}")
-        if not (self.dt_first_s > 0 and self.dt_last_s > 0) or not np.isfinite(self.dt_first_s + self.dt_last_s):
-            raise ConfigError(f"time steps must be positive and finite, got dt_first_s={self.dt_first_s}, dt_last_s={self.dt_last_s}")
+        if isinstance(self.n_intervals, bool) or not isinstance(self.n_intervals, int):
+            raise ConfigError.for_field("n_intervals", f"must be an integer, got {self.n_intervals!r}")
+        check_number("n_intervals", self.n_intervals, low=1, high=MAX_INTERVALS)
+        check_number("dt_first_s", self.dt_first_s, low=0.0, high=MAX_STEP_S, low_open=True, unit="s")
+        check_number("dt_last_s", self.dt_last_s, low=0.0, high=MAX_STEP_S, low_open=True, unit="s")
         if not self.uniform and self.dt_last_s < self.dt_first_s:
             raise ConfigError("geometric steps grow along the horizon: dt_last_s must be >= dt_first_s")
 

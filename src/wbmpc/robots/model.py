@@ -35,6 +35,18 @@ class RobotSpec:
     position_limit_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
     foot_radius_m: float | None = None
 
+    def __post_init__(self):
+        duplicates = sorted({f for f in self.feet if self.feet.count(f) > 1})
+        if duplicates:
+            raise ModelError(f"foot frames must be distinct; {', '.join(duplicates)} given more than once (--feet)")
+        if self.arm_ee is not None and self.arm_ee in self.feet:
+            raise ModelError(f"'{self.arm_ee}' is given both as a foot and as the arm end-effector (--feet, --arm-ee)")
+        if self.pose is not None and self.srdf is None:
+            raise ModelError(f"a pose name ('{self.pose}', --pose) needs the SRDF that defines it (--srdf FILE)")
+        duplicates = sorted({j for j in self.locked_joints if self.locked_joints.count(j) > 1})
+        if duplicates:
+            raise ModelError(f"joints to lock must be distinct; {', '.join(duplicates)} given more than once (--lock)")
+
 
 class RobotModel:
     """A legged robot (optionally with an arm) on a free-flyer root.
@@ -108,7 +120,10 @@ class RobotModel:
             return q
         if spec.pose is None:
             raise ModelError(f"an SRDF was given ({spec.srdf}) but no pose name (--pose NAME)")
-        root = ET.parse(spec.srdf).getroot()
+        try:
+            root = ET.parse(spec.srdf).getroot()
+        except ET.ParseError as exc:
+            raise ModelError(f"SRDF {spec.srdf} is not well-formed XML ({exc}); fix the file or drop --srdf") from None
         states = {s.get("name"): s for s in root.iter("group_state")}
         if spec.pose not in states:
             raise ModelError(
@@ -116,7 +131,14 @@ class RobotModel:
             )
         for joint in states[spec.pose].iter("joint"):
             name = joint.get("name")
-            values = np.array([float(x) for x in joint.get("value", "").split()])
+            try:
+                values = np.array([float(x) for x in joint.get("value", "").split()])
+            except ValueError:
+                raise ModelError(f"SRDF {spec.srdf}, pose '{spec.pose}': joint '{name}' has a non-numeric value "
+                                 f"{joint.get('value')!r}; give numbers in radians (or metres)") from None
+            if not np.all(np.isfinite(values)):
+                raise ModelError(f"SRDF {spec.srdf}, pose '{spec.pose}': joint '{name}' has a non-finite value "
+                                 f"{joint.get('value')!r}")
             if not full.existJointName(name):
                 continue  # SRDFs often name joints of other variants; ignore them like pinocchio does
             jid = full.getJointId(name)

@@ -9,7 +9,7 @@ import numpy as np
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import Event, RunLog
 from wbmpc.control.mpc import Commands
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GAIT_NAMES
 from wbmpc.robots import RobotModel
 
@@ -44,29 +44,38 @@ class ScenarioOptions:
     compliant_return_gain_1_s: float = 0.5  # 0: the paper's pure zero end-effector velocity target
 
     def __post_init__(self):
+        """Ranges of every knob, checked before anything is built (the CLI names the flag of a field)."""
         if self.gait is not None and self.gait not in GAIT_NAMES:
-            raise ConfigError(f"unknown gait '{self.gait}'; available gaits: {', '.join(GAIT_NAMES)}")
-        for name in ("load_kg", "box_kg"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"--{name.replace('_kg', '-kg').replace('_', '-')} must be a positive mass in kg, got {value}")
-        if self.force_n is not None and not (np.isfinite(self.force_n) and self.force_n > 0):
-            raise ConfigError(f"--force-n is the magnitude of the end-effector force target and must be positive, got {self.force_n}")
-        for name in ("load_friction_mu", "board_friction_mu", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm",
-                     "compliant_return_gain_1_s"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ConfigError(f"{name} must be >= 0, got {value}")
-        for name in ("cable_length_m", "wipe_size_m", "wipe_period_s"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"{name} must be positive, got {value}")
-        if self.pull_speed_m_s < 0:
-            raise ConfigError(f"pull speed must be >= 0 m/s (the direction is backwards), got {self.pull_speed_m_s}")
+            raise ConfigError.for_field("gait", f"must be one of {', '.join(GAIT_NAMES)}; got '{self.gait}'")
+        ranges = {  # field: (low, high, low_open, unit)
+            "speed_m_s": (-1.5, 1.5, False, "m/s"),
+            "push_speed_m_s": (0.0, 5.0, False, "m/s"),
+            "push_direction_deg": (-360.0, 360.0, False, "deg"),
+            "push_time_s": (0.0, None, False, "s"),
+            "arm_amplitude_m": (0.0, 0.5, False, "m"),
+            "arm_period_s": (0.0, 60.0, True, "s"),
+            "arm_feedback_gain_1_s": (0.0, 100.0, False, "1/s"),
+            "load_kg": (0.0, 1000.0, True, "kg"),
+            "load_friction_mu": (0.0, 5.0, False, ""),
+            "cable_length_m": (0.0, 10.0, True, "m"),
+            "pull_speed_m_s": (0.0, 1.5, False, "m/s"),  # the direction is backwards
+            "force_n": (0.0, 1e4, True, "N"),
+            "box_kg": (0.0, 1000.0, True, "kg"),
+            "board_friction_mu": (0.0, 5.0, False, ""),
+            "wipe_size_m": (0.0, 0.5, True, "m"),
+            "wipe_period_s": (0.0, 60.0, True, "s"),
+            "hand_force_n": (0.0, 1e3, False, "N"),
+            "compliant_kp_arm": (0.0, 1e4, False, ""),
+            "compliant_kd_arm": (0.0, 1e4, False, ""),
+            "compliant_return_gain_1_s": (0.0, 100.0, False, "1/s"),
+        }
+        for name, (low, high, low_open, unit) in ranges.items():
+            check_number(name, getattr(self, name), low=low, high=high, low_open=low_open, unit=unit,
+                         allow_none=name == "force_n")
         if self.board not in ("vertical", "horizontal"):
-            raise ConfigError(f"--board must be vertical or horizontal, got {self.board!r}")
+            raise ConfigError.for_field("board", f"must be vertical or horizontal, got {self.board!r}")
         if self.wipe_pattern not in ("circle", "eight"):
-            raise ConfigError(f"--pattern must be circle or eight, got {self.wipe_pattern!r}")
+            raise ConfigError.for_field("wipe_pattern", f"must be circle or eight, got {self.wipe_pattern!r}")
 
 
 @dataclass
@@ -107,6 +116,12 @@ class Scenario:
 
     def extra_metrics(self, robot: RobotModel, log: RunLog) -> dict:
         return {}
+
+    def failure(self, metrics: dict) -> str | None:
+        """Why the run failed its task (`wbmpc run` then exits 1), or None: by default, a fall."""
+        if metrics.get("fell"):
+            return f"the robot fell at {metrics['fell_at_s']:.2f} s"
+        return None
 
     def extra_plots(self, robot: RobotModel, log: RunLog, out_dir) -> list:
         return []

@@ -353,6 +353,11 @@ class Pull(_ForceTask):
         })
         return out
 
+    def failure(self, metrics):
+        if not metrics.get("interrupted") and not metrics.get("fell") and metrics.get("pulled") is False:
+            return "the load was not pulled (it moved less than half the commanded way)"
+        return super().failure(metrics)
+
 
 # ----------------------------------------------------------------------------- push-box
 class PushBox(_ForceTask):

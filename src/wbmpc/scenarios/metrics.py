@@ -1,4 +1,4 @@
-"""Scenario metrics from a closed-loop `RunLog` (keys of `metrics.json`, see DESIGN.md)."""
+"""Scenario metrics from a closed-loop `RunLog` (the keys of `metrics.json`)."""
 
 from __future__ import annotations
 
@@ -55,6 +55,7 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "solve_ms": {"mean": float(np.mean(solve)), "std": float(np.std(solve)), "max": float(np.max(solve))},
         "iterations_mean": float(np.mean(a["iterations"])),
         "mpc_failures": int(log.mpc_failures),
+        "mpc_recoveries": int(log.mpc_recoveries),  # failed first, solved by a recovery re-solve
         "mpc_solves": n_solves,
         "mpc_rate_hz": float(n_solves / duration) if duration > 0 else None,
         "late_solution_share": float(log.late_solutions / max(n_solves, 1)),

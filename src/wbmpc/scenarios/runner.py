@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -10,17 +9,23 @@ from typing import Callable
 import numpy as np
 
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.loop import ClosedLoop, LoopConfig, RunLog
+from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
 from wbmpc.control.mpc import MPC, MpcConfig
-from wbmpc.errors import ConfigError
-from wbmpc.ocp.grid import TimeGrid
+from wbmpc.errors import ConfigError, check_number, unknown_name
+from wbmpc.interrupt import stop_flag
+from wbmpc.ocp.formulations import FORMULATIONS
+from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
-from wbmpc.sim import make_plant
-from wbmpc.solvers.nlp import SolverConfig
+from wbmpc.scenarios.outputs import write_output_files
+from wbmpc.sim import PLANTS, make_plant
+from wbmpc.solvers.nlp import SOLVERS, SolverConfig
+from wbmpc.strict_json import to_json
+
+MAX_DURATION_S = 3600.0  # one simulated hour; longer runs are split by the caller
 
 
 @dataclass
@@ -39,10 +44,23 @@ class RunConfig:
     seed: int = 0
 
     def __post_init__(self):
-        if self.duration_s is not None and not self.duration_s > 0:
-            raise ConfigError(f"duration must be positive, got {self.duration_s} s")
-        if self.nodes < 2:
-            raise ConfigError(f"the horizon needs at least 2 nodes, got {self.nodes}")
+        """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
+        check_number("duration_s", self.duration_s, low=0.0, high=MAX_DURATION_S, low_open=True, unit="s",
+                     allow_none=True)
+        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int):
+            raise ConfigError.for_field("nodes", f"must be an integer, got {self.nodes!r}")
+        check_number("nodes", self.nodes, low=2, high=MAX_INTERVALS + 1)
+        check_number("uniform_dt_ms", self.uniform_dt_ms, low=0.0, high=1e3 * MAX_STEP_S, low_open=True, unit="ms",
+                     allow_none=True)
+        fixed_delay_s(self.delay)
+        if self.plant not in PLANTS:
+            raise ConfigError.for_field("plant", f"must be one of {', '.join(PLANTS)}; got '{self.plant}'")
+        if self.formulation not in FORMULATIONS:
+            raise ConfigError(unknown_name("formulation", self.formulation, FORMULATIONS))
+        if self.solver not in SOLVERS:
+            raise ConfigError(unknown_name("solver", self.solver, SOLVERS))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError.for_field("seed", f"must be an integer >= 0, got {self.seed!r}")
 
 
 @dataclass
@@ -54,13 +72,15 @@ class ScenarioResult:
 
 def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
     n = config.nodes - 1
-    grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms else TimeGrid(n_intervals=n)
+    grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
                      solver=SolverConfig(name=config.solver, compiled=config.compiled))
 
 
-def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float], None] | None = None,
-                 mpc: MPC | None = None) -> ScenarioResult:
+def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
+                 mpc: MPC | None = None, stop: Callable[[], bool] | None = None) -> ScenarioResult:
+    """Build, run and measure a scenario. Ctrl-C stops the run early (see `wbmpc.interrupt`) and the
+    result keeps what was measured, with `metrics["interrupted"]`; `stop` replaces that flag."""
     scenario = make_scenario(config.scenario, robot, config.options)
     duration = config.duration_s or scenario.default_duration_s
     scene = scenario.scene(robot)
@@ -69,6 +89,13 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config))
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
+    with stop_flag(stop) as stop:
+        if stop():  # Ctrl-C while building (CasADi's C++ build does not raise): stop before running
+            raise KeyboardInterrupt
+        return _run(robot, config, scenario, scene, mpc, duration, progress, stop)
+
+
+def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
     plant = make_plant(config.plant, robot, scene.plant_config() if scene is not None else None)
     if scene is not None:
@@ -76,39 +103,32 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     gains = scenario.pd_gains(config.gains)
     loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
-    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress)
+    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
+    if not log.t:  # interrupted before the first control tick: nothing was measured
+        raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
-                    "time_steps": "uniform" if config.uniform_dt_ms else "geometric"})
+                    "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
+                    "requested_duration_s": float(duration), "interrupted": bool(log.interrupted)})
     result = ScenarioResult(scenario, metrics, log)
     result.plant = plant  # type: ignore[attr-defined]
     return result
 
 
-def prepare_output_dir(out_dir: Path) -> Path:
-    """Create the output directory and check it is writable (before a long run, not after)."""
-    out_dir = Path(out_dir)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / ".write_test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(f"cannot write to output directory {out_dir}: {exc.strerror}; choose another --out") from None
-    return out_dir
-
-
 def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> list[Path]:
-    """metrics.json, PNG plots and a self-contained HTML replay."""
-    out_dir = prepare_output_dir(out_dir)
-    paths = [out_dir / "metrics.json"]
-    paths[0].write_text(json.dumps(result.metrics, indent=2))
-    from wbmpc.viz import save_plots, save_replay
+    """metrics.json, PNG plots and a self-contained HTML replay, published together (`outputs.py`)."""
 
-    reference = result.scenario.ee_reference(robot)
-    paths += save_plots(robot, result.log, out_dir, ee_reference=reference)
-    arrays = result.log.arrays()
-    paths += result.scenario.extra_plots(robot, result.log, out_dir)
-    paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html"))
-    return paths
+    def write(folder: Path) -> list[Path]:
+        from wbmpc.viz import save_plots, save_replay
+
+        paths = [folder / "metrics.json"]
+        paths[0].write_text(to_json(result.metrics, indent=2) + "\n")
+        reference = result.scenario.ee_reference(robot)
+        paths += save_plots(robot, result.log, folder, ee_reference=reference)
+        arrays = result.log.arrays()
+        paths += result.scenario.extra_plots(robot, result.log, folder)
+        paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html"))
+        return paths
+
+    return write_output_files(out_dir, write)

@@ -12,6 +12,7 @@ from typing import Callable
 
 from wbmpc.control.mpc import MPC
 from wbmpc.errors import ConfigError
+from wbmpc.interrupt import stop_flag
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.runner import RunConfig, mpc_config_for, run_scenario
@@ -27,45 +28,54 @@ def parse_loads(text: str) -> list[float]:
         raise ConfigError(f"--sweep takes comma-separated masses in kg, e.g. 6,10,14,18; got {text!r}") from None
     if not loads:
         raise ConfigError("--sweep needs at least one load in kg")
-    bad = [x for x in loads if not x > 0]
+    bad = [x for x in loads if not 0 < x <= 1000]  # also NaN and inf
     if bad:
-        raise ConfigError(f"--sweep loads must be positive masses in kg, got {bad}")
+        raise ConfigError(f"--sweep loads must be masses in kg in (0, 1000], got {bad}")
     return sorted(loads)
 
 
 def pull_sweep(robot: RobotModel, loads_kg: list[float], config: RunConfig,
-               progress: Callable[[float, float], None] | None = None,
-               on_row: Callable[[dict], None] | None = None) -> dict:
-    """Run `pull` for each load; returns {"gait", "rows": [...], "max_pulled_kg"}.
+               progress: Callable[[float, float, int], None] | None = None,
+               on_row: Callable[[dict], None] | None = None, stop: Callable[[], bool] | None = None) -> dict:
+    """Run `pull` for each load; returns {"gait", "rows": [...], "max_pulled_kg", "interrupted"}.
 
-    `on_row(report so far)` is called after every load (a long sweep keeps what it measured)."""
+    `progress(load, share, recovered steps)`; `on_row(report so far)` is called after every load (a
+    long sweep keeps what it measured). Ctrl-C (or `stop()`) ends the sweep after the current run."""
     if config.scenario != "pull":
         raise ConfigError(f"the load sweep runs the pull scenario, not {config.scenario!r}")
     mpc: MPC | None = None
-    rows = []
-    for load in loads_kg:
-        run_config = replace(config, options=replace(config.options, load_kg=load))
-        row = {"load_kg": load}
-        try:
-            scenario = make_scenario("pull", robot, run_config.options)
-        except ConfigError as exc:
-            row.update({"rejected": str(exc), "pulled": False})
-        else:
-            mpc = mpc or MPC(robot, mpc_config_for(scenario, run_config))
-            result = run_scenario(robot, run_config, mpc=mpc,
-                                  progress=(lambda s, m=load: progress(m, s)) if progress else None)
-            row.update({k: result.metrics.get(k) for k in ROW_KEYS})
-            row["solve_ms_mean"] = result.metrics["solve_ms"]["mean"]
-        rows.append(row)
-        if on_row:
-            on_row(_report(config, rows))
-    return _report(config, rows)
+    rows, interrupted = [], False
+    with stop_flag(stop) as stop:
+        for load in loads_kg:
+            if stop():
+                interrupted = True
+                break
+            run_config = replace(config, options=replace(config.options, load_kg=load))
+            row = {"load_kg": load}
+            try:
+                scenario = make_scenario("pull", robot, run_config.options)
+            except ConfigError as exc:
+                row.update({"rejected": str(exc), "pulled": False})
+            else:
+                mpc = mpc or MPC(robot, mpc_config_for(scenario, run_config))
+                result = run_scenario(robot, run_config, mpc=mpc, stop=stop,
+                                      progress=(lambda s, r, m=load: progress(m, s, r)) if progress else None)
+                row.update({k: result.metrics.get(k) for k in ROW_KEYS})
+                row["solve_ms_mean"] = result.metrics["solve_ms"]["mean"]
+                row["interrupted"] = interrupted = result.metrics["interrupted"]
+            rows.append(row)
+            if on_row:
+                on_row(_report(config, rows, interrupted))
+            if interrupted:
+                break
+    return _report(config, rows, interrupted)
 
 
-def _report(config: RunConfig, rows: list[dict]) -> dict:
-    pulled = [r["load_kg"] for r in rows if r.get("pulled")]
+def _report(config: RunConfig, rows: list[dict], interrupted: bool = False) -> dict:
+    pulled = [r["load_kg"] for r in rows if r.get("pulled") and not r.get("interrupted")]
     return {"scenario": "pull", "gait": config.options.gait or "trot", "load_friction_mu": config.options.load_friction_mu,
-            "duration_s": config.duration_s, "rows": list(rows), "max_pulled_kg": max(pulled) if pulled else None}
+            "duration_s": config.duration_s, "rows": list(rows), "max_pulled_kg": max(pulled) if pulled else None,
+            "interrupted": bool(interrupted)}
 
 
 def sweep_table(report: dict) -> str:
@@ -85,4 +95,6 @@ def sweep_table(report: dict) -> str:
                      f"{f(r['ee_force_err_rel'] and 100 * r['ee_force_err_rel'], '8.1f')} "
                      f"{f(r['torque_ratio_joint3'], '7.2f')}")
     lines.append(f"largest load pulled: {report['max_pulled_kg']} kg")
+    if report.get("interrupted"):
+        lines.append("(interrupted by Ctrl-C: loads after the last row were not run)")
     return "\n".join(lines)

@@ -7,7 +7,10 @@ states in pinocchio layout (see `wbmpc.sim.base`).
 
 from wbmpc.sim.base import Plant, PlantConfig, PlantDivergedError, PlantInputError, Recording
 
+PLANTS = ("mujoco", "pinocchio")
+
 __all__ = [
+    "PLANTS",
     "MujocoPlant",
     "MujocoPlantConfig",
     "PinocchioPlant",

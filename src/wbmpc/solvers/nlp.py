@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from wbmpc.errors import ConfigError
+from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
 
@@ -257,7 +258,8 @@ class NlpSolver:
         self.solver = self._solver_for(lbx, ubx, lbg, ubg)
         start, start_cpu = time.perf_counter(), time.thread_time()
         try:
-            out = self.solver(**args)
+            with deliver_after():  # CasADi's Fatrop swallows Ctrl-C, its IPOPT turns it into a failed solve
+                out = self.solver(**args)
         except RuntimeError as exc:  # errors inside the solver are reported, not raised
             return self._failure(x0, f"solver_exception: {str(exc).splitlines()[-1][:200]}")
         elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu

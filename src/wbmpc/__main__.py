@@ -1,0 +1,7 @@
+"""`python -m wbmpc` runs the `wbmpc` command."""
+
+import sys
+
+from wbmpc.cli import main
+
+sys.exit(main())
