@@ -89,3 +89,15 @@ def test_missing_compiler_falls_back_to_the_virtual_machine(problem, tmp_path):
     assert "no-such-cc" in solver.compile_error
     assert any("non-compiled" in str(w.message) for w in caught)
     assert list(tmp_path.iterdir()) == []  # nothing half-written left in the cache
+
+
+def test_native_code_is_cached_per_cpu(monkeypatch):
+    from wbmpc.solvers import codegen
+
+    native, portable = CodegenConfig(flags=("-O1", "-march=native")), CodegenConfig(flags=("-O1",))
+    monkeypatch.setattr(codegen, "cpu_identity", lambda: "cpu A")
+    key_a, key_portable_a = codegen.cache_key("code", native), codegen.cache_key("code", portable)
+    monkeypatch.setattr(codegen, "cpu_identity", lambda: "cpu B")
+    assert codegen.cache_key("code", native) != key_a
+    assert codegen.cache_key("code", portable) == key_portable_a
+    assert codegen.cache_key("other code", portable) != key_portable_a

@@ -68,6 +68,14 @@ def default_cache_dir() -> Path:
     return base / "wbmpc"
 
 
+def cache_key(code: str, config: CodegenConfig) -> str:
+    """Hash of everything the library depends on: casadi, compiler, flags, the C code, and the CPU when
+    the flags tune for it (-march=native code may not run on another CPU)."""
+    native = any(flag.startswith(("-march=native", "-mtune=native", "-mcpu=native")) for flag in config.flags)
+    parts = [ca.__version__, config.compiler, *config.flags, cpu_identity() if native else "", code]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
 def cpu_identity() -> str:
     """Model name and feature flags of this CPU: code built with -march=native is cached per CPU."""
     try:
@@ -215,8 +223,7 @@ def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConf
         generator.add(function)
     code = generator.dump()
     generate_s = time.perf_counter() - start
-    cpu = cpu_identity() if any(flag.startswith(("-march=native", "-mtune=native")) for flag in config.flags) else ""
-    key = hashlib.sha256("\n".join([ca.__version__, config.compiler, *config.flags, cpu, code]).encode()).hexdigest()[:16]
+    key = cache_key(code, config)
     cache = Path(config.cache_dir or default_cache_dir())
     try:
         cache.mkdir(parents=True, exist_ok=True)
