@@ -314,7 +314,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, metavar="S",
                      help="simulated seconds, at most 3600 (default: the scenario's, listed below)")
     run.add_argument("--delay", default="none", help="none (default: the simulation waits for the solver) | measured "
-                     "(the solve's wall time elapses) | realtime (solver in its own process, wall-clock paced) | "
+                     "(the step's CPU time elapses: its time on a core of its own) | measured-wall (its wall time) | "
+                     "realtime (solver in its own process, wall-clock paced) | "
                      "a fixed delay of 0-1000 ms")
     run.add_argument("--plant", default="mujoco", choices=("mujoco", "pinocchio"),
                      help="simulator: mujoco (default) or pinocchio (rigid contacts, no scene objects)")

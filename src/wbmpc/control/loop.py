@@ -1,9 +1,10 @@
 """The deployment pipeline (section V-B): MPC at 80 Hz, interpolation and joint PD at 500 Hz.
 
 Delay modes: `none` (the simulation waits for the solver, section VI-B1), `measured` (the
-solver's wall time elapses in simulation before its solution applies, VI-B2), a fixed delay in
-milliseconds, and `realtime` (the MPC runs in its own process while the simulation advances at
-wall-clock speed). Until a newer solution is ready the
+step's CPU time elapses in simulation before its solution applies, VI-B2: the time the step takes on
+a core of its own, whatever else the machine runs), `measured-wall` (its wall time instead), a fixed
+delay in milliseconds, and `realtime` (the MPC runs in its own process while the simulation
+advances at wall-clock speed). Until a newer solution is ready the
 last good one keeps being interpolated; failed solves are counted and never applied.
 """
 
@@ -22,7 +23,7 @@ from wbmpc.control.mpc import MPC, Commands
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 
-DELAY_MODES = ("none", "measured", "realtime")
+DELAY_MODES = ("none", "measured", "measured-wall", "realtime")
 RECOVERY_MARK = "(recovery after"  # in the status of a step that needed a recovery re-solve
 
 Progress = Callable[[float, int], None]  # (share of the run done, recovered steps so far)
@@ -60,7 +61,7 @@ def fixed_delay_s(delay: str) -> float | None:
     try:
         value = float(delay)
     except (TypeError, ValueError):
-        raise ConfigError.for_field("delay", f"must be none, measured, realtime or a number of ms; got '{delay}'") from None
+        raise ConfigError.for_field("delay", f"must be none, measured, measured-wall, realtime or a number of ms; got '{delay}'") from None
     check_number("delay", value, low=0.0, high=MAX_FIXED_DELAY_MS, unit="ms")
     return value / 1e3
 
@@ -180,9 +181,10 @@ class ClosedLoop:
     def _solve(self, log: RunLog, t: float, commands: CommandSource) -> Solution:
         q, v = self._measure()
         command = commands(t, q, v)
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         solution = self.mpc.solve(q, v, command, t)
         solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
+        solution.cpu_time_s = time.thread_time() - start_cpu  # type: ignore[attr-defined]
         self._log_solution(log, t, command, solution)
         return solution
 
@@ -251,7 +253,8 @@ class ClosedLoop:
             if t >= next_mpc - 1e-9 and t >= solver_free_at - 1e-9:
                 solution = self._solve(log, t, commands)
                 delay = 0.0 if cfg.delay == "none" else (
-                    solution.wall_time_s if cfg.delay == "measured" else cfg.fixed_delay_s)
+                    solution.cpu_time_s if cfg.delay == "measured" else
+                    solution.wall_time_s if cfg.delay == "measured-wall" else cfg.fixed_delay_s)
                 solver_free_at = t + delay
                 if delay > mpc_period:
                     log.late_solutions += 1

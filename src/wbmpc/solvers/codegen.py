@@ -72,7 +72,7 @@ def cache_key(code: str, config: CodegenConfig) -> str:
     """Hash of everything the library depends on: casadi, compiler, flags, the C code, and the CPU when
     the flags tune for it (-march=native code may not run on another CPU)."""
     native = any(flag.startswith(("-march=native", "-mtune=native", "-mcpu=native")) for flag in config.flags)
-    parts = [ca.__version__, config.compiler, *config.flags, cpu_identity() if native else "", code]
+    parts = [ca.__version__, config.compiler, *config.flags, *([cpu_identity()] if native else []), code]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 

@@ -213,7 +213,10 @@ class RtiSolver:
             lam_g=lam_g if lam_g is not None else np.zeros(n),
             lam_x=lam_x if lam_x is not None else np.zeros_like(x),
             stats=SolverStats(status=status, success=success, iterations=qp_iterations, solve_time_s=elapsed,
-                              max_constraint_violation=viol, cost=cost),
+                              max_constraint_violation=viol, cost=cost, cpu_time_s=self.last_timing["cpu_ms"] / 1e3,
+                              split_ms={"linearize": self.last_timing["linearize_ms"], "qp": self.last_timing["qp_ms"],
+                                        "evaluate": self.last_timing["evaluate_ms"],
+                                        "outside_solver": self.last_timing["other_ms"]}),
         )
         if not success and self.rti.recovery_barrier_init is not None:
             result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
