@@ -52,6 +52,9 @@ class CostWeights:
         }
 
 
+BASE_TRACKING_MODES = ("position", "velocity")
+
+
 @dataclass
 class MpcConfig:
     ocp: OcpConfig = field(default_factory=OcpConfig)
@@ -67,6 +70,16 @@ class MpcConfig:
     max_ee_speed_m_s: float = 1.0
     recovery_barrier_init: float | None = 0.1  # a fresh Fatrop with this initial barrier re-solves a failed step
     fallback_solver: str | None = "ipopt"  # then re-solves a step still failed; None disables
+    # "position": the base x/y/yaw targets integrate the commanded velocity from where the run
+    # started, so the cost's position rows pull drift back (an anchor). "velocity": the paper's
+    # velocity-only tracking; the x/y/yaw targets restart from the measured base every step, so
+    # only the base velocity rows act on the horizontal motion and drift is not corrected.
+    base_tracking: str = "position"
+
+    def __post_init__(self):
+        if self.base_tracking not in BASE_TRACKING_MODES:
+            raise ConfigError(f"base tracking must be one of {', '.join(BASE_TRACKING_MODES)} "
+                              f"(--base-tracking), got {self.base_tracking!r}")
 
 
 @dataclass
@@ -159,13 +172,15 @@ class MPC:
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
         dt_since = 0.0 if self._last_t is None else max(0.0, t - self._last_t)
         self._last_t = t
-        if self._xy_reference is None:
+        velocity_only = self.config.base_tracking == "velocity"
+        if self._xy_reference is None or velocity_only:
             self._xy_reference, self._yaw_reference = q[:2].copy(), yaw
         cos_y, sin_y = np.cos(self._yaw_reference), np.sin(self._yaw_reference)
         heading = np.array([[cos_y, -sin_y, 0], [sin_y, cos_y, 0], [0, 0, 1]])
         v_world = heading @ np.asarray(commands.base_velocity_m_s, dtype=float)
-        self._xy_reference = self._xy_reference + v_world[:2] * dt_since
-        self._yaw_reference = self._yaw_reference + commands.base_yaw_rate_rad_s * dt_since
+        if not velocity_only:
+            self._xy_reference = self._xy_reference + v_world[:2] * dt_since
+            self._yaw_reference = self._yaw_reference + commands.base_yaw_rate_rad_s * dt_since
         # keep the references within reach of the robot (no wind-up after a push)
         offset = self._xy_reference - q[:2]
         if np.linalg.norm(offset) > 0.3:
