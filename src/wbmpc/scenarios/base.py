@@ -38,6 +38,7 @@ class ScenarioOptions:
     wipe_pattern: str = "circle"  # circle | eight
     wipe_size_m: float = 0.1
     wipe_period_s: float = 4.0
+    wipe_pad_stiffness_n_m: float = 2000.0  # wipe: sprung pad on the end-effector (0: the rigid sphere)
     hand_force_n: float = 30.0  # compliant: peak force of the external hand
     compliant_kp_arm: float = 2.0
     compliant_kd_arm: float = 0.3
@@ -52,7 +53,7 @@ class ScenarioOptions:
                 raise ConfigError(f"--{name.replace('_kg', '-kg').replace('_', '-')} must be a positive mass in kg, got {value}")
         if self.force_n is not None and not (np.isfinite(self.force_n) and self.force_n > 0):
             raise ConfigError(f"--force-n is the magnitude of the end-effector force target and must be positive, got {self.force_n}")
-        for name in ("load_friction_mu", "board_friction_mu", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm",
+        for name in ("load_friction_mu", "board_friction_mu", "wipe_pad_stiffness_n_m", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm",
                      "compliant_return_gain_1_s"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
@@ -93,6 +94,17 @@ class Scenario:
     def ee_reference(self, robot: RobotModel):
         """Callable t -> EE position reference (world), or None."""
         return None
+
+    ee_error_label = "|p - p_ref|"
+
+    def ee_tracking_error(self, robot: RobotModel, t: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(error vectors (n, 3), mask of the samples counted) of measured end-effector positions `ee`
+        at times `t`: what `ee_pos_rmse_m` and the end-effector plot's RMSE are computed from. By
+        default the 3D distance to `ee_reference` over the whole run; None without a reference."""
+        reference = self.ee_reference(robot)
+        if reference is None:
+            return None
+        return ee - np.array([np.asarray(reference(float(tk)), dtype=float) for tk in t]), np.ones(len(t), dtype=bool)
 
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""

@@ -42,7 +42,7 @@ from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
-from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, ExternalHand, HandPush, Scene
+from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, CompliantPad, ExternalHand, HandPush, Scene
 
 EE_SPHERE_RADIUS_M = 0.03  # MujocoPlantConfig.ee_sphere_radius_m default: contact offset of the EE frame
 FEEDBACK_GAIN_1_S = 4.0
@@ -237,9 +237,12 @@ class _ForceTask(Scenario):
     def extra_plots(self, robot, log, out_dir):
         from wbmpc.viz.plots import plot_ee_force
 
+        from wbmpc.viz.plots import RunMarks
+
         s = self.force_series(log)
         return [plot_ee_force(s["t"], s["measured_n"], s["target_n"], out_dir / "ee_force.png",
-                              title=f"{self.name}: end-effector force on the {self.object_name}")]
+                              title=f"{self.name}: end-effector force on the {self.object_name}",
+                              marks=RunMarks.from_log(log))]
 
 
 # ----------------------------------------------------------------------------- pull
@@ -435,7 +438,9 @@ class Wipe(_ForceTask):
         return self._board
 
     def _objects(self, robot):
-        return [self.board(robot)]
+        stiffness = self.options.wipe_pad_stiffness_n_m
+        return [self.board(robot)] + ([CompliantPad(stiffness_n_m=stiffness, radius_m=EE_SPHERE_RADIUS_M)]
+                                      if stiffness > 0 else [])
 
     def _phase(self, t: float) -> tuple[float, float]:
         """Pattern phase and its rate: the rate ramps linearly to 2 pi / period over SPEED_UP_S."""
@@ -495,17 +500,23 @@ class Wipe(_ForceTask):
 
         return command
 
+    ee_error_label = "in-plane |p - p_ref| from the pattern's start"
+
+    def ee_tracking_error(self, robot, t, ee):
+        """In-plane error (the normal is force-controlled) from the pattern's start."""
+        reference = np.array([self.path(robot, float(ti))[0] for ti in t])
+        normal = self.board(robot).normal
+        error = ee - reference
+        return error - np.outer(error @ normal, normal), np.asarray(t) >= self.PATTERN_START_S
+
     def extra_metrics(self, robot, log):
         out = super().extra_metrics(robot, log)
         a = log.arrays()
         t = a["t"]
         ee = robot.frame_trajectories(a["q"], [robot.arm_ee])[robot.arm_ee]
         reference = np.array([self.path(robot, ti)[0] for ti in t])
-        normal = self.board(robot).normal
-        error = ee - reference
-        normal_error = error @ normal
-        in_plane = error - np.outer(normal_error, normal)
-        use = t >= self.PATTERN_START_S
+        normal_error = (ee - reference) @ self.board(robot).normal
+        in_plane, use = self.ee_tracking_error(robot, t, ee)
         dist = np.linalg.norm(in_plane[use], axis=1)
         out.update({
             "ee_pos_rmse_m": float(np.sqrt(np.mean(dist**2))) if use.any() else None,
@@ -514,7 +525,12 @@ class Wipe(_ForceTask):
             "board": self.options.board,
             "wipe_pattern": self.options.wipe_pattern,
             "board_friction_mu": self.options.board_friction_mu,
+            "pad_stiffness_n_m": self.options.wipe_pad_stiffness_n_m,
         })
+        if self.options.wipe_pad_stiffness_n_m > 0 and use.any():
+            t_pad, deflection = self._scene.recording.series("pad", "deflection_m")
+            late = t_pad >= self.PATTERN_START_S
+            out["pad_deflection_mean_mm"] = float(1e3 * np.mean(np.linalg.norm(deflection[late], axis=1)))
         return out
 
 

@@ -36,6 +36,7 @@ class RunConfig:
     solver: str = "fatrop"
     formulation: str = "wb_inverse"
     compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
+    base_tracking: str = "position"  # MpcConfig.base_tracking: "position" (anchored) | "velocity" (the paper's)
     seed: int = 0
 
     def __post_init__(self):
@@ -50,13 +51,15 @@ class ScenarioResult:
     scenario: Scenario
     metrics: dict
     log: RunLog
+    scene: object | None = None  # wbmpc.sim.objects.Scene with the objects' recordings, if any
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms else TimeGrid(n_intervals=n)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled))
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled),
+                     base_tracking=config.base_tracking)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float], None] | None = None,
@@ -80,8 +83,9 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
-                    "time_steps": "uniform" if config.uniform_dt_ms else "geometric"})
-    result = ScenarioResult(scenario, metrics, log)
+                    "time_steps": "uniform" if config.uniform_dt_ms else "geometric",
+                    "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking})
+    result = ScenarioResult(scenario, metrics, log, scene)
     result.plant = plant  # type: ignore[attr-defined]
     return result
 
@@ -106,9 +110,14 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
     paths[0].write_text(json.dumps(result.metrics, indent=2))
     from wbmpc.viz import save_plots, save_replay
 
-    reference = result.scenario.ee_reference(robot)
-    paths += save_plots(robot, result.log, out_dir, ee_reference=reference)
+    scenario = result.scenario
+    reference = scenario.ee_reference(robot)
+    paths += save_plots(robot, result.log, out_dir, ee_reference=reference,
+                        ee_error=lambda t, ee: scenario.ee_tracking_error(robot, t, ee),
+                        ee_error_label=scenario.ee_error_label)
     arrays = result.log.arrays()
     paths += result.scenario.extra_plots(robot, result.log, out_dir)
-    paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html"))
+    scene = getattr(result, "scene", None)
+    paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html",
+                             objects=scene.replay_objects() if scene is not None else None, scenario=scenario.name))
     return paths
