@@ -79,7 +79,7 @@ def _scenario_options(args: argparse.Namespace):
         load_friction_mu=args.load_friction, cable_length_m=args.cable_length, pull_speed_m_s=args.pull_speed,
         force_n=args.force_n, box_kg=args.box_kg, board=args.board, board_friction_mu=args.board_friction,
         wipe_pattern=args.pattern, wipe_size_m=args.wipe_size, wipe_period_s=args.wipe_period,
-        wipe_pad_stiffness_n_m=args.pad_stiffness,
+        wipe_pad_stiffness_n_m=args.pad_stiffness, wipe_integral_gain_1_s2=args.wipe_integral,
         hand_force_n=args.hand_force, compliant_kp_arm=args.compliant_kp_arm, compliant_kd_arm=args.compliant_kd_arm,
         compliant_return_gain_1_s=args.compliant_return,
     )
@@ -217,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     manip.add_argument("--wipe-period", type=float, default=4.0, help="wipe: pattern period, s")
     manip.add_argument("--pad-stiffness", type=float, default=2000.0, metavar="N/M",
                        help="wipe: stiffness of the sprung wiping pad on the end-effector, N/m (0: rigid sphere)")
+    manip.add_argument("--wipe-integral", type=float, default=30.0, metavar="1/S2",
+                       help="wipe: integral gain on the in-plane path error, 1/s^2 (0: proportional feedback only)")
     manip.add_argument("--hand-force", type=float, default=30.0, help="compliant: peak force of the external hand, N")
     manip.add_argument("--compliant-kp-arm", type=float, default=2.0, help="compliant: arm joint Kp")
     manip.add_argument("--compliant-kd-arm", type=float, default=0.3, help="compliant: arm joint Kd")

@@ -39,6 +39,7 @@ class ScenarioOptions:
     wipe_size_m: float = 0.1
     wipe_period_s: float = 4.0
     wipe_pad_stiffness_n_m: float = 2000.0  # wipe: sprung pad on the end-effector (0: the rigid sphere)
+    wipe_integral_gain_1_s2: float = 30.0  # wipe: integral action on the in-plane path error (0: none)
     hand_force_n: float = 30.0  # compliant: peak force of the external hand
     compliant_kp_arm: float = 2.0
     compliant_kd_arm: float = 0.3
@@ -53,7 +54,7 @@ class ScenarioOptions:
                 raise ConfigError(f"--{name.replace('_kg', '-kg').replace('_', '-')} must be a positive mass in kg, got {value}")
         if self.force_n is not None and not (np.isfinite(self.force_n) and self.force_n > 0):
             raise ConfigError(f"--force-n is the magnitude of the end-effector force target and must be positive, got {self.force_n}")
-        for name in ("load_friction_mu", "board_friction_mu", "wipe_pad_stiffness_n_m", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm",
+        for name in ("load_friction_mu", "board_friction_mu", "wipe_pad_stiffness_n_m", "wipe_integral_gain_1_s2", "hand_force_n", "compliant_kp_arm", "compliant_kd_arm",
                      "compliant_return_gain_1_s"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):

@@ -135,6 +135,31 @@ def _feedback(v_ref: np.ndarray, p_ref: np.ndarray, p: np.ndarray, free_normal: 
     return velocity * (MAX_EE_SPEED_M_S / speed) if speed > MAX_EE_SPEED_M_S else velocity
 
 
+class _InPlaneIntegral:
+    """Integral action on the in-plane end-effector error: a velocity term Ki * int(e dt), clipped to
+    MAX_INTEGRAL_SPEED_M_S. On a board the pad's friction is an unmodelled force in the plane (the
+    force target only carries it along the motion; standing still, static friction acts in any
+    direction), which proportional feedback alone leaves as a steady offset of millimetres."""
+
+    MAX_INTEGRAL_SPEED_M_S = 0.05
+
+    def __init__(self, normal: np.ndarray, gain_1_s2: float):
+        self.normal, self.gain = np.asarray(normal, dtype=float), gain_1_s2
+        self.value = np.zeros(3)
+        self.last_t: float | None = None
+
+    def update(self, t: float, error_m: np.ndarray) -> np.ndarray:
+        """Integrate the in-plane part of `error_m` up to time t; the velocity term (m/s)."""
+        error = error_m - self.normal * (error_m @ self.normal)
+        if self.last_t is not None and self.gain > 0:
+            self.value = self.value + error * max(t - self.last_t, 0.0)
+            speed = self.gain * np.linalg.norm(self.value)
+            if speed > self.MAX_INTEGRAL_SPEED_M_S:
+                self.value *= self.MAX_INTEGRAL_SPEED_M_S / speed
+        self.last_t = t
+        return self.gain * self.value
+
+
 def _yaw_rotation(q: np.ndarray) -> np.ndarray:
     rot = pin.Quaternion(q[3:7]).toRotationMatrix()
     yaw = np.arctan2(rot[1, 0], rot[0, 0])
@@ -485,12 +510,15 @@ class Wipe(_ForceTask):
         normal = board.normal
         mu = self.options.board_friction_mu
 
+        integral = _InPlaneIntegral(normal, self.options.wipe_integral_gain_1_s2)
+
         def command(t, q, v):
             p_ref, v_ref = self.path(robot, t)
+            p = ee.position(q)
             if t < self.APPROACH_END_S:
-                velocity = _feedback(v_ref, p_ref - 0.005 * normal, ee.position(q))
+                velocity = _feedback(v_ref, p_ref - 0.005 * normal, p)
             else:
-                velocity = _feedback(v_ref, p_ref, ee.position(q), free_normal=normal)
+                velocity = _feedback(v_ref + integral.update(t, p_ref - p), p_ref, p, free_normal=normal)
             press = ramp(t, *self.RAMP_S) * self.force_magnitude_n
             force = -normal * press
             speed = np.linalg.norm(v_ref)
