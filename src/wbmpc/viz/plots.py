@@ -518,6 +518,10 @@ def ee_force_figure(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray,
     rel = np.full_like(measured_n, np.nan)
     rel[active] = 100 * (measured_n[active] - target_n[active]) / target_n[active]
     ax_err.plot(t, rel, linewidth=0.8, color=HIGHLIGHT_COLOR)
+    full = active & (target_n > 0.5 * float(np.max(target_n, initial=0.0)))  # not the ramp's first newtons
+    if full.any():
+        span = max(20.0, 1.2 * float(np.nanmax(np.abs(rel[full]))))
+        ax_err.set_ylim(-span, span)
     (marks or RunMarks()).draw(ax_err, labels=False)
     ax_err.axhline(10, color="gray", linestyle=":", linewidth=1)
     ax_err.axhline(-10, color="gray", linestyle=":", linewidth=1)
