@@ -117,7 +117,7 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
                         ee_error_label=scenario.ee_error_label)
     arrays = result.log.arrays()
     paths += result.scenario.extra_plots(robot, result.log, out_dir)
-    scene = getattr(result, "scene", None)
-    paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html",
-                             objects=scene.replay_objects() if scene is not None else None, scenario=scenario.name))
+    objects = result.scene.replay_objects() if result.scene is not None else None
+    paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html", objects=objects,
+                             scenario=scenario.name))
     return paths
