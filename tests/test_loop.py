@@ -8,7 +8,7 @@ import pytest
 from wbmpc.cli import main
 from wbmpc.control import MPC, MpcConfig
 from wbmpc.control.interpolator import JointReference, interpolate, pd_torque
-from wbmpc.control.loop import ClosedLoop, LoopConfig
+from wbmpc.control.loop import ClosedLoop, Event, LoopConfig
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
@@ -59,9 +59,10 @@ def test_short_trot_stays_up_in_mujoco(b1z1):
     mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="trot"))
     plant = make_plant("mujoco", b1z1)
     plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="none")).run(0.8)
+    log = ClosedLoop(mpc, plant, LoopConfig(delay="none")).run(0.8, events=[Event(0.4, lambda p: None, name="tap")])
     a = log.arrays()
     assert not log.fell
+    assert [name for _, name in log.events] == ["tap"] and abs(log.events[0][0] - 0.4) <= 1e-3  # logged for the plots
     assert log.mpc_failures == 0
     assert a["q"][:, 2].min() > 0.85 * b1z1.q_nominal[2]
     assert np.all(np.abs(a["tau"]) <= b1z1.tau_max + 1e-9)
@@ -111,3 +112,24 @@ def test_run_command_writes_metrics_with_the_contract_keys(tmp_path, capsys):
 def test_run_command_bad_input_exits_2(argv, message, capsys):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_settled_drift_leaves_out_the_start_transient():
+    """`base_drift_settled_cm_s` measures from SETTLE_S on: a 3 cm shift in the first 0.5 s followed by
+    1 cm/s from 2 s on reads 1.0 cm/s there, 1.17 cm/s over the whole run."""
+    from wbmpc.control.loop import RunLog
+    from wbmpc.control.mpc import Commands
+    from wbmpc.robots import load_robot
+    from wbmpc.scenarios.metrics import common_metrics
+
+    robot = load_robot("go2")
+    t = np.arange(0.0, 6.0, 0.002)
+    q = np.tile(robot.q_nominal, (t.size, 1))
+    q[:, 0] += np.where(t < 0.5, 0.06 * t, 0.03) + 0.01 * np.maximum(t - 2.0, 0.0)
+    log = RunLog(t=list(t), q=list(q), v=list(np.zeros((t.size, robot.nv))), tau=list(np.zeros((t.size, robot.n_joints))),
+                 tau_ff=list(np.zeros((t.size, robot.n_joints))), mpc_t=[0.0], commands=[Commands()], solve_ms=[1.0],
+                 iterations=[1], success=[True])
+    m = common_metrics(robot, log, "synthetic")
+    assert m["base_drift_settled_from_s"] == pytest.approx(2.0)
+    assert m["base_drift_settled_cm_s"] == pytest.approx(1.0, rel=1e-3)
+    assert m["base_drift_cm_s"] == pytest.approx(100 * 0.07 / t[-1], rel=1e-3)

@@ -3,6 +3,8 @@
 import json
 import re
 
+import matplotlib.image as mpimg
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -14,6 +16,9 @@ from wbmpc.robots import load_robot
 from wbmpc.robots.model import RobotModel
 from wbmpc.robots.presets import custom_spec, example_robot_data_dir
 from wbmpc.viz import base_velocity_heading, frame_positions, replay_data, save_plots, save_replay
+from wbmpc.viz.plots import (EVENT_COLOR, FALL_COLOR, HIGHLIGHT_COLOR, RECOVERY_COLOR, RunMarks, _save,
+                             base_velocity_figure, contact_forces_figure, ee_position_figure, ee_rmse_m,
+                             foot_heights_figure, joint_torques_figure, most_loaded_joints, solver_figure)
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -67,12 +72,40 @@ def bolt():
     return RobotModel(spec)
 
 
+def rgb(hex_color: str) -> np.ndarray:
+    return np.array([int(hex_color[k:k + 2], 16) for k in (1, 3, 5)]) / 255.0
+
+
+def color_mask(image: np.ndarray, hex_color: str, tol: float = 0.06, min_share: float = 0.6) -> np.ndarray:
+    """Pixels of `image` (rows, cols, 3|4) painted with a colour over white: exactly, or blended by
+    antialiasing with at least `min_share` of the colour (within `tol` per channel)."""
+    ink = 1.0 - rgb(hex_color)
+    paper = 1.0 - image[..., :3]
+    share = paper @ ink / max(float(ink @ ink), 1e-12)
+    blended = np.all(np.abs(paper - share[..., None] * ink) < tol, axis=-1) & (share > min_share)
+    exact = np.all(np.abs(image[..., :3] - rgb(hex_color)) < tol, axis=-1)
+    return blended | exact
+
+
 def assert_pngs(paths, expected_names):
+    """Every expected PNG exists, decodes, and shows plotted data: more than a few colours, and
+    the first data line colour (matplotlib's C0) covers at least some pixels."""
     assert sorted(p.name for p in paths) == sorted(expected_names)
     for path in paths:
-        content = path.read_bytes()
-        assert content.startswith(PNG_SIGNATURE), path
-        assert len(content) > 10_000, path
+        assert path.read_bytes().startswith(PNG_SIGNATURE), path
+        image = mpimg.imread(path)
+        assert image.ndim == 3 and image.shape[0] > 300 and image.shape[1] > 500, (path, image.shape)
+        packed = np.rint(255 * image[..., :3]).astype(np.uint32) @ np.array([65536, 256, 1], dtype=np.uint32)
+        assert np.unique(packed).size > 50, f"{path} is nearly blank"
+        assert color_mask(image, "#1f77b4").sum() > 200, f"{path}: no data line drawn"
+
+
+def pixel_column(fig, ax, image, t: float) -> tuple[int, slice]:
+    """Image column of time `t` on `ax` and the rows the axes span (after the figure was saved)."""
+    x, _ = ax.transData.transform((t, 0.0))
+    bbox = ax.get_window_extent()
+    height = image.shape[0]
+    return int(round(x)), slice(int(height - bbox.y1) + 3, int(height - bbox.y0) - 3)
 
 
 def embedded_json(html: str) -> dict:
@@ -124,6 +157,101 @@ def test_save_plots_rejects_a_log_of_another_robot(b1z1, tmp_path):
         save_plots(load_robot("go2"), synthetic_log(b1z1), tmp_path)
 
 
+def marked_log(robot):
+    """A synthetic log with a push at 0.1 s, steps 3 and 7 recovered, step 5 failed and a fall at 0.25 s."""
+    log = synthetic_log(robot)
+    log.events = [(0.1, "push")]
+    log.status = [f"Solve_Succeeded (recovery after fatrop: failed)" if k in (3, 7) else "ok" for k in range(len(log.mpc_t))]
+    log.fell, log.fell_at_s = True, 0.25
+    return log
+
+
+def saved_image(fig, path):
+    _save(fig, path)
+    return mpimg.imread(path)
+
+
+def test_event_marks_are_drawn_at_their_times(b1z1, tmp_path):
+    log = marked_log(b1z1)
+    marks = RunMarks.from_log(log)
+    mpc_t = np.array(log.mpc_t)
+    assert marks.events == ((0.1, "push"),) and marks.fell_at_s == pytest.approx(0.25)
+    np.testing.assert_allclose(marks.recovered_s, mpc_t[[3, 7]])
+    np.testing.assert_allclose(marks.failed_s, mpc_t[[5]])
+
+    fig = base_velocity_figure(b1z1, log.arrays(), log, marks)
+    image = saved_image(fig, tmp_path / "v.png")
+    ax = fig.axes[0]
+    push = color_mask(image, EVENT_COLOR)
+    col, rows = pixel_column(fig, ax, image, 0.1)
+    assert push[rows, col - 1 : col + 2].any(axis=1).mean() > 0.4, "no push line at t = 0.1 s"
+    quiet, _ = pixel_column(fig, ax, image, 0.2)
+    assert not push[rows, quiet - 2 : quiet + 3].any(), "push colour where no event happened"
+    fall = color_mask(image, FALL_COLOR, 0.02)
+    col, _ = pixel_column(fig, ax, image, 0.25)
+    assert fall[rows, col - 1 : col + 2].any(axis=1).mean() > 0.4, "no fall line at t = 0.25 s"
+    top = slice(rows.start, rows.start + (rows.stop - rows.start) // 8)  # markers sit at the top of the axes
+    recovery, failed = color_mask(image, RECOVERY_COLOR), color_mask(image, HIGHLIGHT_COLOR)
+    for t in mpc_t[[3, 7]]:
+        col, _ = pixel_column(fig, ax, image, t)
+        assert recovery[top, col - 2 : col + 3].sum() > 5, f"no recovery marker at {t:.4f} s"
+    col, _ = pixel_column(fig, ax, image, mpc_t[5])
+    assert failed[top, col - 2 : col + 3].sum() > 5, "no failed-step marker"
+    col, _ = pixel_column(fig, ax, image, mpc_t[10])
+    assert not recovery[top, col - 2 : col + 3].any() and not failed[top, col - 2 : col + 3].any()
+
+    # every time plot of save_plots carries the marks
+    for figure in (joint_torques_figure(b1z1, log.arrays(), marks), solver_figure(b1z1, log.arrays(), marks=marks),
+                   foot_heights_figure(b1z1, log.arrays(), marks), contact_forces_figure(b1z1, log.arrays(), marks)):
+        image = saved_image(figure, tmp_path / "m.png")
+        col, rows = pixel_column(figure, figure.axes[0], image, 0.1)
+        assert color_mask(image, EVENT_COLOR)[rows, col - 1 : col + 2].any(axis=1).mean() > 0.3
+
+
+def test_the_highlighted_panel_shows_the_joints_nearest_their_limits(b1z1, tmp_path):
+    log = synthetic_log(b1z1)
+    tau = 0.3 * np.array(log.tau)
+    names = list(b1z1.joint_names)
+    front, arm = names.index("FL_hip_joint"), names.index("joint2")
+    tau[40, front] = 0.99 * b1z1.tau_max[front]
+    tau[60, arm] = -0.95 * b1z1.tau_max[arm]
+    log.tau = list(tau)
+    assert most_loaded_joints(b1z1, tau)[:2] == [front, arm]
+    fig = joint_torques_figure(b1z1, log.arrays())
+    highlighted = [ax for ax in fig.axes if ax.get_title().startswith("MOST LOADED")]
+    assert len(highlighted) == 1 and "99%" in highlighted[0].get_title()
+    labels = [line.get_label() for line in highlighted[0].get_lines() if not line.get_label().startswith("_")]
+    assert labels[:2] == ["FL_hip (99%)", "joint2 (95%)"] and not any("calf" in label for label in labels)
+    image = saved_image(fig, tmp_path / "tau.png")
+    bbox = highlighted[0].get_window_extent()
+    row = int(image.shape[0] - 0.5 * (bbox.y0 + bbox.y1))
+    left = int(round(bbox.x0))
+    assert color_mask(image, HIGHLIGHT_COLOR, 0.08)[row, left - 2 : left + 3].any(), "highlighted panel has no red frame"
+
+
+def test_wipe_plot_rmse_is_the_metric(b1z1):
+    from wbmpc.scenarios.base import ScenarioOptions
+    from wbmpc.scenarios.manipulation import Wipe
+
+    wipe = Wipe(ScenarioOptions())
+    t = np.arange(0.0, 3.0, 0.01)
+    path = np.array([wipe.path(b1z1, tk)[0] for tk in t])
+    normal = wipe.board(b1z1).normal
+    ee = path + 0.004 * np.outer(np.sin(7 * t), [0, 1, 0]) + 0.006 * normal  # in-plane wobble, pressed off the plane
+    error, use = wipe.ee_tracking_error(b1z1, t, ee)
+    late = t >= wipe.PATTERN_START_S
+    np.testing.assert_array_equal(use, late)
+    expected = np.sqrt(np.mean((0.004 * np.sin(7 * t[late])) ** 2))  # the normal offset does not count
+    assert ee_rmse_m(error, use) == pytest.approx(expected, rel=1e-9)
+
+    q = np.tile(b1z1.q_nominal, (t.size, 1))
+    fig = ee_position_figure(b1z1, {"t": t, "q": q}, wipe.ee_reference(b1z1),
+                             ee_error=lambda tt, e: wipe.ee_tracking_error(b1z1, tt, e), error_label=wipe.ee_error_label)
+    measured = b1z1.frame_trajectories(q, [b1z1.arm_ee])[b1z1.arm_ee]
+    rmse = ee_rmse_m(*wipe.ee_tracking_error(b1z1, t, measured))
+    assert f"RMSE {1e3 * rmse:.1f} mm" in fig._suptitle.get_text()
+
+
 # ----------------------------------------------------------------------------- replay
 def test_replay_is_self_contained_and_matches_pinocchio(b1z1, tmp_path):
     log = synthetic_log(b1z1, duration_s=0.5)
@@ -162,6 +290,49 @@ def test_replay_is_self_contained_and_matches_pinocchio(b1z1, tmp_path):
         assert np.linalg.norm(corners.mean(axis=0) - pdata.oMi[1].translation) < 0.2
     for i, j, group in data["links"]:
         assert 0 <= i < len(names) and 0 <= j < len(names) and 0 <= group < len(data["groups"])
+
+
+def test_replay_draws_the_scene_objects_and_names_the_scenario(b1z1, tmp_path):
+    """Load and cable, box and wall, a table: recorded in MuJoCo for 50 ms, then drawn in the replay
+    where MuJoCo had them at each frame's time."""
+    from wbmpc.sim.mujoco_plant import MujocoPlant
+    from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, Scene
+
+    table = Board(orientation="horizontal", face_m=(0.9, 0.0, 0.5), size_m=(0.4, 0.6))
+    scene = Scene(b1z1, [CableLoad(mass_kg=5.0, position_m=(-1.5, 0.0), cable_length_m=1.0),
+                         BoxAtWall(near_face_x_m=1.4), table])
+    plant = MujocoPlant(b1z1, scene.plant_config())
+    scene.attach(plant)
+    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
+    t, q = [plant.time_s], [plant.state()[0]]
+    for _ in range(50):
+        plant.step(np.zeros(b1z1.n_joints))
+        t.append(plant.time_s)
+        q.append(plant.state()[0])
+    html = save_replay(b1z1, np.array(t), np.array(q), tmp_path / "scene.html", fps=100,
+                       objects=scene.replay_objects(), scenario="pull").read_text()
+    assert "<title>wbmpc replay: pull (b1_z1)</title>" in html
+    data = embedded_json(html)
+    assert data["scenario"] == "pull"
+    objects = {o["name"]: o for o in data["objects"]}
+    assert set(objects) == {"load", "load cable", "box", "box wall", "board", "board stand"}
+    n = data["n_frames"]
+    assert all(len(objects[k]["frames"]) == n for k in ("load", "load cable", "box"))
+    assert len(objects["board"]["frames"]) == 1 and objects["board"]["half"] == [200, 300, 20]
+    # the table top's upper face is at the configured height
+    board = objects["board"]["frames"][0]
+    assert board[2] + objects["board"]["half"][2] == pytest.approx(500 - 1e3 * table.contact_margin_m, abs=1)
+    rec_t, load_position = scene.recording.series("load", "object_position_m")
+    _, cable = scene.recording.series("load", "cable_m")
+    for k in (0, n // 2, n - 1):
+        i = int(np.argmin(np.abs(rec_t - data["t"][k])))
+        np.testing.assert_allclose(np.array(objects["load"]["frames"][k][:3]) / 1e3, load_position[i], atol=1e-3)
+        np.testing.assert_allclose(np.array(objects["load cable"]["frames"][k]).reshape(2, 3) / 1e3, cable[i], atol=1e-3)
+    ee = b1z1.frame_trajectories(b1z1.q_nominal, [b1z1.arm_ee])[b1z1.arm_ee][0]
+    np.testing.assert_allclose(np.array(objects["load cable"]["frames"][0][:3]) / 1e3, ee, atol=2e-3)
+    np.testing.assert_allclose(objects["box"]["half"], [150, 250, 500])
+    np.testing.assert_allclose(np.array(objects["box"]["frames"][0][3:]).reshape(3, 3), np.eye(3), atol=1e-3)
+    assert "D.objects" in html  # drawn by the page's script
 
 
 def test_replay_of_a_long_run_stays_small(tmp_path):

@@ -32,7 +32,8 @@ FIELD_FLAGS = {
     "board_friction_mu": "--board-friction", "wipe_pattern": "--pattern", "wipe_size_m": "--wipe-size",
     "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
     "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
-    "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t",
+    "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t", "base_tracking": "--base-tracking",
+    "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
 
@@ -127,6 +128,7 @@ def _scenario_options(args: argparse.Namespace):
         load_friction_mu=args.load_friction, cable_length_m=args.cable_length, pull_speed_m_s=args.pull_speed,
         force_n=args.force_n, box_kg=args.box_kg, board=args.board, board_friction_mu=args.board_friction,
         wipe_pattern=args.pattern, wipe_size_m=args.wipe_size, wipe_period_s=args.wipe_period,
+        wipe_pad_stiffness_n_m=args.pad_stiffness, wipe_integral_gain_1_s2=args.wipe_integral,
         hand_force_n=args.hand_force, compliant_kp_arm=args.compliant_kp_arm, compliant_kd_arm=args.compliant_kd_arm,
         compliant_return_gain_1_s=args.compliant_return,
     )
@@ -140,7 +142,7 @@ def _run_config(args: argparse.Namespace):
     return RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                      nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=_scenario_options(args),
                      gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
-                     compiled=args.compiled, solver=args.solver)
+                     compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -325,6 +327,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--nodes", type=int, default=15, help="horizon nodes, 2-100 (default 15 = the paper's)")
     run.add_argument("--uniform-dt", type=float, metavar="MS",
                      help="uniform time steps of MS ms (0-500) instead of the geometric 10-100 ms grid")
+    run.add_argument("--base-tracking", default="position", choices=("position", "velocity"),
+                     help="position (default): base x/y/yaw anchored to the integrated command, corrects drift; "
+                          "velocity: the paper's velocity-only base tracking, drift uncorrected")
     run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
     run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
@@ -353,6 +358,10 @@ def build_parser() -> argparse.ArgumentParser:
     manip.add_argument("--pattern", default="circle", help="wipe: circle or eight")
     manip.add_argument("--wipe-size", type=float, default=0.1, help="wipe: pattern radius, m")
     manip.add_argument("--wipe-period", type=float, default=4.0, help="wipe: pattern period, s")
+    manip.add_argument("--pad-stiffness", type=float, default=2000.0, metavar="N/M",
+                       help="wipe: stiffness of the sprung wiping pad on the end-effector, N/m (0: rigid sphere)")
+    manip.add_argument("--wipe-integral", type=float, default=30.0, metavar="1/S2",
+                       help="wipe: integral gain on the in-plane path error, 1/s^2 (0: proportional feedback only)")
     manip.add_argument("--hand-force", type=float, default=30.0, help="compliant: peak force of the external hand, N")
     manip.add_argument("--compliant-kp-arm", type=float, default=2.0, help="compliant: arm joint Kp")
     manip.add_argument("--compliant-kd-arm", type=float, default=0.3, help="compliant: arm joint Kd")

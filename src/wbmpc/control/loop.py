@@ -74,11 +74,12 @@ class CommandSource(Protocol):
 
 @dataclass
 class Event:
-    """Something done to the plant at a time, e.g. a push: `action(plant)`."""
+    """Something done to the plant at a time, e.g. a push: `action(plant)`; `name` labels it in plots."""
 
     time_s: float
     action: Callable
     done: bool = False
+    name: str = "event"
 
 
 @dataclass
@@ -100,6 +101,7 @@ class RunLog:
     delay_ms: list = field(default_factory=list)
     commands: list = field(default_factory=list)
     planned_contact: list = field(default_factory=list)
+    events: list = field(default_factory=list)  # (time_s, name) of each event applied to the plant
     late_solutions: int = 0
     sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
     mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
@@ -228,11 +230,12 @@ class ClosedLoop:
             return tau, next_control, True
         return tau, next_control, False
 
-    def _apply_events(self, events: list[Event], t: float) -> None:
+    def _apply_events(self, events: list[Event], t: float, log: RunLog) -> None:
         for event in events:
             if not event.done and t >= event.time_s:
                 event.action(self.plant)
                 event.done = True
+                log.events.append((t, event.name))
 
     def _run_simulated_time(self, duration_s, commands, events, progress, stop=None) -> RunLog:
         cfg, plant = self.config, self.plant
@@ -249,7 +252,7 @@ class ClosedLoop:
         tau = np.zeros(self.robot.n_joints)
         while plant.time_s - t0 < duration_s - 1e-9:
             t = plant.time_s
-            self._apply_events(events, t)
+            self._apply_events(events, t, log)
             if t >= next_mpc - 1e-9 and t >= solver_free_at - 1e-9:
                 solution = self._solve(log, t, commands)
                 delay = 0.0 if cfg.delay == "none" else (
@@ -326,7 +329,7 @@ class ClosedLoop:
                 lag = (t - t0) - (time.perf_counter() - wall_start)
                 if lag > 0:
                     time.sleep(lag)
-                self._apply_events(events, t)
+                self._apply_events(events, t, log)
                 if busy and conn.poll():
                     solution = conn.recv()
                     busy = False

@@ -59,6 +59,9 @@ class CostWeights:
         }
 
 
+BASE_TRACKING_MODES = ("position", "velocity")
+
+
 @dataclass
 class MpcConfig:
     ocp: OcpConfig = field(default_factory=OcpConfig)
@@ -75,6 +78,11 @@ class MpcConfig:
     recovery_barrier_init: float | None = 0.1  # a fresh Fatrop with this initial barrier re-solves a failed step
     fallback_solver: str | None = "ipopt"  # then re-solves a step still failed; None disables
     max_ee_force_n: float | None = None  # largest end-effector force command; None: the robot's weight
+    # "position": the base x/y/yaw targets integrate the commanded velocity from where the run
+    # started, so the cost's position rows pull drift back (an anchor). "velocity": the paper's
+    # velocity-only tracking; the x/y/yaw targets restart from the measured base every step, so
+    # only the base velocity rows act on the horizontal motion and drift is not corrected.
+    base_tracking: str = "position"
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -83,6 +91,9 @@ class MpcConfig:
             check_number(name, getattr(self, name), low=0.0, low_open=True)
         check_number("recovery_barrier_init", self.recovery_barrier_init, low=0.0, low_open=True, allow_none=True)
         check_number("max_ee_force_n", self.max_ee_force_n, low=0.0, low_open=True, unit="N", allow_none=True)
+        if self.base_tracking not in BASE_TRACKING_MODES:
+            raise ConfigError.for_field("base_tracking", f"must be one of {', '.join(BASE_TRACKING_MODES)}; "
+                                        f"got {self.base_tracking!r}")
 
 
 @dataclass
@@ -203,13 +214,15 @@ class MPC:
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
         dt_since = 0.0 if self._last_t is None else max(0.0, t - self._last_t)
         self._last_t = t
-        if self._xy_reference is None:
+        velocity_only = self.config.base_tracking == "velocity"
+        if self._xy_reference is None or velocity_only:
             self._xy_reference, self._yaw_reference = q[:2].copy(), yaw
         cos_y, sin_y = np.cos(self._yaw_reference), np.sin(self._yaw_reference)
         heading = np.array([[cos_y, -sin_y, 0], [sin_y, cos_y, 0], [0, 0, 1]])
         v_world = heading @ np.asarray(commands.base_velocity_m_s, dtype=float)
-        self._xy_reference = self._xy_reference + v_world[:2] * dt_since
-        self._yaw_reference = self._yaw_reference + commands.base_yaw_rate_rad_s * dt_since
+        if not velocity_only:
+            self._xy_reference = self._xy_reference + v_world[:2] * dt_since
+            self._yaw_reference = self._yaw_reference + commands.base_yaw_rate_rad_s * dt_since
         # keep the references within reach of the robot (no wind-up after a push)
         offset = self._xy_reference - q[:2]
         if np.linalg.norm(offset) > 0.3:

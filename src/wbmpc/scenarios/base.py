@@ -38,6 +38,8 @@ class ScenarioOptions:
     wipe_pattern: str = "circle"  # circle | eight
     wipe_size_m: float = 0.1
     wipe_period_s: float = 4.0
+    wipe_pad_stiffness_n_m: float = 2000.0  # wipe: sprung pad on the end-effector (0: the rigid sphere)
+    wipe_integral_gain_1_s2: float = 30.0  # wipe: integral action on the in-plane path error (0: none)
     hand_force_n: float = 30.0  # compliant: peak force of the external hand
     compliant_kp_arm: float = 2.0
     compliant_kd_arm: float = 0.3
@@ -68,6 +70,8 @@ class ScenarioOptions:
             "compliant_kp_arm": (0.0, 1e4, False, ""),
             "compliant_kd_arm": (0.0, 1e4, False, ""),
             "compliant_return_gain_1_s": (0.0, 100.0, False, "1/s"),
+            "wipe_pad_stiffness_n_m": (0.0, 1e6, False, "N/m"),
+            "wipe_integral_gain_1_s2": (0.0, 1e4, False, "1/s^2"),
         }
         for name, (low, high, low_open, unit) in ranges.items():
             check_number(name, getattr(self, name), low=low, high=high, low_open=low_open, unit=unit,
@@ -102,6 +106,17 @@ class Scenario:
     def ee_reference(self, robot: RobotModel):
         """Callable t -> EE position reference (world), or None."""
         return None
+
+    ee_error_label = "|p - p_ref|"
+
+    def ee_tracking_error(self, robot: RobotModel, t: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(error vectors (n, 3), mask of the samples counted) of measured end-effector positions `ee`
+        at times `t`: what `ee_pos_rmse_m` and the end-effector plot's RMSE are computed from. By
+        default the 3D distance to `ee_reference` over the whole run; None without a reference."""
+        reference = self.ee_reference(robot)
+        if reference is None:
+            return None
+        return ee - np.array([np.asarray(reference(float(tk)), dtype=float) for tk in t]), np.ones(len(t), dtype=bool)
 
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""

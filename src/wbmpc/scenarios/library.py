@@ -53,7 +53,7 @@ class Push(Scenario):
             heading = np.arctan2(rot[1, 0], rot[0, 0])
             plant.apply_base_velocity_kick(speed * np.array([np.cos(heading + angle), np.sin(heading + angle), 0.0]))
 
-        return [Event(self.options.push_time_s, kick)]
+        return [Event(self.options.push_time_s, kick, name="push")]
 
     def extra_metrics(self, robot, log):
         a = log.arrays()
@@ -105,9 +105,9 @@ class ArmTrack(Scenario):
     def extra_metrics(self, robot, log):
         a = log.arrays()
         ee = robot.frame_trajectories(a["q"], [robot.arm_ee])[robot.arm_ee]
-        reference = np.array([self._reference(t - a["t"][0])[0] for t in a["t"]])
-        error = np.linalg.norm(ee - reference, axis=1)
-        return {"ee_pos_rmse_m": float(np.sqrt(np.mean(error**2))), "ee_pos_max_err_m": float(error.max())}
+        error, _ = self.ee_tracking_error(robot, a["t"], ee)
+        distance = np.linalg.norm(error, axis=1)
+        return {"ee_pos_rmse_m": float(np.sqrt(np.mean(distance**2))), "ee_pos_max_err_m": float(distance.max())}
 
 
 SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, Push, ArmTrack,

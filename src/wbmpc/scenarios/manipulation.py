@@ -12,6 +12,9 @@ except along a contact normal, where the force target alone presses the end-effe
 - `push-box`: trotting in place, press a box against a wall with `--force-n` (default 20 N).
 - `wipe`: standing, move over a board in a circle or figure-eight pressing with `--force-n`
   (default 10 N) along the normal; the target also contains the board's friction along the motion.
+  The end-effector carries a sprung wiping pad (`CompliantPad`, `--pad-stiffness`, 0 for the rigid
+  sphere), and the in-plane path feedback has integral action (`--wipe-integral`) against the
+  board's static friction, which the force target cannot carry.
 - `compliant`: arm PD gains lowered, end-effector force target zero and velocity target zero
   plus a slow return to the nominal place (`--compliant-return 0` for the paper's pure zero); a
   scripted hand moves the end-effector back, left and down through a capped spring.
@@ -22,10 +25,11 @@ end-effector applies on the object (cable tension or contact force, measured by 
 physics step and passed through a first-order low-pass of `FORCE_SENSOR_BANDWIDTH_HZ`, the
 bandwidth of a wrist force sensor), u the unit direction of the target (the board normal for
 `wipe`) and F_target the target's magnitude along u. The same error of the unfiltered contact
-force is `ee_force_err_rel_raw`: sliding on the board with friction, MuJoCo's contact makes and
-breaks at ~200 Hz with micrometre motions of the light wrist (a squeal no sensor resolves; it
-stays with other cones, integrators, time steps, contact softness and margins), so the raw
-error there measures that chatter more than the controller.
+force is `ee_force_err_rel_raw`. With the rigid end-effector sphere sliding on the board with
+friction, MuJoCo's contact makes and breaks at ~200 Hz with micrometre motions of the light wrist
+(a squeal no sensor resolves; it stays with other cones, integrators, time steps, contact softness
+and margins): 23 % filtered, ~100 % raw error. The sprung pad keeps the contact closed, and the
+raw and filtered errors agree (about 2 %).
 """
 
 from __future__ import annotations
@@ -37,12 +41,12 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.loop import RunLog
+from wbmpc.control.loop import Event, RunLog
 from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
-from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, ExternalHand, HandPush, Scene
+from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, CompliantPad, ExternalHand, HandPush, Scene
 
 EE_SPHERE_RADIUS_M = 0.03  # MujocoPlantConfig.ee_sphere_radius_m default: contact offset of the EE frame
 FEEDBACK_GAIN_1_S = 4.0
@@ -133,6 +137,31 @@ def _feedback(v_ref: np.ndarray, p_ref: np.ndarray, p: np.ndarray, free_normal: 
         velocity = velocity - free_normal * (velocity @ free_normal)
     speed = np.linalg.norm(velocity)
     return velocity * (MAX_EE_SPEED_M_S / speed) if speed > MAX_EE_SPEED_M_S else velocity
+
+
+class _InPlaneIntegral:
+    """Integral action on the in-plane end-effector error: a velocity term Ki * int(e dt), clipped to
+    MAX_INTEGRAL_SPEED_M_S. On a board the pad's friction is an unmodelled force in the plane (the
+    force target only carries it along the motion; standing still, static friction acts in any
+    direction), which proportional feedback alone leaves as a steady offset of millimetres."""
+
+    MAX_INTEGRAL_SPEED_M_S = 0.05
+
+    def __init__(self, normal: np.ndarray, gain_1_s2: float):
+        self.normal, self.gain = np.asarray(normal, dtype=float), gain_1_s2
+        self.value = np.zeros(3)
+        self.last_t: float | None = None
+
+    def update(self, t: float, error_m: np.ndarray) -> np.ndarray:
+        """Integrate the in-plane part of `error_m` up to time t; the velocity term (m/s)."""
+        error = error_m - self.normal * (error_m @ self.normal)
+        if self.last_t is not None and self.gain > 0:
+            self.value = self.value + error * max(t - self.last_t, 0.0)
+            speed = self.gain * np.linalg.norm(self.value)
+            if speed > self.MAX_INTEGRAL_SPEED_M_S:
+                self.value *= self.MAX_INTEGRAL_SPEED_M_S / speed
+        self.last_t = t
+        return self.gain * self.value
 
 
 def _yaw_rotation(q: np.ndarray) -> np.ndarray:
@@ -237,9 +266,12 @@ class _ForceTask(Scenario):
     def extra_plots(self, robot, log, out_dir):
         from wbmpc.viz.plots import plot_ee_force
 
+        from wbmpc.viz.plots import RunMarks
+
         s = self.force_series(log)
         return [plot_ee_force(s["t"], s["measured_n"], s["target_n"], out_dir / "ee_force.png",
-                              title=f"{self.name}: end-effector force on the {self.object_name}")]
+                              title=f"{self.name}: end-effector force on the {self.object_name}",
+                              marks=RunMarks.from_log(log))]
 
 
 # ----------------------------------------------------------------------------- pull
@@ -440,7 +472,9 @@ class Wipe(_ForceTask):
         return self._board
 
     def _objects(self, robot):
-        return [self.board(robot)]
+        stiffness = self.options.wipe_pad_stiffness_n_m
+        return [self.board(robot)] + ([CompliantPad(stiffness_n_m=stiffness, radius_m=EE_SPHERE_RADIUS_M)]
+                                      if stiffness > 0 else [])
 
     def _phase(self, t: float) -> tuple[float, float]:
         """Pattern phase and its rate: the rate ramps linearly to 2 pi / period over SPEED_UP_S."""
@@ -485,12 +519,15 @@ class Wipe(_ForceTask):
         normal = board.normal
         mu = self.options.board_friction_mu
 
+        integral = _InPlaneIntegral(normal, self.options.wipe_integral_gain_1_s2)
+
         def command(t, q, v):
             p_ref, v_ref = self.path(robot, t)
+            p = ee.position(q)
             if t < self.APPROACH_END_S:
-                velocity = _feedback(v_ref, p_ref - 0.005 * normal, ee.position(q))
+                velocity = _feedback(v_ref, p_ref - 0.005 * normal, p)
             else:
-                velocity = _feedback(v_ref, p_ref, ee.position(q), free_normal=normal)
+                velocity = _feedback(v_ref + integral.update(t, p_ref - p), p_ref, p, free_normal=normal)
             press = ramp(t, *self.RAMP_S) * self.force_magnitude_n
             force = -normal * press
             speed = np.linalg.norm(v_ref)
@@ -500,17 +537,23 @@ class Wipe(_ForceTask):
 
         return command
 
+    ee_error_label = "in-plane |p - p_ref| from the pattern's start"
+
+    def ee_tracking_error(self, robot, t, ee):
+        """In-plane error (the normal is force-controlled) from the pattern's start."""
+        reference = np.array([self.path(robot, float(ti))[0] for ti in t])
+        normal = self.board(robot).normal
+        error = ee - reference
+        return error - np.outer(error @ normal, normal), np.asarray(t) >= self.PATTERN_START_S
+
     def extra_metrics(self, robot, log):
         out = super().extra_metrics(robot, log)
         a = log.arrays()
         t = a["t"]
         ee = robot.frame_trajectories(a["q"], [robot.arm_ee])[robot.arm_ee]
         reference = np.array([self.path(robot, ti)[0] for ti in t])
-        normal = self.board(robot).normal
-        error = ee - reference
-        normal_error = error @ normal
-        in_plane = error - np.outer(normal_error, normal)
-        use = t >= self.PATTERN_START_S
+        normal_error = (ee - reference) @ self.board(robot).normal
+        in_plane, use = self.ee_tracking_error(robot, t, ee)
         dist = np.linalg.norm(in_plane[use], axis=1)
         out.update({
             "ee_pos_rmse_m": float(np.sqrt(np.mean(dist**2))) if use.any() else None,
@@ -519,7 +562,12 @@ class Wipe(_ForceTask):
             "board": self.options.board,
             "wipe_pattern": self.options.wipe_pattern,
             "board_friction_mu": self.options.board_friction_mu,
+            "pad_stiffness_n_m": self.options.wipe_pad_stiffness_n_m,
         })
+        if self.options.wipe_pad_stiffness_n_m > 0 and use.any():
+            t_pad, deflection = self._scene.recording.series("pad", "deflection_m")
+            late = t_pad >= self.PATTERN_START_S
+            out["pad_deflection_mean_mm"] = float(1e3 * np.mean(np.linalg.norm(deflection[late], axis=1)))
         return out
 
 
@@ -549,6 +597,10 @@ class Compliant(Scenario):
 
     def pd_gains(self, gains: PdGains) -> PdGains:
         return replace(gains, kp_arm=self.options.compliant_kp_arm, kd_arm=self.options.compliant_kd_arm)
+
+    def events(self, robot):
+        """The hand acts through the scene at every physics step; these only mark its pushes' starts in the log."""
+        return [Event(start, lambda plant: None, name="hand push") for start, _ in self.PUSHES]
 
     def commands(self, robot):
         """Zero force target; the velocity target is zero too, plus (when `compliant_return_gain_1_s` > 0)

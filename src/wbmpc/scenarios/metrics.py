@@ -9,6 +9,9 @@ from wbmpc.control.loop import RunLog
 from wbmpc.robots import RobotModel
 
 
+SETTLE_S = 2.0
+
+
 def heading_rotation(yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -35,6 +38,12 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
     commanded_path = np.concatenate([[0.0], np.cumsum(cmd_at_t[:-1, 0] * np.diff(t))]), \
         np.concatenate([[0.0], np.cumsum(cmd_at_t[:-1, 1] * np.diff(t))])
     displacement = q[-1, :2] - q[0, :2] - np.array([commanded_path[0][-1], commanded_path[1][-1]])
+    # the same after the start transient (the first SETTLE_S, at most half the run): with velocity-only
+    # base tracking an initial shift is never pulled back and would dominate the whole-run figure
+    settle = np.searchsorted(t, t[0] + min(SETTLE_S, 0.5 * duration)) if duration > 0 else 0
+    settled_s = float(t[-1] - t[settle]) if duration > 0 else 0.0
+    settled_displacement = displacement - (q[settle, :2] - q[0, :2]) + np.array(
+        [commanded_path[0][settle], commanded_path[1][settle]])
     vel_world = base_world_velocity(q, v)
     solve = a["solve_ms"]
     n_solves = len(solve)
@@ -45,6 +54,8 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "fell_at_s": log.fell_at_s,
         "duration_s": duration,
         "base_drift_cm_s": float(100 * np.linalg.norm(displacement) / duration) if duration > 0 else None,
+        "base_drift_settled_cm_s": float(100 * np.linalg.norm(settled_displacement) / settled_s) if settled_s > 0 else None,
+        "base_drift_settled_from_s": float(t[settle] - t[0]) if duration > 0 else None,
         "base_vel_rmse": float(np.sqrt(np.mean(np.sum((vel_world[:, :2] - cmd_at_t[:, :2]) ** 2, axis=1)))),
         "ee_pos_rmse_m": None,
         "ee_force_err_rel": None,

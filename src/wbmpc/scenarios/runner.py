@@ -41,6 +41,7 @@ class RunConfig:
     solver: str = "fatrop"
     formulation: str = "wb_inverse"
     compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
+    base_tracking: str = "position"  # MpcConfig.base_tracking: "position" (anchored) | "velocity" (the paper's)
     seed: int = 0
 
     def __post_init__(self):
@@ -68,13 +69,15 @@ class ScenarioResult:
     scenario: Scenario
     metrics: dict
     log: RunLog
+    scene: object | None = None  # wbmpc.sim.objects.Scene with the objects' recordings, if any
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled))
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled),
+                     base_tracking=config.base_tracking)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
@@ -110,8 +113,9 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics.update(scenario.extra_metrics(robot, log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
                     "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
+                    "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking,
                     "requested_duration_s": float(duration), "interrupted": bool(log.interrupted)})
-    result = ScenarioResult(scenario, metrics, log)
+    result = ScenarioResult(scenario, metrics, log, scene)
     result.plant = plant  # type: ignore[attr-defined]
     return result
 
@@ -124,11 +128,16 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
 
         paths = [folder / "metrics.json"]
         paths[0].write_text(to_json(result.metrics, indent=2) + "\n")
-        reference = result.scenario.ee_reference(robot)
-        paths += save_plots(robot, result.log, folder, ee_reference=reference)
+        scenario = result.scenario
+        reference = scenario.ee_reference(robot)
+        paths += save_plots(robot, result.log, folder, ee_reference=reference,
+                            ee_error=lambda t, ee: scenario.ee_tracking_error(robot, t, ee),
+                            ee_error_label=scenario.ee_error_label)
         arrays = result.log.arrays()
-        paths += result.scenario.extra_plots(robot, result.log, folder)
-        paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html"))
+        paths += scenario.extra_plots(robot, result.log, folder)
+        objects = result.scene.replay_objects() if result.scene is not None else None
+        paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
+                                 scenario=scenario.name))
         return paths
 
     return write_output_files(out_dir, write)

@@ -54,7 +54,8 @@ class MujocoPlant:
             frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
             self.ee_body = self._body_names[frame.parentJoint - 1]
             body = m.body(self.ee_body).id
-            self._ee_geoms = {g for g in range(m.ngeom) if m.geom_bodyid[g] == body}
+            # the last link's shapes and those of any body mounted on it (a tool, a wiping pad)
+            self._ee_geoms = {g for g in range(m.ngeom) if _in_subtree(m, int(m.geom_bodyid[g]), body)}
         self.reset()
 
     # ------------------------------------------------------------------ Plant interface
@@ -179,3 +180,12 @@ class MujocoPlant:
         every = self.config.record_every_n_steps
         if every and self._steps % every == 0:
             self.recording.append(self.time_s, self.state()[0])
+
+
+def _in_subtree(m: mujoco.MjModel, body: int, root: int) -> bool:
+    """Whether `body` is `root` or one of its descendants."""
+    while body > 0:
+        if body == root:
+            return True
+        body = int(m.body_parentid[body])
+    return root == 0

@@ -15,7 +15,10 @@ coordinates, which the MPC never sees (it treats the arm force as a fixed input,
 - `ExternalHand`: a scripted hand moving the end-effector through a capped spring-damper (a
   person pushing the gripper). Measured: the force the hand applies.
 
-`Scene` groups objects, turns them into a `MujocoPlantConfig` and records every measurement.
+`Scene` groups objects, turns them into a `MujocoPlantConfig` and records every measurement;
+`Scene.replay_objects()` gives the objects' boxes and lines over the run for the HTML replay
+(`wbmpc.viz.replay`): {"name", "kind": "box", "color", "half_size_m", "position_m", "rotation"}
+(static, or with "t" and one pose per time) and {"name", "kind": "line", "color", "t", "points_m"}.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.robots import RobotModel
-from wbmpc.sim.mujoco_scene import MujocoPlantConfig, body_names
+from wbmpc.sim.mujoco_scene import ROBOT_CONTYPE, ROBOT_CONAFFINITY, MujocoPlantConfig, body_names
 
 EE_SITE = "ee_attach"
 
@@ -49,6 +52,16 @@ def _vec(values) -> str:
     return " ".join(repr(float(x)) for x in np.asarray(values, dtype=float).ravel())
 
 
+def _box(name: str, color: str, half_size_m, position_m, rotation=None, t=None) -> dict:
+    """A box for the replay: static (one pose) or moving (`t` and one pose per time)."""
+    shape = {"name": name, "kind": "box", "color": color, "half_size_m": np.asarray(half_size_m, dtype=float),
+             "position_m": np.asarray(position_m, dtype=float),
+             "rotation": np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)}
+    if t is not None:
+        shape["t"] = np.asarray(t, dtype=float)
+    return shape
+
+
 def _friction(mu: float) -> str:
     return _vec([mu, 0.005, 0.0001])
 
@@ -63,6 +76,8 @@ class SceneObject(Protocol):
     def before_step(self, plant) -> None: ...
 
     def measure(self, plant) -> dict[str, np.ndarray | float]: ...
+
+    def replay_shapes(self, recording: "SceneRecording") -> list[dict]: ...
 
 
 # ----------------------------------------------------------------------------------- objects
@@ -133,7 +148,16 @@ class CableLoad:
             "tension_n": tension,
             "force_n": tension * towards_ee,  # the end-effector pulls the cable towards itself
             "object_position_m": d.body(self.name).xpos.copy(),
+            "object_rotation": d.body(self.name).xmat.reshape(3, 3).copy(),
+            "cable_m": np.array([ee, hook]),
         }
+
+    def replay_shapes(self, recording):
+        t, position = recording.series(self.name, "object_position_m")
+        _, rotation = recording.series(self.name, "object_rotation")
+        _, cable = recording.series(self.name, "cable_m")
+        return [_box(self.name, "#cc8033", np.asarray(self.size_m) / 2, position, rotation, t),
+                {"name": f"{self.name} cable", "kind": "line", "color": "#1a1a1a", "t": t, "points_m": cable}]
 
 
 @dataclass(frozen=True)
@@ -177,7 +201,17 @@ class BoxAtWall:
         pass
 
     def measure(self, plant):
-        return {"force_n": -plant.ee_contact_force([self.name]), "object_position_m": plant.data.body(self.name).xpos.copy()}
+        body = plant.data.body(self.name)
+        return {"force_n": -plant.ee_contact_force([self.name]), "object_position_m": body.xpos.copy(),
+                "object_rotation": body.xmat.reshape(3, 3).copy()}
+
+    def replay_shapes(self, recording):
+        t, position = recording.series(self.name, "object_position_m")
+        _, rotation = recording.series(self.name, "object_rotation")
+        sx, sy, sz = self.size_m
+        wall_x = self.near_face_x_m + sx + self.wall_thickness_m / 2 + 1e-3
+        return [_box(self.name, "#99734d", np.asarray(self.size_m) / 2, position, rotation, t),
+                _box(f"{self.name} wall", "#bfbfb3", [self.wall_thickness_m / 2, 1.5, 1.0], [wall_x, 0.0, 1.0])]
 
 
 @dataclass(frozen=True)
@@ -218,25 +252,35 @@ class Board:
             return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
         return np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
-    def bodies_mjcf(self, robot):
+    def boxes(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """(name, centre, half sizes) in world of the board and, for a table, the block under it."""
         face = np.asarray(self.face_m, dtype=float) - self.normal * self.contact_margin_m
         face = face + self.plane_axes.T @ np.asarray(self.centre_offset_m, dtype=float)
         centre = face - self.normal * self.thickness_m / 2
         half = np.abs(self.plane_axes.T @ (np.asarray(self.size_m) / 2)) + np.abs(self.normal) * self.thickness_m / 2
+        out = [(self.name, centre, half)]
+        if self.orientation == "horizontal":  # a table: the top rests on a block under its far edge
+            height = centre[2] - self.thickness_m / 2
+            leg = min(0.1, half[0])
+            out.append((f"{self.name}_stand", np.array([centre[0] + half[0] - leg, centre[1], height / 2]),
+                        np.array([leg, half[1] * 0.8, height / 2])))
+        return out
+
+    def replay_shapes(self, recording):
+        return [_box(name.replace("_", " "), "#f2f2f2" if k == 0 else "#806633", half, centre)
+                for k, (name, centre, half) in enumerate(self.boxes())]
+
+    def bodies_mjcf(self, robot):
+        (_, centre, half), *stand = self.boxes()
         bodies = [
             f'<body name="{self.name}" pos="{_vec(centre)}"><geom name="{self.name}" type="box" size="{_vec(half)}" '
             f'friction="{_friction(self.friction_mu)}" priority="2" solref="{_vec([self.contact_timeconst_s, 1.0])}" '
             f'margin="{self.contact_margin_m!r}" '
             'rgba=".95 .95 .95 1"/></body>'
         ]
-        if self.orientation == "horizontal":  # a table: the top rests on a block under its far edge
-            height = centre[2] - self.thickness_m / 2
-            leg = min(0.1, half[0])
-            bodies.append(
-                f'<body name="{self.name}_stand" pos="{_vec([centre[0] + half[0] - leg, centre[1], height / 2])}">'
-                f'<geom name="{self.name}_stand" type="box" size="{_vec([leg, half[1] * 0.8, height / 2])}" '
-                'rgba=".5 .4 .3 1"/></body>'
-            )
+        for name, stand_centre, stand_half in stand:
+            bodies.append(f'<body name="{name}" pos="{_vec(stand_centre)}"><geom name="{name}" type="box" '
+                          f'size="{_vec(stand_half)}" rgba=".5 .4 .3 1"/></body>')
         return bodies
 
     def edit_spec(self, spec, robot):
@@ -247,6 +291,64 @@ class Board:
 
     def measure(self, plant):
         return {"force_n": -plant.ee_contact_force([self.name])}
+
+
+@dataclass(frozen=True)
+class CompliantPad:
+    """A sprung wiping pad on the end-effector: a light sphere (the pad) on three orthogonal slide
+    joints with springs and dampers, replacing the rigid end-effector sphere at the same place.
+
+    A real wiping tool is compliant (a sponge, a spring-loaded holder). Between the arm's inertia
+    and a rigid sliding contact, MuJoCo's contact makes and breaks at ~200 Hz (the contact chatters);
+    the spring keeps the pad pressed on while the arm moves, so the force on the board follows the
+    arm's force. The spring is isotropic, `stiffness_n_m` per axis, damped at `damping_ratio` of
+    critical for the pad's `mass_kg`; at 10 N and 2000 N/m it compresses 5 mm. The MPC does not
+    model the pad (its mass is a few grams against the arm's kilograms).
+    """
+
+    stiffness_n_m: float = 2000.0
+    damping_ratio: float = 1.0
+    mass_kg: float = 0.05
+    radius_m: float = 0.03
+    name: str = "pad"
+
+    def __post_init__(self):
+        _positive("pad stiffness (N/m)", self.stiffness_n_m)
+        _positive("pad damping ratio", self.damping_ratio, allow_zero=True)
+        _positive("pad mass (kg)", self.mass_kg)
+        _positive("pad radius (m)", self.radius_m)
+
+    @property
+    def damping_n_s_m(self) -> float:
+        return 2.0 * self.damping_ratio * float(np.sqrt(self.stiffness_n_m * self.mass_kg))
+
+    def bodies_mjcf(self, robot):
+        return []
+
+    def edit_spec(self, spec, robot):
+        body = spec.body(ee_body_name(robot))
+        for geom in list(body.geoms):  # the rigid end-effector sphere gives way to the pad
+            if geom.name == robot.arm_ee:
+                spec.delete(geom)
+        frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
+        inertia = 0.4 * self.mass_kg * self.radius_m**2
+        pad = body.add_body(name=self.name, pos=frame.placement.translation.tolist(), mass=self.mass_kg,
+                            inertia=[inertia] * 3, explicitinertial=True)
+        for axis, label in zip(np.eye(3), "xyz"):
+            pad.add_joint(name=f"{self.name}_{label}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=axis.tolist(),
+                          stiffness=self.stiffness_n_m, damping=self.damping_n_s_m, range=[-0.03, 0.03], limited=True)
+        pad.add_geom(name=self.name, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[self.radius_m, 0, 0],
+                     contype=ROBOT_CONTYPE, conaffinity=ROBOT_CONAFFINITY, rgba=[0.95, 0.75, 0.2, 1.0])
+
+    def before_step(self, plant) -> None:
+        pass
+
+    def measure(self, plant):
+        d = plant.data
+        return {"deflection_m": np.array([d.joint(f"{self.name}_{a}").qpos[0] for a in "xyz"])}
+
+    def replay_shapes(self, recording):
+        return []  # the replay draws the end-effector itself
 
 
 @dataclass(frozen=True)
@@ -325,6 +427,9 @@ class ExternalHand:
     def measure(self, plant):
         return {"hand_force_n": np.array(self._state.get("last", np.zeros(3)))}
 
+    def replay_shapes(self, recording):
+        return []
+
     def bodies_mjcf(self, robot):
         return []
 
@@ -397,6 +502,12 @@ class Scene:
         for o in self.objects:
             for key, value in o.measure(plant).items():
                 rec.values.setdefault(o.name, {}).setdefault(key, []).append(value)
+
+    def replay_objects(self) -> list[dict]:
+        """Boxes and lines of every object over the recorded run (for `wbmpc.viz.replay`)."""
+        if not self.recording.t:
+            return []
+        return [shape for o in self.objects for shape in o.replay_shapes(self.recording)]
 
     def object(self, name: str):
         for o in self.objects:

@@ -9,12 +9,17 @@ camera follows the base; play/pause, time slider and playback speed at the botto
 JSON layout (`<script id="replay-data" type="application/json">`, also `replay_data(...)`):
 `frames[k]` = flat [x0, y0, z0, x1, ...] in mm of the points `names[i]` at time `t[k]`;
 `links` = [[i, j, group]] drawn as capsules; `box_edges` = [[i, j]]; `extras` = named
-trajectories [{"name", "color", "frames": [[x, y, z] | null]}] in mm.
+trajectories [{"name", "color", "frames": [[x, y, z] | null]}] in mm; `objects` = the scene's
+objects (`wbmpc.sim.objects.Scene.replay_objects`): boxes {"name", "kind": "box", "color",
+"half": [mm x3], "frames": [[x, y, z (mm), R row-major x9]]} and lines {"name", "kind": "line",
+"color", "frames": [[x0, y0, z0, x1, y1, z1] (mm)]}, one frame per replay frame or a single one
+for static objects; `scenario` names the run shown in the page's title.
 """
 
 from __future__ import annotations
 
 import json
+from html import escape as html_escape
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any, Sequence
@@ -137,10 +142,7 @@ def _frame_samples(time_s: np.ndarray, fps: float) -> tuple[np.ndarray, float]:
         duration = 1.0 / fps
     n_frames = max(1, int(round(duration * fps)))
     wanted = time_s[0] + np.arange(n_frames) / fps
-    right = np.clip(np.searchsorted(time_s, wanted), 0, time_s.size - 1)
-    left = np.clip(right - 1, 0, time_s.size - 1)
-    nearest = np.where(np.abs(time_s[left] - wanted) <= np.abs(time_s[right] - wanted), left, right)
-    return nearest, duration
+    return _nearest(time_s, wanted), duration
 
 
 def _normalise_extras(extras, time_s: np.ndarray) -> list[tuple[str, Any, str | None]]:
@@ -166,7 +168,41 @@ def _normalise_extras(extras, time_s: np.ndarray) -> list[tuple[str, Any, str | 
     return out
 
 
-def replay_data(robot, time_s, q, fps: float = 30, extras: Sequence | None = None) -> dict[str, Any]:
+def _nearest(times: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    right = np.clip(np.searchsorted(times, wanted), 0, times.size - 1)
+    left = np.clip(right - 1, 0, times.size - 1)
+    return np.where(np.abs(times[left] - wanted) <= np.abs(times[right] - wanted), left, right)
+
+
+def _objects(objects: Sequence[dict] | None, frame_times: np.ndarray) -> list[dict]:
+    """Scene objects sampled at the replay's frame times (see the module docstring)."""
+    out = []
+    for k, obj in enumerate(objects or []):
+        name, kind = str(obj.get("name", f"object {k}")), obj.get("kind")
+        times = obj.get("t")
+        index = None if times is None else _nearest(np.asarray(times, dtype=float), frame_times)
+        if kind == "box":
+            half = np.asarray(obj["half_size_m"], dtype=float).reshape(3)
+            position = np.asarray(obj["position_m"], dtype=float).reshape(-1, 3)
+            rotation = np.asarray(obj.get("rotation", np.eye(3)), dtype=float).reshape(-1, 9)
+            if index is not None:
+                position, rotation = position[index], rotation[index]
+            frames = [np.rint(1e3 * p).astype(int).tolist() + np.round(r, 3).tolist() for p, r in zip(position, rotation)]
+            out.append({"name": name, "kind": "box", "color": obj.get("color", "#999999"),
+                        "half": np.rint(1e3 * half).astype(int).tolist(), "frames": frames})
+        elif kind == "line":
+            points = np.asarray(obj["points_m"], dtype=float).reshape(-1, 6)
+            if index is not None:
+                points = points[index]
+            out.append({"name": name, "kind": "line", "color": obj.get("color", "#222222"),
+                        "frames": np.rint(1e3 * points).astype(int).tolist()})
+        else:
+            raise ConfigError(f"scene object '{name}' has kind {kind!r}; the replay draws 'box' and 'line'")
+    return out
+
+
+def replay_data(robot, time_s, q, fps: float = 30, extras: Sequence | None = None,
+                objects: Sequence[dict] | None = None, scenario: str | None = None) -> dict[str, Any]:
     """The JSON-ready replay content (see the module docstring for its layout)."""
     time_s = np.asarray(time_s, dtype=float).ravel()
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -212,19 +248,24 @@ def replay_data(robot, time_s, q, fps: float = 30, extras: Sequence | None = Non
         **skeleton,
         "frames": frames,
         "extras": extra_out,
+        "objects": _objects(objects, time_s[samples]),
+        "scenario": scenario,
     }
 
 
-def save_replay(robot, time_s, q, out_path, fps: float = 30, extras: Sequence | None = None) -> Path:
+def save_replay(robot, time_s, q, out_path, fps: float = 30, extras: Sequence | None = None,
+                objects: Sequence[dict] | None = None, scenario: str | None = None) -> Path:
     """Write the HTML replay of configurations `q` (n, nq) at times `time_s` (n,) and return its path.
 
     `extras`: optional named world-point trajectories drawn as coloured dots with a trail, each
     `{"name": str, "positions": (n, 3) array or callable t -> (3,), "color": "#rrggbb"}` or a
-    `(name, positions[, color])` tuple; non-finite points are not drawn.
+    `(name, positions[, color])` tuple; non-finite points are not drawn. `objects`: the scene's
+    boxes and lines (`Scene.replay_objects()`); `scenario`: the run's name, shown in the title.
     """
-    payload = replay_data(robot, time_s, q, fps, extras)
+    payload = replay_data(robot, time_s, q, fps, extras, objects, scenario)
     blob = json.dumps(payload, separators=(",", ":")).replace("</", "<\\/")
-    html = _TEMPLATE.replace("__TITLE__", f"wbmpc replay: {robot.name}").replace("__DATA__", blob)
+    title = f"wbmpc replay: {scenario} ({robot.name})" if scenario else f"wbmpc replay: {robot.name}"
+    html = _TEMPLATE.replace("__TITLE__", html_escape(title)).replace("__DATA__", blob)
     path = Path(out_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(html, encoding="utf-8")
@@ -278,14 +319,14 @@ const slider = document.getElementById("slider"), playBtn = document.getElementB
 const timeEl = document.getElementById("time"), speedEl = document.getElementById("speed");
 const followEl = document.getElementById("follow");
 const N = D.n_frames, NP = D.names.length;
-document.getElementById("title").textContent = "wbmpc replay: " + D.robot;
+document.getElementById("title").textContent = "wbmpc replay: " + (D.scenario ? D.scenario + " (" + D.robot + ")" : D.robot);
 slider.max = String(N - 1);
 
 // legend
 (function () {
   const used = new Set(D.links.map(l => l[2]));
   const rows = D.groups.filter((g, k) => used.has(k)).map(g => [g.color, g.name])
-    .concat(D.extras.map(e => [e.color, e.name]));
+    .concat(D.extras.map(e => [e.color, e.name])).concat(D.objects.map(o => [o.color, o.name]));
   document.getElementById("legend").innerHTML = rows.map(r =>
     '<div><span class="sw" style="background:' + r[0] + '"></span>' + escapeHtml(r[1]) + "</div>").join("");
 })();
@@ -400,6 +441,41 @@ function draw() {
     const s = segment([a[0], a[1], 0.001], [b[0], b[1], 0.001]); if (!s) continue;
     ctx.lineWidth = linkWidth(s[4], 0.03);
     ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
+  }
+
+  // scene objects (boxes: faces far to near, then edges; lines: cables), under the robot
+  const faces = [];
+  for (const o of D.objects) {
+    const f = o.frames.length === 1 ? o.frames[0] : o.frames[frame];
+    if (!f) continue;
+    if (o.kind === "line") {
+      const s = segment([f[0] / 1e3, f[1] / 1e3, f[2] / 1e3], [f[3] / 1e3, f[4] / 1e3, f[5] / 1e3]);
+      if (s) faces.push({d: s[4], line: s, color: o.color});
+      continue;
+    }
+    const c = [f[0] / 1e3, f[1] / 1e3, f[2] / 1e3], R = f.slice(3), h = o.half.map(x => x / 1e3);
+    const corner = (sx, sy, sz) => [0, 1, 2].map(r => c[r] + R[3 * r] * sx * h[0] + R[3 * r + 1] * sy * h[1] + R[3 * r + 2] * sz * h[2]);
+    const quads = [[[-1,-1,-1],[1,-1,-1],[1,1,-1],[-1,1,-1]], [[-1,-1,1],[1,-1,1],[1,1,1],[-1,1,1]],
+                   [[-1,-1,-1],[1,-1,-1],[1,-1,1],[-1,-1,1]], [[-1,1,-1],[1,1,-1],[1,1,1],[-1,1,1]],
+                   [[-1,-1,-1],[-1,1,-1],[-1,1,1],[-1,-1,1]], [[1,-1,-1],[1,1,-1],[1,1,1],[1,-1,1]]];
+    for (const quad of quads) {
+      const pts = quad.map(v => project(corner(v[0], v[1], v[2])));
+      if (pts.some(p => !p)) continue;
+      faces.push({d: pts.reduce((a, p) => a + p[2], 0) / 4, quad: pts, color: o.color});
+    }
+  }
+  faces.sort((a, b) => b.d - a.d);
+  for (const f of faces) {
+    if (f.line) {
+      ctx.strokeStyle = f.color; ctx.lineWidth = 2.5;
+      ctx.beginPath(); ctx.moveTo(f.line[0], f.line[1]); ctx.lineTo(f.line[2], f.line[3]); ctx.stroke();
+      continue;
+    }
+    ctx.beginPath(); ctx.moveTo(f.quad[0][0], f.quad[0][1]);
+    for (let k = 1; k < 4; k++) ctx.lineTo(f.quad[k][0], f.quad[k][1]);
+    ctx.closePath();
+    ctx.globalAlpha = 0.55; ctx.fillStyle = f.color; ctx.fill(); ctx.globalAlpha = 1;
+    ctx.strokeStyle = "rgba(40,40,40,0.8)"; ctx.lineWidth = 1; ctx.stroke();
   }
 
   // depth-sorted robot drawables
