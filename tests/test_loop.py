@@ -133,3 +133,30 @@ def test_settled_drift_leaves_out_the_start_transient():
     assert m["base_drift_settled_from_s"] == pytest.approx(2.0)
     assert m["base_drift_settled_cm_s"] == pytest.approx(1.0, rel=1e-3)
     assert m["base_drift_cm_s"] == pytest.approx(100 * 0.07 / t[-1], rel=1e-3)
+
+
+class _SleepyMpc:
+    """Wraps an MPC: every step also waits 40 ms without using the CPU (another process's load)."""
+
+    def __init__(self, mpc):
+        self.mpc, self.robot, self.config = mpc, mpc.robot, mpc.config
+
+    def solve(self, *args):
+        import time
+
+        time.sleep(0.04)
+        return self.mpc.solve(*args)
+
+
+@pytest.mark.parametrize("delay, waits_count", [("measured", False), ("measured-wall", True)])
+def test_measured_delay_counts_cpu_time_not_waiting(delay, waits_count):
+    from wbmpc.robots import load_robot
+
+    robot = load_robot("go2")
+    mpc = MPC(robot, MpcConfig(ocp=OcpConfig(grid=TimeGrid(n_intervals=4, dt_first_s=0.01, dt_last_s=0.05)),
+                               gait="stand"))
+    plant = make_plant("pinocchio", robot)
+    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    log = ClosedLoop(_SleepyMpc(mpc), plant, LoopConfig(delay=delay)).run(0.05)
+    assert log.delay_ms, "no solution applied"
+    assert (min(log.delay_ms) >= 40.0) == waits_count, log.delay_ms
