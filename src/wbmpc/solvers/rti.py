@@ -115,10 +115,6 @@ class RtiSolver:
         library = str(self.compile_report.library)
         return {name: ca.external(name, library) for name in ("nlp", "nlp_jac_g", "nlp_grad_f")}
 
-    def recreated(self, **changes) -> "RtiSolver":
-        """A fresh RTI solver with some settings changed (same compiled library through the cache)."""
-        return RtiSolver(self.problem, replace(self.config, **changes), self.rti)
-
     def _recovery_solver(self) -> NlpSolver:
         """Fatrop on the same problem, built on first need; compiled on the RTI's library. A fresh
         nlpsol per failure when compiled: CasADi's Fatrop loses its options after contact switches."""
