@@ -32,7 +32,7 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
-from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats, solver_options
+from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
 
 
@@ -116,20 +116,13 @@ class RtiSolver:
         return {name: ca.external(name, library) for name in ("nlp", "nlp_jac_g", "nlp_grad_f")}
 
     def _recovery_solver(self) -> NlpSolver:
-        """Fatrop on the same problem, built on first need; compiled on the RTI's library. A fresh
-        nlpsol per failure when compiled: CasADi's Fatrop loses its options after contact switches."""
+        """Fatrop on the same problem (compiled on the RTI's library when the RTI is), built on first need.
+        It keeps one nlpsol per row-count pattern, so its options hold after contact switches."""
         if self._recovery is None:
-            config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init, max_iterations=300)
-            if self.compile_report is None:
-                self._recovery = NlpSolver(self.problem, config)
-            else:
-                options = solver_options(self.problem, config)
-                options.pop("expand")
-                nlpsol = ca.nlpsol("ocp_fatrop_compiled", "fatrop", str(self.compile_report.library), options)
-                self._recovery = NlpSolver(self.problem, config, solver=nlpsol)
-                self._recovery.compile_report = self.compile_report
-                return self._recovery
-        return self._recovery.recreated() if self._recovery.is_compiled else self._recovery
+            config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init, max_iterations=300,
+                                  compiled=self.compile_report is not None, codegen=self.config.codegen)
+            self._recovery = NlpSolver(self.problem, config)
+        return self._recovery
 
     def _recover(self, failed: NlpResult, p, lbx, ubx, lbg, ubg, x0) -> NlpResult:
         result = self._recovery_solver().solve(p, lbx, ubx, lbg, ubg, x0)
