@@ -40,7 +40,7 @@ class CodegenConfig:
     # -O1 compiles wb_inverse in about a minute; -march=native (FMA, AVX2) halves the stage Hessian's
     # evaluation time at the same compile time (measured on the stage functions); the cache key names the CPU
     flags: tuple[str, ...] = ("-O1", "-march=native")
-    timeout_s: float = 900.0
+    timeout_s: float = 1800.0  # a loaded machine can take 15 min for what a quiet one compiles in 2
     memory_limit_mb: float | None = 8000.0  # address-space limit of the compiler process
     cache_dir: Path | None = None  # None: default_cache_dir()
 
