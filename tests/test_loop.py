@@ -111,3 +111,18 @@ def test_run_command_writes_metrics_with_the_contract_keys(tmp_path, capsys):
 def test_run_command_bad_input_exits_2(argv, message, capsys):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_recovered_and_failed_steps_are_counted_apart():
+    from dataclasses import replace
+
+    from wbmpc.control.loop import RunLog
+    from wbmpc.control.mpc import Commands
+
+    log = RunLog()
+    for status, ok in [("Solve_Succeeded", True),
+                       ("Solve_Succeeded (recovery after Line_Search_Failed; fatrop mu_init 0.1: Line_Search_Failed)", True),
+                       ("Maximum_Iterations_Exceeded (recovery after Line_Search_Failed)", False)]:
+        solution = replace(_synthetic_solution(), stats=SolverStats(status, ok, 5, 0.01, 0.0, 0.0), success=ok)
+        ClosedLoop._log_solution(log, 0.0, Commands(), solution)
+    assert (log.mpc_recoveries, log.mpc_failures) == (1, 1)
