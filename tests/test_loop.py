@@ -90,12 +90,19 @@ def test_bad_loop_inputs():
             LoopConfig(delay=delay)
 
 
+def _refuse_non_json(token):
+    raise ValueError(f"{token} is not JSON")
+
+
 def test_run_command_writes_metrics_with_the_contract_keys(tmp_path, capsys):
     code = main(["run", "stand", "--duration", "0.15", "--nodes", "6", "--out", str(tmp_path), "--json"])
     assert code == 0
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    metrics = json.loads((tmp_path / "metrics.json").read_text(), parse_constant=_refuse_non_json)
+    assert metrics["interrupted"] is False and metrics["mpc_recoveries"] == 0
+    assert json.loads((tmp_path / ".wbmpc-outputs.json").read_text())["files"]  # what a later run may replace
     for key in ("scenario", "fell", "duration_s", "base_drift_cm_s", "base_vel_rmse", "ee_pos_rmse_m",
-                "ee_force_err_rel", "max_torque_ratio", "solve_ms", "mpc_failures"):
+                "ee_force_err_rel", "max_torque_ratio", "solve_ms", "mpc_failures", "mpc_recoveries",
+                "mpc_rate_hz", "late_solution_share"):
         assert key in metrics
     assert set(metrics["solve_ms"]) >= {"mean", "std", "max"}
     assert json.loads(capsys.readouterr().out)["scenario"] == "stand"
@@ -160,3 +167,18 @@ def test_measured_delay_counts_cpu_time_not_waiting(delay, waits_count):
     log = ClosedLoop(_SleepyMpc(mpc), plant, LoopConfig(delay=delay)).run(0.05)
     assert log.delay_ms, "no solution applied"
     assert (min(log.delay_ms) >= 40.0) == waits_count, log.delay_ms
+
+
+def test_recovered_and_failed_steps_are_counted_apart():
+    from dataclasses import replace
+
+    from wbmpc.control.loop import RunLog
+    from wbmpc.control.mpc import Commands
+
+    log = RunLog()
+    for status, ok in [("Solve_Succeeded", True),
+                       ("Solve_Succeeded (recovery after Line_Search_Failed; fatrop mu_init 0.1: Line_Search_Failed)", True),
+                       ("Maximum_Iterations_Exceeded (recovery after Line_Search_Failed)", False)]:
+        solution = replace(_synthetic_solution(), stats=SolverStats(status, ok, 5, 0.01, 0.0, 0.0), success=ok)
+        ClosedLoop._log_solution(log, 0.0, Commands(), solution)
+    assert (log.mpc_recoveries, log.mpc_failures) == (1, 1)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 
 from wbmpc import __version__
 from wbmpc.errors import ConfigError, ModelError, WbmpcError
@@ -20,7 +21,8 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
               "the solve did not converge or the simulation diverged", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
-EPILOG = "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES.items())
+EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
+                                       for code, text in EXIT_CODES.items())
 
 # config fields -> the options that set them, so that errors name what the user typed
 FIELD_FLAGS = {
@@ -308,9 +310,9 @@ def build_parser() -> argparse.ArgumentParser:
     from wbmpc.scenarios import SCENARIOS
 
     run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay",
-                         description="Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 Hz) and write "
-                         "metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps what was "
-                         "measured and exits 130.", epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
+                         description=textwrap.fill("Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 "
+                         "Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
+                         "what was measured and exits 130.", 90), epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
     run.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)} (listed below)")
     _add_robot_options(run)
     run.add_argument("--duration", type=float, metavar="S",

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.progress import ProgressBar
 from wbmpc.bench.mpc import write_report, _closed_loop, _output, bench_markdown, bench_mpc, grid_for, mpc_config
 from wbmpc.errors import ConfigError
+from wbmpc.progress import ProgressBar
 
 
 def node_scaling(robot, nodes_list: list[int], steps: int, compiled: bool, progress=None) -> dict:

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.progress import ProgressBar
 from wbmpc.bench.mpc import write_report, MPC_RATE_HZ, _closed_loop, _machine, _output, _stats, mpc_config
 from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.progress import ProgressBar
 
 # Table I of the paper (B2 + Z1, 15 nodes): instructions, decision variables, solve ms mean (std)
 PAPER_TABLE1 = {

@@ -105,6 +105,7 @@ class RunLog:
     late_solutions: int = 0
     sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
     mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
+    recovered_solutions: int = 0  # counted as logged: progress reads it every control tick
     interrupted: bool = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
     fell: bool = False
     fell_at_s: float | None = None
@@ -124,7 +125,7 @@ class RunLog:
     @property
     def mpc_recoveries(self) -> int:
         """Steps whose first solve failed and a recovery re-solve succeeded (`MPC._recover`)."""
-        return sum(1 for ok, status in zip(self.success, self.status) if ok and RECOVERY_MARK in str(status))
+        return self.recovered_solutions
 
 
 class ClosedLoop:
@@ -197,6 +198,8 @@ class ClosedLoop:
         log.iterations.append(solution.stats.iterations)
         log.success.append(solution.success)
         log.status.append(solution.stats.status)
+        if solution.success and RECOVERY_MARK in str(solution.stats.status):
+            log.recovered_solutions += 1
         log.commands.append(command)
         log.planned_contact.append(solution.contact[0].copy())
 
