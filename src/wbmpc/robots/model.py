@@ -17,6 +17,11 @@ import pinocchio as pin
 from wbmpc.errors import ModelError, unknown_name
 
 GRAVITY_M_S2 = 9.81
+SUPPORTED_JOINTS = frozenset(
+    f"JointModel{kind}"
+    for kind in ("RX", "RY", "RZ", "RevoluteUnaligned", "RUBX", "RUBY", "RUBZ", "RevoluteUnboundedUnaligned",
+                 "PX", "PY", "PZ", "PrismaticUnaligned")
+)
 
 
 @dataclass(frozen=True)
@@ -34,6 +39,7 @@ class RobotSpec:
     velocity_limit_rad_s: dict[str, float] = field(default_factory=dict)
     position_limit_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
     foot_radius_m: float | None = None
+    joint_positions_rad: dict[str, float] = field(default_factory=dict)  # overrides of the reference pose
 
 
 class RobotModel:
@@ -42,6 +48,13 @@ class RobotModel:
     Attributes: `model` (pinocchio, reduced), `nq`, `nv`, `n_joints` (= nv - 6), `joint_names`
     (actuated joints in velocity order), `feet`, `arm_ee`, `q_nominal`, `mass_kg`, and per-joint
     limits `q_min`, `q_max`, `v_max`, `tau_max` (length `n_joints`).
+
+    Joints: one-DoF revolute or prismatic (aligned or not with an axis of their frame) and
+    continuous joints (pinocchio's RUBX/RUBY/RUBZ, stored as (cos, sin) in q: nq = 2, nv = 1);
+    fixed joints are merged into their parent body by pinocchio. `joint_positions(q)` gives one
+    angle / displacement per joint whatever the q layout. A URDF limit with lower >= upper (the
+    usual `<limit effort=.. velocity=..>` without lower/upper) and continuous joints mean no
+    position limit. A reference pose outside the limits is clipped into them.
     """
 
     def __init__(self, spec: RobotSpec):
@@ -57,6 +70,13 @@ class RobotModel:
         except (RuntimeError, ValueError) as exc:
             raise ModelError(f"pinocchio cannot parse URDF {urdf}: {exc}") from exc
 
+        for i in range(2, full.njoints):
+            if full.joints[i].shortname() not in SUPPORTED_JOINTS and full.names[i] not in spec.locked_joints:
+                raise ModelError(
+                    f"joint '{full.names[i]}' has type {full.joints[i].shortname()} ({full.joints[i].nv} DoF), which "
+                    "wbmpc does not support; it supports revolute, continuous and prismatic joints (aligned or not) "
+                    "below the free-flyer root: lock the joint (--lock) or change its type in the URDF"
+                )
         q_ref = self._reference_configuration(full, spec)
         for joint in spec.locked_joints:
             if not full.existJointName(joint) or joint == "root_joint":
@@ -69,12 +89,9 @@ class RobotModel:
         self.nq, self.nv = model.nq, model.nv
         self.n_joints = model.nv - 6
         self.joint_names: tuple[str, ...] = tuple(model.names[2:])
-        for i in range(2, model.njoints):
-            if model.joints[i].nv != 1:
-                raise ModelError(
-                    f"joint '{model.names[i]}' ({model.joints[i].shortname()}) has {model.joints[i].nv} "
-                    "DoF; wbmpc supports one-DoF revolute/prismatic joints below the free-flyer root"
-                )
+        joint_ids = [model.getJointId(n) for n in self.joint_names]
+        self._joint_iq = np.array([model.idx_qs[j] for j in joint_ids], dtype=int)
+        self.continuous = np.array([model.nqs[j] == 2 for j in joint_ids], dtype=bool)
 
         self.feet = tuple(spec.feet)
         self.arm_ee = spec.arm_ee
@@ -90,7 +107,15 @@ class RobotModel:
         self.foot_radius_m = (
             spec.foot_radius_m if spec.foot_radius_m is not None else _foot_radius_from_urdf(urdf, model, self.feet)
         )
-        self.q_nominal = self._standing_configuration(np.asarray(q_ref)[keep])
+        q_ref = np.asarray(q_ref)[keep]
+        for joint, value in spec.joint_positions_rad.items():
+            if joint not in self.joint_names:
+                raise ModelError(unknown_name("joint in joint_positions_rad", joint, self.joint_names))
+            positions = self.joint_positions(q_ref)
+            positions[self.joint_names.index(joint)] = float(value)
+            q_ref = self.with_joint_positions(q_ref, positions)
+        q_ref = self.with_joint_positions(q_ref, np.clip(self.joint_positions(q_ref), self.q_min, self.q_max))
+        self.q_nominal = self._standing_configuration(q_ref)
 
     # ------------------------------------------------------------------ loading helpers
     @staticmethod
@@ -120,6 +145,8 @@ class RobotModel:
             if not full.existJointName(name):
                 continue  # SRDFs often name joints of other variants; ignore them like pinocchio does
             jid = full.getJointId(name)
+            if values.size == 1 and full.nqs[jid] == 2 and full.nvs[jid] == 1:  # continuous joint given by its angle
+                values = np.array([np.cos(values[0]), np.sin(values[0])])
             if values.size != full.nqs[jid]:
                 raise ModelError(f"SRDF pose '{spec.pose}': joint '{name}' needs {full.nqs[jid]} values, got {values.size}")
             q[full.idx_qs[jid] : full.idx_qs[jid] + values.size] = values
@@ -133,6 +160,8 @@ class RobotModel:
         iv = [model.idx_vs[model.getJointId(n)] for n in names]
         self.q_min = np.array(model.lowerPositionLimit)[iq]
         self.q_max = np.array(model.upperPositionLimit)[iq]
+        unlimited = self.continuous | ~(self.q_min < self.q_max)  # URDF <limit> without lower/upper: 0, 0
+        self.q_min[unlimited], self.q_max[unlimited] = -np.inf, np.inf
         self.v_max = np.array(model.velocityLimit)[iv]
         self.tau_max = np.array(model.effortLimit)[iv]
         for table, target in (
@@ -206,6 +235,34 @@ class RobotModel:
                 out[name][k] = pin.updateFramePlacement(self.model, data, fid).translation
         return out
 
+    def joint_positions(self, q: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
+        """Joint angles / displacements (..., n_joints) of configurations q (..., nq).
+
+        Continuous joints give atan2(sin, cos) in (-pi, pi], or with `near` (..., n_joints) the angle
+        that differs from `near` by at most pi (for position errors across the +-pi seam).
+        """
+        q = np.asarray(q, dtype=float)
+        out = q[..., self._joint_iq].copy()
+        if self.continuous.any():
+            iq = self._joint_iq[self.continuous]
+            angle = np.arctan2(q[..., iq + 1], q[..., iq])
+            if near is not None:
+                ref = np.asarray(near, dtype=float)[..., self.continuous]
+                angle = ref + np.angle(np.exp(1j * (angle - ref)))
+            out[..., self.continuous] = angle
+        return out
+
+    def with_joint_positions(self, q: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """A copy of configuration q (nq,) with its joint coordinates set from `positions` (n_joints,)."""
+        q = np.array(q, dtype=float)
+        positions = np.asarray(positions, dtype=float)
+        plain = ~self.continuous
+        q[self._joint_iq[plain]] = positions[plain]
+        if self.continuous.any():
+            iq = self._joint_iq[self.continuous]
+            q[iq], q[iq + 1] = np.cos(positions[self.continuous]), np.sin(positions[self.continuous])
+        return q
+
     def random_configuration(self, rng: np.random.Generator) -> np.ndarray:
         """A random configuration on the manifold within joint limits (unit quaternion)."""
         q = self.q_nominal.copy()
@@ -214,8 +271,7 @@ class RobotModel:
         q[3:7] = quat / np.linalg.norm(quat)
         lo = np.maximum(self.q_min, -np.pi)
         hi = np.minimum(self.q_max, np.pi)
-        q[7:] = rng.uniform(lo, hi)
-        return q
+        return self.with_joint_positions(q, rng.uniform(lo, hi))
 
     def summary(self) -> dict:
         return {

@@ -26,7 +26,12 @@ from wbmpc.sim.shapes import CollisionShape, robot_collision_shapes
 
 ROBOT_CONTYPE, ROBOT_CONAFFINITY = 2, 1
 ENV_CONTYPE, ENV_CONAFFINITY = 1, 3
-_JOINT_AXES = {"RX": "1 0 0", "RY": "0 1 0", "RZ": "0 0 1", "PX": "1 0 0", "PY": "0 1 0", "PZ": "0 0 1"}
+MIN_MASS_KG = 1e-9
+MIN_INERTIA_KG_M2 = 1e-9
+_JOINT_AXES = {
+    "RX": "1 0 0", "RY": "0 1 0", "RZ": "0 0 1", "RUBX": "1 0 0", "RUBY": "0 1 0", "RUBZ": "0 0 1",
+    "PX": "1 0 0", "PY": "0 1 0", "PZ": "0 0 1",
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,39 @@ def body_names(robot: RobotModel) -> list[str]:
         name = next((n for n in links if n not in names), model.names[jid])
         names.append(name)
     return names
+
+
+def mujoco_inertia(mass_kg: float, inertia_kg_m2: np.ndarray) -> tuple[float, np.ndarray]:
+    """Mass and rotational inertia (about the centre of mass) as MuJoCo accepts them.
+
+    MuJoCo rejects moving bodies without mass (the massless links between the axes of a URDF
+    ball joint), inertias that are not positive definite (point masses) and principal moments
+    violating the triangle inequality A + B >= C (not a physical body). Such inputs get
+    MIN_MASS_KG, principal moments of at least MIN_INERTIA_KG_M2 and the two smaller moments
+    raised until A + B = C; physical inertias pass unchanged (see `regularised_bodies`).
+    """
+    mass = max(float(mass_kg), MIN_MASS_KG)
+    inertia = 0.5 * (np.asarray(inertia_kg_m2, dtype=float) + np.asarray(inertia_kg_m2, dtype=float).T)
+    moments, axes = np.linalg.eigh(inertia)
+    fixed = np.maximum(moments, MIN_INERTIA_KG_M2)
+    deficit = fixed[2] - fixed[0] - fixed[1]
+    if deficit > 0:
+        fixed[:2] += 0.5 * deficit * (1 + 1e-9)
+    if np.array_equal(fixed, moments) and mass == mass_kg:
+        return mass, np.asarray(inertia_kg_m2, dtype=float)
+    return mass, axes @ np.diag(fixed) @ axes.T
+
+
+def regularised_bodies(robot: RobotModel) -> list[str]:
+    """MuJoCo bodies whose mass or inertia `mujoco_inertia` had to change (the plant then differs
+    slightly from the pinocchio model there)."""
+    out = []
+    for jid, name in enumerate(body_names(robot), start=1):
+        inertia = robot.model.inertias[jid]
+        mass, rotational = mujoco_inertia(inertia.mass, inertia.inertia)
+        if mass != inertia.mass or not np.array_equal(rotational, inertia.inertia):
+            out.append(name)
+    return out
 
 
 def build_mjcf(robot: RobotModel, config: MujocoPlantConfig | None = None) -> str:
@@ -158,12 +196,12 @@ def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShap
         )
         elements[jid] = body
         inertia = model.inertias[jid]
-        I = inertia.inertia
+        mass, I = mujoco_inertia(inertia.mass, inertia.inertia)
         ET.SubElement(
             body,
             "inertial",
             pos=_v(inertia.lever),
-            mass=_f(inertia.mass),
+            mass=_f(mass),
             fullinertia=_v([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]),
         )
         _add_joint(body, robot, jid, limits)
@@ -189,8 +227,11 @@ def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict) -> N
     suffix = short.removeprefix("JointModel")
     if suffix in _JOINT_AXES:
         axis = _JOINT_AXES[suffix]
-    elif suffix in ("RevoluteUnaligned", "PrismaticUnaligned"):
-        axis = _v(joint.extract().axis)
+    elif suffix in ("RevoluteUnaligned", "RevoluteUnboundedUnaligned", "PrismaticUnaligned"):
+        data = robot.model.createData()
+        pin.forwardKinematics(robot.model, data, pin.neutral(robot.model))
+        subspace = np.array(data.joints[jid].S).ravel()  # (linear, angular); constant for these joints
+        axis = _v(subspace[:3] if kind == "slide" else subspace[3:])
     else:
         raise PlantInputError(f"joint '{name}' of type {short} has no MuJoCo equivalent in wbmpc.sim")
     lo, hi = limits[name]

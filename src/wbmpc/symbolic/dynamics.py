@@ -147,24 +147,31 @@ class SymbolicDynamics:
         if model.joints[1].shortname() != "JointModelFreeFlyer":
             raise ModelError("the first joint must be a free-flyer root (load the URDF with JointModelFreeFlyer)")
         self.joints: dict[int, _Joint] = {}
+        # motion subspaces S (linear, angular) of every joint: the axis of unaligned joints (the Python
+        # bindings expose no `axis` on some of them, e.g. RevoluteUnboundedUnaligned)
+        data = model.createData()
+        pin.forwardKinematics(model, data, pin.neutral(model))
         for i in range(2, model.njoints):
             jm = model.joints[i]
             name = jm.shortname()
             if name in _REVOLUTE or name in _UNBOUNDED:
                 kind, axis = "revolute", np.array(_REVOLUTE.get(name) or _UNBOUNDED[name], float)
-            elif name == "JointModelRevoluteUnaligned":
-                kind, axis = "revolute", np.array(jm.axis, float)
+            elif name in ("JointModelRevoluteUnaligned", "JointModelRevoluteUnboundedUnaligned"):
+                kind, axis = "revolute", np.array(data.joints[i].S, float).ravel()[3:]
             elif name in _PRISMATIC:
                 kind, axis = "prismatic", np.array(_PRISMATIC[name], float)
             elif name == "JointModelPrismaticUnaligned":
-                kind, axis = "prismatic", np.array(jm.axis, float)
+                kind, axis = "prismatic", np.array(data.joints[i].S, float).ravel()[:3]
             else:
-                raise ModelError(f"joint '{model.names[i]}' has unsupported type {name}")
+                raise ModelError(
+                    f"joint '{model.names[i]}' has unsupported type {name}; supported: revolute, continuous and "
+                    "prismatic joints (aligned or unaligned axes); lock it or change its type in the URDF"
+                )
             placement = model.jointPlacements[i]
             self.joints[i] = _Joint(
                 parent=model.parents[i],
                 kind=kind,
-                unbounded=name in _UNBOUNDED,
+                unbounded=name in _UNBOUNDED or name == "JointModelRevoluteUnboundedUnaligned",
                 axis=axis,
                 placement_rotation=np.array(placement.rotation),
                 placement_translation=np.array(placement.translation),
