@@ -22,7 +22,40 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--feet", help="comma-separated foot frame names of a custom robot")
     group.add_argument("--arm-ee", help="arm end-effector frame of a custom robot")
     group.add_argument("--lock", help="comma-separated joints to lock at the reference pose")
+    drive = parser.add_argument_group(
+        "drive train of the controller's model (paper VI-D); VALUE or JOINT=VALUE,JOINT=VALUE (others 0)")
+    drive.add_argument("--armature", metavar="KG_M2", help="rotor inertia added to the mass-matrix diagonal, kg m^2")
+    drive.add_argument("--viscous-friction", metavar="NM_S", help="viscous joint friction b (tau += b v), N m s/rad")
+    drive.add_argument("--coulomb-friction", metavar="NM", help="Coulomb joint friction c (tau += c tanh(v / 0.05)), N m")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+_MODEL_DRIVE = {"armature": "armature_kg_m2", "viscous_friction": "viscous_friction_nm_s",
+                "coulomb_friction": "coulomb_friction_nm"}
+_PLANT_DRIVE = {"plant_armature": "joint_armature_kg_m2", "plant_viscous_friction": "joint_damping_nm_s_per_rad",
+                "plant_coulomb_friction": "joint_frictionloss_nm"}
+
+
+def _joint_values_arg(text: str, flag: str, joint_names) -> float | dict[str, float]:
+    """'0.02' (every joint) or 'JOINT=0.02,JOINT=0.01' (the others 0), checked against the robot's joints."""
+    from wbmpc.robots import joint_values
+
+    if "=" not in text:
+        value: float | dict[str, float] = _number(text, flag)
+    else:
+        value = {}
+        for item in _split(text):
+            joint, _, number = item.partition("=")
+            value[joint.strip()] = _number(number, f"{flag} {joint.strip()}")
+    joint_values(value, tuple(joint_names), flag)  # names and signs, reported with the flag
+    return value
+
+
+def _number(text: str, flag: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise WbmpcError(f"{flag} needs a number or JOINT=NUMBER pairs, got {text!r}") from None
 
 
 def _split(text: str | None) -> list[str]:
@@ -30,13 +63,28 @@ def _split(text: str | None) -> list[str]:
 
 
 def robot_from_args(args: argparse.Namespace):
+    import dataclasses
+
     from wbmpc.robots import RobotModel, custom_spec, load_robot
 
     if args.urdf:
         if not args.feet:
             raise WbmpcError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
-        return RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
-    return load_robot(args.robot)
+        robot = RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
+    else:
+        robot = load_robot(args.robot)
+    drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
+             for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
+    return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+
+
+def plant_config_from_args(args: argparse.Namespace, robot):
+    """The plant's drive train (--plant-armature/...), independent of the controller's model."""
+    from wbmpc.sim import PlantConfig
+
+    drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
+             for option, field in _PLANT_DRIVE.items() if getattr(args, option, None) is not None}
+    return PlantConfig(**drive) if drive else None
 
 
 def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
@@ -115,7 +163,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
                        gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
-                       compiled=args.compiled)
+                       compiled=args.compiled, plant_config=plant_config_from_args(args, robot))
     if args.sweep is not None:
         return _run_sweep(args, robot, config, out_dir)
     print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
@@ -182,6 +230,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, help="simulated seconds (scenario default otherwise)")
     run.add_argument("--delay", default="none", help="none | measured | realtime | a fixed delay in ms")
     run.add_argument("--plant", default="mujoco", help="mujoco (default) | pinocchio")
+    plant_drive = run.add_argument_group(
+        "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
+    plant_drive.add_argument("--plant-armature", metavar="KG_M2", help="rotor inertia (MuJoCo joint armature), kg m^2")
+    plant_drive.add_argument("--plant-viscous-friction", metavar="NM_S",
+                             help="viscous joint friction (MuJoCo joint damping), N m s/rad")
+    plant_drive.add_argument("--plant-coulomb-friction", metavar="NM",
+                             help="dry joint friction (MuJoCo joint frictionloss; mujoco plant only), N m")
     run.add_argument("--out", help="output directory (default runs/SCENARIO)")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--nodes", type=int, default=15)

@@ -40,9 +40,16 @@ def _relative_error(value, reference) -> float:
 
 
 def _references(robot: RobotModel) -> dict[str, Callable]:
-    """Per function: (sample) -> (symbolic args, pinocchio reference), with the EE frame for frame functions."""
+    """Per function: (sample) -> (symbolic args, pinocchio reference), with the EE frame for frame functions.
+
+    pinocchio's rnea/crba/aba include the robot's armature (`model.armature`); its algorithms have
+    no joint friction, so the robot's friction torques are added to the references that need them.
+    """
     model, data = robot.model, robot.model.createData()
     fid = robot.frame_id(robot.contact_frames[-1])
+
+    def friction(v):
+        return np.concatenate([np.zeros(6), robot.joint_friction_torque(v[6:])])
 
     def fk(s):
         pin.framesForwardKinematics(model, data, s["q"])
@@ -60,19 +67,19 @@ def _references(robot: RobotModel) -> dict[str, Callable]:
     def rnea(s):
         pin.framesForwardKinematics(model, data, s["q"])
         fext = world_forces_to_pinocchio(robot, data, s["f"])
-        return (s["q"], s["v"], s["a"], s["f"]), pin.rnea(model, data, s["q"], s["v"], s["a"], fext)
+        return (s["q"], s["v"], s["a"], s["f"]), pin.rnea(model, data, s["q"], s["v"], s["a"], fext) + friction(s["v"])
 
     def crba(s):
         mass = pin.crba(model, data, s["q"])
         return (s["q"],), np.triu(mass) + np.triu(mass, 1).T
 
     def nle(s):
-        return (s["q"], s["v"]), pin.nonLinearEffects(model, data, s["q"], s["v"])
+        return (s["q"], s["v"]), pin.nonLinearEffects(model, data, s["q"], s["v"]) + friction(s["v"])
 
     def forward_dynamics(s):
         pin.framesForwardKinematics(model, data, s["q"])
         fext = world_forces_to_pinocchio(robot, data, s["f"])
-        tau = np.concatenate([np.zeros(6), s["tau_j"]])
+        tau = np.concatenate([np.zeros(6), s["tau_j"]]) - friction(s["v"])
         return (s["q"], s["v"], s["tau_j"], s["f"]), pin.aba(model, data, s["q"], s["v"], tau, fext)
 
     def com(s):

@@ -8,6 +8,7 @@ Z1 joints and the gripper, section V-B).
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,9 +25,40 @@ SUPPORTED_JOINTS = frozenset(
 )
 
 
+JointValues = float | Mapping[str, float]  # one value for every joint, or {joint name: value} (others 0)
+
+
+def joint_values(value: JointValues, joint_names: tuple[str, ...], label: str) -> np.ndarray:
+    """A per-joint parameter as an array in `joint_names` order; finite and >= 0 or a clear error."""
+    if isinstance(value, Mapping):
+        out = np.zeros(len(joint_names))
+        for joint, entry in value.items():
+            if joint not in joint_names:
+                raise ModelError(f"{label}: {unknown_name('joint', joint, joint_names)}")
+            out[joint_names.index(joint)] = _non_negative(entry, f"{label}[{joint!r}]")
+        return out
+    return np.full(len(joint_names), _non_negative(value, label))
+
+
+def _non_negative(value, label: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ModelError(f"{label} must be a number, got {value!r}") from exc
+    if not (np.isfinite(number) and number >= 0):
+        raise ModelError(f"{label} must be a finite number >= 0, got {value!r}")
+    return number
+
+
 @dataclass(frozen=True)
 class RobotSpec:
-    """Everything needed to load a robot; presets are instances of this."""
+    """Everything needed to load a robot; presets are instances of this.
+
+    Drive-train terms of the controller's model (paper section VI-D), one value for all joints or
+    {joint: value}: `armature_kg_m2` (rotor inertia reflected through the gearbox, added to the
+    diagonal of the mass matrix), `viscous_friction_nm_s` (tau += b v) and `coulomb_friction_nm`
+    (tau += c tanh(v / coulomb_velocity_rad_s), a smooth sign(v) the NLP can differentiate).
+    """
 
     name: str
     urdf: Path
@@ -40,6 +72,10 @@ class RobotSpec:
     position_limit_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
     foot_radius_m: float | None = None
     joint_positions_rad: dict[str, float] = field(default_factory=dict)  # overrides of the reference pose
+    armature_kg_m2: JointValues = 0.0
+    viscous_friction_nm_s: JointValues = 0.0
+    coulomb_friction_nm: JointValues = 0.0
+    coulomb_velocity_rad_s: float = 0.05
 
 
 class RobotModel:
@@ -104,6 +140,7 @@ class RobotModel:
 
         self.mass_kg = float(sum(inertia.mass for inertia in model.inertias))
         self._set_limits(model, spec)
+        self._set_drive_train(model, spec)
         self.foot_radius_m = (
             spec.foot_radius_m if spec.foot_radius_m is not None else _foot_radius_from_urdf(urdf, model, self.feet)
         )
@@ -183,6 +220,30 @@ class RobotModel:
             bad = [names[i] for i in np.flatnonzero(~(arr > 0) | (arr > big))]
             if bad:
                 raise ModelError(f"joints {bad} have no positive {label} limit in the URDF; give one in the RobotSpec")
+
+    def _set_drive_train(self, model: pin.Model, spec: RobotSpec) -> None:
+        """Armature and joint friction of the controller's model; pinocchio's algorithms (rnea, crba,
+        aba) include `model.armature`, its `damping`/`friction` fields are set for reference only."""
+        names = self.joint_names
+        self.armature_kg_m2 = joint_values(spec.armature_kg_m2, names, "armature_kg_m2")
+        self.viscous_friction_nm_s = joint_values(spec.viscous_friction_nm_s, names, "viscous_friction_nm_s")
+        self.coulomb_friction_nm = joint_values(spec.coulomb_friction_nm, names, "coulomb_friction_nm")
+        self.coulomb_velocity_rad_s = _non_negative(spec.coulomb_velocity_rad_s, "coulomb_velocity_rad_s")
+        if not self.coulomb_velocity_rad_s > 0:
+            raise ModelError("coulomb_velocity_rad_s must be > 0 (the smoothing of sign(v))")
+        iv = [model.idx_vs[model.getJointId(n)] for n in names]
+        for field_name, values in (("armature", self.armature_kg_m2), ("damping", self.viscous_friction_nm_s),
+                                   ("friction", self.coulomb_friction_nm)):
+            vector = np.array(getattr(model, field_name), dtype=float)
+            vector[iv] = values
+            setattr(model, field_name, vector)
+
+    def joint_friction_torque(self, v_joints: np.ndarray) -> np.ndarray:
+        """Friction torques b v + c tanh(v / v_c) the joints need on top of the rigid-body dynamics."""
+        v_joints = np.asarray(v_joints, dtype=float)
+        return self.viscous_friction_nm_s * v_joints + self.coulomb_friction_nm * np.tanh(
+            v_joints / self.coulomb_velocity_rad_s
+        )
 
     def _standing_configuration(self, q: np.ndarray) -> np.ndarray:
         """Reference pose with the base lifted so that the lowest foot touches the ground."""
@@ -283,7 +344,18 @@ class RobotModel:
             "feet": list(self.feet),
             "arm_ee": self.arm_ee,
             "joints": list(self.joint_names),
+            "continuous_joints": [n for n, c in zip(self.joint_names, self.continuous) if c],
+            "armature_kg_m2": _compact(self.armature_kg_m2, self.joint_names),
+            "viscous_friction_nm_s": _compact(self.viscous_friction_nm_s, self.joint_names),
+            "coulomb_friction_nm": _compact(self.coulomb_friction_nm, self.joint_names),
         }
+
+
+def _compact(values: np.ndarray, names: tuple[str, ...]):
+    """One number when every joint has the same value, else {joint: value}."""
+    if np.all(values == values[0]) if values.size else True:
+        return float(values[0]) if values.size else 0.0
+    return {n: float(v) for n, v in zip(names, values)}
 
 
 def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:

@@ -19,7 +19,8 @@ from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
-from wbmpc.sim import make_plant
+from wbmpc.sim import PlantConfig, make_plant
+from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
 from wbmpc.solvers.nlp import SolverConfig
 
 
@@ -37,6 +38,7 @@ class RunConfig:
     formulation: str = "wb_inverse"
     compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
     seed: int = 0
+    plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
 
     def __post_init__(self):
         if self.duration_s is not None and not self.duration_s > 0:
@@ -70,7 +72,12 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
     mpc.reset()
-    plant = make_plant(config.plant, robot, scene.plant_config() if scene is not None else None)
+    plant_config = config.plant_config
+    if scene is not None:
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
+    plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
@@ -80,10 +87,23 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
-                    "time_steps": "uniform" if config.uniform_dt_ms else "geometric"})
+                    "time_steps": "uniform" if config.uniform_dt_ms else "geometric",
+                    "drive_train": _drive_train_summary(robot, plant.config)})
     result = ScenarioResult(scenario, metrics, log)
     result.plant = plant  # type: ignore[attr-defined]
     return result
+
+
+def _drive_train_summary(robot: RobotModel, plant_config: PlantConfig) -> dict:
+    """Armature and friction of the controller's model and of the plant (they may differ, section VI-D)."""
+    summary = robot.summary()
+    model = {key: summary[key] for key in ("armature_kg_m2", "viscous_friction_nm_s", "coulomb_friction_nm")}
+    plant = {key: _plain(getattr(plant_config, key)) for key in DRIVE_TRAIN_FIELDS}
+    return {"model": model, "plant": plant}
+
+
+def _plain(value):
+    return {k: float(v) for k, v in value.items()} if isinstance(value, dict) else float(value)
 
 
 def prepare_output_dir(out_dir: Path) -> Path:

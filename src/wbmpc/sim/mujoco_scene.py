@@ -46,6 +46,11 @@ class MujocoPlantConfig(PlantConfig):
     contact_dampratio: float = 1.0
     contact_solimp: tuple[float, float, float, float, float] = (0.95, 0.99, 0.001, 0.5, 2.0)
     torsional_friction_m: float = 0.0
+    # joint dry friction (joint_frictionloss_nm) is a soft constraint in MuJoCo; with its default
+    # impedance a joint held at half its friction torque still creeps at ~0.3 rad/s, so it gets a
+    # stiff one: time constant (None: 2 dt_s) and impedance
+    joint_friction_timeconst_s: float | None = None
+    joint_friction_solimp: tuple[float, float, float, float, float] = (0.99, 0.999, 0.001, 0.5, 2.0)
     integrator: str = "implicitfast"  # Euler | RK4 | implicit | implicitfast
     cone: str = "elliptic"  # elliptic | pyramidal
     use_urdf_collision_primitives: bool = True
@@ -59,6 +64,9 @@ class MujocoPlantConfig(PlantConfig):
             raise PlantInputError(f"integrator must be Euler, RK4, implicit or implicitfast, got {self.integrator!r}")
         if self.cone not in ("elliptic", "pyramidal"):
             raise PlantInputError(f"cone must be 'elliptic' or 'pyramidal', got {self.cone!r}")
+        timeconst = self.joint_friction_timeconst_s
+        if timeconst is not None and not (np.isfinite(timeconst) and timeconst >= 2 * self.dt_s):
+            raise PlantInputError(f"joint_friction_timeconst_s ({timeconst}) must be >= 2 * dt_s ({2 * self.dt_s})")
         if not self.contact_timeconst_s >= 2 * self.dt_s:
             raise PlantInputError(
                 f"contact_timeconst_s ({self.contact_timeconst_s}) must be >= 2 * dt_s ({2 * self.dt_s}) for a stable contact"
@@ -139,7 +147,7 @@ def build_mjcf(robot: RobotModel, config: MujocoPlantConfig | None = None) -> st
     ET.SubElement(world, "light", name="sun", pos="0 0 5", dir="0 0 -1", directional="true")
     ET.SubElement(world, "geom", name="floor", type="plane", size="0 0 0.05", material="grid", priority="1")
     shapes = robot_collision_shapes(robot, config.use_urdf_collision_primitives, config.ee_sphere_radius_m)
-    _add_bodies(world, robot, shapes, body_names(robot))
+    _add_bodies(world, robot, shapes, body_names(robot), _drive_train(robot, config))
     for k, snippet in enumerate(config.extra_bodies_mjcf):
         try:
             world.append(ET.fromstring(snippet))
@@ -176,12 +184,29 @@ def _defaults(root: ET.Element, config: MujocoPlantConfig) -> None:
         solref=_v([config.contact_timeconst_s, config.contact_dampratio]),
         solimp=_v(config.contact_solimp),
     )
-    ET.SubElement(default, "joint", damping=_f(config.joint_damping_nm_s_per_rad), armature=_f(config.joint_armature_kg_m2))
     robot_class = ET.SubElement(default, "default", attrib={"class": "robot"})
     ET.SubElement(robot_class, "geom", contype=str(ROBOT_CONTYPE), conaffinity=str(ROBOT_CONAFFINITY), rgba=".7 .7 .75 1")
 
 
-def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShape], names: list[str]) -> None:
+def _drive_train(robot: RobotModel, config: MujocoPlantConfig) -> dict[str, dict[str, str]]:
+    """Per joint MJCF attributes of the plant's drive train: armature, damping, frictionloss."""
+    columns = {
+        "armature": config.joint_array(robot, "joint_armature_kg_m2"),
+        "damping": config.joint_array(robot, "joint_damping_nm_s_per_rad"),
+        "frictionloss": config.joint_array(robot, "joint_frictionloss_nm"),
+    }
+    timeconst = config.joint_friction_timeconst_s or 2 * config.dt_s
+    friction = {"solreffriction": _v([timeconst, 1.0]), "solimpfriction": _v(config.joint_friction_solimp)}
+    return {
+        name: {**{key: _f(values[k]) for key, values in columns.items()},
+               **(friction if columns["frictionloss"][k] > 0 else {})}
+        for k, name in enumerate(robot.joint_names)
+    }
+
+
+def _add_bodies(
+    world: ET.Element, robot: RobotModel, shapes: list[CollisionShape], names: list[str], drive: dict[str, dict[str, str]]
+) -> None:
     model = robot.model
     elements: dict[int, ET.Element] = {0: world}
     limits = {n: (lo, hi) for n, lo, hi in zip(robot.joint_names, robot.q_min, robot.q_max)}
@@ -204,7 +229,7 @@ def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShap
             mass=_f(mass),
             fullinertia=_v([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]),
         )
-        _add_joint(body, robot, jid, limits)
+        _add_joint(body, robot, jid, limits, drive)
         if jid == 1:
             ET.SubElement(body, "camera", name="track", mode="trackcom", pos="0 -2.5 1.0", xyaxes="1 0 0 0 0.37 0.93")
         for shape in (s for s in shapes if s.joint_id == jid):
@@ -214,7 +239,7 @@ def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShap
         ET.SubElement(elements[frame.parentJoint], "site", name=name, pos=_v(frame.placement.translation), size="0.01")
 
 
-def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict) -> None:
+def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict, drive: dict[str, dict[str, str]]) -> None:
     model, name = robot.model, robot.model.names[jid]
     joint = model.joints[jid]
     short = joint.shortname()
@@ -235,7 +260,7 @@ def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict) -> N
     else:
         raise PlantInputError(f"joint '{name}' of type {short} has no MuJoCo equivalent in wbmpc.sim")
     lo, hi = limits[name]
-    attrs = dict(name=name, type=kind, axis=axis)
+    attrs = dict(name=name, type=kind, axis=axis, **drive[name])
     if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 1e9:
         attrs.update(range=_v([lo, hi]), limited="true")
     ET.SubElement(body, "joint", **attrs)
