@@ -121,3 +121,16 @@ def test_unsupported_joint_type_is_reported():
     fake.model = model
     with pytest.raises(ModelError, match="joint 'ball' has unsupported type JointModelSpherical"):
         SymbolicDynamics(fake)
+
+
+def test_bench_robots_cli_reports_every_requested_robot(capsys):
+    import json
+
+    from wbmpc.cli import main
+
+    assert main(["bench", "robots", "--robots", "bolt,solo8", "--samples", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [r["robot"] for r in report["robots"]] == ["bolt", "solo8"]
+    assert report["max_abs_error"] < 1e-12 and report["robots"][1]["joint_types"] == {"RY": 8}
+    assert main(["bench", "robots", "--robots", "cheetah"]) == 2
+    assert "unknown robot 'cheetah'" in capsys.readouterr().err

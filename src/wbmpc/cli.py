@@ -118,6 +118,25 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_robots(args: argparse.Namespace) -> int:
+    from wbmpc.bench.dynamics import validate_robots
+    from wbmpc.robots import PRESET_NAMES
+
+    names = _split(args.robots) or list(PRESET_NAMES)
+    if not args.samples >= 1:
+        raise WbmpcError(f"--samples must be >= 1, got {args.samples}")
+
+    def row_text(r: dict) -> str:
+        types = ", ".join(f"{n} {k}" for k, n in sorted(r["joint_types"].items()))
+        return (f"  {r['robot']:16s} nv {r['nv']:3d}  {r['mass_kg']:6.1f} kg  RNEA {r['rnea_instructions']:5d}  "
+                f"max error {r['max_abs_error']:.1e}  joints: {types}")
+
+    print(f"symbolic dynamics vs pinocchio, {args.samples} random states per robot", file=sys.stderr)
+    report = validate_robots(names, args.samples, args.seed, on_row=lambda r: print(row_text(r), file=sys.stderr))
+    _emit(args, report, f"{len(report['robots'])} robots, worst error {report['max_abs_error']:.1e}")
+    return 0
+
+
 def _scenario_options(args: argparse.Namespace):
     from wbmpc.scenarios import ScenarioOptions
 
@@ -280,6 +299,12 @@ def build_parser() -> argparse.ArgumentParser:
     dyn.add_argument("--samples", type=int, default=100)
     dyn.add_argument("--seed", type=int, default=0)
     dyn.set_defaults(func=cmd_bench_dynamics)
+    robots = bench_sub.add_parser("robots", help="bench dynamics over every legged preset (example-robot-data)")
+    robots.add_argument("--robots", metavar="NAME,NAME", help="subset of presets (default: all)")
+    robots.add_argument("--samples", type=int, default=10, help="random states per robot (default 10)")
+    robots.add_argument("--seed", type=int, default=0)
+    robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    robots.set_defaults(func=cmd_bench_robots)
 
     # solve / bench mpc: logic in wbmpc.bench.mpc (imported when the command runs)
     solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time")
