@@ -156,12 +156,22 @@ def _progress(share: float, label: str = "") -> None:
     print(f"\r{label}[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
 
 
+def _gains(args: argparse.Namespace, robot):
+    """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
+    import dataclasses
+
+    from wbmpc.control.tuning import tuning_for
+
+    gains = tuning_for(robot).gains
+    overrides = {name: value for name, value in (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None}
+    return dataclasses.replace(gains, **overrides)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     """Closed-loop scenario: progress on stderr, summary, metrics.json + plots + replay in --out."""
     import warnings
     from pathlib import Path
 
-    from wbmpc.control.interpolator import PdGains
     from wbmpc.scenarios import RunConfig, make_scenario, prepare_output_dir, run_scenario, write_outputs
 
     robot = robot_from_args(args)
@@ -181,7 +191,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         prepare_output_dir(out_dir)
     config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
-                       gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
+                       gains=_gains(args, robot), formulation=args.formulation,
                        compiled=args.compiled, plant_config=plant_config_from_args(args, robot))
     if args.sweep is not None:
         return _run_sweep(args, robot, config, out_dir)
@@ -264,8 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
     run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
-    run.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10)")
-    run.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10)")
+    run.add_argument("--kp", type=float, help="leg joint Kp of eq. (10) (default: the robot's tuning, 0 on B1)")
+    run.add_argument("--kd", type=float, help="leg joint Kd of eq. (10) (default: the robot's tuning, 5 on B1)")
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
     run.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse; see bench table1)")
     run.add_argument("--compiled", action="store_true",

@@ -12,6 +12,7 @@ import numpy as np
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, RunLog
 from wbmpc.control.mpc import MPC, MpcConfig
+from wbmpc.control.tuning import RobotTuning, tuning_for
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
@@ -32,7 +33,7 @@ class RunConfig:
     plant: str = "mujoco"
     nodes: int = 15
     uniform_dt_ms: float | None = None  # uniform steps instead of the geometric grid
-    gains: PdGains = field(default_factory=PdGains)
+    gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning)
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
     solver: str = "fatrop"
     formulation: str = "wb_inverse"
@@ -54,11 +55,14 @@ class ScenarioResult:
     log: RunLog
 
 
-def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
+def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
+    """The MPC settings of a run: grid and solver from `config`, weights/swing/period from the robot's tuning."""
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms else TimeGrid(n_intervals=n)
+    tuning = tuning_for(robot) if robot is not None else RobotTuning()
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled))
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled), weights=tuning.weights,
+                     swing=tuning.swing, gait_period_s=tuning.gait_period_s)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float], None] | None = None,
@@ -68,7 +72,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
-    mpc = mpc or MPC(robot, mpc_config_for(scenario, config))
+    mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
     mpc.reset()
@@ -81,7 +85,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    gains = scenario.pd_gains(config.gains)
+    gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress)
     metrics = common_metrics(robot, log, scenario.name)
