@@ -17,7 +17,8 @@ from wbmpc.sim import (
 )
 from wbmpc.sim.base import quat_xyzw_to_matrix
 from wbmpc.sim.contact_solver import OPEN, SLIDE, STICK, solve_contact_impulses
-from wbmpc.sim.mujoco_scene import build_mjcf, build_model
+from wbmpc.robots.presets import QUADRUPEDS
+from wbmpc.sim.mujoco_scene import MIN_INERTIA_KG_M2, MIN_MASS_KG, build_mjcf, build_model, mujoco_inertia, regularised_bodies
 
 PLANTS = ("mujoco", "pinocchio")
 
@@ -44,8 +45,13 @@ def static_feedforward(robot):
 def test_mujoco_inertias_equal_pinocchio(name):
     robot = load_robot(name)
     model = build_model(robot)
+    regularised = regularised_bodies(robot)
+    if name in QUADRUPEDS:
+        assert regularised == []
     for jid in range(1, robot.model.njoints):
         body = model.body(model.joint(robot.model.names[jid]).bodyid[0])
+        if body.name in regularised:
+            continue
         ref = robot.model.inertias[jid]
         R = np.zeros(9)
         mujoco.mju_quat2Mat(R, body.iquat)
@@ -54,7 +60,26 @@ def test_mujoco_inertias_equal_pinocchio(name):
         assert body.mass[0] == pytest.approx(ref.mass, abs=1e-9)
         np.testing.assert_allclose(body.ipos, ref.lever, atol=1e-9)
         np.testing.assert_allclose(inertia, ref.inertia, atol=1e-9)
-    assert sum(model.body_mass) == pytest.approx(robot.mass_kg, abs=1e-9)
+    assert sum(model.body_mass) == pytest.approx(robot.mass_kg, abs=1e-6)
+
+
+def test_unphysical_inertias_are_regularised_for_mujoco():
+    inertia = np.diag([0.01, 0.02, 0.025])
+    mass, same = mujoco_inertia(2.0, inertia)
+    assert mass == 2.0 and same is not None and np.array_equal(same, inertia)  # physical: unchanged
+    _, point = mujoco_inertia(0.7, np.zeros((3, 3)))  # a point mass (iCub's hips)
+    assert np.linalg.eigvalsh(point).min() >= MIN_INERTIA_KG_M2
+    mass, _ = mujoco_inertia(0.0, np.zeros((3, 3)))  # massless link between the axes of a ball joint
+    assert mass == MIN_MASS_KG
+    rotation = pin.rpy.rpyToMatrix(0.3, -0.2, 1.0)
+    flat = rotation @ np.diag([0.0007, 0.0007, 0.0066]) @ rotation.T  # A + B < C (romeo's shoulder)
+    _, fixed = mujoco_inertia(0.57, flat)
+    moments = np.linalg.eigvalsh(fixed)
+    assert moments[0] + moments[1] >= moments[2]
+    assert moments[2] == pytest.approx(0.0066)
+    # MuJoCo compiles the robots whose URDFs have such links, and names what was changed
+    assert "RShoulderYawLink" in regularised_bodies(load_robot("romeo"))
+    assert build_model(load_robot("icub")).nbody > 30
 
 
 def test_mujoco_joints_actuators_and_limits(b1z1, mj_b1z1):

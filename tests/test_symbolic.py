@@ -10,11 +10,18 @@ from wbmpc.robots import PRESET_NAMES, load_robot
 from wbmpc.symbolic import Motion, SymbolicDynamics
 
 
-@pytest.mark.parametrize("name", PRESET_NAMES)
-def test_every_function_matches_pinocchio(name):
-    report = validate_dynamics(load_robot(name), samples=100, seed=7)
+LARGE = {"centauro", "talos", "talos_full", "romeo", "icub", "icub_full", "g1", "simple_humanoid"}  # nv > 30
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in LARGE else n for n in PRESET_NAMES]
+)
+def test_every_legged_robot_matches_pinocchio(name):
+    """Every legged robot of example-robot-data passes `bench dynamics` (paper robot: 100 states)."""
+    samples = 100 if name == "b1_z1" else 3
+    report = validate_dynamics(load_robot(name), samples=samples, seed=7)
     for function, row in report["functions"].items():
-        assert row["samples"] == 100
+        assert row["samples"] == samples
         assert row["max_abs_error"] <= 1e-9, (function, row)
 
 
@@ -114,3 +121,16 @@ def test_unsupported_joint_type_is_reported():
     fake.model = model
     with pytest.raises(ModelError, match="joint 'ball' has unsupported type JointModelSpherical"):
         SymbolicDynamics(fake)
+
+
+def test_bench_robots_cli_reports_every_requested_robot(capsys):
+    import json
+
+    from wbmpc.cli import main
+
+    assert main(["bench", "robots", "--robots", "bolt,solo8", "--samples", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [r["robot"] for r in report["robots"]] == ["bolt", "solo8"]
+    assert report["max_abs_error"] < 1e-12 and report["robots"][1]["joint_types"] == {"RY": 8}
+    assert main(["bench", "robots", "--robots", "cheetah"]) == 2
+    assert "unknown robot 'cheetah'" in capsys.readouterr().err

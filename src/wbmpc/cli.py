@@ -10,6 +10,7 @@ Ctrl-C (a run keeps and writes what it measured so far).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import textwrap
 
@@ -52,7 +53,40 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
     group.add_argument("--arm-ee", metavar="FRAME", help="custom robot: arm end-effector frame")
     group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
+    drive = parser.add_argument_group(
+        "drive train of the controller's model (paper VI-D); VALUE or JOINT=VALUE,JOINT=VALUE (others 0)")
+    drive.add_argument("--armature", metavar="KG_M2", help="rotor inertia added to the mass-matrix diagonal, kg m^2")
+    drive.add_argument("--viscous-friction", metavar="NM_S", help="viscous joint friction b (tau += b v), N m s/rad")
+    drive.add_argument("--coulomb-friction", metavar="NM", help="Coulomb joint friction c (tau += c tanh(v / 0.05)), N m")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout (human text on stderr)")
+
+
+_MODEL_DRIVE = {"armature": "armature_kg_m2", "viscous_friction": "viscous_friction_nm_s",
+                "coulomb_friction": "coulomb_friction_nm"}
+_PLANT_DRIVE = {"plant_armature": "joint_armature_kg_m2", "plant_viscous_friction": "joint_damping_nm_s_per_rad",
+                "plant_coulomb_friction": "joint_frictionloss_nm"}
+
+
+def _joint_values_arg(text: str, flag: str, joint_names) -> float | dict[str, float]:
+    """'0.02' (every joint) or 'JOINT=0.02,JOINT=0.01' (the others 0), checked against the robot's joints."""
+    from wbmpc.robots import joint_values
+
+    if "=" not in text:
+        value: float | dict[str, float] = _number(text, flag)
+    else:
+        value = {}
+        for item in _split(text):
+            joint, _, number = item.partition("=")
+            value[joint.strip()] = _number(number, f"{flag} {joint.strip()}")
+    joint_values(value, tuple(joint_names), flag)  # names and signs, reported with the flag
+    return value
+
+
+def _number(text: str, flag: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise WbmpcError(f"{flag} needs a number or JOINT=NUMBER pairs, got {text!r}") from None
 
 
 def _split(text: str | None) -> list[str]:
@@ -60,18 +94,33 @@ def _split(text: str | None) -> list[str]:
 
 
 def robot_from_args(args: argparse.Namespace):
+    import dataclasses
+
     from wbmpc.robots import RobotModel, custom_spec, load_robot
 
     if args.urdf:
         if not args.feet:
             raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
-        return RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
-    given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
-    if given:
-        raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
-                         f"{'s' if len(given) == 1 else ''} --urdf; "
-                         f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
-    return load_robot(args.robot)
+        robot = RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
+    else:
+        given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
+        if given:
+            raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
+                              f"{'s' if len(given) == 1 else ''} --urdf; "
+                              f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
+        robot = load_robot(args.robot)
+    drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
+             for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
+    return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+
+
+def plant_config_from_args(args: argparse.Namespace, robot):
+    """The plant's drive train (--plant-armature/...), independent of the controller's model."""
+    from wbmpc.sim import PlantConfig
+
+    drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
+             for option, field in _PLANT_DRIVE.items() if getattr(args, option, None) is not None}
+    return PlantConfig(**drive) if drive else None
 
 
 def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
@@ -121,6 +170,25 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_bench_robots(args: argparse.Namespace) -> int:
+    from wbmpc.bench.dynamics import validate_robots
+    from wbmpc.robots import PRESET_NAMES
+
+    names = _split(args.robots) or list(PRESET_NAMES)
+    if not args.samples >= 1:
+        raise WbmpcError(f"--samples must be >= 1, got {args.samples}")
+
+    def row_text(r: dict) -> str:
+        types = ", ".join(f"{n} {k}" for k, n in sorted(r["joint_types"].items()))
+        return (f"  {r['robot']:16s} nv {r['nv']:3d}  {r['mass_kg']:6.1f} kg  RNEA {r['rnea_instructions']:5d}  "
+                f"max error {r['max_abs_error']:.1e}  joints: {types}")
+
+    print(f"symbolic dynamics vs pinocchio, {args.samples} random states per robot", file=sys.stderr)
+    report = validate_robots(names, args.samples, args.seed, on_row=lambda r: print(row_text(r), file=sys.stderr))
+    _emit(args, report, f"{len(report['robots'])} robots, worst error {report['max_abs_error']:.1e}")
+    return 0
+
+
 def _scenario_options(args: argparse.Namespace):
     from wbmpc.scenarios import ScenarioOptions
 
@@ -143,8 +211,20 @@ def _run_config(args: argparse.Namespace):
 
     return RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                      nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=_scenario_options(args),
-                     gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
+                     gains=PdGains(**{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}),
+                     formulation=args.formulation,
                      compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking)
+
+
+def _gains(args: argparse.Namespace, robot):
+    """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
+    import dataclasses
+
+    from wbmpc.control.tuning import tuning_for
+
+    gains = tuning_for(robot).gains
+    overrides = {name: value for name, value in (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None}
+    return dataclasses.replace(gains, **overrides)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -184,6 +264,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
+    config = dataclasses.replace(config, gains=_gains(args, robot), plant_config=plant_config_from_args(args, robot))
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)
@@ -332,12 +413,19 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--base-tracking", default="position", choices=("position", "velocity"),
                      help="position (default): base x/y/yaw anchored to the integrated command, corrects drift; "
                           "velocity: the paper's velocity-only base tracking, drift uncorrected")
+    plant_drive = run.add_argument_group(
+        "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
+    plant_drive.add_argument("--plant-armature", metavar="KG_M2", help="rotor inertia (MuJoCo joint armature), kg m^2")
+    plant_drive.add_argument("--plant-viscous-friction", metavar="NM_S",
+                             help="viscous joint friction (MuJoCo joint damping), N m s/rad")
+    plant_drive.add_argument("--plant-coulomb-friction", metavar="NM",
+                             help="dry joint friction (MuJoCo joint frictionloss; mujoco plant only), N m")
     run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
     run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
     run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
-    run.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10), Nm/rad >= 0 (default 0)")
-    run.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10), Nm s/rad >= 0 (default 5)")
+    run.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), Nm/rad >= 0 (default: the robot's tuning, 0 on B1)")
+    run.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), Nm s/rad >= 0 (default: the robot's tuning, 5 on B1)")
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
     run.add_argument("--formulation", default="wb_inverse", help="OCP formulation of Table I (default wb_inverse; "
                      "see bench table1)")
@@ -378,6 +466,12 @@ def build_parser() -> argparse.ArgumentParser:
     dyn.add_argument("--samples", type=int, default=100, help="random states compared, 1-100000 (default 100)")
     dyn.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
     dyn.set_defaults(func=cmd_bench_dynamics)
+    robots = bench_sub.add_parser("robots", help="bench dynamics over every legged preset (example-robot-data)")
+    robots.add_argument("--robots", metavar="NAME,NAME", help="subset of presets (default: all)")
+    robots.add_argument("--samples", type=int, default=10, help="random states per robot (default 10)")
+    robots.add_argument("--seed", type=int, default=0)
+    robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    robots.set_defaults(func=cmd_bench_robots)
 
     # solve / bench mpc: logic in wbmpc.bench.mpc (imported when the command runs)
     solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time",

@@ -41,9 +41,16 @@ def _relative_error(value, reference) -> float:
 
 
 def _references(robot: RobotModel) -> dict[str, Callable]:
-    """Per function: (sample) -> (symbolic args, pinocchio reference), with the EE frame for frame functions."""
+    """Per function: (sample) -> (symbolic args, pinocchio reference), with the EE frame for frame functions.
+
+    pinocchio's rnea/crba/aba include the robot's armature (`model.armature`); its algorithms have
+    no joint friction, so the robot's friction torques are added to the references that need them.
+    """
     model, data = robot.model, robot.model.createData()
     fid = robot.frame_id(robot.contact_frames[-1])
+
+    def friction(v):
+        return np.concatenate([np.zeros(6), robot.joint_friction_torque(v[6:])])
 
     def fk(s):
         pin.framesForwardKinematics(model, data, s["q"])
@@ -61,19 +68,19 @@ def _references(robot: RobotModel) -> dict[str, Callable]:
     def rnea(s):
         pin.framesForwardKinematics(model, data, s["q"])
         fext = world_forces_to_pinocchio(robot, data, s["f"])
-        return (s["q"], s["v"], s["a"], s["f"]), pin.rnea(model, data, s["q"], s["v"], s["a"], fext)
+        return (s["q"], s["v"], s["a"], s["f"]), pin.rnea(model, data, s["q"], s["v"], s["a"], fext) + friction(s["v"])
 
     def crba(s):
         mass = pin.crba(model, data, s["q"])
         return (s["q"],), np.triu(mass) + np.triu(mass, 1).T
 
     def nle(s):
-        return (s["q"], s["v"]), pin.nonLinearEffects(model, data, s["q"], s["v"])
+        return (s["q"], s["v"]), pin.nonLinearEffects(model, data, s["q"], s["v"]) + friction(s["v"])
 
     def forward_dynamics(s):
         pin.framesForwardKinematics(model, data, s["q"])
         fext = world_forces_to_pinocchio(robot, data, s["f"])
-        tau = np.concatenate([np.zeros(6), s["tau_j"]])
+        tau = np.concatenate([np.zeros(6), s["tau_j"]]) - friction(s["v"])
         return (s["q"], s["v"], s["tau_j"], s["f"]), pin.aba(model, data, s["q"], s["v"], tau, fext)
 
     def com(s):
@@ -159,3 +166,33 @@ def rnea_constraint_function(dyn: SymbolicDynamics) -> ca.Function:
     cfg = dyn.configuration_from_increment(rot_ref, q_ref, dq)
     tau = dyn.rnea(cfg, Motion(cfg, v), a, forces)
     return ca.Function("rnea_constraint", [dq, v, a, forces, q_ref, rot_ref], [tau])
+
+
+def joint_types(robot: RobotModel) -> dict[str, int]:
+    """How many joints of each pinocchio type the (reduced) model has, e.g. {'RevoluteUnaligned': 6}."""
+    counts: dict[str, int] = {}
+    for i in range(2, robot.model.njoints):
+        kind = robot.model.joints[i].shortname().removeprefix("JointModel")
+        counts[kind] = counts.get(kind, 0) + 1
+    return counts
+
+
+def validate_robots(names, samples: int = 10, seed: int = 0, on_row: Callable[[dict], None] | None = None) -> dict:
+    """`validate_dynamics` over several presets: one row per robot (size, joint types, worst error)."""
+    from wbmpc.robots import load_robot
+
+    rows = []
+    for name in names:
+        robot = load_robot(name)
+        report = validate_dynamics(robot, samples=samples, seed=seed)
+        functions = report["functions"]
+        worst = max(functions.items(), key=lambda item: item[1]["max_abs_error"])
+        rows.append({
+            "robot": name, "nq": robot.nq, "nv": robot.nv, "mass_kg": robot.mass_kg, "feet": len(robot.feet),
+            "arm_ee": robot.arm_ee, "joint_types": joint_types(robot),
+            "rnea_instructions": functions["rnea"]["instructions"],
+            "max_abs_error": worst[1]["max_abs_error"], "worst_function": worst[0], "samples": samples,
+        })
+        if on_row is not None:
+            on_row(rows[-1])
+    return {"samples": samples, "robots": rows, "max_abs_error": max((r["max_abs_error"] for r in rows), default=None)}

@@ -32,7 +32,7 @@ def interpolate(solution: Solution, t_s: float) -> JointReference:
     tau_k = solution.tau[min(k, n_tau - 1)]
     tau_next = solution.tau[min(k + 1, n_tau - 1)]
     tau_ff = tau_k + (tau_next - tau_k) * (t_local / dt_k)
-    q_des = solution.q[k, 7:] + solution.v[k, 6:] * t_local
+    q_des = solution.q_joints[k] + solution.v[k, 6:] * t_local
     v_des = solution.v[k, 6:] + solution.a[k, 6:] * t_local
     return JointReference(tau_ff, q_des, v_des, k)
 

@@ -146,8 +146,8 @@ class ClosedLoop:
         q, v = self.plant.state()
         cfg = self.config
         if cfg.joint_position_noise_rad:
-            q = q.copy()
-            q[7:] += self._rng.normal(0, cfg.joint_position_noise_rad, q.size - 7)
+            noise = np.r_[np.zeros(6), self._rng.normal(0, cfg.joint_position_noise_rad, self.robot.n_joints)]
+            q = pin.integrate(self.robot.model, q, noise)
         if cfg.joint_velocity_noise_rad_s:
             v = v.copy()
             v[6:] += self._rng.normal(0, cfg.joint_velocity_noise_rad_s, v.size - 6)
@@ -206,7 +206,8 @@ class ClosedLoop:
     def _control_tick(self, log: RunLog, active: Solution, t: float) -> np.ndarray:
         q, v = self._measure()
         reference = interpolate(active, t)
-        tau = pd_torque(reference, q[7:], v[6:], self.kp, self.kd, self.robot.tau_max)
+        q_j = self.robot.joint_positions(q, near=reference.q_des)
+        tau = pd_torque(reference, q_j, v[6:], self.kp, self.kd, self.robot.tau_max)
         q_true, v_true = self.plant.state()
         log.t.append(t)
         log.q.append(q_true)

@@ -360,6 +360,13 @@ class MPC:
         guess["F"] = forces
         return problem.pack(guess)
 
+    def _joint_trajectory(self, q_traj: np.ndarray) -> np.ndarray:
+        """Joint positions per node; continuous joints unwrapped along the horizon (no 2 pi jumps)."""
+        positions = self.robot.joint_positions(q_traj)
+        continuous = self.robot.continuous
+        positions[:, continuous] = np.unwrap(positions[:, continuous], axis=0)
+        return positions
+
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
         dq, v, a, forces, tau = (np.asarray(m).T for m in self._trajectories(x, p))
         q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, dq.T)).T
@@ -376,6 +383,7 @@ class MPC:
             stats=stats,
             success=bool(stats.success and finite),
             x=np.asarray(x, dtype=float),
+            q_joints=self._joint_trajectory(q_traj),
         )
 
 

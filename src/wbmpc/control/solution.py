@@ -31,6 +31,11 @@ class Solution:
     stats: SolverStats
     success: bool
     x: np.ndarray | None = None  # the NLP solution vector (scaled variables), for warm starts
+    q_joints: np.ndarray | None = None  # (N+1, n_joints) joint angles of q (continuous joints unwrapped)
+
+    def __post_init__(self) -> None:
+        if self.q_joints is None:  # nq = nv + 1: the joint coordinates are q[:, 7:]
+            self.q_joints = np.asarray(self.q)[:, 7:]
 
     @property
     def dt_s(self) -> np.ndarray:

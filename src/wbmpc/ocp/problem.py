@@ -342,8 +342,9 @@ class OcpProblem:
         early = slice(0, min(EARLY_NODES, self.N))
         if "dq" in self.idx:
             joint_dq = self.idx["dq"][1:, 6:]
-            lbx[joint_dq] = robot.q_min - data.q_ref[7:]
-            ubx[joint_dq] = robot.q_max - data.q_ref[7:]
+            q_joints = robot.joint_positions(data.q_ref)
+            lbx[joint_dq] = robot.q_min - q_joints
+            ubx[joint_dq] = robot.q_max - q_joints
             if "v" in self.state_names:  # Euler: dq_{k+1} = dq_k + v_k dt_k
                 coasting = np.outer(self.config.grid.node_times_s[1:], data.v0[6:])[early]
                 rows = joint_dq[early]

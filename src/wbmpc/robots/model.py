@@ -8,6 +8,7 @@ Z1 joints and the gripper, section V-B).
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,11 +18,47 @@ import pinocchio as pin
 from wbmpc.errors import ModelError, unknown_name
 
 GRAVITY_M_S2 = 9.81
+SUPPORTED_JOINTS = frozenset(
+    f"JointModel{kind}"
+    for kind in ("RX", "RY", "RZ", "RevoluteUnaligned", "RUBX", "RUBY", "RUBZ", "RevoluteUnboundedUnaligned",
+                 "PX", "PY", "PZ", "PrismaticUnaligned")
+)
+
+
+JointValues = float | Mapping[str, float]  # one value for every joint, or {joint name: value} (others 0)
+
+
+def joint_values(value: JointValues, joint_names: tuple[str, ...], label: str) -> np.ndarray:
+    """A per-joint parameter as an array in `joint_names` order; finite and >= 0 or a clear error."""
+    if isinstance(value, Mapping):
+        out = np.zeros(len(joint_names))
+        for joint, entry in value.items():
+            if joint not in joint_names:
+                raise ModelError(f"{label}: {unknown_name('joint', joint, joint_names)}")
+            out[joint_names.index(joint)] = _non_negative(entry, f"{label}[{joint!r}]")
+        return out
+    return np.full(len(joint_names), _non_negative(value, label))
+
+
+def _non_negative(value, label: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ModelError(f"{label} must be a number, got {value!r}") from exc
+    if not (np.isfinite(number) and number >= 0):
+        raise ModelError(f"{label} must be a finite number >= 0, got {value!r}")
+    return number
 
 
 @dataclass(frozen=True)
 class RobotSpec:
-    """Everything needed to load a robot; presets are instances of this."""
+    """Everything needed to load a robot; presets are instances of this.
+
+    Drive-train terms of the controller's model (paper section VI-D), one value for all joints or
+    {joint: value}: `armature_kg_m2` (rotor inertia reflected through the gearbox, added to the
+    diagonal of the mass matrix), `viscous_friction_nm_s` (tau += b v) and `coulomb_friction_nm`
+    (tau += c tanh(v / coulomb_velocity_rad_s), a smooth sign(v) the NLP can differentiate).
+    """
 
     name: str
     urdf: Path
@@ -34,6 +71,11 @@ class RobotSpec:
     velocity_limit_rad_s: dict[str, float] = field(default_factory=dict)
     position_limit_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
     foot_radius_m: float | None = None
+    joint_positions_rad: dict[str, float] = field(default_factory=dict)  # overrides of the reference pose
+    armature_kg_m2: JointValues = 0.0
+    viscous_friction_nm_s: JointValues = 0.0
+    coulomb_friction_nm: JointValues = 0.0
+    coulomb_velocity_rad_s: float = 0.05
 
     def __post_init__(self):
         duplicates = sorted({f for f in self.feet if self.feet.count(f) > 1})
@@ -54,6 +96,13 @@ class RobotModel:
     Attributes: `model` (pinocchio, reduced), `nq`, `nv`, `n_joints` (= nv - 6), `joint_names`
     (actuated joints in velocity order), `feet`, `arm_ee`, `q_nominal`, `mass_kg`, and per-joint
     limits `q_min`, `q_max`, `v_max`, `tau_max` (length `n_joints`).
+
+    Joints: one-DoF revolute or prismatic (aligned or not with an axis of their frame) and
+    continuous joints (pinocchio's RUBX/RUBY/RUBZ, stored as (cos, sin) in q: nq = 2, nv = 1);
+    fixed joints are merged into their parent body by pinocchio. `joint_positions(q)` gives one
+    angle / displacement per joint whatever the q layout. A URDF limit with lower >= upper (the
+    usual `<limit effort=.. velocity=..>` without lower/upper) and continuous joints mean no
+    position limit. A reference pose outside the limits is clipped into them.
     """
 
     def __init__(self, spec: RobotSpec):
@@ -69,6 +118,13 @@ class RobotModel:
         except (RuntimeError, ValueError) as exc:
             raise ModelError(f"pinocchio cannot parse URDF {urdf}: {exc}") from exc
 
+        for i in range(2, full.njoints):
+            if full.joints[i].shortname() not in SUPPORTED_JOINTS and full.names[i] not in spec.locked_joints:
+                raise ModelError(
+                    f"joint '{full.names[i]}' has type {full.joints[i].shortname()} ({full.joints[i].nv} DoF), which "
+                    "wbmpc does not support; it supports revolute, continuous and prismatic joints (aligned or not) "
+                    "below the free-flyer root: lock the joint (--lock) or change its type in the URDF"
+                )
         q_ref = self._reference_configuration(full, spec)
         for joint in spec.locked_joints:
             if not full.existJointName(joint) or joint == "root_joint":
@@ -81,12 +137,9 @@ class RobotModel:
         self.nq, self.nv = model.nq, model.nv
         self.n_joints = model.nv - 6
         self.joint_names: tuple[str, ...] = tuple(model.names[2:])
-        for i in range(2, model.njoints):
-            if model.joints[i].nv != 1:
-                raise ModelError(
-                    f"joint '{model.names[i]}' ({model.joints[i].shortname()}) has {model.joints[i].nv} "
-                    "DoF; wbmpc supports one-DoF revolute/prismatic joints below the free-flyer root"
-                )
+        joint_ids = [model.getJointId(n) for n in self.joint_names]
+        self._joint_iq = np.array([model.idx_qs[j] for j in joint_ids], dtype=int)
+        self.continuous = np.array([model.nqs[j] == 2 for j in joint_ids], dtype=bool)
 
         self.feet = tuple(spec.feet)
         self.arm_ee = spec.arm_ee
@@ -99,10 +152,19 @@ class RobotModel:
 
         self.mass_kg = float(sum(inertia.mass for inertia in model.inertias))
         self._set_limits(model, spec)
+        self._set_drive_train(model, spec)
         self.foot_radius_m = (
             spec.foot_radius_m if spec.foot_radius_m is not None else _foot_radius_from_urdf(urdf, model, self.feet)
         )
-        self.q_nominal = self._standing_configuration(np.asarray(q_ref)[keep])
+        q_ref = np.asarray(q_ref)[keep]
+        for joint, value in spec.joint_positions_rad.items():
+            if joint not in self.joint_names:
+                raise ModelError(unknown_name("joint in joint_positions_rad", joint, self.joint_names))
+            positions = self.joint_positions(q_ref)
+            positions[self.joint_names.index(joint)] = float(value)
+            q_ref = self.with_joint_positions(q_ref, positions)
+        q_ref = self.with_joint_positions(q_ref, np.clip(self.joint_positions(q_ref), self.q_min, self.q_max))
+        self.q_nominal = self._standing_configuration(q_ref)
 
     # ------------------------------------------------------------------ loading helpers
     @staticmethod
@@ -142,6 +204,8 @@ class RobotModel:
             if not full.existJointName(name):
                 continue  # SRDFs often name joints of other variants; ignore them like pinocchio does
             jid = full.getJointId(name)
+            if values.size == 1 and full.nqs[jid] == 2 and full.nvs[jid] == 1:  # continuous joint given by its angle
+                values = np.array([np.cos(values[0]), np.sin(values[0])])
             if values.size != full.nqs[jid]:
                 raise ModelError(f"SRDF pose '{spec.pose}': joint '{name}' needs {full.nqs[jid]} values, got {values.size}")
             q[full.idx_qs[jid] : full.idx_qs[jid] + values.size] = values
@@ -155,6 +219,8 @@ class RobotModel:
         iv = [model.idx_vs[model.getJointId(n)] for n in names]
         self.q_min = np.array(model.lowerPositionLimit)[iq]
         self.q_max = np.array(model.upperPositionLimit)[iq]
+        unlimited = self.continuous | ~(self.q_min < self.q_max)  # URDF <limit> without lower/upper: 0, 0
+        self.q_min[unlimited], self.q_max[unlimited] = -np.inf, np.inf
         self.v_max = np.array(model.velocityLimit)[iv]
         self.tau_max = np.array(model.effortLimit)[iv]
         for table, target in (
@@ -176,6 +242,30 @@ class RobotModel:
             bad = [names[i] for i in np.flatnonzero(~(arr > 0) | (arr > big))]
             if bad:
                 raise ModelError(f"joints {bad} have no positive {label} limit in the URDF; give one in the RobotSpec")
+
+    def _set_drive_train(self, model: pin.Model, spec: RobotSpec) -> None:
+        """Armature and joint friction of the controller's model; pinocchio's algorithms (rnea, crba,
+        aba) include `model.armature`, its `damping`/`friction` fields are set for reference only."""
+        names = self.joint_names
+        self.armature_kg_m2 = joint_values(spec.armature_kg_m2, names, "armature_kg_m2")
+        self.viscous_friction_nm_s = joint_values(spec.viscous_friction_nm_s, names, "viscous_friction_nm_s")
+        self.coulomb_friction_nm = joint_values(spec.coulomb_friction_nm, names, "coulomb_friction_nm")
+        self.coulomb_velocity_rad_s = _non_negative(spec.coulomb_velocity_rad_s, "coulomb_velocity_rad_s")
+        if not self.coulomb_velocity_rad_s > 0:
+            raise ModelError("coulomb_velocity_rad_s must be > 0 (the smoothing of sign(v))")
+        iv = [model.idx_vs[model.getJointId(n)] for n in names]
+        for field_name, values in (("armature", self.armature_kg_m2), ("damping", self.viscous_friction_nm_s),
+                                   ("friction", self.coulomb_friction_nm)):
+            vector = np.array(getattr(model, field_name), dtype=float)
+            vector[iv] = values
+            setattr(model, field_name, vector)
+
+    def joint_friction_torque(self, v_joints: np.ndarray) -> np.ndarray:
+        """Friction torques b v + c tanh(v / v_c) the joints need on top of the rigid-body dynamics."""
+        v_joints = np.asarray(v_joints, dtype=float)
+        return self.viscous_friction_nm_s * v_joints + self.coulomb_friction_nm * np.tanh(
+            v_joints / self.coulomb_velocity_rad_s
+        )
 
     def _standing_configuration(self, q: np.ndarray) -> np.ndarray:
         """Reference pose with the base lifted so that the lowest foot touches the ground."""
@@ -237,6 +327,34 @@ class RobotModel:
                 out[name][k] = pin.updateFramePlacement(self.model, data, fid).translation
         return out
 
+    def joint_positions(self, q: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
+        """Joint angles / displacements (..., n_joints) of configurations q (..., nq).
+
+        Continuous joints give atan2(sin, cos) in (-pi, pi], or with `near` (..., n_joints) the angle
+        that differs from `near` by at most pi (for position errors across the +-pi seam).
+        """
+        q = np.asarray(q, dtype=float)
+        out = q[..., self._joint_iq].copy()
+        if self.continuous.any():
+            iq = self._joint_iq[self.continuous]
+            angle = np.arctan2(q[..., iq + 1], q[..., iq])
+            if near is not None:
+                ref = np.asarray(near, dtype=float)[..., self.continuous]
+                angle = ref + np.angle(np.exp(1j * (angle - ref)))
+            out[..., self.continuous] = angle
+        return out
+
+    def with_joint_positions(self, q: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """A copy of configuration q (nq,) with its joint coordinates set from `positions` (n_joints,)."""
+        q = np.array(q, dtype=float)
+        positions = np.asarray(positions, dtype=float)
+        plain = ~self.continuous
+        q[self._joint_iq[plain]] = positions[plain]
+        if self.continuous.any():
+            iq = self._joint_iq[self.continuous]
+            q[iq], q[iq + 1] = np.cos(positions[self.continuous]), np.sin(positions[self.continuous])
+        return q
+
     def random_configuration(self, rng: np.random.Generator) -> np.ndarray:
         """A random configuration on the manifold within joint limits (unit quaternion)."""
         q = self.q_nominal.copy()
@@ -245,8 +363,7 @@ class RobotModel:
         q[3:7] = quat / np.linalg.norm(quat)
         lo = np.maximum(self.q_min, -np.pi)
         hi = np.minimum(self.q_max, np.pi)
-        q[7:] = rng.uniform(lo, hi)
-        return q
+        return self.with_joint_positions(q, rng.uniform(lo, hi))
 
     def summary(self) -> dict:
         return {
@@ -258,7 +375,18 @@ class RobotModel:
             "feet": list(self.feet),
             "arm_ee": self.arm_ee,
             "joints": list(self.joint_names),
+            "continuous_joints": [n for n, c in zip(self.joint_names, self.continuous) if c],
+            "armature_kg_m2": _compact(self.armature_kg_m2, self.joint_names),
+            "viscous_friction_nm_s": _compact(self.viscous_friction_nm_s, self.joint_names),
+            "coulomb_friction_nm": _compact(self.coulomb_friction_nm, self.joint_names),
         }
+
+
+def _compact(values: np.ndarray, names: tuple[str, ...]):
+    """One number when every joint has the same value, else {joint: value}."""
+    if np.all(values == values[0]) if values.size else True:
+        return float(values[0]) if values.size else 0.0
+    return {n: float(v) for n, v in zip(names, values)}
 
 
 def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:

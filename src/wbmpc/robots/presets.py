@@ -10,6 +10,9 @@ from wbmpc.errors import ModelError, unknown_name
 from wbmpc.robots.model import RobotModel, RobotSpec
 
 QUADRUPED_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+ANYMAL_FEET = ("LF_FOOT", "RF_FOOT", "LH_FOOT", "RH_FOOT")
+SOLO_FEET = ("FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT")
+TALOS_FEET = ("left_sole_link", "right_sole_link")
 
 
 @lru_cache(maxsize=1)
@@ -36,6 +39,63 @@ def _erd(relative: str) -> Path:
     return example_robot_data_dir() / relative
 
 
+# Legged robots of example-robot-data: (urdf, srdf, pose, feet, arm end-effector, locked joints).
+# Quadrupeds trot under the MPC; bipeds and humanoids load, simulate and pass `bench dynamics`
+# (the MPC models point feet, so flat-footed humanoids are not expected to balance with it).
+_LEGGED: dict[str, tuple] = {
+    # quadrupeds (Unitree, ANYbotics, IIT, ODRI)
+    "b1": ("b1_description/urdf/b1.urdf", "b1_description/srdf/b1.srdf", "standing", QUADRUPED_FEET, None, ()),
+    "go1": ("go1_description/urdf/go1.urdf", "go1_description/srdf/go1.srdf", "standing", QUADRUPED_FEET, None, ()),
+    "go2": ("go2_description/urdf/go2.urdf", "go2_description/srdf/go2.srdf", "standing", QUADRUPED_FEET, None, ()),
+    "a1": ("a1_description/urdf/a1.urdf", "a1_description/srdf/a1.srdf", "standing", QUADRUPED_FEET, None, ()),
+    "laikago": ("laikago_description/urdf/laikago.urdf", None, None, QUADRUPED_FEET, None, ()),  # pose below
+    "anymal_b": ("anymal_b_simple_description/robots/anymal.urdf", "anymal_b_simple_description/srdf/anymal.srdf",
+                 "standing", ANYMAL_FEET, None, ()),
+    "anymal_b_kinova": ("anymal_b_simple_description/robots/anymal-kinova.urdf",
+                        "anymal_b_simple_description/srdf/anymal-kinova.srdf", "standing_with_arm_up", ANYMAL_FEET,
+                        "j2s6s200_end_effector", ()),
+    "anymal_c": ("anymal_c_simple_description/urdf/anymal.urdf", "anymal_c_simple_description/srdf/anymal.srdf",
+                 "standing", ANYMAL_FEET, None, ()),
+    "hyq": ("hyq_description/robots/hyq_no_sensors.urdf", "hyq_description/srdf/hyq.srdf", "standing",
+            ("lf_foot", "rf_foot", "lh_foot", "rh_foot"), None, ()),
+    "solo8": ("solo_description/robots/solo.urdf", "solo_description/srdf/solo.srdf", "standing", SOLO_FEET, None, ()),
+    "solo12": ("solo_description/robots/solo12.urdf", "solo_description/srdf/solo.srdf", "standing", SOLO_FEET, None, ()),
+    "quadruped": ("quadruped_description/urdf/quadruped.urdf", None, None,
+                  ("FL_contact", "FR_contact", "BL_contact", "BR_contact"), None, ()),
+    "centauro": ("centauro_description/urdf/centauro.urdf", "centauro_description/srdf/centauro.srdf", "homing_nominal",
+                 ("contact_1", "contact_2", "contact_3", "contact_4"), "arm1_8", ()),
+    # bipeds and humanoids
+    "bolt": ("bolt_description/robots/bolt.urdf", "bolt_description/srdf/bolt.srdf", "standing",
+             ("FL_FOOT", "FR_FOOT"), None, ()),
+    "alexander": ("alexander_description/urdf/alexander_v1.lowerBodyOnly.urdf", "alexander_description/srdf/alexander.srdf",
+                  "default", ("LEFT_FOOT", "RIGHT_FOOT"), None, ()),
+    "talos": ("talos_data/robots/talos_reduced.urdf", "talos_data/srdf/talos.srdf", "half_sitting", TALOS_FEET, None, ()),
+    "talos_full": ("talos_data/robots/talos_full_v2.urdf", "talos_data/srdf/talos.srdf", "half_sitting", TALOS_FEET,
+                   None, ()),
+    "romeo": ("romeo_description/urdf/romeo_small.urdf", "romeo_description/srdf/romeo_small.srdf", "half_sitting",
+              ("l_sole", "r_sole"), None, ()),
+    "icub": ("icub_description/robots/icub_reduced.urdf", "icub_description/srdf/icub.srdf", "half_sitting",
+             ("l_sole", "r_sole"), None, ()),
+    "icub_full": ("icub_description/robots/icub.urdf", "icub_description/srdf/icub.srdf", "half_sitting",
+                  ("l_sole", "r_sole"), None, ()),
+    "g1": ("g1_description/urdf/g1_29dof_rev_1_0.urdf", None, None, ("left_ankle_roll_link", "right_ankle_roll_link"),
+           None, ()),
+    "simple_humanoid": ("simple_humanoid_description/urdf/simple_humanoid.urdf",
+                        "simple_humanoid_description/srdf/simple_humanoid.srdf", "half_sitting", ("l_ankle", "r_ankle"),
+                        None, ()),
+}
+# reference-pose overrides: laikago has no SRDF and its zero pose puts the knees beyond their limit;
+# simple_humanoid's URDF limits are shifted by one joint along the legs, outside which its SRDF
+# half-sitting pose lies, so it stands on straight legs
+_POSES = {
+    "simple_humanoid": {f"{side}LEG_{joint}": 0.0 for side in "LR" for joint in ("HIP_P", "KNEE", "ANKLE_P")},
+    "laikago": {f"{leg}_{joint}": value for leg in ("FL", "FR", "RL", "RR")
+                for joint, value in (("thigh_joint", 0.7), ("calf_joint", -1.4))},
+}
+QUADRUPEDS = ("b1_z1", "b1_z1_full", "b1", "go1", "go2", "a1", "laikago", "anymal_b", "anymal_b_kinova", "anymal_c",
+              "hyq", "solo8", "solo12", "quadruped", "centauro")
+
+
 def _presets() -> dict[str, RobotSpec]:
     b1z1 = dict(
         urdf=_erd("b1_description/urdf/b1-z1.urdf"),
@@ -44,35 +104,20 @@ def _presets() -> dict[str, RobotSpec]:
         feet=QUADRUPED_FEET,
         arm_ee="gripperStator",
     )
-    return {
+    presets = {
         # Paper model: 6 base + 12 legs + 4 arm DoF (section V-B).
         "b1_z1": RobotSpec(name="b1_z1", locked_joints=("joint5", "joint6", "jointGripper"), **b1z1),
         "b1_z1_full": RobotSpec(name="b1_z1_full", locked_joints=("jointGripper",), **b1z1),
-        "b1": RobotSpec(
-            name="b1",
-            urdf=_erd("b1_description/urdf/b1.urdf"),
-            srdf=_erd("b1_description/srdf/b1.srdf"),
-            pose="standing",
-            feet=QUADRUPED_FEET,
-        ),
-        "go2": RobotSpec(
-            name="go2",
-            urdf=_erd("go2_description/urdf/go2.urdf"),
-            srdf=_erd("go2_description/srdf/go2.srdf"),
-            pose="standing",
-            feet=QUADRUPED_FEET,
-        ),
-        "a1": RobotSpec(
-            name="a1",
-            urdf=_erd("a1_description/urdf/a1.urdf"),
-            srdf=_erd("a1_description/srdf/a1.srdf"),
-            pose="standing",
-            feet=QUADRUPED_FEET,
-        ),
     }
+    for name, (urdf, srdf, pose, feet, arm_ee, locked) in _LEGGED.items():
+        presets[name] = RobotSpec(
+            name=name, urdf=_erd(urdf), srdf=_erd(srdf) if srdf else None, pose=pose, feet=feet, arm_ee=arm_ee,
+            locked_joints=locked, joint_positions_rad=_POSES.get(name, {}),
+        )
+    return presets
 
 
-PRESET_NAMES = ("b1_z1", "b1_z1_full", "b1", "go2", "a1")
+PRESET_NAMES = ("b1_z1", "b1_z1_full", *_LEGGED)
 
 
 def preset_spec(name: str) -> RobotSpec:
@@ -82,7 +127,7 @@ def preset_spec(name: str) -> RobotSpec:
     return presets[name]
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=32)
 def load_robot(name: str = "b1_z1") -> RobotModel:
     """Load a preset robot (cached: robots are immutable once built)."""
     return RobotModel(preset_spec(name))

@@ -11,6 +11,7 @@ import numpy as np
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
 from wbmpc.control.mpc import MPC, MpcConfig
+from wbmpc.control.tuning import RobotTuning, tuning_for
 from wbmpc.errors import ConfigError, check_number, unknown_name
 from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
@@ -21,7 +22,8 @@ from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.scenarios.outputs import write_output_files
-from wbmpc.sim import PLANTS, make_plant
+from wbmpc.sim import PLANTS, PlantConfig, make_plant
+from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 from wbmpc.strict_json import to_json
 
@@ -36,13 +38,14 @@ class RunConfig:
     plant: str = "mujoco"
     nodes: int = 15
     uniform_dt_ms: float | None = None  # uniform steps instead of the geometric grid
-    gains: PdGains = field(default_factory=PdGains)
+    gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning)
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
     solver: str = "fatrop"
     formulation: str = "wb_inverse"
     compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
     base_tracking: str = "position"  # MpcConfig.base_tracking: "position" (anchored) | "velocity" (the paper's)
     seed: int = 0
+    plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
 
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
@@ -72,12 +75,14 @@ class ScenarioResult:
     scene: object | None = None  # wbmpc.sim.objects.Scene with the objects' recordings, if any
 
 
-def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
+def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
+    """The MPC settings of a run: grid and solver from `config`, weights/swing/period from the robot's tuning."""
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
+    tuning = tuning_for(robot) if robot is not None else RobotTuning()
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled),
-                     base_tracking=config.base_tracking)
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled), weights=tuning.weights,
+                     swing=tuning.swing, gait_period_s=tuning.gait_period_s, base_tracking=config.base_tracking)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
@@ -89,7 +94,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
-    mpc = mpc or MPC(robot, mpc_config_for(scenario, config))
+    mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
     with stop_flag(stop) as stop:
@@ -100,11 +105,16 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
-    plant = make_plant(config.plant, robot, scene.plant_config() if scene is not None else None)
+    plant_config = config.plant_config
+    if scene is not None:
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
+    plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    gains = scenario.pd_gains(config.gains)
+    gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
     if not log.t:  # interrupted before the first control tick: nothing was measured
@@ -114,10 +124,23 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
                     "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
                     "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking,
-                    "requested_duration_s": float(duration), "interrupted": bool(log.interrupted)})
+                    "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
+                    "drive_train": _drive_train_summary(robot, plant.config)})
     result = ScenarioResult(scenario, metrics, log, scene)
     result.plant = plant  # type: ignore[attr-defined]
     return result
+
+
+def _drive_train_summary(robot: RobotModel, plant_config: PlantConfig) -> dict:
+    """Armature and friction of the controller's model and of the plant (they may differ, section VI-D)."""
+    summary = robot.summary()
+    model = {key: summary[key] for key in ("armature_kg_m2", "viscous_friction_nm_s", "coulomb_friction_nm")}
+    plant = {key: _plain(getattr(plant_config, key)) for key in DRIVE_TRAIN_FIELDS}
+    return {"model": model, "plant": plant}
+
+
+def _plain(value):
+    return {k: float(v) for k, v in value.items()} if isinstance(value, dict) else float(value)
 
 
 def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> list[Path]:

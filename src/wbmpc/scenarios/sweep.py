@@ -57,7 +57,7 @@ def pull_sweep(robot: RobotModel, loads_kg: list[float], config: RunConfig,
             except ConfigError as exc:
                 row.update({"rejected": str(exc), "pulled": False})
             else:
-                mpc = mpc or MPC(robot, mpc_config_for(scenario, run_config))
+                mpc = mpc or MPC(robot, mpc_config_for(scenario, run_config, robot))
                 result = run_scenario(robot, run_config, mpc=mpc, stop=stop,
                                       progress=(lambda s, r, m=load: progress(m, s, r)) if progress else None)
                 row.update({k: result.metrics.get(k) for k in ROW_KEYS})

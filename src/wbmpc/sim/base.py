@@ -12,11 +12,12 @@ from typing import Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
-from wbmpc.errors import ConfigError, WbmpcError
-from wbmpc.robots import RobotModel
+from wbmpc.errors import ConfigError, ModelError, WbmpcError
+from wbmpc.robots import JointValues, RobotModel, joint_values
 
 
 C = TypeVar("C", bound="PlantConfig")
+DRIVE_TRAIN_FIELDS = ("joint_armature_kg_m2", "joint_damping_nm_s_per_rad", "joint_frictionloss_nm")
 
 
 class PlantInputError(ConfigError, ValueError):
@@ -29,23 +30,40 @@ class PlantDivergedError(WbmpcError, RuntimeError):
 
 @dataclass(frozen=True)
 class PlantConfig:
-    """Settings shared by every plant (units in the names)."""
+    """Settings shared by every plant (units in the names).
+
+    The plant's drive train is independent of the controller's model (`RobotSpec.armature_kg_m2`,
+    ...), so a controller can be run against a robot whose rotors and friction it ignores or
+    misestimates (paper section VI-D). Each is one value for all joints or {joint name: value}:
+    `joint_armature_kg_m2` (rotor inertia), `joint_damping_nm_s_per_rad` (viscous friction) and
+    `joint_frictionloss_nm` (Coulomb / dry friction; MuJoCo only).
+    """
 
     dt_s: float = 1e-3
     friction_mu: float = 0.8
-    joint_damping_nm_s_per_rad: float = 0.0
-    joint_armature_kg_m2: float = 0.0
+    joint_damping_nm_s_per_rad: JointValues = 0.0
+    joint_armature_kg_m2: JointValues = 0.0
+    joint_frictionloss_nm: JointValues = 0.0
     record_every_n_steps: int = 1  # 0 disables recording
+
+    def joint_array(self, robot: RobotModel, name: str) -> np.ndarray:
+        """The drive-train field `name` as one value per joint of `robot` (robot.joint_names order)."""
+        try:
+            return joint_values(getattr(self, name), robot.joint_names, name)
+        except ModelError as exc:
+            raise PlantInputError(str(exc)) from exc
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt_s) and 0 < self.dt_s <= 0.05):
             raise PlantInputError(f"dt_s must be in (0, 0.05] s, got {self.dt_s}")
         if not (np.isfinite(self.friction_mu) and self.friction_mu >= 0):
             raise PlantInputError(f"friction_mu must be a finite number >= 0, got {self.friction_mu}")
-        for name in ("joint_damping_nm_s_per_rad", "joint_armature_kg_m2"):
+        for name in DRIVE_TRAIN_FIELDS:
             value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise PlantInputError(f"{name} must be a finite number >= 0, got {value}")
+            try:  # values checked here, joint names when a plant resolves them for its robot
+                joint_values(value, tuple(value) if isinstance(value, dict) else (), name)
+            except ModelError as exc:
+                raise PlantInputError(str(exc)) from exc
         if self.record_every_n_steps < 0:
             raise PlantInputError(f"record_every_n_steps must be >= 0 (0 disables), got {self.record_every_n_steps}")
 

@@ -82,7 +82,7 @@ class MujocoPlant:
         d = self.data
         d.qpos[self._root_qadr : self._root_qadr + 3] = q[:3]
         d.qpos[self._root_qadr + 3 : self._root_qadr + 7] = q[[6, 3, 4, 5]]
-        d.qpos[self._qadr] = q[7:]
+        d.qpos[self._qadr] = self.robot.joint_positions(q)
         d.qvel[self._root_vadr : self._root_vadr + 3] = quat_xyzw_to_matrix(q[3:7]) @ v[:3]
         d.qvel[self._root_vadr + 3 : self._root_vadr + 6] = v[3:6]
         d.qvel[self._vadr] = v[6:]
@@ -113,7 +113,8 @@ class MujocoPlant:
         d = self.data
         qw = d.qpos[self._root_qadr + 3 : self._root_qadr + 7]
         quat_xyzw = qw[[1, 2, 3, 0]] / np.linalg.norm(qw)
-        q = np.concatenate([d.qpos[self._root_qadr : self._root_qadr + 3], quat_xyzw, d.qpos[self._qadr]])
+        base = np.concatenate([d.qpos[self._root_qadr : self._root_qadr + 3], quat_xyzw])
+        q = self.robot.with_joint_positions(np.concatenate([base, np.zeros(self.robot.nq - 7)]), d.qpos[self._qadr])
         v_world = d.qvel[self._root_vadr : self._root_vadr + 3]
         v = np.concatenate(
             [quat_xyzw_to_matrix(quat_xyzw).T @ v_world, d.qvel[self._root_vadr + 3 : self._root_vadr + 6], d.qvel[self._vadr]]
@@ -169,7 +170,7 @@ class MujocoPlant:
         qpos = self.data.qpos.copy()
         qpos[self._root_qadr : self._root_qadr + 3] = q[:3]
         qpos[self._root_qadr + 3 : self._root_qadr + 7] = np.asarray(q)[[6, 3, 4, 5]]
-        qpos[self._qadr] = q[7:]
+        qpos[self._qadr] = self.robot.joint_positions(q)
         return qpos
 
     def body_name(self, joint_id: int) -> str:

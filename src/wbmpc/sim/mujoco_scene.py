@@ -26,7 +26,12 @@ from wbmpc.sim.shapes import CollisionShape, robot_collision_shapes
 
 ROBOT_CONTYPE, ROBOT_CONAFFINITY = 2, 1
 ENV_CONTYPE, ENV_CONAFFINITY = 1, 3
-_JOINT_AXES = {"RX": "1 0 0", "RY": "0 1 0", "RZ": "0 0 1", "PX": "1 0 0", "PY": "0 1 0", "PZ": "0 0 1"}
+MIN_MASS_KG = 1e-9
+MIN_INERTIA_KG_M2 = 1e-9
+_JOINT_AXES = {
+    "RX": "1 0 0", "RY": "0 1 0", "RZ": "0 0 1", "RUBX": "1 0 0", "RUBY": "0 1 0", "RUBZ": "0 0 1",
+    "PX": "1 0 0", "PY": "0 1 0", "PZ": "0 0 1",
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -41,6 +46,11 @@ class MujocoPlantConfig(PlantConfig):
     contact_dampratio: float = 1.0
     contact_solimp: tuple[float, float, float, float, float] = (0.95, 0.99, 0.001, 0.5, 2.0)
     torsional_friction_m: float = 0.0
+    # joint dry friction (joint_frictionloss_nm) is a soft constraint in MuJoCo; with its default
+    # impedance a joint held at half its friction torque still creeps at ~0.3 rad/s, so it gets a
+    # stiff one: time constant (None: 2 dt_s) and impedance
+    joint_friction_timeconst_s: float | None = None
+    joint_friction_solimp: tuple[float, float, float, float, float] = (0.99, 0.999, 0.001, 0.5, 2.0)
     integrator: str = "implicitfast"  # Euler | RK4 | implicit | implicitfast
     cone: str = "elliptic"  # elliptic | pyramidal
     use_urdf_collision_primitives: bool = True
@@ -54,6 +64,9 @@ class MujocoPlantConfig(PlantConfig):
             raise PlantInputError(f"integrator must be Euler, RK4, implicit or implicitfast, got {self.integrator!r}")
         if self.cone not in ("elliptic", "pyramidal"):
             raise PlantInputError(f"cone must be 'elliptic' or 'pyramidal', got {self.cone!r}")
+        timeconst = self.joint_friction_timeconst_s
+        if timeconst is not None and not (np.isfinite(timeconst) and timeconst >= 2 * self.dt_s):
+            raise PlantInputError(f"joint_friction_timeconst_s ({timeconst}) must be >= 2 * dt_s ({2 * self.dt_s})")
         if not self.contact_timeconst_s >= 2 * self.dt_s:
             raise PlantInputError(
                 f"contact_timeconst_s ({self.contact_timeconst_s}) must be >= 2 * dt_s ({2 * self.dt_s}) for a stable contact"
@@ -72,6 +85,39 @@ def body_names(robot: RobotModel) -> list[str]:
         name = next((n for n in links if n not in names), model.names[jid])
         names.append(name)
     return names
+
+
+def mujoco_inertia(mass_kg: float, inertia_kg_m2: np.ndarray) -> tuple[float, np.ndarray]:
+    """Mass and rotational inertia (about the centre of mass) as MuJoCo accepts them.
+
+    MuJoCo rejects moving bodies without mass (the massless links between the axes of a URDF
+    ball joint), inertias that are not positive definite (point masses) and principal moments
+    violating the triangle inequality A + B >= C (not a physical body). Such inputs get
+    MIN_MASS_KG, principal moments of at least MIN_INERTIA_KG_M2 and the two smaller moments
+    raised until A + B = C; physical inertias pass unchanged (see `regularised_bodies`).
+    """
+    mass = max(float(mass_kg), MIN_MASS_KG)
+    inertia = 0.5 * (np.asarray(inertia_kg_m2, dtype=float) + np.asarray(inertia_kg_m2, dtype=float).T)
+    moments, axes = np.linalg.eigh(inertia)
+    fixed = np.maximum(moments, MIN_INERTIA_KG_M2)
+    deficit = fixed[2] - fixed[0] - fixed[1]
+    if deficit > 0:
+        fixed[:2] += 0.5 * deficit * (1 + 1e-9)
+    if np.array_equal(fixed, moments) and mass == mass_kg:
+        return mass, np.asarray(inertia_kg_m2, dtype=float)
+    return mass, axes @ np.diag(fixed) @ axes.T
+
+
+def regularised_bodies(robot: RobotModel) -> list[str]:
+    """MuJoCo bodies whose mass or inertia `mujoco_inertia` had to change (the plant then differs
+    slightly from the pinocchio model there)."""
+    out = []
+    for jid, name in enumerate(body_names(robot), start=1):
+        inertia = robot.model.inertias[jid]
+        mass, rotational = mujoco_inertia(inertia.mass, inertia.inertia)
+        if mass != inertia.mass or not np.array_equal(rotational, inertia.inertia):
+            out.append(name)
+    return out
 
 
 def build_mjcf(robot: RobotModel, config: MujocoPlantConfig | None = None) -> str:
@@ -101,7 +147,7 @@ def build_mjcf(robot: RobotModel, config: MujocoPlantConfig | None = None) -> st
     ET.SubElement(world, "light", name="sun", pos="0 0 5", dir="0 0 -1", directional="true")
     ET.SubElement(world, "geom", name="floor", type="plane", size="0 0 0.05", material="grid", priority="1")
     shapes = robot_collision_shapes(robot, config.use_urdf_collision_primitives, config.ee_sphere_radius_m)
-    _add_bodies(world, robot, shapes, body_names(robot))
+    _add_bodies(world, robot, shapes, body_names(robot), _drive_train(robot, config))
     for k, snippet in enumerate(config.extra_bodies_mjcf):
         try:
             world.append(ET.fromstring(snippet))
@@ -138,12 +184,29 @@ def _defaults(root: ET.Element, config: MujocoPlantConfig) -> None:
         solref=_v([config.contact_timeconst_s, config.contact_dampratio]),
         solimp=_v(config.contact_solimp),
     )
-    ET.SubElement(default, "joint", damping=_f(config.joint_damping_nm_s_per_rad), armature=_f(config.joint_armature_kg_m2))
     robot_class = ET.SubElement(default, "default", attrib={"class": "robot"})
     ET.SubElement(robot_class, "geom", contype=str(ROBOT_CONTYPE), conaffinity=str(ROBOT_CONAFFINITY), rgba=".7 .7 .75 1")
 
 
-def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShape], names: list[str]) -> None:
+def _drive_train(robot: RobotModel, config: MujocoPlantConfig) -> dict[str, dict[str, str]]:
+    """Per joint MJCF attributes of the plant's drive train: armature, damping, frictionloss."""
+    columns = {
+        "armature": config.joint_array(robot, "joint_armature_kg_m2"),
+        "damping": config.joint_array(robot, "joint_damping_nm_s_per_rad"),
+        "frictionloss": config.joint_array(robot, "joint_frictionloss_nm"),
+    }
+    timeconst = config.joint_friction_timeconst_s or 2 * config.dt_s
+    friction = {"solreffriction": _v([timeconst, 1.0]), "solimpfriction": _v(config.joint_friction_solimp)}
+    return {
+        name: {**{key: _f(values[k]) for key, values in columns.items()},
+               **(friction if columns["frictionloss"][k] > 0 else {})}
+        for k, name in enumerate(robot.joint_names)
+    }
+
+
+def _add_bodies(
+    world: ET.Element, robot: RobotModel, shapes: list[CollisionShape], names: list[str], drive: dict[str, dict[str, str]]
+) -> None:
     model = robot.model
     elements: dict[int, ET.Element] = {0: world}
     limits = {n: (lo, hi) for n, lo, hi in zip(robot.joint_names, robot.q_min, robot.q_max)}
@@ -158,15 +221,15 @@ def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShap
         )
         elements[jid] = body
         inertia = model.inertias[jid]
-        I = inertia.inertia
+        mass, I = mujoco_inertia(inertia.mass, inertia.inertia)
         ET.SubElement(
             body,
             "inertial",
             pos=_v(inertia.lever),
-            mass=_f(inertia.mass),
+            mass=_f(mass),
             fullinertia=_v([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]),
         )
-        _add_joint(body, robot, jid, limits)
+        _add_joint(body, robot, jid, limits, drive)
         if jid == 1:
             ET.SubElement(body, "camera", name="track", mode="trackcom", pos="0 -2.5 1.0", xyaxes="1 0 0 0 0.37 0.93")
         for shape in (s for s in shapes if s.joint_id == jid):
@@ -176,7 +239,7 @@ def _add_bodies(world: ET.Element, robot: RobotModel, shapes: list[CollisionShap
         ET.SubElement(elements[frame.parentJoint], "site", name=name, pos=_v(frame.placement.translation), size="0.01")
 
 
-def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict) -> None:
+def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict, drive: dict[str, dict[str, str]]) -> None:
     model, name = robot.model, robot.model.names[jid]
     joint = model.joints[jid]
     short = joint.shortname()
@@ -189,12 +252,15 @@ def _add_joint(body: ET.Element, robot: RobotModel, jid: int, limits: dict) -> N
     suffix = short.removeprefix("JointModel")
     if suffix in _JOINT_AXES:
         axis = _JOINT_AXES[suffix]
-    elif suffix in ("RevoluteUnaligned", "PrismaticUnaligned"):
-        axis = _v(joint.extract().axis)
+    elif suffix in ("RevoluteUnaligned", "RevoluteUnboundedUnaligned", "PrismaticUnaligned"):
+        data = robot.model.createData()
+        pin.forwardKinematics(robot.model, data, pin.neutral(robot.model))
+        subspace = np.array(data.joints[jid].S).ravel()  # (linear, angular); constant for these joints
+        axis = _v(subspace[:3] if kind == "slide" else subspace[3:])
     else:
         raise PlantInputError(f"joint '{name}' of type {short} has no MuJoCo equivalent in wbmpc.sim")
     lo, hi = limits[name]
-    attrs = dict(name=name, type=kind, axis=axis)
+    attrs = dict(name=name, type=kind, axis=axis, **drive[name])
     if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 1e9:
         attrs.update(range=_v([lo, hi]), limited="true")
     ET.SubElement(body, "joint", **attrs)

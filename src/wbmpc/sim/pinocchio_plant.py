@@ -61,7 +61,12 @@ class PinocchioPlant:
         self.robot = robot
         self.config = specialised_config(config, PinocchioPlantConfig)
         self.model = pin.Model(robot.model)  # own copy: the armature is set on it
-        self.model.armature = np.r_[np.zeros(6), np.full(robot.n_joints, self.config.joint_armature_kg_m2)]
+        self.model.armature = np.r_[np.zeros(6), self.config.joint_array(robot, "joint_armature_kg_m2")]
+        self._damping = self.config.joint_array(robot, "joint_damping_nm_s_per_rad")
+        if np.any(self.config.joint_array(robot, "joint_frictionloss_nm")):
+            raise PlantInputError(
+                "the pinocchio plant has no Coulomb joint friction (joint_frictionloss_nm); use the MuJoCo plant"
+            )
         self.data = self.model.createData()
         self.recording = Recording()
         self._lower = np.tril_indices(self.model.nv, -1)
@@ -93,7 +98,7 @@ class PinocchioPlant:
         cfg, model, data = self.config, self.model, self.data
         q, v, dt = self._q, self._v, cfg.dt_s
         generalized = np.zeros(self.model.nv)
-        generalized[6:] = tau - cfg.joint_damping_nm_s_per_rad * v[6:]
+        generalized[6:] = tau - self._damping * v[6:]
         v_free = v + dt * pin.aba(model, data, q, v, generalized)  # model.armature holds the armature
         Minv = pin.computeMinverse(model, data, q)
         Minv[self._lower] = Minv.T[self._lower]  # pinocchio guarantees the upper triangle

@@ -147,24 +147,31 @@ class SymbolicDynamics:
         if model.joints[1].shortname() != "JointModelFreeFlyer":
             raise ModelError("the first joint must be a free-flyer root (load the URDF with JointModelFreeFlyer)")
         self.joints: dict[int, _Joint] = {}
+        # motion subspaces S (linear, angular) of every joint: the axis of unaligned joints (the Python
+        # bindings expose no `axis` on some of them, e.g. RevoluteUnboundedUnaligned)
+        data = model.createData()
+        pin.forwardKinematics(model, data, pin.neutral(model))
         for i in range(2, model.njoints):
             jm = model.joints[i]
             name = jm.shortname()
             if name in _REVOLUTE or name in _UNBOUNDED:
                 kind, axis = "revolute", np.array(_REVOLUTE.get(name) or _UNBOUNDED[name], float)
-            elif name == "JointModelRevoluteUnaligned":
-                kind, axis = "revolute", np.array(jm.axis, float)
+            elif name in ("JointModelRevoluteUnaligned", "JointModelRevoluteUnboundedUnaligned"):
+                kind, axis = "revolute", np.array(data.joints[i].S, float).ravel()[3:]
             elif name in _PRISMATIC:
                 kind, axis = "prismatic", np.array(_PRISMATIC[name], float)
             elif name == "JointModelPrismaticUnaligned":
-                kind, axis = "prismatic", np.array(jm.axis, float)
+                kind, axis = "prismatic", np.array(data.joints[i].S, float).ravel()[:3]
             else:
-                raise ModelError(f"joint '{model.names[i]}' has unsupported type {name}")
+                raise ModelError(
+                    f"joint '{model.names[i]}' has unsupported type {name}; supported: revolute, continuous and "
+                    "prismatic joints (aligned or unaligned axes); lock it or change its type in the URDF"
+                )
             placement = model.jointPlacements[i]
             self.joints[i] = _Joint(
                 parent=model.parents[i],
                 kind=kind,
-                unbounded=name in _UNBOUNDED,
+                unbounded=name in _UNBOUNDED or name == "JointModelRevoluteUnboundedUnaligned",
                 axis=axis,
                 placement_rotation=np.array(placement.rotation),
                 placement_translation=np.array(placement.translation),
@@ -176,6 +183,11 @@ class SymbolicDynamics:
             for i in range(1, model.njoints)
         }
         self.gravity = np.array(model.gravity.linear)
+        # drive train (section VI-D): armature on the mass-matrix diagonal, smoothed joint friction
+        self.armature = np.asarray(robot.armature_kg_m2, dtype=float)
+        self.viscous_friction = np.asarray(robot.viscous_friction_nm_s, dtype=float)
+        self.coulomb_friction = np.asarray(robot.coulomb_friction_nm, dtype=float)
+        self.coulomb_velocity = float(robot.coulomb_velocity_rad_s)
         self.total_mass = sum(b.mass for b in self.bodies.values())
         self.contact_frames = robot.contact_frames
         self.contacts = [self._contact(name, with_moment=False) for name in self.contact_frames]
@@ -361,10 +373,28 @@ class SymbolicDynamics:
         return ca.vertcat(*tau)
 
     def rnea(self, cfg: Configuration, motion: Motion, a: ca.SX, forces: ca.SX | None = None) -> ca.SX:
-        """Inverse dynamics tau = M a + b - J_c^T F_c (eqs. 2 and 5); base rows are local wrenches."""
+        """Inverse dynamics tau = M a + b - J_c^T F_c (eqs. 2 and 5); base rows are local wrenches.
+
+        With a drive train on the robot, joint rows add I_a a_j + b v_j + c tanh(v_j / v_c).
+        """
         force, moment = self._body_wrenches(cfg, motion, a, gravity=True)
         self._apply_contacts(cfg, force, moment, forces)
-        return self._backward(cfg, force, moment)
+        return self._backward(cfg, force, moment) + self.drive_train_torque(motion.v, a)
+
+    def drive_train_torque(self, v: ca.SX, a: ca.SX) -> ca.SX:
+        """Generalized forces of the joints' armature and friction (zero rows vanish from the graph)."""
+        rows = [ca.SX(0)] * self.nv
+        for i in range(self.nv - 6):
+            k = 6 + i
+            term = ca.SX(0)
+            if self.armature[i]:
+                term += self.armature[i] * a[k]
+            if self.viscous_friction[i]:
+                term += self.viscous_friction[i] * v[k]
+            if self.coulomb_friction[i]:
+                term += self.coulomb_friction[i] * ca.tanh(v[k] / self.coulomb_velocity)
+            rows[k] = term
+        return ca.vertcat(*rows)
 
     def _composite_inertias(self, cfg: Configuration) -> dict[int, ca.SX]:
         """6x6 composite spatial inertias (lin, ang ordering) in joint frames (CRBA's first pass)."""
@@ -406,6 +436,8 @@ class SymbolicDynamics:
                 mass[joint.idx_v, k] = val
                 j = parent
         mass[0:6, 0:6] = comp[1]
+        for i in np.flatnonzero(self.armature):
+            mass[6 + i, 6 + i] += self.armature[i]
         return mass
 
     def forward_dynamics(self, cfg: Configuration, motion: Motion, tau_joints: ca.SX, forces: ca.SX | None = None) -> ca.SX:
