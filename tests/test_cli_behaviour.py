@@ -65,7 +65,7 @@ def go2_files():
     (["run", "stand", "--nodes", "100000"], "--nodes must be <= 100"),
     (["solve", "--nodes", "100000"], "--nodes must be <= 100"),
     (["run", "stand", "--delay", "inf"], "--delay must be a finite number"),
-    (["run", "stand", "--delay", "later"], "--delay must be none, measured, realtime or a number of ms"),
+    (["run", "stand", "--delay", "later"], "--delay must be none, measured, measured-wall, realtime or a number of ms"),
     (["run", "pull", "--pull-speed", "nan"], "--pull-speed must be a finite number"),
     (["run", "stand", "--kp", "-1"], "--kp must be >= 0"),
     (["run", "stand", "--kd", "-0.5"], "--kd must be >= 0"),

@@ -81,7 +81,7 @@ def test_fixed_delay_applies_solutions_late(b1z1):
 
 
 def test_bad_loop_inputs():
-    with pytest.raises(ConfigError, match="delay must be none, measured, realtime or a number of ms; got 'soon'"):
+    with pytest.raises(ConfigError, match="delay must be none, measured, measured-wall, realtime or a number of ms; got 'soon'"):
         LoopConfig(delay="soon")
     with pytest.raises(ConfigError, match=">= 0 ms"):
         LoopConfig(delay="-5")

@@ -46,6 +46,7 @@ class RtiConfig:
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
+    qp_tolerance: float = 1e-6  # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's)
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
     recovery_barrier_init: float | None = 0.1
@@ -94,7 +95,7 @@ class RtiSolver:
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
         self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
         sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
-        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=config.tolerance, max_iterations=config.max_iterations,
+        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
                              hpipm_options=dict(self.rti.qp_options))
         self.qp = StructuredQp(problem, *sparsity, qp_config)
         self.fallback_qp = (StructuredQp(problem, *sparsity, replace(qp_config, mode=self.rti.fallback_qp_mode))
