@@ -469,7 +469,7 @@ def build_parser() -> argparse.ArgumentParser:
     robots = bench_sub.add_parser("robots", help="bench dynamics over every legged preset (example-robot-data)")
     robots.add_argument("--robots", metavar="NAME,NAME", help="subset of presets (default: all)")
     robots.add_argument("--samples", type=int, default=10, help="random states per robot (default 10)")
-    robots.add_argument("--seed", type=int, default=0)
+    robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 

@@ -92,8 +92,8 @@ class MpcConfig:
         check_number("recovery_barrier_init", self.recovery_barrier_init, low=0.0, low_open=True, allow_none=True)
         check_number("max_ee_force_n", self.max_ee_force_n, low=0.0, low_open=True, unit="N", allow_none=True)
         if self.base_tracking not in BASE_TRACKING_MODES:
-            raise ConfigError.for_field("base_tracking", f"must be one of {', '.join(BASE_TRACKING_MODES)}; "
-                                        f"got {self.base_tracking!r}")
+            raise ConfigError(f"base tracking must be one of {', '.join(BASE_TRACKING_MODES)} "
+                              f"(--base-tracking), got {self.base_tracking!r}")
 
 
 @dataclass

@@ -190,7 +190,13 @@ class NlpSolver:
             lower, upper = np.asarray(lower), np.asarray(upper)
             equal = lower == upper
             bounded = ~equal & ~(np.isneginf(lower) & np.isposinf(upper))
-            return np.add.reduceat(equal, starts), np.add.reduceat(bounded, starts)
+            ends = np.append(starts[1:], lower.size)  # a stage may have no rows (e.g. the terminal one)
+
+            def per_stage(mask):
+                total = np.concatenate([[0], np.cumsum(mask)])
+                return total[ends] - total[starts]
+
+            return per_stage(equal), per_stage(bounded)
 
         eq_g, ineq_g = counts(lbg, ubg, self.problem.stage_row_starts)
         eq_x, ineq_x = counts(lbx, ubx, self._stage_x_starts)
