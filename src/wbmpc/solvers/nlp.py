@@ -154,19 +154,23 @@ class NlpSolver:
     equality and inequality rows change (every contact switch) and the rebuilt instance ignores
     our options (tol, mu_init, max_iter: Fatrop's defaults 1e-8, 0.1, 1000 apply instead). So one
     nlpsol is kept per row-count pattern (`structure_key`): each keeps its Fatrop instance and our
-    options, and no step pays for a rebuild. A trot has a few dozen patterns per gait period;
-    `prepare` creates them ahead of a real-time loop (about 0.1 s each when compiled).
+    options, and no step pays for a rebuild. Trot and walk keep the counts constant; starting or
+    stopping a gait and custom schedules change them. `prepare` creates the solvers of known
+    patterns ahead of a real-time loop (about 0.1 s each when compiled).
+
+    `compile_report`: a library compiled before for this problem (no code generation, no compiler).
     """
 
-    def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None):
+    def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None,
+                 compile_report: CompileReport | None = None):
         if config.name == "rti":
             raise ConfigError("the 'rti' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
         self.config = config
-        self.compile_report: CompileReport | None = None
+        self.compile_report: CompileReport | None = compile_report
         self.compile_error: str | None = None
-        self._source: dict | str = problem.nlp
-        if solver is None and config.compiled:
+        self._source: dict | str = str(compile_report.library) if compile_report else problem.nlp
+        if solver is None and config.compiled and compile_report is None:
             solver = self._compiled_solver()
         self.solver = solver or self._new_nlpsol()
         self._by_structure: dict[bytes, ca.Function] = {}
@@ -227,12 +231,7 @@ class NlpSolver:
         config = replace(self.config, **changes)
         if self.compile_report is None:
             return NlpSolver(self.problem, replace(config, compiled=False))
-        options = solver_options(self.problem, config)
-        options.pop("expand")
-        solver = ca.nlpsol(f"ocp_{config.name}_compiled", config.name, str(self.compile_report.library), options)
-        fresh = NlpSolver(self.problem, replace(config, compiled=False), solver=solver)
-        fresh.compile_report, fresh._source = self.compile_report, str(self.compile_report.library)
-        return fresh
+        return NlpSolver(self.problem, replace(config, compiled=True), compile_report=self.compile_report)
 
     def _compiled_solver(self) -> ca.Function | None:
         """nlpsol on the compiled library, or None (with a warning) when compiling is impossible."""

@@ -122,7 +122,7 @@ class RtiSolver:
         if self._recovery is None:
             config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init, max_iterations=300,
                                   compiled=self.compile_report is not None, codegen=self.config.codegen)
-            self._recovery = NlpSolver(self.problem, config)
+            self._recovery = NlpSolver(self.problem, config, compile_report=self.compile_report)
         return self._recovery
 
     def _recover(self, failed: NlpResult, p, lbx, ubx, lbg, ubg, x0) -> NlpResult:
