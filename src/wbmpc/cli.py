@@ -94,6 +94,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     import warnings
     from pathlib import Path
 
+    import numpy as np
+
     from wbmpc.control.interpolator import PdGains
     from wbmpc.scenarios import RunConfig, make_scenario, prepare_output_dir, run_scenario, write_outputs
 
@@ -115,10 +117,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=options,
                        gains=PdGains(kp_leg=args.kp, kd_leg=args.kd), formulation=args.formulation,
-                       compiled=args.compiled)
+                       compiled=args.compiled, state=args.state)
     if args.sweep is not None:
         return _run_sweep(args, robot, config, out_dir)
-    print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
+    print(f"wbmpc run {args.scenario}: robot {robot.name}, delay {args.delay}, plant {args.plant}, state {args.state}",
+          file=sys.stderr)
     result = run_scenario(robot, config, progress=_progress)
     print(file=sys.stderr)
     paths = write_outputs(robot, result, out_dir) if not args.no_outputs else []
@@ -130,6 +133,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"  max torque / limit {m['max_torque_ratio']:.2f}; MPC {m['mpc_solves']} solves, {m['mpc_failures']} failed, "
         f"solve {m['solve_ms']['mean']:.1f} ms mean ({m['solve_ms']['max']:.1f} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("est_base_vel_rmse_m_s") is not None:
+        lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
+                     f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {np.rad2deg(m['est_orientation_rmse_rad']):.2f} deg")
     if m.get("ee_pos_rmse_m") is not None:
         lines.append(f"  end-effector position RMSE {100 * m['ee_pos_rmse_m']:.2f} cm")
     if m.get("ee_force_err_rel") is not None:
@@ -182,6 +188,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, help="simulated seconds (scenario default otherwise)")
     run.add_argument("--delay", default="none", help="none | measured | realtime | a fixed delay in ms")
     run.add_argument("--plant", default="mujoco", help="mujoco (default) | pinocchio")
+    run.add_argument("--state", default="true", choices=("true", "estimated"),
+                     help="state fed to the MPC: the simulator's (default) or estimated from simulated IMU + encoders "
+                          "(noise on; section V-B filter; adds estimation RMSE metrics and estimation.png)")
     run.add_argument("--out", help="output directory (default runs/SCENARIO)")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--nodes", type=int, default=15)

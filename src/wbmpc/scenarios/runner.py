@@ -37,12 +37,18 @@ class RunConfig:
     formulation: str = "wb_inverse"
     compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
     seed: int = 0
+    state: str = "true"  # "true": the simulator's state; "estimated": IMU + encoders through wbmpc.estimation
+    sensors: object | None = None  # wbmpc.estimation.SensorConfig (defaults when None)
 
     def __post_init__(self):
         if self.duration_s is not None and not self.duration_s > 0:
             raise ConfigError(f"duration must be positive, got {self.duration_s} s")
         if self.nodes < 2:
             raise ConfigError(f"the horizon needs at least 2 nodes, got {self.nodes}")
+        if self.state not in ("true", "estimated"):
+            raise ConfigError(f"--state must be 'true' or 'estimated', got {self.state!r}")
+        if self.state == "estimated" and self.plant != "mujoco":
+            raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 
 
 @dataclass
@@ -75,15 +81,31 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     gains = scenario.pd_gains(config.gains)
-    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
+    state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
+    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed), state_source)
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress)
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
+    metrics["state"] = config.state
+    if state_source is not None:
+        from wbmpc.estimation.metrics import estimation_metrics
+
+        metrics.update(estimation_metrics(state_source.log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
                     "time_steps": "uniform" if config.uniform_dt_ms else "geometric"})
     result = ScenarioResult(scenario, metrics, log)
     result.plant = plant  # type: ignore[attr-defined]
+    result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
     return result
+
+
+def _estimated_state(plant, mpc: MPC, config: RunConfig):
+    """IMU + encoder models on the plant and the paper's estimator, contacts from the MPC's gait."""
+    from wbmpc.estimation import SensorConfig
+    from wbmpc.estimation.source import EstimatedState
+
+    sensors = config.sensors or SensorConfig(seed=config.seed)
+    return EstimatedState(plant, mpc.gait, sensors)
 
 
 def prepare_output_dir(out_dir: Path) -> Path:
@@ -111,4 +133,8 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
     arrays = result.log.arrays()
     paths += result.scenario.extra_plots(robot, result.log, out_dir)
     paths.append(save_replay(robot, arrays["t"], arrays["q"], out_dir / "replay.html"))
+    if getattr(result, "estimation", None) is not None:
+        from wbmpc.viz.estimation import save_estimation_plot
+
+        paths.append(save_estimation_plot(result.estimation, out_dir))
     return paths
