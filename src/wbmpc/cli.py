@@ -278,6 +278,10 @@ def build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
     table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
+
+    from wbmpc.hardware.commands import add_hardware_commands
+
+    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
     return parser
 
 

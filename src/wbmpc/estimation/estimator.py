@@ -83,6 +83,7 @@ class StateEstimator:
         self._q_rel = pin.neutral(robot.model)
         self._v_rel = np.zeros(robot.nv)
         self.x: np.ndarray | None = None
+        self.gait_t0_s = 0.0  # the gait's phase starts at this sensor time (switch gaits with it)
         self._trust_now = np.ones(self._nf)
         self.P: np.ndarray | None = None
         self._t: float | None = None
@@ -149,7 +150,7 @@ class StateEstimator:
     def _trust(self, reading: SensorReadings) -> np.ndarray:
         if self.config.use_contact_sensors:
             return np.asarray(reading.foot_contact, dtype=float)
-        return contact_trust(self.gait, reading.time_s, self.config.contact_ramp)
+        return contact_trust(self.gait, reading.time_s - self.gait_t0_s, self.config.contact_ramp)
 
     def _predict(self, accel_world: np.ndarray, dt: float) -> None:
         cfg, n = self.config, self.n_state
