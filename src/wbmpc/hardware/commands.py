@@ -43,7 +43,8 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10), sent in LowCmd")
     dep.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10), sent in LowCmd")
     dep.add_argument("--no-lie-down", action="store_true", help="go straight to damping at the end")
-    dep.add_argument("--state-timeout-ms", type=float, default=100.0, help="no LowState for this long -> stop commanding")
+    dep.add_argument("--state-timeout-ms", type=float, help="no LowState for this long -> stop commanding (default "
+                     "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
 
@@ -129,7 +130,7 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     mpc_config = mpc_config_for(scenario, RunConfig(scenario=args.scenario, nodes=args.nodes, compiled=args.compiled))
     config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
                           lie_down=not args.no_lie_down, gains=scenario.pd_gains(PdGains(kp_leg=args.kp, kd_leg=args.kd)),
-                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms))
+                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)))
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}), "
           f"{'lock-step' if args.lockstep else 'real time'}; building the MPC", file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)

@@ -90,7 +90,21 @@ class DeployReport:
             "controller_tick_ms_p99": float(np.percentile(tick, 99)) if tick.size else None,
             "fell": self.fell,
             "stopped_by": self.stopped_by,
+            "mpc_phase_s": self._mpc_phase_s(),
+            "estimated_drift_cm_s": self._estimated_drift(),
         }
+
+    def _mpc_phase_s(self) -> float | None:
+        times = [t for t, p in self.phases if p == "mpc"]
+        later = [t for t, p in self.phases if times and t > times[0]]
+        return (later[0] - times[0]) if times and later else None
+
+    def _estimated_drift(self) -> float | None:
+        """Base displacement over the MPC phase from the controller's own estimate, cm/s."""
+        duration = self._mpc_phase_s()
+        if not duration or len(self.estimated_xy_m) < 2:
+            return None
+        return float(100 * np.linalg.norm(np.subtract(self.estimated_xy_m[-1], self.estimated_xy_m[0])) / duration)
 
 
 class Controller:

@@ -80,6 +80,7 @@ class RobotSimReport:
     start_xy_m: list = field(default_factory=list)
     end_xy_m: list = field(default_factory=list)
     base_height_min_m: float | None = None
+    damping_at_end: bool = False
 
     def summary(self) -> dict:
         rtt = np.array(self.rtt_ms)
@@ -100,6 +101,7 @@ class RobotSimReport:
             "fell_at_s": self.fell_at_s,
             "base_drift_cm_s": float(100 * moved / self.sim_time_s) if self.sim_time_s > 0 else None,
             "base_height_min_m": self.base_height_min_m,
+            "damping_at_end": self.damping_at_end,
         }
 
 
@@ -187,6 +189,8 @@ class RobotSimulator:
                         self._lock.wait(timeout=period)
                         if self._command is None:
                             deadline = time.perf_counter()
+                            if cfg.idle_exit_s is not None and deadline - wall_start > cfg.idle_exit_s:
+                                break
                             continue  # frozen until the first command
                         started_at = t
                         report.start_xy_m = plant.state()[0][:2].tolist()
@@ -236,4 +240,5 @@ class RobotSimulator:
         report.wall_time_s = time.perf_counter() - wall_start
         report.end_xy_m = plant.state()[0][:2].tolist()
         report.commands_rejected = dict(self._rejected)
+        report.damping_at_end = in_damping
         return report
