@@ -102,3 +102,12 @@ def test_estimator_error_bounded_on_a_known_trajectory(go2):
 def test_estimator_needs_contacts(go2):
     with pytest.raises(ConfigError, match="gait schedule"):
         StateEstimator(go2, None)
+
+
+def test_estimated_state_needs_the_mujoco_plant():
+    from wbmpc.scenarios import RunConfig
+
+    with pytest.raises(ConfigError, match="plant mujoco"):
+        RunConfig(state="estimated", plant="pinocchio")
+    with pytest.raises(ConfigError, match="--state"):
+        RunConfig(state="guessed")

@@ -279,9 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
 
-    from wbmpc.hardware.commands import add_hardware_commands
+    from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
 
     add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
+    add_bench_dds(bench_sub, _add_robot_options, robot_from_args, _emit)
     return parser
 
 

@@ -49,6 +49,29 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
 
 
+def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
+    dds = bench_sub.add_parser("dds", help="DDS round trip LowState -> LowCmd through an echo process (p50/p99)")
+    add_robot_options(dds)
+    _add_network_options(dds)
+    dds.add_argument("--samples", type=int, default=2000)
+    dds.add_argument("--rate", type=float, default=500.0, help="LowState rate, Hz")
+    dds.set_defaults(func=lambda args: cmd_bench_dds(args, robot_from_args, emit))
+
+
+def cmd_bench_dds(args, robot_from_args, emit) -> int:
+    from wbmpc.hardware.latency import dds_round_trip
+    from wbmpc.hardware.sdk import load_sdk
+
+    load_sdk()
+    check_interface(args.network)
+    robot = robot_from_args(args)
+    r = dds_round_trip(robot, args.network, args.domain, args.samples, args.rate)
+    emit(args, r, f"DDS round trip on {r['network']} ({r['samples']} of {r['sent']} at {r['rate_hz']:.0f} Hz): "
+                  f"p50 {r['rtt_ms_p50']:.3f} ms, p90 {r['rtt_ms_p90']:.3f} ms, p99 {r['rtt_ms_p99']:.3f} ms, "
+                  f"max {r['rtt_ms_max']:.2f} ms, lost {100 * r['lost_share']:.1f} %")
+    return 0
+
+
 def _add_network_options(parser) -> None:
     parser.add_argument("--network", default="lo", help="network interface of the robot (lo: robot-sim on this machine)")
     parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots)")
