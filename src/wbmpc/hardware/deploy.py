@@ -218,7 +218,8 @@ class Controller:
                 q, v = self.estimator.update(reading)
                 if phase is None:
                     enter("stand-up", t, reading.joint_position_rad)
-                if phase in ("stand-up", "hold", "mpc", "lie-down") and fallen(robot, q, safety):
+                standing = phase in ("hold", "mpc")  # low on purpose while standing up or lying down: tilt only
+                if phase in ("stand-up", "hold", "mpc", "lie-down") and fallen(robot, q, safety, check_height=standing):
                     report.fell, report.stopped_by = True, "fall"
                     enter("damping", t, reading.joint_position_rad)
                 if self._interrupts and phase in ("stand-up", "hold", "mpc"):
@@ -283,6 +284,7 @@ class Controller:
                     if progress:
                         progress(min(t_mpc / cfg.duration_s, 1.0))
                 if phase == "lie-down":
+                    elapsed = t - phase_t0  # the phase may have started in this tick
                     command = posture_command(pose_start, lying, elapsed, safety.lie_down_s, safety)
                     if elapsed >= safety.lie_down_s + 0.3:
                         enter("damping", t, reading.joint_position_rad)

@@ -81,6 +81,7 @@ class RobotSimReport:
     end_xy_m: list = field(default_factory=list)
     base_height_min_m: float | None = None
     damping_at_end: bool = False
+    trajectory: list = field(default_factory=list)  # [t s, x, y, z] every 25 ticks (20 Hz), true base position
 
     def summary(self) -> dict:
         rtt = np.array(self.rtt_ms)
@@ -102,7 +103,14 @@ class RobotSimReport:
             "base_drift_cm_s": float(100 * moved / self.sim_time_s) if self.sim_time_s > 0 else None,
             "base_height_min_m": self.base_height_min_m,
             "damping_at_end": self.damping_at_end,
+            "trajectory": self.trajectory,
         }
+
+    def drift_cm_s(self, from_s: float, to_s: float) -> float:
+        """True base drift (horizontal displacement / time) between two simulated times."""
+        traj = np.array(self.trajectory)
+        a, b = (np.argmin(np.abs(traj[:, 0] - x)) for x in (from_s, to_s))
+        return float(100 * np.linalg.norm(traj[b, 1:3] - traj[a, 1:3]) / max(traj[b, 0] - traj[a, 0], 1e-9))
 
 
 class RobotSimulator:
@@ -168,7 +176,7 @@ class RobotSimulator:
         period = 1.0 / cfg.state_rate_hz
         damping = MotorCommand.damping(self.robot.n_joints, cfg.safety.damping_kd)
         started_at: float | None = None  # simulated time of the first command
-        in_damping, pushed = False, False
+        in_damping, pushed, stood = False, False, False
         wall_start = time.perf_counter()
         deadline = wall_start
         try:
@@ -216,8 +224,11 @@ class RobotSimulator:
                     plant.step(command.torque(q[7:], v[6:]))
                 q, _ = plant.state()
                 report.base_height_min_m = float(q[2] if report.base_height_min_m is None else min(q[2], report.base_height_min_m))
-                if not report.fell and fallen(self.robot, q, cfg.safety):
+                stood = stood or q[2] > 0.8 * self.robot.q_nominal[2]  # a lying start has not fallen
+                if stood and not report.fell and fallen(self.robot, q, cfg.safety):
                     report.fell, report.fell_at_s = True, plant.time_s - started_at
+                if report.ticks % 25 == 0:
+                    report.trajectory.append([round(plant.time_s - started_at, 4), *np.round(q[:3], 5).tolist()])
                 report.ticks += 1
                 deadline += period
                 if cfg.mode == "realtime":

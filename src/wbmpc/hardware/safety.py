@@ -76,10 +76,11 @@ def clamp_command(robot: RobotModel, command: MotorCommand, q: np.ndarray, dq: n
     return MotorCommand(q_des, command.dq_rad_s.copy(), kp, kd, tau)
 
 
-def fallen(robot: RobotModel, q: np.ndarray, config: SafetyConfig) -> bool:
+def fallen(robot: RobotModel, q: np.ndarray, config: SafetyConfig, check_height: bool = True) -> bool:
+    """Tilted beyond `max_tilt_deg`, or (when standing, `check_height`) below `min_height_ratio` of the nominal height."""
     rot = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
     tilted = rot[2, 2] < np.cos(np.deg2rad(config.max_tilt_deg))
-    return bool(tilted or q[2] < config.min_height_ratio * robot.q_nominal[2])
+    return bool(tilted or (check_height and q[2] < config.min_height_ratio * robot.q_nominal[2]))
 
 
 def lying_joint_positions(robot: RobotModel) -> np.ndarray:
