@@ -130,7 +130,8 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"robot-sim {report['mode']}: {report['sim_time_s']:.2f} s simulated in {report['wall_time_s']:.1f} s, "
         f"{'FELL at %.2f s' % report['fell_at_s'] if report['fell'] else 'stayed up'}, "
         f"drift {report['base_drift_cm_s'] or 0:.2f} cm/s",
-        f"  ticks {report['ticks']}, on time {100 * share:.2f} %" if share is not None else "  no ticks",
+        (f"  ticks {report['ticks']}, on time {100 * share:.2f} %; CPU per tick p50 {report['tick_cpu_ms_p50']:.2f} ms, "
+         f"p99 {report['tick_cpu_ms_p99']:.2f} ms (budget {1e3 / config.state_rate_hz:.1f} ms)") if share else "  no ticks",
         f"  LowCmd received {report['commands_received']}, rejected {report['commands_rejected']}, "
         f"watchdog (damping) at {report['watchdog_events_s']} s",
     ]

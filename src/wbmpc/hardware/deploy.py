@@ -114,7 +114,7 @@ class Controller:
         check_interface(config.network)
         self.robot, self.mpc_config, self.config = robot, mpc_config, config
         self.motors = unitree_motor_map(robot)
-        self.mpc = mpc if mpc is not None else (MPC(robot, mpc_config) if config.lockstep else None)
+        self.mpc = mpc  # lock-step: built once the robot answers (a missing robot is reported in 2 s, not after a build)
         self.gait = make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
@@ -156,10 +156,16 @@ class Controller:
             previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
         worker = None
         try:
-            first = self._first_valid_state()
-            if not cfg.lockstep:
+            self._first_valid_state()
+            if cfg.lockstep and self.mpc is None:
+                self.mpc = MPC(robot, self.mpc_config)
+            elif not cfg.lockstep:
                 worker = _SolverProcess(robot, self.mpc_config)
-            self._loop(first, publisher, commands, worker, progress)
+            latest = self._next_state(cfg.first_state_timeout_s)  # the robot kept publishing during the build
+            if latest is None:
+                raise NoRobotStateError("the robot stopped publishing LowState while the MPC was built; nothing "
+                                        "was commanded")
+            self._loop(latest, publisher, commands, worker, progress)
         finally:
             if previous_handler is not None:
                 signal.signal(signal.SIGINT, previous_handler)
@@ -230,11 +236,11 @@ class Controller:
                 elapsed = t - phase_t0
                 solve_ms = 0.0
                 if phase == "stand-up":
-                    command = posture_command(pose_start, robot.q_nominal[7:], elapsed, safety.stand_up_s, safety)
+                    command = posture_command(pose_start, robot.q_nominal[7:], elapsed, safety.stand_up_s, safety, robot.tau_max)
                     if elapsed >= safety.stand_up_s:
                         enter("hold", t, robot.q_nominal[7:])
                 elif phase == "hold":
-                    command = posture_command(pose_start, robot.q_nominal[7:], 1.0, 0.0, safety)
+                    command = posture_command(pose_start, robot.q_nominal[7:], 1.0, 0.0, safety, robot.tau_max)
                     ready = elapsed >= cfg.hold_s
                     if ready and worker is not None and not busy and active is None:
                         worker.request(q, v, commands(0.0, q, v), 0.0)  # first plan while still holding
@@ -273,19 +279,21 @@ class Controller:
                             busy = True
                             while next_mpc <= t_mpc + 1e-9:
                                 next_mpc += mpc_period
-                    if active is None:
-                        raise NoRobotStateError("the MPC failed on the first state after stand-up; lying down is not "
-                                                "possible without a plan: damping")
-                    reference = interpolate(active, t_mpc)
-                    command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
-                    report.estimated_xy_m.append(q[:2].tolist())
-                    if t_mpc >= cfg.duration_s:
+                    if active is None:  # the first plan failed: lie down from where the robot stands
+                        report.stopped_by = "mpc-failed"
+                        enter("lie-down", t, reading.joint_position_rad)
+                        elapsed = 0.0
+                    else:
+                        reference = interpolate(active, t_mpc)
+                        command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
+                        report.estimated_xy_m.append(q[:2].tolist())
+                    if phase == "mpc" and t_mpc >= cfg.duration_s:
                         enter("lie-down" if cfg.lie_down else "damping", t, reading.joint_position_rad)
                     if progress:
                         progress(min(t_mpc / cfg.duration_s, 1.0))
                 if phase == "lie-down":
                     elapsed = t - phase_t0  # the phase may have started in this tick
-                    command = posture_command(pose_start, lying, elapsed, safety.lie_down_s, safety)
+                    command = posture_command(pose_start, lying, elapsed, safety.lie_down_s, safety, robot.tau_max)
                     if elapsed >= safety.lie_down_s + 0.3:
                         enter("damping", t, reading.joint_position_rad)
                 if phase == "damping":

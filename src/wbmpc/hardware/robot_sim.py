@@ -81,7 +81,8 @@ class RobotSimReport:
     end_xy_m: list = field(default_factory=list)
     base_height_min_m: float | None = None
     damping_at_end: bool = False
-    trajectory: list = field(default_factory=list)  # [t s, x, y, z] every 25 ticks (20 Hz), true base position
+    tick_cpu_ms: list = field(default_factory=list)  # CPU time of the tick loop's own thread per tick
+    trajectory: list = field(default_factory=list)  # [t s, x, y, z, tilt deg] every 25 ticks (20 Hz), true base
 
     def summary(self) -> dict:
         rtt = np.array(self.rtt_ms)
@@ -103,6 +104,8 @@ class RobotSimReport:
             "base_drift_cm_s": float(100 * moved / self.sim_time_s) if self.sim_time_s > 0 else None,
             "base_height_min_m": self.base_height_min_m,
             "damping_at_end": self.damping_at_end,
+            "tick_cpu_ms_p50": float(np.percentile(self.tick_cpu_ms, 50)) if self.tick_cpu_ms else None,
+            "tick_cpu_ms_p99": float(np.percentile(self.tick_cpu_ms, 99)) if self.tick_cpu_ms else None,
             "trajectory": self.trajectory,
         }
 
@@ -181,6 +184,7 @@ class RobotSimulator:
         deadline = wall_start
         try:
             while not self._stop.is_set():
+                cpu_start = time.thread_time()
                 t = plant.time_s
                 tick_ms = int(round(1e3 * t))
                 reading = self.sensors.read()
@@ -228,8 +232,11 @@ class RobotSimulator:
                 if stood and not report.fell and fallen(self.robot, q, cfg.safety):
                     report.fell, report.fell_at_s = True, plant.time_s - started_at
                 if report.ticks % 25 == 0:
-                    report.trajectory.append([round(plant.time_s - started_at, 4), *np.round(q[:3], 5).tolist()])
+                    tilt_deg = np.degrees(np.arccos(np.clip(1 - 2 * (q[3] ** 2 + q[4] ** 2), -1, 1)))
+                    report.trajectory.append([round(plant.time_s - started_at, 4), *np.round(q[:3], 5).tolist(),
+                                              round(float(tilt_deg), 2)])
                 report.ticks += 1
+                report.tick_cpu_ms.append(1e3 * (time.thread_time() - cpu_start))
                 deadline += period
                 if cfg.mode == "realtime":
                     slack = deadline - time.perf_counter()

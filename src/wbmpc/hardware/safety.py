@@ -33,8 +33,10 @@ class SafetyConfig:
     min_height_ratio: float = 0.5
     stand_up_s: float = 2.0
     lie_down_s: float = 2.0
-    posture_kp: float = 300.0
-    posture_kd: float = 10.0
+    # stand-up / lie-down joint PD, per N m of the joint's effort limit (go2 calf: kp 91, kd 2.3; B1 calf:
+    # kp 280, kd 7): fixed high gains made the light go2 oscillate and flip over DDS's tick delay
+    posture_kp_per_nm: float = 2.0
+    posture_kd_per_nm: float = 0.05
 
     def __post_init__(self):
         for name, value in vars(self).items():
@@ -100,11 +102,12 @@ def lying_joint_positions(robot: RobotModel) -> np.ndarray:
 
 
 def posture_command(start: np.ndarray, target: np.ndarray, elapsed_s: float, duration_s: float,
-                    config: SafetyConfig) -> MotorCommand:
-    """Joint PD to a smooth (cosine) blend from `start` to `target`; holds `target` after `duration_s`."""
+                    config: SafetyConfig, tau_max: np.ndarray) -> MotorCommand:
+    """Joint PD (gains scaled by the effort limits) to a smooth cosine blend from `start` to `target`;
+    holds `target` after `duration_s`."""
     s = 1.0 if duration_s <= 0 else float(np.clip(elapsed_s / duration_s, 0.0, 1.0))
     blend = 0.5 - 0.5 * np.cos(np.pi * s)
     rate = 0.0 if duration_s <= 0 or s >= 1 else 0.5 * np.pi * np.sin(np.pi * s) / duration_s
     n = len(target)
-    return MotorCommand(start + blend * (target - start), rate * (target - start), np.full(n, config.posture_kp),
-                        np.full(n, config.posture_kd), np.zeros(n))
+    return MotorCommand(start + blend * (target - start), rate * (target - start), config.posture_kp_per_nm * tau_max,
+                        config.posture_kd_per_nm * tau_max, np.zeros(n))
