@@ -1,5 +1,8 @@
 """DDS round trip on an interface: LowState out, LowCmd back from an echo process, both CRC-checked.
 
+Ping-pong at up to `rate_hz`: each LowState waits for its answer (up to 1 s) before the next one,
+so a slow (CPU-starved) process shows as a long round trip, not as a queue that grows without end.
+
 The echo process decodes each LowState (CRC, motor set) and answers with a LowCmd echoing its
 tick, so the figure covers DDS transport plus the message encoding and checks on both sides, and
 none of a controller's work (`robot-sim` reports the round trip including the controller).
@@ -64,6 +67,8 @@ def dds_round_trip(robot, network: str = "lo", domain_id: int = 0, samples: int 
     rtt: list[float] = []
     lock = threading.Lock()
 
+    answered = threading.Event()
+
     def on_cmd(msg):
         now = time.perf_counter()
         decode_low_cmd(msg, motors)
@@ -71,6 +76,7 @@ def dds_round_trip(robot, network: str = "lo", domain_id: int = 0, samples: int 
             start = sent.pop(int(msg.reserve), None)
             if start is not None:
                 rtt.append(1e3 * (now - start))
+                answered.set()
 
     try:
         sdk.ChannelFactoryInitialize(domain_id, network)
@@ -83,12 +89,14 @@ def dds_round_trip(robot, network: str = "lo", domain_id: int = 0, samples: int 
         time.sleep(0.5)  # discovery
         period = 1.0 / rate_hz
         next_t = time.perf_counter()
-        for k in range(samples + 50):
+        for k in range(samples + 50):  # ping-pong: the next LowState leaves once the answer is in (or lost)
             message = encode_low_state(reading, motors, tick_ms=k)
+            answered.clear()
             with lock:
                 sent[k] = time.perf_counter()
             publisher.Write(message)
-            next_t += period
+            answered.wait(timeout=1.0)
+            next_t = max(next_t + period, time.perf_counter())
             time.sleep(max(0.0, next_t - time.perf_counter()))
         time.sleep(0.2)
         subscriber.Close()
