@@ -170,3 +170,29 @@ def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
     assert [p for _, p in deploy["phases"]] == ["stand-up", "hold", "mpc", "lie-down", "damping"], c_err
     assert deploy["mpc_solves"] >= 150 and not deploy["fell"]
     assert not robot["fell"] and robot["commands_received"] > 1000
+
+
+@pytest.mark.slow
+def test_ctrl_c_lies_the_robot_down_then_damps(dds):
+    _, heard = dds
+    heard.clear()
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "8",
+               "--idle-exit", "30", "--json")
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
+                      "--nodes", "4", "--duration", "30", "--json")
+    try:
+        deadline = time.monotonic() + 300
+        while len(heard) < 600 and time.monotonic() < deadline:  # a second into the stand-up
+            time.sleep(0.1)
+        controller.send_signal(signal.SIGINT)
+        c_out, c_err = controller.communicate(timeout=300)
+        sim.send_signal(signal.SIGINT)
+        s_out, _ = sim.communicate(timeout=120)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    deploy, robot = json.loads(c_out), json.loads(s_out)
+    assert deploy["stopped_by"] == "ctrl-c", c_err
+    assert [p for _, p in deploy["phases"]][-2:] == ["lie-down", "damping"]
+    assert max(row[4] for row in robot["trajectory"]) < 30  # lay down, did not tip over
