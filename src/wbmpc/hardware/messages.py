@@ -23,6 +23,7 @@ HEAD = (0xFE, 0xEF)
 LOWLEVEL = 0xFF
 MODE_SERVO, MODE_OFF = 0x01, 0x00
 PRESENT_TEMPERATURE_C = 30
+FOOT_CONTACT_THRESHOLD_N = 20.0  # foot_force above this counts as contact (as SensorConfig's switches)
 
 
 class MessageError(WbmpcError, ValueError):
@@ -96,7 +97,7 @@ def decode_low_state(msg, motors: MotorMap) -> SensorReadings:
     values = np.concatenate([quat, q, dq, gyro, accel])
     if not np.all(np.isfinite(values)) or abs(np.linalg.norm(quat) - 1.0) > 1e-2:
         raise MessageError("LowState carries non-finite values or a non-unit IMU quaternion")
-    contact = np.array(msg.foot_force, dtype=float) > 0
+    contact = np.array(msg.foot_force, dtype=float) > FOOT_CONTACT_THRESHOLD_N
     return SensorReadings(msg.tick / 1e3, quat, gyro, accel, q, dq, contact)
 
 
