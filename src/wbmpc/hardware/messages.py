@@ -51,11 +51,17 @@ class MotorCommand:
 
 
 # ---------------------------------------------------------------------------- LowState
+_STATE_MESSAGES: dict = {}
+
+
 def encode_low_state(reading: SensorReadings, motors: MotorMap, tick_ms: int, foot_force_n: np.ndarray | None = None):
-    sdk = load_sdk()
-    msg = sdk.new_low_state()
-    msg.head = list(HEAD)
-    msg.level_flag = LOWLEVEL
+    """A LowState for `reading`. One message object per motor map is reused (building the IDL
+    object costs more than the rest of a 500 Hz tick): write it before the next call."""
+    msg = _STATE_MESSAGES.get(motors)
+    if msg is None:
+        msg = _STATE_MESSAGES[motors] = load_sdk().new_low_state()
+        msg.head = list(HEAD)
+        msg.level_flag = LOWLEVEL
     x, y, z, w = (float(c) for c in reading.quaternion_xyzw)
     msg.imu_state.quaternion = [w, x, y, z]
     msg.imu_state.gyroscope = [float(c) for c in reading.gyro_rad_s]

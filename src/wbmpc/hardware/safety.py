@@ -14,7 +14,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.messages import MotorCommand
@@ -80,8 +79,8 @@ def clamp_command(robot: RobotModel, command: MotorCommand, q: np.ndarray, dq: n
 
 def fallen(robot: RobotModel, q: np.ndarray, config: SafetyConfig, check_height: bool = True) -> bool:
     """Tilted beyond `max_tilt_deg`, or (when standing, `check_height`) below `min_height_ratio` of the nominal height."""
-    rot = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
-    tilted = rot[2, 2] < np.cos(np.deg2rad(config.max_tilt_deg))
+    x, y, z, w = q[3:7] / np.linalg.norm(q[3:7])
+    tilted = 1.0 - 2.0 * (x * x + y * y) < np.cos(np.deg2rad(config.max_tilt_deg))  # R[2, 2] of the base
     return bool(tilted or (check_height and q[2] < config.min_height_ratio * robot.q_nominal[2]))
 
 
