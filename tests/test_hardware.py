@@ -156,9 +156,9 @@ def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go
 @pytest.mark.slow
 def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
     sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "6",
-               "--idle-exit", "30", "--json")
-    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "trot-in-place", "--lockstep",
-                      "--nodes", "8", "--duration", "2", "--json")
+               "--idle-exit", "60", "--json")
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
+                      "--nodes", "6", "--duration", "2", "--json")
     try:
         c_out, c_err = controller.communicate(timeout=900)
         s_out, _ = sim.communicate(timeout=120)
@@ -169,7 +169,9 @@ def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
     deploy, robot = json.loads(c_out), json.loads(s_out)
     assert [p for _, p in deploy["phases"]] == ["stand-up", "hold", "mpc", "lie-down", "damping"], c_err
     assert deploy["mpc_solves"] >= 150 and not deploy["fell"]
-    assert not robot["fell"] and robot["commands_received"] > 1000
+    assert robot["commands_received"] > 1000 and not robot["watchdog_events_s"][:-1]
+    standing = [row for row in robot["trajectory"] if 2.5 <= row[0] <= 4.5]  # the MPC phase, robot time
+    assert min(row[3] for row in standing) > 0.8 * 0.33 and max(row[4] for row in standing) < 10
 
 
 @pytest.mark.slow

@@ -46,7 +46,7 @@ class RobotSimConfig:
     start: str = "standing"  # standing | lying
     sensors: SensorConfig = field(default_factory=SensorConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
-    lockstep_timeout_ms: float = 10000.0  # long: a recovery re-solve of the MPC can take seconds
+    lockstep_timeout_ms: float = 30000.0  # long: a recovery re-solve takes seconds, more on a loaded machine
     idle_exit_s: float | None = None  # exit when no valid LowCmd came for this long (after the first one)
     push_time_s: float | None = None  # base velocity kick at this simulated time
     push_velocity_m_s: tuple[float, float, float] = (0.0, 0.8, 0.0)
