@@ -155,7 +155,7 @@ def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go
 
 @pytest.mark.slow
 def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
-    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "6",
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "9",
                "--idle-exit", "60", "--json")
     controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
                       "--nodes", "6", "--duration", "2", "--json")
