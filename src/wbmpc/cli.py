@@ -36,6 +36,7 @@ FIELD_FLAGS = {
     "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
     "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
     "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t", "base_tracking": "--base-tracking",
+    "state": "--state",
     "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
@@ -213,7 +214,7 @@ def _run_config(args: argparse.Namespace):
                      nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=_scenario_options(args),
                      gains=PdGains(**{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}),
                      formulation=args.formulation,
-                     compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking)
+                     compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking, state=args.state)
 
 
 def _gains(args: argparse.Namespace, robot):
@@ -252,6 +253,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     import warnings
     from pathlib import Path
 
+    import numpy as np
+
     from wbmpc.scenarios import SCENARIOS, check_output_dir, make_scenario, run_scenario, write_outputs
 
     robot = robot_from_args(args)
@@ -270,7 +273,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {args.solver}"
-          f"{' (compiled)' if args.compiled else ''}, delay {args.delay}, plant {args.plant}", file=sys.stderr)
+          f"{' (compiled)' if args.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+          file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
     with ProgressBar(duration, args.scenario + " ", unit="s") as bar:
@@ -307,6 +311,9 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
                      f"mean delay {m['delay_ms_mean']:.1f} ms")
+    if m.get("est_base_vel_rmse_m_s") is not None:
+        lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
+                     f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {np.rad2deg(m['est_orientation_rmse_rad']):.2f} deg")
     if m.get("ee_pos_rmse_m") is not None:
         lines.append(f"  end-effector position RMSE {100 * m['ee_pos_rmse_m']:.2f} cm")
     if m.get("ee_force_err_rel") is not None:
@@ -420,6 +427,9 @@ def build_parser() -> argparse.ArgumentParser:
                              help="viscous joint friction (MuJoCo joint damping), N m s/rad")
     plant_drive.add_argument("--plant-coulomb-friction", metavar="NM",
                              help="dry joint friction (MuJoCo joint frictionloss; mujoco plant only), N m")
+    run.add_argument("--state", default="true", choices=("true", "estimated"),
+                     help="state fed to the MPC: the simulator's (default) or estimated from simulated IMU + encoders "
+                          "(noise on; section V-B filter; adds estimation RMSE metrics and estimation.png)")
     run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
     run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
@@ -518,6 +528,11 @@ def build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
     table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
+
+    from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
+
+    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
+    add_bench_dds(bench_sub, _add_robot_options, robot_from_args, _emit)
     return parser
 
 

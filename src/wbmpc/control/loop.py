@@ -131,8 +131,10 @@ class RunLog:
 class ClosedLoop:
     """Runs an `MPC` against a plant (`wbmpc.sim`) with the paper's interpolation, PD and delays."""
 
-    def __init__(self, mpc: MPC, plant, config: LoopConfig = LoopConfig()):
+    def __init__(self, mpc: MPC, plant, config: LoopConfig = LoopConfig(), state_source=None):
+        """`state_source.measure() -> (q, v)` replaces the plant's true state (e.g. a state estimator)."""
         self.mpc = mpc
+        self.state_source = state_source
         self.robot = mpc.robot
         self.plant = plant
         self.config = config
@@ -143,6 +145,8 @@ class ClosedLoop:
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
         """State estimate: plant state plus optional joint noise and the low-pass on joint velocities."""
+        if self.state_source is not None:
+            return self.state_source.measure()
         q, v = self.plant.state()
         cfg = self.config
         if cfg.joint_position_noise_rad:

@@ -46,6 +46,8 @@ class RunConfig:
     base_tracking: str = "position"  # MpcConfig.base_tracking: "position" (anchored) | "velocity" (the paper's)
     seed: int = 0
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
+    state: str = "true"  # "true": the simulator's state; "estimated": IMU + encoders through wbmpc.estimation
+    sensors: object | None = None  # wbmpc.estimation.SensorConfig (defaults when None)
 
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
@@ -65,6 +67,10 @@ class RunConfig:
             raise ConfigError(unknown_name("solver", self.solver, SOLVERS))
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ConfigError.for_field("seed", f"must be an integer >= 0, got {self.seed!r}")
+        if self.state not in ("true", "estimated"):
+            raise ConfigError.for_field("state", f"must be 'true' or 'estimated', got {self.state!r}")
+        if self.state == "estimated" and self.plant != "mujoco":
+            raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 
 
 @dataclass
@@ -115,12 +121,18 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
-    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
+    state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
+    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed), state_source)
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
     if not log.t:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
+    metrics["state"] = config.state
+    if state_source is not None:
+        from wbmpc.estimation.metrics import estimation_metrics
+
+        metrics.update(estimation_metrics(state_source.log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
                     "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
                     "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking,
@@ -128,6 +140,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     "drive_train": _drive_train_summary(robot, plant.config)})
     result = ScenarioResult(scenario, metrics, log, scene)
     result.plant = plant  # type: ignore[attr-defined]
+    result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
     return result
 
 
@@ -141,6 +154,16 @@ def _drive_train_summary(robot: RobotModel, plant_config: PlantConfig) -> dict:
 
 def _plain(value):
     return {k: float(v) for k, v in value.items()} if isinstance(value, dict) else float(value)
+
+
+def _estimated_state(plant, mpc: MPC, config: RunConfig):
+    """IMU + encoder models on the plant and the paper's estimator, contacts from the MPC's gait."""
+    from wbmpc.estimation import SensorConfig
+    from wbmpc.estimation.source import EstimatedState
+
+    sensors = config.sensors or SensorConfig(seed=config.seed)
+    return EstimatedState(plant, mpc.gait, sensors)
+
 
 
 def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> list[Path]:
@@ -161,6 +184,10 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         objects = result.scene.replay_objects() if result.scene is not None else None
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
+        if getattr(result, "estimation", None) is not None:
+            from wbmpc.viz.estimation import save_estimation_plot
+
+            paths.append(save_estimation_plot(result.estimation, folder))
         return paths
 
     return write_output_files(out_dir, write)

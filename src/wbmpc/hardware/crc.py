@@ -1,0 +1,68 @@
+"""CRC of Unitree `unitree_go` LowCmd_ / LowState_ messages, as the robot checks it.
+
+The message is packed little-endian in the robot's C layout (formats from unitree_sdk2py's
+`utils/crc.py`), cut into 32-bit words (the last word, the crc field itself, excluded) and run
+through Unitree's `crc32_core`: CRC-32 with polynomial 0x04C11DB7, initial value 0xFFFFFFFF,
+most significant bit first, no reflection, no final xor (CRC-32/MPEG-2 over the words' big-endian
+bytes). zlib's CRC-32 is the reflected form of the same polynomial, so bit-reversing the input
+bytes and the result turns it into this one at C speed.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+
+N_MOTOR_SLOTS = 20
+_LOW_CMD = struct.Struct("<4B4IH2x" + "B3x5f3I" * N_MOTOR_SLOTS + "4B" + "55Bx2I")  # 812 bytes
+_LOW_STATE = struct.Struct("<4B4IH2x" + "13fb3x" + "B3x7fb3x3I" * N_MOTOR_SLOTS + "4BiH4b15H" + "8hI41B3xf2b2x2f4h2I")
+_BIT_REVERSE = bytes(int(f"{b:08b}"[::-1], 2) for b in range(256))
+
+
+def crc32_core(words: np.ndarray | list[int]) -> int:
+    """Unitree's crc32_core over 32-bit words."""
+    data = struct.pack(f">{len(words)}I", *(int(w) & 0xFFFFFFFF for w in words))
+    reflected = zlib.crc32(data.translate(_BIT_REVERSE)) ^ 0xFFFFFFFF
+    return int(f"{reflected:032b}"[::-1], 2)
+
+
+def _words(packed: bytes) -> np.ndarray:
+    return np.frombuffer(packed, dtype="<u4")[:-1]
+
+
+def _crc_of(packed: bytes) -> int:
+    words = _words(packed)
+    reflected = zlib.crc32(words.astype(">u4").tobytes().translate(_BIT_REVERSE)) ^ 0xFFFFFFFF
+    return int(f"{reflected:032b}"[::-1], 2)
+
+
+def pack_low_cmd(cmd) -> bytes:
+    values = [*cmd.head, cmd.level_flag, cmd.frame_reserve, *cmd.sn, *cmd.version, cmd.bandwidth]
+    for m in cmd.motor_cmd:
+        values += [m.mode, m.q, m.dq, m.tau, m.kp, m.kd, *m.reserve]
+    values += [cmd.bms_cmd.off, *cmd.bms_cmd.reserve, *cmd.wireless_remote, *cmd.led, *cmd.fan, cmd.gpio,
+               cmd.reserve, cmd.crc]
+    return _LOW_CMD.pack(*values)
+
+
+def pack_low_state(state) -> bytes:
+    imu, bms = state.imu_state, state.bms_state
+    values = [*state.head, state.level_flag, state.frame_reserve, *state.sn, *state.version, state.bandwidth,
+              *imu.quaternion, *imu.gyroscope, *imu.accelerometer, *imu.rpy, imu.temperature]
+    for m in state.motor_state:
+        values += [m.mode, m.q, m.dq, m.ddq, m.tau_est, m.q_raw, m.dq_raw, m.ddq_raw, m.temperature, m.lost, *m.reserve]
+    values += [bms.version_high, bms.version_low, bms.status, bms.soc, bms.current, bms.cycle, *bms.bq_ntc,
+               *bms.mcu_ntc, *bms.cell_vol, *state.foot_force, *state.foot_force_est, state.tick,
+               *state.wireless_remote, state.bit_flag, state.adc_reel, state.temperature_ntc1,
+               state.temperature_ntc2, state.power_v, state.power_a, *state.fan_frequency, state.reserve, state.crc]
+    return _LOW_STATE.pack(*values)
+
+
+def low_cmd_crc(cmd) -> int:
+    return _crc_of(pack_low_cmd(cmd))
+
+
+def low_state_crc(state) -> int:
+    return _crc_of(pack_low_state(state))

@@ -1,0 +1,262 @@
+"""`wbmpc robot-sim`: MuJoCo standing in for the robot behind Unitree's LowState/LowCmd topics.
+
+At `state_rate_hz` (500 Hz, Unitree's low-level rate) the process samples the simulated IMU and
+encoders (`wbmpc.estimation.sensors`), publishes LowState on `rt/lowstate`, and steps the physics
+(1 kHz) applying the motor law of the latest valid LowCmd from `rt/lowcmd` at every physics step,
+as the motor drivers do. The simulation stays frozen (LowState repeated) until the first valid
+LowCmd arrives.
+
+Modes: `realtime` paces ticks by the wall clock (a tick is on time when its work ends before the
+next tick is due); `lockstep` waits for the LowCmd answering each LowState (simulated time: the
+controller may take as long as its MPC needs), for controllers slower than real time.
+
+Safety on the robot side: a LowCmd with a bad CRC, header, motor set or value is rejected and
+counted; no valid LowCmd for `command_timeout_ms` (lock-step: `lockstep_timeout_ms`) switches the
+motors to damping (kp = 0, kd = damping_kd, tau = 0) until valid commands come back.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.estimation.sensors import SensorConfig, Sensors
+from wbmpc.hardware.mapping import unitree_motor_map
+from wbmpc.hardware.messages import MessageError, MotorCommand, decode_low_cmd, encode_low_state
+from wbmpc.hardware.network import check_interface
+from wbmpc.hardware.safety import SafetyConfig, fallen, lying_joint_positions
+from wbmpc.hardware.sdk import load_sdk
+from wbmpc.robots import RobotModel
+
+LOW_STATE_TOPIC, LOW_CMD_TOPIC = "rt/lowstate", "rt/lowcmd"
+
+
+@dataclass(frozen=True)
+class RobotSimConfig:
+    network: str = "lo"
+    domain_id: int = 0
+    mode: str = "realtime"  # realtime | lockstep
+    duration_s: float | None = None  # simulated seconds after the first command; None: until stopped
+    state_rate_hz: float = 500.0
+    start: str = "standing"  # standing | lying
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    lockstep_timeout_ms: float = 30000.0  # long: a recovery re-solve takes seconds, more on a loaded machine
+    idle_exit_s: float | None = None  # exit when no valid LowCmd came for this long (after the first one)
+    push_time_s: float | None = None  # base velocity kick at this simulated time
+    push_velocity_m_s: tuple[float, float, float] = (0.0, 0.8, 0.0)
+
+    def __post_init__(self):
+        if self.mode not in ("realtime", "lockstep"):
+            raise ConfigError(f"--mode must be realtime or lockstep, got {self.mode!r}")
+        if self.start not in ("standing", "lying"):
+            raise ConfigError(f"--start must be standing or lying, got {self.start!r}")
+        if not self.state_rate_hz > 0:
+            raise ConfigError(f"state_rate_hz must be positive, got {self.state_rate_hz}")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise ConfigError(f"--duration must be positive, got {self.duration_s}")
+        if not 0 <= self.domain_id <= 232:
+            raise ConfigError(f"DDS domain id must be in 0..232, got {self.domain_id}")
+
+
+@dataclass
+class RobotSimReport:
+    mode: str
+    ticks: int = 0
+    ticks_on_time: int = 0
+    commands_received: int = 0
+    commands_rejected: dict = field(default_factory=dict)
+    watchdog_events: list = field(default_factory=list)  # simulated times when damping started
+    rtt_ms: list = field(default_factory=list)
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    fell: bool = False
+    fell_at_s: float | None = None
+    start_xy_m: list = field(default_factory=list)
+    end_xy_m: list = field(default_factory=list)
+    base_height_min_m: float | None = None
+    damping_at_end: bool = False
+    tick_cpu_ms: list = field(default_factory=list)  # CPU time of the tick loop's own thread per tick
+    trajectory: list = field(default_factory=list)  # [t s, x, y, z, tilt deg] every 25 ticks (20 Hz), true base
+
+    def summary(self) -> dict:
+        rtt = np.array(self.rtt_ms)
+        moved = np.linalg.norm(np.subtract(self.end_xy_m, self.start_xy_m)) if self.start_xy_m else 0.0
+        return {
+            "mode": self.mode,
+            "ticks": self.ticks,
+            "ticks_on_time_share": self.ticks_on_time / self.ticks if self.ticks else None,
+            "commands_received": self.commands_received,
+            "commands_rejected": dict(self.commands_rejected),
+            "watchdog_events_s": self.watchdog_events,
+            "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
+            "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None,
+            "rtt_samples": int(rtt.size),
+            "sim_time_s": self.sim_time_s,
+            "wall_time_s": self.wall_time_s,
+            "fell": self.fell,
+            "fell_at_s": self.fell_at_s,
+            "base_drift_cm_s": float(100 * moved / self.sim_time_s) if self.sim_time_s > 0 else None,
+            "base_height_min_m": self.base_height_min_m,
+            "damping_at_end": self.damping_at_end,
+            "tick_cpu_ms_p50": float(np.percentile(self.tick_cpu_ms, 50)) if self.tick_cpu_ms else None,
+            "tick_cpu_ms_p99": float(np.percentile(self.tick_cpu_ms, 99)) if self.tick_cpu_ms else None,
+            "trajectory": self.trajectory,
+        }
+
+    def drift_cm_s(self, from_s: float, to_s: float) -> float:
+        """True base drift (horizontal displacement / time) between two simulated times."""
+        traj = np.array(self.trajectory)
+        a, b = (np.argmin(np.abs(traj[:, 0] - x)) for x in (from_s, to_s))
+        return float(100 * np.linalg.norm(traj[b, 1:3] - traj[a, 1:3]) / max(traj[b, 0] - traj[a, 0], 1e-9))
+
+
+class RobotSimulator:
+    """The robot process: MuJoCo + sensors behind LowState/LowCmd."""
+
+    def __init__(self, robot: RobotModel, config: RobotSimConfig = RobotSimConfig()):
+        from wbmpc.sim import make_plant
+
+        check_interface(config.network)
+        self.robot, self.config = robot, config
+        self.motors = unitree_motor_map(robot)
+        self.plant = make_plant("mujoco", robot)
+        q0 = robot.q_nominal.copy()
+        if config.start == "lying":
+            q0[7:] = lying_joint_positions(robot)
+            q0[2] = 0.5 * robot.q_nominal[2]
+        self.plant.reset(q0)
+        if config.start == "lying":  # let it settle on the floor, motors off
+            for _ in range(1500):
+                q, v = self.plant.state()
+                self.plant.step(-config.safety.damping_kd * v[6:])
+        self.sensors = Sensors(self.plant, config.sensors)
+        self._steps_per_tick = max(1, int(round(1.0 / (config.state_rate_hz * self.plant.dt_s))))
+        self._lock = threading.Condition()
+        self._command: MotorCommand | None = None
+        self._command_echo: int | None = None
+        self._command_wall: float | None = None
+        self._send_wall: dict[int, float] = {}
+        self.report = RobotSimReport(config.mode)
+        self._rejected: Counter = Counter()
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    # ------------------------------------------------------------------ DDS side
+    def _on_command(self, msg) -> None:
+        now = time.perf_counter()
+        try:
+            command = decode_low_cmd(msg, self.motors)
+        except MessageError as exc:
+            reason = "crc" if "CRC" in str(exc) else "malformed"
+            with self._lock:
+                self._rejected[reason] += 1
+            return
+        with self._lock:
+            self._command, self._command_echo, self._command_wall = command, int(msg.reserve), now
+            sent = self._send_wall.pop(int(msg.reserve), None)
+            if sent is not None:
+                self.report.rtt_ms.append(1e3 * (now - sent))
+            self.report.commands_received += 1
+            self._lock.notify_all()
+
+    # ------------------------------------------------------------------ loop
+    def run(self, progress=None) -> RobotSimReport:
+        sdk = load_sdk()
+        cfg, plant, report = self.config, self.plant, self.report
+        sdk.ChannelFactoryInitialize(cfg.domain_id, cfg.network)
+        publisher = sdk.ChannelPublisher(LOW_STATE_TOPIC, sdk.LowState_)
+        publisher.Init()
+        subscriber = sdk.ChannelSubscriber(LOW_CMD_TOPIC, sdk.LowCmd_)
+        subscriber.Init(self._on_command, 0)
+        period = 1.0 / cfg.state_rate_hz
+        damping = MotorCommand.damping(self.robot.n_joints, cfg.safety.damping_kd)
+        started_at: float | None = None  # simulated time of the first command
+        in_damping, pushed, stood = False, False, False
+        wall_start = time.perf_counter()
+        deadline = wall_start
+        try:
+            while not self._stop.is_set():
+                cpu_start = time.thread_time()
+                t = plant.time_s
+                tick_ms = int(round(1e3 * t))
+                reading = self.sensors.read()
+                foot_force = np.linalg.norm(plant.contact_forces(), axis=1)
+                message = encode_low_state(reading, self.motors, tick_ms, foot_force)
+                with self._lock:
+                    self._send_wall[tick_ms] = time.perf_counter()
+                    if len(self._send_wall) > 2000:
+                        self._send_wall.pop(next(iter(self._send_wall)))
+                publisher.Write(message)
+                # wait for (lock-step) or take (real time) the command
+                with self._lock:
+                    if started_at is None:
+                        self._lock.wait(timeout=period)
+                        if self._command is None:
+                            deadline = time.perf_counter()
+                            if cfg.idle_exit_s is not None and deadline - wall_start > cfg.idle_exit_s:
+                                break
+                            continue  # frozen until the first command
+                        started_at = t
+                        report.start_xy_m = plant.state()[0][:2].tolist()
+                        wall_start = deadline = time.perf_counter()
+                    elif cfg.mode == "lockstep" and not in_damping:
+                        self._lock.wait_for(lambda: self._command_echo == tick_ms or self._stop.is_set(),
+                                            timeout=cfg.lockstep_timeout_ms / 1e3)
+                    command, command_wall = self._command, self._command_wall
+                timeout_s = (cfg.lockstep_timeout_ms if cfg.mode == "lockstep" else cfg.safety.command_timeout_ms) / 1e3
+                stale = time.perf_counter() - command_wall > timeout_s
+                if stale and not in_damping:
+                    report.watchdog_events.append(t - started_at)
+                in_damping = stale
+                if in_damping:
+                    command = damping
+                if cfg.idle_exit_s is not None and time.perf_counter() - command_wall > cfg.idle_exit_s:
+                    break
+                if cfg.push_time_s is not None and not pushed and t - started_at >= cfg.push_time_s:
+                    plant.apply_base_velocity_kick(np.array(cfg.push_velocity_m_s, dtype=float))
+                    pushed = True
+                for _ in range(self._steps_per_tick):
+                    q, v = plant.state()
+                    plant.step(command.torque(q[7:], v[6:]))
+                q, _ = plant.state()
+                report.base_height_min_m = float(q[2] if report.base_height_min_m is None else min(q[2], report.base_height_min_m))
+                stood = stood or q[2] > 0.8 * self.robot.q_nominal[2]  # a lying start has not fallen
+                if stood and not report.fell and fallen(self.robot, q, cfg.safety):
+                    report.fell, report.fell_at_s = True, plant.time_s - started_at
+                if report.ticks % 25 == 0:
+                    tilt_deg = np.degrees(np.arccos(np.clip(1 - 2 * (q[3] ** 2 + q[4] ** 2), -1, 1)))
+                    report.trajectory.append([round(plant.time_s - started_at, 4), *np.round(q[:3], 5).tolist(),
+                                              round(float(tilt_deg), 2)])
+                report.ticks += 1
+                report.tick_cpu_ms.append(1e3 * (time.thread_time() - cpu_start))
+                deadline += period
+                if cfg.mode == "realtime":
+                    slack = deadline - time.perf_counter()
+                    if slack >= 0:
+                        report.ticks_on_time += 1
+                        time.sleep(slack)
+                    elif slack < -0.1:  # far behind (machine stalled): re-anchor instead of racing
+                        deadline = time.perf_counter()
+                else:
+                    report.ticks_on_time += 1
+                if progress and cfg.duration_s:
+                    progress((plant.time_s - started_at) / cfg.duration_s)
+                if cfg.duration_s is not None and plant.time_s - started_at >= cfg.duration_s - 1e-9:
+                    break
+        finally:
+            subscriber.Close()
+            publisher.Close()
+        report.sim_time_s = plant.time_s - started_at if started_at is not None else 0.0
+        report.wall_time_s = time.perf_counter() - wall_start
+        report.end_xy_m = plant.state()[0][:2].tolist()
+        report.commands_rejected = dict(self._rejected)
+        report.damping_at_end = in_damping
+        return report

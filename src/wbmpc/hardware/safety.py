@@ -1,0 +1,112 @@
+"""What keeps a real robot safe around the MPC: watchdogs, clamps, fall detection, posture moves.
+
+- `Watchdog`: time since the last valid message; expired after `timeout_ms`.
+- `clamp_command`: joint targets inside the position limits (minus a margin), gains and the
+  torque the motor law can produce inside the effort limits.
+- `fallen`: base tilted more than `max_tilt_deg` or below `min_height_ratio` of its nominal height.
+- `posture_command`: joint PD towards a pose, blended from a start pose over a duration (stand-up
+  from lying, lie-down from standing).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.hardware.messages import MotorCommand
+from wbmpc.robots import RobotModel
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    state_timeout_ms: float = 100.0  # controller: no LowState for this long -> stop commanding
+    command_timeout_ms: float = 100.0  # robot: no LowCmd for this long -> damping
+    damping_kd: float = 5.0  # N m s/rad in damping mode
+    joint_limit_margin_rad: float = 0.02
+    max_kp: float = 500.0
+    max_kd: float = 50.0
+    max_tilt_deg: float = 60.0
+    min_height_ratio: float = 0.5
+    stand_up_s: float = 2.0
+    lie_down_s: float = 2.0
+    # stand-up / lie-down joint PD, per N m of the joint's effort limit (go2 calf: kp 91, kd 2.3; B1 calf:
+    # kp 280, kd 7): fixed high gains made the light go2 oscillate and flip over DDS's tick delay
+    posture_kp_per_nm: float = 2.0
+    posture_kd_per_nm: float = 0.05
+
+    def __post_init__(self):
+        for name, value in vars(self).items():
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"safety setting {name} must be a finite number >= 0, got {value}")
+        if not (self.state_timeout_ms > 0 and self.command_timeout_ms > 0):
+            raise ConfigError("watchdog timeouts must be positive (ms)")
+
+
+class Watchdog:
+    """Wall-clock time since the last `feed()`; `expired()` after `timeout_ms` (never fed: expired)."""
+
+    def __init__(self, timeout_ms: float, clock=time.monotonic):
+        self.timeout_s = timeout_ms / 1e3
+        self._clock = clock
+        self._last: float | None = None
+
+    def feed(self) -> None:
+        self._last = self._clock()
+
+    def age_s(self) -> float:
+        return np.inf if self._last is None else self._clock() - self._last
+
+    def expired(self) -> bool:
+        return self.age_s() > self.timeout_s
+
+
+def clamp_command(robot: RobotModel, command: MotorCommand, q: np.ndarray, dq: np.ndarray,
+                  config: SafetyConfig) -> MotorCommand:
+    """Targets inside the joint limits, gains bounded, and tau_ff so that the motor law stays in +-tau_max."""
+    lower = robot.model.lowerPositionLimit[7:] + config.joint_limit_margin_rad
+    upper = robot.model.upperPositionLimit[7:] - config.joint_limit_margin_rad
+    q_des = np.clip(command.q_rad, lower, upper)
+    kp = np.clip(command.kp, 0.0, config.max_kp)
+    kd = np.clip(command.kd, 0.0, config.max_kd)
+    feedback = kp * (q_des - q) + kd * (command.dq_rad_s - dq)
+    tau_max = robot.tau_max
+    tau = np.clip(command.tau_nm + feedback, -tau_max, tau_max) - feedback
+    return MotorCommand(q_des, command.dq_rad_s.copy(), kp, kd, tau)
+
+
+def fallen(robot: RobotModel, q: np.ndarray, config: SafetyConfig, check_height: bool = True) -> bool:
+    """Tilted beyond `max_tilt_deg`, or (when standing, `check_height`) below `min_height_ratio` of the nominal height."""
+    x, y, z, w = q[3:7] / np.linalg.norm(q[3:7])
+    tilted = 1.0 - 2.0 * (x * x + y * y) < np.cos(np.deg2rad(config.max_tilt_deg))  # R[2, 2] of the base
+    return bool(tilted or (check_height and q[2] < config.min_height_ratio * robot.q_nominal[2]))
+
+
+def lying_joint_positions(robot: RobotModel) -> np.ndarray:
+    """Folded legs (calf near its folding limit, thigh raised), arm at its nominal pose: a resting pose."""
+    q = robot.q_nominal[7:].copy()
+    lower, upper = robot.model.lowerPositionLimit[7:], robot.model.upperPositionLimit[7:]
+    for j, name in enumerate(robot.joint_names):
+        if not robot.leg_joint_mask[j]:
+            continue
+        if "calf" in name:
+            q[j] = lower[j] + 0.15 if abs(lower[j]) > abs(upper[j]) else upper[j] - 0.15
+        elif "thigh" in name:
+            q[j] = np.clip(q[j] + 0.45, lower[j], upper[j])
+        elif "hip" in name:
+            q[j] = 0.0
+    return q
+
+
+def posture_command(start: np.ndarray, target: np.ndarray, elapsed_s: float, duration_s: float,
+                    config: SafetyConfig, tau_max: np.ndarray) -> MotorCommand:
+    """Joint PD (gains scaled by the effort limits) to a smooth cosine blend from `start` to `target`;
+    holds `target` after `duration_s`."""
+    s = 1.0 if duration_s <= 0 else float(np.clip(elapsed_s / duration_s, 0.0, 1.0))
+    blend = 0.5 - 0.5 * np.cos(np.pi * s)
+    rate = 0.0 if duration_s <= 0 or s >= 1 else 0.5 * np.pi * np.sin(np.pi * s) / duration_s
+    n = len(target)
+    return MotorCommand(start + blend * (target - start), rate * (target - start), config.posture_kp_per_nm * tau_max,
+                        config.posture_kd_per_nm * tau_max, np.zeros(n))

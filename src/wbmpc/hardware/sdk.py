@@ -1,0 +1,61 @@
+"""Access to Unitree SDK2 Python (`unitree-sdk2` on PyPI, module `unitree_sdk2py`) and CycloneDDS.
+
+Install: `pip install "cyclonedds>=11" && pip install --no-deps unitree-sdk2` (or `pip install
+wbmpc[robot]` then the second command). unitree-sdk2 1.0.1 pins cyclonedds==0.10.2, which has no
+wheel and needs a C build of CycloneDDS (CYCLONEDDS_HOME); cyclonedds 11 installs from a wheel and
+runs the SDK's channels and IDL types unchanged. The 1.0.1 wheel's top-level `__init__` imports a
+`b2` package that is not in the wheel, and its CRC helper loads a `crc_amd64.so` that is not
+either: we load the SDK's subpackages without the top-level `__init__` and compute the CRC in
+`wbmpc.hardware.crc`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import types
+from dataclasses import dataclass
+
+from wbmpc.errors import ConfigError
+
+INSTALL_HINT = 'pip install "cyclonedds>=11" && pip install --no-deps unitree-sdk2'
+
+
+@dataclass(frozen=True)
+class Sdk:
+    """The SDK pieces wbmpc uses."""
+
+    ChannelFactoryInitialize: object
+    ChannelPublisher: type
+    ChannelSubscriber: type
+    LowState_: type
+    LowCmd_: type
+    new_low_state: object
+    new_low_cmd: object
+
+
+_SDK: Sdk | None = None
+
+
+def load_sdk() -> Sdk:
+    """Import unitree_sdk2py's channel and IDL modules (once), or a ConfigError saying how to install them."""
+    global _SDK
+    if _SDK is not None:
+        return _SDK
+    spec = importlib.util.find_spec("unitree_sdk2py")
+    if spec is None or spec.submodule_search_locations is None:
+        raise ConfigError(f"the robot interface needs Unitree SDK2 Python and CycloneDDS: {INSTALL_HINT}")
+    if "unitree_sdk2py" not in sys.modules:
+        package = types.ModuleType("unitree_sdk2py")
+        package.__path__ = list(spec.submodule_search_locations)
+        package.__spec__ = spec
+        sys.modules["unitree_sdk2py"] = package
+    try:
+        from unitree_sdk2py.core.channel import ChannelFactoryInitialize, ChannelPublisher, ChannelSubscriber
+        from unitree_sdk2py.idl.default import unitree_go_msg_dds__LowCmd_, unitree_go_msg_dds__LowState_
+        from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
+    except ImportError as exc:
+        raise ConfigError(f"Unitree SDK2 Python could not be loaded ({exc}); reinstall it: {INSTALL_HINT}") from None
+    _SDK = Sdk(ChannelFactoryInitialize, ChannelPublisher, ChannelSubscriber, LowState_, LowCmd_,
+               unitree_go_msg_dds__LowState_, unitree_go_msg_dds__LowCmd_)
+    return _SDK

@@ -1,0 +1,200 @@
+"""Robot interface: CRC and message checks, and loopback DDS runs bounded in time (robot-sim + deploy)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+sdk_mod = pytest.importorskip("wbmpc.hardware.sdk")
+try:
+    SDK = sdk_mod.load_sdk()
+except Exception as exc:  # noqa: BLE001
+    pytest.skip(f"Unitree SDK2 not installed: {exc}", allow_module_level=True)
+
+from wbmpc.estimation import SensorConfig, Sensors  # noqa: E402
+from wbmpc.hardware import crc  # noqa: E402
+from wbmpc.hardware.mapping import unitree_motor_map  # noqa: E402
+from wbmpc.hardware.messages import (MessageError, MotorCommand, decode_low_cmd, decode_low_state,  # noqa: E402
+                                     encode_low_cmd, encode_low_state)
+from wbmpc.hardware.safety import SafetyConfig, clamp_command  # noqa: E402
+from wbmpc.robots import load_robot  # noqa: E402
+from wbmpc.sim import make_plant  # noqa: E402
+
+DOMAIN = 150 + os.getpid() % 80  # a domain of its own: parallel test runs do not hear each other
+SRC = os.path.join(os.path.dirname(__file__), "..", "src")
+
+
+@pytest.fixture(scope="module")
+def go2():
+    return load_robot("go2")
+
+
+def _sdk_reference_crc(words):
+    from unitree_sdk2py.utils.crc import CRC
+
+    return CRC.__new__(CRC)._crc_py(list(words))  # the SDK's own bitwise CRC (its .so is not in the wheel)
+
+
+def test_crc_matches_the_sdk_reference(go2):
+    rng = np.random.default_rng(1)
+    words = rng.integers(0, 2**32, 64, dtype=np.uint64).tolist()
+    assert crc.crc32_core(words) == _sdk_reference_crc(words)
+    motors = unitree_motor_map(go2)
+    n = go2.n_joints
+    msg = encode_low_cmd(MotorCommand(rng.normal(size=n), rng.normal(size=n), np.full(n, 20.0), np.ones(n),
+                                      rng.normal(size=n)), motors, echo_tick=42)
+    assert msg.crc == _sdk_reference_crc(crc._words(crc.pack_low_cmd(msg)))
+    assert len(crc.pack_low_cmd(msg)) == 812 and len(crc.pack_low_state(SDK.new_low_state())) == 1180
+
+
+def test_messages_round_trip_and_bad_input_is_rejected(go2):
+    motors = unitree_motor_map(go2)
+    assert motors.slots[:3] == (3, 4, 5) and motors.slots[3:6] == (0, 1, 2)  # FL -> Unitree slots 3-5, FR -> 0-2
+    plant = make_plant("mujoco", go2)
+    plant.reset()
+    reading = Sensors(plant, SensorConfig.noiseless()).read()
+    state = decode_low_state(encode_low_state(reading, motors, tick_ms=1234), motors)
+    np.testing.assert_allclose(state.joint_position_rad, reading.joint_position_rad, atol=1e-6)
+    np.testing.assert_allclose(state.quaternion_xyzw, reading.quaternion_xyzw, atol=1e-6)
+    assert state.time_s == pytest.approx(1.234)
+    command = MotorCommand(go2.q_nominal[7:], np.zeros(12), np.full(12, 30.0), np.ones(12), np.zeros(12))
+    msg = encode_low_cmd(command, motors)
+    np.testing.assert_allclose(decode_low_cmd(msg, motors).q_rad, go2.q_nominal[7:], atol=1e-6)
+    msg.motor_cmd[3].q += 0.1  # corrupted in transit: CRC no longer matches
+    with pytest.raises(MessageError, match="CRC"):
+        decode_low_cmd(msg, motors)
+    bad = encode_low_cmd(MotorCommand(*(np.full(12, np.nan),) * 5), motors)
+    with pytest.raises(MessageError, match="non-finite"):
+        decode_low_cmd(bad, motors)
+    b1z1_motors = unitree_motor_map(load_robot("b1_z1"))  # 16 motors vs go2's 12
+    with pytest.raises(MessageError, match="the robot reports 12 motors"):
+        decode_low_state(encode_low_state(reading, motors, 0), b1z1_motors)
+
+
+def test_clamps_keep_targets_and_torques_in_limits(go2):
+    n = go2.n_joints
+    q = go2.q_nominal[7:]
+    wild = MotorCommand(q + 10.0, np.zeros(n), np.full(n, 1e4), np.full(n, 1e3), np.full(n, 1e3))
+    safe = clamp_command(go2, wild, q, np.zeros(n), SafetyConfig())
+    assert np.all(safe.q_rad <= go2.model.upperPositionLimit[7:])
+    assert np.all(safe.kp <= 500) and np.all(safe.kd <= 50)
+    assert np.all(np.abs(safe.torque(q, np.zeros(n))) <= go2.tau_max + 1e-9)
+
+
+# ---------------------------------------------------------------------------- loopback DDS
+def _cli(*args, **kwargs):
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.Popen([sys.executable, "-m", "wbmpc.cli", *args], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def dds():
+    """This process on the test domain: publish forged LowCmds, listen for LowCmds."""
+    SDK.ChannelFactoryInitialize(DOMAIN, "lo")
+    heard = []
+    sub = SDK.ChannelSubscriber("rt/lowcmd", SDK.LowCmd_)
+    sub.Init(lambda msg: heard.append(msg), 0)
+    pub = SDK.ChannelPublisher("rt/lowcmd", SDK.LowCmd_)
+    pub.Init()
+    yield pub, heard
+    sub.Close()
+    pub.Close()
+
+
+def test_no_low_state_means_exit_without_commanding(dds):
+    _, heard = dds
+    heard.clear()
+    proc = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep", "--nodes", "4")
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2
+    assert "no LowState" in err and "Nothing was commanded" in err
+    assert heard == []
+    proc = _cli("deploy", "--robot", "go2", "--network", "nosuchif0")
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "unknown network interface 'nosuchif0'" in err and "lo" in err
+
+
+def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go2, dds):
+    pub, heard = dds
+    heard.clear()
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--idle-exit", "120", "--watchdog-ms", "300",
+               "--json")  # 300 ms: a loaded 2-core machine can stall the controller for 100 ms
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
+                      "--nodes", "4", "--duration", "30")
+    try:
+        deadline = time.monotonic() + 120
+        while len(heard) < 200 and time.monotonic() < deadline:  # MPC built, robot being stood up over DDS
+            time.sleep(0.1)
+        assert controller.poll() is None and len(heard) >= 200, controller.stderr.read()
+        forged = encode_low_cmd(MotorCommand.damping(go2.n_joints, 1.0), unitree_motor_map(go2))
+        forged.crc ^= 1
+        for _ in range(20):
+            pub.Write(forged)
+            time.sleep(0.005)
+        time.sleep(0.5)
+        controller.send_signal(signal.SIGKILL)
+        time.sleep(1.0)
+        sim.send_signal(signal.SIGINT)  # robot-sim stops cleanly on Ctrl-C and prints its report
+        out, err = sim.communicate(timeout=60)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    report = json.loads(out)
+    assert report["commands_received"] > 100, err
+    assert report["commands_rejected"].get("crc", 0) >= 10
+    assert report["watchdog_events_s"], "the robot never went to damping"
+    assert report["damping_at_end"]  # after the kill the motors stayed in damping
+
+
+@pytest.mark.slow
+def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "9",
+               "--idle-exit", "60", "--json")
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
+                      "--nodes", "6", "--duration", "2", "--json")
+    try:
+        c_out, c_err = controller.communicate(timeout=900)
+        s_out, _ = sim.communicate(timeout=120)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    deploy, robot = json.loads(c_out), json.loads(s_out)
+    assert [p for _, p in deploy["phases"]] == ["stand-up", "hold", "mpc", "lie-down", "damping"], c_err
+    assert deploy["mpc_solves"] >= 150 and not deploy["fell"]
+    assert robot["commands_received"] > 1000 and not robot["watchdog_events_s"][:-1]
+    standing = [row for row in robot["trajectory"] if 2.5 <= row[0] <= 4.5]  # the MPC phase, robot time
+    assert min(row[3] for row in standing) > 0.8 * 0.33 and max(row[4] for row in standing) < 10
+
+
+@pytest.mark.slow
+def test_ctrl_c_lies_the_robot_down_then_damps(dds):
+    _, heard = dds
+    heard.clear()
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "8",
+               "--idle-exit", "30", "--json")
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
+                      "--nodes", "4", "--duration", "30", "--json")
+    try:
+        deadline = time.monotonic() + 300
+        while len(heard) < 600 and time.monotonic() < deadline:  # a second into the stand-up
+            time.sleep(0.1)
+        controller.send_signal(signal.SIGINT)
+        c_out, c_err = controller.communicate(timeout=300)
+        sim.send_signal(signal.SIGINT)
+        s_out, _ = sim.communicate(timeout=120)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    deploy, robot = json.loads(c_out), json.loads(s_out)
+    assert deploy["stopped_by"] == "ctrl-c", c_err
+    assert [p for _, p in deploy["phases"]][-2:] == ["lie-down", "damping"]
+    assert max(row[4] for row in robot["trajectory"]) < 30  # lay down, did not tip over
