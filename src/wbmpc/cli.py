@@ -87,7 +87,7 @@ def _number(text: str, flag: str) -> float:
     try:
         return float(text)
     except ValueError:
-        raise WbmpcError(f"{flag} needs a number or JOINT=NUMBER pairs, got {text!r}") from None
+        raise ConfigError(f"{flag} needs a number or JOINT=NUMBER pairs, got {text!r}") from None
 
 
 def _split(text: str | None) -> list[str]:
@@ -177,7 +177,7 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
 
     names = _split(args.robots) or list(PRESET_NAMES)
     if not args.samples >= 1:
-        raise WbmpcError(f"--samples must be >= 1, got {args.samples}")
+        raise ConfigError(f"--samples must be >= 1, got {args.samples}")
 
     def row_text(r: dict) -> str:
         types = ", ".join(f"{n} {k}" for k, n in sorted(r["joint_types"].items()))
