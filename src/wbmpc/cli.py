@@ -269,6 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
     table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
+
+    from wbmpc.campaign.command import add_parser as add_campaign_parser
+
+    add_campaign_parser(sub)
     return parser
 
 

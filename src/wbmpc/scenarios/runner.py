@@ -20,6 +20,7 @@ from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.sim import make_plant
+from wbmpc.sim.model_errors import ModelErrors
 from wbmpc.solvers.nlp import SolverConfig
 
 
@@ -37,6 +38,9 @@ class RunConfig:
     formulation: str = "wb_inverse"
     compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
     seed: int = 0
+    model_errors: ModelErrors | None = None  # the MuJoCo plant differs from the MPC's model
+    joint_position_noise_rad: float = 0.0  # std of the measurement noise (LoopConfig)
+    joint_velocity_noise_rad_s: float = 0.0
 
     def __post_init__(self):
         if self.duration_s is not None and not self.duration_s > 0:
@@ -70,12 +74,19 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
     mpc.reset()
-    plant = make_plant(config.plant, robot, scene.plant_config() if scene is not None else None)
+    plant_config = scene.plant_config() if scene is not None else None
+    if config.model_errors is not None and not config.model_errors.is_nominal:
+        if config.plant != "mujoco":
+            raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
+        plant_config = config.model_errors.plant_config(robot, plant_config)
+    plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     gains = scenario.pd_gains(config.gains)
-    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed))
+    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
+                                             joint_position_noise_rad=config.joint_position_noise_rad,
+                                             joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s))
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress)
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
