@@ -278,7 +278,10 @@ class MPC:
             self._fallback = NlpSolver(self.problem, SolverConfig(
                 name=cfg.fallback_solver, max_iterations=cfg.fallback_max_iterations,
                 time_limit_s=cfg.recovery_time_limit_s, compiled=self.solver.is_compiled,
-                codegen=self.solver.config.codegen))
+                codegen=self.solver.config.codegen,
+                # after a push a nearly converged plan (violation <= 1e-4) beats holding an old one
+                extra_options={"ipopt": {"acceptable_iter": 2, "acceptable_tol": 1e-3,
+                                         "acceptable_constr_viol_tol": 1e-4}} if cfg.fallback_solver == "ipopt" else {}))
         return self._fallback
 
     def _recover(self, failed, p, bounds, x0, fallback_tried: bool = False):

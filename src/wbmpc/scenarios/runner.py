@@ -60,7 +60,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig) -> MpcConfig:
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms else TimeGrid(n_intervals=n)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled))
+                     # a warm-started step converges in ~5 iterations; one still unsolved after 30 has
+                     # stalled (pushes) and goes to the bounded recovery instead of burning 100
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30))
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Callable[[float], None] | None = None,
