@@ -32,7 +32,7 @@ def client():
 
     from wbmpc.campaign.execution import _worker_env
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                            silence_logs=logging.ERROR, env=_worker_env())
     with Client(cluster) as c:
         yield c

@@ -271,6 +271,12 @@ class MPC:
             solution = self._shifted_previous(t, node_times, contact, result.stats)
         return solution
 
+    def prepare_fallback(self) -> None:
+        """Build the fallback solver now (it is otherwise built at the first failed step, which then
+        takes the build time: campaigns and real-time use want it before the clock runs)."""
+        if self.config.fallback_solver:
+            self._fallback_solver()
+
     def _fallback_solver(self) -> NlpSolver:
         """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the main one."""
         if self._fallback is None:
