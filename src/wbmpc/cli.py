@@ -533,6 +533,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
     add_bench_dds(bench_sub, _add_robot_options, robot_from_args, _emit)
+    from wbmpc.campaign.command import add_parser as add_campaign_parser
+
+    add_campaign_parser(sub)
     return parser
 
 

@@ -271,7 +271,7 @@ class ClosedLoop:
                     log.late_solutions += 1
                 while next_mpc <= t + 1e-9:
                     next_mpc += mpc_period
-                if solution.success:
+                if solution.success or getattr(solution, "held_previous", False):  # failed: the last plan, shifted
                     log.delay_ms.append(delay * 1e3)
                     pending.append((t + delay, solution))
             while pending and pending[0][0] <= t + 1e-9:
@@ -347,7 +347,7 @@ class ClosedLoop:
                     log.delay_ms.append(solution.wall_time_s * 1e3)
                     if solution.wall_time_s > mpc_period:
                         log.late_solutions += 1
-                    if solution.success:
+                    if solution.success or getattr(solution, "held_previous", False):
                         active = solution
                 if not busy and t >= next_mpc - 1e-9:
                     q, v = self._measure()

@@ -84,6 +84,15 @@ class MpcConfig:
     # only the base velocity rows act on the horizontal motion and drift is not corrected.
     base_tracking: str = "position"
 
+    # bounded recovery: iteration caps of the fresh Fatrop and of the fallback solver, an optional
+    # wall-time budget for the whole recovery, and how long after a fallback rescue the fallback
+    # solver is tried first (after a push the warm Fatrop keeps stalling for tens of steps)
+    recovery_fatrop_max_iterations: int = 15
+    fallback_max_iterations: int = 40
+    recovery_time_limit_s: float | None = None
+    fallback_first_s: float = 0.25
+    hold_previous_on_failure: bool = True  # a step still failed: the last good plan, shifted in time
+
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
         check_number("friction_coefficient", self.friction_coefficient, low=0.0, high=5.0, low_open=True)
@@ -94,6 +103,10 @@ class MpcConfig:
         if self.base_tracking not in BASE_TRACKING_MODES:
             raise ConfigError(f"base tracking must be one of {', '.join(BASE_TRACKING_MODES)} "
                               f"(--base-tracking), got {self.base_tracking!r}")
+        for name in ("recovery_fatrop_max_iterations", "fallback_max_iterations"):
+            check_number(name, getattr(self, name), low=1)
+        check_number("recovery_time_limit_s", self.recovery_time_limit_s, low=0.0, low_open=True, unit="s", allow_none=True)
+        check_number("fallback_first_s", self.fallback_first_s, low=0.0, unit="s")
 
 
 @dataclass
@@ -150,6 +163,7 @@ class MPC:
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
+        self._fallback_until_t: float | None = None  # fallback solver first until this time
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
@@ -160,6 +174,7 @@ class MPC:
         self._xy_reference = None
         self._yaw_reference = None
         self._last_t = None
+        self._fallback_until_t = None
 
     # ------------------------------------------------------------------ input checks
     def _check(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -302,37 +317,90 @@ class MPC:
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
         bounds = problem.bounds(stage_bounds)
-        result = self.solver.solve(p, *bounds, x0)
-        if not result.stats.success:
-            result = self._recover(result, p, bounds, x0)
+        cfg = self.config
+        if self._fallback_until_t is not None and t < self._fallback_until_t and cfg.fallback_solver:
+            result = self._fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
+            result.stats.status = f"{result.stats.status} (recovery: {cfg.fallback_solver} first after a push)"
+            if not result.stats.success:
+                result = self._recover(result, p, bounds, x0, fallback_tried=True)
+        else:
+            result = self.solver.solve(p, *bounds, x0)
+            if not result.stats.success:
+                result = self._recover(result, p, bounds, x0)
         solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
         if solution.success:
             self._previous = solution
+        elif cfg.hold_previous_on_failure and self._previous is not None:
+            solution = self._shifted_previous(t, node_times, contact, result.stats)
         # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
         result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
         return solution
 
-    def _recover(self, failed, p, bounds, x0):
-        """Re-solve a failed step: first a fresh Fatrop starting from a larger barrier parameter (it
-        copes with the degenerate problems right after strong pushes where the warm-started small
-        barrier stalls), then the fallback solver (IPOPT's regularised factorisation), built on first need."""
+    def prepare_fallback(self) -> None:
+        """Build the fallback solver now (it is otherwise built at the first failed step, which then
+        takes the build time: campaigns and real-time use want it before the clock runs)."""
+        if self.config.fallback_solver:
+            self._fallback_solver()
+
+    def _fallback_solver(self) -> NlpSolver:
+        """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the main one."""
+        if self._fallback is None:
+            cfg = self.config
+            self._fallback = NlpSolver(self.problem, SolverConfig(
+                name=cfg.fallback_solver, max_iterations=cfg.fallback_max_iterations,
+                time_limit_s=cfg.recovery_time_limit_s, compiled=self.solver.is_compiled,
+                codegen=self.solver.config.codegen,
+                # after a push a nearly converged plan (violation <= 1e-4) beats holding an old one
+                extra_options={"ipopt": {"acceptable_iter": 2, "acceptable_tol": 1e-3,
+                                         "acceptable_constr_viol_tol": 1e-4}} if cfg.fallback_solver == "ipopt" else {}))
+        return self._fallback
+
+    def _recover(self, failed, p, bounds, x0, fallback_tried: bool = False):
+        """Re-solve a failed step within a bounded effort: first a fresh Fatrop starting from a larger
+        barrier parameter (capped at `recovery_fatrop_max_iterations`; it copes with some degenerate
+        problems right after pushes where the warm-started small barrier stalls), then the fallback
+        solver (capped at `fallback_max_iterations`). Attempts stop once `recovery_time_limit_s` is
+        spent. A rescue by the fallback makes it the first choice for `fallback_first_s`."""
+        cfg = self.config
         result, attempts = failed, [failed.stats.status]
         spent_s, iterations = failed.stats.solve_time_s, failed.stats.iterations
-        if self.config.recovery_barrier_init and self.solver.config.name == "fatrop":
-            fresh = self.solver.recreated(barrier_init=self.config.recovery_barrier_init)
+
+        def budget_left() -> bool:
+            return cfg.recovery_time_limit_s is None or spent_s < cfg.recovery_time_limit_s
+
+        if cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
+            fresh = self.solver.recreated(barrier_init=cfg.recovery_barrier_init,
+                                          max_iterations=cfg.recovery_fatrop_max_iterations)
             result = fresh.solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
-            attempts.append(f"fatrop mu_init {self.config.recovery_barrier_init:g}: {result.stats.status}")
-        if not result.stats.success and self.config.fallback_solver:
-            if self._fallback is None:
-                self._fallback = NlpSolver(self.problem, SolverConfig(name=self.config.fallback_solver, max_iterations=300))
-            result = self._fallback.solve(p, *bounds, x0)
+            attempts.append(f"fatrop mu_init {cfg.recovery_barrier_init:g}: {result.stats.status}")
+        if not result.stats.success and cfg.fallback_solver and not fallback_tried and budget_left():
+            result = self._fallback_solver().solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
-            attempts.append(f"{self.config.fallback_solver}: {result.stats.status}")
+            attempts.append(f"{cfg.fallback_solver}: {result.stats.status}")
+            if result.stats.success and cfg.fallback_first_s > 0:
+                self._fallback_until_t = (self._last_t or 0.0) + cfg.fallback_first_s
         if len(attempts) > 1:
-            result.stats.status = f"{result.stats.status} (recovery after {'; '.join(attempts[:-1])})"
+            result.stats.status = f"{attempts[-1]} (recovery after {'; '.join(attempts[:-1])})"
         result.stats.solve_time_s, result.stats.iterations = spent_s, iterations
         return result
+
+    def _shifted_previous(self, t: float, node_times: np.ndarray, contact: np.ndarray, stats) -> Solution:
+        """The last good plan re-sampled at the new node times (held beyond its horizon), returned as
+        a failed step (`success` False, `held_previous` True): the loop keeps applying a plan that
+        moves on in time instead of the stale one."""
+        prev = self._previous
+        old, new = prev.t_s + prev.node_times_s, t + node_times
+        n_tau = prev.tau.shape[0]
+        q = _interp_rows(new, old, prev.q)
+        q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
+        stats.status = f"{stats.status}; holding the last good plan shifted by {1e3 * (t - prev.t_s):.0f} ms"
+        shifted = Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=_interp_rows(new, old, prev.v),
+                           a=_interp_rows(new[:-1], old[:-1], prev.a), forces=_interp_rows(new[:-1], old[:-1], prev.forces),
+                           tau=_interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
+                           success=False, x=None)
+        shifted.held_previous = True  # type: ignore[attr-defined]
+        return shifted
 
     def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:
         """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous

@@ -24,6 +24,7 @@ from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.scenarios.outputs import write_output_files
 from wbmpc.sim import PLANTS, PlantConfig, make_plant
 from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
+from wbmpc.sim.model_errors import ModelErrors
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 from wbmpc.strict_json import to_json
 
@@ -48,6 +49,9 @@ class RunConfig:
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
     state: str = "true"  # "true": the simulator's state; "estimated": IMU + encoders through wbmpc.estimation
     sensors: object | None = None  # wbmpc.estimation.SensorConfig (defaults when None)
+    model_errors: ModelErrors | None = None  # the MuJoCo plant differs from the MPC's model
+    joint_position_noise_rad: float = 0.0  # std of the measurement noise (LoopConfig)
+    joint_velocity_noise_rad_s: float = 0.0
 
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
@@ -87,8 +91,11 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     tuning = tuning_for(robot) if robot is not None else RobotTuning()
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled), weights=tuning.weights,
-                     swing=tuning.swing, gait_period_s=tuning.gait_period_s, base_tracking=config.base_tracking)
+                     # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
+                     # stalled (pushes) and goes to the bounded recovery instead of burning 100
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30),
+                     weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
+                     base_tracking=config.base_tracking)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
@@ -116,13 +123,20 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
         plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
+    if config.model_errors is not None and not config.model_errors.is_nominal:
+        if config.plant != "mujoco":
+            raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
+        plant_config = config.model_errors.plant_config(robot, plant_config)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
-    loop = ClosedLoop(mpc, plant, LoopConfig(delay=config.delay, gains=gains, seed=config.seed), state_source)
+    loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
+                             joint_position_noise_rad=config.joint_position_noise_rad,
+                             joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
+    loop = ClosedLoop(mpc, plant, loop_config, state_source)
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
     if not log.t:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt

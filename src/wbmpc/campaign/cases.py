@@ -1,0 +1,158 @@
+"""Cases of a campaign: one closed-loop MuJoCo run each, identified by a hash of what defines it.
+
+`expand(spec)` makes the cases (grid product x random samples x seeds); `Case.run_config()`
+maps a case onto `RunConfig` (scenario options, `ModelErrors` of the plant, sensor noise,
+delay). The id is a hash of the case's content, so a re-run or `--resume` recognises the
+cases already in the table whatever their order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.scenarios.base import ScenarioOptions
+
+# axis -> (where it goes, help); ScenarioOptions fields are added below
+_MODEL_AXES = {
+    "base_com_offset_x_m": "plant base CoM moved forward by this (m, negative = rearward)",
+    "base_com_offset_y_m": "plant base CoM moved to the left (m)",
+    "base_com_offset_z_m": "plant base CoM moved up (m)",
+    "link_mass_scale": "every plant link mass and inertia x this factor",
+    "link_mass_noise_rel": "per-link random mass factor 1 + N(0, this) (seeded by the case seed)",
+    "ee_payload_kg": "mass attached at the arm end-effector in the plant (kg)",
+    "joint_armature_kg_m2": "rotor inertia of every plant joint (kg m^2)",
+    "joint_damping_nm_s_per_rad": "viscous friction of every plant joint (N m s/rad)",
+    "floor_friction_mu": "floor friction coefficient of the plant (the MPC assumes 0.7)",
+}
+_LOOP_AXES = {
+    "joint_position_noise_rad": "std of the joint position measurement noise (rad)",
+    "joint_velocity_noise_rad_s": "std of the joint velocity measurement noise (rad/s)",
+    "delay_ms": "fixed solver delay before a solution applies (ms)",
+}
+_OTHER_AXES = {
+    "gait_phase": "push time shifted by this share of the gait period (0..1)",
+    "robot": "robot preset (b1_z1, b1, go2, a1, ...)",
+}
+_SCENARIO_AXES = {f.name: "scenario option (see `wbmpc run --help`)" for f in fields(ScenarioOptions)}
+AXES: dict[str, str] = {**_SCENARIO_AXES, **_MODEL_AXES, **_LOOP_AXES, **_OTHER_AXES}
+STRING_AXES = {"robot", "gait", "board", "wipe_pattern"}
+
+
+def check_axes(spec) -> None:
+    """Every axis of the spec exists and its values have the right kind (raises ConfigError)."""
+    named = list(spec.grid.items()) + [(k, [v]) for k, v in spec.fixed.items()] + \
+        [(k, list(v)) for k, v in spec.random.ranges.items()]
+    for name, values in named:
+        if name not in AXES:
+            raise ConfigError(unknown_name("campaign axis", name, AXES))
+        for value in values:
+            if name in STRING_AXES:
+                if not isinstance(value, str):
+                    raise ConfigError(f"axis {name} takes names, got {value!r}")
+            elif isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                raise ConfigError(f"axis {name} takes finite numbers, got {value!r}")
+    for name in spec.random.ranges:
+        if name in STRING_AXES:
+            raise ConfigError(f"axis {name} takes names and cannot be sampled from a range")
+    if "gait_phase" in spec.grid or "gait_phase" in spec.fixed or "gait_phase" in spec.random.ranges:
+        if spec.scenario != "push":
+            raise ConfigError("gait_phase shifts the push time and only applies to the push scenario")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One closed-loop run: scenario, robot, duration, axis values and seed."""
+
+    scenario: str
+    robot: str
+    duration_s: float
+    nodes: int
+    compiled: bool
+    formulation: str
+    params: tuple[tuple[str, float | str], ...]  # sorted (axis, value)
+    seed: int
+
+    @property
+    def id(self) -> str:
+        payload = json.dumps([self.scenario, self.robot, self.duration_s, self.nodes, self.compiled, self.formulation,
+                              [list(p) for p in self.params], self.seed], sort_keys=True)
+        return hashlib.sha1(payload.encode()).hexdigest()[:16]
+
+    @property
+    def values(self) -> dict:
+        return dict(self.params)
+
+    def label(self) -> str:
+        shown = ", ".join(f"{k}={v}" for k, v in self.params)
+        return f"{self.scenario} [{shown}] seed {self.seed}"
+
+    def model_errors(self):
+        from wbmpc.sim.model_errors import ModelErrors
+
+        v = self.values
+        offset = tuple(float(v.get(f"base_com_offset_{axis}_m", 0.0)) for axis in "xyz")
+        return ModelErrors(
+            base_com_offset_m=offset,
+            link_mass_scale=float(v.get("link_mass_scale", 1.0)),
+            link_mass_noise_rel=float(v.get("link_mass_noise_rel", 0.0)),
+            ee_payload_kg=float(v.get("ee_payload_kg", 0.0)),
+            joint_armature_kg_m2=_optional(v, "joint_armature_kg_m2"),
+            joint_damping_nm_s_per_rad=_optional(v, "joint_damping_nm_s_per_rad"),
+            floor_friction_mu=_optional(v, "floor_friction_mu"),
+            seed=self.seed,
+        )
+
+    def run_config(self):
+        """The `RunConfig` of this case (raises ConfigError on values the scenario rejects)."""
+        from wbmpc.gait import make_gait
+        from wbmpc.scenarios import RunConfig
+        from wbmpc.scenarios.library import SCENARIOS
+
+        v = self.values
+        options = ScenarioOptions(**{k: (float(x) if k not in STRING_AXES else x) for k, x in v.items()
+                                     if k in _SCENARIO_AXES})
+        if "gait_phase" in v:
+            gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
+            period = make_gait(gait, 4).period_s
+            options.push_time_s += float(v["gait_phase"]) * period
+        delay = v.get("delay_ms")
+        return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
+                         formulation=self.formulation, seed=self.seed, options=options,
+                         delay="none" if delay is None else str(float(delay)),
+                         model_errors=self.model_errors(),
+                         joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
+                         joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)))
+
+
+def _optional(values: dict, name: str) -> float | None:
+    return float(values[name]) if name in values else None
+
+
+def expand(spec) -> list[Case]:
+    """Grid product x random samples x seeds, in a stable order (grid axes sorted by name)."""
+    axes = sorted(spec.grid)
+    grid_points = [dict(zip(axes, combo)) for combo in itertools.product(*(spec.grid[a] for a in axes))] or [{}]
+    rng = np.random.default_rng(spec.random.seed)
+    cases = []
+    for point in grid_points:
+        draws = [{}] if not spec.random.samples else [
+            {name: round(float(rng.uniform(low, high)), 6) for name, (low, high) in sorted(spec.random.ranges.items())}
+            for _ in range(spec.random.samples)]
+        for draw in draws:
+            values = {**spec.fixed, **point, **draw}
+            robot = str(values.pop("robot", spec.robot))
+            params = tuple(sorted((k, _normal(k, x)) for k, x in values.items()))
+            for seed in spec.seeds:
+                cases.append(Case(spec.scenario, robot, float(spec.duration_s), int(spec.nodes), bool(spec.compiled),
+                                  spec.formulation, params, int(seed)))
+    return cases
+
+
+def _normal(name: str, value):
+    return value if name in STRING_AXES else float(value)

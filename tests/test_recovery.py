@@ -1,0 +1,49 @@
+"""Bounded recovery of failed MPC steps and the fallback to the last good plan shifted in time."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control.interpolator import interpolate
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig
+from wbmpc.robots import load_robot
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+
+SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
+
+
+@pytest.fixture(scope="module")
+def a1_mpc():
+    robot = load_robot("a1")
+    return robot, MPC(robot, MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None))
+
+
+def test_failed_step_is_bounded_and_holds_the_last_plan_shifted(a1_mpc):
+    robot, mpc = a1_mpc
+    mpc.reset()
+    good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
+    assert good.success, good.stats
+    # the same MPC with every attempt capped at 2 iterations: a strongly pushed state cannot converge
+    capped = MPC(robot, replace(mpc.config, fallback_solver="ipopt", recovery_barrier_init=None,
+                                fallback_max_iterations=2), problem=mpc.problem,
+                 solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
+    capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)  # sets references, fails (2 iterations)
+    capped._previous = good  # the last good plan, as after a successful step
+    v = np.zeros(robot.nv)
+    v[1], v[3] = 1.5, 2.0  # lateral kick and roll rate
+    t = 0.03
+    held = capped.solve(robot.q_nominal, v, Commands(), t=t)
+    assert not held.success and held.held_previous
+    assert held.stats.iterations <= 3 + 3  # main Fatrop + IPOPT, each capped at 2 (counted from 0 or 1)
+    assert "holding the last good plan" in held.stats.status and "ipopt" in held.stats.status
+    # the held plan is the good one re-sampled at the new node times
+    for k in (0, 2):
+        expected = np.array([np.interp(t + held.node_times_s[k], good.t_s + good.node_times_s, good.q[:, j])
+                             for j in range(robot.nq)])
+        expected[3:7] /= np.linalg.norm(expected[3:7])
+        np.testing.assert_allclose(held.q[k], expected, atol=1e-9)
+    # the loop applies it: its first torque is the good plan's torque at t (held beyond its 3 nodes)
+    np.testing.assert_allclose(interpolate(held, t).tau_ff, good.tau[-1], atol=1e-9)
