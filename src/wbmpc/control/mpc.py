@@ -23,6 +23,9 @@ from wbmpc.solvers import make_solver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 
 
+COLD_FALLBACK_ITERATIONS = 300  # the fallback's cap on a run's first step (no plan to hold while it solves)
+
+
 @dataclass
 class CostWeights:
     """Diagonal Q and R of eq. (3). Parameters of the NLP: change them between steps freely.
@@ -163,6 +166,8 @@ class MPC:
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
+        self._fallback_cold: NlpSolver | None = None
+        self._recovery: NlpSolver | None = None
         self._fallback_until_t: float | None = None  # fallback solver first until this time
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
@@ -342,18 +347,34 @@ class MPC:
         if self.config.fallback_solver:
             self._fallback_solver()
 
-    def _fallback_solver(self) -> NlpSolver:
-        """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the main one."""
-        if self._fallback is None:
+    def _fallback_solver(self, cold: bool = False) -> NlpSolver:
+        """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the
+        main one. `cold`: for a step with no plan to hold yet (the first of a run), whose recovery may take
+        up to COLD_FALLBACK_ITERATIONS: nothing runs on the robot before it succeeds."""
+        if (self._fallback_cold if cold else self._fallback) is None:
             cfg = self.config
-            self._fallback = NlpSolver(self.problem, SolverConfig(
-                name=cfg.fallback_solver, max_iterations=cfg.fallback_max_iterations,
-                time_limit_s=cfg.recovery_time_limit_s, compiled=self.solver.is_compiled,
+            solver = NlpSolver(self.problem, SolverConfig(
+                name=cfg.fallback_solver,
+                max_iterations=max(cfg.fallback_max_iterations, COLD_FALLBACK_ITERATIONS) if cold else cfg.fallback_max_iterations,
+                time_limit_s=None if cold else cfg.recovery_time_limit_s, compiled=self.solver.is_compiled,
                 codegen=self.solver.config.codegen,
                 # after a push a nearly converged plan (violation <= 1e-4) beats holding an old one
                 extra_options={"ipopt": {"acceptable_iter": 2, "acceptable_tol": 1e-3,
                                          "acceptable_constr_viol_tol": 1e-4}} if cfg.fallback_solver == "ipopt" else {}))
-        return self._fallback
+            if cold:
+                self._fallback_cold = solver
+            else:
+                self._fallback = solver
+        return self._fallback_cold if cold else self._fallback
+
+    def _recovery_fatrop(self) -> NlpSolver:
+        """A Fatrop starting from a larger barrier, built once (it keeps one nlpsol per row-count pattern,
+        so its options hold: no new solver per failure)."""
+        if self._recovery is None:
+            cfg = self.config
+            self._recovery = self.solver.recreated(barrier_init=cfg.recovery_barrier_init,
+                                                   max_iterations=cfg.recovery_fatrop_max_iterations)
+        return self._recovery
 
     def _recover(self, failed, p, bounds, x0, fallback_tried: bool = False):
         """Re-solve a failed step within a bounded effort: first a fresh Fatrop starting from a larger
@@ -369,13 +390,11 @@ class MPC:
             return cfg.recovery_time_limit_s is None or spent_s < cfg.recovery_time_limit_s
 
         if cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
-            fresh = self.solver.recreated(barrier_init=cfg.recovery_barrier_init,
-                                          max_iterations=cfg.recovery_fatrop_max_iterations)
-            result = fresh.solve(p, *bounds, x0)
+            result = self._recovery_fatrop().solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
             attempts.append(f"fatrop mu_init {cfg.recovery_barrier_init:g}: {result.stats.status}")
         if not result.stats.success and cfg.fallback_solver and not fallback_tried and budget_left():
-            result = self._fallback_solver().solve(p, *bounds, x0)
+            result = self._fallback_solver(cold=self._previous is None).solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
             attempts.append(f"{cfg.fallback_solver}: {result.stats.status}")
             if result.stats.success and cfg.fallback_first_s > 0:
