@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import Event, RunLog
 from wbmpc.control.mpc import Commands

@@ -28,6 +28,7 @@ from wbmpc.sim.model_errors import ModelErrors
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 from wbmpc.strict_json import to_json
 
+DELAYED_RECOVERY_LIMIT_S = 0.05  # four MPC periods at 80 Hz
 MAX_DURATION_S = 3600.0  # one simulated hour; longer runs are split by the caller
 
 
@@ -95,7 +96,10 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30),
                      weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
-                     base_tracking=config.base_tracking)
+                     base_tracking=config.base_tracking,
+                     # with a delay the plant does not wait: a recovery of seconds leaves the robot on a stale
+                     # plan, so it is cut short and the last good plan, shifted in time, is held instead
+                     recovery_time_limit_s=None if config.delay == "none" else DELAYED_RECOVERY_LIMIT_S)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
