@@ -117,6 +117,7 @@ class MPC:
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
         self._fallback_until_t: float | None = None  # fallback solver first until this time
+        self._cold_fallback: NlpSolver | None = None
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
@@ -277,8 +278,15 @@ class MPC:
         if self.config.fallback_solver:
             self._fallback_solver()
 
-    def _fallback_solver(self) -> NlpSolver:
-        """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the main one."""
+    def _fallback_solver(self, cold: bool = False) -> NlpSolver:
+        """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the
+        main one. `cold`: the uncapped one (300 iterations) for a step with no earlier plan to hold."""
+        if cold:
+            if self._cold_fallback is None:
+                self._cold_fallback = NlpSolver(self.problem, SolverConfig(
+                    name=self.config.fallback_solver, max_iterations=300, compiled=self.solver.is_compiled,
+                    codegen=self.solver.config.codegen))
+            return self._cold_fallback
         if self._fallback is None:
             cfg = self.config
             self._fallback = NlpSolver(self.problem, SolverConfig(
@@ -315,6 +323,11 @@ class MPC:
             attempts.append(f"{cfg.fallback_solver}: {result.stats.status}")
             if result.stats.success and cfg.fallback_first_s > 0:
                 self._fallback_until_t = (self._last_t or 0.0) + cfg.fallback_first_s
+        if not result.stats.success and cfg.fallback_solver and self._previous is None:
+            # no earlier plan to hold (first step, cold start): spend what a solution takes
+            result = self._fallback_solver(cold=True).solve(p, *bounds, x0)
+            spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
+            attempts.append(f"{cfg.fallback_solver} uncapped (no plan to hold): {result.stats.status}")
         if len(attempts) > 1:
             result.stats.status = f"{attempts[-1]} (recovery after {'; '.join(attempts[:-1])})"
         result.stats.solve_time_s, result.stats.iterations = spent_s, iterations
