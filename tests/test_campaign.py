@@ -39,7 +39,6 @@ def client():
     cluster.close()
 
 
-@pytest.mark.slow  # ~35 s on an idle 2-core machine, 100 s under load: the default suite keeps the kill test
 def test_four_case_campaign_then_resume_skips_finished(client, tmp_path):
     spec = _tiny_spec()
     cases = expand(spec)
