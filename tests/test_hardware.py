@@ -94,21 +94,30 @@ def _cli(*args, **kwargs):
 
 
 @pytest.fixture(scope="module")
-def dds():
-    """This process on the test domain: publish forged LowCmds, listen for LowCmds."""
+def dds_domain():
     SDK.ChannelFactoryInitialize(DOMAIN, "lo")
+    return DOMAIN
+
+
+@pytest.fixture
+def dds(dds_domain):
+    """This process on the test domain: publish forged LowCmds, listen for LowCmds (fresh per test: a
+    test may close the listener)."""
     heard = []
     sub = SDK.ChannelSubscriber("rt/lowcmd", SDK.LowCmd_)
     sub.Init(lambda msg: heard.append(msg), 0)
     pub = SDK.ChannelPublisher("rt/lowcmd", SDK.LowCmd_)
     pub.Init()
-    yield pub, heard
-    sub.Close()
-    pub.Close()
+    yield pub, heard, sub
+    for endpoint in (sub, pub):
+        try:
+            endpoint.Close()
+        except Exception:  # already closed by the test
+            pass
 
 
 def test_no_low_state_means_exit_without_commanding(dds):
-    _, heard = dds
+    _, heard, _ = dds
     heard.clear()
     proc = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep", "--nodes", "4")
     out, err = proc.communicate(timeout=120)
@@ -121,7 +130,7 @@ def test_no_low_state_means_exit_without_commanding(dds):
 
 
 def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go2, dds):
-    pub, heard = dds
+    pub, heard, sub = dds
     heard.clear()
     sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--idle-exit", "120", "--watchdog-ms", "300",
                "--json")  # 300 ms: a loaded 2-core machine can stall the controller for 100 ms
@@ -132,6 +141,9 @@ def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go
         while len(heard) < 200 and time.monotonic() < deadline:  # MPC built, robot being stood up over DDS
             time.sleep(0.1)
         assert controller.poll() is None and len(heard) >= 200, controller.stderr.read()
+        # stop listening here before writing: the SDK's reader callback needs the GIL that a blocking
+        # DataWriter.write in this thread holds (reliable QoS), which deadlocked this test once
+        sub.Close()
         forged = encode_low_cmd(MotorCommand.damping(go2.n_joints, 1.0), unitree_motor_map(go2))
         forged.crc ^= 1
         for _ in range(20):
@@ -176,7 +188,7 @@ def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
 
 @pytest.mark.slow
 def test_ctrl_c_lies_the_robot_down_then_damps(dds):
-    _, heard = dds
+    _, heard, _ = dds
     heard.clear()
     sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "8",
                "--idle-exit", "30", "--json")

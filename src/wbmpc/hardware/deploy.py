@@ -38,8 +38,9 @@ from wbmpc.hardware.sdk import load_sdk
 from wbmpc.robots import RobotModel
 
 
-class NoRobotStateError(WbmpcError, RuntimeError):
-    """No (valid) LowState arrived in time; nothing was commanded or commanding stopped."""
+class NoRobotStateError(ConfigError, RuntimeError):
+    """No (valid) LowState arrived in time; nothing was commanded or commanding stopped. A set-up problem
+    (robot off, wrong interface or domain): exit code 2, like other bad input."""
 
 
 @dataclass(frozen=True)
