@@ -38,6 +38,8 @@ class KillWorkerOnce:
                 os.write(fd, str(os.getpid()).encode())
                 os.close(fd)
                 pid = os.getpid()
+                if self.after_s <= 0:
+                    os.kill(pid, signal.SIGKILL)  # before the case starts: no race with a fast case
                 threading.Timer(self.after_s, os.kill, (pid, signal.SIGKILL)).start()
         return run_case(case)
 

@@ -25,7 +25,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     sim.add_argument("--idle-exit", type=float, metavar="S", help="exit when no valid LowCmd came for S seconds")
     sim.add_argument("--push-time", type=float, metavar="S", help="base velocity kick at this simulated time")
     sim.add_argument("--push-speed", type=float, default=0.8, help="kick speed, m/s, to the robot's left (world y)")
-    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
@@ -40,7 +40,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
     dep.add_argument("--compiled", action="store_true", help="compiled solver (C generated and cached)")
-    dep.add_argument("--nodes", type=int, default=15)
+    dep.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15 = the paper's)")
     dep.add_argument("--speed", type=float, default=0.2, help="trot-forward / arm-track speed, m/s")
     dep.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10), sent in LowCmd")
     dep.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10), sent in LowCmd")
@@ -55,7 +55,7 @@ def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
     dds = bench_sub.add_parser("dds", help="DDS round trip LowState -> LowCmd through an echo process (p50/p99)")
     add_robot_options(dds)
     _add_network_options(dds)
-    dds.add_argument("--samples", type=int, default=2000)
+    dds.add_argument("--samples", type=int, default=2000, help="round trips measured (default 2000)")
     dds.add_argument("--rate", type=float, default=500.0, help="LowState rate, Hz")
     dds.set_defaults(func=lambda args: cmd_bench_dds(args, robot_from_args, emit))
 

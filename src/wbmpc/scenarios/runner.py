@@ -73,7 +73,7 @@ class RunConfig:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ConfigError.for_field("seed", f"must be an integer >= 0, got {self.seed!r}")
         if self.state not in ("true", "estimated"):
-            raise ConfigError.for_field("state", f"must be 'true' or 'estimated', got {self.state!r}")
+            raise ConfigError(f"--state must be 'true' or 'estimated', got {self.state!r}")
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 
