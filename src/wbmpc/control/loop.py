@@ -297,7 +297,7 @@ class ClosedLoop:
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
         cpus = _cpu_split()
-        worker = context.Process(target=_mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1]),
+        worker = context.Process(target=mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1]),
                                  daemon=True)
         single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
         saved = {name: os.environ.get(name) for name in single_threaded}
@@ -388,7 +388,7 @@ def _cpu_split() -> tuple[set[int], set[int]]:
     return {available[0]}, set(available[1:])
 
 
-def _mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
+def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
     """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests
     ("cpu" asks for the process's CPU time so far)."""
     import signal

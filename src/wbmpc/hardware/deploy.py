@@ -325,9 +325,11 @@ class _SolverProcess:
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig):
         import multiprocessing
 
+        from wbmpc.control.loop import mpc_worker
+
         context = multiprocessing.get_context("spawn")
         self._conn, child = context.Pipe()
-        self._process = context.Process(target=_solver_main, args=(robot.spec, mpc_config, child), daemon=True)
+        self._process = context.Process(target=mpc_worker, args=(robot.spec, mpc_config, child), daemon=True)
         self._process.start()
         if not self._conn.poll(600) or self._conn.recv() != "ready":
             raise ConfigError("the MPC solver process did not start (see its error above)")
@@ -349,20 +351,3 @@ class _SolverProcess:
         self._process.join(timeout=5)
         if self._process.is_alive():
             self._process.terminate()
-
-
-def _solver_main(spec, mpc_config, conn) -> None:
-    from wbmpc.robots import RobotModel as Model
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the controller's to handle
-    mpc = MPC(Model(spec), mpc_config)
-    conn.send("ready")
-    while True:
-        message = conn.recv()
-        if message is None:
-            return
-        q, v, command, t = message
-        tic = time.perf_counter()
-        solution = mpc.solve(q, v, command, t)
-        solution.wall_time_s = time.perf_counter() - tic
-        conn.send(solution)
