@@ -147,6 +147,20 @@ def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
     return opts
 
 
+def bound_violation(x, g, lbx, ubx, lbg, ubg) -> float:
+    """Largest violation of the variable and constraint bounds at (x, g)."""
+    viol_g = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
+    viol_x = np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)
+    return float(max(viol_g.max(initial=0), viol_x.max(initial=0)))
+
+
+def failed_result(problem: OcpProblem, x0, status: str) -> NlpResult:
+    """A solve that did not run or did not finish: NaN variables, the status says why."""
+    nan = np.full_like(np.asarray(x0, dtype=float), np.nan)
+    return NlpResult(nan, np.zeros(problem.n_constraints), np.zeros_like(nan),
+                     SolverStats(status, False, 0, 0.0, float("inf"), float("nan")))
+
+
 class NlpSolver:
     """A casadi nlpsol for one OCP structure; `solve` takes numeric p, bounds and an initial guess.
 
@@ -155,8 +169,7 @@ class NlpSolver:
     our options (tol, mu_init, max_iter: Fatrop's defaults 1e-8, 0.1, 1000 apply instead). So one
     nlpsol is kept per row-count pattern (`structure_key`): each keeps its Fatrop instance and our
     options, and no step pays for a rebuild. Trot and walk keep the counts constant; starting or
-    stopping a gait and custom schedules change them. `prepare` creates the solvers of known
-    patterns ahead of a real-time loop (about 0.1 s each when compiled).
+    stopping a gait and custom schedules change them (a new pattern costs about 0.1 s once, compiled).
 
     `compile_report`: a library compiled before for this problem (no code generation, no compiler).
     """
@@ -216,12 +229,6 @@ class NlpSolver:
             self._by_structure[key] = solver
         return solver
 
-    def prepare(self, bounds) -> int:
-        """Create the solvers of these (lbx, ubx, lbg, ubg) patterns now; the number of solvers held."""
-        for lbx, ubx, lbg, ubg in bounds:
-            self._solver_for(lbx, ubx, lbg, ubg)
-        return max(len(self._by_structure), 1)
-
     @property
     def is_compiled(self) -> bool:
         return self.compile_report is not None
@@ -245,15 +252,10 @@ class NlpSolver:
         return self._new_nlpsol()
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
-        g = np.asarray(self._g(x, p)).ravel()
-        viol_g = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
-        viol_x = np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)
-        return float(max(viol_g.max(initial=0), viol_x.max(initial=0)))
+        return bound_violation(x, np.asarray(self._g(x, p)).ravel(), lbx, ubx, lbg, ubg)
 
     def _failure(self, x0, status: str) -> NlpResult:
-        nan = np.full_like(np.asarray(x0, dtype=float), np.nan)
-        return NlpResult(nan, np.zeros(self.problem.n_constraints), np.zeros_like(nan),
-                         SolverStats(status, False, 0, 0.0, float("inf"), float("nan")))
+        return failed_result(self.problem, x0, status)
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None) -> NlpResult:
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why.

@@ -32,7 +32,7 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
-from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats
+from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats, bound_violation, failed_result
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
 
 
@@ -134,13 +134,10 @@ class RtiSolver:
         return result
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
-        g = np.asarray(self._nlp(x, p)[1]).ravel()
-        return _violation(x, g, lbx, ubx, lbg, ubg)
+        return bound_violation(x, np.asarray(self._nlp(x, p)[1]).ravel(), lbx, ubx, lbg, ubg)
 
     def _failure(self, x0, status: str) -> NlpResult:
-        nan = np.full_like(np.asarray(x0, dtype=float), np.nan)
-        return NlpResult(nan, np.zeros(self.problem.n_constraints), np.zeros_like(nan),
-                         SolverStats(status, False, 0, 0.0, float("inf"), float("nan")))
+        return failed_result(self.problem, x0, status)
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None) -> NlpResult:
         """Linearise at x0, solve the QP, take the full step (repeated `sqp_iterations` times).
@@ -186,7 +183,7 @@ class RtiSolver:
             f, g = self._nlp(x, p)
             cost, g = float(f), np.asarray(g).ravel()
             finite = bool(np.all(np.isfinite(g)))
-            viol = _violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
+            viol = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
             success = finite
         else:
             x, cost, viol = np.full_like(x, np.nan), float("nan"), float("inf")
@@ -211,9 +208,3 @@ class RtiSolver:
         if not success and self.rti.recovery_barrier_init is not None:
             result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
         return result
-
-
-def _violation(x, g, lbx, ubx, lbg, ubg) -> float:
-    viol_g = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
-    viol_x = np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)
-    return float(max(viol_g.max(initial=0), viol_x.max(initial=0)))
