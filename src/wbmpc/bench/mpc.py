@@ -180,7 +180,7 @@ class _Recorder:
     def solve(self, q, v, commands=None, t=0.0):
         self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t)))
         solution, cpu_ms = _timed_solve(self.mpc, q, v, commands, t)
-        self.eval_ms.append(_function_eval_ms(self.mpc))
+        self.eval_ms.append(_function_eval_ms(solution))
         self.splits.append(dict(solution.stats.split_ms))
         self.cpu_ms.append(cpu_ms)
         return solution
@@ -194,20 +194,19 @@ def _timed_solve(mpc, q, v, commands, t):
     return solution, 1e3 * (time.process_time() - start)
 
 
-def _function_eval_ms(mpc) -> float:
-    """Wall time of the last solve spent in CasADi's NLP function evaluations (f, g, jacobians, Hessian).
+def _function_eval_ms(solution) -> float:
+    """Wall time of a solve spent in CasADi's NLP function evaluations (f, g, jacobians, Hessian), from
+    its time split (`wbmpc.solvers.nlp.time_split_ms`; RTI: linearisation + evaluation at the step).
 
     Solve time minus this is the solver's own linear algebra and logic (what Fatrop's Riccati
     recursion speeds up); function evaluations are what C code generation speeds up.
     """
-    timing = getattr(mpc.solver, "last_timing", None)
-    if timing:  # RTI: linearisation (g, its Jacobian, cost gradient and Hessian) + the evaluation at the step
-        return timing["linearize_ms"] + timing["evaluate_ms"]
-    try:
-        stats = mpc.solver.solver.stats()
-    except (AttributeError, RuntimeError):
-        return float("nan")
-    return 1e3 * sum(float(v) for k, v in stats.items() if k.startswith("t_wall_nlp_"))
+    split = solution.stats.split_ms
+    if "functions" in split:
+        return split["functions"]
+    if "linearize" in split:
+        return split["linearize"] + split.get("evaluate", 0.0)
+    return float("nan")
 
 
 def _split_summary(splits: list[dict]) -> dict:
@@ -346,7 +345,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             records[label]["ms"].append(solution.stats.solve_time_s * 1e3)
             records[label]["it"].append(int(solution.stats.iterations))
             records[label]["ok"].append(solution.success)
-            records[label]["eval"].append(_function_eval_ms(mpc))
+            records[label]["eval"].append(_function_eval_ms(solution))
             done += 1
             progress.update(done, f"same states {i + 1}/{len(states)}")
     progress.close(complete=True)
