@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -87,10 +88,32 @@ def test_clamps_keep_targets_and_torques_in_limits(go2):
 
 
 # ---------------------------------------------------------------------------- loopback DDS
-def _cli(*args, **kwargs):
-    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.Popen([sys.executable, "-m", "wbmpc.cli", *args], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kwargs)
+class _Cli(subprocess.Popen):
+    """A `wbmpc` child whose output goes to temporary files, not pipes: a pipe this test reads only at
+    the end can fill (robot-sim's report holds its trajectory), block the child and, through its
+    stalled DDS reader, this process's DataWriter.write; the suite hung on that once."""
+
+    def __init__(self, *args):
+        env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        self._stdout_file, self._stderr_file = tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")
+        super().__init__([sys.executable, "-m", "wbmpc.cli", *args], env=env, stdout=self._stdout_file, stderr=self._stderr_file,
+                         text=True)
+
+    def communicate(self, input=None, timeout=None):
+        self.wait(timeout)
+        return self.read_output(), self.read_errors()
+
+    def read_output(self) -> str:
+        self._stdout_file.seek(0)
+        return self._stdout_file.read()
+
+    def read_errors(self) -> str:
+        self._stderr_file.seek(0)
+        return self._stderr_file.read()
+
+
+def _cli(*args):
+    return _Cli(*args)
 
 
 @pytest.fixture(scope="module")
@@ -140,7 +163,7 @@ def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go
         deadline = time.monotonic() + 120
         while len(heard) < 200 and time.monotonic() < deadline:  # MPC built, robot being stood up over DDS
             time.sleep(0.1)
-        assert controller.poll() is None and len(heard) >= 200, controller.stderr.read()
+        assert controller.poll() is None and len(heard) >= 200, controller.read_errors()
         # stop listening here before writing: the SDK's reader callback needs the GIL that a blocking
         # DataWriter.write in this thread holds (reliable QoS), which deadlocked this test once
         sub.Close()
