@@ -152,8 +152,37 @@ def test_no_low_state_means_exit_without_commanding(dds):
     assert proc.returncode == 2 and "unknown network interface 'nosuchif0'" in err and "lo" in err
 
 
+_FORGER = """
+import sys, time
+from wbmpc.hardware.sdk import load_sdk
+from wbmpc.hardware.mapping import unitree_motor_map
+from wbmpc.hardware.messages import MotorCommand, encode_low_cmd
+from wbmpc.robots import load_robot
+sdk = load_sdk()
+sdk.ChannelFactoryInitialize(int(sys.argv[1]), "lo")
+robot = load_robot("go2")
+forged = encode_low_cmd(MotorCommand.damping(robot.n_joints, 1.0), unitree_motor_map(robot))
+forged.crc ^= 1
+pub = sdk.ChannelPublisher("rt/lowcmd", sdk.LowCmd_)
+pub.Init()
+time.sleep(0.5)  # discovery
+for _ in range(int(sys.argv[2])):
+    pub.Write(forged)
+    time.sleep(0.005)
+time.sleep(0.5)
+"""
+
+
+def _publish_bad_crc_commands(count: int) -> None:
+    """LowCmds with a wrong CRC, from a process of their own: a DataWriter.write that blocks (it hung this
+    test process twice, holding the GIL) can then be ended by the timeout."""
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    subprocess.run([sys.executable, "-c", _FORGER, str(DOMAIN), str(count)], env=env, timeout=120, check=True,
+                   capture_output=True)
+
+
 def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go2, dds):
-    pub, heard, sub = dds
+    _, heard, _ = dds
     heard.clear()
     sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--idle-exit", "120", "--watchdog-ms", "300",
                "--json")  # 300 ms: a loaded 2-core machine can stall the controller for 100 ms
@@ -164,14 +193,7 @@ def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go
         while len(heard) < 200 and time.monotonic() < deadline:  # MPC built, robot being stood up over DDS
             time.sleep(0.1)
         assert controller.poll() is None and len(heard) >= 200, controller.read_errors()
-        # stop listening here before writing: the SDK's reader callback needs the GIL that a blocking
-        # DataWriter.write in this thread holds (reliable QoS), which deadlocked this test once
-        sub.Close()
-        forged = encode_low_cmd(MotorCommand.damping(go2.n_joints, 1.0), unitree_motor_map(go2))
-        forged.crc ^= 1
-        for _ in range(20):
-            pub.Write(forged)
-            time.sleep(0.005)
+        _publish_bad_crc_commands(count=20)
         time.sleep(0.5)
         controller.send_signal(signal.SIGKILL)
         time.sleep(1.0)
