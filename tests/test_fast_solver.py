@@ -97,3 +97,26 @@ def test_options_hold_after_contact_switches(switching):
         mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
         assert mpc.solver.solver.stats()["iter_count"] <= 3, pattern
     assert set(mpc.solver._by_structure) == set(keys.values())
+
+
+def test_buffered_function_matches_a_plain_call():
+    """The hot path's NumPy-buffer calls give what CasADi's own call gives: matrix inputs column-major,
+    sparse outputs as their nonzeros, omitted inputs at their defaults, outputs overwritten per call."""
+    import casadi as ca
+
+    from wbmpc.solvers.buffered import BufferedFunction
+
+    x, y = ca.SX.sym("x", 3, 2), ca.SX.sym("y", 2)
+    f = ca.Function("f", [x, y], [ca.sin(x) * 2, ca.mtimes(x, y), ca.jacobian(ca.vec(x) * y[0], ca.vec(x))])
+    buffered = BufferedFunction(f)
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        X, Y = rng.normal(size=(3, 2)), rng.normal(size=2)
+        expected = f(X, Y)
+        out = buffered(X, Y, shaped=True)
+        np.testing.assert_allclose(out[0], np.asarray(expected[0]), rtol=1e-15)
+        np.testing.assert_allclose(out[1].ravel(), np.asarray(expected[1]).ravel(), rtol=1e-15)
+        np.testing.assert_allclose(out[2], expected[2].nonzeros(), rtol=1e-15)
+    np.testing.assert_allclose(buffered(X)[1], 0.0)  # y omitted: its default, 0
+    with pytest.raises(TypeError, match="takes 2 inputs"):
+        buffered(X, Y, Y)

@@ -20,6 +20,7 @@ from wbmpc.gait import Gait, SwingProfile, make_gait
 from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
+from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 
 
@@ -156,11 +157,12 @@ class MPC:
         self.solver = solver or make_solver(self.problem, config.solver)
         dyn, N = self.problem.dyn, self.problem.N
         q, dq = ca.SX.sym("q", robot.nq), ca.SX.sym("dq", robot.nv)
-        self._integrate = ca.Function("integrate", [q, dq], [dyn.integrate(q, dq)]).map(N + 1)
+        # called on NumPy buffers every step (no DM conversions); outputs are reused: copy what is kept
+        self._integrate = BufferedFunction(ca.Function("integrate", [q, dq], [dyn.integrate(q, dq)]).map(N + 1))
         q1 = ca.SX.sym("q1", robot.nq)
-        self._difference = ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1)
+        self._difference = BufferedFunction(ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1))
         self._weights = config.weights.vectors(robot, self.problem.nf)
-        self._trajectories = self.problem.trajectory_function()
+        self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(foot) for foot in robot.feet]
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
@@ -253,7 +255,7 @@ class MPC:
             targets[:, 2] = commands.base_height_m
         yaws = self._yaw_reference + commands.base_yaw_rate_rad_s * node_times
         targets[:, 3:7] = np.column_stack([np.zeros_like(yaws), np.zeros_like(yaws), np.sin(yaws / 2), np.cos(yaws / 2)])
-        dq_des = np.asarray(self._difference(np.tile(q, (len(node_times), 1)).T, targets.T))
+        dq_des = self._difference(np.tile(q, (len(node_times), 1)).T, targets.T, shaped=True)[0].copy()
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
@@ -438,7 +440,7 @@ class MPC:
             new_times, old_times = t + node_times, previous.t_s + previous.node_times_s
             parts = problem.unpack(previous.x)
             # the previous configurations re-expressed as increments on the new reference q
-            parts["dq"] = np.asarray(self._difference(np.tile(q, (len(node_times), 1)).T, previous.q.T)).T
+            parts["dq"] = self._difference(np.tile(q, (len(node_times), 1)).T, previous.q.T, shaped=True)[0].T.copy()
             for name, values in parts.items():
                 if name != "F":
                     guess[name] = _interp_rows(new_times[: len(values)], old_times[: len(values)], values)
@@ -455,8 +457,8 @@ class MPC:
         return positions
 
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        dq, v, a, forces, tau = (np.asarray(m).T for m in self._trajectories(x, p))
-        q_traj = np.asarray(self._integrate(np.tile(q, (len(node_times), 1)).T, dq.T)).T
+        dq, v, a, forces, tau = (m.T.copy() for m in self._trajectories(x, p, shaped=True))
+        q_traj = self._integrate(np.tile(q, (len(node_times), 1)).T, dq.T, shaped=True)[0].T.copy()
         finite = np.all(np.isfinite(x)) and np.all(np.isfinite(tau))
         return Solution(
             t_s=t,

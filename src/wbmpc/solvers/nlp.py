@@ -18,6 +18,7 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
 
 SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
@@ -189,8 +190,9 @@ class NlpSolver:
         self._by_structure: dict[bytes, ca.Function] = {}
         self._unclaimed: ca.Function | None = self.solver  # the first solver serves the first pattern seen
         # constraint values for the input checks and the violation report: compiled when the solver is
-        self._g = (ca.external("nlp_g", self._source) if isinstance(self._source, str) else
-                   ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False}))
+        self._g = BufferedFunction(
+            ca.external("nlp_g", self._source) if isinstance(self._source, str) else
+            ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False}))
         self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
 
     def _new_nlpsol(self) -> ca.Function:
@@ -252,7 +254,7 @@ class NlpSolver:
         return self._new_nlpsol()
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
-        return bound_violation(x, np.asarray(self._g(x, p)).ravel(), lbx, ubx, lbg, ubg)
+        return bound_violation(x, self._g(x, p)[0], lbx, ubx, lbg, ubg)
 
     def _failure(self, x0, status: str) -> NlpResult:
         return failed_result(self.problem, x0, status)
@@ -261,7 +263,7 @@ class NlpSolver:
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why.
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x0))):
             return self._failure(x0, "invalid_input_nan")
-        if not np.all(np.isfinite(np.asarray(self._g(x0, p)))):
+        if not np.all(np.isfinite(self._g(x0, p)[0])):
             return self._failure(x0, "invalid_input_nan_constraints")
         if np.any(np.asarray(lbx) > np.asarray(ubx)) or np.any(np.asarray(lbg) > np.asarray(ubg)):
             return self._failure(x0, "invalid_bounds")

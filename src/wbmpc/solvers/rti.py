@@ -31,6 +31,7 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
 from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats, bound_violation, failed_result
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
@@ -91,7 +92,9 @@ class RtiSolver:
                 "nlp_jac_g": ca.Function("nlp_jac_g", [x, p], [nlp["g"], ca.jacobian(nlp["g"], x)]),
                 "nlp_grad_f": ca.Function("nlp_grad_f", [x, p], [ca.gradient(nlp["f"], x)]),
             }
-        self._nlp, self._jacobian, self._gradient = functions["nlp"], functions["nlp_jac_g"], functions["nlp_grad_f"]
+        # the Jacobian and gradient go to the QP as DMs (their sparsity); f and g come back as NumPy buffers
+        self._nlp = BufferedFunction(functions["nlp"])
+        self._jacobian, self._gradient = functions["nlp_jac_g"], functions["nlp_grad_f"]
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
         self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
         sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
@@ -134,7 +137,7 @@ class RtiSolver:
         return result
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
-        return bound_violation(x, np.asarray(self._nlp(x, p)[1]).ravel(), lbx, ubx, lbg, ubg)
+        return bound_violation(x, self._nlp(x, p)[1], lbx, ubx, lbg, ubg)
 
     def _failure(self, x0, status: str) -> NlpResult:
         return failed_result(self.problem, x0, status)
@@ -181,7 +184,7 @@ class RtiSolver:
         tic = time.perf_counter()
         if success:
             f, g = self._nlp(x, p)
-            cost, g = float(f), np.asarray(g).ravel()
+            cost = float(f[0])
             finite = bool(np.all(np.isfinite(g)))
             viol = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
             success = finite
