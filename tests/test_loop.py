@@ -1,6 +1,7 @@
 """Deployment pipeline: eq. 9 interpolation, eq. 10 PD, a short closed-loop run and `wbmpc run`."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -182,3 +183,27 @@ def test_recovered_and_failed_steps_are_counted_apart():
         solution = replace(_synthetic_solution(), stats=SolverStats(status, ok, 5, 0.01, 0.0, 0.0), success=ok)
         ClosedLoop._log_solution(log, 0.0, Commands(), solution)
     assert (log.mpc_recoveries, log.mpc_failures) == (1, 1)
+
+
+def _priority_child(queue):
+    from wbmpc.control.loop import raise_priority
+
+    granted = raise_priority()
+    queue.put((granted, os.getpriority(os.PRIO_PROCESS, 0)))
+
+
+def test_realtime_processes_ask_for_a_higher_priority_and_report_what_they_got():
+    """Granted (root / CAP_SYS_NICE): the process runs at nice -10 and says so; refused: "default" and
+    its priority is unchanged. Run in a child so the test process keeps its own priority."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    child = context.Process(target=_priority_child, args=(queue,))
+    child.start()
+    granted, nice = queue.get(timeout=60)
+    child.join(timeout=60)
+    if granted == "default":
+        assert nice == os.getpriority(os.PRIO_PROCESS, 0)
+    else:
+        assert granted == f"nice {nice}" and nice <= -10

@@ -311,6 +311,9 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
                      f"mean delay {m['delay_ms_mean']:.1f} ms")
+        if m.get("sim_cpu_share") is not None:
+            lines.append(f"  CPU share: simulation {100 * m['sim_cpu_share']:.0f} %, MPC {100 * (m['mpc_cpu_share'] or 0):.0f} % "
+                         f"of a core; scheduling priority {m.get('realtime_priority') or 'default'}")
     if m.get("est_base_vel_rmse_m_s") is not None:
         lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
                      f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {np.rad2deg(m['est_orientation_rmse_rad']):.2f} deg")

@@ -74,6 +74,7 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "wall_time_s": log.wall_time_s,
         "sim_cpu_share": log.sim_cpu_share,  # real time: simulation process CPU / wall (must not starve the MPC)
         "mpc_cpu_share": log.mpc_cpu_share,
+        "realtime_priority": log.realtime_priority,  # real time: "nice -10" where permitted, else "default"
     }
 
 
