@@ -81,12 +81,25 @@ def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
     np.testing.assert_allclose(result.x, reference.x, atol=1e-4)  # converged to Fatrop's (default) tolerance
 
 
+def test_capped_recovery_is_built_ahead_and_stops_at_its_cap(fixed_state):
+    """Real-time runs cap the re-solve (`recovery_max_iterations`) and build it before the clock runs."""
+    problem, data, _ = fixed_state
+    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_max_iterations": 2}))
+    solver.prepare_recovery()
+    assert solver._recovery is not None and solver._recovery.config.max_iterations == 2
+    result = solver.solve(*data)
+    assert not result.stats.success and "Maximum_Iterations_Exceeded (fatrop recovery after rti" in result.stats.status
+    assert result.stats.iterations <= 2 + 3  # one QP iteration per HPIPM mode, then Fatrop stops after its cap (+1)
+
+
 def test_bad_rti_settings_name_the_fix(fixed_state):
     problem = fixed_state[0]
     with pytest.raises(ConfigError, match="unknown RTI option.*sqp_iterations"):
         make_solver(problem, SolverConfig(name="rti", extra_options={"iterations": 3}))
     with pytest.raises(ConfigError, match="sqp_iterations must be >= 1"):
         RtiConfig(sqp_iterations=0)
+    with pytest.raises(ConfigError, match="recovery_max_iterations must be >= 1"):
+        RtiConfig(recovery_max_iterations=0)
     with pytest.raises(ConfigError, match="unknown HPIPM mode"):
         make_solver(problem, SolverConfig(name="rti", extra_options={"qp_mode": "fast"}))
     with pytest.raises(ConfigError, match="make_solver"):

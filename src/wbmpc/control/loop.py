@@ -426,6 +426,7 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
         os.sched_setaffinity(0, cpus)
     raise_priority()
     mpc = MPC(RobotModel(spec), mpc_config)
+    mpc.prepare_fallback()  # a failed step must not pay for building its recovery solvers
     conn.send("ready")
     while True:
         message = conn.recv()

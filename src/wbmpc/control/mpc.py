@@ -344,10 +344,15 @@ class MPC:
         return solution
 
     def prepare_fallback(self) -> None:
-        """Build the fallback solver now (it is otherwise built at the first failed step, which then
-        takes the build time: campaigns and real-time use want it before the clock runs)."""
+        """Build the recovery solvers now (they are otherwise built at the first failed step, which then
+        takes the build time: campaigns and real-time use want them before the clock runs)."""
         if self.config.fallback_solver:
             self._fallback_solver()
+        if self.config.recovery_barrier_init and self.solver.config.name == "fatrop":
+            self._recovery_fatrop()
+        prepare_recovery = getattr(self.solver, "prepare_recovery", None)  # RTI: its Fatrop re-solve
+        if prepare_recovery is not None:
+            prepare_recovery()
 
     def _fallback_solver(self, cold: bool = False) -> NlpSolver:
         """The fallback solver (IPOPT's regularised factorisation), built on first need, compiled like the

@@ -29,6 +29,7 @@ from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 from wbmpc.strict_json import to_json
 
 DELAYED_RECOVERY_LIMIT_S = 0.05  # four MPC periods at 80 Hz
+RECOVERY_ITERATIONS_DELAYED = 10  # the RTI's Fatrop re-solve of a failed QP, when the plant does not wait (~50 ms)
 MAX_DURATION_S = 3600.0  # one simulated hour; longer runs are split by the caller
 
 
@@ -94,7 +95,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
-                     solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30),
+                     solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
+                                         extra_options=({"recovery_max_iterations": RECOVERY_ITERATIONS_DELAYED}
+                                                        if config.solver == "rti" and config.delay != "none" else {})),
                      weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a recovery of seconds leaves the robot on a stale
@@ -112,6 +115,8 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
+    if config.delay != "none":  # the plant does not wait: recovery solvers must not be built mid-run
+        mpc.prepare_fallback()
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
     with stop_flag(stop) as stop:

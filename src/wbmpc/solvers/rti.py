@@ -51,6 +51,9 @@ class RtiConfig:
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
     recovery_barrier_init: float | None = 0.1
+    # its iteration cap: a converged re-solve after a push can take 100+ iterations (~0.5 s); a run whose
+    # plant does not wait for the solver caps it (the runner: RECOVERY_ITERATIONS_DELAYED) and holds the last plan
+    recovery_max_iterations: int = 300
 
     def __post_init__(self):
         if self.sqp_iterations < 1:
@@ -58,6 +61,8 @@ class RtiConfig:
         for mode in (self.qp_mode, self.fallback_qp_mode):
             if mode is not None and mode not in HPIPM_MODES:
                 raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
+        if self.recovery_max_iterations < 1:
+            raise ConfigError(f"recovery_max_iterations must be >= 1, got {self.recovery_max_iterations}")
         if not self.hessian_regularization >= 0:
             raise ConfigError(f"hessian_regularization must be >= 0, got {self.hessian_regularization}")
 
@@ -123,10 +128,16 @@ class RtiSolver:
         """Fatrop on the same problem (compiled on the RTI's library when the RTI is), built on first need.
         It keeps one nlpsol per row-count pattern, so its options hold after contact switches."""
         if self._recovery is None:
-            config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init, max_iterations=300,
+            config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init,
+                                  max_iterations=self.rti.recovery_max_iterations,
                                   compiled=self.compile_report is not None, codegen=self.config.codegen)
             self._recovery = NlpSolver(self.problem, config, compile_report=self.compile_report)
         return self._recovery
+
+    def prepare_recovery(self) -> None:
+        """Build the Fatrop re-solve of failed QPs now rather than at the first failure."""
+        if self.rti.recovery_barrier_init is not None:
+            self._recovery_solver()
 
     def _recover(self, failed: NlpResult, p, lbx, ubx, lbg, ubg, x0) -> NlpResult:
         result = self._recovery_solver().solve(p, lbx, ubx, lbg, ubg, x0)
