@@ -143,3 +143,36 @@ def test_model_errors_change_the_plant_not_the_model():
     assert robot.mass_kg == pytest.approx(pin.computeTotalMass(robot.model))  # the controller's model is untouched
     with pytest.raises(ConfigError, match="ee_payload_kg"):
         ModelErrors(ee_payload_kg=-1.0)
+
+
+def _slow_case(case):
+    import time
+
+    time.sleep(30)
+    return {}
+
+
+def test_campaign_without_workers_stops_instead_of_hanging(tmp_path):
+    """Workers gone for good (killed, never restarted): the run ends after the timeout with every case
+    unfinished and no row, so `--resume` reruns them; it does not wait forever."""
+    import logging
+    import time
+
+    from distributed import Client, LocalCluster
+
+    from wbmpc.campaign.execution import _worker_env
+
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                           silence_logs=logging.ERROR, env=_worker_env())
+    with Client(cluster) as lonely:
+        spec = _tiny_spec(push_direction_deg=[0, 90], push_speed_m_s=[0.2])
+        cluster.scale(0)  # the only worker leaves before the cases start
+        deadline = time.monotonic() + 30
+        while lonely.scheduler_info()["workers"] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        start = time.monotonic()
+        run = run_campaign(spec, tmp_path, client=lonely, runner=_slow_case, progress=False, no_worker_timeout_s=2.0)
+        assert time.monotonic() - start < 25
+    cluster.close()
+    assert run.recorded == 0 and sorted(run.unfinished) == sorted(c.id for c in expand(spec))
+    assert not list(tmp_path.glob("rows/*.parquet"))

@@ -32,6 +32,9 @@ from wbmpc.campaign.table import ResultTable
 from wbmpc.errors import ConfigError
 
 _WORKER_CACHE: dict[tuple, object] = {}  # per worker process: robots and MPCs by structure
+# a campaign with cases left and no worker for this long stops (their cases stay unfinished, for --resume)
+# instead of waiting forever: killed workers whose nanny could not restart them (seen once at load ~20)
+NO_WORKER_TIMEOUT_S = 120.0
 
 
 @dataclass
@@ -160,7 +163,8 @@ def start_client(workers: int | None = None, scheduler: str | None = None):
 
 def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None = None, scheduler: str | None = None,
                  resume: bool = False, overwrite: bool = False, progress: bool = True,
-                 runner: Callable[[Case], dict] = run_case, client=None) -> CampaignRun:
+                 runner: Callable[[Case], dict] = run_case, client=None,
+                 no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S) -> CampaignRun:
     """Run every case of `spec` not yet in `out_dir`'s table; rows are written as cases finish."""
     cases = list({case.id: case for case in expand(spec)}.values())
     out_dir = Path(out_dir)
@@ -186,7 +190,7 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None
         client, cluster = start_client(workers, scheduler)
     try:
         run.workers = len(client.scheduler_info(n_workers=-1)["workers"]) if hasattr(client, "scheduler_info") else 0
-        run = _gather(client, todo, table, run, runner, progress)
+        run = _gather(client, todo, table, run, runner, progress, no_worker_timeout_s)
     finally:
         if own:
             client.close()
@@ -197,7 +201,8 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None
     return run
 
 
-def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runner, progress: bool) -> CampaignRun:
+def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runner, progress: bool,
+            no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S) -> CampaignRun:
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
     from tqdm import tqdm
@@ -207,25 +212,53 @@ def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runn
         future = client.submit(runner, case, key=f"case-{case.id}", pure=False)
         futures[future] = case
     bar = tqdm(total=len(todo), disable=not progress, file=sys.stderr, unit="case", dynamic_ncols=True)
+    pending = as_completed(futures)
+    workerless_since = None
     try:
-        for future in as_completed(futures):
-            case = futures[future]
-            try:
-                row = future.result()
-            except KilledWorker:
-                run.unfinished.append(case.id)  # no row: --resume runs it again
-                bar.update(1)
+        while not pending.is_empty():
+            batch = pending.next_batch(block=False)
+            if not batch:
+                if _worker_count(client) > 0:
+                    workerless_since = None
+                elif workerless_since is None:
+                    workerless_since = time.monotonic()
+                elif time.monotonic() - workerless_since > no_worker_timeout_s:
+                    left = [futures[f] for f in futures if not f.done()]
+                    run.unfinished += [case.id for case in left]  # no row: --resume runs them again
+                    print(f"campaign: no Dask worker for {no_worker_timeout_s:.0f} s; stopping with {len(left)} "
+                          "case(s) unfinished (run again with --resume)", file=sys.stderr)
+                    break
+                time.sleep(0.2)
                 continue
-            except Exception as exc:  # the runner itself raised (run_case never does)
-                row = _base_row(case)
-                row.update(recovered=False, error=f"{type(exc).__name__}: {exc}"[:2000], worker="unknown")
-            table.write(row)
-            run.recorded += 1
-            run.errors += row.get("error") is not None
-            bar.update(1)
-            bar.set_postfix_str(f"{'ok' if row.get('recovered') else 'FELL' if row.get('fell') else 'error'}")
+            for future in batch:
+                _record(future, futures[future], table, run, bar, KilledWorker)
     finally:
         bar.close()
         for future in futures:
             future.release()
     return run
+
+
+def _worker_count(client) -> int:
+    try:
+        return len(client.scheduler_info(n_workers=-1)["workers"])
+    except Exception:  # the scheduler itself is gone: no worker will come back either
+        return 0
+
+
+def _record(future, case: Case, table: ResultTable, run: CampaignRun, bar, killed_worker) -> None:
+    """Write one finished case's row (a case whose workers were killed too often gets none)."""
+    try:
+        row = future.result()
+    except killed_worker:
+        run.unfinished.append(case.id)  # no row: --resume runs it again
+        bar.update(1)
+        return
+    except Exception as exc:  # the runner itself raised (run_case never does)
+        row = _base_row(case)
+        row.update(recovered=False, error=f"{type(exc).__name__}: {exc}"[:2000], worker="unknown")
+    table.write(row)
+    run.recorded += 1
+    run.errors += row.get("error") is not None
+    bar.update(1)
+    bar.set_postfix_str(f"{'ok' if row.get('recovered') else 'FELL' if row.get('fell') else 'error'}")
