@@ -331,7 +331,7 @@ class MPC:
             if not result.stats.success:
                 result = self._recover(result, p, bounds, x0, fallback_tried=True)
         else:
-            result = self.solver.solve(p, *bounds, x0)
+            result = self.solver.solve(p, *bounds, x0, warm_start=self._previous is not None and cfg.warm_start)
             if not result.stats.success:
                 result = self._recover(result, p, bounds, x0)
         solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)

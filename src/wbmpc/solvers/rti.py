@@ -153,7 +153,7 @@ class RtiSolver:
     def _failure(self, x0, status: str) -> NlpResult:
         return failed_result(self.problem, x0, status)
 
-    def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None) -> NlpResult:
+    def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False) -> NlpResult:
         """Linearise at x0, solve the QP, take the full step (repeated `sqp_iterations` times).
 
         `stats.iterations` counts HPIPM's interior-point iterations of all QPs of the call.
