@@ -68,6 +68,9 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
                                    "QP_Maximum_Iterations_Exceeded)")
     assert result.stats.iterations == 2  # one per mode
     assert np.all(np.isnan(result.x)) and result.stats.max_constraint_violation == np.inf
+    # after the first mode failed, the fallback mode goes first for `fallback_first_calls` calls
+    again = solver.solve(p, lbx, ubx, lbg, ubg, x0)
+    assert again.stats.status == "QP_Maximum_Iterations_Exceeded (speed after balance: QP_Maximum_Iterations_Exceeded)"
     bad = solver.solve(p, lbx, ubx, lbg, ubg, np.full_like(x0, np.nan))
     assert not bad.stats.success and bad.stats.status == "invalid_input_nan"
 

@@ -45,6 +45,9 @@ class RtiConfig:
     hessian_regularization: float = 1e-6  # delta of H + delta I: keeps HPIPM's Riccati recursion positive definite
     qp_mode: str = "speed"  # HPIPM mode: speed_abs, speed, balance, robust
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
+    # after a QP the first mode failed, the fallback mode goes first for this many calls: after a push
+    # `speed` fails (minimum step length) on most QPs for a while, each failure a wasted ~20 iterations
+    fallback_first_calls: int = 20
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
     qp_tolerance: float = 1e-6  # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's)
@@ -61,6 +64,8 @@ class RtiConfig:
         for mode in (self.qp_mode, self.fallback_qp_mode):
             if mode is not None and mode not in HPIPM_MODES:
                 raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
+        if self.fallback_first_calls < 0:
+            raise ConfigError(f"fallback_first_calls must be >= 0, got {self.fallback_first_calls}")
         if self.recovery_max_iterations < 1:
             raise ConfigError(f"recovery_max_iterations must be >= 1, got {self.recovery_max_iterations}")
         if not self.hessian_regularization >= 0:
@@ -88,6 +93,7 @@ class RtiSolver:
         self.compile_error: str | None = None
         self.last_timing: dict[str, float] = {}
         self._recovery: NlpSolver | None = None
+        self._fallback_first = 0  # calls left that start with the fallback QP mode
         nlp = problem.nlp
         x, p = nlp["x"], nlp["p"]
         functions = self._compiled_functions() if config.compiled else None
@@ -176,15 +182,21 @@ class RtiSolver:
             H = self._hessian(x, p)
             linearize_s += time.perf_counter() - tic
             qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
-            result = self.qp.solve(*qp_data)
+            qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
+            if self._fallback_first > 0:
+                self._fallback_first -= 1
+                qps.reverse()
+            result = qps[0][0].solve(*qp_data)
             qp_s += result.solve_time_s
             qp_iterations += max(result.iterations, 0)
             if not result.success and self.fallback_qp is not None:
                 first = result.status
-                result = self.fallback_qp.solve(*qp_data)
+                result = qps[1][0].solve(*qp_data)
                 qp_s += result.solve_time_s
                 qp_iterations += max(result.iterations, 0)
-                result.status = f"{result.status} ({self.rti.fallback_qp_mode} after {self.rti.qp_mode}: {first})"
+                result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
+                if qps[0][0] is self.qp:
+                    self._fallback_first = self.rti.fallback_first_calls
             status, success = result.status, result.success
             if not success:
                 break
