@@ -126,7 +126,8 @@ def _status(name: str, stats: dict) -> tuple[str, bool]:
 
 
 def solver_options(problem: OcpProblem, config: SolverConfig) -> dict:
-    common = {"expand": True, "print_time": False, "error_on_fail": False}
+    # calc_lam_p: the parameters' multipliers cost an extra derivative evaluation per solve and nothing reads them
+    common = {"expand": True, "print_time": False, "error_on_fail": False, "calc_lam_p": False}
     if config.name == "fatrop":
         opts = {
             **common,
