@@ -380,7 +380,8 @@ class MPC:
         if self._recovery is None:
             cfg = self.config
             self._recovery = self.solver.recreated(barrier_init=cfg.recovery_barrier_init,
-                                                   max_iterations=cfg.recovery_fatrop_max_iterations)
+                                                   max_iterations=cfg.recovery_fatrop_max_iterations,
+                                                   warm_barrier_init=None)
         return self._recovery
 
     def _recover(self, failed, p, bounds, x0, fallback_tried: bool = False):

@@ -208,7 +208,11 @@ class NlpSolver:
             ca.external("nlp_g", self._source) if isinstance(self._source, str) else
             ca.Function("g", [problem.nlp["x"], problem.nlp["p"]], [problem.nlp["g"]], {"allow_free": False}))
         self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
-        self._warm: NlpSolver | None = None  # the small-barrier attempt (Fatrop), built at its first use
+        # the small-barrier attempt (Fatrop), built now: a build inside a step would count as its solve time
+        self._warm: NlpSolver | None = (
+            self.recreated(barrier_init=config.warm_barrier_init, max_iterations=config.warm_max_iterations,
+                           warm_barrier_init=None)
+            if config.name == "fatrop" and config.warm_barrier_init is not None else None)
         self._warm_pause = 0  # calls left before the next warm attempt
         self._warm_failures = 0  # consecutive failed warm attempts
 
@@ -280,14 +284,11 @@ class NlpSolver:
         """Solve from x0. `warm_start`: x0 is the previous solution shifted (MPC), so the small-barrier
         attempt is tried first (see `SolverConfig.warm_barrier_init`)."""
         cfg = self.config
-        if not (warm_start and cfg.name == "fatrop" and cfg.warm_barrier_init is not None):
+        if not warm_start or self._warm is None:
             return self._solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0)
         if self._warm_pause > 0:
             self._warm_pause -= 1
             return self._solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0)
-        if self._warm is None:
-            self._warm = self.recreated(barrier_init=cfg.warm_barrier_init, max_iterations=cfg.warm_max_iterations,
-                                        warm_barrier_init=None)
         attempt = self._warm.solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0)
         if attempt.stats.success:
             self._warm_failures = 0

@@ -135,7 +135,7 @@ class RtiSolver:
         It keeps one nlpsol per row-count pattern, so its options hold after contact switches."""
         if self._recovery is None:
             config = SolverConfig(name="fatrop", barrier_init=self.rti.recovery_barrier_init,
-                                  max_iterations=self.rti.recovery_max_iterations,
+                                  max_iterations=self.rti.recovery_max_iterations, warm_barrier_init=None,
                                   compiled=self.compile_report is not None, codegen=self.config.codegen)
             self._recovery = NlpSolver(self.problem, config, compile_report=self.compile_report)
         return self._recovery
