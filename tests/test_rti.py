@@ -47,7 +47,8 @@ def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state):
     one = RtiSolver(problem, SolverConfig(name="rti")).solve(*data)
     assert one.stats.success, one.stats.status
     assert np.abs(one.x - reference.x).max() > 1e-2  # a single step from the cold guess is not the optimum
-    iterated = RtiSolver(problem, SolverConfig(name="rti", extra_options={"sqp_iterations": 12, "step_tolerance": 0.0}))
+    iterated = RtiSolver(problem, SolverConfig(name="rti", extra_options={"sqp_iterations": 12, "step_tolerance": 0.0,
+                                                                         "qp_tolerance": 1e-6}))
     result = iterated.solve(*data)
     assert result.stats.success, result.stats.status
     np.testing.assert_allclose(result.x, reference.x, atol=1e-5)
@@ -140,7 +141,7 @@ def test_iterated_rti_converges_on_every_formulation(formulation):
     reference = fatrop.solve(robot.q_nominal, v0, t=0.0)
     assert reference.success, reference.stats.status
     rti = MPC(robot, MpcConfig(ocp=ocp, fallback_solver=None, solver=SolverConfig(
-        name="rti", extra_options={"sqp_iterations": 15, "step_tolerance": 0.0})), problem=fatrop.problem)
+        name="rti", extra_options={"sqp_iterations": 15, "step_tolerance": 0.0, "qp_tolerance": 1e-6})), problem=fatrop.problem)
     solution = rti.solve(robot.q_nominal, v0, t=0.0)
     assert solution.success, solution.stats.status
     np.testing.assert_allclose(solution.x, reference.x, atol=1e-5)

@@ -50,7 +50,10 @@ class RtiConfig:
     fallback_first_calls: int = 20
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
-    qp_tolerance: float = 1e-6  # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's)
+    # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's): one inexact SQP step
+    # per MPC step needs no tighter QP; 1e-4 against 1e-6: same closed loop (trot, arm-track), ~10 % fewer
+    # QP iterations; iterate to Fatrop's KKT point (sqp_iterations > 1) with a tighter one
+    qp_tolerance: float = 1e-4
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
     recovery_barrier_init: float | None = 0.1
