@@ -192,3 +192,24 @@ def test_stability_metrics_compare_the_first_and_last_minute():
     assert m["rss_growth_pct"] == pytest.approx(100 * (256.0 - 250.6) / 250.6)
     short = stability_metrics(log, mpc_t[:800], solve_ms[:800], 10.0)
     assert short["stability_window_s"] == 5.0
+
+
+def test_long_runs_are_plotted_from_every_kth_tick(monkeypatch, tmp_path):
+    """Beyond PLOT_FULL_RATE_TICKS ticks the plots read a decimated copy; the MPC steps stay whole."""
+    from wbmpc.viz import plots
+
+    robot = load_robot("go2")
+    t = np.arange(0.0, 0.3, 0.002)
+    q = np.tile(robot.q_nominal, (t.size, 1))
+    log = RunLog.from_columns(t, q, np.zeros((t.size, robot.nv)), np.zeros((t.size, robot.n_joints)),
+                              contact_forces=np.zeros((t.size, 4, 3)), mpc_t=np.arange(0.0, 0.3, 1 / 80),
+                              planned_contact=np.ones((24, 4)), chunk_rows=16)
+    read = []
+    original = log.arrays
+    monkeypatch.setattr(log, "arrays", lambda keys=None, every=1: read.append((keys, every)) or original(keys, every))
+    monkeypatch.setattr(plots, "PLOT_FULL_RATE_TICKS", 40)
+    plots.save_plots(robot, log, tmp_path)
+    assert [every for keys, every in read if keys is None] == [4]  # ceil(150 / 40); the step lists whole
+    assert all(every == 1 for keys, every in read if keys is not None)
+    data = original(every=4)
+    assert data["t"].size == 38 and data["mpc_t"].size == 24
