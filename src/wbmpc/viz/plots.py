@@ -207,6 +207,9 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
 
 def _command_series(log, n_mpc: int) -> tuple[np.ndarray, np.ndarray] | None:
     """Commanded heading-frame base velocity (m, 3) and yaw rate (m,) per MPC step, if logged."""
+    if hasattr(log, "command_array"):  # a RunLog: the numbers as stored, no `Commands` built per step
+        rows = log.command_array()
+        return (rows[:, 0:3], rows[:, 3]) if n_mpc and len(rows) == n_mpc else None
     commands = list(getattr(log, "commands", []) or [])[:n_mpc]
     if not commands or len(commands) != n_mpc:
         return None
