@@ -134,9 +134,8 @@ def test_settled_drift_leaves_out_the_start_transient():
     t = np.arange(0.0, 6.0, 0.002)
     q = np.tile(robot.q_nominal, (t.size, 1))
     q[:, 0] += np.where(t < 0.5, 0.06 * t, 0.03) + 0.01 * np.maximum(t - 2.0, 0.0)
-    log = RunLog(t=list(t), q=list(q), v=list(np.zeros((t.size, robot.nv))), tau=list(np.zeros((t.size, robot.n_joints))),
-                 tau_ff=list(np.zeros((t.size, robot.n_joints))), mpc_t=[0.0], commands=[Commands()], solve_ms=[1.0],
-                 iterations=[1], success=[True])
+    log = RunLog.from_columns(t, q, np.zeros((t.size, robot.nv)), np.zeros((t.size, robot.n_joints)), mpc_t=[0.0],
+                              commands=[Commands()], solve_ms=[1.0], iterations=[1], success=[True], chunk_rows=700)
     m = common_metrics(robot, log, "synthetic")
     assert m["base_drift_settled_from_s"] == pytest.approx(2.0)
     assert m["base_drift_settled_cm_s"] == pytest.approx(1.0, rel=1e-3)

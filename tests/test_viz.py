@@ -35,7 +35,8 @@ def synthetic_q(robot, t: np.ndarray, speed: float = 0.2) -> np.ndarray:
     return q
 
 
-def synthetic_log(robot, duration_s: float = 0.3, control_hz: float = 500.0, mpc_hz: float = 80.0) -> RunLog:
+def synthetic_log(robot, duration_s: float = 0.3, control_hz: float = 500.0, mpc_hz: float = 80.0, tau_scale: float = 1.0,
+                  status=None, with_steps: bool = True, torque_peaks: dict | None = None) -> RunLog:
     rng = np.random.default_rng(0)
     t = np.arange(0.0, duration_s, 1.0 / control_hz)
     q = synthetic_q(robot, t)
@@ -50,18 +51,17 @@ def synthetic_log(robot, duration_s: float = 0.3, control_hz: float = 500.0, mpc
     mpc_t = np.arange(0.0, duration_s, 1.0 / mpc_hz)
     phase = (mpc_t % 0.8) < 0.4
     planned = np.array([[float(p if i % 3 == 0 else not p) for i in range(n_feet)] for p in phase])
-    log = RunLog()
-    log.t, log.q, log.v = list(t), list(q), list(v)
-    log.tau, log.tau_ff, log.q_des = list(tau), list(0.9 * tau), list(q[:, 7:])
-    log.contact_forces = list(forces)
-    log.mpc_t = list(mpc_t)
-    log.solve_ms = list(rng.uniform(5, 20, mpc_t.size))
-    log.iterations = list(rng.integers(3, 12, mpc_t.size))
-    log.success = [k != 5 for k in range(mpc_t.size)]
-    log.status = ["ok"] * mpc_t.size
-    log.planned_contact = list(planned)
-    log.commands = [Commands(base_velocity_m_s=np.array([0.2, 0.0, 0.0]), base_yaw_rate_rad_s=0.3) for _ in mpc_t]
-    return log
+    solve_ms, iterations = rng.uniform(5, 20, mpc_t.size), rng.integers(3, 12, mpc_t.size)
+    tau = tau_scale * tau
+    for (row, joint), value in (torque_peaks or {}).items():
+        tau[row, joint] = value
+    if not with_steps:
+        mpc_t = mpc_t[:0]
+    return RunLog.from_columns(
+        t, q, v, tau, 0.9 * tau, q[:, 7:], forces, mpc_t=mpc_t, solve_ms=solve_ms, iterations=iterations,
+        success=[k != 5 for k in range(mpc_t.size)], status=status or ["ok"] * mpc_t.size, planned_contact=planned,
+        commands=[Commands(base_velocity_m_s=np.array([0.2, 0.0, 0.0]), base_yaw_rate_rad_s=0.3) for _ in mpc_t],
+        chunk_rows=64)  # several spilled chunks: the plots read them back
 
 
 def bolt():
@@ -146,8 +146,7 @@ def test_save_plots_without_arm_skips_the_end_effector(tmp_path):
 
 def test_save_plots_on_a_biped_without_mpc_steps(tmp_path):
     robot = bolt()
-    log = synthetic_log(robot)
-    log.mpc_t, log.solve_ms, log.iterations, log.success, log.planned_contact, log.commands = [], [], [], [], [], []
+    log = synthetic_log(robot, with_steps=False)
     paths = save_plots(robot, log, tmp_path)
     assert_pngs(paths, ["base_velocity.png", "joint_torques.png", "foot_heights.png", "contact_forces.png"])
 
@@ -159,9 +158,10 @@ def test_save_plots_rejects_a_log_of_another_robot(b1z1, tmp_path):
 
 def marked_log(robot):
     """A synthetic log with a push at 0.1 s, steps 3 and 7 recovered, step 5 failed and a fall at 0.25 s."""
-    log = synthetic_log(robot)
+    n_steps = len(np.arange(0.0, 0.3, 1.0 / 80.0))
+    log = synthetic_log(robot, status=[f"Solve_Succeeded (recovery after fatrop: failed)" if k in (3, 7) else "ok"
+                                       for k in range(n_steps)])
     log.events = [(0.1, "push")]
-    log.status = [f"Solve_Succeeded (recovery after fatrop: failed)" if k in (3, 7) else "ok" for k in range(len(log.mpc_t))]
     log.fell, log.fell_at_s = True, 0.25
     return log
 
@@ -209,13 +209,11 @@ def test_event_marks_are_drawn_at_their_times(b1z1, tmp_path):
 
 
 def test_the_highlighted_panel_shows_the_joints_nearest_their_limits(b1z1, tmp_path):
-    log = synthetic_log(b1z1)
-    tau = 0.3 * np.array(log.tau)
     names = list(b1z1.joint_names)
     front, arm = names.index("FL_hip_joint"), names.index("joint2")
-    tau[40, front] = 0.99 * b1z1.tau_max[front]
-    tau[60, arm] = -0.95 * b1z1.tau_max[arm]
-    log.tau = list(tau)
+    log = synthetic_log(b1z1, tau_scale=0.3, torque_peaks={(40, front): 0.99 * b1z1.tau_max[front],
+                                                            (60, arm): -0.95 * b1z1.tau_max[arm]})
+    tau = log.tau
     assert most_loaded_joints(b1z1, tau)[:2] == [front, arm]
     fig = joint_torques_figure(b1z1, log.arrays())
     highlighted = [ax for ax in fig.axes if ax.get_title().startswith("MOST LOADED")]

@@ -40,6 +40,7 @@ FIELD_FLAGS = {
     "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
+LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
 
 def _add_robot_options(parser: argparse.ArgumentParser) -> None:
@@ -328,6 +329,12 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
     if m.get("ee_yield_m") is not None:
         lines.append(f"  end-effector yielded {', '.join(f'{100 * y:.1f}' for y in m['ee_yield_m'])} cm to the hand; "
                      f"max base tilt {m['base_tilt_max_deg']:.1f} deg")
+    if m.get("rss_mb_end") is not None and m["duration_s"] >= LONG_RUN_S:
+        window = f"{m['stability_window_s']:g} s"
+        lines.append(f"  memory (RSS) {m['rss_mb_start']:.0f} MB at the start, {m['rss_mb_after_window']:.0f} MB after "
+                     f"{window}, {m['rss_mb_end']:.0f} MB at the end ({m['rss_growth_pct']:+.1f} %); solve "
+                     f"{_fmt(m.get('solve_ms_first_window_mean'))} ms mean over the first {window}, "
+                     f"{_fmt(m.get('solve_ms_last_window_mean'))} ms over the last")
     if paths:
         lines.append(f"  wrote {len(paths)} files to {out_dir}/ (metrics.json, plots, replay.html)")
     if failure:

@@ -18,10 +18,12 @@ from typing import Callable, Protocol
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
+from wbmpc.resident_memory import rss_mb
 
 DELAY_MODES = ("none", "measured", "measured-wall", "realtime")
 RECOVERY_MARK = "(recovery after"  # in the status of a step that needed a recovery re-solve
@@ -82,46 +84,198 @@ class Event:
     name: str = "event"
 
 
-@dataclass
+COMMAND_WIDTH = 12  # a `Commands` as numbers: base velocity (3), yaw rate, ee velocity (3, NaN: none), ee force (3), height
+TICK_KEYS = ("t", "q", "v", "tau", "tau_ff", "q_des", "contact_forces")
+STEP_KEYS = ("mpc_t", "solve_ms", "iterations", "success", "planned_contact")
+RSS_SAMPLE_PERIOD_S = 10.0  # simulated seconds between resident-memory samples
+
+
+def command_row(command: Commands) -> np.ndarray:
+    """`Commands` as COMMAND_WIDTH numbers (None as NaN), the inverse of `command_from_row`."""
+    ee_velocity = np.full(3, np.nan) if command.ee_velocity_m_s is None else command.ee_velocity_m_s
+    height = np.nan if command.base_height_m is None else command.base_height_m
+    return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height]
+
+
+def command_from_row(row: np.ndarray) -> Commands:
+    ee_velocity = None if np.isnan(row[4:7]).all() else row[4:7].copy()
+    return Commands(base_velocity_m_s=row[0:3].copy(), base_yaw_rate_rad_s=float(row[3]), ee_velocity_m_s=ee_velocity,
+                    ee_force_n=row[7:10].copy(), base_height_m=None if np.isnan(row[10]) else float(row[10]))
+
+
 class RunLog:
-    """What happened: per control tick (500 Hz) and per MPC step (80 Hz)."""
+    """What happened: per control tick (500 Hz) and per MPC step (80 Hz), in bounded memory.
 
-    t: list = field(default_factory=list)
-    q: list = field(default_factory=list)
-    v: list = field(default_factory=list)
-    tau: list = field(default_factory=list)
-    tau_ff: list = field(default_factory=list)
-    q_des: list = field(default_factory=list)
-    contact_forces: list = field(default_factory=list)
-    mpc_t: list = field(default_factory=list)
-    solve_ms: list = field(default_factory=list)
-    iterations: list = field(default_factory=list)
-    success: list = field(default_factory=list)
-    status: list = field(default_factory=list)
-    delay_ms: list = field(default_factory=list)
-    commands: list = field(default_factory=list)
-    planned_contact: list = field(default_factory=list)
-    events: list = field(default_factory=list)  # (time_s, name) of each event applied to the plant
-    late_solutions: int = 0
-    sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
-    mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
-    realtime_priority: str | None = None  # real time: scheduling priority the processes got (see `raise_priority`)
-    recovered_solutions: int = 0  # counted as logged: progress reads it every control tick
-    interrupted: bool = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
-    fell: bool = False
-    fell_at_s: float | None = None
-    wall_time_s: float = 0.0
+    Ticks and steps go into `ChunkedTable`s (one preallocated chunk each, full chunks spilled to
+    `.npy` files in `spill_dir`, a temporary directory by default), so a run of any length holds a
+    few MB. Read whole columns with `arrays(keys)` (`every=k`: every k-th tick, for plots and
+    replays), stream them with `tick_chunks(keys)`; the attributes `t`, `q`, ... `mpc_t`,
+    `status`, `commands` read whole columns back too. Counters (failures, recoveries) are kept as
+    the steps are logged. `rss_samples` holds (simulated s since the start, resident MB) every
+    RSS_SAMPLE_PERIOD_S of a run.
+    """
 
-    def arrays(self) -> dict[str, np.ndarray]:
+    def __init__(self, spill_dir=None, chunk_rows: int = DEFAULT_CHUNK_ROWS):
+        self.spill_dir = spill_dir
+        self.chunk_rows = chunk_rows
+        self._ticks: ChunkedTable | None = None  # built at the first row, when the sizes are known
+        self._steps: ChunkedTable | None = None
+        self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays")
+        self._status_names: list[str] = []  # distinct solver statuses; steps store an index into it
+        self._status_codes: dict[str, int] = {}
+        self.events: list = []  # (time_s, name) of each event applied to the plant
+        self.rss_samples: list[tuple[float, float]] = []
+        self.late_solutions = 0
+        self.sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
+        self.mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
+        self.realtime_priority: str | None = None  # real time: scheduling priority granted (see `raise_priority`)
+        self.recovered_solutions = 0  # counted as logged: progress reads it every control tick
+        self.failed_solutions = 0
+        self.interrupted = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
+        self.fell = False
+        self.fell_at_s: float | None = None
+        self.wall_time_s = 0.0
+
+    # ------------------------------------------------------------------ writing
+    def record_tick(self, t: float, q, v, tau, tau_ff, q_des, contact_forces) -> None:
+        row = {"t": t, "q": q, "v": v, "tau": tau, "tau_ff": tau_ff, "q_des": q_des, "contact_forces": contact_forces}
+        if self._ticks is None:
+            self._ticks = self._table(row, "ticks")
+        self._ticks.append(row)
+
+    def record_step(self, t: float, solve_ms: float, iterations: int, success: bool, status, command: Commands,
+                    planned_contact) -> None:
+        status = str(status)
+        code = self._status_codes.get(status)
+        if code is None:
+            code = self._status_codes[status] = len(self._status_names)
+            self._status_names.append(status)
+        row = {"mpc_t": t, "solve_ms": solve_ms, "iterations": iterations, "success": bool(success),
+               "planned_contact": planned_contact, "status_code": code, "command": command_row(command)}
+        if self._steps is None:
+            self._steps = self._table(row, "steps")
+        self._steps.append(row)
+        if not success:
+            self.failed_solutions += 1
+        elif RECOVERY_MARK in status:
+            self.recovered_solutions += 1
+
+    @classmethod
+    def from_columns(cls, t, q, v, tau, tau_ff=None, q_des=None, contact_forces=None, *, mpc_t=(), solve_ms=None,
+                     iterations=None, success=None, status=None, commands=None, planned_contact=None,
+                     chunk_rows: int = DEFAULT_CHUNK_ROWS) -> "RunLog":
+        """A log of whole columns (synthetic runs in tests and tools). Missing tick columns are zeros
+        (one foot for the contact forces); missing step columns 0 ms, 0 iterations, success, "ok",
+        zero `Commands` and no planned contact."""
+        log = cls(chunk_rows=chunk_rows)
+        n, n_joints = len(t), np.shape(tau)[1]
+        tau_ff = np.zeros((n, n_joints)) if tau_ff is None else tau_ff
+        q_des = np.zeros((n, n_joints)) if q_des is None else q_des
+        contact_forces = np.zeros((n, 1, 3)) if contact_forces is None else contact_forces
+        for k in range(n):
+            log.record_tick(t[k], q[k], v[k], tau[k], tau_ff[k], q_des[k], contact_forces[k])
+        m = len(mpc_t)
+        for k in range(m):
+            log.record_step(mpc_t[k], 0.0 if solve_ms is None else solve_ms[k], 0 if iterations is None else iterations[k],
+                            True if success is None else success[k], "ok" if status is None else status[k],
+                            Commands() if commands is None else commands[k],
+                            np.zeros(1) if planned_contact is None else planned_contact[k])
+        return log
+
+    def record_delay(self, delay_ms: float) -> None:
+        """The delay of a solution that was applied (failed ones are not)."""
+        self._delays.append({"delay_ms": delay_ms})
+
+    def _table(self, row: dict, name: str) -> ChunkedTable:
+        """A table whose columns have the shapes of `row`'s values: floats, integers or booleans."""
+        kinds = {"f": np.float64, "i": np.int64, "u": np.int64, "b": np.bool_}
+        columns = {}
+        for key, value in row.items():
+            array = np.asarray(value)
+            if array.dtype.kind not in kinds:
+                raise ConfigError(f"run log column '{key}' needs numbers, got {type(value).__name__} {value!r}")
+            columns[key] = (array.shape, kinds[array.dtype.kind])
+        return ChunkedTable(columns, self.chunk_rows, self.spill_dir, name)
+
+    def close(self) -> None:
+        """Delete the spilled chunks now (otherwise when the log is garbage collected)."""
+        for table in (self._ticks, self._steps, self._delays):
+            if table is not None:
+                table.close()
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def n_ticks(self) -> int:
+        return len(self._ticks) if self._ticks is not None else 0
+
+    @property
+    def n_steps(self) -> int:
+        return len(self._steps) if self._steps is not None else 0
+
+    def last_tick(self, key: str) -> np.ndarray:
+        return self._ticks.last(key)
+
+    def first_tick(self, key: str) -> np.ndarray:
+        return self._ticks.first(key)
+
+    def arrays(self, keys: tuple[str, ...] | None = None, every: int = 1) -> dict[str, np.ndarray]:
+        """Whole columns {name: array with one row per tick or step}; `every=k` keeps every k-th control
+        tick (from the first) and leaves the MPC-step columns whole. Default: all of TICK_KEYS,
+        STEP_KEYS and `delay_ms`."""
+        keys = TICK_KEYS + STEP_KEYS + ("delay_ms",) if keys is None else tuple(keys)
         out = {}
-        for name in ("t", "q", "v", "tau", "tau_ff", "q_des", "contact_forces", "mpc_t", "solve_ms",
-                     "iterations", "success", "delay_ms", "planned_contact"):
-            out[name] = np.array(getattr(self, name))
+        for key in keys:
+            if key in TICK_KEYS:
+                out[key] = self._ticks.column(key, every) if self._ticks is not None else np.zeros(0)
+            elif key in STEP_KEYS:
+                out[key] = self._steps.column(key) if self._steps is not None else np.zeros(0)
+            elif key == "delay_ms":
+                out[key] = self._delays.column(key)
+            else:
+                raise ConfigError(f"the run log has no column '{key}'; it has {', '.join(TICK_KEYS + STEP_KEYS)}, delay_ms")
         return out
+
+    def tick_chunks(self, keys: tuple[str, ...] = TICK_KEYS):
+        """The control ticks in order, a chunk at a time ({key: rows}): whole-run statistics in bounded memory."""
+        if self._ticks is not None:
+            yield from self._ticks.iter_chunks(keys)
+
+    def _step_list(self, key: str) -> list:
+        return self.arrays((key,))[key].tolist()
+
+    t = property(lambda self: self.arrays(("t",))["t"], doc="control tick times (s), whole column")
+    q = property(lambda self: self.arrays(("q",))["q"])
+    v = property(lambda self: self.arrays(("v",))["v"])
+    tau = property(lambda self: self.arrays(("tau",))["tau"])
+    tau_ff = property(lambda self: self.arrays(("tau_ff",))["tau_ff"])
+    q_des = property(lambda self: self.arrays(("q_des",))["q_des"])
+    contact_forces = property(lambda self: self.arrays(("contact_forces",))["contact_forces"])
+    mpc_t = property(lambda self: self._step_list("mpc_t"), doc="MPC step times (s), a list")
+    solve_ms = property(lambda self: self._step_list("solve_ms"))
+    iterations = property(lambda self: self._step_list("iterations"))
+    success = property(lambda self: self._step_list("success"))
+    delay_ms = property(lambda self: self._delays.column("delay_ms").tolist())
+    planned_contact = property(lambda self: list(self.arrays(("planned_contact",))["planned_contact"]))
+
+    @property
+    def status(self) -> list[str]:
+        if self._steps is None:
+            return []
+        return [self._status_names[code] for code in self._steps.column("status_code")]
+
+    @property
+    def commands(self) -> list[Commands]:
+        if self._steps is None:
+            return []
+        return [command_from_row(row) for row in self._steps.column("command")]
+
+    def command_array(self) -> np.ndarray:
+        """(steps, COMMAND_WIDTH) commands as numbers (see `command_row`), without building `Commands`."""
+        return self._steps.column("command") if self._steps is not None else np.zeros((0, COMMAND_WIDTH))
 
     @property
     def mpc_failures(self) -> int:
-        return int(len(self.success) - np.sum(self.success))
+        return self.failed_solutions
 
     @property
     def mpc_recoveries(self) -> int:
@@ -132,9 +286,13 @@ class RunLog:
 class ClosedLoop:
     """Runs an `MPC` against a plant (`wbmpc.sim`) with the paper's interpolation, PD and delays."""
 
-    def __init__(self, mpc: MPC, plant, config: LoopConfig = LoopConfig(), state_source=None):
-        """`state_source.measure() -> (q, v)` replaces the plant's true state (e.g. a state estimator)."""
+    def __init__(self, mpc: MPC, plant, config: LoopConfig = LoopConfig(), state_source=None,
+                 log_dir=None, log_chunk_rows: int = DEFAULT_CHUNK_ROWS):
+        """`state_source.measure() -> (q, v)` replaces the plant's true state (e.g. a state estimator);
+        `log_dir` is where the `RunLog` spills full chunks of `log_chunk_rows` rows (a temporary directory if None)."""
         self.mpc = mpc
+        self.log_dir = log_dir
+        self.log_chunk_rows = log_chunk_rows
         self.state_source = state_source
         self.robot = mpc.robot
         self.plant = plant
@@ -198,38 +356,32 @@ class ClosedLoop:
 
     @staticmethod
     def _log_solution(log: RunLog, t: float, command: Commands, solution: Solution) -> None:
-        log.mpc_t.append(t)
-        log.solve_ms.append(solution.stats.solve_time_s * 1e3 if solution.stats.solve_time_s else solution.wall_time_s * 1e3)
-        log.iterations.append(solution.stats.iterations)
-        log.success.append(solution.success)
-        log.status.append(solution.stats.status)
-        if solution.success and RECOVERY_MARK in str(solution.stats.status):
-            log.recovered_solutions += 1
-        log.commands.append(command)
-        log.planned_contact.append(solution.contact[0].copy())
+        solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
+        log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
+                        solution.contact[0])
 
-    def _control_tick(self, log: RunLog, active: Solution, t: float) -> np.ndarray:
+    def _new_log(self) -> RunLog:
+        return RunLog(self.log_dir, self.log_chunk_rows)
+
+    def _control_tick(self, log: RunLog, active: Solution, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The torques of this tick and the plant's true configuration (logged)."""
         q, v = self._measure()
         reference = interpolate(active, t)
         q_j = self.robot.joint_positions(q, near=reference.q_des)
         tau = pd_torque(reference, q_j, v[6:], self.kp, self.kd, self.robot.tau_max)
         q_true, v_true = self.plant.state()
-        log.t.append(t)
-        log.q.append(q_true)
-        log.v.append(v_true)
-        log.tau.append(tau)
-        log.tau_ff.append(reference.tau_ff)
-        log.q_des.append(reference.q_des)
-        log.contact_forces.append(self.plant.contact_forces())
-        return tau
+        log.record_tick(t, q_true, v_true, tau, reference.tau_ff, reference.q_des, self.plant.contact_forces())
+        return tau, q_true
 
     def _low_level(self, log, active, t, next_control, tau, t0, duration_s, progress, stop=None):
         """The 500 Hz loop (eqs. 9-10) when due: returns (torques to hold, next tick, end the run)."""
         if t < next_control - 1e-9:
             return tau, next_control, False
-        tau = self._control_tick(log, active, t)
+        tau, q_true = self._control_tick(log, active, t)
         next_control += 1.0 / self.config.control_rate_hz
-        if self._fallen(log.q[-1]):
+        if t - t0 >= len(log.rss_samples) * RSS_SAMPLE_PERIOD_S - 1e-9:
+            log.rss_samples.append((t - t0, rss_mb()))
+        if self._fallen(q_true):
             log.fell, log.fell_at_s = True, t - t0
             return tau, next_control, True
         if progress:
@@ -248,7 +400,7 @@ class ClosedLoop:
 
     def _run_simulated_time(self, duration_s, commands, events, progress, stop=None) -> RunLog:
         cfg, plant = self.config, self.plant
-        log = RunLog()
+        log = self._new_log()
         wall_start = time.perf_counter()
         mpc_period = 1.0 / cfg.mpc_rate_hz
         t0 = plant.time_s
@@ -273,7 +425,7 @@ class ClosedLoop:
                 while next_mpc <= t + 1e-9:
                     next_mpc += mpc_period
                 if solution.success or getattr(solution, "held_previous", False):  # failed: the last plan, shifted
-                    log.delay_ms.append(delay * 1e3)
+                    log.record_delay(delay * 1e3)
                     pending.append((t + delay, solution))
             while pending and pending[0][0] <= t + 1e-9:
                 active = pending.pop(0)[1]
@@ -282,6 +434,7 @@ class ClosedLoop:
                 break
             plant.step(tau)
         log.wall_time_s = time.perf_counter() - wall_start
+        log.rss_samples.append((plant.time_s - t0, rss_mb()))
         return log
 
     def _run_realtime(self, duration_s, commands, events, progress, stop=None) -> RunLog:
@@ -294,7 +447,7 @@ class ClosedLoop:
         import multiprocessing
 
         cfg, plant = self.config, self.plant
-        log = RunLog()
+        log = self._new_log()
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
         cpus = _cpu_split()
@@ -347,7 +500,7 @@ class ClosedLoop:
                     elapsed = max(time.perf_counter() - wall_start, 1e-9)
                     log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / elapsed
                     self._log_solution(log, request[0], request[1], solution)
-                    log.delay_ms.append(solution.wall_time_s * 1e3)
+                    log.record_delay(solution.wall_time_s * 1e3)
                     if solution.wall_time_s > mpc_period:
                         log.late_solutions += 1
                     if solution.success or getattr(solution, "held_previous", False):
@@ -365,6 +518,7 @@ class ClosedLoop:
                     break
                 plant.step(tau)
             log.wall_time_s = time.perf_counter() - wall_start
+            log.rss_samples.append((plant.time_s - t0, rss_mb()))
             log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
         finally:
             if cpus[0]:

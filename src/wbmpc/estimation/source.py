@@ -7,27 +7,38 @@ truth for the metrics and the plot.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
+from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.estimation.estimator import EstimatorConfig, StateEstimator
 from wbmpc.estimation.sensors import SensorConfig, Sensors
 from wbmpc.gait import Gait
 
 
-@dataclass
 class EstimationLog:
-    """Estimate and truth (pinocchio layout) at every estimator update."""
+    """Estimate and truth (pinocchio layout) at every estimator update, in bounded memory: rows go to
+    a `ChunkedTable` (full chunks spilled to disk) and `arrays()` reads the whole run back."""
 
-    t: list = field(default_factory=list)
-    q_est: list = field(default_factory=list)
-    v_est: list = field(default_factory=list)
-    q_true: list = field(default_factory=list)
-    v_true: list = field(default_factory=list)
+    KEYS = ("t", "q_est", "v_est", "q_true", "v_true")
 
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {name: np.array(getattr(self, name)) for name in ("t", "q_est", "v_est", "q_true", "v_true")}
+    def __init__(self, spill_dir=None, chunk_rows: int = DEFAULT_CHUNK_ROWS):
+        self.spill_dir, self.chunk_rows = spill_dir, chunk_rows
+        self._table: ChunkedTable | None = None
+
+    def record(self, t: float, q_est, v_est, q_true, v_true) -> None:
+        row = {"t": t, "q_est": q_est, "v_est": v_est, "q_true": q_true, "v_true": v_true}
+        if self._table is None:
+            self._table = ChunkedTable({key: (np.shape(value), float) for key, value in row.items()}, self.chunk_rows,
+                                       self.spill_dir, "estimation")
+        self._table.append(row)
+
+    def __len__(self) -> int:
+        return len(self._table) if self._table is not None else 0
+
+    def arrays(self, every: int = 1) -> dict[str, np.ndarray]:
+        if self._table is None:
+            return {name: np.zeros(0) for name in self.KEYS}
+        return {name: self._table.column(name, every) for name in self.KEYS}
 
 
 class EstimatedState:
@@ -48,10 +59,5 @@ class EstimatedState:
             self._time_s = t
             q, v = self.estimator.update(self.sensors.read(), self._start_xy)
             q_true, v_true = self.plant.state()
-            log = self.log
-            log.t.append(t)
-            log.q_est.append(q)
-            log.v_est.append(v)
-            log.q_true.append(q_true)
-            log.v_true.append(v_true)
+            self.log.record(t, q, v, q_true, v_true)
         return self.estimator.q.copy(), self.estimator.v.copy()

@@ -56,7 +56,7 @@ class Push(Scenario):
         return [Event(self.options.push_time_s, kick, name="push")]
 
     def extra_metrics(self, robot, log):
-        a = log.arrays()
+        a = log.arrays(("t", "tau"))
         after = a["t"] >= self.options.push_time_s
         return {
             "push_speed_m_s": self.options.push_speed_m_s,
@@ -103,7 +103,7 @@ class ArmTrack(Scenario):
         return command
 
     def extra_metrics(self, robot, log):
-        a = log.arrays()
+        a = log.arrays(("t", "q"))
         ee = robot.frame_trajectories(a["q"], [robot.arm_ee])[robot.arm_ee]
         error, _ = self.ee_tracking_error(robot, a["t"], ee)
         distance = np.linalg.norm(error, axis=1)

@@ -205,13 +205,13 @@ def low_pass(t: np.ndarray, values: np.ndarray, bandwidth_hz: float) -> np.ndarr
 
 
 def _commanded_forces(log: RunLog, at: np.ndarray) -> np.ndarray:
-    forces = np.array([np.asarray(c.ee_force_n, dtype=float) for c in log.commands])
+    forces = log.command_array()[:, 7:10]  # ee_force_n (see wbmpc.control.loop.command_row)
     return _hold(np.array(log.mpc_t), forces, at)
 
 
 def _arm_metrics(robot: RobotModel, log: RunLog) -> dict:
     """Torque ratio of each arm joint (joint3 is what limited the paper's pull on hardware)."""
-    tau = np.abs(np.array(log.tau)) / robot.tau_max
+    tau = np.abs(log.arrays(("tau",))["tau"]) / robot.tau_max
     return {f"torque_ratio_{name}": float(tau[:, k].max())
             for k, name in enumerate(robot.joint_names) if not robot.leg_joint_mask[k]}
 
@@ -253,7 +253,7 @@ class _ForceTask(Scenario):
 
     def extra_metrics(self, robot, log):
         s = self.force_series(log)
-        t_end = log.t[-1] if log.t else 0.0
+        t_end = float(log.last_tick("t")) if log.n_ticks else 0.0
         window = (s["t"] >= self.force_window_start_s) & (s["t"] <= t_end + 1e-9)
         out = force_tracking(s["t"], s["measured_vec_n"], s["direction"], s["target_n"], window)
         raw = force_tracking(s["t"], s["raw_vec_n"], s["direction"], s["target_n"], window)
@@ -548,7 +548,7 @@ class Wipe(_ForceTask):
 
     def extra_metrics(self, robot, log):
         out = super().extra_metrics(robot, log)
-        a = log.arrays()
+        a = log.arrays(("t", "q"))
         t = a["t"]
         ee = robot.frame_trajectories(a["q"], [robot.arm_ee])[robot.arm_ee]
         reference = np.array([self.path(robot, ti)[0] for ti in t])
@@ -623,7 +623,7 @@ class Compliant(Scenario):
         return command
 
     def extra_metrics(self, robot, log):
-        a = log.arrays()
+        a = log.arrays(("t", "q"))
         t, q = a["t"], a["q"]
         ee = robot.frame_trajectories(q, [robot.arm_ee])[robot.arm_ee]
         yields, peak_forces = [], []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -31,6 +32,8 @@ from wbmpc.strict_json import to_json
 DELAYED_RECOVERY_LIMIT_S = 0.05  # four MPC periods at 80 Hz
 RECOVERY_ITERATIONS_DELAYED = 10  # the RTI's Fatrop re-solve of a failed QP, when the plant does not wait (~50 ms)
 MAX_DURATION_S = 3600.0  # one simulated hour; longer runs are split by the caller
+REPLAY_FULL_RATE_TICKS = 30_000  # up to 60 s at 500 Hz the replay gets every control tick
+REPLAY_MAX_EVERY = 10  # beyond, every k-th tick, k <= 10 (>= 50 Hz at 500 Hz)
 
 
 @dataclass
@@ -136,6 +139,9 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         if config.plant != "mujoco":
             raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
         plant_config = config.model_errors.plant_config(robot, plant_config)
+    # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
+    # here and would grow by ~0.3 MB per simulated second
+    plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
@@ -147,7 +153,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
     log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
-    if not log.t:  # interrupted before the first control tick: nothing was measured
+    if not log.n_ticks:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
@@ -202,11 +208,14 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         paths += save_plots(robot, result.log, folder, ee_reference=reference,
                             ee_error=lambda t, ee: scenario.ee_tracking_error(robot, t, ee),
                             ee_error_label=scenario.ee_error_label)
-        arrays = result.log.arrays()
+        # the replay shows 30 frames per second: 50 Hz of the log is plenty for long runs
+        every = max(1, round(result.log.n_ticks / REPLAY_FULL_RATE_TICKS)) if result.log.n_ticks > REPLAY_FULL_RATE_TICKS else 1
+        arrays = result.log.arrays(("t", "q"), every=min(every, REPLAY_MAX_EVERY))
         paths += scenario.extra_plots(robot, result.log, folder)
         objects = result.scene.replay_objects() if result.scene is not None else None
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
+        del arrays
         if getattr(result, "estimation", None) is not None:
             from wbmpc.viz.estimation import save_estimation_plot
 

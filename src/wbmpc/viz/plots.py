@@ -35,6 +35,7 @@ from wbmpc.errors import ConfigError
 
 DPI = 110
 MPC_BUDGET_MS = 1e3 / 80.0  # the paper's MPC rate (section V-B)
+PLOT_FULL_RATE_TICKS = 30_000  # up to 60 s at 500 Hz the plots get every control tick
 COMMAND_STYLE = dict(color="black", linestyle="--", linewidth=1.4)
 STANCE_COLOR = "#9ecae1"
 HIGHLIGHT_COLOR = "#c0392b"
@@ -60,8 +61,11 @@ class RunMarks:
         success = np.asarray(getattr(log, "success", []), dtype=bool)
         status = list(getattr(log, "status", []) or [])
         recovered = np.array([RECOVERY_MARK in str(s) for s in status], dtype=bool)
-        t = getattr(log, "t", [])
-        t0 = float(t[0]) if len(t) else 0.0
+        if hasattr(log, "first_tick"):
+            t0 = float(log.first_tick("t")) if log.n_ticks else 0.0
+        else:
+            t = getattr(log, "t", [])
+            t0 = float(t[0]) if len(t) else 0.0
         fell = getattr(log, "fell_at_s", None)
         return cls(
             events=tuple((float(te), str(name)) for te, name in getattr(log, "events", []) or []),
@@ -203,6 +207,9 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
 
 def _command_series(log, n_mpc: int) -> tuple[np.ndarray, np.ndarray] | None:
     """Commanded heading-frame base velocity (m, 3) and yaw rate (m,) per MPC step, if logged."""
+    if hasattr(log, "command_array"):  # a RunLog: the numbers as stored, no `Commands` built per step
+        rows = log.command_array()
+        return (rows[:, 0:3], rows[:, 3]) if n_mpc and len(rows) == n_mpc else None
     commands = list(getattr(log, "commands", []) or [])[:n_mpc]
     if not commands or len(commands) != n_mpc:
         return None
@@ -549,7 +556,10 @@ def save_plots(robot, log, out_dir, ee_reference: Callable[[float], np.ndarray] 
     an arm, the solver plot for logs without MPC steps. The run's events (`RunMarks.from_log`)
     are marked on every plot.
     """
-    data = log.arrays()
+    # a long run is plotted from every k-th control tick (k = ceil(ticks / PLOT_FULL_RATE_TICKS)): a PNG
+    # shows no more, and the whole 500 Hz run would not fit in memory for long; the MPC steps stay whole
+    every = max(1, -(-log.n_ticks // PLOT_FULL_RATE_TICKS)) if hasattr(log, "n_ticks") else 1
+    data = log.arrays(every=every) if every > 1 else log.arrays()
     t = data["t"]
     if t.size < 2:
         raise ConfigError(f"the run log has {t.size} control ticks; plots need at least 2")
