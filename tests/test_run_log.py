@@ -213,3 +213,20 @@ def test_long_runs_are_plotted_from_every_kth_tick(monkeypatch, tmp_path):
     assert all(every == 1 for keys, every in read if keys is not None)
     data = original(every=4)
     assert data["t"].size == 38 and data["mpc_t"].size == 24
+
+
+def test_a_long_run_solver_plot_draws_a_stair_line_not_a_bar_per_step(monkeypatch):
+    from wbmpc.viz import plots
+
+    mpc_t = np.arange(0.0, 0.3, 1 / 80)
+    success = np.arange(mpc_t.size) != 5
+    data = {"mpc_t": mpc_t, "solve_ms": np.full(mpc_t.size, 5.0), "iterations": np.arange(mpc_t.size) % 4 + 1,
+            "success": success}
+    robot = load_robot("go2")
+    assert len(plots.solver_figure(robot, data).axes[1].patches) == mpc_t.size  # short: a bar per step
+    monkeypatch.setattr(plots, "MAX_ITERATION_BARS", 10)
+    ax = plots.solver_figure(robot, data).axes[1]
+    assert not ax.patches
+    stairs, failed = ax.get_lines()
+    assert stairs.get_drawstyle() == "steps-post" and stairs.get_xdata().size == mpc_t.size
+    np.testing.assert_array_equal(failed.get_xdata(), mpc_t[[5]])

@@ -209,13 +209,12 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
                             ee_error=lambda t, ee: scenario.ee_tracking_error(robot, t, ee),
                             ee_error_label=scenario.ee_error_label)
         # the replay shows 30 frames per second: 50 Hz of the log is plenty for long runs
-        every = max(1, round(result.log.n_ticks / REPLAY_FULL_RATE_TICKS)) if result.log.n_ticks > REPLAY_FULL_RATE_TICKS else 1
-        arrays = result.log.arrays(("t", "q"), every=min(every, REPLAY_MAX_EVERY))
+        every = min(REPLAY_MAX_EVERY, max(1, round(result.log.n_ticks / REPLAY_FULL_RATE_TICKS)))
+        arrays = result.log.arrays(("t", "q"), every=every)
         paths += scenario.extra_plots(robot, result.log, folder)
         objects = result.scene.replay_objects() if result.scene is not None else None
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
-        del arrays
         if getattr(result, "estimation", None) is not None:
             from wbmpc.viz.estimation import save_estimation_plot
 
