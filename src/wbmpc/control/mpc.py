@@ -342,8 +342,8 @@ class MPC:
             soft=soft,
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
-        if not soft and "slack" in problem.idx:
-            x0[problem.idx["slack"]] = 0.0  # pinned: the hard OCP
+        if not soft:
+            x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
         # a hard step that fails is re-solved with the slacks free first (the OCP may be infeasible)
         soft_bounds = None if soft or not problem.n_slack_variables else problem.bounds(replace(stage_bounds, soft=True))

@@ -43,8 +43,11 @@ INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
-ROW_TAGS = ("gap", "x0", "dynamics", "torque", "foot_vel", "ee_vel", "cone")
-SOFTENABLE_ROWS = ("ee_vel", "foot_vel")  # state-only rows of nodes 1..N that may get L1 slacks
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "ee_vel", "cone")
+# rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
+# in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
+SOFTENABLE_ROWS = ("ee_vel", "foot_vel", "torque_limit")
+SLACK_PARTS = {"ee_vel": "slack", "foot_vel": "slack", "torque_limit": "slack_tau"}  # input part of each tag's slacks
 
 
 @dataclass(frozen=True)
@@ -183,21 +186,28 @@ class OcpProblem:
         self.idx = {name: np.array(rows) for name, rows in index.items()}
         self.x_scale = np.concatenate(x_scale)
 
-    def n_soft_rows(self, k: int) -> int:
-        """Rows of node k that carry slacks: the soft tags' rows on nodes 1..N-1."""
-        if not 0 < k < self.N:
-            return 0
-        sizes = {"ee_vel": 3 if self.has_arm else 0, "foot_vel": 3 * self.n_feet}
-        return sum(sizes[tag] for tag in self.config.soft_rows)
+    def _has_torque_limit_rows(self, k: int) -> bool:
+        return ("torque_limit" in self.config.soft_rows and k < min(self.config.n_torque_nodes, self.N)
+                and any(name == "tau" for name, _ in self.formulation.input_parts(k)))
 
     def _slack_parts(self, k: int) -> list[tuple[str, int]]:
-        n = self.n_soft_rows(k)
-        return [("slack", 2 * n)] if n else []
+        """Slack inputs of node k: `slack` for the soft velocity rows (nodes 1..N-1), `slack_tau` for the
+        torque limit rows (k < 3), each s+ then s-."""
+        velocity = {"ee_vel": 3 if self.has_arm else 0, "foot_vel": 3 * self.n_feet}
+        n_velocity = sum(velocity.get(tag, 0) for tag in self.config.soft_rows) if 0 < k < self.N else 0
+        n_torque = self.nj if self._has_torque_limit_rows(k) else 0
+        return [(name, 2 * n) for name, n in (("slack_tau", n_torque), ("slack", n_velocity)) if n]
+
+    @property
+    def slack_index(self) -> np.ndarray:
+        """Positions of every slack variable in x."""
+        parts = [self.idx[name].ravel() for name in ("slack_tau", "slack") if name in self.idx]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=int)
 
     @property
     def n_slack_variables(self) -> int:
         """Slack inputs of the soft rows (the paper's OCP has n_variables - n_slack_variables)."""
-        return int(self.idx["slack"].size) if "slack" in self.idx else 0
+        return int(self.slack_index.size)
 
     def _stage_kind(self, k: int) -> tuple[bool, bool, bool]:
         """(has input, has torque rows/variables, is the measured node) — nodes of one kind share a Function."""
@@ -248,16 +258,21 @@ class OcpProblem:
                 estimate = form.torque_estimate(node)
                 if estimate is not None:
                     rows.append(("torque", estimate / self.robot.tau_max))
+        if self._has_torque_limit_rows(k):
+            rows.append(("torque_limit", node["tau"] / self.robot.tau_max))
         if not first and node.motion is not None:
             feet = [self.dyn.frame_linear_velocity(node.config, node.motion, f) for f in self.robot.feet]
             rows.append(("foot_vel", ca.vertcat(*feet)))
             if self.has_arm:
                 rows.append(("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee)))
-        slack = parts.get("slack")
-        if slack is not None:  # soft rows: r - s+ + s- (slacks in the order of the rows)
+        slacks = [parts[name] for name in ("slack_tau", "slack") if name in parts]
+        for name in ("slack_tau", "slack"):  # soft rows: r - s+ + s- (slacks in the order of the rows)
+            if name not in parts:
+                continue
+            slack = parts[name]
             n_soft, used = slack.shape[0] // 2, 0
             for i, (tag, expr) in enumerate(rows):
-                if tag in self.config.soft_rows:
+                if tag in self.config.soft_rows and SLACK_PARTS[tag] == name:
                     size = expr.shape[0]
                     rows[i] = (tag, expr - slack[used : used + size] + slack[n_soft + used : n_soft + used + size])
                     used += size
@@ -283,7 +298,7 @@ class OcpProblem:
             cost += ca.dot(w_a[6:], node["aj"] ** 2) if node.get("aj") is not None else 0
             cost += ca.dot(local["w_F"], (node["F"] - local["F_des"]) ** 2)
             cost += ca.dot(local["w_tau"], node["tau"] ** 2) if node.get("tau") is not None else 0
-        if slack is not None:
+        for slack in slacks:
             cost += local["w_slack"] * ca.sum1(slack)  # exact L1 penalty of the soft rows
         next_state = form.transition(node, dt) if has_input else ca.SX(0, 1)
         path = ca.vertcat(*[expr for _, expr in rows]) if rows else ca.SX(0, 1)
@@ -414,13 +429,16 @@ class OcpProblem:
             if name in self.idx and name not in self.state_names:
                 lbx[self.idx[name][0, columns]] = data.v0[6:]
                 ubx[self.idx[name][0, columns]] = data.v0[6:]
-        if "slack" in self.idx:
-            lbx[self.idx["slack"]] = 0.0
-            ubx[self.idx["slack"]] = INF if data.soft else 0.0
+        slacks = self.slack_index
+        lbx[slacks] = 0.0
+        ubx[slacks] = INF if data.soft else 0.0
         n_tau = self.config.n_torque_nodes
-        if "tau" in self.idx:
+        if "tau" in self.idx and not self.rows["torque_limit"].size:
             lbx[self.idx["tau"][:n_tau]] = -robot.tau_max
             ubx[self.idx["tau"][:n_tau]] = robot.tau_max
+        if self.rows["torque_limit"].size:  # the torque limits as (soft) rows
+            lbg[self.rows["torque_limit"]] = -1.0
+            ubg[self.rows["torque_limit"]] = 1.0
         if self.rows["torque"].size:  # estimated torques of the centroidal formulations, in limits
             lbg[self.rows["torque"]] = -1.0
             ubg[self.rows["torque"]] = 1.0
