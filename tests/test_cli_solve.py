@@ -31,7 +31,7 @@ def test_solve_small_horizon_json(capsys):
 def test_solve_default_has_the_papers_1226_variables(capsys):
     code, report, _ = _run_json(capsys, ["solve", "--json"])
     assert code == 0
-    assert report["decision_variables"] == 1226 + 78  # the paper's and the arm velocity rows' slacks
+    assert report["decision_variables"] == 1226
     assert report["success"] is True, report
 
 
@@ -61,7 +61,7 @@ def test_bench_mpc_quick_smoke(capsys, tmp_path):
     assert code == 0
     assert json.loads(out.read_text()) == report
     run = report["solvers"]["fatrop"]
-    assert run["steps"] == 3 and run["failures"] == 0 and run["decision_variables"] == 1226 + 78
+    assert run["steps"] == 3 and run["failures"] == 0 and run["decision_variables"] == 1226
     assert set(run["solve_ms"]) == {"mean", "std", "max"} and set(run["iterations"]) == {"mean", "max"}
     same = report["same_states"]
     assert same["states"] == 3

@@ -18,10 +18,7 @@ ACCELERATION_LEVEL = ("wb_inverse", "wb_forward", "centroidal_acc_path", "centro
 
 @pytest.mark.parametrize("name", PAPER_COUNTS)
 def test_decision_variables_match_table_1(b1z1, name):
-    assert OcpProblem(b1z1, OcpConfig(formulation=name, soft_rows=())).n_variables == PAPER_COUNTS[name]
-    # the default adds the arm velocity rows' slacks: 2 x 3 on nodes 1..13
-    soft = OcpProblem(b1z1, OcpConfig(formulation=name))
-    assert soft.n_slack_variables == 78 and soft.n_variables == PAPER_COUNTS[name] + 78
+    assert OcpProblem(b1z1, OcpConfig(formulation=name)).n_variables == PAPER_COUNTS[name]
 
 
 def test_every_formulation_is_registered():

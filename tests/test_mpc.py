@@ -15,8 +15,7 @@ SMALL = OcpConfig(grid=TimeGrid(n_intervals=8, dt_first_s=0.01, dt_last_s=0.06))
 
 
 def test_paper_configuration_has_1226_decision_variables(b1z1):
-    assert OcpProblem(b1z1, OcpConfig(soft_rows=())).n_variables == 1226
-    assert OcpProblem(b1z1, OcpConfig()).n_variables == 1226 + 78  # + the arm velocity rows' slacks
+    assert OcpProblem(b1z1, OcpConfig()).n_variables == 1226
 
 
 @pytest.fixture(scope="module")

@@ -50,7 +50,7 @@ def _trot_step(a1, ocp: OcpConfig, weight: float, q, v):
     """One trot step (t = 0.11 s: a diagonal pair in swing) with the slacks forced free."""
     mpc = MPC(a1, MpcConfig(ocp=ocp, gait="trot", fallback_solver=None, weights=CostWeights(soft_constraint=weight)))
     capture = Capture(mpc.solver)
-    mpc._soft_until_t = np.inf  # as after a push
+    mpc._push_until_t = np.inf  # as after a push
     solution = mpc.solve(q, v, Commands(), t=0.11)
     return mpc, solution, capture.calls[-1]
 
@@ -76,7 +76,7 @@ def test_slacks_make_an_infeasible_ocp_solvable_with_the_least_l1_violation(a1):
     on node 2: no motion does both (rigid rotations give them the same v_x), the least L1 violation is 2."""
     mpc = MPC(a1, MpcConfig(ocp=SOFT_FEET, gait="stand", fallback_solver=None))
     capture = Capture(mpc.solver)
-    mpc._soft_until_t = np.inf
+    mpc._push_until_t = np.inf
     mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.0)
     problem, call = mpc.problem, capture.calls[-1]
     lbx, ubx, lbg, ubg = (np.array(call[k], dtype=float) for k in ("lbx", "ubx", "lbg", "ubg"))
@@ -99,17 +99,32 @@ def test_slacks_make_an_infeasible_ocp_solvable_with_the_least_l1_violation(a1):
     assert not hard.stats.success
 
 
-def test_a_push_frees_the_slacks_and_nominal_steps_pin_them(a1):
-    config = MpcConfig(ocp=SOFT_FEET, gait="trot", fallback_solver=None, soft_hold_s=0.2)
+def test_a_push_frees_the_slacks_and_relaxes_rows_and_nominal_steps_do_neither(a1):
+    config = MpcConfig(ocp=SOFT_FEET, gait="trot", fallback_solver=None, push_hold_s=0.2,
+                       push_relaxed_rows=("foot_vel",))
     mpc = MPC(a1, config)
     capture = Capture(mpc.solver)
     slack = mpc.problem.idx["slack"]
+    rows = mpc.problem.rows["foot_vel"].reshape(-1, len(a1.feet), 3)[..., 2]  # v_z: constrained stance or swing
     v = np.zeros(a1.nv)
     mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
-    assert (capture.calls[-1]["ubx"][slack] == 0).all()  # nominal: the hard OCP
-    v[1] = 1.0  # a lateral kick: 1 m/s off the plan
+    call = capture.calls[-1]
+    assert (call["ubx"][slack] == 0).all() and np.isfinite(call["ubg"][rows]).all()  # nominal: the hard OCP
+    v[1] = 1.0  # a lateral kick: 1 m/s off the plan and the command
     mpc.solve(a1.q_nominal, v, Commands(), t=0.0125)
-    assert np.isinf(capture.calls[-1]["ubx"][slack]).all()
-    assert mpc._soft_until_t == pytest.approx(0.2125)
+    call = capture.calls[-1]
+    assert np.isinf(call["ubx"][slack]).all() and np.isinf(call["ubg"][rows]).all()
+    assert mpc._push_until_t == pytest.approx(0.2125)
     mpc.reset()
-    assert mpc._soft_until_t is None
+    assert mpc._push_until_t is None
+
+
+def test_a_base_velocity_far_from_the_command_keeps_the_push_mode(a1):
+    mpc = MPC(a1, MpcConfig(ocp=OcpConfig(grid=GRID), gait="stand", fallback_solver=None, push_hold_s=0.2))
+    v = np.zeros(a1.nv)
+    v[0] = 0.5  # moving at 0.5 m/s while commanded to stand: still drifting away after a push
+    mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
+    assert mpc._push_until_t == pytest.approx(0.2)
+    mpc.reset()
+    mpc.solve(a1.q_nominal, v, Commands(base_velocity_m_s=np.array([0.5, 0.0, 0.0])), t=0.0)
+    assert mpc._push_until_t is None  # the commanded motion

@@ -105,11 +105,14 @@ class MpcConfig:
     recovery_time_limit_s: float | None = 0.25
     fallback_first_s: float = 0.25
     hold_previous_on_failure: bool = True  # a step still failed: the last good plan, shifted in time
-    # soft rows (OcpConfig.soft_rows): their slacks stay pinned to zero (the hard OCP of the paper) until
-    # a push, seen as a measured base velocity off the last plan by more than soft_trigger_m_s or as a
-    # hard step that failed; then they are free (exact L1 penalty) for soft_hold_s
-    soft_trigger_m_s: float = 0.3
-    soft_hold_s: float = 0.5
+    # push recovery mode: entered when the measured base velocity is off the last plan by more than
+    # push_velocity_error_m_s (or, with OcpConfig.soft_rows, when a hard step fails) and kept for
+    # push_hold_s. In it the rows push_relaxed_rows are dropped (the arm's velocity rows of eq. 7 pin the
+    # hand in the world while the base flies off: the OCP turns infeasible or degenerate and Fatrop
+    # stalls; without them it converges in 8-28 iterations) and soft rows' slacks are free
+    push_velocity_error_m_s: float = 0.3
+    push_hold_s: float = 0.5
+    push_relaxed_rows: tuple[str, ...] = ("ee_vel",)
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -125,8 +128,11 @@ class MpcConfig:
             check_number(name, getattr(self, name), low=1)
         check_number("recovery_time_limit_s", self.recovery_time_limit_s, low=0.0, low_open=True, unit="s", allow_none=True)
         check_number("fallback_first_s", self.fallback_first_s, low=0.0, unit="s")
-        check_number("soft_trigger_m_s", self.soft_trigger_m_s, low=0.0, low_open=True, unit="m/s")
-        check_number("soft_hold_s", self.soft_hold_s, low=0.0, unit="s")
+        check_number("push_velocity_error_m_s", self.push_velocity_error_m_s, low=0.0, low_open=True, unit="m/s")
+        check_number("push_hold_s", self.push_hold_s, low=0.0, unit="s")
+        bad = [tag for tag in self.push_relaxed_rows if tag not in ("ee_vel", "foot_vel")]
+        if bad:
+            raise ConfigError(f"push_relaxed_rows may hold ee_vel and foot_vel, got {bad}")
 
 
 @dataclass
@@ -186,7 +192,7 @@ class MPC:
         self._fallback_cold: NlpSolver | None = None
         self._recovery: NlpSolver | None = None
         self._fallback_until_t: float | None = None  # fallback solver first until this time
-        self._soft_until_t: float | None = None  # soft rows' slacks free until this time
+        self._push_until_t: float | None = None  # push recovery mode until this time
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
@@ -198,7 +204,7 @@ class MPC:
         self._yaw_reference = None
         self._last_t = None
         self._fallback_until_t = None
-        self._soft_until_t = None
+        self._push_until_t = None
 
     # ------------------------------------------------------------------ input checks
     def _check(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -332,21 +338,22 @@ class MPC:
             **self._weights,
         }
         p = problem.params.pack(values)
-        soft = self._soft_rows_free(v, t)
+        after_push = self._after_push(v, rot, base_velocity_world, t)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
             ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
-            soft=soft,
+            soft=after_push, relaxed_rows=self.config.push_relaxed_rows if after_push else (),
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
-        if not soft:
+        if not after_push:
             x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
-        # a hard step that fails is re-solved with the slacks free first (the OCP may be infeasible)
-        soft_bounds = None if soft or not problem.n_slack_variables else problem.bounds(replace(stage_bounds, soft=True))
+        # with soft rows, a hard step that fails is re-solved with the slacks free first (it may be infeasible)
+        soft_bounds = None if after_push or not problem.n_slack_variables else problem.bounds(
+            replace(stage_bounds, soft=True, relaxed_rows=self.config.push_relaxed_rows))
         cfg = self.config
         if self._fallback_until_t is not None and t < self._fallback_until_t and cfg.fallback_solver:
             result = self._fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
@@ -401,22 +408,23 @@ class MPC:
                                                    max_iterations=cfg.recovery_fatrop_max_iterations)
         return self._recovery
 
-    def _soft_rows_free(self, v: np.ndarray, t: float) -> bool:
-        """Whether this step frees the soft rows' slacks: within `soft_hold_s` of a push, seen now as a
-        measured base velocity more than `soft_trigger_m_s` off the last plan, or earlier."""
+    def _after_push(self, v: np.ndarray, rot: np.ndarray, commanded_world: np.ndarray, t: float) -> bool:
+        """Whether this step is in push recovery mode: within `push_hold_s` of a step whose measured
+        base velocity was more than `push_velocity_error_m_s` off the last plan (the push) or off the
+        command (the robot still moving away after it)."""
         cfg = self.config
-        if not self.problem.n_slack_variables:
-            return False
         previous = self._previous
-        if previous is not None:
+        pushed = np.linalg.norm(rot @ v[:3] - commanded_world) > cfg.push_velocity_error_m_s
+        if previous is not None and not pushed:
             planned = _interp_rows(np.array([t]), previous.t_s + previous.node_times_s, previous.v[:, :3])[0]
-            if np.linalg.norm(v[:3] - planned) > cfg.soft_trigger_m_s:
-                self._soft_until_t = t + cfg.soft_hold_s
-        return self._soft_until_t is not None and t < self._soft_until_t
+            pushed = np.linalg.norm(v[:3] - planned) > cfg.push_velocity_error_m_s
+        if pushed:
+            self._push_until_t = t + cfg.push_hold_s
+        return self._push_until_t is not None and t < self._push_until_t
 
     def _recover(self, failed, p, bounds, x0, t: float, fallback_tried: bool = False, soft_bounds=None):
-        """Re-solve a failed step within a bounded effort: first, for a hard step, the same solver with
-        the soft rows' slacks free (`soft_bounds`; a success keeps them free for `soft_hold_s`), then a
+        """Re-solve a failed step within a bounded effort: first, for a hard step with soft rows, the same
+        solver with their slacks free (`soft_bounds`; a success enters push recovery mode), then a
         fresh Fatrop starting from a larger barrier parameter (capped at `recovery_fatrop_max_iterations`;
         it copes with some degenerate problems right after pushes where the warm-started small barrier
         stalls), then the fallback solver (capped at `fallback_max_iterations`). No attempt starts once
@@ -437,7 +445,7 @@ class MPC:
             wall_s += result.stats.solve_time_s
             attempts.append(f"soft rows: {result.stats.status}")
             if result.stats.success:
-                self._soft_until_t = t + cfg.soft_hold_s
+                self._push_until_t = t + cfg.push_hold_s
         if not result.stats.success and cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
             result = self._recovery_fatrop().solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.cpu_time_s, iterations + result.stats.iterations
