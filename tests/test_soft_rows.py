@@ -128,3 +128,19 @@ def test_a_base_velocity_far_from_the_command_keeps_the_push_mode(a1):
     mpc.reset()
     mpc.solve(a1.q_nominal, v, Commands(base_velocity_m_s=np.array([0.5, 0.0, 0.0])), t=0.0)
     assert mpc._push_until_t is None  # the commanded motion
+
+
+def test_soft_torque_limits_are_rows_in_place_of_the_bounds(a1):
+    problem = OcpProblem(a1, OcpConfig(grid=GRID, soft_rows=("torque_limit",)))
+    n_tau = problem.config.n_torque_nodes
+    assert problem.rows["torque_limit"].shape == (n_tau, a1.n_joints)
+    assert problem.idx["slack_tau"].shape == (n_tau, 2 * a1.n_joints)
+    mpc = MPC(a1, MpcConfig(ocp=problem.config, gait="trot", fallback_solver=None), problem=problem)
+    capture = Capture(mpc.solver)
+    solution = mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.1)
+    call = capture.calls[-1]
+    assert solution.success
+    assert np.isinf(call["lbx"][problem.idx["tau"]]).all()  # the rows carry the limits
+    assert (call["lbg"][problem.rows["torque_limit"]] == -1).all() and (call["ubg"][problem.rows["torque_limit"]] == 1).all()
+    assert (call["ubx"][problem.idx["slack_tau"]] == 0).all()  # pinned on a nominal step
+    assert np.all(np.abs(solution.tau) <= a1.tau_max * (1 + 1e-6))

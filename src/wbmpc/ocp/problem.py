@@ -14,8 +14,8 @@ Path constraints per node (section IV-B):
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds).
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
-Soft rows (`OcpConfig.soft_rows`, by default the arm's velocity rows of eq. 7): on nodes 1..N-1
-each such row r(x_k) gets two slack inputs s+, s- >= 0 of node k, r - s+ + s- meets the row's
+Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
+1..N-1 each such row r(x_k) gets two slack inputs s+, s- >= 0 of node k, r - s+ + s- meets the row's
 bounds and the cost gains w_slack (s+ + s-), an exact L1 penalty: while the hard problem is
 feasible and |multiplier| < w_slack the slacks are zero and the solution is the hard one; after a
 push that makes the hard rows infeasible (the arm pinned in the world while the base flies off)
@@ -23,7 +23,9 @@ the OCP stays solvable with the least weighted violation. The slacks are inputs 
 stage (Fatrop's structure holds); the terminal node keeps its rows hard. `StageBounds.soft=False`
 pins the slacks to zero (the hard OCP: free slacks cost nominal steps ~2 extra iterations, so the
 MPC releases them only after a push). `StageBounds.relaxed_rows` instead drops rows for one step
-(both bounds infinite: no variables added, the default way the MPC recovers from a push).
+(both bounds infinite: no variables added, the default way the MPC recovers from a push). The torque
+limits can be soft too (`torque_limit`: rows tau_j / tau_max in [-1, 1] with slacks on k < 3 replace
+the variable bounds).
 """
 
 from __future__ import annotations
