@@ -428,15 +428,15 @@ class MPC:
         fresh Fatrop starting from a larger barrier parameter (capped at `recovery_fatrop_max_iterations`;
         it copes with some degenerate problems right after pushes where the warm-started small barrier
         stalls), then the fallback solver (capped at `fallback_max_iterations`). No attempt starts once
-        the step's solves have spent `recovery_time_limit_s` of CPU time. A rescue by the fallback makes
-        it the first choice for `fallback_first_s`."""
+        the step's solves have spent `recovery_time_limit_s` of CPU time, unless there is no plan to hold
+        yet. A rescue by the fallback makes it the first choice for `fallback_first_s`."""
         cfg = self.config
         result, attempts = failed, [failed.stats.status]
         spent_s, iterations = failed.stats.cpu_time_s, failed.stats.iterations
         wall_s = failed.stats.solve_time_s
 
-        def budget_left() -> bool:
-            return cfg.recovery_time_limit_s is None or spent_s < cfg.recovery_time_limit_s
+        def budget_left() -> bool:  # a step with no plan to hold (the first of a run) has no budget
+            return cfg.recovery_time_limit_s is None or self._previous is None or spent_s < cfg.recovery_time_limit_s
 
         if soft_bounds is not None and budget_left():
             bounds = soft_bounds
