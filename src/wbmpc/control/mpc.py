@@ -98,10 +98,10 @@ class MpcConfig:
     recovery_fatrop_max_iterations: int = 15
     fallback_max_iterations: int = 40
     # CPU seconds a step's solves may spend before no further recovery attempt starts (the step then
-    # holds the last good plan); IPOPT also stops itself after this long. The Fatrop attempts are
-    # capped by iterations, so a step ends within about this budget plus one attempt (0.3 s CPU on
-    # b1_z1 after a 0.8 m/s push, seconds without a budget); None: no budget. 0.25 s leaves room for
-    # IPOPT's ~15 iterations after a push (soft rows on), where 0.1 s skipped it and the robot fell
+    # holds the last good plan); IPOPT also stops itself after this long (wall time). The Fatrop attempts
+    # are capped by iterations, so a step ends within about this budget plus one attempt: at most 0.8 s
+    # of CPU per step on b1_z1 after 0.6-1.0 m/s pushes (up to 1 s CPU, 3.6 s wall without it); None: no
+    # budget. 0.25 s leaves room for IPOPT's ~15 iterations after a push, which 0.1 s skipped
     recovery_time_limit_s: float | None = 0.25
     fallback_first_s: float = 0.25
     hold_previous_on_failure: bool = True  # a step still failed: the last good plan, shifted in time
