@@ -47,3 +47,26 @@ def test_failed_step_is_bounded_and_holds_the_last_plan_shifted(a1_mpc):
         np.testing.assert_allclose(held.q[k], expected, atol=1e-9)
     # the loop applies it: its first torque is the good plan's torque at t (held beyond its 3 nodes)
     np.testing.assert_allclose(interpolate(held, t).tau_ff, good.tau[-1], atol=1e-9)
+
+
+def test_no_recovery_attempt_starts_once_the_step_has_spent_its_cpu_budget(a1_mpc):
+    """The budget counts the failed main solve: with a budget it exhausts, the step goes straight to the
+    held plan (no fresh Fatrop, no fallback); without one, both attempts run."""
+    robot, mpc = a1_mpc
+    mpc.reset()
+    good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
+    v = np.zeros(robot.nv)
+    v[1], v[3] = 1.5, 2.0
+    for budget_s in (1e-9, None):
+        capped = MPC(robot, replace(mpc.config, fallback_solver="ipopt", recovery_time_limit_s=budget_s,
+                                    fallback_max_iterations=2, recovery_fatrop_max_iterations=2),
+                     problem=mpc.problem, solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
+        capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
+        capped._previous, capped._fallback_until_t = good, None  # the last good plan; Fatrop first
+        held = capped.solve(robot.q_nominal, v, Commands(), t=0.03)
+        assert not held.success and held.held_previous
+        recovered = "recovery after" in held.stats.status
+        assert recovered == (budget_s is None), held.stats.status
+        if recovered:
+            assert "fatrop mu_init" in held.stats.status and "ipopt:" in held.stats.status
+        assert held.stats.cpu_time_s > 0

@@ -8,7 +8,7 @@ shared over the stance feet, zero on swing feet, section V-A2) and calls the sol
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -45,6 +45,10 @@ class CostWeights:
     acceleration: float = 1e-2
     contact_force: float = 1e-3  # pull towards the weight shared over the stance feet
     joint_torque: float = 1e-3
+    # L1 weight of the soft rows' slacks (OcpConfig.soft_rows) per unit violation (m/s for the arm's
+    # velocity): above the rows' multipliers on nominal trot steps (<= 60 on b1_z1), so those plans
+    # stay exact; 1e3 leaves nominal Fatrop steps unconverged after 200 iterations, 50 is not exact
+    soft_constraint: float = 100.0
 
     def __post_init__(self):
         for name, value in vars(self).items():
@@ -60,6 +64,7 @@ class CostWeights:
             "w_a": np.full(robot.nv, self.acceleration),
             "w_F": np.full(nf, self.contact_force),
             "w_tau": np.full(nj, self.joint_torque),
+            "w_slack": [self.soft_constraint],
         }
 
 
@@ -93,9 +98,24 @@ class MpcConfig:
     # solver is tried first (after a push the warm Fatrop keeps stalling for tens of steps)
     recovery_fatrop_max_iterations: int = 15
     fallback_max_iterations: int = 40
-    recovery_time_limit_s: float | None = None
+    # CPU seconds a step's solves may spend before no further recovery attempt starts (the step then
+    # holds the last good plan); IPOPT also stops itself after this long (wall time). The Fatrop attempts
+    # are capped by iterations, so a step ends within about this budget plus one attempt: at most 0.8 s
+    # of CPU per step on b1_z1 after 0.6-1.0 m/s pushes (up to 1 s CPU, 3.6 s wall without it); None: no
+    # budget. 0.25 s leaves room for IPOPT's ~15 iterations after a push, which 0.1 s skipped
+    recovery_time_limit_s: float | None = 0.25
     fallback_first_s: float = 0.25
     hold_previous_on_failure: bool = True  # a step still failed: the last good plan, shifted in time
+    # push recovery mode: entered when the measured base velocity is off the last plan or the command by
+    # more than push_velocity_error_m_s (or, with OcpConfig.soft_rows, when a hard step fails) and kept
+    # for push_hold_s. In it soft rows' slacks are free and the rows push_relaxed_rows are dropped.
+    # ("ee_vel",): the arm's velocity rows of eq. (7) pin the hand in the world while the base flies off,
+    # the post-push OCPs turn infeasible or degenerate and Fatrop stalls (without them it converges in
+    # 8-28 iterations); on b1_z1 that saves 270 deg 1.0 m/s pushes but makes the default 90 deg 0.8 m/s
+    # push fall 2.5 s after the kick, so it is off by default
+    push_velocity_error_m_s: float = 0.3
+    push_hold_s: float = 0.5
+    push_relaxed_rows: tuple[str, ...] = ()
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -111,6 +131,11 @@ class MpcConfig:
             check_number(name, getattr(self, name), low=1)
         check_number("recovery_time_limit_s", self.recovery_time_limit_s, low=0.0, low_open=True, unit="s", allow_none=True)
         check_number("fallback_first_s", self.fallback_first_s, low=0.0, unit="s")
+        check_number("push_velocity_error_m_s", self.push_velocity_error_m_s, low=0.0, low_open=True, unit="m/s")
+        check_number("push_hold_s", self.push_hold_s, low=0.0, unit="s")
+        bad = [tag for tag in self.push_relaxed_rows if tag not in ("ee_vel", "foot_vel")]
+        if bad:
+            raise ConfigError(f"push_relaxed_rows may hold ee_vel and foot_vel, got {bad}")
 
 
 @dataclass
@@ -171,6 +196,7 @@ class MPC:
         self._fallback_cold: NlpSolver | None = None
         self._recovery: NlpSolver | None = None
         self._fallback_until_t: float | None = None  # fallback solver first until this time
+        self._push_until_t: float | None = None  # push recovery mode until this time
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
@@ -182,6 +208,7 @@ class MPC:
         self._yaw_reference = None
         self._last_t = None
         self._fallback_until_t = None
+        self._push_until_t = None
 
     # ------------------------------------------------------------------ input checks
     def _check(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -315,25 +342,32 @@ class MPC:
             **self._weights,
         }
         p = problem.params.pack(values)
+        after_push = self._after_push(v, rot, base_velocity_world, t)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
             ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
+            soft=after_push, relaxed_rows=self.config.push_relaxed_rows if after_push else (),
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
+        if not after_push:
+            x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
+        # with soft rows, a hard step that fails is re-solved with the slacks free first (it may be infeasible)
+        soft_bounds = None if after_push or not problem.n_slack_variables else problem.bounds(
+            replace(stage_bounds, soft=True, relaxed_rows=self.config.push_relaxed_rows))
         cfg = self.config
         if self._fallback_until_t is not None and t < self._fallback_until_t and cfg.fallback_solver:
             result = self._fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
             result.stats.status = f"{result.stats.status} (recovery: {cfg.fallback_solver} first after a push)"
             if not result.stats.success:
-                result = self._recover(result, p, bounds, x0, fallback_tried=True)
+                result = self._recover(result, p, bounds, x0, t, fallback_tried=True, soft_bounds=soft_bounds)
         else:
             result = self.solver.solve(p, *bounds, x0, warm_start=self._previous is not None and cfg.warm_start)
             if not result.stats.success:
-                result = self._recover(result, p, bounds, x0)
+                result = self._recover(result, p, bounds, x0, t, soft_bounds=soft_bounds)
         solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
         if solution.success:
             self._previous = solution
@@ -384,32 +418,59 @@ class MPC:
                                                    warm_barrier_init=None)
         return self._recovery
 
-    def _recover(self, failed, p, bounds, x0, fallback_tried: bool = False):
-        """Re-solve a failed step within a bounded effort: first a fresh Fatrop starting from a larger
-        barrier parameter (capped at `recovery_fatrop_max_iterations`; it copes with some degenerate
-        problems right after pushes where the warm-started small barrier stalls), then the fallback
-        solver (capped at `fallback_max_iterations`). Attempts stop once `recovery_time_limit_s` is
-        spent. A rescue by the fallback makes it the first choice for `fallback_first_s`."""
+    def _after_push(self, v: np.ndarray, rot: np.ndarray, commanded_world: np.ndarray, t: float) -> bool:
+        """Whether this step is in push recovery mode: within `push_hold_s` of a step whose measured
+        base velocity was more than `push_velocity_error_m_s` off the last plan (the push) or off the
+        command (the robot still moving away after it)."""
+        cfg = self.config
+        previous = self._previous
+        pushed = np.linalg.norm(rot @ v[:3] - commanded_world) > cfg.push_velocity_error_m_s
+        if previous is not None and not pushed:
+            planned = _interp_rows(np.array([t]), previous.t_s + previous.node_times_s, previous.v[:, :3])[0]
+            pushed = np.linalg.norm(v[:3] - planned) > cfg.push_velocity_error_m_s
+        if pushed:
+            self._push_until_t = t + cfg.push_hold_s
+        return self._push_until_t is not None and t < self._push_until_t
+
+    def _recover(self, failed, p, bounds, x0, t: float, fallback_tried: bool = False, soft_bounds=None):
+        """Re-solve a failed step within a bounded effort: first, for a hard step with soft rows, the same
+        solver with their slacks free (`soft_bounds`; a success enters push recovery mode), then a
+        fresh Fatrop starting from a larger barrier parameter (capped at `recovery_fatrop_max_iterations`;
+        it copes with some degenerate problems right after pushes where the warm-started small barrier
+        stalls), then the fallback solver (capped at `fallback_max_iterations`). No attempt starts once
+        the step's solves have spent `recovery_time_limit_s` of CPU time, unless there is no plan to hold
+        yet. A rescue by the fallback makes it the first choice for `fallback_first_s`."""
         cfg = self.config
         result, attempts = failed, [failed.stats.status]
-        spent_s, iterations = failed.stats.solve_time_s, failed.stats.iterations
+        spent_s, iterations = failed.stats.cpu_time_s, failed.stats.iterations
+        wall_s = failed.stats.solve_time_s
 
-        def budget_left() -> bool:
-            return cfg.recovery_time_limit_s is None or spent_s < cfg.recovery_time_limit_s
+        def budget_left() -> bool:  # a step with no plan to hold (the first of a run) has no budget
+            return cfg.recovery_time_limit_s is None or self._previous is None or spent_s < cfg.recovery_time_limit_s
 
-        if cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
+        if soft_bounds is not None and budget_left():
+            bounds = soft_bounds
+            result = (self._fallback_solver() if fallback_tried else self.solver).solve(p, *bounds, x0)
+            spent_s, iterations = spent_s + result.stats.cpu_time_s, iterations + result.stats.iterations
+            wall_s += result.stats.solve_time_s
+            attempts.append(f"soft rows: {result.stats.status}")
+            if result.stats.success:
+                self._push_until_t = t + cfg.push_hold_s
+        if not result.stats.success and cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
             result = self._recovery_fatrop().solve(p, *bounds, x0)
-            spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
+            spent_s, iterations = spent_s + result.stats.cpu_time_s, iterations + result.stats.iterations
+            wall_s += result.stats.solve_time_s
             attempts.append(f"fatrop mu_init {cfg.recovery_barrier_init:g}: {result.stats.status}")
         if not result.stats.success and cfg.fallback_solver and not fallback_tried and budget_left():
             result = self._fallback_solver(cold=self._previous is None).solve(p, *bounds, x0)
-            spent_s, iterations = spent_s + result.stats.solve_time_s, iterations + result.stats.iterations
+            spent_s, iterations = spent_s + result.stats.cpu_time_s, iterations + result.stats.iterations
+            wall_s += result.stats.solve_time_s
             attempts.append(f"{cfg.fallback_solver}: {result.stats.status}")
             if result.stats.success and cfg.fallback_first_s > 0:
                 self._fallback_until_t = (self._last_t or 0.0) + cfg.fallback_first_s
         if len(attempts) > 1:
             result.stats.status = f"{attempts[-1]} (recovery after {'; '.join(attempts[:-1])})"
-        result.stats.solve_time_s, result.stats.iterations = spent_s, iterations
+        result.stats.solve_time_s, result.stats.cpu_time_s, result.stats.iterations = wall_s, spent_s, iterations
         return result
 
     def _shifted_previous(self, t: float, node_times: np.ndarray, contact: np.ndarray, stats) -> Solution:

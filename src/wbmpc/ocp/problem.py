@@ -13,6 +13,19 @@ Path constraints per node (section IV-B):
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds).
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
+
+Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
+1..N-1 each such row r(x_k) gets two slack inputs s+, s- >= 0 of node k, r - s+ + s- meets the row's
+bounds and the cost gains w_slack (s+ + s-), an exact L1 penalty: while the hard problem is
+feasible and |multiplier| < w_slack the slacks are zero and the solution is the hard one; after a
+push that makes the hard rows infeasible (the arm pinned in the world while the base flies off)
+the OCP stays solvable with the least weighted violation. The slacks are inputs of their own
+stage (Fatrop's structure holds); the terminal node keeps its rows hard. `StageBounds.soft=False`
+pins the slacks to zero (the hard OCP: free slacks cost nominal steps ~2 extra iterations, so the
+MPC releases them only after a push). `StageBounds.relaxed_rows` instead drops rows for one step
+(both bounds infinite: no variables added, the default way the MPC recovers from a push). The torque
+limits can be soft too (`torque_limit`: rows tau_j / tau_max in [-1, 1] with slacks on k < 3 replace
+the variable bounds).
 """
 
 from __future__ import annotations
@@ -33,7 +46,11 @@ INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
-ROW_TAGS = ("gap", "x0", "dynamics", "torque", "foot_vel", "ee_vel", "cone")
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "ee_vel", "cone")
+# rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
+# in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
+SOFTENABLE_ROWS = ("ee_vel", "foot_vel", "torque_limit")
+SLACK_PARTS = {"ee_vel": "slack", "foot_vel": "slack", "torque_limit": "slack_tau"}  # input part of each tag's slacks
 
 
 @dataclass(frozen=True)
@@ -43,6 +60,17 @@ class OcpConfig:
     formulation: str = "wb_inverse"
     grid: TimeGrid = field(default_factory=TimeGrid)
     n_torque_nodes: int = 3  # torques (and their limits) on k = 0, 1, 2 (eq. 8)
+    # row tags with L1-penalised slacks (see the module docstring); () = all hard, the paper's OCP (1226
+    # variables on b1_z1). ("ee_vel",) adds 78 slacks: pinned on nominal steps they still cost 22 % more
+    # CPU per trot step (Fatrop makes each fixed variable an equality row), so the MPC's default
+    # recovers from pushes by relaxing the arm rows instead (StageBounds.relaxed_rows)
+    soft_rows: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        unknown = [tag for tag in self.soft_rows if tag not in SOFTENABLE_ROWS]
+        if unknown:
+            raise ConfigError(f"soft_rows {unknown} cannot be softened; choose from {', '.join(SOFTENABLE_ROWS)} "
+                              "(or () for the hard OCP)")
 
     @property
     def n_intervals(self) -> int:
@@ -61,6 +89,8 @@ class StageBounds:
     ee_force_on_robot_n: np.ndarray | None = None  # (3,) world, force acting on the robot
     foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
     ee_velocity_measured_m_s: np.ndarray | None = None  # (3,) measured world end-effector velocity
+    soft: bool = True  # False pins the soft rows' slacks to zero: the hard OCP (same structure per mode)
+    relaxed_rows: tuple[str, ...] = ()  # row tags (ee_vel, foot_vel) left unconstrained on every node this step
 
 
 class OcpProblem:
@@ -137,6 +167,7 @@ class OcpProblem:
         params.add("w_F", nf)
         params.add("w_tau", self.nj)
         params.add("mu", 1)
+        params.add("w_slack", 1)  # L1 weight of the soft rows' slacks
         self.params = params
         self.state_names = [name for name, _ in form.state_parts()]
         self.nx = sum(size for _, size in form.state_parts())
@@ -151,7 +182,7 @@ class OcpProblem:
         self.stage_slices: list[tuple[slice, slice]] = []  # (state, input) of each node in x
         for k in range(N + 1):
             start = offset
-            layout = form.state_parts() + (form.input_parts(k) if k < N else [])
+            layout = form.state_parts() + (form.input_parts(k) if k < N else []) + self._slack_parts(k)
             for name, size in layout:
                 x_scale.append(np.asarray(scales.get(name, np.ones(size)), dtype=float))
                 index.setdefault(name, []).append(np.arange(offset, offset + size))
@@ -160,6 +191,29 @@ class OcpProblem:
         self.n_variables = offset
         self.idx = {name: np.array(rows) for name, rows in index.items()}
         self.x_scale = np.concatenate(x_scale)
+
+    def _has_torque_limit_rows(self, k: int) -> bool:
+        return ("torque_limit" in self.config.soft_rows and k < min(self.config.n_torque_nodes, self.N)
+                and any(name == "tau" for name, _ in self.formulation.input_parts(k)))
+
+    def _slack_parts(self, k: int) -> list[tuple[str, int]]:
+        """Slack inputs of node k: `slack` for the soft velocity rows (nodes 1..N-1), `slack_tau` for the
+        torque limit rows (k < 3), each s+ then s-."""
+        velocity = {"ee_vel": 3 if self.has_arm else 0, "foot_vel": 3 * self.n_feet}
+        n_velocity = sum(velocity.get(tag, 0) for tag in self.config.soft_rows) if 0 < k < self.N else 0
+        n_torque = self.nj if self._has_torque_limit_rows(k) else 0
+        return [(name, 2 * n) for name, n in (("slack_tau", n_torque), ("slack", n_velocity)) if n]
+
+    @property
+    def slack_index(self) -> np.ndarray:
+        """Positions of every slack variable in x."""
+        parts = [self.idx[name].ravel() for name in ("slack_tau", "slack") if name in self.idx]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=int)
+
+    @property
+    def n_slack_variables(self) -> int:
+        """Slack inputs of the soft rows (the paper's OCP has n_variables - n_slack_variables)."""
+        return int(self.slack_index.size)
 
     def _stage_kind(self, k: int) -> tuple[bool, bool, bool]:
         """(has input, has torque rows/variables, is the measured node) — nodes of one kind share a Function."""
@@ -187,7 +241,7 @@ class OcpProblem:
             rows, cols = self.params.shape(name)
             local.add(name, rows, cols if name == "rot_ref" else 1)
         q_ref, rot_ref, dt, mu = local["q_ref"], local["rot_ref"], local["dt"], local["mu"]
-        layout = form.state_parts() + (form.input_parts(k) if has_input else [])
+        layout = form.state_parts() + (form.input_parts(k) if has_input else []) + self._slack_parts(k)
         x = ca.SX.sym("x", self.nx)
         u = ca.SX.sym("u", sum(size for name, size in layout) - self.nx)
         scales = form.variable_scales()
@@ -210,11 +264,25 @@ class OcpProblem:
                 estimate = form.torque_estimate(node)
                 if estimate is not None:
                     rows.append(("torque", estimate / self.robot.tau_max))
+        if self._has_torque_limit_rows(k):
+            rows.append(("torque_limit", node["tau"] / self.robot.tau_max))
         if not first and node.motion is not None:
             feet = [self.dyn.frame_linear_velocity(node.config, node.motion, f) for f in self.robot.feet]
             rows.append(("foot_vel", ca.vertcat(*feet)))
             if self.has_arm:
                 rows.append(("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee)))
+        slacks = [parts[name] for name in ("slack_tau", "slack") if name in parts]
+        for name in ("slack_tau", "slack"):  # soft rows: r - s+ + s- (slacks in the order of the rows)
+            if name not in parts:
+                continue
+            slack = parts[name]
+            n_soft, used = slack.shape[0] // 2, 0
+            for i, (tag, expr) in enumerate(rows):
+                if tag in self.config.soft_rows and SLACK_PARTS[tag] == name:
+                    size = expr.shape[0]
+                    rows[i] = (tag, expr - slack[used : used + size] + slack[n_soft + used : n_soft + used + size])
+                    used += size
+            assert used == n_soft, "slack layout and soft rows disagree"
         if has_input:
             # friction cone (eq. 6) in units of the force scale, written as the smoothed second-order
             # cone mu F_z >= sqrt(F_x^2 + F_y^2 + eps^2) - eps: same set up to eps^2 / (2 |F_t|), but
@@ -236,6 +304,8 @@ class OcpProblem:
             cost += ca.dot(w_a[6:], node["aj"] ** 2) if node.get("aj") is not None else 0
             cost += ca.dot(local["w_F"], (node["F"] - local["F_des"]) ** 2)
             cost += ca.dot(local["w_tau"], node["tau"] ** 2) if node.get("tau") is not None else 0
+        for slack in slacks:
+            cost += local["w_slack"] * ca.sum1(slack)  # exact L1 penalty of the soft rows
         next_state = form.transition(node, dt) if has_input else ca.SX(0, 1)
         path = ca.vertcat(*[expr for _, expr in rows]) if rows else ca.SX(0, 1)
         name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
@@ -365,10 +435,16 @@ class OcpProblem:
             if name in self.idx and name not in self.state_names:
                 lbx[self.idx[name][0, columns]] = data.v0[6:]
                 ubx[self.idx[name][0, columns]] = data.v0[6:]
+        slacks = self.slack_index
+        lbx[slacks] = 0.0
+        ubx[slacks] = INF if data.soft else 0.0
         n_tau = self.config.n_torque_nodes
-        if "tau" in self.idx:
+        if "tau" in self.idx and not self.rows["torque_limit"].size:
             lbx[self.idx["tau"][:n_tau]] = -robot.tau_max
             ubx[self.idx["tau"][:n_tau]] = robot.tau_max
+        if self.rows["torque_limit"].size:  # the torque limits as (soft) rows
+            lbg[self.rows["torque_limit"]] = -1.0
+            ubg[self.rows["torque_limit"]] = 1.0
         if self.rows["torque"].size:  # estimated torques of the centroidal formulations, in limits
             lbg[self.rows["torque"]] = -1.0
             ubg[self.rows["torque"]] = 1.0
@@ -409,6 +485,11 @@ class OcpProblem:
                 ee_rows = self.rows["ee_vel"]
                 self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), self.row_nodes["ee_vel"], velocity[None],
                                              np.asarray(data.ee_velocity_measured_m_s)[None])
+        for tag in data.relaxed_rows:
+            if tag not in ("ee_vel", "foot_vel"):
+                raise ConfigError(f"relaxed_rows: only ee_vel and foot_vel rows can be relaxed, got {tag!r}")
+            lbg[self.rows[tag]] = -INF
+            ubg[self.rows[tag]] = INF
         # friction cone: active in stance, free in swing
         if self.rows["cone"].size:
             ubg[self.rows["cone"]] = INF

@@ -103,9 +103,11 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                                                         if config.solver == "rti" and config.delay != "none" else {})),
                      weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
                      base_tracking=config.base_tracking,
-                     # with a delay the plant does not wait: a recovery of seconds leaves the robot on a stale
-                     # plan, so it is cut short and the last good plan, shifted in time, is held instead
-                     recovery_time_limit_s=None if config.delay == "none" else DELAYED_RECOVERY_LIMIT_S)
+                     # with a delay the plant does not wait: a long recovery leaves the robot on a stale
+                     # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
+                     # shifted in time, is held instead
+                     recovery_time_limit_s=MpcConfig.recovery_time_limit_s if config.delay == "none"
+                     else DELAYED_RECOVERY_LIMIT_S)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
