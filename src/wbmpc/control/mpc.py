@@ -102,8 +102,10 @@ class MpcConfig:
     # holds the last good plan); IPOPT also stops itself after this long (wall time). The Fatrop attempts
     # are capped by iterations, so a step ends within about this budget plus one attempt: at most 0.8 s
     # of CPU per step on b1_z1 after 0.6-1.0 m/s pushes (up to 1 s CPU, 3.6 s wall without it); None: no
-    # budget. 0.25 s leaves room for IPOPT's ~15 iterations after a push, which 0.1 s skipped
-    recovery_time_limit_s: float | None = 0.25
+    # budget. 0.5 s: the push map (8 directions x 0.6/0.8/1.0 m/s, kick at 0.8 s) lost 90 deg 0.6/0.8 and
+    # 315 deg 0.8 with 0.25 s, which cut IPOPT's rescues short; 0.5 s behaves as no budget there
+    # (90 deg 0.8: same 79 held steps, stays up), longest step 0.63 s wall
+    recovery_time_limit_s: float | None = 0.5
     fallback_first_s: float = 0.25
     hold_previous_on_failure: bool = True  # a step still failed: the last good plan, shifted in time
     # push recovery mode: entered when the measured base velocity is off the last plan or the command by
