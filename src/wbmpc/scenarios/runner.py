@@ -120,7 +120,9 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
-    if config.delay != "none":  # the plant does not wait: recovery solvers must not be built mid-run
+    # the plant does not wait: recovery solvers must not be built mid-run (in real time the solver process
+    # builds its own MPC and prepares it; this one only solves the first step, before the clock runs)
+    if config.delay not in ("none", "realtime"):
         mpc.prepare_fallback()
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
