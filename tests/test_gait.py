@@ -51,3 +51,27 @@ def test_bad_gait_and_grid_inputs():
         with pytest.raises(ConfigError, match="gait_period_s must be"):
             make_gait("trot", 4, period)
     assert set(GAIT_NAMES) == {"stand", "trot", "walk"}
+
+
+def test_gait_clock_changes_its_period_with_every_phase_continuous():
+    from wbmpc.gait import GaitClock
+
+    gait = make_gait("trot", 4)
+    clock = GaitClock(gait)
+    times = np.linspace(0.0, 3.0, 301)
+    np.testing.assert_array_equal(clock.swing_phase(times), gait.swing_phase(times))  # not retimed: the gait
+    t_switch = 0.93  # mid-swing of FR and RL
+    before = clock.phase(np.array([t_switch]))[0]
+    clock.retime(t_switch, 0.45)
+    np.testing.assert_allclose(clock.phase(np.array([t_switch]))[0], before)
+    # a full cycle now takes 0.45 s, and a swing 0.225 s
+    np.testing.assert_allclose(clock.phase(np.array([t_switch + 0.45]))[0], before, atol=1e-12)
+    assert clock.swing_duration_s == pytest.approx(0.225)
+    progress = clock.swing_phase(np.array([t_switch, t_switch + 0.01]))[:, 1]
+    assert progress[1] - progress[0] == pytest.approx(0.01 / 0.225)
+    clock.retime(1.5, 0.8)  # back to the gait's own period, still continuous
+    np.testing.assert_allclose(clock.phase(np.array([1.5 - 1e-9]))[0], clock.phase(np.array([1.5]))[0], atol=1e-6)
+    clock.reset()
+    np.testing.assert_array_equal(clock.contact(times), gait.contact(times))
+    with pytest.raises(ConfigError, match="period_s"):
+        clock.retime(2.0, 0.0)

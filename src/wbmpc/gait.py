@@ -33,10 +33,18 @@ class Gait:
     def swing_duration_s(self) -> float:
         return (1 - self.duty_factor) * self.period_s
 
+    def cycles(self, times_s: np.ndarray) -> np.ndarray:
+        """Gait cycles elapsed at each time (phase before the per-foot offsets, not wrapped)."""
+        return np.asarray(times_s, dtype=float) / self.period_s
+
+    def phase(self, times_s: np.ndarray) -> np.ndarray:
+        """(len(times), n_feet) phase of each foot in [0, 1): stance below the duty factor."""
+        cycles = np.atleast_1d(self.cycles(times_s))[:, None]
+        return np.mod(cycles + np.asarray(self.phase_offsets)[None, :], 1.0)
+
     def swing_phase(self, times_s: np.ndarray) -> np.ndarray:
         """(len(times), n_feet) progress through swing in [0, 1), or -1 where the foot is in stance."""
-        times = np.asarray(times_s, dtype=float)[:, None]
-        phase = np.mod(times / self.period_s + np.asarray(self.phase_offsets)[None, :], 1.0)
+        phase = self.phase(times_s)
         if self.duty_factor >= 1:
             return -np.ones_like(phase)
         progress = (phase - self.duty_factor) / (1 - self.duty_factor)
@@ -81,6 +89,37 @@ class SwingProfile:
         out[up] = _cubic_position(s[up] / 0.5, 0.0, h, 0.0, 0.0)
         out[down] = _cubic_position((s[down] - 0.5) / 0.5, h, 0.0, 0.0, 0.0)
         return out
+
+
+class GaitClock(Gait):
+    """A gait whose period can change while it runs, with every foot's phase continuous (`retime`).
+
+    The MPC shortens the period after a push (faster steps, more foot placements within the
+    horizon) and restores it later; the state estimator reads the same clock for its stance feet.
+    """
+
+    def __init__(self, gait: Gait):
+        super().__init__(gait.name, gait.period_s, gait.duty_factor, gait.phase_offsets)
+        object.__setattr__(self, "nominal_period_s", gait.period_s)
+        self.reset()
+
+    def reset(self) -> None:
+        """The nominal period, in phase with t = 0."""
+        object.__setattr__(self, "period_s", self.nominal_period_s)
+        object.__setattr__(self, "_anchor_t_s", 0.0)
+        object.__setattr__(self, "_anchor_cycles", 0.0)
+
+    def cycles(self, times_s: np.ndarray) -> np.ndarray:
+        return self._anchor_cycles + (np.asarray(times_s, dtype=float) - self._anchor_t_s) / self.period_s
+
+    def retime(self, t_s: float, period_s: float) -> None:
+        """From time t_s on, cycle with `period_s`; the phases at t_s are kept (a swing in progress
+        goes on from where it is, at the new pace)."""
+        check_number("period_s", period_s, low=0.0, high=10.0, low_open=True, unit="s")
+        cycles_now = float(self.cycles(t_s))
+        object.__setattr__(self, "_anchor_t_s", float(t_s))
+        object.__setattr__(self, "_anchor_cycles", cycles_now)
+        object.__setattr__(self, "period_s", float(period_s))
 
 
 def _hermite(x, p0, p1, m0, m1):

@@ -57,7 +57,7 @@ class EstimatorConfig:
 
 def contact_trust(gait: Gait, t_s: float, ramp: float) -> np.ndarray:
     """Per foot trust in [0, 1]: 0 in swing, ramping up/down over `ramp` of the stance phase at its ends."""
-    phase = np.mod(t_s / gait.period_s + np.asarray(gait.phase_offsets), 1.0)
+    phase = gait.phase(np.array([t_s]))[0]
     stance = phase < gait.duty_factor
     if gait.duty_factor >= 1 or ramp <= 0:
         return stance.astype(float)

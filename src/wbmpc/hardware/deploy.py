@@ -20,7 +20,7 @@ import signal
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -113,6 +113,10 @@ class Controller:
 
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None):
         check_interface(config.network)
+        if not config.lockstep and mpc_config.push_gait_period_s is not None:
+            # the estimator here reads the gait schedule; a solver process's clock, which speeds up after
+            # a push, is out of its sight: the fixed schedule (lock-step shares the MPC's clock instead)
+            mpc_config = replace(mpc_config, push_gait_period_s=None)
         self.robot, self.mpc_config, self.config = robot, mpc_config, config
         self.motors = unitree_motor_map(robot)
         self.mpc = mpc  # lock-step: built once the robot answers (a missing robot is reported in 2 s, not after a build)
@@ -254,7 +258,8 @@ class Controller:
                     if ready and (worker is None or active is not None):
                         enter("mpc", t, reading.joint_position_rad)
                         mpc_t0, next_mpc = t, 0.0
-                        self.estimator.gait, self.estimator.gait_t0_s = self.gait, t
+                        self.estimator.gait = self.mpc.gait if self.mpc is not None else self.gait
+                        self.estimator.gait_t0_s = t
                         if worker is not None:
                             next_mpc = mpc_period
                 if phase == "mpc":

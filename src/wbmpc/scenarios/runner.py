@@ -107,7 +107,11 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
                      # shifted in time, is held instead
                      recovery_time_limit_s=MpcConfig.recovery_time_limit_s if config.delay == "none"
-                     else DELAYED_RECOVERY_LIMIT_S)
+                     else DELAYED_RECOVERY_LIMIT_S,
+                     # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
+                     # that changes after a push lives in the solver process: keep the fixed schedule there
+                     push_gait_period_s=None if config.state == "estimated" and config.delay == "realtime"
+                     else MpcConfig.push_gait_period_s)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,

@@ -1,0 +1,72 @@
+"""Faster steps after a push (MpcConfig.push_gait_period_s, control/mpc.py): when the cadence changes,
+what the OCP receives, and that the paper's fixed schedule stays available."""
+
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.errors import ConfigError
+from wbmpc.gait import GaitClock, make_gait
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig
+from wbmpc.robots import load_robot
+
+GRID = TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06)
+
+
+@pytest.fixture(scope="module")
+def a1():
+    return load_robot("a1")
+
+
+def make_mpc(robot, **options):
+    config = MpcConfig(ocp=OcpConfig(grid=GRID), gait="trot", gait_period_s=0.6, fallback_solver=None,
+                       push_hold_s=0.1, push_cadence_hold_s=0.2,
+                       # steps re-solved from the nominal pose (no plant) plan up to ~0.35 m/s: not a push
+                       push_velocity_error_m_s=0.6, **options)
+    return MPC(robot, config)
+
+
+def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a1):
+    mpc = make_mpc(a1, push_gait_period_s=0.3)
+    v = np.zeros(a1.nv)
+    expected = GaitClock(make_gait("trot", 4, 0.6))
+    mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
+    assert mpc.gait.period_s == 0.6
+    kicked = v.copy()
+    kicked[1] = 1.0  # lateral kick: 1 m/s off the plan and the command
+    t_kick = 0.0125
+    solution = mpc.solve(a1.q_nominal, kicked, Commands(), t=t_kick)
+    assert mpc.gait.period_s == 0.3
+    expected.retime(t_kick, 0.3)
+    # the OCP of the kicked step already plans with the faster schedule (the same phases at t_kick)
+    np.testing.assert_array_equal(solution.contact, expected.contact(t_kick + GRID.node_times_s))
+    # quiet again (measured at rest): push mode ends push_hold_s after the last step that looked pushed
+    # (the plan of the kicked step expects the robot to keep moving for a while), the fast cadence 0.2 s later
+    last_push_end, t_back = None, None
+    for t in t_kick + 0.0125 * np.arange(1, 60):
+        mpc.solve(a1.q_nominal, v, Commands(), t=t)
+        if mpc.gait.period_s == 0.6:
+            t_back = t
+            break
+        last_push_end = mpc._push_until_t
+    assert t_back is not None and last_push_end + 0.2 <= t_back < last_push_end + 0.2 + 0.0125
+    expected.retime(t_back, 0.6)
+    np.testing.assert_allclose(mpc.gait.phase(np.array([t_back + 0.1])), expected.phase(np.array([t_back + 0.1])))
+    mpc.reset()  # a new run starts from the gait's own period and phase
+    assert mpc.gait.period_s == 0.6 and mpc.gait.phase(np.array([0.0]))[0, 0] == 0.0
+
+
+def test_the_fixed_schedule_of_the_paper_keeps_its_period_after_a_push(a1):
+    mpc = make_mpc(a1, push_gait_period_s=None)
+    kicked = np.zeros(a1.nv)
+    kicked[1] = 1.0
+    mpc.solve(a1.q_nominal, kicked, Commands(), t=0.0)
+    assert mpc._push_until_t is not None and mpc.gait.period_s == 0.6
+
+
+def test_bad_cadence_options_are_refused_before_anything_is_built():
+    with pytest.raises(ConfigError, match="push_gait_period_s"):
+        MpcConfig(push_gait_period_s=0.0)
+    with pytest.raises(ConfigError, match="push_cadence_hold_s"):
+        MpcConfig(push_cadence_hold_s=-1.0)
