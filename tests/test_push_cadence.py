@@ -1,4 +1,4 @@
-"""Faster steps after a push (MpcConfig.push_gait_period_s, control/mpc.py): when the cadence changes,
+"""Faster steps after a push (MpcConfig.push_gait_period_scale, control/mpc.py): when the cadence changes,
 what the OCP receives, and that the paper's fixed schedule stays available."""
 
 import numpy as np
@@ -28,7 +28,7 @@ def make_mpc(robot, **options):
 
 
 def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a1):
-    mpc = make_mpc(a1, push_gait_period_s=0.3)
+    mpc = make_mpc(a1, push_gait_period_scale=0.5)  # 0.3 s steps
     v = np.zeros(a1.nv)
     expected = GaitClock(make_gait("trot", 4, 0.6))
     mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
@@ -58,7 +58,7 @@ def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a
 
 
 def test_the_fixed_schedule_of_the_paper_keeps_its_period_after_a_push(a1):
-    mpc = make_mpc(a1, push_gait_period_s=None)
+    mpc = make_mpc(a1, push_gait_period_scale=None)
     kicked = np.zeros(a1.nv)
     kicked[1] = 1.0
     mpc.solve(a1.q_nominal, kicked, Commands(), t=0.0)
@@ -66,7 +66,9 @@ def test_the_fixed_schedule_of_the_paper_keeps_its_period_after_a_push(a1):
 
 
 def test_bad_cadence_options_are_refused_before_anything_is_built():
-    with pytest.raises(ConfigError, match="push_gait_period_s"):
-        MpcConfig(push_gait_period_s=0.0)
+    with pytest.raises(ConfigError, match="push_gait_period_scale"):
+        MpcConfig(push_gait_period_scale=0.0)
+    with pytest.raises(ConfigError, match="push_gait_period_scale"):
+        MpcConfig(push_gait_period_scale=1.5)
     with pytest.raises(ConfigError, match="push_cadence_hold_s"):
         MpcConfig(push_cadence_hold_s=-1.0)

@@ -36,7 +36,7 @@ FIELD_FLAGS = {
     "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
     "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
     "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t", "base_tracking": "--base-tracking",
-    "state": "--state",
+    "state": "--state", "push_gait_period_scale": "--push-cadence",
     "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
@@ -215,7 +215,8 @@ def _run_config(args: argparse.Namespace):
                      nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=_scenario_options(args),
                      gains=PdGains(**{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}),
                      formulation=args.formulation,
-                     compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking, state=args.state)
+                     compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking, state=args.state,
+                     **({} if args.push_cadence is None else {"push_gait_period_scale": args.push_cadence}))
 
 
 def _gains(args: argparse.Namespace, robot):
@@ -443,6 +444,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
     run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
+    run.add_argument("--push-cadence", type=float, metavar="SCALE",
+                     help="after a push (any scenario) the gait period is scaled by this, in (0, 1], while in push "
+                          "recovery mode and 1 s after (default 0.5625: the 0.8 s trot steps every 0.45 s); 1: the "
+                          "paper's fixed schedule")
     run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
     run.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), Nm/rad >= 0 (default: the robot's tuning, 0 on B1)")
     run.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), Nm s/rad >= 0 (default: the robot's tuning, 5 on B1)")

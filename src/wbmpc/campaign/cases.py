@@ -34,6 +34,7 @@ _LOOP_AXES = {
     "joint_position_noise_rad": "std of the joint position measurement noise (rad)",
     "joint_velocity_noise_rad_s": "std of the joint velocity measurement noise (rad/s)",
     "delay_ms": "fixed solver delay before a solution applies (ms)",
+    "push_gait_period_scale": "gait period factor after a push, (0, 1]; 1: the paper's fixed schedule",
 }
 _OTHER_AXES = {
     "gait_phase": "push time shifted by this share of the gait period (0..1)",
@@ -110,6 +111,7 @@ class Case:
 
     def run_config(self):
         """The `RunConfig` of this case (raises ConfigError on values the scenario rejects)."""
+        from wbmpc.control.tuning import TUNINGS, RobotTuning
         from wbmpc.gait import make_gait
         from wbmpc.scenarios import RunConfig
         from wbmpc.scenarios.library import SCENARIOS
@@ -119,7 +121,7 @@ class Case:
                                      if k in _SCENARIO_AXES})
         if "gait_phase" in v:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
-            period = make_gait(gait, 4).period_s
+            period = make_gait(gait, 4, TUNINGS.get(self.robot, RobotTuning()).gait_period_s).period_s  # a1: 0.6 s
             options.push_time_s += float(v["gait_phase"]) * period
         delay = v.get("delay_ms")
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
@@ -127,7 +129,9 @@ class Case:
                          delay="none" if delay is None else str(float(delay)),
                          model_errors=self.model_errors(),
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
-                         joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)))
+                         joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
+                         **({"push_gait_period_scale": float(v["push_gait_period_scale"])}
+                            if "push_gait_period_scale" in v else {}))
 
 
 def _optional(values: dict, name: str) -> float | None:

@@ -73,9 +73,9 @@ def run_case(case: Case) -> dict:
         config = case.run_config()
         robot = _cached(("robot", case.robot), lambda: load_robot(case.robot))
         scenario = make_scenario(config.scenario, robot, config.options)
-        mpc_config = mpc_config_for(scenario, config)
-        key = ("mpc", case.robot, scenario.gait, case.nodes, case.compiled, case.formulation)
-        mpc = _cached(key, lambda: _built_mpc(robot, mpc_config))
+        mpc_config = mpc_config_for(scenario, config, robot)
+        # one MPC per distinct configuration (gait, grid, solver, tuning, delay's recovery budget, cadence)
+        mpc = _cached(("mpc", case.robot, repr(mpc_config)), lambda: _built_mpc(robot, mpc_config))
         result = run_scenario(robot, config, mpc=mpc)
         m = result.metrics
         row.update(
@@ -167,6 +167,8 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None
                  no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S) -> CampaignRun:
     """Run every case of `spec` not yet in `out_dir`'s table; rows are written as cases finish."""
     cases = list({case.id: case for case in expand(spec)}.values())
+    for case in cases:  # a value a run refuses is refused here, before a cluster starts (ConfigError names it)
+        case.run_config()
     out_dir = Path(out_dir)
     table = ResultTable(out_dir, axis_types(cases))
     finished = table.finished_ids()

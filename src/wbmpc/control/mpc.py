@@ -118,12 +118,13 @@ class MpcConfig:
     push_velocity_error_m_s: float = 0.3
     push_hold_s: float = 0.5
     push_relaxed_rows: tuple[str, ...] = ()
-    # step cadence after a push: in push recovery mode the gait runs with this period (phases continuous,
-    # `GaitClock.retime`) and returns to its own period push_cadence_hold_s after the mode ends. Faster
-    # steps place more feet within the 0.56 s horizon. b1_z1, 12 pushes that fell with the fixed 0.8 s
-    # trot (0.6-1.0 m/s, 7 directions, 2 gait phases; 4 s runs): 0.6 s keeps 6 up, 0.5 s 10, 0.45 s all 12.
-    # None: the paper's fixed schedule
-    push_gait_period_s: float | None = 0.45
+    # step cadence after a push: in push recovery mode the gait's period is scaled by this factor (phases
+    # continuous, `GaitClock.retime`) and returns to its own period push_cadence_hold_s after the mode ends.
+    # Faster steps place more feet within the 0.56 s horizon. b1_z1's 0.8 s trot, 12 pushes that fell with
+    # the fixed period (0.6-1.0 m/s, 7 directions, 2 gait phases; 4 s runs): 0.6 s kept 6 up, 0.5 s 10,
+    # 0.45 s (this factor) all 12. A factor, not a period, so a slower gait (walk, 1.2 s) is not sped up
+    # 2.7x. None: the paper's fixed schedule
+    push_gait_period_scale: float | None = 0.5625
     push_cadence_hold_s: float = 1.0
 
     def __post_init__(self):
@@ -142,7 +143,7 @@ class MpcConfig:
         check_number("fallback_first_s", self.fallback_first_s, low=0.0, unit="s")
         check_number("push_velocity_error_m_s", self.push_velocity_error_m_s, low=0.0, low_open=True, unit="m/s")
         check_number("push_hold_s", self.push_hold_s, low=0.0, unit="s")
-        check_number("push_gait_period_s", self.push_gait_period_s, low=0.0, high=10.0, low_open=True, unit="s",
+        check_number("push_gait_period_scale", self.push_gait_period_scale, low=0.0, high=1.0, low_open=True,
                      allow_none=True)
         check_number("push_cadence_hold_s", self.push_cadence_hold_s, low=0.0, unit="s")
         bad = [tag for tag in self.push_relaxed_rows if tag not in ("ee_vel", "foot_vel")]
@@ -189,7 +190,7 @@ class MPC:
         self.config = config
         if not config.friction_coefficient > 0:
             raise ConfigError(f"friction coefficient must be positive, got {config.friction_coefficient}")
-        # the MPC's own clock: its period changes after pushes (push_gait_period_s); estimators read it too
+        # the MPC's own clock: its period changes after pushes (push_gait_period_scale); estimators read it too
         self.gait = GaitClock(make_gait(config.gait, len(robot.feet), config.gait_period_s))
         self.problem = problem or OcpProblem(robot, config.ocp)
         self.solver = solver or make_solver(self.problem, config.solver)
@@ -210,7 +211,7 @@ class MPC:
         self._recovery: NlpSolver | None = None
         self._fallback_until_t: float | None = None  # fallback solver first until this time
         self._push_until_t: float | None = None  # push recovery mode until this time
-        self._fast_cadence_until_t: float | None = None  # push_gait_period_s until this time
+        self._fast_cadence_until_t: float | None = None  # the push cadence until this time
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
@@ -453,12 +454,13 @@ class MPC:
         """Faster steps while in push recovery mode and push_cadence_hold_s after it, then the gait's own
         period again (both switches keep every foot's phase)."""
         cfg, gait = self.config, self.gait
-        if cfg.push_gait_period_s is None or gait.duty_factor >= 1:
+        if cfg.push_gait_period_scale is None or gait.duty_factor >= 1:
             return
         if self._push_until_t is not None and t < self._push_until_t:
             self._fast_cadence_until_t = self._push_until_t + cfg.push_cadence_hold_s
-            if gait.period_s != cfg.push_gait_period_s:
-                gait.retime(t, cfg.push_gait_period_s)
+            fast_period_s = cfg.push_gait_period_scale * gait.nominal_period_s
+            if gait.period_s != fast_period_s:
+                gait.retime(t, fast_period_s)
         elif self._fast_cadence_until_t is not None and t >= self._fast_cadence_until_t:
             gait.retime(t, gait.nominal_period_s)
             self._fast_cadence_until_t = None

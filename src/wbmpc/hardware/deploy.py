@@ -113,10 +113,10 @@ class Controller:
 
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None):
         check_interface(config.network)
-        if not config.lockstep and mpc_config.push_gait_period_s is not None:
+        if not config.lockstep and mpc_config.push_gait_period_scale is not None:
             # the estimator here reads the gait schedule; a solver process's clock, which speeds up after
             # a push, is out of its sight: the fixed schedule (lock-step shares the MPC's clock instead)
-            mpc_config = replace(mpc_config, push_gait_period_s=None)
+            mpc_config = replace(mpc_config, push_gait_period_scale=None)
         self.robot, self.mpc_config, self.config = robot, mpc_config, config
         self.motors = unitree_motor_map(robot)
         self.mpc = mpc  # lock-step: built once the robot answers (a missing robot is reported in 2 s, not after a build)

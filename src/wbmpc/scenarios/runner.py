@@ -57,6 +57,8 @@ class RunConfig:
     model_errors: ModelErrors | None = None  # the MuJoCo plant differs from the MPC's model
     joint_position_noise_rad: float = 0.0  # std of the measurement noise (LoopConfig)
     joint_velocity_noise_rad_s: float = 0.0
+    # MpcConfig.push_gait_period_scale: the gait period's factor after a push (1: the paper's fixed schedule)
+    push_gait_period_scale: float = MpcConfig.push_gait_period_scale
 
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
@@ -78,6 +80,7 @@ class RunConfig:
             raise ConfigError.for_field("seed", f"must be an integer >= 0, got {self.seed!r}")
         if self.state not in ("true", "estimated"):
             raise ConfigError(f"--state must be 'true' or 'estimated', got {self.state!r}")
+        check_number("push_gait_period_scale", self.push_gait_period_scale, low=0.0, high=1.0, low_open=True)
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 
@@ -110,8 +113,8 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      else DELAYED_RECOVERY_LIMIT_S,
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
                      # that changes after a push lives in the solver process: keep the fixed schedule there
-                     push_gait_period_s=None if config.state == "estimated" and config.delay == "realtime"
-                     else MpcConfig.push_gait_period_s)
+                     push_gait_period_scale=None if config.state == "estimated" and config.delay == "realtime"
+                     or config.push_gait_period_scale == 1 else config.push_gait_period_scale)
 
 
 def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None = None,
@@ -173,6 +176,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
                     "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
                     "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking,
+                    "push_gait_period_scale": mpc.config.push_gait_period_scale,
                     "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
                     "drive_train": _drive_train_summary(robot, plant.config)})
     result = ScenarioResult(scenario, metrics, log, scene)
