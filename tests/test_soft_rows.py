@@ -48,7 +48,9 @@ def test_slacks_sit_on_input_nodes_1_to_n_minus_1_and_unknown_tags_are_refused(a
 
 def _trot_step(a1, ocp: OcpConfig, weight: float, q, v):
     """One trot step (t = 0.11 s: a diagonal pair in swing) with the slacks forced free."""
-    mpc = MPC(a1, MpcConfig(ocp=ocp, gait="trot", fallback_solver=None, weights=CostWeights(soft_constraint=weight)))
+    # the gait's own period in push recovery mode too: the hard and soft steps plan the same schedule
+    mpc = MPC(a1, MpcConfig(ocp=ocp, gait="trot", fallback_solver=None, weights=CostWeights(soft_constraint=weight),
+                            push_gait_period_scale=None))
     capture = Capture(mpc.solver)
     mpc._push_until_t = np.inf  # as after a push
     solution = mpc.solve(q, v, Commands(), t=0.11)
