@@ -147,9 +147,13 @@ def test_model_errors_change_the_plant_not_the_model():
     com, mass, _ = _com_and_mass(robot, ModelErrors(ee_payload_kg=2.0))
     assert mass == pytest.approx(robot.mass_kg + 2.0)
     assert com == pytest.approx((robot.mass_kg * com_model + 2.0 * ee) / (robot.mass_kg + 2.0), abs=1e-6)
-    _, mass, plant = _com_and_mass(robot, ModelErrors(link_mass_scale=1.1, joint_armature_kg_m2=0.01, floor_friction_mu=0.4))
+    _, mass, plant = _com_and_mass(robot, ModelErrors(link_mass_scale=1.1, joint_armature_kg_m2=0.01, floor_friction_mu=0.4,
+                                                      joint_frictionloss_nm=0.5))
     assert mass == pytest.approx(1.1 * robot.mass_kg)
     assert plant.model.dof_armature[-1] == pytest.approx(0.01) and plant.model.geom_friction[0, 0] == pytest.approx(0.4)
+    assert np.all(plant.model.dof_frictionloss[6:] == 0.5) and np.all(plant.model.dof_frictionloss[:6] == 0)
+    case = expand(CampaignSpec(scenario="stand", grid={"joint_frictionloss_nm": [0.5]}))[0]
+    assert case.run_config().model_errors.joint_frictionloss_nm == 0.5
     assert robot.mass_kg == pytest.approx(pin.computeTotalMass(robot.model))  # the controller's model is untouched
     with pytest.raises(ConfigError, match="ee_payload_kg"):
         ModelErrors(ee_payload_kg=-1.0)

@@ -28,6 +28,7 @@ _MODEL_AXES = {
     "ee_payload_kg": "mass attached at the arm end-effector in the plant (kg)",
     "joint_armature_kg_m2": "rotor inertia of every plant joint (kg m^2)",
     "joint_damping_nm_s_per_rad": "viscous friction of every plant joint (N m s/rad)",
+    "joint_frictionloss_nm": "dry (Coulomb) friction of every plant joint (N m)",
     "floor_friction_mu": "floor friction coefficient of the plant (the MPC assumes 0.7)",
 }
 _LOOP_AXES = {
@@ -105,6 +106,7 @@ class Case:
             ee_payload_kg=float(v.get("ee_payload_kg", 0.0)),
             joint_armature_kg_m2=_optional(v, "joint_armature_kg_m2"),
             joint_damping_nm_s_per_rad=_optional(v, "joint_damping_nm_s_per_rad"),
+            joint_frictionloss_nm=_optional(v, "joint_frictionloss_nm"),
             floor_friction_mu=_optional(v, "floor_friction_mu"),
             seed=self.seed,
         )

@@ -11,8 +11,8 @@ fields); the MPC keeps the nominal `RobotModel`.
 - `link_mass_noise_rel` + `seed`: on top, each body gets its own factor 1 + N(0, noise);
 - `ee_payload_kg`: a point-like mass (sphere of `payload_radius_m`) rigidly attached at the arm
   end-effector frame;
-- `joint_armature_kg_m2`, `joint_damping_nm_s_per_rad`: rotor inertia and viscous friction in
-  every plant joint (MuJoCo `armature` and `damping`);
+- `joint_armature_kg_m2`, `joint_damping_nm_s_per_rad`, `joint_frictionloss_nm`: rotor inertia,
+  viscous and dry (Coulomb) friction in every plant joint (MuJoCo `armature`, `damping`, `frictionloss`);
 - `floor_friction_mu`: the floor's friction coefficient (the MPC keeps its own assumed value).
 """
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wbmpc.robots import RobotModel
-from wbmpc.sim.base import PlantConfig, PlantInputError
+from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, PlantConfig, PlantInputError
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,7 @@ class ModelErrors:
     payload_radius_m: float = 0.03
     joint_armature_kg_m2: float | None = None  # None: the plant's default
     joint_damping_nm_s_per_rad: float | None = None
+    joint_frictionloss_nm: float | None = None
     floor_friction_mu: float | None = None
     seed: int = 0
 
@@ -50,7 +51,7 @@ class ModelErrors:
             raise PlantInputError(f"ee_payload_kg must be a mass >= 0 kg, got {self.ee_payload_kg}")
         if not self.payload_radius_m > 0:
             raise PlantInputError(f"payload_radius_m must be positive, got {self.payload_radius_m}")
-        for name in ("joint_armature_kg_m2", "joint_damping_nm_s_per_rad", "floor_friction_mu"):
+        for name in ("joint_armature_kg_m2", "joint_damping_nm_s_per_rad", "joint_frictionloss_nm", "floor_friction_mu"):
             value = getattr(self, name)
             if value is not None and not (np.isfinite(value) and value >= 0):
                 raise PlantInputError(f"{name} must be a finite number >= 0 (or None for the plant default), got {value}")
@@ -67,8 +68,7 @@ class ModelErrors:
         if config is not None and not isinstance(config, (PlantConfig,)):
             raise PlantInputError(f"model errors apply to a PlantConfig, got {type(config).__name__}")
         config = specialised_config(config, MujocoPlantConfig)
-        shared = {name: getattr(self, name) for name in ("joint_armature_kg_m2", "joint_damping_nm_s_per_rad")
-                  if getattr(self, name) is not None}
+        shared = {name: getattr(self, name) for name in DRIVE_TRAIN_FIELDS if getattr(self, name) is not None}
         if self.floor_friction_mu is not None:
             shared["friction_mu"] = self.floor_friction_mu
         previous = config.spec_callback
