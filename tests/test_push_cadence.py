@@ -106,3 +106,22 @@ def test_in_mujoco_the_feet_step_faster_after_a_kick_and_at_the_gait_period_with
     # before the kick both runs are the same closed loop
     before = fast.log.t < 0.3
     np.testing.assert_allclose(fast.log.q[before], fixed.log.q[before], atol=1e-9)
+
+
+def test_each_solver_gets_its_default_cadence_and_an_estimator_that_cannot_see_the_clock_is_refused():
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.library import make_scenario
+    from wbmpc.scenarios.runner import mpc_config_for
+
+    scenario = make_scenario("push", None)
+
+    def scale(**run):
+        return mpc_config_for(scenario, RunConfig(scenario="push", **run)).push_gait_period_scale
+
+    assert scale() == MpcConfig.push_gait_period_scale == 0.5625
+    assert scale(solver="rti") is None  # RTI keeps the fixed schedule unless asked
+    assert scale(solver="rti", push_gait_period_scale=0.5) == 0.5
+    assert scale(push_gait_period_scale=1.0) is None
+    assert scale(state="estimated", delay="realtime") is None
+    with pytest.raises(ConfigError, match="--push-cadence"):
+        RunConfig(state="estimated", delay="realtime", push_gait_period_scale=0.5)
