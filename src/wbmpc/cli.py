@@ -446,8 +446,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
     run.add_argument("--push-cadence", type=float, metavar="SCALE",
                      help="after a push (any scenario) the gait period is scaled by this, in (0, 1], while in push "
-                          "recovery mode and 1 s after (default 0.5625: the 0.8 s trot steps every 0.45 s); 1: the "
-                          "paper's fixed schedule")
+                          "recovery mode and 1 s after (default 0.5625: the 0.8 s trot steps every 0.45 s; with --solver rti "
+                          "1); 1: the paper's fixed schedule")
     run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
     run.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), Nm/rad >= 0 (default: the robot's tuning, 0 on B1)")
     run.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), Nm s/rad >= 0 (default: the robot's tuning, 5 on B1)")

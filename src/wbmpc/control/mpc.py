@@ -123,8 +123,9 @@ class MpcConfig:
     # continuous, `GaitClock.retime`) and returns to its own period push_cadence_hold_s after the mode ends.
     # Faster steps place more feet within the 0.56 s horizon. b1_z1's 0.8 s trot, 12 pushes that fell with
     # the fixed period (0.6-1.0 m/s, 7 directions, 2 gait phases; 4 s runs): 0.6 s kept 6 up, 0.5 s 10,
-    # 0.45 s (this factor) all 12. A factor, not a period, so a slower gait (walk, 1.2 s) is not sped up
-    # 2.7x. None: the paper's fixed schedule
+    # 0.45 s (this factor) all 12; push map at 0.8/1.0 m/s, 8 directions x 4 phases: 63 of 64 up, 41 of 64
+    # on the fixed period. A factor, not a period, so a slower gait (walk, 1.2 s) is not sped up 2.7x.
+    # None: the paper's fixed schedule
     push_gait_period_scale: float | None = 0.5625
     push_cadence_hold_s: float = 1.0
 

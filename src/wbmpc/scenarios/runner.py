@@ -58,7 +58,7 @@ class RunConfig:
     joint_position_noise_rad: float = 0.0  # std of the measurement noise (LoopConfig)
     joint_velocity_noise_rad_s: float = 0.0
     # MpcConfig.push_gait_period_scale: the gait period's factor after a push (1: the paper's fixed schedule).
-    # None: the solver's default (`default_push_cadence`)
+    # None: the solver's default (`_push_cadence`: faster steps with Fatrop and IPOPT, fixed with RTI)
     push_gait_period_scale: float | None = None
 
     def __post_init__(self):
