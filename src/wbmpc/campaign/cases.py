@@ -113,7 +113,7 @@ class Case:
 
     def run_config(self):
         """The `RunConfig` of this case (raises ConfigError on values the scenario rejects)."""
-        from wbmpc.control.tuning import TUNINGS, RobotTuning
+        from wbmpc.control.tuning import tuning_for
         from wbmpc.gait import make_gait
         from wbmpc.scenarios import RunConfig
         from wbmpc.scenarios.library import SCENARIOS
@@ -123,7 +123,7 @@ class Case:
                                      if k in _SCENARIO_AXES})
         if "gait_phase" in v:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
-            period = make_gait(gait, 4, TUNINGS.get(self.robot, RobotTuning()).gait_period_s).period_s  # a1: 0.6 s
+            period = make_gait(gait, 4, tuning_for(self.robot).gait_period_s).period_s  # a1: 0.6 s
             options.push_time_s += float(v["gait_phase"]) * period
         delay = v.get("delay_ms")
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,

@@ -59,6 +59,6 @@ TUNINGS: dict[str, RobotTuning] = {
 }
 
 
-def tuning_for(robot: RobotModel) -> RobotTuning:
-    """The tuning of a preset (by robot name), or the defaults."""
-    return TUNINGS.get(robot.name, RobotTuning())
+def tuning_for(robot: RobotModel | str) -> RobotTuning:
+    """The tuning of a preset (a robot or its preset name), or the defaults."""
+    return TUNINGS.get(robot if isinstance(robot, str) else robot.name, RobotTuning())
