@@ -27,8 +27,9 @@ def _tiny_spec(**grid) -> CampaignSpec:
 
 @pytest.fixture(scope="module")
 def client():
-    from distributed import Client, LocalCluster
     import logging
+
+    from distributed import Client, LocalCluster
 
     from wbmpc.campaign.execution import _worker_env
 

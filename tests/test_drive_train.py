@@ -10,7 +10,13 @@ import pytest
 from wbmpc.bench.dynamics import validate_dynamics
 from wbmpc.errors import ModelError
 from wbmpc.robots import RobotModel, load_robot, preset_spec
-from wbmpc.sim import MujocoPlant, MujocoPlantConfig, PinocchioPlant, PlantConfig, PlantInputError
+from wbmpc.sim import (
+    MujocoPlant,
+    MujocoPlantConfig,
+    PinocchioPlant,
+    PlantConfig,
+    PlantInputError,
+)
 from wbmpc.symbolic import Motion, SymbolicDynamics
 
 ARMATURE = {"FL_calf_joint": 0.05, "FR_calf_joint": 0.05, "RL_calf_joint": 0.05, "RR_calf_joint": 0.05}

@@ -5,7 +5,14 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.errors import ConfigError
-from wbmpc.estimation import EncoderConfig, ImuConfig, SensorConfig, Sensors, StateEstimator, contact_trust
+from wbmpc.estimation import (
+    EncoderConfig,
+    ImuConfig,
+    SensorConfig,
+    Sensors,
+    StateEstimator,
+    contact_trust,
+)
 from wbmpc.estimation.metrics import estimation_metrics
 from wbmpc.estimation.source import EstimatedState
 from wbmpc.gait import make_gait

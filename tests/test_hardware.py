@@ -20,8 +20,14 @@ except Exception as exc:  # noqa: BLE001
 from wbmpc.estimation import SensorConfig, Sensors  # noqa: E402
 from wbmpc.hardware import crc  # noqa: E402
 from wbmpc.hardware.mapping import unitree_motor_map  # noqa: E402
-from wbmpc.hardware.messages import (MessageError, MotorCommand, decode_low_cmd, decode_low_state,  # noqa: E402
-                                     encode_low_cmd, encode_low_state)
+from wbmpc.hardware.messages import (  # noqa: E402
+    MessageError,
+    MotorCommand,
+    decode_low_cmd,
+    decode_low_state,
+    encode_low_cmd,
+    encode_low_state,
+)
 from wbmpc.hardware.safety import SafetyConfig, clamp_command  # noqa: E402
 from wbmpc.robots import load_robot  # noqa: E402
 from wbmpc.sim import make_plant  # noqa: E402

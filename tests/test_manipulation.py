@@ -17,7 +17,14 @@ from wbmpc.robots import load_robot
 from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario, run_scenario
 from wbmpc.scenarios.manipulation import low_pass, static_arm_torques
 from wbmpc.scenarios.sweep import parse_loads
-from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, CompliantPad, ExternalHand, HandPush, Scene
+from wbmpc.sim.objects import (
+    Board,
+    CableLoad,
+    CompliantPad,
+    ExternalHand,
+    HandPush,
+    Scene,
+)
 
 CONTRACT_KEYS = ("scenario", "fell", "duration_s", "base_drift_cm_s", "base_vel_rmse", "ee_pos_rmse_m",
                  "ee_force_err_rel", "max_torque_ratio", "solve_ms", "mpc_failures")

@@ -3,7 +3,14 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.errors import ModelError
-from wbmpc.robots import PRESET_NAMES, RobotModel, RobotSpec, custom_spec, load_robot, preset_spec
+from wbmpc.robots import (
+    PRESET_NAMES,
+    RobotModel,
+    RobotSpec,
+    custom_spec,
+    load_robot,
+    preset_spec,
+)
 from wbmpc.robots.presets import example_robot_data_dir
 
 

@@ -8,7 +8,13 @@ import pytest
 
 from wbmpc.control import MPC, MpcConfig
 from wbmpc.control.chunked_table import ChunkedTable
-from wbmpc.control.loop import ClosedLoop, LoopConfig, RunLog, command_from_row, command_row
+from wbmpc.control.loop import (
+    ClosedLoop,
+    LoopConfig,
+    RunLog,
+    command_from_row,
+    command_row,
+)
 from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid

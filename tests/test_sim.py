@@ -4,6 +4,7 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.robots import GRAVITY_M_S2, PRESET_NAMES, load_robot
+from wbmpc.robots.presets import QUADRUPEDS
 from wbmpc.sim import (
     MujocoPlant,
     MujocoPlantConfig,
@@ -17,8 +18,14 @@ from wbmpc.sim import (
 )
 from wbmpc.sim.base import quat_xyzw_to_matrix
 from wbmpc.sim.contact_solver import OPEN, SLIDE, STICK, solve_contact_impulses
-from wbmpc.robots.presets import QUADRUPEDS
-from wbmpc.sim.mujoco_scene import MIN_INERTIA_KG_M2, MIN_MASS_KG, build_mjcf, build_model, mujoco_inertia, regularised_bodies
+from wbmpc.sim.mujoco_scene import (
+    MIN_INERTIA_KG_M2,
+    MIN_MASS_KG,
+    build_mjcf,
+    build_model,
+    mujoco_inertia,
+    regularised_bodies,
+)
 
 PLANTS = ("mujoco", "pinocchio")
 

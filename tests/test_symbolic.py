@@ -5,10 +5,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.bench.dynamics import random_samples, validate_dynamics, world_forces_to_pinocchio
+from wbmpc.bench.dynamics import (
+    random_samples,
+    validate_dynamics,
+    world_forces_to_pinocchio,
+)
 from wbmpc.robots import PRESET_NAMES, load_robot
 from wbmpc.symbolic import Motion, SymbolicDynamics
-
 
 LARGE = {"centauro", "talos", "talos_full", "romeo", "icub", "icub_full", "g1", "simple_humanoid"}  # nv > 30
 
@@ -110,8 +113,9 @@ def test_increment_configuration_matches_integrate_and_has_finite_derivatives(b1
 
 
 def test_unsupported_joint_type_is_reported():
-    from wbmpc.errors import ModelError
     import types
+
+    from wbmpc.errors import ModelError
 
     robot = load_robot("a1")
     fake = types.SimpleNamespace(**{k: getattr(robot, k) for k in ("model", "contact_frames")})

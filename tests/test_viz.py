@@ -4,7 +4,6 @@ import json
 import re
 
 import matplotlib.image as mpimg
-
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -15,10 +14,29 @@ from wbmpc.errors import ConfigError
 from wbmpc.robots import load_robot
 from wbmpc.robots.model import RobotModel
 from wbmpc.robots.presets import custom_spec, example_robot_data_dir
-from wbmpc.viz import base_velocity_heading, frame_positions, replay_data, save_plots, save_replay
-from wbmpc.viz.plots import (EVENT_COLOR, FALL_COLOR, HIGHLIGHT_COLOR, RECOVERY_COLOR, RunMarks, _save,
-                             base_velocity_figure, contact_forces_figure, ee_position_figure, ee_rmse_m,
-                             foot_heights_figure, joint_torques_figure, most_loaded_joints, solver_figure)
+from wbmpc.viz import (
+    base_velocity_heading,
+    frame_positions,
+    replay_data,
+    save_plots,
+    save_replay,
+)
+from wbmpc.viz.plots import (
+    EVENT_COLOR,
+    FALL_COLOR,
+    HIGHLIGHT_COLOR,
+    RECOVERY_COLOR,
+    RunMarks,
+    _save,
+    base_velocity_figure,
+    contact_forces_figure,
+    ee_position_figure,
+    ee_rmse_m,
+    foot_heights_figure,
+    joint_torques_figure,
+    most_loaded_joints,
+    solver_figure,
+)
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -159,7 +177,7 @@ def test_save_plots_rejects_a_log_of_another_robot(b1z1, tmp_path):
 def marked_log(robot):
     """A synthetic log with a push at 0.1 s, steps 3 and 7 recovered, step 5 failed and a fall at 0.25 s."""
     n_steps = len(np.arange(0.0, 0.3, 1.0 / 80.0))
-    log = synthetic_log(robot, status=[f"Solve_Succeeded (recovery after fatrop: failed)" if k in (3, 7) else "ok"
+    log = synthetic_log(robot, status=["Solve_Succeeded (recovery after fatrop: failed)" if k in (3, 7) else "ok"
                                        for k in range(n_steps)])
     log.events = [(0.1, "push")]
     log.fell, log.fell_at_s = True, 0.25

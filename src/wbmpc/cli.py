@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import textwrap
 
@@ -255,9 +256,13 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     import warnings
     from pathlib import Path
 
-    import numpy as np
-
-    from wbmpc.scenarios import SCENARIOS, check_output_dir, make_scenario, run_scenario, write_outputs
+    from wbmpc.scenarios import (
+        SCENARIOS,
+        check_output_dir,
+        make_scenario,
+        run_scenario,
+        write_outputs,
+    )
 
     robot = robot_from_args(args)
     with warnings.catch_warnings(record=True) as caught:
@@ -318,7 +323,7 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
                          f"of a core; scheduling priority {m.get('realtime_priority') or 'default'}")
     if m.get("est_base_vel_rmse_m_s") is not None:
         lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
-                     f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {np.rad2deg(m['est_orientation_rmse_rad']):.2f} deg")
+                     f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {math.degrees(m['est_orientation_rmse_rad']):.2f} deg")
     if m.get("ee_pos_rmse_m") is not None:
         lines.append(f"  end-effector position RMSE {100 * m['ee_pos_rmse_m']:.2f} cm")
     if m.get("ee_force_err_rel") is not None:

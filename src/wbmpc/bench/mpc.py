@@ -35,9 +35,7 @@ PLANTS = ("pinocchio", "mujoco")
 # ---------------------------------------------------------------------------- configuration
 def grid_for(nodes: int, uniform_dt_ms: float | None = None):
     """Paper grid (geometric 10 ms -> 100 ms) on `nodes` nodes, or uniform steps of `uniform_dt_ms`."""
-    from wbmpc.ocp.grid import TimeGrid
-
-    from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S
+    from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 
     if isinstance(nodes, bool) or not isinstance(nodes, int):
         raise ConfigError.for_field("nodes", f"must be an integer >= 2, got {nodes!r}")

@@ -10,7 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.bench.mpc import write_report, _closed_loop, _output, bench_markdown, bench_mpc, grid_for, mpc_config
+from wbmpc.bench.mpc import (
+    _closed_loop,
+    _output,
+    bench_markdown,
+    bench_mpc,
+    grid_for,
+    mpc_config,
+    write_report,
+)
 from wbmpc.errors import ConfigError
 from wbmpc.progress import ProgressBar
 

@@ -16,7 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from wbmpc.bench.mpc import write_report, MPC_RATE_HZ, _closed_loop, _machine, _output, _stats, mpc_config
+from wbmpc.bench.mpc import (
+    MPC_RATE_HZ,
+    _closed_loop,
+    _machine,
+    _output,
+    _stats,
+    mpc_config,
+    write_report,
+)
 from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.progress import ProgressBar
 

@@ -22,9 +22,10 @@ noise, delay, robot); unknown names are rejected with the list of known ones.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+
+import tomllib
 
 from wbmpc.errors import ConfigError
 

@@ -23,7 +23,6 @@ from wbmpc.solvers import make_solver
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 
-
 COLD_FALLBACK_ITERATIONS = 300  # the fallback's cap on a run's first step (no plan to hold while it solves)
 
 

@@ -120,7 +120,7 @@ class StateEstimator:
     # ------------------------------------------------------------------ filter
     def update(self, reading: SensorReadings, start_xy: np.ndarray = np.zeros(2)) -> tuple[np.ndarray, np.ndarray]:
         """Fuse one reading; returns the estimated (q, v). `start_xy` places the first estimate."""
-        cfg, nf = self.config, self._nf
+        cfg = self.config
         t = reading.time_s
         dt = 0.0 if self._t is None else t - self._t
         if dt < 0:

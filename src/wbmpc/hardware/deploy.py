@@ -26,14 +26,25 @@ import numpy as np
 
 from wbmpc.control.interpolator import PdGains, interpolate
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
-from wbmpc.errors import ConfigError, WbmpcError
+from wbmpc.errors import ConfigError
 from wbmpc.estimation.estimator import EstimatorConfig, StateEstimator
 from wbmpc.gait import make_gait
 from wbmpc.hardware.mapping import unitree_motor_map
-from wbmpc.hardware.messages import MessageError, MotorCommand, decode_low_state, encode_low_cmd
+from wbmpc.hardware.messages import (
+    MessageError,
+    MotorCommand,
+    decode_low_state,
+    encode_low_cmd,
+)
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.robot_sim import LOW_CMD_TOPIC, LOW_STATE_TOPIC
-from wbmpc.hardware.safety import SafetyConfig, clamp_command, fallen, lying_joint_positions, posture_command
+from wbmpc.hardware.safety import (
+    SafetyConfig,
+    clamp_command,
+    fallen,
+    lying_joint_positions,
+    posture_command,
+)
 from wbmpc.hardware.sdk import load_sdk
 from wbmpc.robots import RobotModel
 

@@ -19,7 +19,13 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.estimation.sensors import SensorConfig, Sensors
 from wbmpc.hardware.mapping import unitree_motor_map
-from wbmpc.hardware.messages import MotorCommand, decode_low_cmd, decode_low_state, encode_low_cmd, encode_low_state
+from wbmpc.hardware.messages import (
+    MotorCommand,
+    decode_low_cmd,
+    decode_low_state,
+    encode_low_cmd,
+    encode_low_state,
+)
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.sdk import load_sdk
 

@@ -51,8 +51,15 @@ def load_sdk() -> Sdk:
         package.__spec__ = spec
         sys.modules["unitree_sdk2py"] = package
     try:
-        from unitree_sdk2py.core.channel import ChannelFactoryInitialize, ChannelPublisher, ChannelSubscriber
-        from unitree_sdk2py.idl.default import unitree_go_msg_dds__LowCmd_, unitree_go_msg_dds__LowState_
+        from unitree_sdk2py.core.channel import (
+            ChannelFactoryInitialize,
+            ChannelPublisher,
+            ChannelSubscriber,
+        )
+        from unitree_sdk2py.idl.default import (
+            unitree_go_msg_dds__LowCmd_,
+            unitree_go_msg_dds__LowState_,
+        )
         from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
     except ImportError as exc:
         raise ConfigError(f"Unitree SDK2 Python could not be loaded ({exc}); reinstall it: {INSTALL_HINT}") from None

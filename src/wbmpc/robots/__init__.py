@@ -1,6 +1,12 @@
 """Robot models: URDF/SRDF -> pinocchio model with limits, feet and arm end-effector."""
 
-from wbmpc.robots.model import GRAVITY_M_S2, JointValues, RobotModel, RobotSpec, joint_values
+from wbmpc.robots.model import (
+    GRAVITY_M_S2,
+    JointValues,
+    RobotModel,
+    RobotSpec,
+    joint_values,
+)
 from wbmpc.robots.presets import PRESET_NAMES, custom_spec, load_robot, preset_spec
 
 __all__ = [

@@ -46,7 +46,15 @@ from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
-from wbmpc.sim.objects import Board, BoxAtWall, CableLoad, CompliantPad, ExternalHand, HandPush, Scene
+from wbmpc.sim.objects import (
+    Board,
+    BoxAtWall,
+    CableLoad,
+    CompliantPad,
+    ExternalHand,
+    HandPush,
+    Scene,
+)
 
 EE_SPHERE_RADIUS_M = 0.03  # MujocoPlantConfig.ee_sphere_radius_m default: contact offset of the EE frame
 FEEDBACK_GAIN_1_S = 4.0
@@ -264,9 +272,7 @@ class _ForceTask(Scenario):
         return out
 
     def extra_plots(self, robot, log, out_dir):
-        from wbmpc.viz.plots import plot_ee_force
-
-        from wbmpc.viz.plots import RunMarks
+        from wbmpc.viz.plots import RunMarks, plot_ee_force
 
         s = self.force_series(log)
         return [plot_ee_force(s["t"], s["measured_n"], s["target_n"], out_dir / "ee_force.png",

@@ -8,7 +8,6 @@ import pinocchio as pin
 from wbmpc.control.loop import RunLog
 from wbmpc.robots import RobotModel
 
-
 SETTLE_S = 2.0
 
 

@@ -5,7 +5,13 @@ Every plant implements `Plant`: `reset(q, v)`, `step(tau_joints)`, `state() -> (
 states in pinocchio layout (see `wbmpc.sim.base`).
 """
 
-from wbmpc.sim.base import Plant, PlantConfig, PlantDivergedError, PlantInputError, Recording
+from wbmpc.sim.base import (
+    Plant,
+    PlantConfig,
+    PlantDivergedError,
+    PlantInputError,
+    Recording,
+)
 
 PLANTS = ("mujoco", "pinocchio")
 

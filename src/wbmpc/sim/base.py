@@ -15,7 +15,6 @@ import numpy as np
 from wbmpc.errors import ConfigError, ModelError, WbmpcError
 from wbmpc.robots import JointValues, RobotModel, joint_values
 
-
 C = TypeVar("C", bound="PlantConfig")
 DRIVE_TRAIN_FIELDS = ("joint_armature_kg_m2", "joint_damping_nm_s_per_rad", "joint_frictionloss_nm")
 

@@ -62,8 +62,8 @@ class ModelErrors:
 
     def plant_config(self, robot: RobotModel, config: PlantConfig | None = None):
         """`config` (default: the MuJoCo defaults) with these errors applied; scene callbacks are kept."""
-        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
         from wbmpc.sim.base import specialised_config
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
         if config is not None and not isinstance(config, (PlantConfig,)):
             raise PlantInputError(f"model errors apply to a PlantConfig, got {type(config).__name__}")

@@ -23,7 +23,12 @@ from wbmpc.sim.base import (
     quat_xyzw_to_matrix,
     specialised_config,
 )
-from wbmpc.sim.mujoco_scene import ROBOT_CONTYPE, MujocoPlantConfig, body_names, build_model
+from wbmpc.sim.mujoco_scene import (
+    ROBOT_CONTYPE,
+    MujocoPlantConfig,
+    body_names,
+    build_model,
+)
 
 _INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
 

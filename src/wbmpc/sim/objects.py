@@ -31,7 +31,12 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.robots import RobotModel
-from wbmpc.sim.mujoco_scene import ROBOT_CONTYPE, ROBOT_CONAFFINITY, MujocoPlantConfig, body_names
+from wbmpc.sim.mujoco_scene import (
+    ROBOT_CONAFFINITY,
+    ROBOT_CONTYPE,
+    MujocoPlantConfig,
+    body_names,
+)
 
 EE_SITE = "ee_attach"
 

@@ -19,7 +19,12 @@ from wbmpc.errors import ConfigError
 from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.buffered import BufferedFunction
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, compile_nlp
+from wbmpc.solvers.codegen import (
+    CodegenConfig,
+    CompileError,
+    CompileReport,
+    compile_nlp,
+)
 
 SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
 

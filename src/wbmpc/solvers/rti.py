@@ -33,7 +33,14 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
-from wbmpc.solvers.nlp import NlpResult, NlpSolver, SolverConfig, SolverStats, bound_violation, failed_result
+from wbmpc.solvers.nlp import (
+    NlpResult,
+    NlpSolver,
+    SolverConfig,
+    SolverStats,
+    bound_violation,
+    failed_result,
+)
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
 
 

@@ -19,8 +19,8 @@ for static objects; `scenario` names the run shown in the page's title.
 from __future__ import annotations
 
 import json
-from html import escape as html_escape
 import xml.etree.ElementTree as ET
+from html import escape as html_escape
 from pathlib import Path
 from typing import Any, Sequence
 
