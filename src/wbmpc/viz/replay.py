@@ -483,6 +483,9 @@ def _record(robot, time_s, q, fps: float, extras, objects) -> tuple[_Recorder, d
     viz.display(q[samples[0]])  # the first frame also as the static scene (before play, after reset)
     object_names = _add_objects(viewer, animation, objects, time_s[samples])
     _add_extras(viewer, animation, extras, time_s, samples)
+    floor = viewer[f"{_ROOT}/floor"]  # a light floor just under meshcat's grid, so that the feet have ground
+    floor.set_object(meshcat.geometry.Box([30.0, 30.0, 0.01]), meshcat.geometry.MeshLambertMaterial(color=0xd9dce1))
+    floor.set_transform(_matrix([0.0, 0.0, -0.0055]))
     height = max(float(robot.q_nominal[2]), 0.2)  # camera distance in proportion to the robot's size
     viewer["/Cameras/default/rotated/<object>"].set_property("position", (height * np.array([5.0, 3.0, 5.0])).tolist())
     viewer.set_animation(animation, play=True, repetitions=1_000_000)
