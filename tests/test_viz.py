@@ -381,13 +381,21 @@ def test_replay_draws_the_scene_objects_and_names_the_scenario(b1z1, tmp_path):
 
 
 def test_replay_of_a_long_run_stays_small(tmp_path):
+    """20 s at the full 30 fps; 10 min with fewer frames per second, under 20 MB."""
+    from wbmpc.viz.replay import MAX_NODE_FRAMES
+
     robot = load_robot("b1_z1")
     t = np.arange(0.0, 20.0, 0.002)
     q = synthetic_q(robot, t)
     path = save_replay(robot, t, q, tmp_path / "long.html", fps=30, extras=[("trail", q[:, :3] + [0, 0, 0.3])])
     data = embedded_json(path.read_text(encoding="utf-8"))
-    assert data["n_frames"] == 600
-    assert path.stat().st_size < 10e6  # meshes ~3 MB (decimated), ~0.1 MB of animation per second
+    assert data["n_frames"] == 600 and data["fps"] == 30
+    assert path.stat().st_size < 8e6  # meshes ~3 MB (decimated), ~0.1 MB of animation per second
+    t = np.arange(0.0, 600.0, 0.05)
+    path = save_replay(robot, t, synthetic_q(robot, t), tmp_path / "ten_minutes.html", fps=30)
+    data = embedded_json(path.read_text(encoding="utf-8"))
+    assert data["n_frames"] * len(data["nodes"]) <= MAX_NODE_FRAMES and 2 < data["fps"] < 30
+    assert data["t"][-1] > 599 and path.stat().st_size < 20e6
 
 
 def test_replay_of_a_biped(tmp_path):
