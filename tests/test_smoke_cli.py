@@ -2,8 +2,8 @@
 `--solver`, `--delay` mode, `--compiled`, `--json` and the files written, each run to its end
 through the real entry point (`wbmpc.cli.main`), checking the exit code and the JSON.
 
-Short runs (0.3 s simulated) on the small robot (a1, 6 nodes) keep the default set to about a
-minute; the compiled solvers (a C compile on a fresh cache), the loco-manipulation scenarios on the
+Short runs (0.3 s simulated) on the small robot (a1, 6 nodes) keep the default set to about two
+minutes on a loaded 2-core machine (most of it building the OCPs); the compiled solvers (a C compile on a fresh cache), the loco-manipulation scenarios on the
 arm robot and the README's 10 s estimated-state run are marked slow.
 """
 
