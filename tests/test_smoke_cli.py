@@ -139,6 +139,16 @@ def test_a_failed_first_solve_is_a_run_error_exit_1(capsys, tmp_path, monkeypatc
     assert not out.exists()
 
 
+def test_a_real_time_solver_process_that_does_not_start_is_a_run_error(capsys, monkeypatch):
+    from wbmpc.control import loop
+
+    monkeypatch.setattr(loop, "mpc_worker", sys.exit)  # the spawned process dies on its arguments at once
+    code = main(["run", "stand", *SMALL, "--duration", str(SHORT_S), "--delay", "realtime", "--no-outputs", "--json"])
+    err = capsys.readouterr().err
+    assert code == EXIT_FAILED, err[-2000:]
+    assert "wbmpc: error: the real-time MPC process did not start" in err
+
+
 def test_documented_exit_codes_hold(capsys):
     """README table and `--help` epilog: 0 done, 1 failed, 2 bad input, 130 Ctrl-C (tested in test_cli_behaviour)."""
     from wbmpc.cli import EPILOG, EXIT_CODES, EXIT_INTERRUPTED
