@@ -2,9 +2,10 @@
 
 With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
 text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
-fell, the load was not pulled, the solve did not converge, the simulation diverged), 2 bad input
-(the message names the option and the fix; nothing is built or written), 130 interrupted by
-Ctrl-C (a run keeps and writes what it measured so far).
+fell, the load was not pulled, the solve did not converge, the simulation diverged) or failed
+while running (`RunError`: the first MPC solve failed, a solver process did not start), 2 bad
+input (`ConfigError`, `ModelError`: the message names the option and the fix; nothing is built or
+written), 130 interrupted by Ctrl-C (a run keeps and writes what it measured so far).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from wbmpc.strict_json import to_json
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
-              "the solve did not converge or the simulation diverged", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              "the solve did not converge or the simulation diverged; or it failed while running: the first MPC "
+              "solve failed, a solver process did not start", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
                                        for code, text in EXIT_CODES.items())
@@ -593,7 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except WbmpcError as exc:  # e.g. the simulation diverged: the run failed, the input was fine
+    except WbmpcError as exc:  # RunError, a diverged simulation, a failed compile: the run failed, the input was fine
         print(f"wbmpc: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

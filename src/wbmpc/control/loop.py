@@ -22,7 +22,7 @@ from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
 from wbmpc.control.solution import Solution
-from wbmpc.errors import ConfigError, check_number
+from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
 DELAY_MODES = ("none", "measured", "measured-wall", "realtime")
@@ -406,7 +406,7 @@ class ClosedLoop:
         t0 = plant.time_s
         active = self._solve(log, t0, commands)
         if not active.success:
-            raise ConfigError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
+            raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
         pending: list[tuple[float, Solution]] = []
         next_mpc, next_control = t0 + mpc_period, t0
         solver_free_at = t0  # with a delay, the single solver is busy until its solution is out
@@ -476,11 +476,11 @@ class ClosedLoop:
                 log.interrupted = True
                 return log
             if not conn.poll(0) or conn.recv() != "ready":
-                raise ConfigError("the real-time MPC process did not start (see its error above)")
+                raise RunError("the real-time MPC process did not start (see its error above)")
             t0 = plant.time_s
             active = self._solve(log, t0, commands)
             if not active.success:
-                raise ConfigError(f"the MPC failed on the initial state ({active.stats.status})")
+                raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
             mpc_period = 1.0 / cfg.mpc_rate_hz
             next_mpc, next_control = t0 + mpc_period, t0
             busy, request = False, None

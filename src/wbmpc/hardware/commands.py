@@ -8,6 +8,7 @@ import sys
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.network import check_interface
+from wbmpc.progress import ProgressBar
 
 DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "arm-track")
 
@@ -79,18 +80,6 @@ def _add_network_options(parser) -> None:
     parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots)")
 
 
-_shown = [-1]
-
-
-def _progress(share: float) -> None:
-    percent = int(100 * min(share, 1.0))
-    if percent == _shown[0]:
-        return
-    _shown[0] = percent
-    bar = int(30 * min(share, 1.0))
-    print(f"\r[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
-
-
 def _write(path, payload) -> None:
     if path:
         with open(path, "w") as fh:
@@ -118,12 +107,15 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
 
     signal.signal(signal.SIGINT, lambda *_: sim.stop())
     signal.signal(signal.SIGTERM, lambda *_: sim.stop())
-    result = sim.run(progress=_progress if args.duration else None)
+    if args.duration:  # the bar (silent off a terminal) counts the simulated seconds after the first LowCmd
+        with ProgressBar(args.duration, "robot-sim ", unit="s") as bar:
+            result = sim.run(progress=lambda share: bar.update(share * args.duration))
+    else:
+        result = sim.run()
     report = result.summary()
     if args.drift_window:
         start, end = (float(x) for x in args.drift_window.split(","))
         report["window_drift_cm_s"] = result.drift_cm_s(start, end)
-    print(file=sys.stderr)
     _write(args.out, report)
     share = report["ticks_on_time_share"]
     lines = [
@@ -166,8 +158,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}), "
           f"{'lock-step' if args.lockstep else 'real time'}; building the MPC", file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
-    report = controller.run(scenario.commands(robot), progress=_progress).summary()
-    print(file=sys.stderr)
+    with ProgressBar(args.duration, f"deploy {args.scenario} ", unit="s") as bar:  # silent off a terminal
+        report = controller.run(scenario.commands(robot), progress=lambda share: bar.update(share * args.duration))
+    report = report.summary()
     _write(args.out, report)
     lines = [
         f"deploy {args.scenario}: phases {' -> '.join(f'{p} ({t:.2f} s)' for t, p in report['phases'])}",

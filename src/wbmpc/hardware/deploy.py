@@ -26,7 +26,7 @@ import numpy as np
 
 from wbmpc.control.interpolator import PdGains, interpolate
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.estimation.estimator import EstimatorConfig, StateEstimator
 from wbmpc.gait import make_gait
 from wbmpc.hardware.mapping import unitree_motor_map
@@ -348,7 +348,7 @@ class _SolverProcess:
         self._process = context.Process(target=mpc_worker, args=(robot.spec, mpc_config, child), daemon=True)
         self._process.start()
         if not self._conn.poll(600) or self._conn.recv() != "ready":
-            raise ConfigError("the MPC solver process did not start (see its error above)")
+            raise RunError("the MPC solver process did not start (see its error above)")
 
     def request(self, q, v, command, t) -> None:
         self._conn.send((q, v, command, t))
