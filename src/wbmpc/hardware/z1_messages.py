@@ -41,6 +41,9 @@ CONTROLLER_PORT, SDK_PORT = 8071, 8072
 CONTROLLER_IP = "127.0.0.1"
 KP_UNIT_NM_PER_RAD = 25.6  # physical kp per K_P unit
 KD_UNIT_NM_S_PER_RAD = 0.0128  # physical kd per K_W unit
+# z1_sdk LowlevelCmd::setControlGain / setGripperGain: the SDK's LOWCMD gains (joints 1-6, gripper), K_P/K_W units
+DEFAULT_KP_UNITS = (20.0, 30.0, 30.0, 20.0, 15.0, 10.0, 20.0)
+DEFAULT_KD_UNITS = (2000.0,) * 7
 
 
 class ArmFsmState(enum.IntEnum):

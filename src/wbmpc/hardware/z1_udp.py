@@ -113,9 +113,9 @@ class Z1Client(_Endpoint):
 
     def __init__(self, controller_ip: str = CONTROLLER_IP, controller_port: int = CONTROLLER_PORT,
                  own_port: int = SDK_PORT, state_timeout_ms: float = 100.0):
-        super().__init__(controller_ip, controller_port, own_port, decode_recv_state)
-        self.watchdog = Watchdog(state_timeout_ms, clock=time.perf_counter)
+        self.watchdog = Watchdog(state_timeout_ms, clock=time.perf_counter)  # before the receiver thread starts
         self.commands_sent = 0
+        super().__init__(controller_ip, controller_port, own_port, decode_recv_state)
 
     def _on_message(self, message, now: float) -> None:
         super()._on_message(message, now)
@@ -178,13 +178,13 @@ class Z1Server(_Endpoint):
 
     def __init__(self, sdk_ip: str = CONTROLLER_IP, sdk_port: int = SDK_PORT, own_port: int = CONTROLLER_PORT,
                  command_timeout_ms: float = 100.0):
-        super().__init__(sdk_ip, sdk_port, own_port, decode_send_cmd)
-        self.fsm = ArmFsmState.PASSIVE
+        self.fsm = ArmFsmState.PASSIVE  # before the receiver thread starts
         self.command_timeout_s = command_timeout_ms / 1e3
         self.watchdog_events = 0
         self.rtt_ms: list = []
         self._state_sent_wall: float | None = None
         self._answered = True
+        super().__init__(sdk_ip, sdk_port, own_port, decode_send_cmd)
 
     def _on_message(self, message: Z1Command, now: float) -> None:
         if message.state == ArmFsmState.PASSIVE:
