@@ -104,6 +104,7 @@ class RobotSimReport:
     damping_at_end: bool = False
     arm: dict | None = None  # the Z1 link's counters (None: no Z1 arm)
     sport_mode_at_end: str = ""
+    sport_calls: list = field(default_factory=list)  # motion switcher calls served, in order
     tick_cpu_ms: list = field(default_factory=list)  # CPU time of the tick loop's own thread per tick
     trajectory: list = field(default_factory=list)  # [t s, x, y, z, tilt deg] every 25 ticks (20 Hz), true base
 
@@ -129,6 +130,7 @@ class RobotSimReport:
             "damping_at_end": self.damping_at_end,
             "arm": self.arm,
             "sport_mode_at_end": self.sport_mode_at_end,
+            "sport_calls": self.sport_calls,
             "tick_cpu_ms_p50": float(np.percentile(self.tick_cpu_ms, 50)) if self.tick_cpu_ms else None,
             "tick_cpu_ms_p99": float(np.percentile(self.tick_cpu_ms, 99)) if self.tick_cpu_ms else None,
             "trajectory": self.trajectory,
@@ -332,6 +334,7 @@ class RobotSimulator:
                           "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
                           "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None, "rtt_samples": int(rtt.size)}
         report.sport_mode_at_end = self._switcher.mode
+        report.sport_calls = list(self._switcher.calls)
         report.sim_time_s = plant.time_s - started_at if started_at is not None else 0.0
         report.wall_time_s = time.perf_counter() - wall_start
         report.end_xy_m = plant.state()[0][:2].tolist()
