@@ -261,3 +261,25 @@ def test_ctrl_c_lies_the_robot_down_then_damps(dds):
     assert deploy["stopped_by"] == "ctrl-c", c_err
     assert [p for _, p in deploy["phases"]][-2:] == ["lie-down", "damping"]
     assert max(row[4] for row in robot["trajectory"]) < 30  # lay down, did not tip over
+
+
+@pytest.mark.slow
+def test_real_time_deploy_trots_b1_z1_with_the_arm_over_udp(dds):
+    """Real time (no lock-step): legs over DDS, the Z1 over UDP, MPC in its own process; a short trot in place."""
+    sim = _cli("robot-sim", "--robot", "b1_z1", "--arm", "z1", "--z1-ports", Z1_PORTS, "--domain", str(DOMAIN),
+               "--idle-exit", "10", "--watchdog-ms", "300", "--json")
+    controller = _cli("deploy", "--robot", "b1_z1", "--arm", "z1", "--z1-ports", Z1_PORTS, "--domain", str(DOMAIN),
+                      "--scenario", "trot-in-place", "--nodes", "8", "--duration", "3", "--json")
+    try:
+        c_out, c_err = controller.communicate(timeout=900)
+        sim.send_signal(signal.SIGINT)
+        s_out, _ = sim.communicate(timeout=120)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    deploy, robot = json.loads(c_out), json.loads(s_out)
+    assert [p for _, p in deploy["phases"]] == ["stand-up", "hold", "mpc", "lie-down", "damping"], c_err
+    assert not deploy["fell"] and deploy["arm"]["commands_sent"] > 1000 and deploy["sport_mode"]["restored"]
+    assert robot["arm"]["commands_received"] > 1000 and robot["arm"]["rtt_ms_p50"] is not None
+    assert robot["rtt_ms_p50"] is not None and robot["sport_mode_at_end"] == "normal"

@@ -145,6 +145,8 @@ class Z1Client(_Endpoint):
         ArmNotAnsweringError when the arm is silent or does not switch within `timeout_s`."""
         deadline = time.perf_counter() + timeout_s
         where = f"UDP {self._to[0]}:{self._to[1]}"
+        with self._lock:
+            self._latest = None  # a state from before (e.g. before a long MPC build) does not count
         if self.wait_state(timeout_s) is None:
             raise ArmNotAnsweringError(
                 f"the Z1 arm sent no valid state within {timeout_s:.1f} s ({where}; rejected {dict(self.rejected)}): is "
