@@ -267,7 +267,7 @@ def test_ctrl_c_lies_the_robot_down_then_damps(dds):
 def test_real_time_deploy_trots_b1_z1_with_the_arm_over_udp(dds):
     """Real time (no lock-step): legs over DDS, the Z1 over UDP, MPC in its own process; a short trot in place."""
     sim = _cli("robot-sim", "--robot", "b1_z1", "--arm", "z1", "--z1-ports", Z1_PORTS, "--domain", str(DOMAIN),
-               "--idle-exit", "10", "--watchdog-ms", "300", "--json")
+               "--idle-exit", "600", "--watchdog-ms", "300", "--json")  # idle from the start: the build is slow
     controller = _cli("deploy", "--robot", "b1_z1", "--arm", "z1", "--z1-ports", Z1_PORTS, "--domain", str(DOMAIN),
                       "--scenario", "trot-in-place", "--nodes", "8", "--duration", "3", "--json")
     try:

@@ -407,6 +407,8 @@ class Controller:
 
         while True:
             start = time.perf_counter()
+            if z1 is not None:
+                z1.poll()
             if z1 is not None and z1.watchdog.expired():
                 self._fail("arm-state-lost", f"no valid Z1 state for {cfg.arm_state_timeout_ms:.0f} ms "
                            f"(rejected {dict(z1.rejected)})", t_last)

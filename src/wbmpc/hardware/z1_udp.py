@@ -64,6 +64,8 @@ class _Endpoint:
             raise ConfigError(f"cannot bind UDP port {own_port} for the Z1 link ({exc}): is another Z1 SDK or "
                               "controller (or a second wbmpc) running on this machine?") from None
         self._sock.settimeout(0.05)
+        self._poll_sock = self._sock.dup()  # same socket, never waits: for `poll`
+        self._poll_sock.setblocking(False)
         self.rejected: Counter = Counter()
         self.received = 0
         self._lock = threading.Condition()
@@ -81,17 +83,32 @@ class _Endpoint:
                 continue
             except OSError:
                 return
-            now = time.perf_counter()
-            try:
-                message = self._decode(data)
-            except MessageError as exc:
-                with self._lock:
-                    self.rejected[_reason(exc)] += 1
-                continue
+            self._take(data)
+
+    def _take(self, data: bytes) -> None:
+        now = time.perf_counter()
+        try:
+            message = self._decode(data)
+        except MessageError as exc:
             with self._lock:
-                self.received += 1
-                self._on_message(message, now)
-                self._lock.notify_all()
+                self.rejected[_reason(exc)] += 1
+            return
+        with self._lock:
+            self.received += 1
+            self._on_message(message, now)
+            self._lock.notify_all()
+
+    def poll(self) -> None:
+        """Take what is waiting on the socket in the caller's thread (the 500 Hz loop must not depend on the
+        receiver thread getting the GIL in time)."""
+        while True:
+            try:
+                data = self._poll_sock.recv(_MAX_DATAGRAM)
+            except (BlockingIOError, socket.timeout, InterruptedError):
+                return
+            except OSError:
+                return
+            self._take(data)
 
     def _on_message(self, message, now: float) -> None:
         self._latest, self._latest_wall = message, now
@@ -105,6 +122,7 @@ class _Endpoint:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=1.0)
+        self._poll_sock.close()
         self._sock.close()
 
 
@@ -212,6 +230,7 @@ class Z1Server(_Endpoint):
 
     def command(self) -> Z1Command | None:
         """The LOWCMD command to apply now, or None (PASSIVE: damping). A stale command -> PASSIVE."""
+        self.poll()
         with self._lock:
             if self.fsm != ArmFsmState.LOWCMD:
                 return None
