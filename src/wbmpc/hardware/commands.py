@@ -236,7 +236,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     controller = Controller(robot, mpc_config, config)
     failure = None
     try:
-        report = controller.run(scenario.commands(robot), progress=_progress).summary()
+        commands = scenario.commands(robot)
+        ee_reference = scenario.ee_reference(robot) if args.scenario == "arm-track" else None
+        report = controller.run(commands, progress=_progress, ee_reference=ee_reference).summary()
     except DeployFailure as exc:
         failure = exc
         report = controller.report.summary()
@@ -252,6 +254,8 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"{report['plan_age_ms_max'] or 0:.1f} ms; controller work per tick p50 "
         f"{report['controller_tick_ms_p50'] or 0:.2f} ms, p99 {report['controller_tick_ms_p99'] or 0:.2f} ms",
     ]
+    if report["ee_rmse_estimated_m"] is not None:
+        lines.append(f"  end effector RMSE {100 * report['ee_rmse_estimated_m']:.2f} cm (from the estimated state)")
     if arm is not None:
         lines.append(f"  Z1 states {arm['states_received']} (rejected {arm['states_rejected']}), commands "
                      f"{arm['commands_sent']}")

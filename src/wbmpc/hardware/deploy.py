@@ -128,6 +128,7 @@ class DeployReport:
     solve_ms: list = field(default_factory=list)
     tick_ms: list = field(default_factory=list)  # controller work per LowState (excluding MPC solves)
     plan_age_ms: list = field(default_factory=list)
+    ee_error_m: list = field(default_factory=list)  # |reference - end effector| from the estimated state, MPC phase
     fell: bool = False
     stopped_by: str = "done"
     error: str | None = None
@@ -151,6 +152,7 @@ class DeployReport:
             "controller_tick_ms_p99": float(np.percentile(tick, 99)) if tick.size else None,
             "plan_age_ms_p50": float(np.percentile(age, 50)) if age.size else None,
             "plan_age_ms_max": float(age.max()) if age.size else None,
+            "ee_rmse_estimated_m": float(np.sqrt(np.mean(np.square(self.ee_error_m)))) if self.ee_error_m else None,
             "fell": self.fell,
             "stopped_by": self.stopped_by,
             "error": self.error,
@@ -260,7 +262,8 @@ class Controller:
             pass
 
     # ------------------------------------------------------------------ loop
-    def run(self, commands=None, progress=None) -> DeployReport:
+    def run(self, commands=None, progress=None, ee_reference=None) -> DeployReport:
+        """`ee_reference(t)`: the end effector's target (world, MPC time) whose error is reported, if given."""
         from wbmpc.hardware.z1_udp import Z1Client
 
         sdk = load_sdk()
@@ -305,7 +308,7 @@ class Controller:
                 raise NoRobotStateError("the robot stopped publishing LowState while the MPC was built; nothing "
                                         "was commanded")
             self._publisher, self._z1 = publisher, z1  # from here on, every exit goes through damping
-            self._loop(latest, commands, worker, progress)
+            self._loop(latest, commands, worker, progress, ee_reference)
         except BaseException as exc:
             if self._publisher is not None:
                 self._damp()
@@ -375,7 +378,7 @@ class Controller:
         self._damp()
         raise DeployFailure(message + "; legs and arm were sent damping")
 
-    def _loop(self, msg, commands, worker, progress) -> None:
+    def _loop(self, msg, commands, worker, progress, ee_reference=None) -> None:
         cfg, robot, report, safety = self.config, self.robot, self.report, self.config.safety
         phase, phase_t0 = None, 0.0
         pose_start = None
@@ -491,6 +494,9 @@ class Controller:
                     reference = interpolate(active, t_mpc)
                     command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
                     report.estimated_xy_m.append(q[:2].tolist())
+                    if ee_reference is not None:
+                        ee = robot.frame_trajectories(q[None, :], [robot.arm_ee])[robot.arm_ee][0]
+                        report.ee_error_m.append(float(np.linalg.norm(ee_reference(t_mpc) - ee)))
                     if t_mpc >= cfg.duration_s:
                         enter("lie-down" if cfg.lie_down else "damping", t, reading.joint_position_rad)
                     if progress:
