@@ -164,7 +164,7 @@ class _FakeRobot:
     """LowState from a standing reading, one per LowCmd (lock-step), through stand-ins of the SDK's
     channels; the Z1 through a real `Z1Server` on loopback. Records every LowCmd and Z1 command."""
 
-    def __init__(self, robot, ports, stop_after: int | None = None):
+    def __init__(self, robot, ports, stop_after: int | None = None, arm_silent_after: int | None = None):
         from wbmpc.estimation import SensorConfig, Sensors
         from wbmpc.hardware.mapping import unitree_motor_map
         from wbmpc.hardware.messages import encode_low_state
@@ -181,7 +181,7 @@ class _FakeRobot:
         self._encode = encode_low_state
         self.z1 = Z1Server(sdk_port=ports[1], own_port=ports[0], command_timeout_ms=5000)
         self.low_cmds, self.arm_commands = [], []
-        self.stop_after = stop_after
+        self.stop_after, self.arm_silent_after = stop_after, arm_silent_after
         self.tick = 0
         self.callback = None
         self._stop = threading.Event()
@@ -190,7 +190,8 @@ class _FakeRobot:
 
     def _arm_loop(self):
         while not self._stop.is_set():
-            self.z1.publish(np.zeros(7), np.zeros(7), np.zeros(7))
+            if self.arm_silent_after is None or len(self.low_cmds) < self.arm_silent_after:
+                self.z1.publish(np.zeros(7), np.zeros(7), np.zeros(7))
             command = self.z1.command()
             if command is not None and (not self.arm_commands or self.arm_commands[-1] is not command):
                 self.arm_commands.append(command)
@@ -269,7 +270,7 @@ class _FakeMpc:
                                q_joints=np.tile(self.robot.q_nominal[7:], (4, 1)), stats=SimpleNamespace(status="fake"))
 
 
-def _deploy_with_fake_robot(monkeypatch, stop_after=None, **fake_mpc):
+def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None, **fake_mpc):
     from wbmpc.control.mpc import MpcConfig
     from wbmpc.hardware import deploy as deploy_mod
     from wbmpc.hardware.deploy import Controller, DeployConfig
@@ -277,11 +278,11 @@ def _deploy_with_fake_robot(monkeypatch, stop_after=None, **fake_mpc):
 
     robot = load_robot("b1_z1")
     ports = (PORT_BASE + 2, PORT_BASE + 3)
-    fake = _FakeRobot(robot, ports, stop_after)
+    fake = _FakeRobot(robot, ports, stop_after, arm_silent_after)
     monkeypatch.setattr(deploy_mod, "load_sdk", fake.sdk)
     safety = SafetyConfig(stand_up_s=0.1, lie_down_s=0.1, state_timeout_ms=300)
     config = DeployConfig(lockstep=True, duration_s=0.2, hold_s=0.02, safety=safety, sport_release=False, z1_ports=ports,
-                          arm_state_timeout_ms=2000, max_plan_age_s=0.05)
+                          arm_state_timeout_ms=200, max_plan_age_s=0.05)
     controller = Controller(robot, MpcConfig(gait="stand"), config, mpc=_FakeMpc(robot, MpcConfig(gait="stand"), **fake_mpc))
     try:
         try:
@@ -319,6 +320,9 @@ def test_deploy_ends_in_damping_on_every_exit(monkeypatch):
 
     report, fake, error = _deploy_with_fake_robot(monkeypatch, stop_after=80)  # LowState stops mid stand-up
     assert isinstance(error, DeployFailure) and report.stopped_by == "state-watchdog" and _damped(fake)
+
+    report, fake, error = _deploy_with_fake_robot(monkeypatch, arm_silent_after=60)  # the arm goes silent
+    assert isinstance(error, DeployFailure) and report.stopped_by == "arm-state-lost" and _damped(fake)
 
     report, fake, error = _deploy_with_fake_robot(monkeypatch, fail_after=0)  # the first solve never succeeds
     assert isinstance(error, DeployFailure) and report.stopped_by == "mpc-failed"

@@ -44,6 +44,8 @@ KD_UNIT_NM_S_PER_RAD = 0.0128  # physical kd per K_W unit
 # z1_sdk LowlevelCmd::setControlGain / setGripperGain: the SDK's LOWCMD gains (joints 1-6, gripper), K_P/K_W units
 DEFAULT_KP_UNITS = (20.0, 30.0, 30.0, 20.0, 15.0, 10.0, 20.0)
 DEFAULT_KD_UNITS = (2000.0,) * 7
+# z1_controller config/savedArmStates.csv "startFlat": the folded pose the arm rests in (joints 1-6, rad)
+Z1_REST_POSE_RAD = {"joint1": 0.0, "joint2": 0.0, "joint3": -0.005, "joint4": -0.074, "joint5": 0.0, "joint6": 0.0}
 
 
 class ArmFsmState(enum.IntEnum):
