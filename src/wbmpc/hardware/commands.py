@@ -105,7 +105,7 @@ def _arm_settings(args) -> dict:
     if len(ports) != 2 or not all(0 < p < 65536 for p in ports):
         raise ConfigError(f"--z1-ports takes two UDP ports CTRL,SDK (e.g. 8071,8072), got {args.z1_ports!r}")
     arm = getattr(args, "arm", "auto")
-    arm = "z1" if arm == "z1" else "none" if arm in ("none", None) else "auto"
+    arm = "z1" if arm == "z1" else "none" if arm == "none" else "auto"  # None (no --arm given): auto
     return {"arm": arm, "z1_ports": ports}
 
 

@@ -176,7 +176,10 @@ class DeployReport:
 class Controller:
     """The deploy loop; `run(commands)` returns a `DeployReport` (raises NoRobotStateError, DeployFailure)."""
 
-    def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None):
+    def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None,
+                 solver_process=None):
+        """`solver_process(robot, mpc_config)`: the real-time solver process (request/poll/receive/close), by
+        default `_SolverProcess`; lock-step solves in this process with `mpc` (built here when None)."""
         check_interface(config.network)
         if not config.lockstep and mpc_config.push_gait_period_scale is not None:
             # the estimator here reads the gait schedule; a solver process's clock, which speeds up after
@@ -207,6 +210,7 @@ class Controller:
         self._interrupts = 0
         self._publisher = None
         self._z1 = None
+        self._solver_process = solver_process or _SolverProcess
 
     # ------------------------------------------------------------------ DDS side
     def _on_state(self, msg) -> None:
@@ -298,7 +302,7 @@ class Controller:
             if cfg.lockstep and self.mpc is None:
                 self.mpc = MPC(robot, self.mpc_config)
             elif not cfg.lockstep:
-                worker = _SolverProcess(robot, self.mpc_config)
+                worker = self._solver_process(robot, self.mpc_config)
             if z1 is not None:
                 hold = self._arm_command(posture_command(self._measured_joints(), self._measured_joints(), 1.0, 0.0,
                                                          cfg.safety, robot.tau_max))
