@@ -164,7 +164,8 @@ class _FakeRobot:
     """LowState from a standing reading, one per LowCmd (lock-step), through stand-ins of the SDK's
     channels; the Z1 through a real `Z1Server` on loopback. Records every LowCmd and Z1 command."""
 
-    def __init__(self, robot, ports, stop_after: int | None = None, arm_silent_after: int | None = None):
+    def __init__(self, robot, ports, stop_after: int | None = None, arm_silent_after: int | None = None,
+                 corrupt_every: int | None = None):
         from wbmpc.estimation import SensorConfig, Sensors
         from wbmpc.hardware.mapping import unitree_motor_map
         from wbmpc.hardware.messages import encode_low_state
@@ -181,7 +182,7 @@ class _FakeRobot:
         self._encode = encode_low_state
         self.z1 = Z1Server(sdk_port=ports[1], own_port=ports[0], command_timeout_ms=5000)
         self.low_cmds, self.arm_commands = [], []
-        self.stop_after, self.arm_silent_after = stop_after, arm_silent_after
+        self.stop_after, self.arm_silent_after, self.corrupt_every = stop_after, arm_silent_after, corrupt_every
         self.tick = 0
         self.callback = None
         self._stop = threading.Event()
@@ -191,7 +192,8 @@ class _FakeRobot:
     def _arm_loop(self):
         while not self._stop.is_set():
             if self.arm_silent_after is None or len(self.low_cmds) < self.arm_silent_after:
-                self.z1.publish(np.zeros(7), np.zeros(7), np.zeros(7))
+                corrupt = self.corrupt_every is not None and len(self.low_cmds) % self.corrupt_every == 1
+                self.z1.publish(np.full(7, np.nan if corrupt else 0.0), np.zeros(7), np.zeros(7))
             command = self.z1.command()
             if command is not None and (not self.arm_commands or self.arm_commands[-1] is not command):
                 self.arm_commands.append(command)
@@ -202,6 +204,9 @@ class _FakeRobot:
             return
         msg = self._encode(self._legs_reading, self.motors, self.tick * 2)
         self.tick += 1
+        if self.corrupt_every is not None and self.tick % self.corrupt_every == 0:
+            msg.crc ^= 1  # corrupted in transit: deploy must not answer it; the robot publishes on anyway
+            threading.Timer(0.002, self.publish_state).start()
         self.callback(msg)
 
     def sdk(self):
@@ -270,7 +275,7 @@ class _FakeMpc:
                                q_joints=np.tile(self.robot.q_nominal[7:], (4, 1)), stats=SimpleNamespace(status="fake"))
 
 
-def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None, **fake_mpc):
+def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None, corrupt_every=None, **fake_mpc):
     from wbmpc.control.mpc import MpcConfig
     from wbmpc.hardware import deploy as deploy_mod
     from wbmpc.hardware.deploy import Controller, DeployConfig
@@ -278,7 +283,7 @@ def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None,
 
     robot = load_robot("b1_z1")
     ports = (PORT_BASE + 2, PORT_BASE + 3)
-    fake = _FakeRobot(robot, ports, stop_after, arm_silent_after)
+    fake = _FakeRobot(robot, ports, stop_after, arm_silent_after, corrupt_every)
     monkeypatch.setattr(deploy_mod, "load_sdk", fake.sdk)
     safety = SafetyConfig(stand_up_s=0.1, lie_down_s=0.1, state_timeout_ms=300)
     config = DeployConfig(lockstep=True, duration_s=0.2, hold_s=0.02, safety=safety, sport_release=False, z1_ports=ports,
@@ -306,10 +311,12 @@ def _damped(fake, kd=5.0):
 def test_deploy_ends_in_damping_on_every_exit(monkeypatch):
     from wbmpc.hardware.deploy import DeployFailure
 
-    report, fake, error = _deploy_with_fake_robot(monkeypatch)
+    report, fake, error = _deploy_with_fake_robot(monkeypatch, corrupt_every=25)  # bad CRCs and NaN arm states
     assert error is None and report.stopped_by == "done", report.error
     assert [p for _, p in report.phases] == ["stand-up", "hold", "mpc", "lie-down", "damping"]
     assert _damped(fake) and len(fake.arm_commands) > 10
+    assert report.states_rejected["crc"] >= 5 and report.arm["states_rejected"]["malformed"] >= 1
+    assert report.commands_sent < fake.tick  # nothing answered the rejected LowStates
 
     report, fake, error = _deploy_with_fake_robot(monkeypatch, fail_after=3)  # solves fail: the plan ages
     assert isinstance(error, DeployFailure) and report.stopped_by == "stale-plan" and _damped(fake)
