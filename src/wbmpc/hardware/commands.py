@@ -56,7 +56,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "and exit 1 (default 250 ms)")
     _add_arm_options(dep)
     dep.add_argument("--no-lie-down", action="store_true", help="go straight to damping at the end")
-    dep.add_argument("--state-timeout-ms", type=float, help="no LowState for this long -> stop commanding (default "
+    dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
