@@ -192,7 +192,7 @@ def test_watchdog_fires_when_the_controller_is_killed_and_bad_crc_is_rejected(go
     controller = _cli("deploy", "--robot", "b1_z1", "--arm", "z1", "--z1-ports", Z1_PORTS, "--domain", str(DOMAIN),
                       "--scenario", "stand", "--lockstep", "--nodes", "4", "--duration", "30")
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 300  # b1_z1 builds slower than go2 on a loaded machine
         while len(heard) < 200 and time.monotonic() < deadline:  # MPC built, robot being stood up over DDS
             time.sleep(0.1)
         assert controller.poll() is None and len(heard) >= 200, controller.read_errors()

@@ -32,6 +32,10 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "until a controller releases it; '' for none)")
     sim.add_argument("--refuse-sport-release", action="store_true", help="keep the sport mode when asked to release "
                      "it (a robot that refuses)")
+    sim.add_argument("--arm-silent-after", type=float, metavar="S", help="fault: the Z1 stops sending its state S "
+                     "simulated seconds after the first LowCmd")
+    sim.add_argument("--corrupt-every", type=int, metavar="N", help="fault: every N-th LowState with a bad CRC and "
+                     "Z1 state with a NaN")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
@@ -159,7 +163,8 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                             start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
                             idle_exit_s=args.idle_exit, push_time_s=args.push_time,
                             push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
-                            refuse_sport_release=args.refuse_sport_release, **_arm_settings(args))
+                            refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
+                            corrupt_every=args.corrupt_every, **_arm_settings(args))
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     print(f"wbmpc robot-sim: {robot.name} on {args.network} (DDS domain {args.domain}), {args.mode}, motors "
@@ -184,7 +189,8 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         (f"  ticks {report['ticks']}, on time {100 * share:.2f} %; CPU per tick p50 {report['tick_cpu_ms_p50']:.2f} ms, "
          f"p99 {report['tick_cpu_ms_p99']:.2f} ms (budget {1e3 / config.state_rate_hz:.1f} ms)") if share else "  no ticks",
         f"  LowCmd received {report['commands_received']}, rejected {report['commands_rejected']}, "
-        f"watchdog (damping) at {report['watchdog_events_s']} s",
+        f"watchdog (damping) at {report['watchdog_events_s']} s, "
+        f"{', '.join(f'{x:.0f}' for x in report['watchdog_latency_ms']) or 'no'} ms after the last valid LowCmd",
     ]
     if "window_drift_cm_s" in report:
         lines.append(f"  true drift between {args.drift_window} s: {report['window_drift_cm_s']:.2f} cm/s")
@@ -196,7 +202,9 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         rtt = (f"; Z1 state -> command round trip p50 {arm['rtt_ms_p50']:.2f} ms, p99 {arm['rtt_ms_p99']:.2f} ms"
                if arm["rtt_ms_p50"] is not None else "")
         lines.append(f"  Z1 commands received {arm['commands_received']}, rejected {arm['commands_rejected']}, "
-                     f"watchdog (PASSIVE) {arm['watchdog_events']}x, passive at end {arm['passive_at_end']}{rtt}")
+                     f"watchdog (PASSIVE) {arm['watchdog_events']}x "
+                     f"({', '.join(f'{x:.0f}' for x in arm['watchdog_latency_ms']) or 'no'} ms after the last valid command), "
+                     f"passive at end {arm['passive_at_end']}{rtt}")
     emit(args, report, "\n".join(lines))
     return 0
 

@@ -69,6 +69,8 @@ class RobotSimConfig:
     z1_ports: tuple[int, int] = (CONTROLLER_PORT, SDK_PORT)  # (this process = the Z1 controller, the SDK's)
     sport_mode: str = "normal"  # the motion switcher's mode at start ("": released)
     refuse_sport_release: bool = False  # a robot that keeps its sport mode (fault injection)
+    arm_silent_after_s: float | None = None  # the Z1 stops sending its state at this simulated time (fault injection)
+    corrupt_every: int | None = None  # every n-th LowState with a bad CRC and Z1 state with NaN (fault injection)
 
     def __post_init__(self):
         if self.arm not in ("auto", "z1", "none"):
@@ -93,6 +95,7 @@ class RobotSimReport:
     commands_received: int = 0
     commands_rejected: dict = field(default_factory=dict)
     watchdog_events: list = field(default_factory=list)  # simulated times when damping started
+    watchdog_latency_ms: list = field(default_factory=list)  # wall time from the last valid LowCmd to damping
     rtt_ms: list = field(default_factory=list)
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
@@ -118,6 +121,7 @@ class RobotSimReport:
             "commands_received": self.commands_received,
             "commands_rejected": dict(self.commands_rejected),
             "watchdog_events_s": self.watchdog_events,
+            "watchdog_latency_ms": self.watchdog_latency_ms,
             "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
             "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None,
             "rtt_samples": int(rtt.size),
@@ -221,10 +225,12 @@ class RobotSimulator:
                 full.kp[j], full.kd[j] = arm.kp[k], arm.kd[k]
         return full
 
-    def _publish_arm(self, reading) -> None:
+    def _publish_arm(self, reading, corrupt: bool = False) -> None:
         if self._z1 is None:
             return
         q, dq = np.array(self.arm_map.locked_position_rad), np.zeros(N_Z1_JOINTS)
+        if corrupt:
+            q[0] = np.nan
         k = np.flatnonzero(self.arm_map.driven)
         j = np.array(self.arm_map.model_index)[k]
         q[k], dq[k] = reading.joint_position_rad[j], reading.joint_velocity_rad_s[j]
@@ -258,7 +264,10 @@ class RobotSimulator:
                 tick_ms = int(round(1e3 * t))
                 reading = self.sensors.read()
                 foot_force = np.linalg.norm(plant.contact_forces(), axis=1)
-                self._publish_arm(reading)
+                corrupt = cfg.corrupt_every is not None and report.ticks % cfg.corrupt_every == cfg.corrupt_every - 1
+                if not (cfg.arm_silent_after_s is not None and started_at is not None
+                        and t - started_at >= cfg.arm_silent_after_s):
+                    self._publish_arm(reading, corrupt)
                 legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
                                            joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
                 message = encode_low_state(legs, self.motors, tick_ms, foot_force)
@@ -266,6 +275,8 @@ class RobotSimulator:
                     self._send_wall[tick_ms] = time.perf_counter()
                     if len(self._send_wall) > 2000:
                         self._send_wall.pop(next(iter(self._send_wall)))
+                if corrupt:
+                    message.crc ^= 1  # corrupted in transit
                 publisher.Write(message)
                 # wait for (lock-step) or take (real time) the command
                 with self._lock:
@@ -279,7 +290,7 @@ class RobotSimulator:
                         started_at = t
                         report.start_xy_m = plant.state()[0][:2].tolist()
                         wall_start = deadline = time.perf_counter()
-                    elif cfg.mode == "lockstep" and not in_damping:
+                    elif cfg.mode == "lockstep" and not in_damping and not corrupt:  # nobody answers a corrupted one
                         self._lock.wait_for(lambda: self._command_echo == tick_ms or self._stop.is_set(),
                                             timeout=cfg.lockstep_timeout_ms / 1e3)
                     command, command_wall = self._command, self._command_wall
@@ -287,6 +298,7 @@ class RobotSimulator:
                 stale = time.perf_counter() - command_wall > timeout_s
                 if stale and not in_damping:
                     report.watchdog_events.append(t - started_at)
+                    report.watchdog_latency_ms.append(1e3 * (time.perf_counter() - command_wall))
                 in_damping = stale
                 command = self._full_command(None if in_damping else command)
                 if cfg.idle_exit_s is not None and time.perf_counter() - command_wall > cfg.idle_exit_s:
@@ -331,6 +343,7 @@ class RobotSimulator:
             rtt = np.array(self._z1.rtt_ms)
             report.arm = {"commands_received": self._z1.received, "commands_rejected": dict(self._z1.rejected),
                           "watchdog_events": self._z1.watchdog_events, "passive_at_end": self._z1.command() is None,
+                          "watchdog_latency_ms": list(self._z1.watchdog_latency_ms),
                           "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
                           "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None, "rtt_samples": int(rtt.size)}
         report.sport_mode_at_end = self._switcher.mode

@@ -201,6 +201,7 @@ class Z1Server(_Endpoint):
         self.fsm = ArmFsmState.PASSIVE  # before the receiver thread starts
         self.command_timeout_s = command_timeout_ms / 1e3
         self.watchdog_events = 0
+        self.watchdog_latency_ms: list = []  # wall time from the last valid command to PASSIVE
         self.rtt_ms: list = []
         self._state_sent_wall: float | None = None
         self._answered = True
@@ -234,8 +235,10 @@ class Z1Server(_Endpoint):
         with self._lock:
             if self.fsm != ArmFsmState.LOWCMD:
                 return None
-            if time.perf_counter() - self._latest_wall > self.command_timeout_s:
+            age_s = time.perf_counter() - self._latest_wall
+            if age_s > self.command_timeout_s:
                 self.fsm = ArmFsmState.PASSIVE
                 self.watchdog_events += 1
+                self.watchdog_latency_ms.append(1e3 * age_s)
                 return None
             return self._latest
