@@ -229,11 +229,11 @@ class RobotSimulator:
         if self._z1 is None:
             return
         q, dq = np.array(self.arm_map.locked_position_rad), np.zeros(N_Z1_JOINTS)
-        if corrupt:
-            q[0] = np.nan
         k = np.flatnonzero(self.arm_map.driven)
         j = np.array(self.arm_map.model_index)[k]
         q[k], dq[k] = reading.joint_position_rad[j], reading.joint_velocity_rad_s[j]
+        if corrupt:
+            q[0] = np.nan
         self._z1.publish(q, dq, np.zeros(N_Z1_JOINTS))
 
     def run(self, progress=None) -> RobotSimReport:
