@@ -268,7 +268,7 @@ class Controller:
     # ------------------------------------------------------------------ loop
     def run(self, commands=None, progress=None, ee_reference=None) -> DeployReport:
         """`ee_reference(t)`: the end effector's target (world, MPC time) whose error is reported, if given."""
-        from wbmpc.hardware.z1_udp import Z1Client
+        from wbmpc.hardware.z1_udp import ArmNotAnsweringError, Z1Client
 
         sdk = load_sdk()
         cfg, robot, report = self.config, self.robot, self.report
@@ -288,8 +288,6 @@ class Controller:
                 z1 = Z1Client(cfg.z1_ip, cfg.z1_ports[0], cfg.z1_ports[1], cfg.arm_state_timeout_ms)
             self._first_valid_state()
             if z1 is not None and z1.wait_state(cfg.first_state_timeout_s) is None:
-                from wbmpc.hardware.z1_udp import ArmNotAnsweringError
-
                 raise ArmNotAnsweringError(
                     f"the Z1 arm sent no valid state within {cfg.first_state_timeout_s:.1f} s (UDP {cfg.z1_ip}:"
                     f"{cfg.z1_ports[0]} -> port {cfg.z1_ports[1]} here; rejected {dict(z1.rejected)}): is z1_controller "
@@ -304,8 +302,9 @@ class Controller:
             elif not cfg.lockstep:
                 worker = self._solver_process(robot, self.mpc_config)
             if z1 is not None:
-                hold = self._arm_command(posture_command(self._measured_joints(), self._measured_joints(), 1.0, 0.0,
-                                                         cfg.safety, robot.tau_max))
+                # the arm holds its measured pose with the gains of the stand-up (locked joints: the Z1's defaults)
+                hold = self._arm_command(posture_command(robot.q_nominal[7:], robot.q_nominal[7:], 1.0, 0.0, cfg.safety,
+                                                         robot.tau_max))
                 z1.enter_lowcmd(cfg.first_state_timeout_s, hold.kp, hold.kd)
             latest = self._next_state(cfg.first_state_timeout_s)  # the robot kept publishing during the build
             if latest is None:
@@ -339,10 +338,6 @@ class Controller:
             report.states_rejected = dict(self._rejected)
         return report
 
-    def _measured_joints(self) -> np.ndarray:
-        reading = self._reading(self._latest)
-        return reading.joint_position_rad
-
     def _first_valid_state(self):
         cfg = self.config
         deadline = time.monotonic() + cfg.first_state_timeout_s
@@ -368,8 +363,7 @@ class Controller:
         q, dq = np.zeros(n), np.zeros(n)
         q[self._leg_index], dq[self._leg_index] = legs.joint_position_rad, legs.joint_velocity_rad_s
         if self.arm_map is not None:
-            z1 = self._z1 if self._z1 is not None else None
-            state = z1.latest() if z1 is not None else None
+            state = self._z1.latest() if self._z1 is not None else None
             if state is None:
                 q[self._arm_j] = self.robot.q_nominal[7:][self._arm_j]
             else:
