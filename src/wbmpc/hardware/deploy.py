@@ -8,7 +8,7 @@ lie-down and damping. Every command passes `clamp_command` (joint and torque lim
 Z1 command of a tick go out together, the Z1 joints the model locks held by PD at their reference.
 
 Start: a valid LowState within `first_state_timeout_s` (2 s), a Z1 state within the same time (before
-any leg command), the robot's sport mode released (`wbmpc.hardware.motion_switcher`), the MPC built,
+any leg command), the MPC built, the robot's sport mode released (`wbmpc.hardware.motion_switcher`),
 the Z1 switched to LOWCMD. Nothing is commanded when any of these fails (exit code 2).
 
 Fail safe: a fall (estimated tilt or height) -> damping; Ctrl-C -> lie down, then damping (a second
@@ -292,15 +292,15 @@ class Controller:
                     f"the Z1 arm sent no valid state within {cfg.first_state_timeout_s:.1f} s (UDP {cfg.z1_ip}:"
                     f"{cfg.z1_ports[0]} -> port {cfg.z1_ports[1]} here; rejected {dict(z1.rejected)}): is z1_controller "
                     "(or `wbmpc robot-sim --arm z1`) running on this computer? Nothing was commanded.")
-            if cfg.sport_release:
-                from wbmpc.hardware.motion_switcher import SportModeRelease
-
-                sport = SportModeRelease()
-                report.sport_mode = {"released": sport.release(), "restored": None}
             if cfg.lockstep and self.mpc is None:
                 self.mpc = MPC(robot, self.mpc_config)
             elif not cfg.lockstep:
                 worker = self._solver_process(robot, self.mpc_config)
+            if cfg.sport_release:  # after the build: the robot stays under its own controller until we command it
+                from wbmpc.hardware.motion_switcher import SportModeRelease
+
+                sport = SportModeRelease()
+                report.sport_mode = {"released": sport.release(), "restored": None}
             if z1 is not None:
                 # the arm holds its measured pose with the gains of the stand-up (locked joints: the Z1's defaults)
                 hold = self._arm_command(posture_command(robot.q_nominal[7:], robot.q_nominal[7:], 1.0, 0.0, cfg.safety,
