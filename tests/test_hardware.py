@@ -154,6 +154,21 @@ def test_no_low_state_means_exit_without_commanding(dds):
     assert proc.returncode == 2 and "unknown network interface 'nosuchif0'" in err and "lo" in err
 
 
+def test_a_silent_arm_means_exit_before_any_leg_command(dds):
+    heard = dds
+    heard.clear()
+    sim = _cli("robot-sim", "--robot", "b1_z1", "--arm", "none", "--domain", str(DOMAIN), "--idle-exit", "60", "--json")
+    try:
+        proc = _cli("deploy", "--robot", "b1_z1", "--arm", "z1", "--z1-ports", Z1_PORTS, "--domain", str(DOMAIN),
+                    "--scenario", "stand", "--lockstep", "--nodes", "4")
+        _, err = proc.communicate(timeout=120)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.communicate(timeout=60)
+    assert proc.returncode == 2 and "the Z1 arm sent no valid state within 2.0 s" in err, err
+    assert heard == []
+
+
 _FORGER = """
 import sys, time
 from wbmpc.hardware.sdk import load_sdk
