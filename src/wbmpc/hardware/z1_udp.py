@@ -104,9 +104,7 @@ class _Endpoint:
         while True:
             try:
                 data = self._poll_sock.recv(_MAX_DATAGRAM)
-            except (BlockingIOError, socket.timeout, InterruptedError):
-                return
-            except OSError:
+            except OSError:  # nothing waiting (BlockingIOError), or closed
                 return
             self._take(data)
 
