@@ -128,6 +128,7 @@ class DeployReport:
     solve_ms: list = field(default_factory=list)
     tick_ms: list = field(default_factory=list)  # controller work per LowState (excluding MPC solves)
     plan_age_ms: list = field(default_factory=list)
+    arm_state_age_ms: list = field(default_factory=list)  # age of the Z1 state used, per tick
     ee_error_m: list = field(default_factory=list)  # |reference - end effector| from the estimated state, MPC phase
     fell: bool = False
     stopped_by: str = "done"
@@ -330,8 +331,11 @@ class Controller:
             if sport is not None and report.sport_mode is not None:
                 report.sport_mode["restored"] = sport.restore()
             if z1 is not None:
+                age = np.array(report.arm_state_age_ms)
                 report.arm = {"states_received": z1.received, "states_rejected": dict(z1.rejected),
-                              "commands_sent": z1.commands_sent}
+                              "commands_sent": z1.commands_sent,
+                              "state_age_ms_p50": float(np.percentile(age, 50)) if age.size else None,
+                              "state_age_ms_max": float(age.max()) if age.size else None}
                 z1.close()
             subscriber.Close()
             publisher.Close()
@@ -410,9 +414,10 @@ class Controller:
             start = time.perf_counter()
             if z1 is not None:
                 z1.poll()
-            if z1 is not None and z1.watchdog.expired():
-                self._fail("arm-state-lost", f"no valid Z1 state for {cfg.arm_state_timeout_ms:.0f} ms "
-                           f"(rejected {dict(z1.rejected)})", t_last)
+                report.arm_state_age_ms.append(1e3 * z1.watchdog.age_s())
+                if z1.watchdog.expired():
+                    self._fail("arm-state-lost", f"no valid Z1 state for {report.arm_state_age_ms[-1]:.0f} ms (limit "
+                               f"{cfg.arm_state_timeout_ms:.0f} ms; rejected {dict(z1.rejected)})", t_last)
             try:
                 reading = self._reading(msg)
             except MessageError as exc:
