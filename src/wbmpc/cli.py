@@ -54,8 +54,15 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
-    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot: arm end-effector frame")
+    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot or --arm: arm end-effector frame (with --arm: "
+                       "default the arm's only leaf link)")
     group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
+    arm = parser.add_argument_group("an arm mounted on the robot (a preset or --urdf; wbmpc.robots.compose)")
+    arm.add_argument("--arm", metavar="URDF", help="arm URDF to mount on the legged base (needs --mount)")
+    arm.add_argument("--mount", metavar="FRAME", help="link or joint of the base the arm is fixed to")
+    arm.add_argument("--mount-xyz", metavar="X,Y,Z", help="arm base position in the mount frame, m (default 0,0,0)")
+    arm.add_argument("--mount-rpy", metavar="R,P,Y", help="arm base roll, pitch, yaw in the mount frame, rad (default 0)")
+    arm.add_argument("--arm-lock", metavar="J1,J2,...", help="arm joints to lock at the reference pose (arm URDF names)")
     drive = parser.add_argument_group(
         "drive train of the controller's model (paper VI-D); VALUE or JOINT=VALUE,JOINT=VALUE (others 0)")
     drive.add_argument("--armature", metavar="KG_M2", help="rotor inertia added to the mass-matrix diagonal, kg m^2")
@@ -96,15 +103,55 @@ def _split(text: str | None) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()] if text else []
 
 
+def _triple(text: str | None, flag: str) -> tuple[float, float, float]:
+    if text is None:
+        return (0.0, 0.0, 0.0)
+    values = _split(text)
+    try:
+        numbers = tuple(float(v) for v in values)
+    except ValueError:
+        numbers = ()
+    if len(numbers) != 3 or not all(math.isfinite(v) for v in numbers):
+        raise ConfigError(f"{flag} needs three numbers X,Y,Z, got {text!r}")
+    return numbers  # type: ignore[return-value]
+
+
+def _arm_mount(args: argparse.Namespace):
+    """The --arm/--mount options as an ArmMount, or None without --arm."""
+    from pathlib import Path
+
+    from wbmpc.robots.compose import ArmMount
+
+    arm_flags = [flag for dest, flag in (("mount", "--mount"), ("mount_xyz", "--mount-xyz"), ("mount_rpy", "--mount-rpy"),
+                                         ("arm_lock", "--arm-lock")) if getattr(args, dest, None)]
+    if not getattr(args, "arm", None):
+        if arm_flags:
+            raise ConfigError(f"{', '.join(arm_flags)} place an arm and need --arm URDF")
+        return None
+    if not args.mount:
+        raise ConfigError("--arm needs --mount FRAME: the link or joint of the base the arm is fixed to")
+    return ArmMount(urdf=Path(args.arm), mount_frame=args.mount, mount_xyz_m=_triple(args.mount_xyz, "--mount-xyz"),
+                    mount_rpy_rad=_triple(args.mount_rpy, "--mount-rpy"), arm_ee=args.arm_ee,
+                    locked_joints=tuple(_split(args.arm_lock)))
+
+
 def robot_from_args(args: argparse.Namespace):
     import dataclasses
 
-    from wbmpc.robots import RobotModel, custom_spec, load_robot
+    from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
 
+    arm = _arm_mount(args)
     if args.urdf:
         if not args.feet:
             raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
-        robot = RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
+        spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
+                           _split(args.lock))
+        robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
+    elif arm:
+        given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
+        if given:
+            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
+        robot = RobotModel(_with_arm(preset_spec(args.robot), arm))
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
@@ -115,6 +162,15 @@ def robot_from_args(args: argparse.Namespace):
     drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
              for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
     return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+
+
+def _with_arm(spec, arm):
+    from wbmpc.robots.compose import compose_spec
+
+    composed, composition = compose_spec(spec, arm)
+    if composition.renamed:
+        print(f"wbmpc: note: {composition.note()}", file=sys.stderr)
+    return composed
 
 
 def plant_config_from_args(args: argparse.Namespace, robot):
@@ -135,16 +191,31 @@ def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from wbmpc.control.tuning import RobotScale, tuning_for
     from wbmpc.solvers import blasfeo
 
     robot = robot_from_args(args)
     info = robot.summary()
     lines = [f"{k}: {v}" for k, v in info.items()]
+    scale = RobotScale.of(robot)
+    info["scale"] = dataclasses.asdict(scale)
+    info["settings"] = tuning_for(robot).report()
+    lines.append(f"scale: {scale.mass_kg:.1f} kg, leg length {scale.leg_length_m:.3f} m, leg torque limit "
+                 f"{scale.leg_torque_nm:.1f} N m (mean){'' if scale.arm_torque_nm is None else f', arm {scale.arm_torque_nm:.0f} N m (max)'}")
+    lines.append("settings (source: derived from the scale with B1 + Z1 as reference, table = control/tuning.py):")
+    lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
+              for name, entry in info["settings"].items()]
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _setting_text(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(f"{v:.4g}" for v in value) + ")"
+    return "-" if value is None else f"{value:.4g}"
 
 
 def cmd_setup(args: argparse.Namespace) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
@@ -42,8 +43,10 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--compiled", action="store_true", help="compiled solver (C generated and cached)")
     dep.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15 = the paper's)")
     dep.add_argument("--speed", type=float, default=0.2, help="trot-forward / arm-track speed, m/s")
-    dep.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10), sent in LowCmd")
-    dep.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10), sent in LowCmd")
+    dep.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), sent in LowCmd (default: the robot's, "
+                     "wbmpc info; 0 on B1)")
+    dep.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), sent in LowCmd (default: the robot's, "
+                     "wbmpc info; 5 on B1)")
     dep.add_argument("--no-lie-down", action="store_true", help="go straight to damping at the end")
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState for this long -> stop commanding (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
@@ -145,7 +148,7 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
 
 
 def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
-    from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.tuning import tuning_for
     from wbmpc.hardware.deploy import Controller, DeployConfig
     from wbmpc.hardware.safety import SafetyConfig
     from wbmpc.hardware.sdk import load_sdk
@@ -159,9 +162,13 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
-    mpc_config = mpc_config_for(scenario, RunConfig(scenario=args.scenario, nodes=args.nodes, compiled=args.compiled))
+    # the settings derived from the robot (wbmpc.control.tuning), as `wbmpc run` uses them
+    mpc_config = mpc_config_for(scenario, RunConfig(scenario=args.scenario, nodes=args.nodes, compiled=args.compiled),
+                                robot)
+    gains = dataclasses.replace(tuning_for(robot).gains, **{name: value for name, value in
+                                                             (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None})
     config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
-                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(PdGains(kp_leg=args.kp, kd_leg=args.kd)),
+                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
                           safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)))
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}), "
           f"{'lock-step' if args.lockstep else 'real time'}; building the MPC", file=sys.stderr, flush=True)

@@ -7,8 +7,10 @@ from functools import lru_cache
 from pathlib import Path
 
 from wbmpc.errors import ModelError, unknown_name
+from wbmpc.robots.compose import ArmMount, compose_spec
 from wbmpc.robots.model import RobotModel, RobotSpec
 
+GO2_Z1_MOUNT_X = 0.0  # m, see _COMPOSED
 QUADRUPED_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 ANYMAL_FEET = ("LF_FOOT", "RF_FOOT", "LH_FOOT", "RH_FOOT")
 SOLO_FEET = ("FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT")
@@ -92,7 +94,17 @@ _POSES = {
     "laikago": {f"{leg}_{joint}": value for leg in ("FL", "FR", "RL", "RR")
                 for joint, value in (("thigh_joint", 0.7), ("calf_joint", -1.4))},
 }
-QUADRUPEDS = ("b1_z1", "b1_z1_full", "b1", "go1", "go2", "a1", "laikago", "anymal_b", "anymal_b_kinova", "anymal_c",
+# an arm on a base, composed from the two URDFs (robots/compose.py): {preset: (base preset, arm)}
+Z1_ARM_UP = {"joint2": 0.26178, "joint3": -0.26178}  # z1.srdf's arm_up, as b1-z1.srdf's standing_with_arm_up
+_COMPOSED: dict[str, tuple[str, dict]] = {
+    # Z1 on the Go2's back: on the top of its trunk box (0.376 x 0.0935 x 0.114 m, top at z = 0.057 m),
+    # GO2_Z1_MOUNT_X behind the trunk centre so that the standing CoM stays over the feet; the paper's
+    # four arm DoF (joint5, joint6 and the gripper locked as on b1_z1)
+    "go2_z1": ("go2", dict(urdf="z1_description/urdf/z1.urdf", mount_frame="base", mount_xyz_m=(GO2_Z1_MOUNT_X, 0.0, 0.057),
+                           arm_ee="gripperStator", locked_joints=("joint5", "joint6", "jointGripper"),
+                           joint_positions_rad=Z1_ARM_UP)),
+}
+QUADRUPEDS = ("b1_z1", "b1_z1_full", "go2_z1", "b1", "go1", "go2", "a1", "laikago", "anymal_b", "anymal_b_kinova", "anymal_c",
               "hyq", "solo8", "solo12", "quadruped", "centauro")
 
 
@@ -117,13 +129,17 @@ def _presets() -> dict[str, RobotSpec]:
     return presets
 
 
-PRESET_NAMES = ("b1_z1", "b1_z1_full", *_LEGGED)
+PRESET_NAMES = ("b1_z1", "b1_z1_full", "go2_z1", *_LEGGED)
 
 
 def preset_spec(name: str) -> RobotSpec:
     presets = _presets()
+    if name in _COMPOSED:
+        base, arm = _COMPOSED[name]
+        mount = ArmMount(**{**arm, "urdf": _erd(arm["urdf"])})
+        return compose_spec(presets[base], mount, name=name)[0]
     if name not in presets:
-        raise ModelError(unknown_name("robot", name, presets))
+        raise ModelError(unknown_name("robot", name, PRESET_NAMES))
     return presets[name]
 
 

@@ -100,17 +100,18 @@ class ScenarioResult:
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
-    """The MPC settings of a run: grid and solver from `config`, weights/swing/period from the robot's tuning."""
+    """The MPC settings of a run: grid and solver from `config`; weights, swing, gait period and push detection
+    derived from the robot (`wbmpc.control.tuning`)."""
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
-    tuning = tuning_for(robot) if robot is not None else RobotTuning()
+    tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
                                          extra_options=({"recovery_max_iterations": RECOVERY_ITERATIONS_DELAYED}
                                                         if config.solver == "rti" and config.delay != "none" else {})),
-                     weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
+                     **tuning.mpc_fields(),
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
