@@ -246,6 +246,7 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
 
 def cmd_bench_robots(args: argparse.Namespace) -> int:
     from wbmpc.bench.dynamics import validate_robots
+    from wbmpc.errors import check_number
     from wbmpc.robots import PRESET_NAMES
 
     names = _split(args.robots) or list(PRESET_NAMES)
@@ -257,8 +258,22 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
         return (f"  {r['robot']:16s} nv {r['nv']:3d}  {r['mass_kg']:6.1f} kg  RNEA {r['rnea_instructions']:5d}  "
                 f"max error {r['max_abs_error']:.1e}  joints: {types}")
 
+    check_number("steps", args.steps, low=1, high=100_000)
     print(f"symbolic dynamics vs pinocchio, {args.samples} random states per robot", file=sys.stderr)
     report = validate_robots(names, args.samples, args.seed, on_row=lambda r: print(row_text(r), file=sys.stderr))
+    if args.mpc:
+        from wbmpc.bench.robot_costs import costs_text, robot_costs
+        from wbmpc.robots import load_robot
+        from wbmpc.robots.presets import QUADRUPEDS
+
+        print(f"MPC per quadruped: wb_inverse OCP size, {args.steps} closed-loop steps of trot in place (MuJoCo), "
+              f"{'compiled ' if not args.no_compile else ''}Fatrop and RTI, CPU ms per step", file=sys.stderr)
+        for row in report["robots"]:
+            if row["robot"] not in QUADRUPEDS:
+                row["mpc"] = None  # bipeds: point feet, the MPC is not expected to balance them
+                continue
+            row["mpc"] = robot_costs(load_robot(row["robot"]), args.steps, compiled=not args.no_compile)
+            print(costs_text(row["robot"], row["mpc"]), file=sys.stderr)
     _emit(args, report, f"{len(report['robots'])} robots, worst error {report['max_abs_error']:.1e}")
     return 0
 
@@ -571,6 +586,10 @@ def build_parser() -> argparse.ArgumentParser:
     robots.add_argument("--robots", metavar="NAME,NAME", help="subset of presets (default: all)")
     robots.add_argument("--samples", type=int, default=10, help="random states per robot (default 10)")
     robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
+    robots.add_argument("--mpc", action="store_true", help="also per quadruped: decision variables and closed-loop "
+                        "Fatrop and RTI step times with its own settings (compiles each robot once, cached)")
+    robots.add_argument("--steps", type=int, default=40, help="with --mpc: MPC steps at 80 Hz per solver (default 40)")
+    robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 
