@@ -40,7 +40,7 @@ def test_small_robots_get_froude_scaled_steps_near_the_hand_tuned_a1_entry():
         tuning = tuning_for(name)
         assert 0.55 <= tuning.gait_period_s <= 0.66
         assert 0.04 <= tuning.swing.apex_height_m <= 0.055
-        assert 2.5 <= tuning.gains.kd_leg <= 3.4
+        assert 2.2 <= tuning.gains.kd_leg <= 3.0
 
 
 def test_a_preset_and_its_urdf_twin_get_the_same_settings():
@@ -86,15 +86,14 @@ def test_settings_scale_as_designed_with_the_robots_size_and_mass(tmp_path, leng
     assert large.push_hold_s == pytest.approx(froude * small.push_hold_s)
     assert large.push_velocity_error_m_s == pytest.approx(froude * small.push_velocity_error_m_s)  # speed ~ sqrt(g L)
     assert large.swing.apex_height_m == pytest.approx(length * small.swing.apex_height_m)
-    assert large.gains.kd_leg == pytest.approx(length * small.gains.kd_leg)
+    assert large.gains.kd_leg == pytest.approx(math.sqrt(mass) * small.gains.kd_leg)  # critical damping ~ sqrt(M)
     w, W = small.weights, large.weights
     assert W.base_position == pytest.approx(tuple(x / length**2 for x in w.base_position))  # per m^2
     assert W.base_orientation == w.base_orientation and W.leg_joint_position == w.leg_joint_position  # angles
     assert W.base_linear_velocity == pytest.approx(w.base_linear_velocity / length)  # per (m/s)^2 ~ 1 / (g L)
     assert W.joint_velocity == pytest.approx(w.joint_velocity * length)  # per (rad/s)^2 ~ L / g
     assert W.acceleration == pytest.approx(w.acceleration * length**2)
-    assert W.contact_force == pytest.approx(w.contact_force / mass**2)  # per N^2 ~ 1 / (M g)^2
-    assert W.joint_torque == pytest.approx(w.joint_torque / (mass * length) ** 2)
+    assert (W.contact_force, W.joint_torque) == (w.contact_force, w.joint_torque)  # regularisation, per N^2
 
 
 def test_table_overrides_and_options_win_and_say_so(monkeypatch):

@@ -2,20 +2,23 @@
 
 Every setting the paper tuned on its 61 kg B1 + Z1 (gait period, swing profile, cost weights of eq. (3),
 joint PD gains of eq. (10), push detection and cadence) is carried to another robot by dimensional
-analysis on its own mass M, leg length L (hip to foot in the standing pose) and leg torque limits,
+analysis on its own mass M, leg length L (hip to foot in the standing pose) and arm torque limits,
 taking B1 + Z1 as the point where the derived settings equal the paper robot's (`REFERENCE`):
 
 - time: Froude similarity (equal v^2 / (g L)), so durations scale with sqrt(L / g): gait period, the
   push hold times; speeds with sqrt(g L): lift-off/touch-down speeds, the push-detection threshold;
 - lengths with L: swing apex height;
-- cost weights of eq. (3) in the robot's own units, so that the optimum is the same in units of L,
-  sqrt(L/g) and its weight M g: weights on metres scale with 1/L^2, on m/s with 1/(g L), on rad/s with
-  L/g, on joint accelerations with (L/g)^2; the force and torque regularisation with 1/(M g)^2 and
-  1/(M g L)^2 (its force scale and the nominal standing forces are the weight shared over the stance feet
-  in the OCP already, `formulations.variable_scales`, `MPC._force_guess`); angles are unscaled;
-- the legs' damping gain Kd grows with L (`_leg_damping`): measured, not Froude (Froude's
-  M L^1.5 g^0.5 gives 0.6 on a Go2 where 1 already drifts 9 cm/s on A1, and 5 saturates its calves);
-  the arm's gains with its strongest joint's torque limit.
+- cost weights of eq. (3) in the robot's own units, so that the tracking optimum is the same in units
+  of L and sqrt(L/g): weights on metres scale with 1/L^2, on m/s with 1/(g L), on rad/s with L/g, on
+  joint accelerations with (L/g)^2; angles are unscaled. The force and torque terms only regularise
+  (the force scale and the nominal standing forces are the weight shared over the stance feet in the
+  OCP already, `formulations.variable_scales`, `MPC._force_guess`): they keep the paper's weights per
+  N^2 and (N m)^2. Scaled by 1/(M g)^2 like the rest they grow 14x on a Go2 and hold the feet to equal
+  shares of the weight (5 s trot in place: drift 1.75 cm/s against 0.06 kept);
+- the legs' damping gain Kd with sqrt(M) (`_leg_damping`), as a critical damping 2 sqrt(k m) at the
+  same stiffness: 2.6 on a Go2, 5 on B1 + Z1 (Froude's M L^1.5 g^0.5 gives 0.6 on a Go2, where Kd 1
+  already drifts 9 cm/s on an A1 and B1's 5 saturates its thigh joints); the arm's gains with its
+  strongest joint's torque limit.
 
 `TUNINGS` holds overrides per preset (empty fields keep the derived value); `tuning_for` returns the
 settings with `sources` saying for each one whether it was derived or comes from the table. A robot
@@ -115,16 +118,16 @@ class RobotTuning:
 
 
 def _leg_damping(scale: RobotScale) -> float:
-    """Kd of the legs: 5 on B1 + Z1, proportional to the leg length (3.3 on Go2, 2.6 on A1).
+    """Kd of the legs: 5 on B1 + Z1, times sqrt(M / M_ref) (2.6 on Go2, 2.4 on A1).
 
-    A1, 2 s trot in place: Kd 1 drifts 9.4 cm/s, 3 holds, 5 (B1's) saturates the calves at touch-down."""
-    return PdGains().kd_leg * scale.leg_length_m / REFERENCE.leg_length_m
+    A1, 2 s trot in place: Kd 1 drifts 9.4 cm/s, 3 holds, 5 (B1's) saturates the calves at touch-down;
+    Go2, 5 s: Kd 3.3 (proportional to L) saturates the thigh joints (torque ratio 1.0), 2.6 holds (0.55)."""
+    return PdGains().kd_leg * math.sqrt(scale.mass_kg / REFERENCE.mass_kg)
 
 
 def derive(scale: RobotScale) -> RobotTuning:
     """The settings of a robot of this scale (module docstring): equal to today's defaults at `REFERENCE`."""
     s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
-    mu = scale.mass_kg / REFERENCE.mass_kg  # mass ratio
     time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
     w = CostWeights()
     weights = CostWeights(
@@ -136,8 +139,8 @@ def derive(scale: RobotScale) -> RobotTuning:
         base_angular_velocity=w.base_angular_velocity * time**2,
         joint_velocity=w.joint_velocity * time**2,
         acceleration=w.acceleration * time**4,
-        contact_force=w.contact_force / mu**2,
-        joint_torque=w.joint_torque / (mu * s) ** 2,
+        contact_force=w.contact_force,  # regularisation: per N^2 as on the paper robot (module docstring)
+        joint_torque=w.joint_torque,
         soft_constraint=w.soft_constraint,
     )
     g = PdGains()

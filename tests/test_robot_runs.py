@@ -1,0 +1,53 @@
+"""The quadrupeds people own trot out of the box with the settings derived from their size (issue 23):
+MuJoCo closed loop, default settings, delay none. Two small robots in the default suite; the issue's
+whole list (and longer runs) under the slow mark."""
+
+import pytest
+
+from wbmpc.robots import load_robot
+from wbmpc.scenarios import RunConfig, ScenarioOptions, run_scenario
+
+ROBOTS = ("go2", "go1", "a1", "b1", "b1_z1", "anymal_c", "anymal_b_kinova", "go2_z1")
+MAX_ITERATIONS_MEAN = 8.0
+
+
+def _run(name: str, scenario: str, duration_s: float, **options) -> dict:
+    robot = load_robot(name)
+    config = RunConfig(scenario=scenario, duration_s=duration_s, options=ScenarioOptions(**options))
+    return run_scenario(robot, config).metrics
+
+
+@pytest.mark.parametrize("name", ["go2", "go1"])
+def test_small_unitree_robots_trot_in_place_with_their_derived_settings(name):
+    m = _run(name, "trot-in-place", 1.5)
+    assert not m["fell"] and m["mpc_failures"] == 0
+    assert m["iterations_mean"] <= MAX_ITERATIONS_MEAN
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ROBOTS)
+def test_every_listed_robot_trots_in_place_without_drifting(name):
+    m = _run(name, "trot-in-place", 10.0)
+    assert not m["fell"]
+    assert m["base_drift_cm_s"] <= 1.0
+    assert m["iterations_mean"] <= MAX_ITERATIONS_MEAN
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ROBOTS)
+def test_every_listed_robot_trots_forward_at_its_speed(name):
+    m = _run(name, "trot-forward", 6.0, speed_m_s=0.3)
+    assert not m["fell"]
+    assert m["base_vel_rmse"] <= 0.05
+
+
+@pytest.mark.slow
+def test_go2_stays_up_after_a_lateral_push():
+    m = _run("go2", "push", 5.0, push_speed_m_s=0.5)
+    assert not m["fell"]
+
+
+@pytest.mark.slow
+def test_go2_z1_tracks_the_arm_target():
+    m = _run("go2_z1", "arm-track", 6.0)
+    assert not m["fell"] and m["ee_pos_rmse_m"] <= 0.01
