@@ -43,6 +43,16 @@ def test_small_robots_get_froude_scaled_steps_near_the_hand_tuned_a1_entry():
         assert 2.2 <= tuning.gains.kd_leg <= 3.0
 
 
+def test_a_robot_without_an_arm_holds_its_place_harder_and_the_same_arm_gets_the_same_gains():
+    from wbmpc.control.tuning import ANCHOR_WITHOUT_ARM
+
+    b1, b1z1 = tuning_for("b1").weights, tuning_for("b1_z1").weights  # same legs
+    assert b1.base_position[:2] == pytest.approx(tuple(ANCHOR_WITHOUT_ARM * x for x in b1z1.base_position[:2]))
+    assert b1.base_position[2] == b1z1.base_position[2]
+    go2_z1 = tuning_for("go2_z1")
+    assert (go2_z1.gains.kp_arm, go2_z1.gains.kd_arm) == (PdGains().kp_arm, PdGains().kd_arm)  # the Z1's own
+
+
 def test_a_preset_and_its_urdf_twin_get_the_same_settings():
     spec = preset_spec("go2")
     twin = RobotModel(custom_spec(str(spec.urdf), list(spec.feet), srdf=str(spec.srdf), pose=spec.pose))

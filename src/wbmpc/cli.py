@@ -201,7 +201,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     info["scale"] = dataclasses.asdict(scale)
     info["settings"] = tuning_for(robot).report()
     lines.append(f"scale: {scale.mass_kg:.1f} kg, leg length {scale.leg_length_m:.3f} m, leg torque limit "
-                 f"{scale.leg_torque_nm:.1f} N m (mean){'' if scale.arm_torque_nm is None else f', arm {scale.arm_torque_nm:.0f} N m (max)'}")
+                 f"{scale.leg_torque_nm:.1f} N m (mean){'' if scale.arm_mass_kg is None else f', arm carrying {scale.arm_mass_kg:.2f} kg'}")
     lines.append("settings (source: derived from the scale with B1 + Z1 as reference, table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
               for name, entry in info["settings"].items()]

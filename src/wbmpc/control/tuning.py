@@ -17,8 +17,12 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   shares of the weight (5 s trot in place: drift 1.75 cm/s against 0.06 kept);
 - the legs' damping gain Kd with sqrt(M) (`_leg_damping`), as a critical damping 2 sqrt(k m) at the
   same stiffness: 2.6 on a Go2, 5 on B1 + Z1 (Froude's M L^1.5 g^0.5 gives 0.6 on a Go2, where Kd 1
-  already drifts 9 cm/s on an A1 and B1's 5 saturates its thigh joints); the arm's gains with its
-  strongest joint's torque limit.
+  already drifts 9 cm/s on an A1 and B1's 5 saturates its thigh joints); the arm's gains with the mass
+  it carries (the same Z1 gets the same gains on any base);
+- the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
+  robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
+  hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 1.1
+  with 10x.
 
 `TUNINGS` holds overrides per preset (empty fields keep the derived value); `tuning_for` returns the
 settings with `sources` saying for each one whether it was derived or comes from the table. A robot
@@ -47,7 +51,7 @@ class RobotScale:
     mass_kg: float
     leg_length_m: float  # mean hip (first joint of the leg) to foot distance in the standing pose
     leg_torque_nm: float  # mean effort limit of the leg joints
-    arm_torque_nm: float | None  # largest effort limit of the arm joints (None: no arm)
+    arm_mass_kg: float | None  # mass carried by the arm joints (None: no arm)
     inertia_kg_m2: tuple[float, float, float]  # composite rotational inertia at the CoM, standing (reported)
 
     @classmethod
@@ -67,18 +71,22 @@ class RobotScale:
             lengths.append(float(np.linalg.norm(data.oMf[frame].translation - origin)))
         pin.ccrba(model, data, q, np.zeros(model.nv))
         legs = robot.leg_joint_mask
-        arm = ~legs
+        arm_joints = [model.getJointId(name) for name, leg in zip(robot.joint_names, legs) if not leg]
+        carried = {j for joint in arm_joints for j in model.subtrees[joint]}
+        arm_mass = float(sum(model.inertias[j].mass for j in carried))
         return cls(mass_kg=robot.mass_kg, leg_length_m=float(np.mean(lengths)),
                    leg_torque_nm=float(np.mean(robot.tau_max[legs])),
-                   arm_torque_nm=float(np.max(robot.tau_max[arm])) if robot.arm_ee and arm.any() else None,
+                   arm_mass_kg=arm_mass if robot.arm_ee and arm_joints else None,
                    inertia_kg_m2=tuple(float(x) for x in np.diag(data.Ig.inertia)))
 
 
+ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
 # B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the settings of today's
 # defaults belong to this robot (a test checks that the preset still measures this).
 REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
-                       arm_torque_nm=60.0, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217))
+                       arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217))
 REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
+ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
 
 
 @dataclass(frozen=True)
@@ -130,8 +138,10 @@ def derive(scale: RobotScale) -> RobotTuning:
     s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
     time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
     w = CostWeights()
+    anchor = 1.0 if scale.arm_mass_kg is not None else ANCHOR_WITHOUT_ARM
+    position = (anchor * w.base_position[0], anchor * w.base_position[1], w.base_position[2])
     weights = CostWeights(
-        base_position=tuple(x / s**2 for x in w.base_position),
+        base_position=tuple(x / s**2 for x in position),
         base_orientation=w.base_orientation,
         leg_joint_position=w.leg_joint_position,
         arm_joint_position=w.arm_joint_position,
@@ -144,7 +154,7 @@ def derive(scale: RobotScale) -> RobotTuning:
         soft_constraint=w.soft_constraint,
     )
     g = PdGains()
-    arm = 1.0 if scale.arm_torque_nm is None else scale.arm_torque_nm / REFERENCE.arm_torque_nm
+    arm = 1.0 if scale.arm_mass_kg is None else scale.arm_mass_kg / REFERENCE.arm_mass_kg
     gains = PdGains(kp_leg=g.kp_leg, kd_leg=_leg_damping(scale), kp_arm=g.kp_arm * arm, kd_arm=g.kd_arm * arm)
     sw = SwingProfile()
     swing = SwingProfile(apex_height_m=sw.apex_height_m * s, liftoff_velocity_m_s=sw.liftoff_velocity_m_s * speed,
