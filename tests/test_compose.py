@@ -6,6 +6,7 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.cli import build_parser, robot_from_args
+from wbmpc.control.tuning import tuning_for
 from wbmpc.errors import ConfigError, ModelError
 from wbmpc.robots import RobotModel, load_robot, preset_spec
 from wbmpc.robots.compose import ArmMount, compose, compose_spec
@@ -77,6 +78,7 @@ def test_cli_mounts_an_arm_on_a_preset_like_the_go2_z1_preset():
                                       "--arm-lock", "joint5,joint6,jointGripper"])
     robot, preset = robot_from_args(args), load_robot("go2_z1")
     assert robot.joint_names == preset.joint_names and robot.mass_kg == pytest.approx(preset.mass_kg)
+    assert tuning_for(robot) == tuning_for(preset)  # the same robot gets the same settings
 
 
 def test_an_unknown_mount_frame_lists_the_base_frames(tmp_path):
