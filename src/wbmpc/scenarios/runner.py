@@ -192,6 +192,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics["state"] = config.state
+    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
 
@@ -206,6 +207,20 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     result.plant = plant  # type: ignore[attr-defined]
     result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
     return result
+
+
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
+    """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
+    says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
+    tuning = tuning_for(robot)
+    used = dataclasses.replace(tuning, gains=gains, **{key: getattr(mpc.config, key) for key in tuning.mpc_fields()})
+    report = tuning.report()
+    used_report = used.report()
+    out = {"values": {}, "sources": {}}
+    for name, entry in used_report.items():
+        out["values"][name] = entry["value"]
+        out["sources"][name] = report[name]["source"] if entry["value"] == report[name]["value"] else "option"
+    return out
 
 
 def _drive_train_summary(robot: RobotModel, plant_config: PlantConfig) -> dict:
