@@ -2,7 +2,7 @@
 
 Every setting the paper tuned on its 61 kg B1 + Z1 (gait period, swing profile, cost weights of eq. (3),
 joint PD gains of eq. (10), push detection and cadence) is carried to another robot by dimensional
-analysis on its own mass M, leg length L (hip to foot in the standing pose) and arm torque limits,
+analysis on its own mass M, leg length L (hip to foot in the standing pose) and the mass its arm carries,
 taking B1 + Z1 as the point where the derived settings equal the paper robot's (`REFERENCE`):
 
 - time: Froude similarity (equal v^2 / (g L)), so durations scale with sqrt(L / g): gait period, the
@@ -17,12 +17,12 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   shares of the weight (5 s trot in place: drift 1.75 cm/s against 0.06 kept);
 - the legs' damping gain Kd with sqrt(M) (`_leg_damping`), as a critical damping 2 sqrt(k m) at the
   same stiffness: 2.6 on a Go2, 5 on B1 + Z1 (Froude's M L^1.5 g^0.5 gives 0.6 on a Go2, where Kd 1
-  already drifts 9 cm/s on an A1 and B1's 5 saturates its thigh joints); the arm's gains with the mass
+  already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints); the arm's gains with the mass
   it carries (the same Z1 gets the same gains on any base);
 - the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
   robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
-  hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 1.1
-  with 10x.
+  hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
+  cm/s (10 s) with 10x.
 
 `TUNINGS` holds overrides per preset (empty fields keep the derived value); `tuning_for` returns the
 settings with `sources` saying for each one whether it was derived or comes from the table. A robot
@@ -46,7 +46,8 @@ from wbmpc.robots import RobotModel
 
 @dataclass(frozen=True)
 class RobotScale:
-    """What the settings are derived from: the robot's mass, leg length and torque limits."""
+    """What the settings are derived from: the robot's mass, leg length and arm (torque limits and inertia
+    are reported by `wbmpc info`)."""
 
     mass_kg: float
     leg_length_m: float  # mean hip (first joint of the leg) to foot distance in the standing pose
