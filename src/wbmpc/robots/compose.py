@@ -171,7 +171,11 @@ def compose(base_urdf: Path, arm: ArmMount, cache_dir: Path | None = None) -> Co
     ee = _arm_ee(arm, arm_links, arm_joints, renamed)
     text = ET.tostring(base, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    folder = Path(cache_dir or os.environ.get("WBMPC_CACHE_DIR") or Path.home() / ".cache" / "wbmpc") / "composed"
+    if cache_dir is None:
+        from wbmpc.solvers.codegen import default_cache_dir
+
+        cache_dir = default_cache_dir()
+    folder = Path(cache_dir) / "composed"
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{Path(base_urdf).stem}+{Path(arm.urdf).stem}-{digest}.urdf"
     if not path.is_file():
