@@ -247,7 +247,10 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     recorder = _Recorder(mpc)
     duration = steps / MPC_RATE_HZ
-    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none")).run(
+    from wbmpc.control.tuning import tuning_for
+
+    gains = tuning_for(robot).gains  # the robot's own PD (B1's Kd 5 saturates a Go2's legs)
+    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none", gains=gains)).run(
         duration, progress=lambda share, _recoveries: on_progress(share))
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))
