@@ -11,7 +11,7 @@ import pytest
 from wbmpc.cli import _gains, build_parser, main
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.mpc import CostWeights, MpcConfig
-from wbmpc.control.tuning import REFERENCE, TUNINGS, RobotScale, tuning_for, with_overrides
+from wbmpc.control.tuning import REFERENCE, TUNINGS, RobotScale, derive, tuning_for, with_overrides
 from wbmpc.gait import SwingProfile
 from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
 from wbmpc.scenarios import RunConfig, make_scenario
@@ -37,7 +37,7 @@ def test_the_paper_robot_is_the_reference_and_keeps_todays_settings(b1z1):
 def test_small_robots_get_froude_scaled_steps_near_the_hand_tuned_a1_entry():
     """The issue's hand-tuned A1 entry (5 cm steps at 0.6 s, Kd 3) kept Go2 and Go1 up."""
     for name in ("a1", "go1", "go2"):
-        tuning = tuning_for(name)
+        tuning = derive(RobotScale.of(load_robot(name)))
         assert 0.55 <= tuning.gait_period_s <= 0.66
         assert 0.04 <= tuning.swing.apex_height_m <= 0.055
         assert 2.2 <= tuning.gains.kd_leg <= 3.0
@@ -51,6 +51,13 @@ def test_a_robot_without_an_arm_holds_its_place_harder_and_the_same_arm_gets_the
     assert b1.base_position[2] == b1z1.base_position[2]
     go2_z1 = tuning_for("go2_z1")
     assert (go2_z1.gains.kp_arm, go2_z1.gains.kd_arm) == (PdGains().kp_arm, PdGains().kd_arm)  # the Z1's own
+
+
+def test_the_table_only_overrides_and_says_so():
+    go1 = tuning_for("go1")
+    assert go1.swing.apex_height_m == TUNINGS["go1"]["swing.apex_height_m"]
+    assert go1.report()["swing.apex_height_m"]["source"] == "table"
+    assert go1.gait_period_s == derive(RobotScale.of(load_robot("go1"))).gait_period_s  # the rest derived
 
 
 def test_a_preset_and_its_urdf_twin_get_the_same_settings():
