@@ -25,6 +25,9 @@ def test_small_unitree_robots_trot_in_place_with_their_derived_settings(name):
     m = _run(name, "trot-in-place", 1.0)
     assert not m["fell"] and m["mpc_failures"] <= 0.02 * m["mpc_solves"]  # a step whose recovery also failed
     assert m["iterations_mean"] <= MAX_ITERATIONS_MEAN
+    # the run says which settings it used and where they came from
+    assert m["settings"]["sources"]["gait_period_s"] == "derived"
+    assert m["settings"]["sources"]["swing.apex_height_m"] == ("table" if name == "go1" else "derived")
 
 
 @pytest.mark.slow
