@@ -10,7 +10,6 @@ from wbmpc.errors import ModelError, unknown_name
 from wbmpc.robots.compose import ArmMount, compose_spec
 from wbmpc.robots.model import RobotModel, RobotSpec
 
-GO2_Z1_MOUNT_X = 0.0  # m, see _COMPOSED
 QUADRUPED_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 ANYMAL_FEET = ("LF_FOOT", "RF_FOOT", "LH_FOOT", "RH_FOOT")
 SOLO_FEET = ("FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT")
@@ -97,10 +96,11 @@ _POSES = {
 # an arm on a base, composed from the two URDFs (robots/compose.py): {preset: (base preset, arm)}
 Z1_ARM_UP = {"joint2": 0.26178, "joint3": -0.26178}  # z1.srdf's arm_up, as b1-z1.srdf's standing_with_arm_up
 _COMPOSED: dict[str, tuple[str, dict]] = {
-    # Z1 on the Go2's back: on the top of its trunk box (0.376 x 0.0935 x 0.114 m, top at z = 0.057 m),
-    # GO2_Z1_MOUNT_X behind the trunk centre so that the standing CoM stays over the feet; the paper's
-    # four arm DoF (joint5, joint6 and the gripper locked as on b1_z1)
-    "go2_z1": ("go2", dict(urdf="z1_description/urdf/z1.urdf", mount_frame="base", mount_xyz_m=(GO2_Z1_MOUNT_X, 0.0, 0.057),
+    # Z1 on the Go2's back: base frame (0, 0, 0.057) m, the centre of the top of its trunk (Unitree's trunk
+    # box 0.376 x 0.0935 x 0.114 m). With the arm up (z1.srdf's arm_up) the standing CoM is 6 mm ahead of
+    # the feet's centre (Go2 alone: 19 mm). The paper's four arm DoF: joint5, joint6 and the gripper locked
+    # as on b1_z1. 21.3 kg: the Z1 (4.7 kg) is heavy for a 16 kg Go2, a D1-class arm is lighter
+    "go2_z1": ("go2", dict(urdf="z1_description/urdf/z1.urdf", mount_frame="base", mount_xyz_m=(0.0, 0.0, 0.057),
                            arm_ee="gripperStator", locked_joints=("joint5", "joint6", "jointGripper"),
                            joint_positions_rad=Z1_ARM_UP)),
 }
