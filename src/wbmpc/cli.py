@@ -56,8 +56,16 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
-    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot: arm end-effector frame")
+    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot or --arm: arm end-effector frame (with --arm: "
+                       "default the arm's only leaf link)")
     group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
+    arm = parser.add_argument_group("an arm mounted on the robot (a preset or --urdf; wbmpc.robots.compose)")
+    arm.add_argument("--arm", metavar="URDF|NAME", help="arm URDF, or z1 (example-robot-data's), to mount on the legged "
+                     "base (needs --mount); robot-sim/deploy: the model's Z1 goes over its UDP interface (--arm none: not)")
+    arm.add_argument("--mount", metavar="FRAME", help="link or joint of the base the arm is fixed to")
+    arm.add_argument("--mount-xyz", metavar="X,Y,Z", help="arm base position in the mount frame, m (default 0,0,0)")
+    arm.add_argument("--mount-rpy", metavar="R,P,Y", help="arm base roll, pitch, yaw in the mount frame, rad (default 0)")
+    arm.add_argument("--arm-lock", metavar="J1,J2,...", help="arm joints to lock at the reference pose (arm URDF names)")
     drive = parser.add_argument_group(
         "drive train of the controller's model (paper VI-D); VALUE or JOINT=VALUE,JOINT=VALUE (others 0)")
     drive.add_argument("--armature", metavar="KG_M2", help="rotor inertia added to the mass-matrix diagonal, kg m^2")
@@ -98,15 +106,69 @@ def _split(text: str | None) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()] if text else []
 
 
+def _triple(text: str | None, flag: str) -> tuple[float, float, float]:
+    if text is None:
+        return (0.0, 0.0, 0.0)
+    values = _split(text)
+    try:
+        numbers = tuple(float(v) for v in values)
+    except ValueError:
+        numbers = ()
+    if len(numbers) != 3 or not all(math.isfinite(v) for v in numbers):
+        raise ConfigError(f"{flag} needs three numbers X,Y,Z, got {text!r}")
+    return numbers  # type: ignore[return-value]
+
+
+def _arm_mount(args: argparse.Namespace):
+    """The --arm/--mount options as an ArmMount, or None without --arm."""
+    from pathlib import Path
+
+    from wbmpc.robots.compose import ArmMount
+
+    arm_flags = [flag for dest, flag in (("mount", "--mount"), ("mount_xyz", "--mount-xyz"), ("mount_rpy", "--mount-rpy"),
+                                         ("arm_lock", "--arm-lock")) if getattr(args, dest, None)]
+    if not getattr(args, "arm", None):
+        if arm_flags:
+            raise ConfigError(f"{', '.join(arm_flags)} place an arm and need --arm URDF")
+        return None
+    from wbmpc.robots.presets import NAMED_ARMS, example_robot_data_dir
+
+    if args.arm == "none" and not arm_flags:
+        return None  # robot-sim/deploy: leave the model's arm off its UDP link
+    named = NAMED_ARMS.get(args.arm) if not Path(args.arm).exists() else None
+    if not args.mount:
+        if named is not None and not arm_flags:
+            return None  # `--arm z1` on a robot that carries one (b1_z1, go2_z1): checked in robot_from_args
+        raise ConfigError("--arm needs --mount FRAME: the link or joint of the base the arm is fixed to")
+    if named is not None:  # an arm of example-robot-data by name, with the paper's locks and pose
+        return ArmMount(urdf=example_robot_data_dir() / named["urdf"], mount_frame=args.mount,
+                        mount_xyz_m=_triple(args.mount_xyz, "--mount-xyz"), mount_rpy_rad=_triple(args.mount_rpy, "--mount-rpy"),
+                        arm_ee=args.arm_ee or named["arm_ee"],
+                        locked_joints=tuple(_split(args.arm_lock)) if args.arm_lock else named["locked_joints"],
+                        joint_positions_rad=named["joint_positions_rad"])
+    return ArmMount(urdf=Path(args.arm), mount_frame=args.mount, mount_xyz_m=_triple(args.mount_xyz, "--mount-xyz"),
+                    mount_rpy_rad=_triple(args.mount_rpy, "--mount-rpy"), arm_ee=args.arm_ee,
+                    locked_joints=tuple(_split(args.arm_lock)))
+
+
+
 def robot_from_args(args: argparse.Namespace):
     import dataclasses
 
-    from wbmpc.robots import RobotModel, custom_spec, load_robot
+    from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
 
+    arm = _arm_mount(args)
     if args.urdf:
         if not args.feet:
             raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
-        robot = RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
+        spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
+                           _split(args.lock))
+        robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
+    elif arm:
+        given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
+        if given:
+            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
+        robot = RobotModel(_with_arm(preset_spec(args.robot), arm))
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
@@ -114,9 +176,28 @@ def robot_from_args(args: argparse.Namespace):
                               f"{'s' if len(given) == 1 else ''} --urdf; "
                               f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
         robot = load_robot(args.robot)
+        if getattr(args, "arm", None) not in (None, "none") and arm is None and not _carries_arm(robot, args.arm):
+            raise ConfigError(f"--robot {args.robot} carries no {args.arm} arm: mount one with --arm {args.arm} "
+                              f"--mount FRAME (e.g. --mount base), or pick a preset with one (b1_z1, go2_z1)")
     drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
              for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
     return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+
+
+def _carries_arm(robot, name: str) -> bool:
+    """The model's arm joints are those of the named arm (its URDF's joint names)."""
+    from wbmpc.hardware.mapping import has_z1_arm
+
+    return name == "z1" and has_z1_arm(robot)
+
+
+def _with_arm(spec, arm):
+    from wbmpc.robots.compose import compose_spec
+
+    composed, composition = compose_spec(spec, arm)
+    if composition.renamed:
+        print(f"wbmpc: note: {composition.note()}", file=sys.stderr)
+    return composed
 
 
 def plant_config_from_args(args: argparse.Namespace, robot):
@@ -137,16 +218,31 @@ def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from wbmpc.control.tuning import RobotScale, tuning_for
     from wbmpc.solvers import blasfeo
 
     robot = robot_from_args(args)
     info = robot.summary()
     lines = [f"{k}: {v}" for k, v in info.items()]
+    scale = RobotScale.of(robot)
+    info["scale"] = dataclasses.asdict(scale)
+    info["settings"] = tuning_for(robot).report()
+    lines.append(f"scale: {scale.mass_kg:.1f} kg, leg length {scale.leg_length_m:.3f} m, leg torque limit "
+                 f"{scale.leg_torque_nm:.1f} N m (mean){'' if scale.arm_mass_kg is None else f', arm carrying {scale.arm_mass_kg:.2f} kg'}")
+    lines.append("settings (source: derived from the scale with B1 + Z1 as reference, table = control/tuning.py):")
+    lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
+              for name, entry in info["settings"].items()]
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _setting_text(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(f"{v:.4g}" for v in value) + ")"
+    return "-" if value is None else f"{value:.4g}"
 
 
 def cmd_setup(args: argparse.Namespace) -> int:
@@ -177,6 +273,7 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
 
 def cmd_bench_robots(args: argparse.Namespace) -> int:
     from wbmpc.bench.dynamics import validate_robots
+    from wbmpc.errors import check_number
     from wbmpc.robots import PRESET_NAMES
 
     names = _split(args.robots) or list(PRESET_NAMES)
@@ -188,8 +285,22 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
         return (f"  {r['robot']:16s} nv {r['nv']:3d}  {r['mass_kg']:6.1f} kg  RNEA {r['rnea_instructions']:5d}  "
                 f"max error {r['max_abs_error']:.1e}  joints: {types}")
 
+    check_number("steps", args.steps, low=1, high=100_000)
     print(f"symbolic dynamics vs pinocchio, {args.samples} random states per robot", file=sys.stderr)
     report = validate_robots(names, args.samples, args.seed, on_row=lambda r: print(row_text(r), file=sys.stderr))
+    if args.mpc:
+        from wbmpc.bench.robot_costs import costs_text, robot_costs
+        from wbmpc.robots import load_robot
+        from wbmpc.robots.presets import QUADRUPEDS
+
+        print(f"MPC per quadruped: wb_inverse OCP size, {args.steps} closed-loop steps of trot in place (MuJoCo), "
+              f"{'compiled ' if not args.no_compile else ''}Fatrop and RTI, CPU ms per step", file=sys.stderr)
+        for row in report["robots"]:
+            if row["robot"] not in QUADRUPEDS:
+                row["mpc"] = None  # bipeds: point feet, the MPC is not expected to balance them
+                continue
+            row["mpc"] = robot_costs(load_robot(row["robot"]), args.steps, compiled=not args.no_compile)
+            print(costs_text(row["robot"], row["mpc"]), file=sys.stderr)
     _emit(args, report, f"{len(report['robots'])} robots, worst error {report['max_abs_error']:.1e}")
     return 0
 
@@ -502,6 +613,10 @@ def build_parser() -> argparse.ArgumentParser:
     robots.add_argument("--robots", metavar="NAME,NAME", help="subset of presets (default: all)")
     robots.add_argument("--samples", type=int, default=10, help="random states per robot (default 10)")
     robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
+    robots.add_argument("--mpc", action="store_true", help="also per quadruped: decision variables and closed-loop "
+                        "Fatrop and RTI step times with its own settings (compiles each robot once, cached)")
+    robots.add_argument("--steps", type=int, default=40, help="with --mpc: MPC steps at 80 Hz per solver (default 40)")
+    robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 

@@ -65,7 +65,8 @@ def check_names(formulation: str | None = None, gait: str | None = None, solvers
 
 
 def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str = "fatrop", nodes: int = 15,
-               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False):
+               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False, robot=None):
+    """The benchmarks' MPC settings; with `robot`, its own weights, gait period and swing (control/tuning.py)."""
     from wbmpc.control import MpcConfig
     from wbmpc.ocp.problem import OcpConfig
     from wbmpc.solvers.nlp import SolverConfig
@@ -79,6 +80,10 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
     config = replace(config, fallback_solver=None, recovery_barrier_init=None)
+    if robot is not None:
+        from wbmpc.control.tuning import tuning_for
+
+        config = replace(config, **tuning_for(robot).mpc_fields())
     return config
 
 
@@ -112,7 +117,7 @@ def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", no
     from wbmpc.control import MPC, Commands
 
     check_number("t", t, low=0.0, high=1e6, unit="s")
-    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms, compiled=compiled)
+    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms, compiled=compiled, robot=robot)
     start = time.perf_counter()
     mpc = MPC(robot, config)
     build_s = time.perf_counter() - start
@@ -242,7 +247,10 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     recorder = _Recorder(mpc)
     duration = steps / MPC_RATE_HZ
-    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none")).run(
+    from wbmpc.control.tuning import tuning_for
+
+    gains = tuning_for(robot).gains  # the robot's own PD (B1's Kd 5 saturates a Go2's legs)
+    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none", gains=gains)).run(
         duration, progress=lambda share, _recoveries: on_progress(share))
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))
@@ -301,7 +309,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     for name in solvers:
         progress.update(done, f"building {name}")
         start = time.perf_counter()
-        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled), problem=problem)
+        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled, robot=robot), problem=problem)
         build[f"{name}_s"] = time.perf_counter() - start
         done += 0.5
 
@@ -323,10 +331,10 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     progress.update(done, "building cold / uniform variants")
     start = time.perf_counter()
     variants = {reference: mpcs[reference]}
-    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False,
+    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False, robot=robot,
                                                                    compiled=compiled),
                                         problem=problem)
-    variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes,
+    variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, robot=robot,
                                                              uniform_dt_ms=uniform_dt_ms, compiled=compiled))
     for name in solvers:
         if name != reference:

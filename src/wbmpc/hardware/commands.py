@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
@@ -53,8 +54,10 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15 = the paper's)")
     dep.add_argument("--speed", type=float, default=0.2, help="trot-forward / arm-track speed, m/s")
     dep.add_argument("--solver", default="fatrop", help="the MPC's solver (as `wbmpc run --solver`)")
-    dep.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), sent in LowCmd (default: the robot's tuning)")
-    dep.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), sent in LowCmd (default: the robot's tuning)")
+    dep.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), sent in LowCmd (default: the robot's, "
+                     "wbmpc info; 0 on B1)")
+    dep.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), sent in LowCmd (default: the robot's, "
+                     "wbmpc info; 5 on B1)")
     dep.add_argument("--no-sport-release", action="store_true", help="do not call the motion switcher (a robot "
                      "without one, its sport mode stopped by hand)")
     dep.add_argument("--max-plan-age-ms", type=float, default=250.0, help="an MPC plan older than this -> damping "
@@ -109,8 +112,9 @@ def _arm_settings(args) -> dict:
         ports = ()
     if len(ports) != 2 or not all(0 < p < 65536 for p in ports):
         raise ConfigError(f"--z1-ports takes two UDP ports CTRL,SDK (e.g. 8071,8072), got {args.z1_ports!r}")
-    arm = getattr(args, "arm", "auto")
-    arm = "z1" if arm == "z1" else "none" if arm == "none" else "auto"  # None (no --arm given): auto
+    # the robot options' --arm names the model's arm; the Z1 link follows the model (auto: when it has Z1 joints)
+    arm = getattr(args, "arm", None)
+    arm = arm if arm in ("z1", "none") else "auto"
     return {"arm": arm, "z1_ports": ports}
 
 
@@ -200,7 +204,6 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
 
 
 def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
-    import dataclasses
 
     from wbmpc.control.tuning import tuning_for
     from wbmpc.hardware.deploy import Controller, DeployConfig, DeployFailure

@@ -58,6 +58,8 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "base_drift_settled_cm_s": float(100 * np.linalg.norm(settled_displacement) / settled_s) if settled_s > 0 else None,
         "base_drift_settled_from_s": float(ticks.settle_t - t0) if duration > 0 else None,
         "base_vel_rmse": float(np.sqrt(ticks.velocity_error_sq_sum / ticks.n)),
+        # after the start transient (the command steps from rest at t = 0), as base_drift_settled_cm_s
+        "base_vel_rmse_settled": float(np.sqrt(ticks.settled_error_sq_sum / ticks.settled_n)) if ticks.settled_n else None,
         "ee_pos_rmse_m": None,
         "ee_force_err_rel": None,
         "max_torque_ratio": float(np.max(torque_ratio)),
@@ -116,6 +118,7 @@ class _TickStatistics:
         self._previous: tuple[float, np.ndarray] | None = None  # (t, commanded xy velocity) of the last tick
         self.settle_t, self.settle_q, self.settle_path = None, None, None
         self.velocity_error_sq_sum = 0.0
+        self.settled_error_sq_sum, self.settled_n = 0.0, 0  # the same after the start transient
         self.max_abs_tau = np.zeros(robot.n_joints)
         self.max_abs_tau_ff = np.zeros(robot.n_joints)
 
@@ -143,8 +146,13 @@ class _TickStatistics:
         self._previous = (float(t[-1]), cmd[-1, :2].copy())
         self.q_last = q[-1].copy()
         vel_world = base_world_velocity(q, v)
-        self.velocity_error_sq_sum += float(np.sum((vel_world[:, :2] - cmd[:, :2]) ** 2))
+        error_sq = np.sum((vel_world[:, :2] - cmd[:, :2]) ** 2, axis=1)
+        self.velocity_error_sq_sum += float(np.sum(error_sq))
         self.n += len(t)
+        if self.settle_time is not None:
+            settled = t >= self.settle_time
+            self.settled_error_sq_sum += float(np.sum(error_sq[settled]))
+            self.settled_n += int(np.sum(settled))
         self.max_abs_tau = np.maximum(self.max_abs_tau, np.max(np.abs(chunk["tau"]), axis=0))
         self.max_abs_tau_ff = np.maximum(self.max_abs_tau_ff, np.max(np.abs(chunk["tau_ff"]), axis=0))
 

@@ -100,17 +100,18 @@ class ScenarioResult:
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
-    """The MPC settings of a run: grid and solver from `config`, weights/swing/period from the robot's tuning."""
+    """The MPC settings of a run: grid and solver from `config`; weights, swing, gait period and push detection
+    derived from the robot (`wbmpc.control.tuning`)."""
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
-    tuning = tuning_for(robot) if robot is not None else RobotTuning()
+    tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
                                          extra_options=({"recovery_max_iterations": RECOVERY_ITERATIONS_DELAYED}
                                                         if config.solver == "rti" and config.delay != "none" else {})),
-                     weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
+                     **tuning.mpc_fields(),
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
@@ -191,6 +192,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics["state"] = config.state
+    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
 
@@ -205,6 +207,20 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     result.plant = plant  # type: ignore[attr-defined]
     result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
     return result
+
+
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
+    """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
+    says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
+    tuning = tuning_for(robot)
+    used = dataclasses.replace(tuning, gains=gains, **{key: getattr(mpc.config, key) for key in tuning.mpc_fields()})
+    report = tuning.report()
+    used_report = used.report()
+    out = {"values": {}, "sources": {}}
+    for name, entry in used_report.items():
+        out["values"][name] = entry["value"]
+        out["sources"][name] = report[name]["source"] if entry["value"] == report[name]["value"] else "option"
+    return out
 
 
 def _drive_train_summary(robot: RobotModel, plant_config: PlantConfig) -> dict:
