@@ -1,0 +1,122 @@
+"""The direct Fatrop binding (solvers/fatrop_direct.py) against casadi's Fatrop on a small go2 problem."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, MpcConfig
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.robots import load_robot
+from wbmpc.solvers import make_solver
+from wbmpc.solvers.codegen import CodegenConfig
+from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+
+TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="module")
+def problem(robot):
+    return OcpProblem(robot, TINY)
+
+
+@pytest.fixture(scope="module")
+def codegen(tmp_path_factory):
+    return CodegenConfig(flags=("-O0",), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+
+
+@pytest.fixture(scope="module")
+def direct(problem, codegen):
+    solver = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert solver.is_direct, solver.direct_error
+    return solver
+
+
+@pytest.fixture(scope="module")
+def step_data(robot, problem):
+    """p, bounds and initial guess of one MPC step (trot, moving base), as the MPC hands them to its solver."""
+    mpc = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None), problem=problem)
+    captured = {}
+    solve = mpc.solver.solve
+
+    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
+        captured.update(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(), x0=x0.copy())
+        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
+
+    mpc.solver.solve = spy
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    assert mpc.solve(robot.q_nominal, v0, t=0.1).success
+    return captured
+
+
+def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
+    """Tight tolerance: both follow the same iterates to the same KKT point; residuals below tolerance."""
+    config = SolverConfig(tolerance=1e-10, warm_barrier_init=None)
+    expected = NlpSolver(problem, config).solve(**step_data)
+    got = direct.recreated(tolerance=1e-10, warm_barrier_init=None).solve(**step_data)
+    assert expected.stats.success and got.stats.success, (expected.stats, got.stats)
+    assert got.stats.iterations == expected.stats.iterations
+    np.testing.assert_allclose(got.x, expected.x, atol=1e-8)
+    np.testing.assert_allclose(got.stats.cost, expected.stats.cost, rtol=1e-10)
+    scale = max(1.0, np.abs(expected.lam_g).max())
+    np.testing.assert_allclose(got.lam_g, expected.lam_g, atol=1e-6 * scale)
+    np.testing.assert_allclose(got.lam_x, expected.lam_x, atol=1e-6 * scale)
+    # residuals from casadi's own NLP constraint function, not the shim's
+    g = np.asarray(NlpSolver(problem)._g(got.x, step_data["p"])[0]).ravel()
+    lbx, ubx, lbg, ubg = (step_data[k] for k in ("lbx", "ubx", "lbg", "ubg"))
+    assert np.all(g >= lbg - config.constraint_tolerance) and np.all(g <= ubg + config.constraint_tolerance)
+    assert np.all(got.x >= lbx - config.constraint_tolerance) and np.all(got.x <= ubx + config.constraint_tolerance)
+    assert got.stats.max_constraint_violation <= config.constraint_tolerance
+
+
+def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
+    rng = np.random.default_rng(0)
+    x = step_data["x0"] + 0.01 * rng.normal(size=problem.n_variables)
+    expected = np.asarray(NlpSolver(problem)._g(x, step_data["p"])[0]).ravel()
+    np.testing.assert_allclose(direct.constraints(x, step_data["p"]), expected, atol=1e-10)
+
+
+def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
+    """Through make_solver and the MPC (warm start, small-barrier attempts, contact changes between steps)."""
+    reference = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None), problem=problem)
+    config = MpcConfig(ocp=TINY, fallback_solver=None, solver=SolverConfig(name="fatrop-direct", codegen=codegen))
+    mpc = MPC(robot, config, problem=problem)
+    assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    for t in (0.1, 0.1125, 0.125, 0.2):
+        expected = reference.solve(robot.q_nominal, v0, t=t)
+        got = mpc.solve(robot.q_nominal, v0, t=t)
+        assert expected.success and got.success, (expected.stats, got.stats)
+        assert got.stats.iterations == expected.stats.iterations
+        np.testing.assert_allclose(got.x, expected.x, atol=1e-8)
+
+
+def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):
+    result = direct.solve(**step_data, max_iterations=1)
+    assert not result.stats.success and result.stats.status == "Maximum_Iterations_Exceeded"
+    # Fatrop's convergence check sees the iteration count before its increment: max_iter 1 stops after 2
+    assert result.stats.iterations <= 2 and np.all(np.isfinite(result.x))
+
+
+def test_nan_guess_is_refused(direct, step_data):
+    data = {**step_data, "x0": np.full_like(step_data["x0"], np.nan)}
+    assert direct.solve(**data).stats.status == "invalid_input_nan"
+
+
+def test_missing_compiler_falls_back_to_casadis_fatrop(problem, step_data, tmp_path):
+    config = SolverConfig(name="fatrop-direct", codegen=CodegenConfig(compiler="no-such-cc", cache_dir=tmp_path))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        solver = make_solver(problem, config)
+    assert not solver.is_direct and "no-such-cc" in solver.direct_error
+    assert any("casadi's Fatrop" in str(w.message) for w in caught)
+    assert solver.solve(**step_data).stats.success
