@@ -120,3 +120,14 @@ def test_missing_compiler_falls_back_to_casadis_fatrop(problem, step_data, tmp_p
     assert not solver.is_direct and "no-such-cc" in solver.direct_error
     assert any("casadi's Fatrop" in str(w.message) for w in caught)
     assert solver.solve(**step_data).stats.success
+
+
+def test_deadline_returns_the_last_iterate_and_the_solver_stays_usable(direct, step_data):
+    """Fatrop has no time limit: the shim throws from a callback past the deadline and Fatrop returns."""
+    expected = direct.solve(**step_data)
+    stopped = direct.solve(**step_data, time_limit_s=1e-6)
+    assert stopped.stats.status == "time_limit_reached" and not stopped.stats.success
+    assert np.all(np.isfinite(stopped.x))
+    again = direct.solve(**step_data)
+    assert again.stats.success and again.stats.iterations == expected.stats.iterations
+    np.testing.assert_allclose(again.x, expected.x, atol=1e-12)

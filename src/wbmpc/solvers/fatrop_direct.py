@@ -9,8 +9,9 @@ callbacks with one generated call each, Fatrop instances are kept per row-count 
 Same problem, same row split and multiplier signs as casadi's plugin: the two solve to the same
 KKT point (tests/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
 small-barrier warm attempt. Fatrop 1.x's C interface takes a primal initial guess only (its
-multipliers start from its least-squares estimate, as in casadi) and has no wall-time limit: a
-call is bounded by `max_iterations` (`solve(..., max_iterations=)` per call, for anytime use).
+multipliers start from its least-squares estimate, as in casadi) and has no wall-time limit: here a
+callback past the deadline throws through Fatrop, which returns its last accepted iterate
+(`solve(..., max_iterations=, time_limit_s=)` per call, for anytime use).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
 solver falls back to casadi's nlpsol Fatrop with a RuntimeWarning; `direct_error` says why (None
@@ -61,7 +62,7 @@ class _Library:
                            ("wb_option_bool", ctypes.c_int)):
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
-        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10
+        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double]
         sizes = (ctypes.c_int * 4)()
         lib.wb_sizes(sizes)
         self.n_stages, self.n_stage_params, self.n_variables, self.n_constraints = list(sizes)
@@ -156,25 +157,30 @@ class FatropDirectSolver:
         return NlpSolver.structure_key(self, lbx, ubx, lbg, ubg)  # same counting, same attributes
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
-              max_iterations: int | None = None) -> NlpResult:
+              max_iterations: int | None = None, time_limit_s: float | None = None) -> NlpResult:
         """Solve from x0 (lam_g0 / lam_x0 are accepted and, like casadi's Fatrop, not used). `warm_start`:
-        first the small-barrier attempt (`SolverConfig.warm_barrier_init`); `max_iterations` caps this call."""
+        first the small-barrier attempt (`SolverConfig.warm_barrier_init`). `max_iterations` caps this call;
+        `time_limit_s` (default `SolverConfig.time_limit_s`) stops it at the first evaluation after that
+        long, returning the last accepted iterate with status `time_limit_reached` (not a success)."""
         if self._fallback is not None:
             return self._fallback.solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0, warm_start=warm_start)
         cfg = self.config
         cap = cfg.max_iterations if max_iterations is None else max_iterations
+        limit = cfg.time_limit_s if time_limit_s is None else time_limit_s
+        deadline = time.perf_counter() + limit if limit else None
         if not warm_start or cfg.warm_barrier_init is None:
-            return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap)
+            return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         if self._warm_pause > 0:
             self._warm_pause -= 1
-            return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap)
-        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.warm_barrier_init, min(cfg.warm_max_iterations, cap))
-        if attempt.stats.success:
-            self._warm_failures = 0
+            return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
+        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.warm_barrier_init, min(cfg.warm_max_iterations, cap),
+                              deadline)
+        if attempt.stats.success or attempt.stats.status == "time_limit_reached":
+            self._warm_failures = 0 if attempt.stats.success else self._warm_failures
             return attempt
         self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
         self._warm_failures += 1
-        result = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap)
+        result = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         stats = result.stats
         stats.iterations += max(attempt.stats.iterations, 0)
         stats.solve_time_s += attempt.stats.solve_time_s
@@ -203,7 +209,8 @@ class FatropDirectSolver:
             self._by_structure[key] = solver
         return solver
 
-    def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int) -> NlpResult:
+    def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
+               deadline: float | None = None) -> NlpResult:
         problem = self.problem
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver)
@@ -223,19 +230,18 @@ class FatropDirectSolver:
         x = np.zeros(problem.n_variables)
         lam_g, lam_x = np.zeros(problem.n_constraints), np.zeros(problem.n_variables)
         stats = self._stats
+        budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
         with deliver_after():
             code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
-                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats))
+                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s)
         elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
         if code == -1:
             return failed_result(problem, x0, "solver_exception: Fatrop raised (see its output with print_level > 0)")
         if code == -2:
             return failed_result(problem, x0, "solver_exception: row structure changed under the solver")
         flag = int(stats[1])
-        status = _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
+        status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
         success = flag in (0, 2) and bool(np.all(np.isfinite(x)))
-        if self.config.time_limit_s and elapsed > self.config.time_limit_s and success:
-            status = "time_limit_exceeded"
         viol = self.constraint_violation(x, p, lbx, ubx, lbg, ubg) if np.all(np.isfinite(x)) else float("inf")
         return NlpResult(x=x, lam_g=lam_g, lam_x=lam_x, stats=SolverStats(
             status=status, success=success, iterations=int(stats[0]), solve_time_s=elapsed,
@@ -244,12 +250,12 @@ class FatropDirectSolver:
 
 
 def _time_split_ms(stats: np.ndarray, elapsed_s: float) -> dict:
-    """The solve's time split in `nlp.time_split_ms`'s parts: functions (generated code), linear algebra,
-    initialization, interface (callbacks beyond the functions: packing into BLASFEO), the rest inside Fatrop,
-    and outside the solver (Python, ctypes, the result's unpacking)."""
+    """The solve's time split in `nlp.time_split_ms`'s parts: functions (the generated code, timed by the
+    shim), linear algebra, initialization, interface (Fatrop's evaluation timers beyond the functions:
+    packing into BLASFEO), the rest inside Fatrop, and outside the solver (Python, ctypes, unpacking)."""
     total, search_dir, init, callbacks, functions = (1e3 * float(v) for v in (stats[2], stats[3], stats[4],
                                                                             np.sum(stats[5:10]), stats[10]))
     return {"functions": functions, "linear_algebra": search_dir, "initialization": init,
             "interface": max(callbacks - functions, 0.0),
-            "line_search_and_rest": max(total - search_dir - init - callbacks, 0.0),
+            "line_search_and_rest": max(total - search_dir - init - max(callbacks, functions), 0.0),
             "outside_solver": max(1e3 * elapsed_s - total, 0.0)}

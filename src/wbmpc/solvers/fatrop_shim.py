@@ -133,11 +133,10 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     code, p_index = generate_source(problem)
     generate_s = time.perf_counter() - start
     # libraries after the source and not --as-needed: the shim must record libfatrop as a dependency
-    flags = (*config.flags, f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop", "-lblasfeo",
-             f"-Wl,-rpath,{lib_dir}")
-    link_config = replace(config, flags=flags)
-    key = cache_key(code, link_config)
     cache = Path(config.cache_dir or default_cache_dir())
+    stem_flags = (*config.flags, "-fexceptions", f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop",
+                  "-lblasfeo", "-lstdc++", f"-Wl,-rpath,{lib_dir}")
+    key = cache_key(code + THROW_SOURCE, replace(config, flags=stem_flags))
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -147,12 +146,14 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     source_mb = len(code) / 1e6
     if library.exists():
         return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s), p_index
-    source = cache / f"{stem}.c"
+    source, helper = cache / f"{stem}.c", cache / f"{stem}_throw.cpp"
     source.write_text(code)
-    try:
-        compile_s, peak_mb = _compile(source, library, link_config)
+    helper.write_text(THROW_SOURCE)
+    try:  # the C++ helper rides along as one more input file of the same compiler call
+        compile_s, peak_mb = _compile(source, library, replace(config, flags=(str(helper), *stem_flags)))
     finally:
         source.unlink(missing_ok=True)
+        helper.unlink(missing_ok=True)
     return CompileReport(library, cached=False, source_mb=source_mb, compile_s=compile_s, peak_memory_mb=peak_mb,
                          generate_s=generate_s), p_index
 
@@ -168,6 +169,15 @@ SHIM_PRELUDE = r"""
 #include <time.h>
 
 typedef int (*wb_fn)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int);
+void wb_throw_deadline(void); /* C++: throws std::runtime_error (see THROW_SOURCE) */
+"""
+
+# Fatrop's C interface has no time limit; its solve catches std::exception and returns -1 with the last
+# accepted iterate in place. A callback past the deadline throws through Fatrop (the C shim is built with
+# -fexceptions so the exception unwinds through its frames too).
+THROW_SOURCE = r"""
+#include <stdexcept>
+extern "C" void wb_throw_deadline(void) { throw std::runtime_error("wbmpc: deadline reached"); }
 """
 
 SHIM_BODY = r"""
@@ -184,7 +194,8 @@ typedef struct {
   double hess[WB_MAXN * WB_MAXN];
   double f[WB_MAXX + 1], r[WB_MAXR + 1], lam_rows[WB_MAXR + 1], zeros[WB_MAXX + 1];
   double t_functions; /* s in generated functions since the last solve started */
-  int verbose;
+  double deadline;    /* CLOCK_MONOTONIC s; 0: none */
+  int deadline_hit;
 } wb_ctx;
 
 typedef struct {
@@ -203,6 +214,11 @@ static double wb_now(void) {
 static void wb_call(wb_ctx* c, wb_fn fn, const double* u, const double* x, int k, const double* a3,
                     const double* a4, const double* a5, double* r0, double* r1) {
   double start = wb_now();
+  if (c->deadline > 0 && start > c->deadline) { /* unwinds to fatrop_ocp_c_solve, which returns -1 */
+    c->deadline = 0;
+    c->deadline_hit = 1;
+    wb_throw_deadline();
+  }
   c->arg[0] = u; c->arg[1] = x; c->arg[2] = c->P + (size_t) k * WB_NP;
   c->arg[3] = a3; c->arg[4] = a4; c->arg[5] = a5;
   c->res[0] = r0; c->res[1] = r1;
@@ -448,36 +464,36 @@ int wb_eval_g(void* ctx, const double* P, const double* x, double* g) {
 }
 
 /* stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s),
-   generated functions (s), cost */
+   generated functions (s), cost. budget_s > 0: stop at the first callback after that many seconds and
+   return the last accepted iterate (return value 3, flag -3). */
 #define WB_NSTATS 12
 int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const double* ubx, const double* lbg,
              const double* ubg, const double* x0, double* x_out, double* lam_g_out, double* lam_x_out,
-             double* stats) {
+             double* stats, double budget_s) {
   wb_ctx* c = (wb_ctx*) ctx;
   wb_solver* s = (wb_solver*) solver;
   const struct FatropOcpCStats* st;
   const struct FatropOcpCDims* dims;
-  double before[8];
   const double *primal, *dual;
   int k, i, col, ret;
   c->P = P; c->lbx = lbx; c->ubx = ubx; c->lbg = lbg; c->ubg = ubg; c->x0 = x0;
   wb_classify(c);
   for (k = 0; k < WB_K; ++k)
     if (cb_ng(k, c) != s->n_eq[k] || cb_ng_ineq(k, c) != s->n_ineq[k]) return -2; /* another structure */
-  st = fatrop_ocp_c_get_stats(s->solver);
-  before[0] = st->time_total; before[1] = st->compute_sd_time; before[2] = st->initialization_time;
-  before[3] = st->eval_hess_time; before[4] = st->eval_jac_time; before[5] = st->eval_cv_time;
-  before[6] = st->eval_grad_time; before[7] = st->eval_obj_time;
   c->t_functions = 0;
+  c->deadline_hit = 0;
+  c->deadline = budget_s > 0 ? wb_now() + budget_s : 0;
   ret = fatrop_ocp_c_solve(s->solver);
+  c->deadline = 0;
   st = fatrop_ocp_c_get_stats(s->solver);
   stats[0] = st->iterations_count; stats[1] = st->return_flag;
-  stats[2] = st->time_total - before[0]; stats[3] = st->compute_sd_time - before[1];
-  stats[4] = st->initialization_time - before[2]; stats[5] = st->eval_hess_time - before[3];
-  stats[6] = st->eval_jac_time - before[4]; stats[7] = st->eval_cv_time - before[5];
-  stats[8] = st->eval_grad_time - before[6]; stats[9] = st->eval_obj_time - before[7];
+  /* Fatrop resets its timers at every solve */
+  stats[2] = st->time_total; stats[3] = st->compute_sd_time; stats[4] = st->initialization_time;
+  stats[5] = st->eval_hess_time; stats[6] = st->eval_jac_time; stats[7] = st->eval_cv_time;
+  stats[8] = st->eval_grad_time; stats[9] = st->eval_obj_time;
   stats[10] = c->t_functions;
-  if (ret == -1) return -1; /* exception inside Fatrop */
+  if (c->deadline_hit) { ret = 3; stats[1] = -3; }
+  else if (ret == -1) return -1; /* exception inside Fatrop */
   dims = fatrop_ocp_c_get_dims(s->solver);
   primal = fatrop_ocp_c_get_primal(s->solver)->pa;
   dual = fatrop_ocp_c_get_dual(s->solver)->pa;
