@@ -39,7 +39,7 @@ class SolverConfig:
     tolerance: float = 1e-4
     constraint_tolerance: float = 1e-6
     max_iterations: int = 100
-    time_limit_s: float | None = None  # IPOPT stops itself; Fatrop runs are flagged afterwards
+    time_limit_s: float | None = None  # IPOPT and fatrop-direct stop themselves; casadi's Fatrop is flagged afterwards
     barrier_init: float = 1e-3  # initial barrier parameter mu: small suits warm-started MPC
     # Fatrop, warm-started MPC steps (`solve(..., warm_start=True)`): first an attempt from this much smaller
     # barrier, capped at `warm_max_iterations`; if it does not converge, the step is solved from
