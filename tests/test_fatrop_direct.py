@@ -84,20 +84,36 @@ def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
     np.testing.assert_allclose(direct.constraints(x, step_data["p"]), expected, atol=1e-10)
 
 
-def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
-    """Through make_solver and the MPC (warm start, small-barrier attempts, contact changes between steps)."""
-    reference = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None), problem=problem)
-    config = MpcConfig(ocp=TINY, fallback_solver=None, solver=SolverConfig(name="fatrop-direct", codegen=codegen))
-    mpc = MPC(robot, config, problem=problem)
-    assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
+def _trot_steps(robot, problem, solver_config, times=(0.1, 0.1125, 0.125, 0.2)):
+    mpc = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None, solver=solver_config), problem=problem)
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.1, 0.05]
-    for t in (0.1, 0.1125, 0.125, 0.2):
-        expected = reference.solve(robot.q_nominal, v0, t=t)
-        got = mpc.solve(robot.q_nominal, v0, t=t)
-        assert expected.success and got.success, (expected.stats, got.stats)
-        assert got.stats.iterations == expected.stats.iterations
-        np.testing.assert_allclose(got.x, expected.x, atol=1e-8)
+    return mpc, [mpc.solve(robot.q_nominal, v0, t=t) for t in times]
+
+
+def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
+    """Through make_solver and the MPC (warm start, small-barrier attempts, contact changes between steps);
+    without the multiplier warm start both follow the same iterates."""
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
+                                                        extra_options={"warm_duals": False}))
+    assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
+    for e, g in zip(expected, got):
+        assert e.success and g.success, (e.stats, g.stats)
+        assert g.stats.iterations == e.stats.iterations
+        np.testing.assert_allclose(g.x, e.x, atol=1e-8)
+
+
+def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
+    """With the primal-dual warm start (default) the steps converge to the same plans within the
+    solver tolerance, in no more iterations in total."""
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        np.testing.assert_allclose(g.x, e.x, atol=1e-3)
+        assert g.stats.max_constraint_violation <= SolverConfig().constraint_tolerance
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
 
 
 def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):

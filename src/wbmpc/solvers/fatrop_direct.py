@@ -8,10 +8,11 @@ callbacks with one generated call each, Fatrop instances are kept per row-count 
 
 Same problem, same row split and multiplier signs as casadi's plugin: the two solve to the same
 KKT point (tests/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
-small-barrier warm attempt. Fatrop 1.x's C interface takes a primal initial guess only (its
-multipliers start from its least-squares estimate, as in casadi) and has no wall-time limit: here a
-callback past the deadline throws through Fatrop, which returns its last accepted iterate
-(`solve(..., max_iterations=, time_limit_s=)` per call, for anytime use).
+small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `fatrop_shim.THROW_SOURCE`):
+a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
+instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT
+factorisation; `extra_options={"warm_duals": False}` turns it off) and a time limit per call
+(`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
 solver falls back to casadi's nlpsol Fatrop with a RuntimeWarning; `direct_error` says why (None
@@ -62,7 +63,7 @@ class _Library:
                            ("wb_option_bool", ctypes.c_int)):
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
-        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double]
+        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double, ctypes.c_int]
         sizes = (ctypes.c_int * 4)()
         lib.wb_sizes(sizes)
         self.n_stages, self.n_stage_params, self.n_variables, self.n_constraints = list(sizes)
@@ -110,6 +111,9 @@ class FatropDirectSolver:
         self._x = np.zeros(problem.n_variables)
         self._g = np.zeros(problem.n_constraints)
         self._stats = np.zeros(_N_STATS)
+        # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
+        # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
+        self.warm_duals = bool(config.extra_options.get("warm_duals", True))
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property
@@ -174,7 +178,7 @@ class FatropDirectSolver:
             self._warm_pause -= 1
             return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.warm_barrier_init, min(cfg.warm_max_iterations, cap),
-                              deadline)
+                              deadline, warm_duals=True)
         if attempt.stats.success or attempt.stats.status == "time_limit_reached":
             self._warm_failures = 0 if attempt.stats.success else self._warm_failures
             return attempt
@@ -210,7 +214,7 @@ class FatropDirectSolver:
         return solver
 
     def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
-               deadline: float | None = None) -> NlpResult:
+               deadline: float | None = None, warm_duals: bool = False) -> NlpResult:
         problem = self.problem
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver)
@@ -233,7 +237,8 @@ class FatropDirectSolver:
         budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
         with deliver_after():
             code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
-                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s)
+                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s,
+                                int(warm_duals and self.warm_duals))
         elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
         if code == -1:
             return failed_result(problem, x0, "solver_exception: Fatrop raised (see its output with print_level > 0)")
