@@ -328,6 +328,7 @@ int wbd_solve(void* handle, int warm) {
   Driver* d = static_cast<Driver*>(handle);
   d->warm->use_ = warm && d->warm->valid_;
   int ret;
+  d->flag = IpSolverReturnFlag::Unknown;
   try {
     d->flag = d->algo->optimize();
     ret = d->flag == IpSolverReturnFlag::Success ? 0 : 1;
