@@ -13,8 +13,11 @@ both bounds infinite is left out; in each stage the constraint rows come first, 
 each in NLP order. Fatrop's dynamics multipliers are those of f(x_k, u_k) - x_{k+1} = 0, the negative
 of casadi's (our gap rows are x_{k+1} - f). Stage parameters are rows of a (N+1, n_p) array.
 
-The library (generated C of the stage functions + the shim) lands in the cache directory of
-`codegen.py` under the hash of its source, compiler, flags and the Fatrop headers' directory.
+Fatrop itself is driven by a small C++ driver (`DRIVER_SOURCE`) built from the same exported pieces as
+Fatrop's own `fatrop_ocp_c_create`, which adds a primal-dual warm start and a time limit (see there).
+
+The library (generated C of the stage functions, the shim and the driver) lands in the cache directory of
+`codegen.py` under the hash of its sources, compiler, flags and the Fatrop headers' directory.
 """
 
 from __future__ import annotations
@@ -136,7 +139,7 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     cache = Path(config.cache_dir or default_cache_dir())
     stem_flags = (*config.flags, "-fexceptions", f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop",
                   "-lblasfeo", "-lstdc++", f"-Wl,-rpath,{lib_dir}")
-    key = cache_key(code + THROW_SOURCE, replace(config, flags=stem_flags))
+    key = cache_key(code + DRIVER_SOURCE, replace(config, flags=stem_flags))
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -148,7 +151,7 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
         return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s), p_index
     source, helper = cache / f"{stem}.c", cache / f"{stem}_throw.cpp"
     source.write_text(code)
-    helper.write_text(THROW_SOURCE)
+    helper.write_text(DRIVER_SOURCE)
     try:  # the C++ helper rides along as one more input file of the same compiler call
         compile_s, peak_mb = _compile(source, library, replace(config, flags=(str(helper), *stem_flags)))
     finally:
@@ -169,7 +172,7 @@ SHIM_PRELUDE = r"""
 #include <time.h>
 
 typedef int (*wb_fn)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int);
-void wb_throw_deadline(void); /* C++ (THROW_SOURCE): throws std::runtime_error */
+void wb_throw_deadline(void); /* C++ (DRIVER_SOURCE): throws std::runtime_error */
 void* wbd_create(void* ocp);
 void wbd_destroy(void* d);
 int wbd_option_double(void* d, const char* name, double value);
@@ -193,7 +196,7 @@ const void* wbd_stats(void* d);
 # - a time limit: a callback past the deadline throws (wb_throw_deadline), the solve catches it and
 #   returns -1 with the last accepted iterate in place (the C shim is built with -fexceptions so the
 #   exception unwinds through its frames too).
-THROW_SOURCE = r"""
+DRIVER_SOURCE = r"""
 #include <algorithm>
 #include <cstring>
 #include <memory>
@@ -380,7 +383,7 @@ typedef struct {
 
 typedef struct {
   struct FatropOcpCInterface ocp;
-  void* solver; /* the C++ driver (THROW_SOURCE) */
+  void* solver; /* the C++ driver (DRIVER_SOURCE) */
   int n_eq[WB_K], n_ineq[WB_K];
 } wb_solver;
 
