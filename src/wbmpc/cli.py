@@ -575,7 +575,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
     run.add_argument("--solver", default="fatrop",
-                     help="fatrop (default, converged), ipopt, or rti (one SQP iteration per step on HPIPM's QP)")
+                     help="fatrop (default, converged), fatrop-direct (the same Fatrop through its C interface, "
+                     "always compiled), ipopt, or rti (one SQP iteration per step on HPIPM's QP)")
     run.add_argument("--gait", help="override the scenario's gait: stand, trot or walk (pull: stand = pull in stance)")
     manip = run.add_argument_group("loco-manipulation (pull, push-box, wipe, compliant)")
     manip.add_argument("--load-kg", type=float, default=10.0, help="pull: mass of the load on the floor, kg")
@@ -627,7 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
     solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
-    solve.add_argument("--solver", default="fatrop", help="fatrop (default), ipopt or rti (one SQP iteration)")
+    solve.add_argument("--solver", default="fatrop", help="fatrop (default), fatrop-direct, ipopt or rti (one SQP iteration)")
     solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
     solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
     solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
@@ -638,7 +639,7 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
-    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, ipopt, rti; the first (fatrop if listed) is the reference")
+    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti; the first (fatrop if listed) is the reference")
     mpc.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15)")
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")

@@ -87,6 +87,11 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
     return config
 
 
+def _direct_fallback(solver) -> dict:
+    """fatrop-direct only: why it ran casadi's Fatrop instead (null when the direct binding ran)."""
+    return {"direct_fallback": solver.direct_error} if hasattr(solver, "direct_error") else {}
+
+
 def _finite(value) -> float | None:
     """JSON has no inf/NaN: non-finite numbers become null."""
     if value is None:
@@ -142,6 +147,7 @@ def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", no
         "compiled": mpc.solver.is_compiled,
         "compile": (mpc.solver.compile_report.as_dict() if mpc.solver.is_compiled
                     else {"error": mpc.solver.compile_error} if compiled else None),
+        **_direct_fallback(mpc.solver),
     }
 
 
@@ -322,6 +328,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             progress.update(base + share * steps, f"closed loop {name}")
 
         runs[name], recorded, iterations = _closed_loop(robot, mpcs[name], plant, steps, on_progress)
+        runs[name].update(_direct_fallback(mpcs[name].solver))
         if name == reference:
             states, reference_iterations = recorded, iterations
         done = base + steps

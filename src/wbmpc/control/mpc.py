@@ -21,7 +21,7 @@ from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.buffered import BufferedFunction
-from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+from wbmpc.solvers.nlp import FATROP_SOLVERS, NlpSolver, SolverConfig
 
 COLD_FALLBACK_ITERATIONS = 300  # the fallback's cap on a run's first step (no plan to hold while it solves)
 
@@ -401,7 +401,7 @@ class MPC:
         takes the build time: campaigns and real-time use want them before the clock runs)."""
         if self.config.fallback_solver:
             self._fallback_solver()
-        if self.config.recovery_barrier_init and self.solver.config.name == "fatrop":
+        if self.config.recovery_barrier_init and self.solver.config.name in FATROP_SOLVERS:
             self._recovery_fatrop()
         prepare_recovery = getattr(self.solver, "prepare_recovery", None)  # RTI: its Fatrop re-solve
         if prepare_recovery is not None:
@@ -496,7 +496,7 @@ class MPC:
             attempts.append(f"soft rows: {result.stats.status}")
             if result.stats.success:
                 self._push_until_t = t + cfg.push_hold_s
-        if not result.stats.success and cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
+        if not result.stats.success and cfg.recovery_barrier_init and self.solver.config.name in FATROP_SOLVERS and budget_left():
             result = self._recovery_fatrop().solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.cpu_time_s, iterations + result.stats.iterations
             wall_s += result.stats.solve_time_s

@@ -26,7 +26,8 @@ from wbmpc.solvers.codegen import (
     compile_nlp,
 )
 
-SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
+SOLVERS = ("fatrop", "ipopt", "rti", "fatrop-direct")  # rti: solvers/rti.py, fatrop-direct: solvers/fatrop_direct.py
+FATROP_SOLVERS = ("fatrop", "fatrop-direct")  # the same Fatrop: casadi's nlpsol or our direct binding
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,7 @@ class SolverConfig:
     tolerance: float = 1e-4
     constraint_tolerance: float = 1e-6
     max_iterations: int = 100
-    time_limit_s: float | None = None  # IPOPT stops itself; Fatrop runs are flagged afterwards
+    time_limit_s: float | None = None  # IPOPT and fatrop-direct stop themselves; casadi's Fatrop is flagged afterwards
     barrier_init: float = 1e-3  # initial barrier parameter mu: small suits warm-started MPC
     # Fatrop, warm-started MPC steps (`solve(..., warm_start=True)`): first an attempt from this much smaller
     # barrier, capped at `warm_max_iterations`; if it does not converge, the step is solved from
@@ -196,8 +197,9 @@ class NlpSolver:
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None,
                  compile_report: CompileReport | None = None):
-        if config.name == "rti":
-            raise ConfigError("the 'rti' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
+        if config.name in ("rti", "fatrop-direct"):
+            raise ConfigError(f"the '{config.name}' solver is not an nlpsol: build it with "
+                              "wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
         self.config = config
         self.compile_report: CompileReport | None = compile_report
