@@ -87,6 +87,7 @@ class Event:
 COMMAND_WIDTH = 12  # a `Commands` as numbers: base velocity (3), yaw rate, ee velocity (3, NaN: none), ee force (3), height
 TICK_KEYS = ("t", "q", "v", "tau", "tau_ff", "q_des", "contact_forces")
 STEP_KEYS = ("mpc_t", "solve_ms", "iterations", "success", "planned_contact")
+SOLVER_DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")
 RSS_SAMPLE_PERIOD_S = 10.0  # simulated seconds between resident-memory samples
 
 
@@ -121,6 +122,10 @@ class RunLog:
         self._ticks: ChunkedTable | None = None  # built at the first row, when the sizes are known
         self._steps: ChunkedTable | None = None
         self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays")
+        # per step of a solver that reports them (the anytime SQP): its SQP iterations, the KKT residuals of the
+        # iterate it returned, its budget (NaN: none) and whether it ended past its deadline
+        self._solver_details = ChunkedTable({key: ((), float) for key in SOLVER_DETAIL_KEYS}, chunk_rows, spill_dir,
+                                            "solver_details")
         self._status_names: list[str] = []  # distinct solver statuses; steps store an index into it
         self._status_codes: dict[str, int] = {}
         self.events: list = []  # (time_s, name) of each event applied to the plant
@@ -182,6 +187,18 @@ class RunLog:
                             np.zeros(1) if planned_contact is None else planned_contact[k])
         return log
 
+    def record_solver_details(self, details: dict) -> None:
+        """A step's solver details (`SolverStats.details` of the anytime SQP); missing keys are NaN."""
+        row = {}
+        for key in SOLVER_DETAIL_KEYS:
+            value = details.get(key)
+            row[key] = float("nan") if value is None else float(value)
+        self._solver_details.append(row)
+
+    def solver_details(self) -> dict[str, np.ndarray]:
+        """{key: one value per step that reported details} (empty arrays when no step did)."""
+        return {key: self._solver_details.column(key) for key in SOLVER_DETAIL_KEYS}
+
     def record_delay(self, delay_ms: float) -> None:
         """The delay of a solution that was applied (failed ones are not)."""
         self._delays.append({"delay_ms": delay_ms})
@@ -199,7 +216,7 @@ class RunLog:
 
     def close(self) -> None:
         """Delete the spilled chunks now (otherwise when the log is garbage collected)."""
-        for table in (self._ticks, self._steps, self._delays):
+        for table in (self._ticks, self._steps, self._delays, self._solver_details):
             if table is not None:
                 table.close()
 
@@ -300,6 +317,7 @@ class ClosedLoop:
         self.kp, self.kd = config.gains.vectors(~self.robot.leg_joint_mask)
         self._rng = np.random.default_rng(config.seed)
         self._filtered_v: np.ndarray | None = None
+        self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -344,11 +362,25 @@ class ClosedLoop:
             return self._run_realtime(duration_s, commands, events, progress, stop)
         return self._run_simulated_time(duration_s, commands, events, progress, stop)
 
-    def _solve(self, log: RunLog, t: float, commands: CommandSource) -> Solution:
+    def _expected_delay_s(self, log: RunLog) -> float:
+        """The delay the next plan will see (for `MpcConfig.delay_compensation`): the fixed one, else the
+        running mean of the measured ones (0 before any)."""
+        if self.config.delay == "none":
+            return 0.0
+        fixed = self.config.fixed_delay_s
+        return fixed if fixed is not None else self._delay_mean_s
+
+    def _note_delay(self, delay_s: float) -> None:
+        self._delay_mean_s = delay_s if self._delay_mean_s == 0.0 else 0.8 * self._delay_mean_s + 0.2 * delay_s
+
+    def _solve(self, log: RunLog, t: float, commands: CommandSource, first: bool = False) -> Solution:
+        """One MPC step from the state measured now; `first`: the run's first step, applied at once."""
         q, v = self._measure()
         command = commands(t, q, v)
         start, start_cpu = time.perf_counter(), time.thread_time()
-        solution = self.mpc.solve(q, v, command, t)
+        delay_s = 0.0 if first else self._expected_delay_s(log)
+        # passed only when there is one: MPC stand-ins (benchmarks' recorders) take (q, v, commands, t)
+        solution = self.mpc.solve(q, v, command, t, **({"delay_s": delay_s} if delay_s else {}))
         solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
         solution.cpu_time_s = time.thread_time() - start_cpu  # type: ignore[attr-defined]
         self._log_solution(log, t, command, solution)
@@ -359,6 +391,8 @@ class ClosedLoop:
         solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
         log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
                         solution.contact[0])
+        if solution.stats.details:
+            log.record_solver_details(solution.stats.details)
 
     def _new_log(self) -> RunLog:
         return RunLog(self.log_dir, self.log_chunk_rows)
@@ -404,7 +438,7 @@ class ClosedLoop:
         wall_start = time.perf_counter()
         mpc_period = 1.0 / cfg.mpc_rate_hz
         t0 = plant.time_s
-        active = self._solve(log, t0, commands)
+        active = self._solve(log, t0, commands, first=True)
         if not active.success:
             raise ConfigError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
         pending: list[tuple[float, Solution]] = []
@@ -420,6 +454,7 @@ class ClosedLoop:
                     solution.cpu_time_s if cfg.delay == "measured" else
                     solution.wall_time_s if cfg.delay == "measured-wall" else cfg.fixed_delay_s)
                 solver_free_at = t + delay
+                self._note_delay(delay)
                 if delay > mpc_period:
                     log.late_solutions += 1
                 while next_mpc <= t + 1e-9:
@@ -478,7 +513,7 @@ class ClosedLoop:
             if not conn.poll(0) or conn.recv() != "ready":
                 raise ConfigError("the real-time MPC process did not start (see its error above)")
             t0 = plant.time_s
-            active = self._solve(log, t0, commands)
+            active = self._solve(log, t0, commands, first=True)
             if not active.success:
                 raise ConfigError(f"the MPC failed on the initial state ({active.stats.status})")
             mpc_period = 1.0 / cfg.mpc_rate_hz

@@ -76,7 +76,29 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "mpc_cpu_share": log.mpc_cpu_share,
         "realtime_priority": log.realtime_priority,  # real time: "nice -10" where permitted, else "default"
         **stability_metrics(log, cmd_t, solve, duration),
+        **solver_detail_metrics(log),
     }
+
+
+def solver_detail_metrics(log: RunLog) -> dict:
+    """The anytime SQP's per-step record: SQP iterations, KKT residuals of the returned iterates, how
+    many steps it ended by its deadline and how many ended past it (None when the solver reports none)."""
+    details = log.solver_details()
+    n = details["sqp_iterations"].size
+    if not n:
+        return {"sqp_iterations_mean": None}
+
+    def stat(values, how):
+        values = values[np.isfinite(values)]
+        return float(how(values)) if values.size else None
+
+    return {"sqp_iterations_mean": float(np.mean(details["sqp_iterations"])),
+            "sqp_iterations_min": int(np.min(details["sqp_iterations"])),
+            "primal_residual_median": stat(details["primal_residual"], np.median),
+            "primal_residual_max": stat(details["primal_residual"], np.max),
+            "dual_residual_median": stat(details["dual_residual"], np.median),
+            "step_budget_ms_mean": stat(details["budget_ms"], np.mean),
+            "solver_past_deadline_share": float(np.nanmean(details["late"]))}
 
 
 STABILITY_WINDOW_S = 60.0

@@ -12,7 +12,11 @@ _activate_fast_blasfeo()
 
 
 def make_solver(problem, config):
-    """The solver `config.name` names, built once for `problem` (NlpSolver or RtiSolver)."""
+    """The solver `config.name` names, built once for `problem` (NlpSolver, RtiSolver or AnytimeSqpSolver)."""
+    if config.name == "sqp":
+        from wbmpc.solvers.anytime import AnytimeSqpSolver
+
+        return AnytimeSqpSolver(problem, config)
     if config.name == "rti":
         from wbmpc.solvers.rti import RtiSolver
 

@@ -26,7 +26,8 @@ from wbmpc.solvers.codegen import (
     compile_nlp,
 )
 
-SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
+# rti: solvers/rti.py, sqp: the anytime SQP (solvers/anytime.py); both built by wbmpc.solvers.make_solver
+SOLVERS = ("fatrop", "ipopt", "rti", "sqp")
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,7 @@ class SolverStats:
     cost: float
     cpu_time_s: float = 0.0  # CPU time of the solving thread: robust to other processes on the machine
     split_ms: dict = field(default_factory=dict)  # where the solve time went (see `time_split_ms`)
+    details: dict = field(default_factory=dict)  # solver-specific (anytime SQP: iterations, KKT residuals, budget)
 
 
 def time_split_ms(name: str, stats: dict, elapsed_s: float) -> dict:
@@ -196,8 +198,8 @@ class NlpSolver:
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None,
                  compile_report: CompileReport | None = None):
-        if config.name == "rti":
-            raise ConfigError("the 'rti' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
+        if config.name in ("rti", "sqp"):
+            raise ConfigError(f"the '{config.name}' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
         self.config = config
         self.compile_report: CompileReport | None = compile_report

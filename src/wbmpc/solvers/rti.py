@@ -41,7 +41,7 @@ from wbmpc.solvers.nlp import (
     bound_violation,
     failed_result,
 )
-from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
+from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
 
 
 @dataclass(frozen=True)
@@ -93,9 +93,11 @@ class RtiConfig:
 class RtiSolver:
     """One SQP iteration with a Gauss-Newton Hessian per call, built once per OCP structure."""
 
+    solver_name = "rti"
+
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(name="rti"), rti: RtiConfig | None = None):
-        if config.name != "rti":
-            raise ConfigError(f"RtiSolver needs SolverConfig(name='rti'), got '{config.name}'")
+        if config.name != self.solver_name:
+            raise ConfigError(f"{type(self).__name__} needs SolverConfig(name='{self.solver_name}'), got '{config.name}'")
         self.problem = problem
         self.config = config
         self.rti = rti or RtiConfig.from_options(config.extra_options)
@@ -163,6 +165,24 @@ class RtiSolver:
         self.last_timing["recovery_ms"] = 1e3 * (result.stats.solve_time_s - failed.stats.solve_time_s)
         return result
 
+    def _solve_qp(self, qp_data) -> tuple[QpResult, float, int]:
+        """The QP in the first HPIPM mode, re-solved in the fallback mode if that fails (which then goes first
+        for `fallback_first_calls` calls). Returns the result, the time and the iterations of both attempts."""
+        qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
+        if self._fallback_first > 0:
+            self._fallback_first -= 1
+            qps.reverse()
+        result = qps[0][0].solve(*qp_data)
+        spent_s, iterations = result.solve_time_s, max(result.iterations, 0)
+        if not result.success and self.fallback_qp is not None:
+            first = result.status
+            result = qps[1][0].solve(*qp_data)
+            spent_s, iterations = spent_s + result.solve_time_s, iterations + max(result.iterations, 0)
+            result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
+            if qps[0][0] is self.qp:
+                self._fallback_first = self.rti.fallback_first_calls
+        return result, spent_s, iterations
+
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         return bound_violation(x, self._nlp(x, p)[1], lbx, ubx, lbg, ubg)
 
@@ -192,21 +212,9 @@ class RtiSolver:
             H = self._hessian(x, p)
             linearize_s += time.perf_counter() - tic
             qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
-            qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
-            if self._fallback_first > 0:
-                self._fallback_first -= 1
-                qps.reverse()
-            result = qps[0][0].solve(*qp_data)
-            qp_s += result.solve_time_s
-            qp_iterations += max(result.iterations, 0)
-            if not result.success and self.fallback_qp is not None:
-                first = result.status
-                result = qps[1][0].solve(*qp_data)
-                qp_s += result.solve_time_s
-                qp_iterations += max(result.iterations, 0)
-                result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
-                if qps[0][0] is self.qp:
-                    self._fallback_first = self.rti.fallback_first_calls
+            result, spent_s, iterations = self._solve_qp(qp_data)
+            qp_s += spent_s
+            qp_iterations += iterations
             status, success = result.status, result.success
             if not success:
                 break
