@@ -156,7 +156,8 @@ class AnytimeSqpSolver(RtiSolver):
                 f_out, g_trial = self._nlp(trial, p)
                 f_trial = float(f_out[0])
                 phi, _ = self._merit(f_trial, g_trial, trial, lbx, ubx, lbg, ubg, nu)
-                if np.isfinite(phi) and phi <= phi0 + cfg.armijo * alpha * min(slope, 0.0):
+                # (a roundoff allowance: near the solution phi changes below its last digits)
+                if np.isfinite(phi) and phi <= phi0 + cfg.armijo * alpha * min(slope, 0.0) + 1e-13 * max(1.0, abs(phi0)):
                     accepted = True
                     break
                 if alpha * cfg.backtrack < cfg.min_step:
@@ -205,6 +206,8 @@ class AnytimeSqpSolver(RtiSolver):
                            lam_x=lam_x if lam_x is not None else np.zeros_like(x), stats=stats)
         if not success and iterations == 0 and self.rti.recovery_barrier_init is not None:
             result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
+            result.stats.details = {**stats.details, "primal_residual": result.stats.max_constraint_violation,
+                                    "dual_residual": None, "late": deadline is not None and clock() > deadline}
         return result
 
     def _predicted_iteration_s(self, linearize_s: float) -> float:
