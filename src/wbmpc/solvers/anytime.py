@@ -110,6 +110,7 @@ class AnytimeSqpSolver(RtiSolver):
         nu, lam_g, lam_x = 0.0, None, None
         status, success, qp_iterations, iterations, alphas = "not_started", False, 0, 0, []
         primal = dual = float("nan")
+        H = None
         linearize_s = qp_s = search_s = 0.0
         while True:
             tic = clock()
@@ -134,7 +135,8 @@ class AnytimeSqpSolver(RtiSolver):
                     clock() + cfg.safety * self._predicted_iteration_s(linearize_s / iterations) > deadline:
                 status, success = "Deadline", True
                 break
-            H = self._hessian(x, p)
+            if H is None or self.hessian_depends_on_x:
+                H = self._hessian(x, p)
             linearize_s += clock() - tic
             qp_tic = clock()
             result, _, n_qp = self._solve_qp((H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x))

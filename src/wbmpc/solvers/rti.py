@@ -120,6 +120,8 @@ class RtiSolver:
         self._jacobian, self._gradient = functions["nlp_jac_g"], functions["nlp_grad_f"]
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
         self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
+        # the Gauss-Newton Hessian of the [q, v] formulations depends on the weights (p) alone: once per call
+        self.hessian_depends_on_x = bool(ca.depends_on(hessian, x))
         sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
                              hpipm_options=dict(self.rti.qp_options))
