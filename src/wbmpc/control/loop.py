@@ -519,6 +519,9 @@ class ClosedLoop:
             mpc_period = 1.0 / cfg.mpc_rate_hz
             next_mpc, next_control = t0 + mpc_period, t0
             busy, request = False, None
+            # the transport (pipe, pickling, this loop noticing the answer) measured per step: the solver's budget
+            # is the period less it, so that the answer is back before the next MPC tick
+            transport_s = REALTIME_TRANSPORT_GUESS_S
             tau = np.zeros(self.robot.n_joints)
             conn.send("cpu")
             mpc_cpu_start = conn.recv()
@@ -526,25 +529,35 @@ class ClosedLoop:
             while plant.time_s - t0 < duration_s - 1e-9:
                 t = plant.time_s
                 lag = (t - t0) - (time.perf_counter() - wall_start)
-                if lag > 0:
-                    time.sleep(lag)
+                if lag > 0:  # wait for the wall clock, waking when the answer arrives
+                    if busy:
+                        conn.poll(lag)
+                        lag = (t - t0) - (time.perf_counter() - wall_start)
+                    if lag > 0:
+                        time.sleep(lag)
                 self._apply_events(events, t, log)
                 if busy and conn.poll():
                     solution = conn.recv()
                     busy = False
-                    elapsed = max(time.perf_counter() - wall_start, 1e-9)
+                    now = time.perf_counter()
+                    elapsed = max(now - wall_start, 1e-9)
                     log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / elapsed
                     self._log_solution(log, request[0], request[1], solution)
-                    log.record_delay(solution.wall_time_s * 1e3)
-                    if solution.wall_time_s > mpc_period:
+                    # the delay the plant sees: from the measurement to the plan's first tick, transport included
+                    delay = max(t - request[0], now - request[2])
+                    transport_s = 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
+                    log.record_delay(delay * 1e3)
+                    self._note_delay(delay)
+                    if delay > mpc_period:
                         log.late_solutions += 1
                     if solution.success or getattr(solution, "held_previous", False):
                         active = solution
                 if not busy and t >= next_mpc - 1e-9:
                     q, v = self._measure()
                     command = commands(t, q, v)
-                    conn.send((q, v, command, t))
-                    busy, request = True, (t, command)
+                    budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
+                    conn.send((q, v, command, t, self._delay_mean_s, budget))
+                    busy, request = True, (t, command, time.perf_counter())
                     while next_mpc <= t + 1e-9:
                         next_mpc += mpc_period
                 tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress,
@@ -573,6 +586,8 @@ class ClosedLoop:
         return log
 
 
+REALTIME_TRANSPORT_GUESS_S = 1e-3  # the transport's first guess, before one was measured
+REALTIME_MARGIN_S = 0.5e-3  # kept free of the budget for the jitter of the transport
 REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
 
 
@@ -624,9 +639,11 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
         if message == "cpu":
             conn.send(time.process_time())
             continue
-        q, v, command, t = message
+        q, v, command, t, delay_s, budget_s = message
         start = time.perf_counter()
-        solution = mpc.solve(q, v, command, t)
+        # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
+        budget = budget_s if mpc.config.step_budget_s is not None else None
+        solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
         solution.wall_time_s = time.perf_counter() - start
         solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
         conn.send(solution)
