@@ -96,7 +96,7 @@ def test_stops_at_its_deadline_with_the_best_iterate(fixed_state):
 def test_a_budget_below_one_iteration_is_refused(fixed_state):
     problem, data, _ = fixed_state
     solver = _solver(problem, clock=FakeClock(), budget_ms=0.5)
-    with pytest.raises(DeadlineError, match="shorter than one SQP iteration"):
+    with pytest.raises(DeadlineError, match="shorter than one QP"):
         solver.solve(*data)  # the cold first step measures the iteration and refuses the budget
 
 
