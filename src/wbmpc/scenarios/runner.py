@@ -127,6 +127,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
                      # shifted in time, is held instead
+                     # the anytime SQP continues from its own best iterate: no converged solver first after a rescue
+                     # (an uncompiled IPOPT step takes 100+ ms: real-time push cases fell to 5 Hz with it)
+                     fallback_first_s=0.0 if config.solver == "sqp" else MpcConfig.fallback_first_s,
                      recovery_time_limit_s=MpcConfig.recovery_time_limit_s if config.delay == "none"
                      else DELAYED_RECOVERY_LIMIT_S,
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
