@@ -87,10 +87,17 @@ def test_stops_at_its_deadline_with_the_best_iterate(fixed_state):
         assert 1 <= details["sqp_iterations"] <= int(budget_iterations) + 1
         assert clock.now <= deadline + one_iteration_s  # stopped at the deadline, not after another iteration
         assert np.all(np.isfinite(result.x))
-        assert np.isfinite(details["primal_residual"]) and np.isfinite(details["dual_residual"])
+        assert details["primal_residual"] == result.stats.max_constraint_violation
+        # the dual residual of the last iterate linearised: there is one after two iterations
+        assert np.isfinite(details["dual_residual"]) == (details["sqp_iterations"] > 1)
         merits.append((details["sqp_iterations"], result.stats.max_constraint_violation))
     # more budget, more iterations, a more feasible iterate
     assert merits[1][0] > merits[0][0] and merits[1][1] <= merits[0][1]
+    # kkt_at_exit: the returned iterate is linearised once more for its own dual residual
+    exact = _solver(problem, clock=FakeClock(), kkt_at_exit=True)
+    exact.solve(p, lbx, ubx, lbg, ubg, x0)
+    one = exact.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=exact.clock.now)
+    assert one.stats.details["sqp_iterations"] == 1 and np.isfinite(one.stats.details["dual_residual"])
 
 
 def test_a_budget_below_one_iteration_is_refused(fixed_state):

@@ -12,7 +12,8 @@ dual: |grad f + J' lam_g + lam_x|_inf with the last QP's multipliers, relative t
 when the step is negligible, or when the next iteration would not end before the deadline
 (predicted from the iterations measured so far). The result is the iterate with the lowest merit
 (the last one, since every accepted step lowers it), with its status and KKT residuals in
-`stats.details`; the MPC warm-starts the next step from it.
+`stats.details` (primal of the returned iterate; dual of the last iterate linearised, which is the
+returned one when it converged or with `kkt_at_exit`); the MPC warm-starts the next step from it.
 
 The deadline is an absolute time on the solver's `clock` (wall time for real time, the thread's
 CPU time to measure on a shared machine, or any callable in tests), passed per call by the MPC
@@ -58,6 +59,9 @@ class AnytimeConfig(RtiConfig):
     min_step: float = 0.05  # smallest step length tried; below it the iterate is kept (first iteration: full step)
     merit_margin: float = 1.1  # nu = margin * max |lambda| (never decreased within a call)
     safety: float = 1.2  # the next iteration starts if now + safety * (its predicted time) is before the deadline
+    # linearise at the iterate returned to report its dual residual too (~0.8 ms on b1_z1); off: the dual
+    # residual is that of the last iterate linearised anyway (None after a single iteration)
+    kkt_at_exit: bool = False
 
     def __post_init__(self):
         super().__post_init__()
@@ -116,26 +120,30 @@ class AnytimeSqpSolver(RtiSolver):
         linearize_s = qp_s = search_s = 0.0
         while True:
             tic = clock()
+            stop = None  # checked before linearising: a step that ends here skips the next linearisation
+            if iterations >= cfg.sqp_iterations:
+                stop = "Maximum_Iterations_Exceeded"
+            elif iterations > 0 and deadline is not None and \
+                    clock() + cfg.safety * self._predicted_iteration_s() > deadline:
+                stop = "Deadline"
+            if stop is not None and not cfg.kkt_at_exit:
+                status, success = stop, iterations > 0
+                break
             g_lin, J = self._jacobian(x, p)
             if not (np.all(np.isfinite(np.asarray(g_lin))) and J.is_regular()):
                 status = "invalid_input_nan_constraints"
                 break
             gradient = self._gradient(x, p)
             grad = np.asarray(gradient).ravel()
-            primal = bound_violation(x, g, lbx, ubx, lbg, ubg)
             if lam_g is not None:
+                primal = bound_violation(x, g, lbx, ubx, lbg, ubg)
                 residual = grad + np.asarray(ca.mtimes(ca.DM(lam_g).T, J)).ravel() + lam_x
                 dual = float(np.max(np.abs(residual), initial=0.0) / max(1.0, np.max(np.abs(grad), initial=0.0)))
                 if primal < cfg.primal_tolerance and dual < cfg.dual_tolerance:
                     status, success = "Converged", True
                     break
-            if iterations >= cfg.sqp_iterations:
-                status = "Maximum_Iterations_Exceeded"
-                success = iterations > 0
-                break
-            if iterations > 0 and deadline is not None and \
-                    clock() + cfg.safety * self._predicted_iteration_s(linearize_s / iterations) > deadline:
-                status, success = "Deadline", True
+            if stop is not None:
+                status, success = stop, iterations > 0
                 break
             if H is None or self.hessian_depends_on_x:
                 H = self._hessian(x, p)
@@ -188,6 +196,7 @@ class AnytimeSqpSolver(RtiSolver):
                 status, success = "Converged_Step", True
                 break
         finite = bool(np.all(np.isfinite(g)) and np.isfinite(f))
+        primal = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")  # of the iterate returned
         success = success and finite and iterations > 0
         viol = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
         if not success:
@@ -216,8 +225,8 @@ class AnytimeSqpSolver(RtiSolver):
                                     "dual_residual": None, "late": deadline is not None and clock() > deadline}
         return result
 
-    def _predicted_iteration_s(self, linearize_s: float) -> float:
-        return self._iteration_s if self._iteration_s is not None else 4 * linearize_s
+    def _predicted_iteration_s(self) -> float:
+        return self._iteration_s if self._iteration_s is not None else 0.0
 
     def _record_iteration(self, seconds: float) -> None:
         self._iteration_s = seconds if self._iteration_s is None else 0.7 * self._iteration_s + 0.3 * seconds
