@@ -21,6 +21,7 @@ import pinocchio as pin
 from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
+from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.resident_memory import rss_mb
@@ -485,8 +486,10 @@ class ClosedLoop:
         log = self._new_log()
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
+        wakeups = SharedChannel.events(context)
+        channel: SharedChannel | None = None
         cpus = _cpu_split()
-        worker = context.Process(target=mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1]),
+        worker = context.Process(target=mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1], wakeups),
                                  daemon=True)
         single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
         saved = {name: os.environ.get(name) for name in single_threaded}
@@ -519,25 +522,29 @@ class ClosedLoop:
             mpc_period = 1.0 / cfg.mpc_rate_hz
             next_mpc, next_control = t0 + mpc_period, t0
             busy, request = False, None
-            # the transport (pipe, pickling, this loop noticing the answer) measured per step: the solver's budget
-            # is the period less it, so that the answer is back before the next MPC tick
+            # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
+            # solver's budget is the period less it, so that the answer is back before the next MPC tick
             transport_s = REALTIME_TRANSPORT_GUESS_S
             tau = np.zeros(self.robot.n_joints)
             conn.send("cpu")
             mpc_cpu_start = conn.recv()
+            # from here on requests and plans go through shared memory, woken by events (no pickles, no polling)
+            channel = SharedChannel.create(ChannelLayout.from_solution(active, len(command_row(Commands()))), wakeups)
+            conn.send(("channel", *channel.handle))
             wall_start, cpu_start = time.perf_counter(), time.process_time()
             while plant.time_s - t0 < duration_s - 1e-9:
                 t = plant.time_s
                 lag = (t - t0) - (time.perf_counter() - wall_start)
-                if lag > 0:  # wait for the wall clock, waking when the answer arrives
+                if lag > 0:  # wait for the wall clock, woken early by the answer
                     if busy:
-                        conn.poll(lag)
+                        channel.answer_ready.wait(lag)
                         lag = (t - t0) - (time.perf_counter() - wall_start)
                     if lag > 0:
                         time.sleep(lag)
                 self._apply_events(events, t, log)
-                if busy and conn.poll():
-                    solution = conn.recv()
+                if busy and channel.answer_ready.is_set():
+                    solution = channel.receive_solution()
+                    channel.answer_ready.clear()
                     busy = False
                     now = time.perf_counter()
                     elapsed = max(now - wall_start, 1e-9)
@@ -553,10 +560,12 @@ class ClosedLoop:
                     if solution.success or getattr(solution, "held_previous", False):
                         active = solution
                 if not busy and t >= next_mpc - 1e-9:
+                    if not worker.is_alive():
+                        raise ConfigError("the real-time MPC process died (see its error above)")
                     q, v = self._measure()
                     command = commands(t, q, v)
                     budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
-                    conn.send((q, v, command, t, self._delay_mean_s, budget))
+                    channel.send_request(q, v, command_row(command), t, self._delay_mean_s, budget)
                     busy, request = True, (t, command, time.perf_counter())
                     while next_mpc <= t + 1e-9:
                         next_mpc += mpc_period
@@ -577,12 +586,17 @@ class ClosedLoop:
                 except OSError:
                     pass
             try:
-                conn.send(None)
+                if channel is not None:
+                    channel.send_stop()
+                else:
+                    conn.send(None)
             except (BrokenPipeError, OSError):
                 pass
             worker.join(timeout=5)
             if worker.is_alive():
                 worker.terminate()
+            if channel is not None:
+                channel.close()
         return log
 
 
@@ -618,9 +632,10 @@ def _cpu_split() -> tuple[set[int], set[int]]:
     return {available[0]}, set(available[1:])
 
 
-def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
-    """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests
-    ("cpu" asks for the process's CPU time so far)."""
+def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None) -> None:
+    """Real-time mode's solver process: build the MPC, then answer requests: through the pipe ("cpu" asks
+    for the process's CPU time so far; (q, v, commands, t, delay_s, budget_s) a plan) until ("channel",
+    layout, name) moves them to the shared-memory channel (`realtime_channel.py`, with `events`)."""
     import signal
 
     from wbmpc.robots import RobotModel
@@ -639,6 +654,9 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
         if message == "cpu":
             conn.send(time.process_time())
             continue
+        if message[0] == "channel":
+            _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
+            return
         q, v, command, t, delay_s, budget_s = message
         start = time.perf_counter()
         # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
@@ -647,3 +665,21 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
         solution.wall_time_s = time.perf_counter() - start
         solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
         conn.send(solution)
+
+
+def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
+    """The solver process's loop on the shared-memory channel: wait for a request, solve, write the plan."""
+    try:
+        while True:
+            request = channel.receive_request()
+            if request is None:
+                return
+            q, v, row, t, delay_s, budget_s = request
+            start = time.perf_counter()
+            budget = budget_s if mpc.config.step_budget_s is not None else None
+            solution = mpc.solve(q, v, command_from_row(row), t, delay_s=delay_s, budget_s=budget)
+            solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
+            solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
+            channel.send_solution(solution)
+    finally:
+        channel.close()

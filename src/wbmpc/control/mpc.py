@@ -555,7 +555,7 @@ class MPC:
         shifted = Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=_interp_rows(new, old, prev.v),
                            a=_interp_rows(new[:-1], old[:-1], prev.a), forces=_interp_rows(new[:-1], old[:-1], prev.forces),
                            tau=_interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
-                           success=False, x=None)
+                           success=False, x=None, q_joints=self._joint_trajectory(q))
         shifted.held_previous = True  # type: ignore[attr-defined]
         return shifted
 
