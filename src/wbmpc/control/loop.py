@@ -657,7 +657,8 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
         if message[0] == "channel":
             _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
             return
-        q, v, command, t, delay_s, budget_s = message
+        q, v, command, t, *more = message  # (+ delay_s, budget_s from the real-time loop; deploy sends four)
+        delay_s, budget_s = more if more else (0.0, None)
         start = time.perf_counter()
         # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
         budget = budget_s if mpc.config.step_budget_s is not None else None

@@ -159,7 +159,10 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
-    mpc_config = mpc_config_for(scenario, RunConfig(scenario=args.scenario, nodes=args.nodes, compiled=args.compiled))
+    # the robot does not wait for the solver: the real-time defaults (anytime SQP with the period's budget,
+    # delay compensation, short recovery), lockstep included, so a robot-sim rehearsal runs what the robot runs
+    mpc_config = mpc_config_for(scenario, RunConfig(scenario=args.scenario, nodes=args.nodes, compiled=args.compiled,
+                                                    solver="auto", delay="realtime"))
     config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
                           lie_down=not args.no_lie_down, gains=scenario.pd_gains(PdGains(kp_leg=args.kp, kd_leg=args.kd)),
                           safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)))
