@@ -157,3 +157,32 @@ def test_realtime_loop_with_the_anytime_solver_and_delay_compensation_stays_up()
     assert all(d >= s for d, s in zip(log.delay_ms, log.solve_ms[1:]))
     details = log.solver_details()
     assert details["sqp_iterations"].size == len(log.solve_ms) and np.all(details["sqp_iterations"] >= 1)
+
+
+def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
+    """Honest reporting: no compiler -> the CasADi VM, and the run's metrics name it (not a warning alone)."""
+    import wbmpc.solvers.rti as rti
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import solver_summary
+    from wbmpc.solvers.codegen import CompileError
+
+    def no_compiler(*args, **kwargs):
+        raise CompileError("gcc not found")
+
+    monkeypatch.setattr(rti, "compile_nlp", no_compiler)
+    robot = load_robot("go2")
+    with pytest.warns(RuntimeWarning, match="compiled RTI unavailable"):
+        mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp", compiled=True)))
+    summary = solver_summary(mpc, RunConfig(solver="sqp", compiled=True, delay="6"))
+    assert summary["solver"] == "sqp" and summary["compiled_requested"] and not summary["solver_compiled"]
+    assert "gcc not found" in summary["compile_error"]
+    # the run's defaults: anytime SQP with a budget on CPU time and delay compensation with a simulated delay
+    from wbmpc.scenarios import make_scenario
+    from wbmpc.scenarios.runner import default_solver, mpc_config_for
+
+    assert default_solver(compiled=False, delay="none") == "sqp" and default_solver(True, "none") == "fatrop"
+    assert default_solver(True, "realtime") == "sqp"
+    config = RunConfig(solver="auto", compiled=True, delay="6")
+    mpc_config = mpc_config_for(make_scenario("push", robot, config.options), config, robot)
+    assert mpc_config.solver.name == "sqp" and mpc_config.delay_compensation
+    assert mpc_config.solver.extra_options["clock"] == "cpu" and mpc_config.step_budget_s == pytest.approx(0.01)

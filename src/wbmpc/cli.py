@@ -347,7 +347,7 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
             if m["compiled_requested"] else "not compiled")
         budget = f", step budget {m['step_budget_ms']:.1f} ms" if m.get("step_budget_ms") else ""
         sqp = (f", {m['sqp_iterations_mean']:.2f} SQP iterations per step, "
-               f"{100 * m['solver_past_deadline_share']:.0f} % past the deadline"
+               f"{100 * (m['solver_past_deadline_share'] or 0):.0f} % past the deadline"
                if m.get("sqp_iterations_mean") is not None else "")
         lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
                      f"{', delay compensation on' if m.get('delay_compensation') else ''}")

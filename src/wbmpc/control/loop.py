@@ -188,13 +188,18 @@ class RunLog:
                             np.zeros(1) if planned_contact is None else planned_contact[k])
         return log
 
-    def record_solver_details(self, details: dict) -> None:
-        """A step's solver details (`SolverStats.details` of the anytime SQP); missing keys are NaN."""
+    def record_solver_details(self, details: dict | None) -> None:
+        """A step's solver details (`SolverStats.details` of the anytime SQP); missing keys are NaN (a step a
+        recovery solver took over has none)."""
         row = {}
         for key in SOLVER_DETAIL_KEYS:
-            value = details.get(key)
+            value = (details or {}).get(key)
             row[key] = float("nan") if value is None else float(value)
         self._solver_details.append(row)
+
+    @property
+    def has_solver_details(self) -> bool:
+        return len(self._solver_details) > 0
 
     def solver_details(self) -> dict[str, np.ndarray]:
         """{key: one value per step that reported details} (empty arrays when no step did)."""
@@ -392,7 +397,7 @@ class ClosedLoop:
         solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
         log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
                         solution.contact[0])
-        if solution.stats.details:
+        if solution.stats.details or log.has_solver_details:  # one row per step once a solver reports them
             log.record_solver_details(solution.stats.details)
 
     def _new_log(self) -> RunLog:

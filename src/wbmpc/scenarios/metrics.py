@@ -92,13 +92,14 @@ def solver_detail_metrics(log: RunLog) -> dict:
         values = values[np.isfinite(values)]
         return float(how(values)) if values.size else None
 
-    return {"sqp_iterations_mean": float(np.mean(details["sqp_iterations"])),
-            "sqp_iterations_min": int(np.min(details["sqp_iterations"])),
+    iterations = details["sqp_iterations"][np.isfinite(details["sqp_iterations"])]
+    return {"sqp_iterations_mean": float(np.mean(iterations)) if iterations.size else None,
+            "sqp_iterations_min": int(np.min(iterations)) if iterations.size else None,
             "primal_residual_median": stat(details["primal_residual"], np.median),
             "primal_residual_max": stat(details["primal_residual"], np.max),
             "dual_residual_median": stat(details["dual_residual"], np.median),
             "step_budget_ms_mean": stat(details["budget_ms"], np.mean),
-            "solver_past_deadline_share": float(np.nanmean(details["late"]))}
+            "solver_past_deadline_share": stat(details["late"], np.mean)}
 
 
 STABILITY_WINDOW_S = 60.0
