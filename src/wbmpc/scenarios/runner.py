@@ -97,6 +97,11 @@ class RunConfig:
         if self.solver_options and self.solver not in ("rti", "sqp"):
             raise ConfigError(f"--solver-option sets the rti/sqp solvers' settings; the {self.solver} solver has none "
                               "(use --solver rti or --solver sqp)")
+        if self.solver_options:  # unknown names and bad values refused before anything is built
+            from wbmpc.solvers.anytime import AnytimeConfig
+            from wbmpc.solvers.rti import RtiConfig
+
+            (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 

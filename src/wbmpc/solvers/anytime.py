@@ -203,9 +203,10 @@ class AnytimeSqpSolver(RtiSolver):
             x, f, viol = np.full_like(x, np.nan), float("nan"), float("inf")
         elapsed = time.perf_counter() - start
         if budget_s is not None and not warm_start and self.min_qp_s is not None and budget_s < self.min_qp_s:
-            raise DeadlineError(f"the MPC step's solver budget of {1e3 * budget_s:.2f} ms is shorter than one QP of "
+            raise DeadlineError(f"the solver's share of the MPC step's budget (the step budget less the MPC's own "
+                                f"work) is {1e3 * budget_s:.2f} ms, shorter than one QP of "
                                 f"the SQP ({1e3 * self.min_qp_s:.2f} ms of CPU, the shortest on the first step): "
-                                "raise the budget (MpcConfig.step_budget_s, the anytime solver's budget_ms), lower "
+                                "raise the budget (--step-budget or MpcConfig.step_budget_s, the anytime solver's budget_ms), lower "
                                 "the MPC rate, compile the solver (--compiled) or use a smaller horizon (--nodes)")
         late = deadline is not None and clock() > deadline
         self.last_timing = {"linearize_ms": 1e3 * linearize_s, "qp_ms": 1e3 * qp_s, "line_search_ms": 1e3 * search_s,

@@ -86,7 +86,9 @@ class RtiConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(options) - known)
         if unknown:
-            raise ConfigError(f"unknown RTI option(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+            kind = "RTI" if cls is RtiConfig else "anytime SQP"
+            raise ConfigError(f"unknown {kind} option(s) {', '.join(unknown)} (--solver-option); available: "
+                              f"{', '.join(sorted(known))}")
         return cls(**options)
 
 
