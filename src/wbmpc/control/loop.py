@@ -531,6 +531,11 @@ class ClosedLoop:
             # solver's budget is the period less it, so that the answer is back before the next MPC tick
             transport_s = REALTIME_TRANSPORT_GUESS_S
             tau = np.zeros(self.robot.n_joints)
+            # the solver process solves the first step too, before the clock: its MPC then warm-starts (a cold
+            # step of the anytime SQP ignores its deadline to converge) from the same state as this one's
+            q, v = self._measure()
+            conn.send((q, v, commands(t0, q, v), t0, 0.0, None))
+            conn.recv()
             conn.send("cpu")
             mpc_cpu_start = conn.recv()
             # from here on requests and plans go through shared memory, woken by events (no pickles, no polling)
