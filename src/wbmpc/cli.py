@@ -39,7 +39,8 @@ FIELD_FLAGS = {
     "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
     "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
     "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t", "base_tracking": "--base-tracking",
-    "state": "--state", "push_gait_period_scale": "--push-cadence",
+    "state": "--state", "push_gait_period_scale": "--push-cadence", "step_budget_ms": "--step-budget",
+    "solver_options": "--solver-option", "delay_compensation": "--delay-compensation",
     "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
@@ -330,7 +331,33 @@ def _run_config(args: argparse.Namespace):
                      gains=PdGains(**{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}),
                      formulation=args.formulation,
                      compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking, state=args.state,
+                     solver_options=_solver_options(args.solver_option), step_budget_ms=args.step_budget,
+                     delay_compensation=None if args.delay_compensation is None else args.delay_compensation == "on",
                      **({} if args.push_cadence is None else {"push_gait_period_scale": args.push_cadence}))
+
+
+def _solver_options(items: list[str] | None) -> dict:
+    """--solver-option KEY=VALUE (repeatable) as {key: number, bool, None or text}."""
+    options = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--solver-option needs KEY=VALUE (e.g. sqp_iterations=2), got {item!r}")
+        lowered = text.strip().lower()
+        if lowered in ("none", "null"):
+            value = None
+        elif lowered in ("true", "false"):
+            value = lowered == "true"
+        else:
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError:
+                    value = text
+        options[key.strip()] = value
+    return options
 
 
 def _gains(args: argparse.Namespace, robot):
@@ -392,8 +419,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
-    print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {args.solver}"
-          f"{' (compiled)' if args.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+    print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
+          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
@@ -427,6 +454,16 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         f"recovered by a re-solve, {m['mpc_failures']} failed; solve {_fmt(solve['mean'])} ms mean "
         f"({_fmt(solve['max'])} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("solver"):
+        compiled = "compiled" if m["solver_compiled"] else (
+            f"NOT compiled (asked for; CasADi's VM instead, several times slower: {m['compile_error']})"
+            if m["compiled_requested"] else "not compiled")
+        budget = f", step budget {m['step_budget_ms']:.1f} ms" if m.get("step_budget_ms") else ""
+        sqp = (f", {m['sqp_iterations_mean']:.2f} SQP iterations per step, "
+               f"{100 * (m['solver_past_deadline_share'] or 0):.0f} % past the deadline"
+               if m.get("sqp_iterations_mean") is not None else "")
+        lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
+                     f"{', delay compensation on' if m.get('delay_compensation') else ''}")
     if m.get("delay") != "none":
         lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
@@ -574,9 +611,20 @@ def build_parser() -> argparse.ArgumentParser:
                      "see bench table1)")
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
-    run.add_argument("--solver", default="fatrop",
-                     help="fatrop (default, converged), fatrop-direct (the same Fatrop through its C interface, "
-                     "always compiled), ipopt, or rti (one SQP iteration per step on HPIPM's QP)")
+    run.add_argument("--solver", default="auto",
+                     help="auto (default: fatrop for --compiled runs without --delay, else sqp), fatrop (converged), "
+                          "fatrop-direct (the same Fatrop through its C interface, always compiled), ipopt, rti (one SQP "
+                          "iteration per step on HPIPM's QP) or sqp (anytime SQP: iterations with a line search until "
+                          "converged or the step's deadline)")
+    run.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
+                     help="a setting of the rti/sqp solvers (RtiConfig/AnytimeConfig), repeatable: e.g. "
+                          "sqp_iterations=2, budget_ms=5, clock=cpu")
+    run.add_argument("--step-budget", type=float, metavar="MS",
+                     help="sqp: the MPC step's time budget (default: the 12.5 ms period less 2.5 ms of transport "
+                          "with a delay, on CPU time unless --delay realtime; none without delay)")
+    run.add_argument("--delay-compensation", choices=("on", "off"),
+                     help="plan from the state predicted for when the plan applies (the measurement rolled forward "
+                          "over the expected delay with the last plan); default: on with any --delay but none")
     run.add_argument("--gait", help="override the scenario's gait: stand, trot or walk (pull: stand = pull in stance)")
     manip = run.add_argument_group("loco-manipulation (pull, push-box, wipe, compliant)")
     manip.add_argument("--load-kg", type=float, default=10.0, help="pull: mass of the load on the floor, kg")

@@ -73,8 +73,9 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
 
     check_names(formulation=formulation, gait=gait, solvers=[solver])
     grid = grid_for(nodes, uniform_dt_ms)
-    # measure the requested solver alone: RTI without its Fatrop recovery of failed QPs either
-    extra = {"recovery_barrier_init": None} if solver == "rti" else {}
+    # measure the requested solver alone: RTI and the anytime SQP (here without a deadline: iterated to
+    # convergence) without their Fatrop recovery of failed QPs either
+    extra = {"recovery_barrier_init": None} if solver in ("rti", "sqp") else {}
     config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid),
                        solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
                        gait=gait, warm_start=warm_start)

@@ -185,6 +185,15 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None
         table.compact()
         return run
     start = time.perf_counter()
+    if spec.delay == "realtime" and client is None and scheduler is None:
+        if workers not in (None, 1):
+            raise ConfigError(f"--delay realtime runs one case at a time (the two cores are the solver's and the "
+                              f"simulation's); drop --workers {workers} or set it to 1")
+        run.workers = 1
+        run = _run_here(todo, table, run, runner, progress)
+        run.wall_time_s = time.perf_counter() - start
+        table.compact()
+        return run
     own = client is None
     cluster = None
     if own:
@@ -239,6 +248,25 @@ def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runn
         bar.close()
         for future in futures:
             future.release()
+    return run
+
+
+def _run_here(todo: list[Case], table: ResultTable, run: CampaignRun, runner, progress: bool) -> CampaignRun:
+    """The cases one after the other in this process (real time: a Dask worker is a daemon process, which
+    may not start the solver process, and a second case beside it would take the solver's core)."""
+    from wbmpc.progress import ProgressBar
+
+    bar = ProgressBar(len(todo), "campaign ", unit="cases", enabled=None if progress else False, decimals=0)
+    try:
+        for case in todo:
+            row = runner(case)
+            table.write(row)
+            run.recorded += 1
+            run.errors += row.get("error") is not None
+            bar.advance(1)
+            bar.set_status("ok" if row.get("recovered") else "FELL" if row.get("fell") else "error")
+    finally:
+        bar.close()
     return run
 
 

@@ -136,6 +136,20 @@ def plot_curves(name: str, points: list[dict], path: Path) -> Path:
     return path
 
 
+def case_timing(rows: list[dict]) -> list[dict] | None:
+    """Per case with a delay: achieved MPC rate, share of late solutions, mean delay, solver (from its metrics)."""
+    out = []
+    for row in rows:
+        metrics = json.loads(row.get("metrics_json") or "{}")
+        if metrics.get("delay", "none") == "none" or "mpc_rate_hz" not in metrics:
+            continue
+        out.append({"case_id": row["case_id"], "params": json.loads(row.get("params_json") or "{}"),
+                    "delay": metrics["delay"], "solver": metrics.get("solver"), "fell": bool(row.get("fell")),
+                    "mpc_rate_hz": metrics["mpc_rate_hz"], "late_solution_share": metrics["late_solution_share"],
+                    "delay_ms_mean": metrics.get("delay_ms_mean"), "sqp_iterations_mean": metrics.get("sqp_iterations_mean")})
+    return out or None
+
+
 def write_report(out_dir: str | Path, run_info: dict | None = None) -> list[Path]:
     """summary.md, summary.json and PNGs in `out_dir` from its result table."""
     out_dir = Path(out_dir)
@@ -158,6 +172,7 @@ def write_report(out_dir: str | Path, run_info: dict | None = None) -> list[Path
         "solve_ms_max": _max([r.get("solve_ms_max") for r in rows]),
         "case_wall_time_s_mean": _mean([r.get("wall_time_s") for r in rows]),
         "push_map": {str(k): v for k, v in pmap.items()} if pmap else None,
+        "timing": case_timing(rows),
         "curves": curve_data,
         "run": run_info,
     }
@@ -196,6 +211,14 @@ def _markdown(path: Path, summary: dict, pmap, curve_data, errors) -> Path:
             lines.append(f"| {p['value']:g} | {p['cases']} | {p['recovered_share']:.2f} | "
                          f"{_fmt(p['max_torque_ratio'])} | {_fmt(p['base_drift_cm_s_mean'])} |")
         lines += ["", f"![{axis}](curve_{axis}.png)", ""]
+    if summary.get("timing"):
+        lines += ["## Timing per case", "", "| case | delay | solver | fell | MPC rate (Hz) | late share | mean delay (ms) | "
+                  "SQP iterations |", "|---|---|---|---|---|---|---|---|"]
+        for t in summary["timing"]:
+            shown = ", ".join(f"{k}={v}" for k, v in sorted(t["params"].items())) or t["case_id"]
+            lines.append(f"| {shown} | {t['delay']} | {t['solver']} | {t['fell']} | {_fmt(t['mpc_rate_hz'])} | "
+                         f"{_fmt(t['late_solution_share'])} | {_fmt(t['delay_ms_mean'])} | {_fmt(t['sqp_iterations_mean'])} |")
+        lines.append("")
     if errors:
         lines += ["## Errors", ""] + [f"- `{r['case_id']}` {r.get('params_json')}: {r['error']}" for r in errors[:20]]
     path.write_text("\n".join(lines) + "\n")

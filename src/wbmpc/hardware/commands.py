@@ -53,7 +53,8 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--compiled", action="store_true", help="compiled solver (C generated and cached)")
     dep.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15 = the paper's)")
     dep.add_argument("--speed", type=float, default=0.2, help="trot-forward / arm-track speed, m/s")
-    dep.add_argument("--solver", default="fatrop", help="the MPC's solver (as `wbmpc run --solver`)")
+    dep.add_argument("--solver", default="auto", help="the MPC's solver (as `wbmpc run --solver`; auto: the anytime "
+                     "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step)")
     dep.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), sent in LowCmd (default: the robot's, "
                      "wbmpc info; 0 on B1)")
     dep.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), sent in LowCmd (default: the robot's, "

@@ -78,7 +78,30 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "mpc_cpu_share": log.mpc_cpu_share,
         "realtime_priority": log.realtime_priority,  # real time: "nice -10" where permitted, else "default"
         **stability_metrics(log, cmd_t, solve, duration),
+        **solver_detail_metrics(log),
     }
+
+
+def solver_detail_metrics(log: RunLog) -> dict:
+    """The anytime SQP's per-step record: SQP iterations, KKT residuals of the returned iterates, how
+    many steps it ended by its deadline and how many ended past it (None when the solver reports none)."""
+    details = log.solver_details()
+    n = details["sqp_iterations"].size
+    if not n:
+        return {"sqp_iterations_mean": None}
+
+    def stat(values, how):
+        values = values[np.isfinite(values)]
+        return float(how(values)) if values.size else None
+
+    iterations = details["sqp_iterations"][np.isfinite(details["sqp_iterations"])]
+    return {"sqp_iterations_mean": float(np.mean(iterations)) if iterations.size else None,
+            "sqp_iterations_min": int(np.min(iterations)) if iterations.size else None,
+            "primal_residual_median": stat(details["primal_residual"], np.median),
+            "primal_residual_max": stat(details["primal_residual"], np.max),
+            "dual_residual_median": stat(details["dual_residual"], np.median),
+            "step_budget_ms_mean": stat(details["budget_ms"], np.mean),
+            "solver_past_deadline_share": stat(details["late"], np.mean)}
 
 
 STABILITY_WINDOW_S = 60.0

@@ -13,11 +13,16 @@ _activate_fast_blasfeo()
 
 
 def make_solver(problem, config):
-    """The solver `config.name` names, built once for `problem` (NlpSolver, RtiSolver or FatropDirectSolver)."""
+    """The solver `config.name` names, built once for `problem` (NlpSolver, RtiSolver, AnytimeSqpSolver or
+    FatropDirectSolver)."""
     if config.name == "fatrop-direct":
         from wbmpc.solvers.fatrop_direct import FatropDirectSolver
 
         return FatropDirectSolver(problem, config)
+    if config.name == "sqp":
+        from wbmpc.solvers.anytime import AnytimeSqpSolver
+
+        return AnytimeSqpSolver(problem, config)
     if config.name == "rti":
         from wbmpc.solvers.rti import RtiSolver
 

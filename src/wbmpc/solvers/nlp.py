@@ -26,7 +26,9 @@ from wbmpc.solvers.codegen import (
     compile_nlp,
 )
 
-SOLVERS = ("fatrop", "ipopt", "rti", "fatrop-direct")  # rti: solvers/rti.py, fatrop-direct: solvers/fatrop_direct.py
+# rti: solvers/rti.py, sqp: the anytime SQP (solvers/anytime.py), fatrop-direct: solvers/fatrop_direct.py;
+# all three built by wbmpc.solvers.make_solver
+SOLVERS = ("fatrop", "ipopt", "rti", "sqp", "fatrop-direct")
 FATROP_SOLVERS = ("fatrop", "fatrop-direct")  # the same Fatrop: casadi's nlpsol or our direct binding
 
 
@@ -81,6 +83,7 @@ class SolverStats:
     cost: float
     cpu_time_s: float = 0.0  # CPU time of the solving thread: robust to other processes on the machine
     split_ms: dict = field(default_factory=dict)  # where the solve time went (see `time_split_ms`)
+    details: dict = field(default_factory=dict)  # solver-specific (anytime SQP: iterations, KKT residuals, budget)
 
 
 def time_split_ms(name: str, stats: dict, elapsed_s: float) -> dict:
@@ -197,7 +200,7 @@ class NlpSolver:
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None,
                  compile_report: CompileReport | None = None):
-        if config.name in ("rti", "fatrop-direct"):
+        if config.name in ("rti", "sqp", "fatrop-direct"):
             raise ConfigError(f"the '{config.name}' solver is not an nlpsol: build it with "
                               "wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
