@@ -44,7 +44,7 @@ def test_solve_default_has_the_papers_1226_variables(capsys):
     (["bench", "mpc", "--solvers", "fatrop,osqp"], ["unknown solver 'osqp'"]),
     (["bench", "mpc", "--plant", "gazebo"], ["unknown plant 'gazebo'", "pinocchio"]),
     (["bench", "mpc", "--steps", "0"], ["--steps"]),
-    (["run", "stand", "--solver", "sqp"], ["unknown solver 'sqp'", "rti"]),
+    (["run", "stand", "--solver", "osqp"], ["unknown solver 'osqp'", "rti", "sqp"]),
 ])
 def test_bad_input_exits_2_with_a_message(capsys, argv, words):
     assert main(argv) == 2

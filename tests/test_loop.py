@@ -148,11 +148,11 @@ class _SleepyMpc:
     def __init__(self, mpc):
         self.mpc, self.robot, self.config = mpc, mpc.robot, mpc.config
 
-    def solve(self, *args):
+    def solve(self, *args, **kwargs):
         import time
 
         time.sleep(0.04)
-        return self.mpc.solve(*args)
+        return self.mpc.solve(*args, **kwargs)
 
 
 @pytest.mark.parametrize("delay, waits_count", [("measured", False), ("measured-wall", True)])

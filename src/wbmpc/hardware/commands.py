@@ -217,8 +217,8 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     if args.scenario not in DEPLOY_SCENARIOS:
         raise ConfigError(f"unknown deploy scenario '{args.scenario}'; available: {', '.join(DEPLOY_SCENARIOS)} "
                           "(scene objects and pushes exist only in simulation)")
-    if args.solver not in SOLVERS:
-        raise ConfigError(f"unknown solver '{args.solver}'; available: {', '.join(SOLVERS)}")
+    if args.solver not in ("auto", *SOLVERS):
+        raise ConfigError(f"unknown solver '{args.solver}'; available: auto, {', '.join(SOLVERS)}")
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
