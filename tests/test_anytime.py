@@ -180,7 +180,7 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     from wbmpc.scenarios import make_scenario
     from wbmpc.scenarios.runner import default_solver, mpc_config_for
 
-    assert default_solver(compiled=False, delay="none") == "sqp" and default_solver(True, "none") == "fatrop"
+    assert default_solver(compiled=False, delay="none") == "sqp" and default_solver(True, "none") == "fatrop-direct"
     assert default_solver(True, "realtime") == "sqp"
     config = RunConfig(solver="auto", compiled=True, delay="6")
     mpc_config = mpc_config_for(make_scenario("push", robot, config.options), config, robot)

@@ -612,7 +612,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
     run.add_argument("--solver", default="auto",
-                     help="auto (default: fatrop for --compiled runs without --delay, else sqp), fatrop (converged), "
+                     help="auto (default: fatrop-direct for --compiled runs without --delay, else sqp), fatrop (converged), "
                           "fatrop-direct (the same Fatrop through its C interface, always compiled), ipopt, rti (one SQP "
                           "iteration per step on HPIPM's QP) or sqp (anytime SQP: iterations with a line search until "
                           "converged or the step's deadline)")
@@ -687,7 +687,7 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
-    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti; the first (fatrop if listed) is the reference")
+    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti, sqp (anytime, no deadline: to convergence); the first (fatrop if listed) is the reference")
     mpc.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15)")
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
