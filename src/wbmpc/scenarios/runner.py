@@ -157,6 +157,8 @@ class ScenarioResult:
     metrics: dict
     log: RunLog
     scene: object | None = None  # wbmpc.sim.objects.Scene with the objects' recordings, if any
+    plant: object | None = None  # the simulator the run used (wbmpc.sim), for its final state and config
+    estimation: object | None = None  # the estimator's log with --state estimated (wbmpc.estimation), else None
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
@@ -304,10 +306,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     **solver_summary(mpc, config),
                     "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
                     "drive_train": _drive_train_summary(robot, plant.config)})
-    result = ScenarioResult(scenario, metrics, log, scene)
-    result.plant = plant  # type: ignore[attr-defined]
-    result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
-    return result
+    return ScenarioResult(scenario, metrics, log, scene, plant=plant,
+                          estimation=state_source.log if state_source is not None else None)
 
 
 def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
@@ -379,7 +379,7 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         objects = result.scene.replay_objects() if result.scene is not None else None
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
-        if getattr(result, "estimation", None) is not None:
+        if result.estimation is not None:
             from wbmpc.viz.estimation import save_estimation_plot
 
             paths.append(save_estimation_plot(result.estimation, folder))
