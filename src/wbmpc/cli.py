@@ -522,26 +522,9 @@ def _add_run_parser(sub, formatter) -> None:
     run.set_defaults(func=cmd_run)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    formatter = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0], epilog=EPILOG,
-                                     formatter_class=formatter)
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    info = sub.add_parser("info", help="robot model summary", description="Robot model summary: nq, nv, joints, "
-                          "mass, feet, arm end-effector.", epilog=EPILOG, formatter_class=formatter)
-    _add_robot_options(info)
-    info.set_defaults(func=cmd_info)
-
-    setup = sub.add_parser("setup", help="install the AVX2 BLASFEO under Fatrop/HPIPM (from PyPI, verified; "
-                                         "about 2-3x faster solver linear algebra)")
-    setup.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    setup.add_argument("--force", action="store_true", help="download and verify again even if installed")
-    setup.set_defaults(func=cmd_setup)
-
-    _add_run_parser(sub, formatter)
-
+def _add_bench_parsers(sub, formatter):
+    """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
+    returns the bench subparsers (the hardware module adds `bench dds`)."""
     bench = sub.add_parser("bench", help="benchmarks", epilog=EPILOG, formatter_class=formatter)
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
@@ -559,19 +542,6 @@ def build_parser() -> argparse.ArgumentParser:
     robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
-
-    # solve / bench mpc: logic in wbmpc.bench.mpc (imported when the command runs)
-    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time",
-                           epilog=EPILOG, formatter_class=formatter)
-    _add_robot_options(solve)
-    solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
-    solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
-    solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
-    solve.add_argument("--solver", default="fatrop", help="fatrop (default), fatrop-direct, ipopt or rti (one SQP iteration)")
-    solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
-    solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
-    solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
-    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args, robot_from_args))
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
     _add_robot_options(mpc)
@@ -605,6 +575,46 @@ def build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
     table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
+    return bench_sub
+
+
+def _add_solve_parser(sub, formatter) -> None:
+    """`wbmpc solve`: one OCP (logic in wbmpc.bench.mpc)."""
+    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time",
+                           epilog=EPILOG, formatter_class=formatter)
+    _add_robot_options(solve)
+    solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
+    solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
+    solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
+    solve.add_argument("--solver", default="fatrop", help="fatrop (default), fatrop-direct, ipopt or rti (one SQP iteration)")
+    solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
+    solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
+    solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
+    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args, robot_from_args))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    formatter = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0], epilog=EPILOG,
+                                     formatter_class=formatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    info = sub.add_parser("info", help="robot model summary", description="Robot model summary: nq, nv, joints, "
+                          "mass, feet, arm end-effector.", epilog=EPILOG, formatter_class=formatter)
+    _add_robot_options(info)
+    info.set_defaults(func=cmd_info)
+
+    setup = sub.add_parser("setup", help="install the AVX2 BLASFEO under Fatrop/HPIPM (from PyPI, verified; "
+                                         "about 2-3x faster solver linear algebra)")
+    setup.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    setup.add_argument("--force", action="store_true", help="download and verify again even if installed")
+    setup.set_defaults(func=cmd_setup)
+
+    _add_run_parser(sub, formatter)
+
+    bench_sub = _add_bench_parsers(sub, formatter)
+    _add_solve_parser(sub, formatter)
 
     from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
 
