@@ -139,6 +139,16 @@ def test_run_options_come_from_their_declarations():
     assert config.solver == "sqp" and config.options == ScenarioOptions(load_kg=12.0)  # auto, uncompiled: sqp
 
 
+def test_a_scenario_option_the_scenario_does_not_read_is_named_in_a_warning(capsys, no_build, tmp_path):
+    from wbmpc.cli import _ignored_scenario_options
+
+    args = build_parser().parse_args(["run", "stand", "--load-kg", "12", "--gait", "stand", "--speed", "0.2"])
+    assert _ignored_scenario_options(args) == [("--load-kg", ("pull",))]  # --speed at its default: not given
+    assert main(["run", "stand", "--load-kg", "12", "--uniform-dt", "0", "--out", str(tmp_path / "x")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "warning: --load-kg is read by pull only; stand ignores it" in err
+
+
 def _declared_default_unset():
     from wbmpc import options
 

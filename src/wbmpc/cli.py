@@ -304,6 +304,16 @@ def _run_config(args: argparse.Namespace):
                      gains=PdGains(**values_from_args(PdGains, args)), **values_from_args(RunConfig, args))
 
 
+def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
+    """(flag, scenarios that read it) of the scenario options given that this run's scenario does not read."""
+    from wbmpc.options import declared, field_default
+    from wbmpc.scenarios import ScenarioOptions
+
+    return [(opt.flag, opt.scenarios) for f, opt in declared(ScenarioOptions)
+            if opt.flag and opt.scenarios is not None and args.scenario not in opt.scenarios
+            and getattr(args, opt.dest) != field_default(f)]
+
+
 def _gains(args: argparse.Namespace, robot):
     """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
     import dataclasses
@@ -326,6 +336,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(unknown_name("scenario", args.scenario, SCENARIOS))
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
+    for flag, scenarios in _ignored_scenario_options(args):
+        readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
+        print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)
     config = _run_config(args)
     loads = None
     if args.sweep is not None:
