@@ -115,7 +115,7 @@ def test_every_declared_range_is_refused_on_the_command_line_naming_its_flag(cls
 def test_run_options_come_from_their_declarations():
     """Flag, default and scenario grouping of `wbmpc run` are those declared on the config fields."""
     from wbmpc.cli import _field_flags
-    from wbmpc.options import field_default
+    from wbmpc.options import flag_default
     from wbmpc.scenarios import SCENARIOS
 
     parser = build_parser()
@@ -125,8 +125,7 @@ def test_run_options_come_from_their_declarations():
     flags = _field_flags()
     for cls, f, opt in _declared_run_options():
         action = actions[opt.flag]
-        expected = field_default(f) if opt.cli_default is _declared_default_unset() else opt.cli_default
-        assert action.default == (None if opt.repeat else expected), opt.flag
+        assert action.default == (None if opt.repeat else flag_default(f, opt)), opt.flag
         assert opt.help in action.help and flags[f.name] == opt.flag
         if opt.scenarios is not None:
             assert set(opt.scenarios) <= set(SCENARIOS), opt.scenarios
@@ -147,12 +146,6 @@ def test_a_scenario_option_the_scenario_does_not_read_is_named_in_a_warning(caps
     assert main(["run", "stand", "--load-kg", "12", "--uniform-dt", "0", "--out", str(tmp_path / "x")]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "warning: --load-kg is read by pull only; stand ignores it" in err
-
-
-def _declared_default_unset():
-    from wbmpc import options
-
-    return options._UNSET
 
 
 def test_custom_robot_input_errors(go2_files, tmp_path, capsys, no_build):

@@ -306,12 +306,12 @@ def _run_config(args: argparse.Namespace):
 
 def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
     """(flag, scenarios that read it) of the scenario options given that this run's scenario does not read."""
-    from wbmpc.options import declared, field_default
+    from wbmpc.options import declared, flag_default
     from wbmpc.scenarios import ScenarioOptions
 
     return [(opt.flag, opt.scenarios) for f, opt in declared(ScenarioOptions)
             if opt.flag and opt.scenarios is not None and args.scenario not in opt.scenarios
-            and getattr(args, opt.dest) != field_default(f)]
+            and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
 def _gains(args: argparse.Namespace, robot):

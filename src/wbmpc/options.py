@@ -78,6 +78,7 @@ def declared(cls_or_obj) -> list[tuple[dataclasses.Field, Option]]:
 
 
 def field_default(f: dataclasses.Field) -> Any:
+    """The dataclass default of `f` (a fresh one from its factory; None without a default)."""
     if f.default is not dataclasses.MISSING:
         return f.default
     if f.default_factory is not dataclasses.MISSING:
@@ -114,7 +115,8 @@ def field_flags(*classes) -> dict[str, str]:
     return {f.name: opt.flag for cls in classes for f, opt in declared(cls) if opt.flag}
 
 
-def _cli_default(f: dataclasses.Field, opt: Option) -> Any:
+def flag_default(f: dataclasses.Field, opt: Option) -> Any:
+    """The flag's default: `Option.cli_default` if declared, else the field's."""
     return field_default(f) if opt.cli_default is _UNSET else opt.cli_default
 
 
@@ -124,7 +126,7 @@ def help_text(f: dataclasses.Field, opt: Option) -> str:
     accepted = opt.range_text()
     if accepted:
         text += f", {accepted}"
-    default = _cli_default(f, opt)
+    default = flag_default(f, opt)
     if opt.default_text is not None:
         text += f" (default: {opt.default_text})"
     elif default is not None and not isinstance(default, (bool, dict, list)):
@@ -134,7 +136,7 @@ def help_text(f: dataclasses.Field, opt: Option) -> str:
 
 def add_argument(parser, f: dataclasses.Field, opt: Option) -> None:
     """The flag of one declared field on `parser` (a parser or an argument group)."""
-    default = _cli_default(f, opt)
+    default = flag_default(f, opt)
     kwargs: dict[str, Any] = {"help": help_text(f, opt)}
     if opt.repeat:
         kwargs.update(action="append")
