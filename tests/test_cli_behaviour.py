@@ -94,6 +94,60 @@ def test_bad_input_exits_2_naming_the_flag_before_building(argv, words, capsys, 
     assert not out.exists()  # nothing written for bad input
 
 
+def _declared_run_options():
+    from wbmpc.options import declared
+
+    return [(cls, f, opt) for cls in (RunConfig, PdGains, ScenarioOptions) for f, opt in declared(cls) if opt.flag]
+
+
+@pytest.mark.parametrize("cls, f, opt", [case for case in _declared_run_options()
+                                         if case[2].low is not None or case[2].high is not None],
+                         ids=lambda value: getattr(value, "flag", None) or "")
+def test_every_declared_range_is_refused_on_the_command_line_naming_its_flag(cls, f, opt, capsys, no_build):
+    """Derived from the declarations (`wbmpc.options`): out of range -> exit 2, the flag named, nothing built."""
+    value = opt.high * 10 + 1 if opt.high is not None else opt.low - 1
+    argv = ["run", (opt.scenarios or ("stand",))[0], opt.flag, str(int(value) if opt.integer else value), "--no-outputs"]
+    assert main(argv) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert err.startswith(f"wbmpc: error: {opt.flag} must be "), err
+
+
+def test_run_options_come_from_their_declarations():
+    """Flag, default and scenario grouping of `wbmpc run` are those declared on the config fields."""
+    from wbmpc.cli import _field_flags
+    from wbmpc.options import flag_default
+    from wbmpc.scenarios import SCENARIOS
+
+    parser = build_parser()
+    run = parser._subparsers._group_actions[0].choices["run"]
+    actions = {a.option_strings[0]: a for a in run._actions if a.option_strings}
+    titles = {a.option_strings[0]: g.title for g in run._action_groups for a in g._group_actions if a.option_strings}
+    flags = _field_flags()
+    for cls, f, opt in _declared_run_options():
+        action = actions[opt.flag]
+        assert action.default == (None if opt.repeat else flag_default(f, opt)), opt.flag
+        assert opt.help in action.help and flags[f.name] == opt.flag
+        if opt.scenarios is not None:
+            assert set(opt.scenarios) <= set(SCENARIOS), opt.scenarios
+            assert titles[opt.flag].startswith(", ".join(opt.scenarios) + " only"), titles[opt.flag]
+    args = parser.parse_args(["run", "pull", "--load-kg", "12", "--kd", "7", "--delay-compensation", "off"])
+    from wbmpc.cli import _run_config
+
+    config = _run_config(args)
+    assert config.options.load_kg == 12.0 and config.gains.kd_leg == 7.0 and config.delay_compensation is False
+    assert config.solver == "sqp" and config.options == ScenarioOptions(load_kg=12.0)  # auto, uncompiled: sqp
+
+
+def test_a_scenario_option_the_scenario_does_not_read_is_named_in_a_warning(capsys, no_build, tmp_path):
+    from wbmpc.cli import _ignored_scenario_options
+
+    args = build_parser().parse_args(["run", "stand", "--load-kg", "12", "--gait", "stand", "--speed", "0.2"])
+    assert _ignored_scenario_options(args) == [("--load-kg", ("pull",))]  # --speed at its default: not given
+    assert main(["run", "stand", "--load-kg", "12", "--uniform-dt", "0", "--out", str(tmp_path / "x")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "warning: --load-kg is read by pull only; stand ignores it" in err
+
+
 def test_custom_robot_input_errors(go2_files, tmp_path, capsys, no_build):
     urdf, srdf = go2_files
     feet = "FL_foot,FR_foot,RL_foot,RR_foot"

@@ -116,7 +116,7 @@ def test_estimated_state_needs_the_mujoco_plant():
 
     with pytest.raises(ConfigError, match="plant mujoco"):
         RunConfig(state="estimated", plant="pinocchio")
-    with pytest.raises(ConfigError, match="--state"):
+    with pytest.raises(ConfigError, match="state must be true or estimated"):  # the CLI names --state
         RunConfig(state="guessed")
 
 

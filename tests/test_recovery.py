@@ -31,7 +31,7 @@ def test_failed_step_is_bounded_and_holds_the_last_plan_shifted(a1_mpc):
                                 fallback_max_iterations=2), problem=mpc.problem,
                  solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
     capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)  # sets references, fails (2 iterations)
-    capped._previous = good  # the last good plan, as after a successful step
+    capped.continue_from(good)  # the last good plan, as after a successful step
     v = np.zeros(robot.nv)
     v[1], v[3] = 1.5, 2.0  # lateral kick and roll rate
     t = 0.03
@@ -59,10 +59,11 @@ def test_no_recovery_attempt_starts_once_the_step_has_spent_its_cpu_budget(a1_mp
     v[1], v[3] = 1.5, 2.0
     for budget_s in (1e-9, None):
         capped = MPC(robot, replace(mpc.config, fallback_solver="ipopt", recovery_time_limit_s=budget_s,
-                                    fallback_max_iterations=2, recovery_fatrop_max_iterations=2),
+                                    fallback_max_iterations=2, recovery_fatrop_max_iterations=2,
+                                    fallback_first_s=0.0),  # Fatrop first, also after a rescue
                      problem=mpc.problem, solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
         capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
-        capped._previous, capped._fallback_until_t = good, None  # the last good plan; Fatrop first
+        capped.continue_from(good)  # the last good plan
         held = capped.solve(robot.q_nominal, v, Commands(), t=0.03)
         assert not held.success and held.held_previous
         recovered = "recovery after" in held.stats.status

@@ -52,7 +52,7 @@ def _trot_step(a1, ocp: OcpConfig, weight: float, q, v):
     mpc = MPC(a1, MpcConfig(ocp=ocp, gait="trot", fallback_solver=None, weights=CostWeights(soft_constraint=weight),
                             push_gait_period_scale=None))
     capture = Capture(mpc.solver)
-    mpc._push_until_t = np.inf  # as after a push
+    mpc.enter_push_recovery()  # as after a push
     solution = mpc.solve(q, v, Commands(), t=0.11)
     return mpc, solution, capture.calls[-1]
 
@@ -78,7 +78,7 @@ def test_slacks_make_an_infeasible_ocp_solvable_with_the_least_l1_violation(a1):
     on node 2: no motion does both (rigid rotations give them the same v_x), the least L1 violation is 2."""
     mpc = MPC(a1, MpcConfig(ocp=SOFT_FEET, gait="stand", fallback_solver=None))
     capture = Capture(mpc.solver)
-    mpc._push_until_t = np.inf
+    mpc.enter_push_recovery()
     mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.0)
     problem, call = mpc.problem, capture.calls[-1]
     lbx, ubx, lbg, ubg = (np.array(call[k], dtype=float) for k in ("lbx", "ubx", "lbg", "ubg"))

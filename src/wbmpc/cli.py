@@ -28,21 +28,9 @@ EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot 
 EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
                                        for code, text in EXIT_CODES.items())
 
-# config fields -> the options that set them, so that errors name what the user typed
-FIELD_FLAGS = {
-    "duration_s": "--duration", "delay": "--delay", "plant": "--plant", "nodes": "--nodes", "seed": "--seed",
-    "uniform_dt_ms": "--uniform-dt", "kp_leg": "--kp", "kd_leg": "--kd", "speed_m_s": "--speed",
-    "push_speed_m_s": "--push-speed", "push_time_s": "--push-time", "push_direction_deg": "--push-direction",
-    "gait": "--gait", "load_kg": "--load-kg", "load_friction_mu": "--load-friction", "cable_length_m": "--cable-length",
-    "pull_speed_m_s": "--pull-speed", "force_n": "--force-n", "box_kg": "--box-kg", "board": "--board",
-    "board_friction_mu": "--board-friction", "wipe_pattern": "--pattern", "wipe_size_m": "--wipe-size",
-    "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
-    "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
-    "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t", "base_tracking": "--base-tracking",
-    "state": "--state", "push_gait_period_scale": "--push-cadence", "step_budget_ms": "--step-budget",
-    "solver_options": "--solver-option", "delay_compensation": "--delay-compensation",
-    "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
-}
+# config fields of other commands -> the options that set them, so that errors name what the user typed;
+# those of `run` come from its config dataclasses (`_field_flags`)
+OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
@@ -306,58 +294,24 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scenario_options(args: argparse.Namespace):
-    from wbmpc.scenarios import ScenarioOptions
-
-    return ScenarioOptions(
-        speed_m_s=args.speed, push_speed_m_s=args.push_speed, push_time_s=args.push_time,
-        push_direction_deg=args.push_direction, gait=args.gait, load_kg=args.load_kg,
-        load_friction_mu=args.load_friction, cable_length_m=args.cable_length, pull_speed_m_s=args.pull_speed,
-        force_n=args.force_n, box_kg=args.box_kg, board=args.board, board_friction_mu=args.board_friction,
-        wipe_pattern=args.pattern, wipe_size_m=args.wipe_size, wipe_period_s=args.wipe_period,
-        wipe_pad_stiffness_n_m=args.pad_stiffness, wipe_integral_gain_1_s2=args.wipe_integral,
-        hand_force_n=args.hand_force, compliant_kp_arm=args.compliant_kp_arm, compliant_kd_arm=args.compliant_kd_arm,
-        compliant_return_gain_1_s=args.compliant_return,
-    )
-
-
 def _run_config(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
-    from wbmpc.scenarios import RunConfig
+    from wbmpc.options import values_from_args
+    from wbmpc.scenarios import RunConfig, ScenarioOptions
 
-    return RunConfig(scenario=args.scenario, duration_s=args.duration, delay=args.delay, plant=args.plant,
-                     nodes=args.nodes, uniform_dt_ms=args.uniform_dt, seed=args.seed, options=_scenario_options(args),
-                     gains=PdGains(**{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}),
-                     formulation=args.formulation,
-                     compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking, state=args.state,
-                     solver_options=_solver_options(args.solver_option), step_budget_ms=args.step_budget,
-                     delay_compensation=None if args.delay_compensation is None else args.delay_compensation == "on",
-                     **({} if args.push_cadence is None else {"push_gait_period_scale": args.push_cadence}))
+    return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
+                     gains=PdGains(**values_from_args(PdGains, args)), **values_from_args(RunConfig, args))
 
 
-def _solver_options(items: list[str] | None) -> dict:
-    """--solver-option KEY=VALUE (repeatable) as {key: number, bool, None or text}."""
-    options = {}
-    for item in items or []:
-        key, sep, text = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--solver-option needs KEY=VALUE (e.g. sqp_iterations=2), got {item!r}")
-        lowered = text.strip().lower()
-        if lowered in ("none", "null"):
-            value = None
-        elif lowered in ("true", "false"):
-            value = lowered == "true"
-        else:
-            try:
-                value = int(text)
-            except ValueError:
-                try:
-                    value = float(text)
-                except ValueError:
-                    value = text
-        options[key.strip()] = value
-    return options
+def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
+    """(flag, scenarios that read it) of the scenario options given that this run's scenario does not read."""
+    from wbmpc.options import declared, flag_default
+    from wbmpc.scenarios import ScenarioOptions
+
+    return [(opt.flag, opt.scenarios) for f, opt in declared(ScenarioOptions)
+            if opt.flag and opt.scenarios is not None and args.scenario not in opt.scenarios
+            and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
 def _gains(args: argparse.Namespace, robot):
@@ -382,6 +336,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(unknown_name("scenario", args.scenario, SCENARIOS))
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
+    for flag, scenarios in _ignored_scenario_options(args):
+        readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
+        print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)
     config = _run_config(args)
     loads = None
     if args.sweep is not None:
@@ -543,25 +500,12 @@ def _scenario_list() -> str:
         f"  {s.name:<14} {s.default_duration_s:4g} s  {s.description}" for s in rows)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    formatter = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0], epilog=EPILOG,
-                                     formatter_class=formatter)
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    info = sub.add_parser("info", help="robot model summary", description="Robot model summary: nq, nv, joints, "
-                          "mass, feet, arm end-effector.", epilog=EPILOG, formatter_class=formatter)
-    _add_robot_options(info)
-    info.set_defaults(func=cmd_info)
-
-    setup = sub.add_parser("setup", help="install the AVX2 BLASFEO under Fatrop/HPIPM (from PyPI, verified; "
-                                         "about 2-3x faster solver linear algebra)")
-    setup.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    setup.add_argument("--force", action="store_true", help="download and verify again even if installed")
-    setup.set_defaults(func=cmd_setup)
-
-    from wbmpc.scenarios import SCENARIOS
+def _add_run_parser(sub, formatter) -> None:
+    """`wbmpc run`: its options come from the fields of RunConfig, PdGains and ScenarioOptions (`wbmpc.options`),
+    the scenario options grouped by the scenarios that read them."""
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.options import add_arguments, scenario_groups
+    from wbmpc.scenarios import SCENARIOS, RunConfig, ScenarioOptions
 
     run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay",
                          description=textwrap.fill("Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 "
@@ -569,23 +513,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "what was measured and exits 130.", 90), epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
     run.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)} (listed below)")
     _add_robot_options(run)
-    run.add_argument("--duration", type=float, metavar="S",
-                     help="simulated seconds, at most 3600 (default: the scenario's, listed below)")
-    run.add_argument("--delay", default="none", help="none (default: the simulation waits for the solver) | measured "
-                     "(the step's CPU time elapses: its time on a core of its own) | measured-wall (its wall time) | "
-                     "realtime (solver in its own process, wall-clock paced) | "
-                     "a fixed delay of 0-1000 ms")
-    run.add_argument("--plant", default="mujoco", choices=("mujoco", "pinocchio"),
-                     help="simulator: mujoco (default) or pinocchio (rigid contacts, no scene objects)")
     run.add_argument("--out", metavar="DIR", help="output directory (default runs/SCENARIO); files of an earlier "
                      "wbmpc run there are replaced, other files are left alone")
-    run.add_argument("--seed", type=int, default=0, help="seed of the measurement noise (default 0)")
-    run.add_argument("--nodes", type=int, default=15, help="horizon nodes, 2-100 (default 15 = the paper's)")
-    run.add_argument("--uniform-dt", type=float, metavar="MS",
-                     help="uniform time steps of MS ms (0-500) instead of the geometric 10-100 ms grid")
-    run.add_argument("--base-tracking", default="position", choices=("position", "velocity"),
-                     help="position (default): base x/y/yaw anchored to the integrated command, corrects drift; "
-                          "velocity: the paper's velocity-only base tracking, drift uncorrected")
+    run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
+    loop = run.add_argument_group("closed loop, solver and state (every scenario)")
+    add_arguments(loop, RunConfig)
+    add_arguments(loop, PdGains)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
     plant_drive.add_argument("--plant-armature", metavar="KG_M2", help="rotor inertia (MuJoCo joint armature), kg m^2")
@@ -593,64 +526,18 @@ def build_parser() -> argparse.ArgumentParser:
                              help="viscous joint friction (MuJoCo joint damping), N m s/rad")
     plant_drive.add_argument("--plant-coulomb-friction", metavar="NM",
                              help="dry joint friction (MuJoCo joint frictionloss; mujoco plant only), N m")
-    run.add_argument("--state", default="true", choices=("true", "estimated"),
-                     help="state fed to the MPC: the simulator's (default) or estimated from simulated IMU + encoders "
-                          "(noise on; section V-B filter; adds estimation RMSE metrics and estimation.png)")
-    run.add_argument("--speed", type=float, default=0.2, help="forward speed of trot-forward/arm-track, m/s")
-    run.add_argument("--push-speed", type=float, default=0.8, help="push: base velocity kick, m/s")
-    run.add_argument("--push-time", type=float, default=2.0, help="push: time of the kick, s")
-    run.add_argument("--push-cadence", type=float, metavar="SCALE",
-                     help="after a push (any scenario) the gait period is scaled by this, in (0, 1], while in push "
-                          "recovery mode and 1 s after (default 0.5625: the 0.8 s trot steps every 0.45 s; with --solver rti "
-                          "1); 1: the paper's fixed schedule")
-    run.add_argument("--push-direction", type=float, default=90.0, help="push: direction in the heading frame, deg")
-    run.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), Nm/rad >= 0 (default: the robot's tuning, 0 on B1)")
-    run.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), Nm s/rad >= 0 (default: the robot's tuning, 5 on B1)")
-    run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
-    run.add_argument("--formulation", default="wb_inverse", help="OCP formulation of Table I (default wb_inverse; "
-                     "see bench table1)")
-    run.add_argument("--compiled", action="store_true",
-                     help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
-    run.add_argument("--solver", default="auto",
-                     help="auto (default: fatrop-direct for --compiled runs without --delay, else sqp), fatrop (converged), "
-                          "fatrop-direct (the same Fatrop through its C interface, always compiled), ipopt, rti (one SQP "
-                          "iteration per step on HPIPM's QP) or sqp (anytime SQP: iterations with a line search until "
-                          "converged or the step's deadline)")
-    run.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
-                     help="a setting of the rti/sqp solvers (RtiConfig/AnytimeConfig), repeatable: e.g. "
-                          "sqp_iterations=2, budget_ms=5, clock=cpu")
-    run.add_argument("--step-budget", type=float, metavar="MS",
-                     help="sqp: the MPC step's time budget (default: the 12.5 ms period less 2.5 ms of transport "
-                          "with a delay, on CPU time unless --delay realtime; none without delay)")
-    run.add_argument("--delay-compensation", choices=("on", "off"),
-                     help="plan from the state predicted for when the plan applies (the measurement rolled forward "
-                          "over the expected delay with the last plan); default: on with any --delay but none")
-    run.add_argument("--gait", help="override the scenario's gait: stand, trot or walk (pull: stand = pull in stance)")
-    manip = run.add_argument_group("loco-manipulation (pull, push-box, wipe, compliant)")
-    manip.add_argument("--load-kg", type=float, default=10.0, help="pull: mass of the load on the floor, kg")
-    manip.add_argument("--load-friction", type=float, default=0.3, help="pull: load-floor friction coefficient")
-    manip.add_argument("--cable-length", type=float, default=1.6, help="pull: cable length, m")
-    manip.add_argument("--pull-speed", type=float, default=0.1, help="pull: backwards walking (or arm) speed, m/s")
-    manip.add_argument("--sweep", metavar="KG,KG,...", help="pull: run each load and report the largest pulled")
-    manip.add_argument("--force-n", type=float, help="end-effector force target, N (pull: the load's sliding "
-                       "tension; push-box: 20; wipe: 10 normal)")
-    manip.add_argument("--box-kg", type=float, default=5.0, help="push-box: mass of the box, kg")
-    manip.add_argument("--board", default="vertical", help="wipe: vertical (whiteboard) or horizontal (table)")
-    manip.add_argument("--board-friction", type=float, default=0.3, help="wipe: board friction coefficient")
-    manip.add_argument("--pattern", default="circle", help="wipe: circle or eight")
-    manip.add_argument("--wipe-size", type=float, default=0.1, help="wipe: pattern radius, m")
-    manip.add_argument("--wipe-period", type=float, default=4.0, help="wipe: pattern period, s")
-    manip.add_argument("--pad-stiffness", type=float, default=2000.0, metavar="N/M",
-                       help="wipe: stiffness of the sprung wiping pad on the end-effector, N/m (0: rigid sphere)")
-    manip.add_argument("--wipe-integral", type=float, default=30.0, metavar="1/S2",
-                       help="wipe: integral gain on the in-plane path error, 1/s^2 (0: proportional feedback only)")
-    manip.add_argument("--hand-force", type=float, default=30.0, help="compliant: peak force of the external hand, N")
-    manip.add_argument("--compliant-kp-arm", type=float, default=2.0, help="compliant: arm joint Kp")
-    manip.add_argument("--compliant-kd-arm", type=float, default=0.3, help="compliant: arm joint Kd")
-    manip.add_argument("--compliant-return", type=float, default=0.5, metavar="1/S",
-                       help="compliant: gain of the slow return to the nominal end-effector place (0 = none)")
+    for scenarios in scenario_groups(ScenarioOptions):
+        group = run.add_argument_group("scenario options (every scenario)" if scenarios is None else
+                                       f"{', '.join(scenarios)} only (the other scenarios ignore these)")
+        add_arguments(group, ScenarioOptions, scenarios)
+        if scenarios == ("pull",):
+            group.add_argument("--sweep", metavar="KG,KG,...", help="run each load and report the largest pulled")
     run.set_defaults(func=cmd_run)
 
+
+def _add_bench_parsers(sub, formatter):
+    """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
+    returns the bench subparsers (the hardware module adds `bench dds`)."""
     bench = sub.add_parser("bench", help="benchmarks", epilog=EPILOG, formatter_class=formatter)
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
@@ -668,19 +555,6 @@ def build_parser() -> argparse.ArgumentParser:
     robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
-
-    # solve / bench mpc: logic in wbmpc.bench.mpc (imported when the command runs)
-    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time",
-                           epilog=EPILOG, formatter_class=formatter)
-    _add_robot_options(solve)
-    solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
-    solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
-    solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
-    solve.add_argument("--solver", default="fatrop", help="fatrop (default), fatrop-direct, ipopt or rti (one SQP iteration)")
-    solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
-    solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
-    solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
-    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args, robot_from_args))
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
     _add_robot_options(mpc)
@@ -714,6 +588,46 @@ def build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE (and FILE.md)")
     table1.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     table1.set_defaults(func=lambda args: _bench_module("table1").cli_bench_table1(args, robot_from_args))
+    return bench_sub
+
+
+def _add_solve_parser(sub, formatter) -> None:
+    """`wbmpc solve`: one OCP (logic in wbmpc.bench.mpc)."""
+    solve = sub.add_parser("solve", help="one OCP from the nominal stance: size, status, iterations, solve time",
+                           epilog=EPILOG, formatter_class=formatter)
+    _add_robot_options(solve)
+    solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
+    solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
+    solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
+    solve.add_argument("--solver", default="fatrop", help="fatrop (default), fatrop-direct, ipopt or rti (one SQP iteration)")
+    solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
+    solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
+    solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
+    solve.set_defaults(func=lambda args: _bench_mpc().cli_solve(args, robot_from_args))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    formatter = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(prog="wbmpc", description=__doc__.splitlines()[0], epilog=EPILOG,
+                                     formatter_class=formatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    info = sub.add_parser("info", help="robot model summary", description="Robot model summary: nq, nv, joints, "
+                          "mass, feet, arm end-effector.", epilog=EPILOG, formatter_class=formatter)
+    _add_robot_options(info)
+    info.set_defaults(func=cmd_info)
+
+    setup = sub.add_parser("setup", help="install the AVX2 BLASFEO under Fatrop/HPIPM (from PyPI, verified; "
+                                         "about 2-3x faster solver linear algebra)")
+    setup.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    setup.add_argument("--force", action="store_true", help="download and verify again even if installed")
+    setup.set_defaults(func=cmd_setup)
+
+    _add_run_parser(sub, formatter)
+
+    bench_sub = _add_bench_parsers(sub, formatter)
+    _add_solve_parser(sub, formatter)
 
     from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
 
@@ -747,6 +661,15 @@ def _dispatch(args: argparse.Namespace) -> int:
         raise
 
 
+def _field_flags() -> dict[str, str]:
+    """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.options import field_flags
+    from wbmpc.scenarios import RunConfig, ScenarioOptions
+
+    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `wbmpc` and `python -m wbmpc`; returns the exit code (see `EXIT_CODES`)."""
     parser = build_parser()
@@ -754,7 +677,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _dispatch(args)
     except ConfigError as exc:
-        print(f"wbmpc: error: {exc.worded(FIELD_FLAGS)}", file=sys.stderr)
+        print(f"wbmpc: error: {exc.worded(_field_flags()) if exc.field else exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)

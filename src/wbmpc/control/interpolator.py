@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wbmpc.control.solution import Solution
-from wbmpc.errors import check_number
+from wbmpc.options import check_fields, option
 
 
 @dataclass(frozen=True)
@@ -41,14 +41,15 @@ def interpolate(solution: Solution, t_s: float) -> JointReference:
 class PdGains:
     """Joint PD of eq. (10); the paper needs Kd ~ 5 in simulation with delay, Kp = 0 on the legs."""
 
-    kp_leg: float = 0.0
-    kd_leg: float = 5.0
-    kp_arm: float = 20.0
-    kd_arm: float = 1.0
+    kp_leg: float = option(0.0, flag="--kp", help="leg joint Kp of eq. (10)", low=0.0, high=1e4, unit="Nm/rad",
+                           cli_default=None, default_text="the robot's tuning, 0 on B1")
+    kd_leg: float = option(5.0, flag="--kd", help="leg joint Kd of eq. (10)", low=0.0, high=1e4, unit="Nm s/rad",
+                           cli_default=None, default_text="the robot's tuning, 5 on B1")
+    kp_arm: float = option(20.0, help="arm joint Kp of eq. (10)", low=0.0, high=1e4, unit="Nm/rad")
+    kd_arm: float = option(1.0, help="arm joint Kd of eq. (10)", low=0.0, high=1e4, unit="Nm s/rad")
 
     def __post_init__(self):
-        for name in ("kp_leg", "kd_leg", "kp_arm", "kd_arm"):
-            check_number(name, getattr(self, name), low=0.0, high=1e4)
+        check_fields(self)
 
     def vectors(self, is_arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         kp = np.where(is_arm, self.kp_arm, self.kp_leg)

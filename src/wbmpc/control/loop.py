@@ -387,8 +387,8 @@ class ClosedLoop:
         delay_s = 0.0 if first else self._expected_delay_s(log)
         # passed only when there is one: MPC stand-ins (benchmarks' recorders) take (q, v, commands, t)
         solution = self.mpc.solve(q, v, command, t, **({"delay_s": delay_s} if delay_s else {}))
-        solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
-        solution.cpu_time_s = time.thread_time() - start_cpu  # type: ignore[attr-defined]
+        solution.wall_time_s = time.perf_counter() - start
+        solution.cpu_time_s = time.thread_time() - start_cpu
         self._log_solution(log, t, command, solution)
         return solution
 
@@ -465,7 +465,7 @@ class ClosedLoop:
                     log.late_solutions += 1
                 while next_mpc <= t + 1e-9:
                     next_mpc += mpc_period
-                if solution.success or getattr(solution, "held_previous", False):  # failed: the last plan, shifted
+                if solution.success or solution.held_previous:  # failed: the last plan, shifted
                     log.record_delay(delay * 1e3)
                     pending.append((t + delay, solution))
             while pending and pending[0][0] <= t + 1e-9:
@@ -567,7 +567,7 @@ class ClosedLoop:
                     self._note_delay(delay)
                     if delay > mpc_period:
                         log.late_solutions += 1
-                    if solution.success or getattr(solution, "held_previous", False):
+                    if solution.success or solution.held_previous:
                         active = solution
                 if not busy and t >= next_mpc - 1e-9:
                     if not worker.is_alive():
@@ -674,7 +674,7 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
         budget = budget_s if mpc.config.step_budget_s is not None else None
         solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
         solution.wall_time_s = time.perf_counter() - start
-        solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
+        solution.process_cpu_s = time.process_time()
         conn.send(solution)
 
 
@@ -689,8 +689,8 @@ def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
             start = time.perf_counter()
             budget = budget_s if mpc.config.step_budget_s is not None else None
             solution = mpc.solve(q, v, command_from_row(row), t, delay_s=delay_s, budget_s=budget)
-            solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
-            solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
+            solution.wall_time_s = time.perf_counter() - start
+            solution.process_cpu_s = time.process_time()
             channel.send_solution(solution)
     finally:
         channel.close()

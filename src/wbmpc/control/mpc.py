@@ -238,6 +238,16 @@ class MPC:
         self._fast_cadence_until_t = None
         self.gait.reset()
 
+    def continue_from(self, solution: Solution) -> None:
+        """Take `solution` as the last good plan, as after a successful step: the next step warm-starts
+        from it and, if it fails, holds it shifted in time."""
+        self._previous = solution
+
+    def enter_push_recovery(self, until_t: float = np.inf) -> None:
+        """Push recovery mode (soft rows, relaxed rows, the push cadence) until `until_t`, as the push
+        detector sets it after a kick."""
+        self._push_until_t = until_t
+
     # ------------------------------------------------------------------ input checks
     def _check(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> tuple[np.ndarray, np.ndarray]:
         q = np.asarray(q, dtype=float).ravel()
@@ -555,8 +565,7 @@ class MPC:
         shifted = Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=_interp_rows(new, old, prev.v),
                            a=_interp_rows(new[:-1], old[:-1], prev.a), forces=_interp_rows(new[:-1], old[:-1], prev.forces),
                            tau=_interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
-                           success=False, x=None, q_joints=self._joint_trajectory(q))
-        shifted.held_previous = True  # type: ignore[attr-defined]
+                           success=False, x=None, q_joints=self._joint_trajectory(q), held_previous=True)
         return shifted
 
     def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:

@@ -129,11 +129,9 @@ class SharedChannel:
                             cost=scalars["cost"], cpu_time_s=scalars["cpu_time_s"], details=details)
         solution = Solution(t_s=scalars["t_s"], node_times_s=arrays["node_times_s"], q=arrays["q"], v=arrays["v"],
                             a=arrays["a"], forces=arrays["forces"], tau=arrays["tau"], contact=arrays["contact"] > 0.5,
-                            stats=stats, success=bool(scalars["success"]), x=None, q_joints=arrays["q_joints"])
-        solution.wall_time_s = scalars["wall_time_s"]  # type: ignore[attr-defined]
-        solution.process_cpu_s = scalars["process_cpu_s"]  # type: ignore[attr-defined]
-        if scalars["held_previous"]:
-            solution.held_previous = True  # type: ignore[attr-defined]
+                            stats=stats, success=bool(scalars["success"]), x=None, q_joints=arrays["q_joints"],
+                            held_previous=bool(scalars["held_previous"]), wall_time_s=scalars["wall_time_s"],
+                            process_cpu_s=scalars["process_cpu_s"])
         return solution
 
     # ------------------------------------------------------------------ solver side
@@ -156,7 +154,7 @@ class SharedChannel:
                 raise ValueError(f"real-time channel: {name} has shape {value.shape}, the layout {shape}")
             views[f"sol_{name}"][:] = value
         stats = solution.stats
-        views["sol_scalars"][:] = (solution.t_s, float(solution.success), float(getattr(solution, "held_previous", False)),
+        views["sol_scalars"][:] = (solution.t_s, float(solution.success), float(solution.held_previous),
                                    stats.iterations, stats.solve_time_s, stats.cpu_time_s,
                                    stats.max_constraint_violation, stats.cost, solution.wall_time_s,
                                    solution.process_cpu_s)

@@ -32,6 +32,13 @@ class Solution:
     success: bool
     x: np.ndarray | None = None  # the NLP solution vector (scaled variables), for warm starts
     q_joints: np.ndarray | None = None  # (N+1, n_joints) joint angles of q (continuous joints unwrapped)
+    # a failed step's stand-in: the last good plan re-sampled at the new node times (`MpcConfig.
+    # hold_previous_on_failure`); `success` stays False, the loop applies it all the same
+    held_previous: bool = False
+    # timings of the step, set by the loop or solver process that ran it (0 until then)
+    wall_time_s: float = 0.0  # wall time of `MPC.solve`
+    cpu_time_s: float = 0.0  # CPU time of the thread that ran it (`--delay measured`)
+    process_cpu_s: float = 0.0  # the solver process's CPU clock when the step ended (real-time CPU share)
 
     def __post_init__(self) -> None:
         if self.q_joints is None:  # nq = nv + 1: the joint coordinates are q[:, 7:]

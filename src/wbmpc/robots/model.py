@@ -177,38 +177,16 @@ class RobotModel:
 
     @staticmethod
     def _reference_configuration(full: pin.Model, spec: RobotSpec) -> np.ndarray:
+        """The SRDF pose `spec.pose` as read by pinocchio (`loadReferenceConfigurations`), after
+        `_check_srdf_pose` refused what pinocchio would silently read as the neutral value."""
         q = pin.neutral(full)
         if spec.srdf is None:
             return q
         if spec.pose is None:
             raise ModelError(f"an SRDF was given ({spec.srdf}) but no pose name (--pose NAME)")
-        try:
-            root = ET.parse(spec.srdf).getroot()
-        except ET.ParseError as exc:
-            raise ModelError(f"SRDF {spec.srdf} is not well-formed XML ({exc}); fix the file or drop --srdf") from None
-        states = {s.get("name"): s for s in root.iter("group_state")}
-        if spec.pose not in states:
-            raise ModelError(
-                f"SRDF {spec.srdf} has no group_state '{spec.pose}'; available poses: {', '.join(sorted(states)) or 'none'}"
-            )
-        for joint in states[spec.pose].iter("joint"):
-            name = joint.get("name")
-            try:
-                values = np.array([float(x) for x in joint.get("value", "").split()])
-            except ValueError:
-                raise ModelError(f"SRDF {spec.srdf}, pose '{spec.pose}': joint '{name}' has a non-numeric value "
-                                 f"{joint.get('value')!r}; give numbers in radians (or metres)") from None
-            if not np.all(np.isfinite(values)):
-                raise ModelError(f"SRDF {spec.srdf}, pose '{spec.pose}': joint '{name}' has a non-finite value "
-                                 f"{joint.get('value')!r}")
-            if not full.existJointName(name):
-                continue  # SRDFs often name joints of other variants; ignore them like pinocchio does
-            jid = full.getJointId(name)
-            if values.size == 1 and full.nqs[jid] == 2 and full.nvs[jid] == 1:  # continuous joint given by its angle
-                values = np.array([np.cos(values[0]), np.sin(values[0])])
-            if values.size != full.nqs[jid]:
-                raise ModelError(f"SRDF pose '{spec.pose}': joint '{name}' needs {full.nqs[jid]} values, got {values.size}")
-            q[full.idx_qs[jid] : full.idx_qs[jid] + values.size] = values
+        _check_srdf_pose(full, spec)
+        pin.loadReferenceConfigurations(full, str(spec.srdf), False)
+        q = np.array(full.referenceConfigurations[spec.pose], dtype=float)
         if q.size >= 7:
             q[3:7] /= np.linalg.norm(q[3:7])
         return q
@@ -389,18 +367,48 @@ def _compact(values: np.ndarray, names: tuple[str, ...]):
     return {n: float(v) for n, v in zip(names, values)}
 
 
-def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:
-    """Radius of the collision sphere of the first foot link, if the URDF has one; else 2 cm."""
+def _check_srdf_pose(full: pin.Model, spec: RobotSpec) -> None:
+    """Refuse an SRDF pose pinocchio would misread. ElementTree stays here because pinocchio's reader
+    cannot say what is wrong: it skips a joint value it cannot read (not a number, not finite, the wrong
+    count) with a line on stdout (which would break `--json`) and leaves the neutral value, and a
+    malformed file gives a bare parser message."""
     try:
-        root = ET.parse(urdf).getroot()
-    except ET.ParseError:
-        return 0.02
-    links = {link.get("name"): link for link in root.iter("link")}
+        root = ET.parse(spec.srdf).getroot()
+    except ET.ParseError as exc:
+        raise ModelError(f"SRDF {spec.srdf} is not well-formed XML ({exc}); fix the file or drop --srdf") from None
+    states = {s.get("name"): s for s in root.iter("group_state")}
+    if spec.pose not in states:
+        raise ModelError(
+            f"SRDF {spec.srdf} has no group_state '{spec.pose}'; available poses: {', '.join(sorted(states)) or 'none'}"
+        )
+    for joint in states[spec.pose].iter("joint"):
+        name = joint.get("name")
+        try:
+            values = np.array([float(x) for x in joint.get("value", "").split()])
+        except ValueError:
+            raise ModelError(f"SRDF {spec.srdf}, pose '{spec.pose}': joint '{name}' has a non-numeric value "
+                             f"{joint.get('value')!r}; give numbers in radians (or metres)") from None
+        if not np.all(np.isfinite(values)):
+            raise ModelError(f"SRDF {spec.srdf}, pose '{spec.pose}': joint '{name}' has a non-finite value "
+                             f"{joint.get('value')!r}")
+        if not full.existJointName(name):
+            continue  # SRDFs often name joints of other variants; pinocchio ignores them too
+        jid = full.getJointId(name)
+        continuous = values.size == 1 and full.nqs[jid] == 2 and full.nvs[jid] == 1  # given by its angle
+        if values.size != full.nqs[jid] and not continuous:
+            raise ModelError(f"SRDF pose '{spec.pose}': joint '{name}' needs {full.nqs[jid]} values, got {values.size}")
+
+
+def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:
+    """Radius of the collision sphere of the first foot link that has one (as pinocchio reads the
+    URDF's collision geometry, `urdf_geometry`); else 2 cm."""
+    from wbmpc.robots.urdf_geometry import collision_primitives
+
+    spheres = {}
+    for shape in collision_primitives(model, urdf):
+        if shape.kind == "sphere" and shape.link in feet:
+            spheres.setdefault(shape.link, []).append(shape)
     for foot in feet:
-        link = links.get(foot)
-        if link is None:
-            continue
-        for collision in link.iter("collision"):
-            for sphere in collision.iter("sphere"):
-                return float(sphere.get("radius"))
+        if foot in spheres:
+            return min(spheres[foot], key=lambda shape: shape.index).size[0]
     return 0.02

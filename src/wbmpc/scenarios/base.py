@@ -9,77 +9,81 @@ import numpy as np
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import Event, RunLog
 from wbmpc.control.mpc import Commands
-from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GAIT_NAMES
+from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
+
+PUSH, ARM_TRACK, PULL, WIPE, COMPLIANT = ("push",), ("arm-track",), ("pull",), ("wipe",), ("compliant",)
 
 
 @dataclass
 class ScenarioOptions:
-    """User-tunable knobs shared by the scenarios (CLI flags). None means the scenario's default."""
+    """User-tunable knobs of the scenarios, each declared once with its flag, help, range and the
+    scenarios that read it (`wbmpc.options`); the names are also campaign axes. None means the
+    scenario's default."""
 
-    speed_m_s: float = 0.2
-    push_speed_m_s: float = 0.8
-    push_direction_deg: float = 90.0  # 90 = to the robot's left (lateral)
-    push_time_s: float = 2.0
-    arm_amplitude_m: float = 0.15
-    arm_period_s: float = 4.0
-    arm_feedback_gain_1_s: float = 4.0
-    gait: str | None = None  # overrides the scenario's gait
+    speed_m_s: float = option(0.2, flag="--speed", help="forward speed", low=-1.5, high=1.5, unit="m/s",
+                              scenarios=("trot-forward", "arm-track"))
+    push_speed_m_s: float = option(0.8, flag="--push-speed", help="base velocity kick", low=0.0, high=5.0, unit="m/s",
+                                   scenarios=PUSH)
+    push_direction_deg: float = option(90.0, flag="--push-direction", help="direction of the kick in the heading "
+                                       "frame (90: to the robot's left)", low=-360.0, high=360.0, unit="deg",
+                                       scenarios=PUSH)
+    push_time_s: float = option(2.0, flag="--push-time", help="time of the kick", low=0.0, unit="s",
+                                scenarios=PUSH)
+    # arm-track's reference (no flag: Python API and campaign axes)
+    arm_amplitude_m: float = option(0.15, help="height amplitude of the end-effector reference", low=0.0, high=0.5,
+                                    unit="m", scenarios=ARM_TRACK)
+    arm_period_s: float = option(4.0, help="period of the end-effector reference", low=0.0, high=60.0,
+                                 low_open=True, unit="s", scenarios=ARM_TRACK)
+    arm_feedback_gain_1_s: float = option(4.0, help="feedback gain on the end-effector position error", low=0.0,
+                                          high=100.0, unit="1/s", scenarios=ARM_TRACK)
+    gait: str | None = option(None, flag="--gait", choices=GAIT_NAMES, help="override the scenario's gait (pull: "
+                              "stand = pull in stance)", default_text="the scenario's")
     # loco-manipulation (section VI-C)
-    load_kg: float = 10.0  # pull: mass of the load on the floor
-    load_friction_mu: float = 0.3  # pull: load-floor friction coefficient
-    cable_length_m: float = 1.6
-    pull_speed_m_s: float = 0.1  # pull: walking speed backwards (or arm retraction speed in stance)
-    force_n: float | None = None  # end-effector force target magnitude (pull: from the load when None)
-    box_kg: float = 5.0
-    board: str = "vertical"  # wipe: vertical (whiteboard) | horizontal (table)
-    board_friction_mu: float = 0.3
-    wipe_pattern: str = "circle"  # circle | eight
-    wipe_size_m: float = 0.1
-    wipe_period_s: float = 4.0
-    wipe_pad_stiffness_n_m: float = 2000.0  # wipe: sprung pad on the end-effector (0: the rigid sphere)
-    wipe_integral_gain_1_s2: float = 30.0  # wipe: integral action on the in-plane path error (0: none)
-    hand_force_n: float = 30.0  # compliant: peak force of the external hand
-    compliant_kp_arm: float = 2.0
-    compliant_kd_arm: float = 0.3
-    compliant_return_gain_1_s: float = 0.5  # 0: the paper's pure zero end-effector velocity target
+    load_kg: float = option(10.0, flag="--load-kg", help="mass of the load on the floor", low=0.0, high=1000.0,
+                            low_open=True, unit="kg", scenarios=PULL)
+    load_friction_mu: float = option(0.3, flag="--load-friction", help="load-floor friction coefficient", low=0.0,
+                                     high=5.0, scenarios=PULL)
+    cable_length_m: float = option(1.6, flag="--cable-length", help="cable length", low=0.0, high=10.0,
+                                   low_open=True, unit="m", scenarios=PULL)
+    pull_speed_m_s: float = option(0.1, flag="--pull-speed", help="backwards walking (or arm, in stance) speed",
+                                   low=0.0, high=1.5, unit="m/s", scenarios=PULL)
+    force_n: float | None = option(None, flag="--force-n", help="end-effector force target", low=0.0, high=1e4,
+                                   low_open=True, unit="N", scenarios=("pull", "push-box", "wipe"),
+                                   default_text="pull: the load's sliding tension; push-box: 20; wipe: 10 normal")
+    box_kg: float = option(5.0, flag="--box-kg", help="mass of the box", low=0.0, high=1000.0, low_open=True,
+                           unit="kg", scenarios=("push-box",))
+    board: str = option("vertical", flag="--board", choices=("vertical", "horizontal"),
+                        help="vertical (whiteboard) or horizontal (table)", scenarios=WIPE)
+    board_friction_mu: float = option(0.3, flag="--board-friction", help="board friction coefficient", low=0.0,
+                                      high=5.0, scenarios=WIPE)
+    wipe_pattern: str = option("circle", flag="--pattern", choices=("circle", "eight"), help="wiping pattern",
+                               scenarios=WIPE)
+    wipe_size_m: float = option(0.1, flag="--wipe-size", help="pattern radius", low=0.0, high=0.5, low_open=True,
+                                unit="m", scenarios=WIPE)
+    wipe_period_s: float = option(4.0, flag="--wipe-period", help="pattern period", low=0.0, high=60.0,
+                                  low_open=True, unit="s", scenarios=WIPE)
+    wipe_pad_stiffness_n_m: float = option(2000.0, flag="--pad-stiffness", metavar="N/M", help="stiffness of the "
+                                           "sprung wiping pad on the end-effector (0: rigid sphere)", low=0.0,
+                                           high=1e6, unit="N/m", scenarios=WIPE)
+    wipe_integral_gain_1_s2: float = option(30.0, flag="--wipe-integral", metavar="1/S2", help="integral gain on the "
+                                            "in-plane path error (0: proportional feedback only)", low=0.0,
+                                            high=1e4, unit="1/s^2", scenarios=WIPE)
+    hand_force_n: float = option(30.0, flag="--hand-force", help="peak force of the external hand", low=0.0,
+                                 high=1e3, unit="N", scenarios=COMPLIANT)
+    compliant_kp_arm: float = option(2.0, flag="--compliant-kp-arm", help="arm joint Kp", low=0.0, high=1e4,
+                                     scenarios=COMPLIANT)
+    compliant_kd_arm: float = option(0.3, flag="--compliant-kd-arm", help="arm joint Kd", low=0.0, high=1e4,
+                                     scenarios=COMPLIANT)
+    compliant_return_gain_1_s: float = option(0.5, flag="--compliant-return", metavar="1/S", help="gain of the slow "
+                                              "return to the nominal end-effector place (0: the paper's zero "
+                                              "end-effector velocity target)", low=0.0, high=100.0, unit="1/s",
+                                              scenarios=COMPLIANT)
 
     def __post_init__(self):
-        """Ranges of every knob, checked before anything is built (the CLI names the flag of a field)."""
-        if self.gait is not None and self.gait not in GAIT_NAMES:
-            raise ConfigError.for_field("gait", f"must be one of {', '.join(GAIT_NAMES)}; got '{self.gait}'")
-        ranges = {  # field: (low, high, low_open, unit)
-            "speed_m_s": (-1.5, 1.5, False, "m/s"),
-            "push_speed_m_s": (0.0, 5.0, False, "m/s"),
-            "push_direction_deg": (-360.0, 360.0, False, "deg"),
-            "push_time_s": (0.0, None, False, "s"),
-            "arm_amplitude_m": (0.0, 0.5, False, "m"),
-            "arm_period_s": (0.0, 60.0, True, "s"),
-            "arm_feedback_gain_1_s": (0.0, 100.0, False, "1/s"),
-            "load_kg": (0.0, 1000.0, True, "kg"),
-            "load_friction_mu": (0.0, 5.0, False, ""),
-            "cable_length_m": (0.0, 10.0, True, "m"),
-            "pull_speed_m_s": (0.0, 1.5, False, "m/s"),  # the direction is backwards
-            "force_n": (0.0, 1e4, True, "N"),
-            "box_kg": (0.0, 1000.0, True, "kg"),
-            "board_friction_mu": (0.0, 5.0, False, ""),
-            "wipe_size_m": (0.0, 0.5, True, "m"),
-            "wipe_period_s": (0.0, 60.0, True, "s"),
-            "hand_force_n": (0.0, 1e3, False, "N"),
-            "compliant_kp_arm": (0.0, 1e4, False, ""),
-            "compliant_kd_arm": (0.0, 1e4, False, ""),
-            "compliant_return_gain_1_s": (0.0, 100.0, False, "1/s"),
-            "wipe_pad_stiffness_n_m": (0.0, 1e6, False, "N/m"),
-            "wipe_integral_gain_1_s2": (0.0, 1e4, False, "1/s^2"),
-        }
-        for name, (low, high, low_open, unit) in ranges.items():
-            check_number(name, getattr(self, name), low=low, high=high, low_open=low_open, unit=unit,
-                         allow_none=name == "force_n")
-        if self.board not in ("vertical", "horizontal"):
-            raise ConfigError.for_field("board", f"must be vertical or horizontal, got {self.board!r}")
-        if self.wipe_pattern not in ("circle", "eight"):
-            raise ConfigError.for_field("wipe_pattern", f"must be circle or eight, got {self.wipe_pattern!r}")
+        """Ranges and choices of every knob, checked before anything is built (the CLI names the flag)."""
+        check_fields(self)
 
 
 @dataclass

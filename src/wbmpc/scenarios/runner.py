@@ -11,13 +11,14 @@ import numpy as np
 
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
-from wbmpc.control.mpc import MPC, MpcConfig
+from wbmpc.control.mpc import BASE_TRACKING_MODES, MPC, MpcConfig
 from wbmpc.control.tuning import RobotTuning, tuning_for
-from wbmpc.errors import ConfigError, check_number, unknown_name
+from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
+from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
@@ -38,62 +39,82 @@ REPLAY_MAX_EVERY = 10  # beyond, every k-th tick, k <= 10 (>= 50 Hz at 500 Hz)
 
 @dataclass
 class RunConfig:
+    """One closed-loop run. Every field with a flag is declared once (`wbmpc.options`): `wbmpc run`'s
+    flag, help, default and range come from here."""
+
     scenario: str = "trot-in-place"
-    duration_s: float | None = None  # scenario default when None
-    delay: str = "none"
-    plant: str = "mujoco"
-    nodes: int = 15
-    uniform_dt_ms: float | None = None  # uniform steps instead of the geometric grid
-    gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning)
+    duration_s: float | None = option(None, flag="--duration", metavar="S", help="simulated seconds", low=0.0,
+                                      high=MAX_DURATION_S, low_open=True, unit="s",
+                                      default_text="the scenario's, listed below")
+    delay: str = option("none", flag="--delay", help="none (the simulation waits for the solver) | measured (the "
+                        "step's CPU time elapses: its time on a core of its own) | measured-wall (its wall time) | "
+                        "realtime (solver in its own process, wall-clock paced) | a fixed delay of 0-1000 ms")
+    plant: str = option("mujoco", flag="--plant", choices=PLANTS,
+                        help="simulator: mujoco or pinocchio (rigid contacts, no scene objects)")
+    nodes: int = option(15, flag="--nodes", help="horizon nodes", integer=True, low=2, high=MAX_INTERVALS + 1,
+                        default_text="15 = the paper's")
+    uniform_dt_ms: float | None = option(None, flag="--uniform-dt", metavar="MS", help="uniform time steps of MS ms "
+                                         "instead of the geometric 10-100 ms grid", low=0.0, high=1e3 * MAX_STEP_S,
+                                         low_open=True, unit="ms")
+    gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
-    solver: str = "fatrop"
-    formulation: str = "wb_inverse"
-    compiled: bool = False  # generated C, compiled once and cached (solvers/codegen.py)
-    base_tracking: str = "position"  # MpcConfig.base_tracking: "position" (anchored) | "velocity" (the paper's)
-    seed: int = 0
+    solver: str = option("fatrop", flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled runs "
+                         "without --delay, else sqp), fatrop (converged), fatrop-direct (the same Fatrop through its "
+                         "C interface, always compiled), ipopt, rti (one SQP iteration per step on HPIPM's QP) or sqp "
+                         "(anytime SQP: iterations with a line search until converged or the step's deadline)")
+    formulation: str = option("wb_inverse", flag="--formulation", help="OCP formulation of Table I (see bench table1)")
+    # generated C, compiled once and cached (solvers/codegen.py)
+    compiled: bool = option(False, flag="--compiled", help="generate C for the NLP, compile it once (cached in "
+                            "~/.cache/wbmpc) and use it")
+    base_tracking: str = option("position", flag="--base-tracking", choices=BASE_TRACKING_MODES,
+                                help="position: base x/y/yaw anchored to the integrated command, corrects drift; "
+                                "velocity: the paper's velocity-only base tracking, drift uncorrected")
+    seed: int = option(0, flag="--seed", help="seed of the measurement noise", integer=True, low=0)
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
-    state: str = "true"  # "true": the simulator's state; "estimated": IMU + encoders through wbmpc.estimation
+    state: str = option("true", flag="--state", choices=("true", "estimated"), help="state fed to the MPC: the "
+                        "simulator's (true) or estimated from simulated IMU + encoders (noise on; section V-B filter; "
+                        "adds estimation RMSE metrics and estimation.png)")
     sensors: object | None = None  # wbmpc.estimation.SensorConfig (defaults when None)
     model_errors: ModelErrors | None = None  # the MuJoCo plant differs from the MPC's model
     joint_position_noise_rad: float = 0.0  # std of the measurement noise (LoopConfig)
     joint_velocity_noise_rad_s: float = 0.0
     # MpcConfig.push_gait_period_scale: the gait period's factor after a push (1: the paper's fixed schedule).
     # None: the solver's default (`_push_cadence`: faster steps with Fatrop and IPOPT, fixed with RTI)
-    push_gait_period_scale: float | None = None
-    solver_options: dict = field(default_factory=dict)  # SolverConfig.extra_options of rti/sqp (--solver-option)
+    push_gait_period_scale: float | None = option(
+        None, flag="--push-cadence", metavar="SCALE", low=0.0, high=1.0, low_open=True,
+        help="after a push (any scenario) the gait period is scaled by this while in push recovery mode and 1 s "
+        "after; 1: the paper's fixed schedule",
+        default_text="0.5625: the 0.8 s trot steps every 0.45 s; with --solver rti 1")
+    # SolverConfig.extra_options of rti/sqp
+    solver_options: dict = option(default_factory=dict, flag="--solver-option", metavar="KEY=VALUE", repeat=True,
+                                  parse=lambda items: parse_solver_options(items),
+                                  help="a setting of the rti/sqp solvers (RtiConfig/AnytimeConfig), repeatable: e.g. "
+                                  "sqp_iterations=2, budget_ms=5, clock=cpu")
     # MpcConfig.delay_compensation; None: on whenever the plan applies late (any --delay but none)
-    delay_compensation: bool | None = None
-    step_budget_ms: float | None = None  # MpcConfig.step_budget_s of the anytime solver; None: see _step_budget_s
+    delay_compensation: bool | None = option(
+        None, flag="--delay-compensation", choices=("on", "off"), parse=lambda text: text == "on",
+        help="plan from the state predicted for when the plan applies (the measurement rolled forward over the "
+        "expected delay with the last plan)", default_text="on with any --delay but none")
+    # MpcConfig.step_budget_s of the anytime solver; None: see _step_budget_s
+    step_budget_ms: float | None = option(
+        None, flag="--step-budget", metavar="MS", low=0.0, high=1e4, low_open=True, unit="ms",
+        help="sqp: the MPC step's time budget", default_text="the 12.5 ms period less 2.5 ms of transport with a "
+        "delay, on CPU time unless --delay realtime; none without delay")
 
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
-        check_number("duration_s", self.duration_s, low=0.0, high=MAX_DURATION_S, low_open=True, unit="s",
-                     allow_none=True)
-        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int):
-            raise ConfigError.for_field("nodes", f"must be an integer, got {self.nodes!r}")
-        check_number("nodes", self.nodes, low=2, high=MAX_INTERVALS + 1)
-        check_number("uniform_dt_ms", self.uniform_dt_ms, low=0.0, high=1e3 * MAX_STEP_S, low_open=True, unit="ms",
-                     allow_none=True)
+        check_fields(self)
         fixed_delay_s(self.delay)
         if self.solver == "auto":
             self.solver = default_solver(self.compiled, self.delay)
-        if self.plant not in PLANTS:
-            raise ConfigError.for_field("plant", f"must be one of {', '.join(PLANTS)}; got '{self.plant}'")
         if self.formulation not in FORMULATIONS:
             raise ConfigError(unknown_name("formulation", self.formulation, FORMULATIONS))
         if self.solver not in SOLVERS:
             raise ConfigError(unknown_name("solver", self.solver, SOLVERS))
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError.for_field("seed", f"must be an integer >= 0, got {self.seed!r}")
-        if self.state not in ("true", "estimated"):
-            raise ConfigError(f"--state must be 'true' or 'estimated', got {self.state!r}")
-        check_number("push_gait_period_scale", self.push_gait_period_scale, low=0.0, high=1.0, low_open=True,
-                     allow_none=True)
         if self.push_gait_period_scale not in (None, 1.0) and self.state == "estimated" and self.delay == "realtime":
             raise ConfigError("a faster step cadence after a push (--push-cadence) changes the MPC's gait clock in the "
                               "solver process, which the estimator of --state estimated --delay realtime cannot "
                               "see: leave --push-cadence out (that run keeps the fixed schedule) or set it to 1")
-        check_number("step_budget_ms", self.step_budget_ms, low=0.0, high=1e4, low_open=True, unit="ms", allow_none=True)
         if self.solver_options and self.solver not in ("rti", "sqp"):
             raise ConfigError(f"--solver-option sets the rti/sqp solvers' settings; the {self.solver} solver has none "
                               "(use --solver rti or --solver sqp)")
@@ -106,12 +127,38 @@ class RunConfig:
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 
 
+def parse_solver_options(items: list[str] | None) -> dict:
+    """--solver-option KEY=VALUE (repeatable) as {key: number, bool, None or text}."""
+    options = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--solver-option needs KEY=VALUE (e.g. sqp_iterations=2), got {item!r}")
+        lowered = text.strip().lower()
+        if lowered in ("none", "null"):
+            value = None
+        elif lowered in ("true", "false"):
+            value = lowered == "true"
+        else:
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError:
+                    value = text
+        options[key.strip()] = value
+    return options
+
+
 @dataclass
 class ScenarioResult:
     scenario: Scenario
     metrics: dict
     log: RunLog
     scene: object | None = None  # wbmpc.sim.objects.Scene with the objects' recordings, if any
+    plant: object | None = None  # the simulator the run used (wbmpc.sim), for its final state and config
+    estimation: object | None = None  # the estimator's log with --state estimated (wbmpc.estimation), else None
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
@@ -261,10 +308,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     **solver_summary(mpc, config),
                     "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
                     "drive_train": _drive_train_summary(robot, plant.config)})
-    result = ScenarioResult(scenario, metrics, log, scene)
-    result.plant = plant  # type: ignore[attr-defined]
-    result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
-    return result
+    return ScenarioResult(scenario, metrics, log, scene, plant=plant,
+                          estimation=state_source.log if state_source is not None else None)
 
 
 def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
@@ -336,7 +381,7 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         objects = result.scene.replay_objects() if result.scene is not None else None
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
-        if getattr(result, "estimation", None) is not None:
+        if result.estimation is not None:
             from wbmpc.viz.estimation import save_estimation_plot
 
             paths.append(save_estimation_plot(result.estimation, folder))

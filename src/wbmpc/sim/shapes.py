@@ -1,8 +1,8 @@
 """Primitive collision shapes for a `RobotModel`, expressed in the frames of its pinocchio joints.
 
 Two sources, per moving body (= pinocchio joint):
-1. the URDF's own primitive collision geometry (box, cylinder, sphere) of the links merged into
-   that body (meshes are ignored), when present and allowed;
+1. the URDF's own primitive collision geometry (box, cylinder, sphere, capsule) of the links merged
+   into that body, as pinocchio reads it (meshes are ignored), when present and allowed;
 2. otherwise shapes guessed from the kinematics: a box spanning the children's joint origins for
    the floating base, and capsules from the joint origin to each child joint origin / frame of
    interest for the other bodies.
@@ -13,14 +13,13 @@ sphere. Capsules ending at a foot stop short and are thin enough to stay inside 
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from wbmpc.robots import RobotModel
+from wbmpc.robots.urdf_geometry import collision_primitives
 
 MIN_SHAPE_SIZE_M = 0.005  # URDF shapes smaller than this in every direction (IMU boxes) are dropped
 
@@ -64,51 +63,17 @@ def robot_collision_shapes(
 
 # ------------------------------------------------------------------------------- URDF primitives
 def _urdf_primitives(robot: RobotModel) -> dict[int, list[CollisionShape]]:
-    """URDF box/cylinder/sphere collisions grouped by the pinocchio joint that carries their link."""
-    try:
-        root = ET.parse(Path(robot.spec.urdf)).getroot()
-    except (ET.ParseError, OSError):
-        return {}
-    model = robot.model
+    """URDF box/cylinder/sphere/capsule collisions (read by pinocchio, `wbmpc.robots.urdf_geometry`)
+    grouped by the pinocchio joint that carries their link; none on the feet, none of IMU size."""
     foot_links = set(robot.feet)
     out: dict[int, list[CollisionShape]] = {}
-    for link in root.iter("link"):
-        name = link.get("name")
-        if name in foot_links or not model.existFrame(name):
+    for shape in collision_primitives(robot.model, robot.spec.urdf):
+        if shape.link in foot_links or max(shape.size) < MIN_SHAPE_SIZE_M:
             continue
-        frame = model.frames[robot.frame_id(name)]
-        for k, collision in enumerate(link.iter("collision")):
-            shape = _parse_primitive(collision)
-            if shape is None:
-                continue
-            kind, size, placement = shape
-            if max(size) < MIN_SHAPE_SIZE_M:
-                continue
-            pose = frame.placement * placement
-            out.setdefault(frame.parentJoint, []).append(
-                CollisionShape(
-                    f"{name}_collision{k}", frame.parentJoint, kind, size, pose.translation.copy(), pose.rotation.copy()
-                )
-            )
+        out.setdefault(shape.joint_id, []).append(
+            CollisionShape(shape.name, shape.joint_id, shape.kind, shape.size, shape.placement.translation.copy(),
+                           shape.placement.rotation.copy()))
     return out
-
-
-def _parse_primitive(collision: ET.Element) -> tuple[str, tuple[float, ...], pin.SE3] | None:
-    geometry = collision.find("geometry")
-    if geometry is None:
-        return None
-    origin = collision.find("origin")
-    xyz = np.array([float(x) for x in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
-    rpy = np.array([float(x) for x in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
-    placement = pin.SE3(pin.rpy.rpyToMatrix(rpy), xyz)
-    if (box := geometry.find("box")) is not None:
-        size = tuple(0.5 * float(x) for x in box.get("size").split())
-        return "box", size, placement
-    if (cylinder := geometry.find("cylinder")) is not None:
-        return "cylinder", (float(cylinder.get("radius")), 0.5 * float(cylinder.get("length"))), placement
-    if (sphere := geometry.find("sphere")) is not None:
-        return "sphere", (float(sphere.get("radius")),), placement
-    return None  # meshes are not used for collisions
 
 
 # ------------------------------------------------------------------------------ kinematic guesses
