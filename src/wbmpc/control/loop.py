@@ -487,50 +487,25 @@ class ClosedLoop:
         """
         import multiprocessing
 
-        cfg, plant = self.config, self.plant
         log = self._new_log()
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
         wakeups = SharedChannel.events(context)
-        channel: SharedChannel | None = None
         cpus = _cpu_split()
-        worker = context.Process(target=mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1], wakeups),
-                                 daemon=True)
-        single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-        saved = {name: os.environ.get(name) for name in single_threaded}
-        os.environ.update(single_threaded)  # the worker inherits it: no BLAS threads competing with the solver
-        try:
-            worker.start()
-        finally:
-            for name, value in saved.items():
-                if value is None:
-                    os.environ.pop(name, None)
-                else:
-                    os.environ[name] = value
+        worker = _start_solver_process(context, (self.robot.spec, self.mpc.config, child_conn, cpus[1], wakeups))
         if cpus[0]:
             os.sched_setaffinity(0, cpus[0])
         own_nice = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
         log.realtime_priority = raise_priority()
+        channel: SharedChannel | None = None
         try:
-            for _ in range(1500):  # up to 300 s for the worker's build, Ctrl-C honoured meanwhile
-                if conn.poll(0.2) or (stop is not None and stop()) or not worker.is_alive():
-                    break
-            if stop is not None and stop():
+            if not _await_solver_process(conn, worker, stop):
                 log.interrupted = True
                 return log
-            if not conn.poll(0) or conn.recv() != "ready":
-                raise RunError("the real-time MPC process did not start (see its error above)")
-            t0 = plant.time_s
+            t0 = self.plant.time_s
             active = self._solve(log, t0, commands, first=True)
             if not active.success:
                 raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
-            mpc_period = 1.0 / cfg.mpc_rate_hz
-            next_mpc, next_control = t0 + mpc_period, t0
-            busy, request = False, None
-            # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
-            # solver's budget is the period less it, so that the answer is back before the next MPC tick
-            transport_s = REALTIME_TRANSPORT_GUESS_S
-            tau = np.zeros(self.robot.n_joints)
             # the solver process solves the first step too, before the clock: its MPC then warm-starts (a cold
             # step of the anytime SQP ignores its deadline to converge) from the same state as this one's
             q, v = self._measure()
@@ -541,52 +516,8 @@ class ClosedLoop:
             # from here on requests and plans go through shared memory, woken by events (no pickles, no polling)
             channel = SharedChannel.create(ChannelLayout.from_solution(active, len(command_row(Commands()))), wakeups)
             conn.send(("channel", *channel.handle))
-            wall_start, cpu_start = time.perf_counter(), time.process_time()
-            while plant.time_s - t0 < duration_s - 1e-9:
-                t = plant.time_s
-                lag = (t - t0) - (time.perf_counter() - wall_start)
-                if lag > 0:  # wait for the wall clock, woken early by the answer
-                    if busy:
-                        channel.answer_ready.wait(lag)
-                        lag = (t - t0) - (time.perf_counter() - wall_start)
-                    if lag > 0:
-                        time.sleep(lag)
-                self._apply_events(events, t, log)
-                if busy and channel.answer_ready.is_set():
-                    solution = channel.receive_solution()
-                    channel.answer_ready.clear()
-                    busy = False
-                    now = time.perf_counter()
-                    elapsed = max(now - wall_start, 1e-9)
-                    log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / elapsed
-                    self._log_solution(log, request[0], request[1], solution)
-                    # the delay the plant sees: from the measurement to the plan's first tick, transport included
-                    delay = max(t - request[0], now - request[2])
-                    transport_s = 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
-                    log.record_delay(delay * 1e3)
-                    self._note_delay(delay)
-                    if delay > mpc_period:
-                        log.late_solutions += 1
-                    if solution.success or solution.held_previous:
-                        active = solution
-                if not busy and t >= next_mpc - 1e-9:
-                    if not worker.is_alive():
-                        raise ConfigError("the real-time MPC process died (see its error above)")
-                    q, v = self._measure()
-                    command = commands(t, q, v)
-                    budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
-                    channel.send_request(q, v, command_row(command), t, self._delay_mean_s, budget)
-                    busy, request = True, (t, command, time.perf_counter())
-                    while next_mpc <= t + 1e-9:
-                        next_mpc += mpc_period
-                tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress,
-                                                          stop)
-                if fell:
-                    break
-                plant.step(tau)
-            log.wall_time_s = time.perf_counter() - wall_start
-            log.rss_samples.append((plant.time_s - t0, rss_mb()))
-            log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
+            self._paced_loop(log, channel, worker, active, t0, mpc_cpu_start, duration_s, commands, events, progress,
+                             stop)
         finally:
             if cpus[0]:
                 os.sched_setaffinity(0, cpus[0] | cpus[1])
@@ -595,19 +526,114 @@ class ClosedLoop:
                     os.setpriority(os.PRIO_PROCESS, 0, own_nice)  # back to the caller's priority
                 except OSError:
                     pass
-            try:
-                if channel is not None:
-                    channel.send_stop()
-                else:
-                    conn.send(None)
-            except (BrokenPipeError, OSError):
-                pass
-            worker.join(timeout=5)
-            if worker.is_alive():
-                worker.terminate()
-            if channel is not None:
-                channel.close()
+            _stop_solver_process(conn, worker, channel)
         return log
+
+    def _paced_loop(self, log: RunLog, channel: SharedChannel, worker, active: Solution, t0: float,
+                    mpc_cpu_start: float, duration_s, commands, events, progress, stop) -> None:
+        """The 500 Hz simulation on the wall clock: a request to the solver process at each free MPC tick,
+        its answer taken as soon as it is ready, the last good plan interpolated meanwhile (eqs. 9-10)."""
+        plant, mpc_period = self.plant, 1.0 / self.config.mpc_rate_hz
+        next_mpc, next_control = t0 + mpc_period, t0
+        request = None  # (t, command, wall time) of the request being solved; None: the solver is free
+        # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
+        # solver's budget is the period less it, so that the answer is back before the next MPC tick
+        transport_s = REALTIME_TRANSPORT_GUESS_S
+        tau = np.zeros(self.robot.n_joints)
+        wall_start, cpu_start = time.perf_counter(), time.process_time()
+        while plant.time_s - t0 < duration_s - 1e-9:
+            t = plant.time_s
+            lag = (t - t0) - (time.perf_counter() - wall_start)
+            if lag > 0:  # wait for the wall clock, woken early by the answer
+                if request is not None:
+                    channel.answer_ready.wait(lag)
+                    lag = (t - t0) - (time.perf_counter() - wall_start)
+                if lag > 0:
+                    time.sleep(lag)
+            self._apply_events(events, t, log)
+            if request is not None and channel.answer_ready.is_set():
+                solution = channel.receive_solution()
+                channel.answer_ready.clear()
+                now = time.perf_counter()
+                log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / max(now - wall_start, 1e-9)
+                transport_s = self._take_answer(log, solution, request, t, now, transport_s)
+                if solution.success or solution.held_previous:
+                    active = solution
+                request = None
+            if request is None and t >= next_mpc - 1e-9:
+                if not worker.is_alive():
+                    raise RunError("the real-time MPC process died (see its error above)")
+                q, v = self._measure()
+                command = commands(t, q, v)
+                budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
+                channel.send_request(q, v, command_row(command), t, self._delay_mean_s, budget)
+                request = (t, command, time.perf_counter())
+                while next_mpc <= t + 1e-9:
+                    next_mpc += mpc_period
+            tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress, stop)
+            if fell:
+                break
+            plant.step(tau)
+        log.wall_time_s = time.perf_counter() - wall_start
+        log.rss_samples.append((plant.time_s - t0, rss_mb()))
+        log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
+
+    def _take_answer(self, log: RunLog, solution: Solution, request, t: float, now: float, transport_s: float) -> float:
+        """Log a plan from the solver process with the delay the plant sees (from the measurement to the
+        plan's first tick, transport included); returns the updated transport estimate."""
+        self._log_solution(log, request[0], request[1], solution)
+        delay = max(t - request[0], now - request[2])
+        log.record_delay(delay * 1e3)
+        self._note_delay(delay)
+        if delay > 1.0 / self.config.mpc_rate_hz:
+            log.late_solutions += 1
+        return 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
+
+
+def _start_solver_process(context, args):
+    """The real-time solver process (`mpc_worker`), started with single-threaded BLAS (no BLAS threads
+    competing with the solver); this process's environment is restored after."""
+    worker = context.Process(target=mpc_worker, args=args, daemon=True)
+    single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    saved = {name: os.environ.get(name) for name in single_threaded}
+    os.environ.update(single_threaded)  # the worker inherits it
+    try:
+        worker.start()
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+    return worker
+
+
+def _await_solver_process(conn, worker, stop) -> bool:
+    """Wait for the solver process's build (up to 300 s, Ctrl-C honoured): False when stopped meanwhile;
+    a process that did not start is a RunError."""
+    for _ in range(1500):
+        if conn.poll(0.2) or (stop is not None and stop()) or not worker.is_alive():
+            break
+    if stop is not None and stop():
+        return False
+    if not conn.poll(0) or conn.recv() != "ready":
+        raise RunError("the real-time MPC process did not start (see its error above)")
+    return True
+
+
+def _stop_solver_process(conn, worker, channel: SharedChannel | None) -> None:
+    try:
+        if channel is not None:
+            channel.send_stop()
+        else:
+            conn.send(None)
+    except (BrokenPipeError, OSError):
+        pass
+    worker.join(timeout=5)
+    if worker.is_alive():
+        worker.terminate()
+    if channel is not None:
+        channel.close()
 
 
 REALTIME_TRANSPORT_GUESS_S = 1e-3  # the transport's first guess, before one was measured
