@@ -185,7 +185,7 @@ def test_recovered_and_failed_steps_are_counted_apart():
 
 
 def _priority_child(queue):
-    from wbmpc.control.loop import raise_priority
+    from wbmpc.control.solver_process import raise_priority
 
     granted = raise_priority()
     queue.put((granted, os.getpriority(os.PRIO_PROCESS, 0)))

@@ -140,9 +140,9 @@ def test_a_failed_first_solve_is_a_run_error_exit_1(capsys, tmp_path, monkeypatc
 
 
 def test_a_real_time_solver_process_that_does_not_start_is_a_run_error(capsys, monkeypatch):
-    from wbmpc.control import loop
+    from wbmpc.control import solver_process
 
-    monkeypatch.setattr(loop, "mpc_worker", sys.exit)  # the spawned process dies on its arguments at once
+    monkeypatch.setattr(solver_process, "mpc_worker", sys.exit)  # the spawned process dies on its arguments at once
     code = main(["run", "stand", *SMALL, "--duration", str(SHORT_S), "--delay", "realtime", "--no-outputs", "--json"])
     err = capsys.readouterr().err
     assert code == EXIT_FAILED, err[-2000:]

@@ -21,8 +21,9 @@ import pinocchio as pin
 from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
-from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel
+from wbmpc.control.realtime_channel import command_from_row, command_row
 from wbmpc.control.solution import Solution
+from wbmpc.control.solver_process import SolverProcess, cpu_split, raise_priority
 from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
@@ -90,19 +91,6 @@ TICK_KEYS = ("t", "q", "v", "tau", "tau_ff", "q_des", "contact_forces")
 STEP_KEYS = ("mpc_t", "solve_ms", "iterations", "success", "planned_contact")
 SOLVER_DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")
 RSS_SAMPLE_PERIOD_S = 10.0  # simulated seconds between resident-memory samples
-
-
-def command_row(command: Commands) -> np.ndarray:
-    """`Commands` as COMMAND_WIDTH numbers (None as NaN), the inverse of `command_from_row`."""
-    ee_velocity = np.full(3, np.nan) if command.ee_velocity_m_s is None else command.ee_velocity_m_s
-    height = np.nan if command.base_height_m is None else command.base_height_m
-    return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height]
-
-
-def command_from_row(row: np.ndarray) -> Commands:
-    ee_velocity = None if np.isnan(row[4:7]).all() else row[4:7].copy()
-    return Commands(base_velocity_m_s=row[0:3].copy(), base_yaw_rate_rad_s=float(row[3]), ee_velocity_m_s=ee_velocity,
-                    ee_force_n=row[7:10].copy(), base_height_m=None if np.isnan(row[10]) else float(row[10]))
 
 
 class RunLog:
@@ -479,27 +467,17 @@ class ClosedLoop:
         return log
 
     def _run_realtime(self, duration_s, commands, events, progress, stop=None) -> RunLog:
-        """Simulation paced by the wall clock while the MPC solves in its own process.
-
-        A process, not a thread: the simulation loop is Python and would starve a solver thread of
-        the GIL. The worker builds its own MPC from the robot spec and config (a few seconds before
-        the clock starts); each new solve starts at the next MPC tick after the previous one ended.
-        """
-        import multiprocessing
-
+        """Simulation paced by the wall clock while the MPC solves in its own process (`SolverProcess`,
+        built before the clock starts); each new solve starts at the next MPC tick after the previous one ended."""
         log = self._new_log()
-        context = multiprocessing.get_context("spawn")
-        conn, child_conn = context.Pipe()
-        wakeups = SharedChannel.events(context)
-        cpus = _cpu_split()
-        worker = _start_solver_process(context, (self.robot.spec, self.mpc.config, child_conn, cpus[1], wakeups))
+        cpus = cpu_split()
+        solver = SolverProcess(self.robot.spec, self.mpc.config, cpus[1], stop)
         if cpus[0]:
             os.sched_setaffinity(0, cpus[0])
         own_nice = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
         log.realtime_priority = raise_priority()
-        channel: SharedChannel | None = None
         try:
-            if not _await_solver_process(conn, worker, stop):
+            if solver.interrupted:
                 log.interrupted = True
                 return log
             t0 = self.plant.time_s
@@ -509,15 +487,9 @@ class ClosedLoop:
             # the solver process solves the first step too, before the clock: its MPC then warm-starts (a cold
             # step of the anytime SQP ignores its deadline to converge) from the same state as this one's
             q, v = self._measure()
-            conn.send((q, v, commands(t0, q, v), t0, 0.0, None))
-            conn.recv()
-            conn.send("cpu")
-            mpc_cpu_start = conn.recv()
-            # from here on requests and plans go through shared memory, woken by events (no pickles, no polling)
-            channel = SharedChannel.create(ChannelLayout.from_solution(active, len(command_row(Commands()))), wakeups)
-            conn.send(("channel", *channel.handle))
-            self._paced_loop(log, channel, worker, active, t0, mpc_cpu_start, duration_s, commands, events, progress,
-                             stop)
+            solver.request(q, v, commands(t0, q, v), t0)
+            solver.receive()  # from here on requests and plans go through shared memory
+            self._paced_loop(log, solver, active, t0, duration_s, commands, events, progress, stop)
         finally:
             if cpus[0]:
                 os.sched_setaffinity(0, cpus[0] | cpus[1])
@@ -526,11 +498,11 @@ class ClosedLoop:
                     os.setpriority(os.PRIO_PROCESS, 0, own_nice)  # back to the caller's priority
                 except OSError:
                     pass
-            _stop_solver_process(conn, worker, channel)
+            solver.close()
         return log
 
-    def _paced_loop(self, log: RunLog, channel: SharedChannel, worker, active: Solution, t0: float,
-                    mpc_cpu_start: float, duration_s, commands, events, progress, stop) -> None:
+    def _paced_loop(self, log: RunLog, solver: SolverProcess, active: Solution, t0: float, duration_s, commands,
+                    events, progress, stop) -> None:
         """The 500 Hz simulation on the wall clock: a request to the solver process at each free MPC tick,
         its answer taken as soon as it is ready, the last good plan interpolated meanwhile (eqs. 9-10)."""
         plant, mpc_period = self.plant, 1.0 / self.config.mpc_rate_hz
@@ -546,27 +518,26 @@ class ClosedLoop:
             lag = (t - t0) - (time.perf_counter() - wall_start)
             if lag > 0:  # wait for the wall clock, woken early by the answer
                 if request is not None:
-                    channel.answer_ready.wait(lag)
+                    solver.wait(lag)
                     lag = (t - t0) - (time.perf_counter() - wall_start)
                 if lag > 0:
                     time.sleep(lag)
             self._apply_events(events, t, log)
-            if request is not None and channel.answer_ready.is_set():
-                solution = channel.receive_solution()
-                channel.answer_ready.clear()
+            if request is not None and solver.ready():
+                solution = solver.receive()
                 now = time.perf_counter()
-                log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / max(now - wall_start, 1e-9)
+                log.mpc_cpu_share = (solution.process_cpu_s - solver.cpu_start_s) / max(now - wall_start, 1e-9)
                 transport_s = self._take_answer(log, solution, request, t, now, transport_s)
                 if solution.success or solution.held_previous:
                     active = solution
                 request = None
             if request is None and t >= next_mpc - 1e-9:
-                if not worker.is_alive():
+                if not solver.is_alive():
                     raise RunError("the real-time MPC process died (see its error above)")
                 q, v = self._measure()
                 command = commands(t, q, v)
                 budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
-                channel.send_request(q, v, command_row(command), t, self._delay_mean_s, budget)
+                solver.request(q, v, command, t, self._delay_mean_s, budget)
                 request = (t, command, time.perf_counter())
                 while next_mpc <= t + 1e-9:
                     next_mpc += mpc_period
@@ -590,133 +561,5 @@ class ClosedLoop:
         return 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
 
 
-def _start_solver_process(context, args):
-    """The real-time solver process (`mpc_worker`), started with single-threaded BLAS (no BLAS threads
-    competing with the solver); this process's environment is restored after."""
-    worker = context.Process(target=mpc_worker, args=args, daemon=True)
-    single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-    saved = {name: os.environ.get(name) for name in single_threaded}
-    os.environ.update(single_threaded)  # the worker inherits it
-    try:
-        worker.start()
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-    return worker
-
-
-def _await_solver_process(conn, worker, stop) -> bool:
-    """Wait for the solver process's build (up to 300 s, Ctrl-C honoured): False when stopped meanwhile;
-    a process that did not start is a RunError."""
-    for _ in range(1500):
-        if conn.poll(0.2) or (stop is not None and stop()) or not worker.is_alive():
-            break
-    if stop is not None and stop():
-        return False
-    if not conn.poll(0) or conn.recv() != "ready":
-        raise RunError("the real-time MPC process did not start (see its error above)")
-    return True
-
-
-def _stop_solver_process(conn, worker, channel: SharedChannel | None) -> None:
-    try:
-        if channel is not None:
-            channel.send_stop()
-        else:
-            conn.send(None)
-    except (BrokenPipeError, OSError):
-        pass
-    worker.join(timeout=5)
-    if worker.is_alive():
-        worker.terminate()
-    if channel is not None:
-        channel.close()
-
-
 REALTIME_TRANSPORT_GUESS_S = 1e-3  # the transport's first guess, before one was measured
 REALTIME_MARGIN_S = 0.5e-3  # kept free of the budget for the jitter of the transport
-REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
-
-
-def raise_priority(nice: int = REALTIME_NICE) -> str:
-    """Ask the scheduler to prefer this process over ordinary work (a real-time control loop shares the
-    machine with builds, browsers, other jobs). Returns what was granted: "nice -10" or "default"
-    (not permitted: the loop runs at normal priority and other load can make solutions late)."""
-    if not hasattr(os, "setpriority"):
-        return "default"
-    try:
-        current = os.getpriority(os.PRIO_PROCESS, 0)
-        if current > nice:
-            os.setpriority(os.PRIO_PROCESS, 0, nice)
-        return f"nice {min(current, nice)}"
-    except OSError:
-        return "default"
-
-
-def _cpu_split() -> tuple[set[int], set[int]]:
-    """(simulation CPUs, MPC CPUs): one core each where there are two or more, so neither starves
-    the other; empty sets (no pinning) on a single core or where affinity is not supported."""
-    try:
-        available = sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return set(), set()
-    if len(available) < 2:
-        return set(), set()
-    return {available[0]}, set(available[1:])
-
-
-def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None) -> None:
-    """Real-time mode's solver process: build the MPC, then answer requests: through the pipe ("cpu" asks
-    for the process's CPU time so far; (q, v, commands, t, delay_s, budget_s) a plan) until ("channel",
-    layout, name) moves them to the shared-memory channel (`realtime_channel.py`, with `events`)."""
-    import signal
-
-    from wbmpc.robots import RobotModel
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent decides
-    if cpus:
-        os.sched_setaffinity(0, cpus)
-    raise_priority()
-    mpc = MPC(RobotModel(spec), mpc_config)
-    mpc.prepare_fallback()  # a failed step must not pay for building its recovery solvers
-    conn.send("ready")
-    while True:
-        message = conn.recv()
-        if message is None:
-            return
-        if message == "cpu":
-            conn.send(time.process_time())
-            continue
-        if isinstance(message[0], str) and message[0] == "channel":
-            _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
-            return
-        q, v, command, t, *more = message  # (+ delay_s, budget_s from the real-time loop; deploy sends four)
-        delay_s, budget_s = more if more else (0.0, None)
-        start = time.perf_counter()
-        # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
-        budget = budget_s if mpc.config.step_budget_s is not None else None
-        solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
-        solution.wall_time_s = time.perf_counter() - start
-        solution.process_cpu_s = time.process_time()
-        conn.send(solution)
-
-
-def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
-    """The solver process's loop on the shared-memory channel: wait for a request, solve, write the plan."""
-    try:
-        while True:
-            request = channel.receive_request()
-            if request is None:
-                return
-            q, v, row, t, delay_s, budget_s = request
-            start = time.perf_counter()
-            budget = budget_s if mpc.config.step_budget_s is not None else None
-            solution = mpc.solve(q, v, command_from_row(row), t, delay_s=delay_s, budget_s=budget)
-            solution.wall_time_s = time.perf_counter() - start
-            solution.process_cpu_s = time.process_time()
-            channel.send_solution(solution)
-    finally:
-        channel.close()

@@ -179,8 +179,9 @@ class Controller:
 
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None,
                  solver_process=None):
-        """`solver_process(robot, mpc_config)`: the real-time solver process (request/poll/receive/close), by
-        default `_SolverProcess`; lock-step solves in this process with `mpc` (built here when None)."""
+        """`solver_process(robot, mpc_config)`: the real-time solver process (request/ready/receive/close), by
+        default the one `wbmpc run --delay realtime` solves with (`control/solver_process.py`: pinned to its
+        own core, shared memory); lock-step solves in this process with `mpc` (built here when None)."""
         check_interface(config.network)
         if not config.lockstep and mpc_config.push_gait_period_scale is not None:
             # the estimator here reads the gait schedule; a solver process's clock, which speeds up after
@@ -211,7 +212,7 @@ class Controller:
         self._interrupts = 0
         self._publisher = None
         self._z1 = None
-        self._solver_process = solver_process or _SolverProcess
+        self._solver_process = solver_process or _solver_process
 
     # ------------------------------------------------------------------ DDS side
     def _on_state(self, msg) -> None:
@@ -390,6 +391,7 @@ class Controller:
         lying = lying_joint_positions(robot)
         mpc_period = 1.0 / 80.0
         busy = False
+        delay_s, requested_at = 0.0, 0.0  # measured delay of the plans (delay compensation, MpcConfig)
         z1 = self._z1
         t_last = msg.tick / 1e3
 
@@ -455,8 +457,9 @@ class Controller:
                         first_plan(solution, t, reading.joint_position_rad)
                     if ready and worker is not None and not busy and active is None:
                         worker.request(q, v, commands(0.0, q, v), 0.0)  # first plan while still holding
+                        requested_at = time.perf_counter()
                         busy = True
-                    if worker is not None and busy and worker.poll():
+                    if worker is not None and busy and worker.ready():
                         solution = worker.receive()
                         busy = False
                         self._count_solve(solution, 1e3 * solution.wall_time_s)
@@ -478,14 +481,17 @@ class Controller:
                         while next_mpc <= t_mpc + 1e-9:
                             next_mpc += mpc_period
                     elif worker is not None:
-                        if busy and worker.poll():
+                        if busy and worker.ready():
                             solution = worker.receive()
                             busy = False
                             self._count_solve(solution, 1e3 * solution.wall_time_s)
-                            if solution.success:
+                            # the delay a plan meets (request to receipt), for the next request's compensation
+                            delay_s = 0.8 * delay_s + 0.2 * (time.perf_counter() - requested_at)
+                            if solution.success or solution.held_previous:
                                 active = solution
                         if not busy and t_mpc >= next_mpc - 1e-9:
-                            worker.request(q, v, commands(t_mpc, q, v), t_mpc)
+                            worker.request(q, v, commands(t_mpc, q, v), t_mpc, delay_s)
+                            requested_at = time.perf_counter()
                             busy = True
                             while next_mpc <= t_mpc + 1e-9:
                                 next_mpc += mpc_period
@@ -528,35 +534,8 @@ class Controller:
             self.report.mpc_failures += 1
 
 
-class _SolverProcess:
-    """The MPC in its own process (the 500 Hz loop must not wait for a 50-100 ms solve)."""
+def _solver_process(robot: RobotModel, mpc_config: MpcConfig):
+    """The real-time run's solver process, on the cores this controller leaves it (`cpu_split`)."""
+    from wbmpc.control.solver_process import SolverProcess, cpu_split
 
-    def __init__(self, robot: RobotModel, mpc_config: MpcConfig):
-        import multiprocessing
-
-        from wbmpc.control.loop import mpc_worker
-
-        context = multiprocessing.get_context("spawn")
-        self._conn, child = context.Pipe()
-        self._process = context.Process(target=mpc_worker, args=(robot.spec, mpc_config, child), daemon=True)
-        self._process.start()
-        if not self._conn.poll(600) or self._conn.recv() != "ready":
-            raise RunError("the MPC solver process did not start (see its error above)")
-
-    def request(self, q, v, command, t) -> None:
-        self._conn.send((q, v, command, t))
-
-    def poll(self) -> bool:
-        return self._conn.poll()
-
-    def receive(self):
-        return self._conn.recv()
-
-    def close(self) -> None:
-        try:
-            self._conn.send(None)
-        except (BrokenPipeError, OSError):
-            pass
-        self._process.join(timeout=5)
-        if self._process.is_alive():
-            self._process.terminate()
+    return SolverProcess(robot.spec, mpc_config, cpu_split()[1] or None)
