@@ -94,7 +94,7 @@ REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.503896496848493
                        arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217))
 REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
 ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
-LEG_POSTURE = 10.0  # leg joint posture weight factor over the paper's 50 (module docstring)
+LEG_POSTURE = 20.0  # leg joint posture weight factor over the paper's 50 (module docstring)
 
 
 @dataclass(frozen=True)
