@@ -95,6 +95,7 @@ REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.503896496848493
 REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
 ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
 LEG_POSTURE = 20.0  # leg joint posture weight factor over the paper's 50 (module docstring)
+ACCELERATION = 0.1  # acceleration regularisation factor over the paper's 1e-2 (module docstring)
 
 
 @dataclass(frozen=True)
@@ -156,7 +157,7 @@ def derive(scale: RobotScale) -> RobotTuning:
         base_linear_velocity=w.base_linear_velocity / speed**2,
         base_angular_velocity=w.base_angular_velocity * time**2,
         joint_velocity=w.joint_velocity * time**2,
-        acceleration=w.acceleration * time**4,
+        acceleration=ACCELERATION * w.acceleration * time**4,
         contact_force=w.contact_force,  # regularisation: per N^2 as on the paper robot (module docstring)
         joint_torque=w.joint_torque,
         soft_constraint=w.soft_constraint,
