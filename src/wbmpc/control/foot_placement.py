@@ -4,19 +4,22 @@ The posture rows of eq. (3) pull the leg joints to the nominal pose at every nod
 reference contradicts the feet: a stance foot is fixed in the world, so relative to its hip it runs from
 v T_st / 2 ahead to v T_st / 2 behind (T_st the stance duration); a swing foot comes back forward. Pulled to
 the nominal pose, a swing foot lands under its hip and the whole stance is behind it: the base leads its
-support by v T_st / 2 on average (go2 at 0.24 m/s: 9 cm), the load moves onto the front foot of each
-diagonal, whose line then passes beside the CoM (by the lead times the diagonal's width over its length)
-and the trunk sways sideways at the gait frequency (0.17 m/s RMS on go2, 0.03 lead-free in place).
+support (go2 at 0.24 m/s: by 9 cm), the load moves onto the front foot of each diagonal, whose line then
+passes beside the CoM (by the lead times the diagonal's width over its length), and the trunk sways sideways
+at the gait frequency (0.17 m/s RMS on go2; 0.01 trotting in place).
 
-`StanceReference` gives per node the foot offset (in the base's heading frame) that the gait and the
-commanded base velocity imply, Raibert's neutral point v T_st / 2 at touch-down,
+`StanceReference` gives per node the foot offset (in the heading frame) that the gait and the commanded base
+velocity imply, Raibert's neutral point v T_st / 2 ahead at touch-down,
 
     stance, fraction u of it done:  d = v_hip T_st (1/2 - u)
     swing, progress s:              d = v_hip T_st (s - 1/2)
 
-with v_hip = v + omega x r_hip, and turns it into leg joint offsets through the inverse of each leg's
-Jacobian at the nominal pose (first order: offsets of a few cm). The offsets are zero at zero velocity, so
-trotting in place is unchanged.
+with v_hip = v + omega x r_hip, turned into leg joint offsets through the inverse of each leg's Jacobian
+(first order: a few cm). They are taken around the centred pose: the nominal pose with its feet moved
+horizontally (inverse kinematics, base and foot heights fixed) until the CoM is over the centre of the feet,
+where a trot's diagonals cross; a nominal pose with its CoM off that centre (anymal_b_kinova: 8.5 cm ahead,
+a1: 3.7 cm behind) puts each diagonal beside the CoM even in place. The legs' posture weight decides how
+closely the plan follows these targets (`control/tuning.py`, `LEG_POSTURE`).
 """
 
 from __future__ import annotations
