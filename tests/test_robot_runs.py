@@ -30,6 +30,15 @@ def test_small_unitree_robots_trot_in_place_with_their_derived_settings(name):
     assert m["settings"]["sources"]["swing.apex_height_m"] == ("table" if name == "go1" else "derived")
 
 
+def test_go2_trots_forward_without_swaying():
+    """3 s at its Froude speed (0.24 m/s), planar base velocity after 1.5 s: 0.027 m/s RMS at every tick (0.185
+    with the feet landing under the hips and the paper's posture weight, the sway at the gait frequency)."""
+    m = _run("go2", "trot-forward", 3.0, speed_m_s=froude_speed_m_s("go2"))
+    assert not m["fell"] and m["mpc_failures"] == 0
+    assert m["base_vel_rmse_settled"] <= 0.05
+    assert m["base_vel_cycle_mean_rmse"] <= 0.02
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ROBOTS)
 def test_every_listed_robot_trots_in_place_without_drifting(name):
@@ -50,15 +59,11 @@ def test_every_listed_robot_trots_forward_at_its_speed(name):
     m = _run(name, "trot-forward", 6.0, speed_m_s=froude_speed_m_s(name))
     assert not m["fell"]
     assert m["base_drift_settled_cm_s"] <= 2.0  # mean speed within 2 cm/s of the command after the first 2 s
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(reason="the issue's 0.05 m/s is on the 500 Hz base velocity, which sways with the steps: "
-                          "0.135 m/s on b1_z1 at 0.3 m/s with the paper's own settings (0.04-0.32 over the list)")
-@pytest.mark.parametrize("name", ROBOTS)
-def test_every_listed_robot_tracks_its_speed_within_five_cm_s_rms(name):
-    m = _run(name, "trot-forward", 6.0, speed_m_s=froude_speed_m_s(name))
+    # the issue's 0.05 m/s on the planar base velocity at every 500 Hz tick (the trot's sway counts in full);
+    # 10 s runs: 0.018-0.042 over the list (0.12-0.28 with the feet landing under the hips, foot_placement.py)
     assert m["base_vel_rmse_settled"] <= 0.05
+    assert m["base_vel_cycle_mean_rmse"] <= 0.02  # a gait cycle at a time
+    assert m["iterations_mean"] <= MAX_ITERATIONS_MEAN
 
 
 @pytest.mark.slow

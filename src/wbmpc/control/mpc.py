@@ -15,6 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.delay import roll_forward
+from wbmpc.control.foot_placement import StanceReference
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, SwingProfile, make_gait
@@ -92,6 +93,9 @@ class MpcConfig:
     # velocity-only tracking; the x/y/yaw targets restart from the measured base every step, so
     # only the base velocity rows act on the horizontal motion and drift is not corrected.
     base_tracking: str = "position"
+    # leg joint posture targets follow the feet's motion at the commanded velocity (control/foot_placement.py:
+    # touch-down at Raibert's neutral point v T_st / 2 ahead of the hip); False: the nominal pose at every node
+    stance_posture_reference: bool = True
 
     # bounded recovery: iteration caps of the fresh Fatrop and of the fallback solver, an optional
     # wall-time budget for the whole recovery, and how long after a fallback rescue the fallback
@@ -214,6 +218,7 @@ class MPC:
         self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(foot) for foot in robot.feet]
+        self._stance_reference = StanceReference(robot) if config.stance_posture_reference else None
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
@@ -315,6 +320,10 @@ class MPC:
         if np.linalg.norm(offset) > 0.3:
             self._xy_reference = q[:2] + 0.3 * offset / np.linalg.norm(offset)
         targets = np.tile(robot.q_nominal, (len(node_times), 1))
+        if self._stance_reference is not None:
+            targets[:, 7:] += self._stance_reference.joint_offsets(
+                self.gait, t + node_times, np.asarray(commands.base_velocity_m_s, dtype=float),
+                commands.base_yaw_rate_rad_s)
         targets[:, :2] = self._xy_reference + np.outer(node_times, v_world[:2])
         if commands.base_height_m is not None:
             targets[:, 2] = commands.base_height_m

@@ -18,6 +18,7 @@ from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.manipulation import Compliant, Pull, PushBox, Wipe
+from wbmpc.scenarios.metrics import SETTLE_S, _yaw, base_world_velocity, heading_rotation
 
 
 class Stand(Scenario):
@@ -37,6 +38,25 @@ class TrotForward(Scenario):
     def commands(self, robot):
         velocity = np.array([self.options.speed_m_s, 0.0, 0.0])
         return lambda t, q, v: Commands(base_velocity_m_s=velocity)
+
+    def extra_metrics(self, robot, log):
+        """`base_vel_cycle_mean_rmse`: the planar base velocity averaged over each whole gait cycle after the
+        start transient, against the command (RMS over the cycles): the mean speed a cycle at a time, the
+        sway within a cycle averaged away. The per-tick figure is `base_vel_rmse_settled`."""
+        from wbmpc.control.tuning import tuning_for
+        from wbmpc.gait import make_gait
+
+        period_s = make_gait(self.gait, len(robot.feet), tuning_for(robot).gait_period_s).period_s
+        a = log.arrays(("t", "q", "v"))
+        t = a["t"]
+        velocity = base_world_velocity(a["q"], a["v"])[:, :2]
+        command = heading_rotation(_yaw(a["q"][0]))[:2, :2] @ np.array([self.options.speed_m_s, 0.0])
+        start = t[0] + min(SETTLE_S, 0.5 * (t[-1] - t[0]))
+        cycles = int((t[-1] - start) // period_s)
+        means = [velocity[(t >= start + k * period_s) & (t < start + (k + 1) * period_s)].mean(axis=0)
+                 for k in range(cycles)]
+        rmse = float(np.sqrt(np.mean(np.sum((np.array(means) - command) ** 2, axis=1)))) if cycles else None
+        return {"base_vel_cycle_mean_rmse": rmse}
 
 
 class Push(Scenario):

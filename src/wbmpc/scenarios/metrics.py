@@ -57,6 +57,8 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "base_drift_cm_s": float(100 * np.linalg.norm(displacement) / duration) if duration > 0 else None,
         "base_drift_settled_cm_s": float(100 * np.linalg.norm(settled_displacement) / settled_s) if settled_s > 0 else None,
         "base_drift_settled_from_s": float(ticks.settle_t - t0) if duration > 0 else None,
+        # planar: the base's (x, y) velocity in the world against the command, at every 500 Hz tick (vertical
+        # velocity and yaw rate not counted); the trot's sway at the gait frequency counts in full
         "base_vel_rmse": float(np.sqrt(ticks.velocity_error_sq_sum / ticks.n)),
         # after the start transient (the command steps from rest at t = 0), as base_drift_settled_cm_s
         "base_vel_rmse_settled": float(np.sqrt(ticks.settled_error_sq_sum / ticks.settled_n)) if ticks.settled_n else None,
