@@ -156,3 +156,15 @@ def test_info_prints_every_setting_and_its_source(capsys):
     assert info["settings"]["gait_period_s"]["source"] == "derived"
     assert info["settings"]["gains.kd_leg"]["value"] == pytest.approx(tuning_for("go2").gains.kd_leg)
     assert info["scale"]["leg_length_m"] == pytest.approx(RobotScale.of(load_robot("go2")).leg_length_m)
+
+
+def test_pull_keeps_the_papers_leg_posture_weight_and_other_scenarios_the_derived_one():
+    from wbmpc.control.tuning import LEG_POSTURE
+    from wbmpc.scenarios import RunConfig, make_scenario
+    from wbmpc.scenarios.runner import mpc_config_for
+
+    robot = load_robot("b1_z1")
+    derived = tuning_for(robot).weights.leg_joint_position
+    for name, expected in (("pull", derived / LEG_POSTURE), ("trot-forward", derived), ("push-box", derived)):
+        config = mpc_config_for(make_scenario(name, robot), RunConfig(scenario=name), robot)
+        assert config.weights.leg_joint_position == pytest.approx(expected), name

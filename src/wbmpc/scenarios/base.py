@@ -8,7 +8,7 @@ import numpy as np
 
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import Event, RunLog
-from wbmpc.control.mpc import Commands
+from wbmpc.control.mpc import Commands, CostWeights
 from wbmpc.gait import GAIT_NAMES
 from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
@@ -129,6 +129,10 @@ class Scenario:
     def pd_gains(self, gains: PdGains) -> PdGains:
         """Joint PD gains of eq. (10) for this task, given the configured ones."""
         return gains
+
+    def cost_weights(self, weights: CostWeights) -> CostWeights:
+        """Weights of eq. (3) for this task, given the robot's (control/tuning.py)."""
+        return weights
 
     def check(self, robot: RobotModel) -> None:
         """Raise `ConfigError` (or warn) before a run when the options cannot work on `robot`."""

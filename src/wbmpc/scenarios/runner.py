@@ -175,7 +175,7 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      delay_compensation=(config.delay != "none" if config.delay_compensation is None
                                          else config.delay_compensation),
                      step_budget_s=_step_budget_s(config),
-                     **tuning.mpc_fields(),
+                     **{**tuning.mpc_fields(), "weights": scenario.cost_weights(tuning.weights)},
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
