@@ -168,3 +168,23 @@ def test_pull_keeps_the_papers_leg_posture_weight_and_other_scenarios_the_derive
     for name, expected in (("pull", derived / LEG_POSTURE), ("trot-forward", derived), ("push-box", derived)):
         config = mpc_config_for(make_scenario(name, robot), RunConfig(scenario=name), robot)
         assert config.weights.leg_joint_position == pytest.approx(expected), name
+
+
+def test_the_leg_damper_is_stable_at_the_pd_tick_and_caps_only_the_small_robot():
+    """Eq. (10)'s explicit damper at the 500 Hz tick: Kd dt / I < 2 on every leg joint (I: pinocchio's CRBA
+    diagonal at the nominal pose plus armature); the cap changes Solo12's Kd only (it fell at 0.03 s)."""
+    import numpy as np
+    import pinocchio as pin
+
+    from wbmpc.control.loop import LoopConfig
+    from wbmpc.control.tuning import CONTROL_PERIOD_S, DAMPER_STABILITY
+
+    assert CONTROL_PERIOD_S == pytest.approx(1 / LoopConfig().control_rate_hz)
+    for name in ("b1_z1", "b1", "go2", "go1", "a1", "anymal_c", "anymal_b_kinova", "go2_z1", "solo12"):
+        robot = load_robot(name)
+        inertia = np.diag(pin.crba(robot.model, robot.model.createData(), robot.q_nominal))[6:]
+        inertia = (inertia + robot.armature_kg_m2)[robot.leg_joint_mask].min()
+        kd = tuning_for(robot).gains.kd_leg
+        assert kd * CONTROL_PERIOD_S / inertia <= DAMPER_STABILITY * (1 + 1e-9) < 2, name
+        sqrt_mass = PdGains().kd_leg * math.sqrt(robot.mass_kg / REFERENCE.mass_kg)
+        assert (kd < sqrt_mass) == (name == "solo12"), name

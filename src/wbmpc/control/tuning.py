@@ -17,8 +17,9 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   shares of the weight (5 s trot in place: drift 1.75 cm/s against 0.06 kept);
 - the legs' damping gain Kd with sqrt(M) (`_leg_damping`), as a critical damping 2 sqrt(k m) at the
   same stiffness: 2.6 on a Go2, 5 on B1 + Z1 (Froude's M L^1.5 g^0.5 gives 0.6 on a Go2, where Kd 1
-  already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints); the arm's gains with the mass
-  it carries (the same Z1 gets the same gains on any base);
+  already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints), capped by the
+  stability of an explicit damper at the 500 Hz joint PD (`DAMPER_STABILITY`: a 2.5 kg Solo12 fell at
+  0.03 s on sqrt(M)'s Kd 1.0); the arm's gains with the mass it carries (the same Z1 gets the same gains on any base);
 - the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
   robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
   hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
@@ -63,6 +64,9 @@ class RobotScale:
     leg_torque_nm: float  # mean effort limit of the leg joints
     arm_mass_kg: float | None  # mass carried by the arm joints (None: no arm)
     inertia_kg_m2: tuple[float, float, float]  # composite rotational inertia at the CoM, standing (reported)
+    # smallest leg joint inertia: diagonal of the joint-space inertia matrix (CRBA at the nominal pose)
+    # plus the model's armature; None: no cap on the leg damping (`_leg_damping`)
+    leg_joint_inertia_kg_m2: float | None = None
 
     @classmethod
     def of(cls, robot: RobotModel) -> RobotScale:
@@ -79,26 +83,31 @@ class RobotScale:
                 hip, joint = joint, model.parents[joint]
             origin = data.oMi[hip].translation if hip is not None else data.oMi[1].translation
             lengths.append(float(np.linalg.norm(data.oMf[frame].translation - origin)))
-        pin.ccrba(model, data, q, np.zeros(model.nv))
         legs = robot.leg_joint_mask
+        joint_inertia = np.diag(pin.crba(model, data, q))[6:] + np.asarray(robot.armature_kg_m2, dtype=float)
+        pin.ccrba(model, data, q, np.zeros(model.nv))
         arm_joints = [model.getJointId(name) for name, leg in zip(robot.joint_names, legs) if not leg]
         carried = {j for joint in arm_joints for j in model.subtrees[joint]}
         arm_mass = float(sum(model.inertias[j].mass for j in carried))
         return cls(mass_kg=robot.mass_kg, leg_length_m=float(np.mean(lengths)),
                    leg_torque_nm=float(np.mean(robot.tau_max[legs])),
                    arm_mass_kg=arm_mass if robot.arm_ee and arm_joints else None,
-                   inertia_kg_m2=tuple(float(x) for x in np.diag(data.Ig.inertia)))
+                   inertia_kg_m2=tuple(float(x) for x in np.diag(data.Ig.inertia)),
+                   leg_joint_inertia_kg_m2=float(joint_inertia[legs].min()))
 
 
 ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
 # B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the settings of today's
 # defaults belong to this robot (a test checks that the preset still measures this).
 REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
-                       arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217))
+                       arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217),
+                       leg_joint_inertia_kg_m2=0.056588263124257965)
 REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
 ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
 LEG_POSTURE = 20.0  # leg joint posture weight factor over the paper's 50 (module docstring)
 ACCELERATION = 0.1  # acceleration regularisation factor over the paper's 1e-2 (module docstring)
+CONTROL_PERIOD_S = 1 / 500  # the joint PD's tick (`LoopConfig.control_rate_hz`, section V-B)
+DAMPER_STABILITY = 1.5  # largest Kd dt / I of the leg damper: |1 - Kd dt / I| <= 0.5 (`_leg_damping`)
 
 
 @dataclass(frozen=True)
@@ -138,11 +147,20 @@ class RobotTuning:
 
 
 def _leg_damping(scale: RobotScale) -> float:
-    """Kd of the legs: 5 on B1 + Z1, times sqrt(M / M_ref) (2.6 on Go2, 2.4 on A1).
+    """Kd of the legs: 5 on B1 + Z1, times sqrt(M / M_ref) (2.6 on Go2, 2.4 on A1), at most
+    `DAMPER_STABILITY` I / dt with I the smallest leg joint inertia and dt the PD's tick.
 
     A1, 2 s trot in place: Kd 1 drifts 9.4 cm/s, 3 holds, 5 (B1's) saturates the calves at touch-down;
-    Go2, 5 s: Kd 3.3 (proportional to L) saturates the thigh joints (torque ratio 1.0), 2.6 holds (0.55)."""
-    return PdGains().kd_leg * math.sqrt(scale.mass_kg / REFERENCE.mass_kg)
+    Go2, 5 s: Kd 3.3 (proportional to L) saturates the thigh joints (torque ratio 1.0), 2.6 holds (0.55).
+    The cap: eq. (10)'s damper acts on the velocity measured at the last tick, so a joint of inertia I
+    alone sees v+ = (1 - Kd dt / I) v, unstable past Kd dt / I = 2; the cap keeps |1 - Kd dt / I| <= 0.5.
+    Solo12 (2.5 kg, knee I 5.4e-4 kg m^2, no armature): sqrt(M) gives Kd 1.01, Kd dt / I 3.7, and it fell at
+    0.03 s (torque at the limit, Fatrop 47 iterations); capped, 0.41. The preset quadrupeds keep sqrt(M)'s
+    Kd: Kd dt / I is 0.17 (B1 + Z1) to 1.19 (Go2 + Z1)."""
+    kd = PdGains().kd_leg * math.sqrt(scale.mass_kg / REFERENCE.mass_kg)
+    if scale.leg_joint_inertia_kg_m2 is not None:
+        kd = min(kd, DAMPER_STABILITY * scale.leg_joint_inertia_kg_m2 / CONTROL_PERIOD_S)
+    return kd
 
 
 def derive(scale: RobotScale) -> RobotTuning:
