@@ -204,7 +204,7 @@ class MPC:
         self._weights = config.weights.vectors(robot, self.problem.nf)
         self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
-        self._foot_ids = [robot.frame_id(foot) for foot in robot.feet]
+        self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
@@ -314,8 +314,12 @@ class MPC:
         def velocity(frame_id):
             return pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
 
-        return {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
-                "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
+        out = {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
+               "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
+        if self.robot.soles:
+            out["foot_angular_velocity_rad_s"] = np.array(
+                [pin.getFrameVelocity(model, data, i, pin.LOCAL_WORLD_ALIGNED).angular for i in self._foot_ids])
+        return out
 
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
