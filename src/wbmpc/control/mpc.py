@@ -192,7 +192,8 @@ class MPC:
         if not config.friction_coefficient > 0:
             raise ConfigError(f"friction coefficient must be positive, got {config.friction_coefficient}")
         # the MPC's own clock: its period changes after pushes (push_gait_period_scale); estimators read it too
-        self.gait = GaitClock(make_gait(config.gait, len(robot.feet), config.gait_period_s))
+        self.gait = GaitClock(make_gait(config.gait, len(robot.feet), config.gait_period_s,
+                                        leg_length_m=float(robot.q_nominal[2])))
         self.problem = problem or OcpProblem(robot, config.ocp)
         self.solver = solver or make_solver(self.problem, config.solver)
         dyn, N = self.problem.dyn, self.problem.N
