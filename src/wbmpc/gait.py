@@ -144,10 +144,12 @@ def _cubic_velocity(x, p0, p1, m0, m1):
 
 
 # biped walking by dynamic similarity (equal Froude number v^2 / (g l) walks alike): the gait period scales
-# with sqrt(leg length / g). 2.9 gives g1 (0.78 m) 0.81 s and TALOS (1.02 m) 0.93 s; 20 % of the period in
-# double support (two 10 % phases), so each single support lasts 0.4 of the period
-BIPED_FROUDE_PERIOD = 2.9
-BIPED_DOUBLE_SUPPORT_SHARE = 0.2
+# with sqrt(leg length / g). 3.6 is the human cycle (1.1 s on 0.9 m legs) and gives g1 (0.78 m) 1.02 s and
+# TALOS (1.02 m) 1.16 s. 40 % of the period in double support (two 20 % phases; humans 20-30 %): with g1's
+# 0.8 s period and 20 % the 0.08 s double support is too short to move the CoM towards the next stance foot
+# and its closed-loop OCPs fail from the second step on
+BIPED_FROUDE_PERIOD = 3.6
+BIPED_DOUBLE_SUPPORT_SHARE = 0.4
 
 
 def biped_walk_timing(leg_length_m: float, gravity_m_s2: float = 9.81) -> tuple[float, float]:

@@ -33,7 +33,7 @@ from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.robots import GRAVITY_M_S2
 from wbmpc.symbolic import Configuration, Motion, SymbolicDynamics
 
-MOMENT_ARM_SCALE_M = 0.1  # typical lever of a sole moment: its variable is tau / (force scale x this)
+MOMENT_ARM_SCALE_M = 0.02  # lever of a sole moment's variable (tau / (force scale x this)): 0.1 and 1 stall Fatrop on g1's single support
 
 
 @dataclass

@@ -119,7 +119,10 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      else DELAYED_RECOVERY_LIMIT_S,
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
                      # that changes after a push lives in the solver process: keep the fixed schedule there
-                     push_gait_period_scale=_push_cadence(config))
+                     push_gait_period_scale=_push_cadence(config),
+                     # humanoids (flat feet): a hand with no task of its own swings free instead of pinned in
+                     # the world while the pelvis sways over the stance foot (MpcConfig.free_ee_without_command)
+                     free_ee_without_command=bool(robot is not None and robot.soles))
 
 
 def _push_cadence(config: RunConfig) -> float | None:
@@ -179,6 +182,12 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    sole_monitor = None
+    if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
+        from wbmpc.sim.sole_pressure import SolePressureMonitor
+
+        sole_monitor = SolePressureMonitor.for_robot(robot)
+        plant.add_step_hook(sole_monitor)
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
@@ -191,6 +200,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics["state"] = config.state
+    if sole_monitor is not None:
+        metrics.update(sole_monitor.metrics())
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
 
