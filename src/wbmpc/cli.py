@@ -40,7 +40,7 @@ FIELD_FLAGS = {
     "state": "--state", "push_gait_period_scale": "--push-cadence",
     "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
-CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
+CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
 
@@ -54,7 +54,13 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
-    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot: arm end-effector frame")
+    group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame (a custom robot's, or another frame "
+                       "of a preset, e.g. g1's left_rubber_hand)")
+    group.add_argument("--foot-contact", choices=("point", "surface"),
+                       help="point feet (3D force) or flat feet (6D wrench at the sole, hard wrench cone); presets say "
+                       "their own (g1, talos: surface)")
+    group.add_argument("--sole", metavar="LENGTH,WIDTH", help="sole rectangle of flat feet in metres (implies "
+                       "--foot-contact surface); default: the foot link's URDF collision geometry")
     group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
     drive = parser.add_argument_group(
         "drive train of the controller's model (paper VI-D); VALUE or JOINT=VALUE,JOINT=VALUE (others 0)")
@@ -101,10 +107,26 @@ def robot_from_args(args: argparse.Namespace):
 
     from wbmpc.robots import RobotModel, custom_spec, load_robot
 
+    contact = {}
+    if getattr(args, "sole", None):
+        try:
+            contact["sole_m"] = tuple(float(x) for x in _split(args.sole))
+        except ValueError:
+            raise ConfigError(f"--sole needs LENGTH,WIDTH in metres, got {args.sole!r}") from None
+        if len(contact["sole_m"]) != 2:
+            raise ConfigError(f"--sole needs LENGTH,WIDTH in metres, got {args.sole!r}")
+        if getattr(args, "foot_contact", None) == "point":
+            raise ConfigError("--sole describes flat feet; drop --foot-contact point")
+        contact["foot_contact"] = "surface"
+    elif getattr(args, "foot_contact", None):
+        contact["foot_contact"] = args.foot_contact
+        if args.foot_contact == "point":
+            contact["sole_m"] = None
     if args.urdf:
         if not args.feet:
             raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
-        robot = RobotModel(custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock)))
+        spec = custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock))
+        robot = RobotModel(dataclasses.replace(spec, **contact) if contact else spec)
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
@@ -112,6 +134,11 @@ def robot_from_args(args: argparse.Namespace):
                               f"{'s' if len(given) == 1 else ''} --urdf; "
                               f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
         robot = load_robot(args.robot)
+        preset = dict(contact)
+        if getattr(args, "arm_ee", None):
+            preset["arm_ee"] = args.arm_ee
+        if preset:
+            robot = RobotModel(dataclasses.replace(robot.spec, **preset))
     drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
              for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
     return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
