@@ -132,6 +132,10 @@ class MpcConfig:
     # humanoid's hand pinned in the world while its pelvis sways over the stance foot drives the arm into its
     # limits: g1's single-support OCPs then stall Fatrop (81 iterations; 17 with the rows dropped)
     free_ee_without_command: bool = False
+    # share of the way from the centre of the feet to the centre of each node's stance feet that the base xy
+    # target moves (0: fixed targets, the paper's). Bipeds: their CoM must lean over the next stance foot
+    # during double support (MPC._sway_towards_support)
+    support_sway: float = 0.0
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -312,6 +316,18 @@ class MPC:
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
         return dq_des, v_des, v_world
 
+    def _sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """Base xy targets moved by `support_sway` x (centre of each node's stance feet - centre of all feet):
+        a biped's pelvis leans over the foot it will stand on, so the plan shifts its weight in double
+        support instead of lifting a foot with the CoM between the feet (measured foot positions)."""
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation[:2] for i in self._foot_ids])
+        stance = contact / np.maximum(contact.sum(axis=1, keepdims=True), 1)
+        shift = self.config.support_sway * (stance @ feet - feet.mean(axis=0))  # (nodes, 2) world
+        dq_des = dq_des.copy()  # (nv, nodes); its base position part is (nearly) in the base frame
+        dq_des[:3] += rot.T[:, :2] @ shift.T
+        return dq_des
+
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
         model, data = self.robot.model, self._data
@@ -360,6 +376,8 @@ class MPC:
         after_push = self._after_push(v, rot, base_velocity_world, t)
         self._adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
+        if self.config.support_sway:
+            dq_des = self._sway_towards_support(q, rot, dq_des, contact)
         forces = self._force_guess(contact, commands)
         values = {
             "q_ref": q,

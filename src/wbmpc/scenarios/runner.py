@@ -9,6 +9,7 @@ from typing import Callable
 
 import numpy as np
 
+from wbmpc.control.biped import biped_mpc_settings
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
 from wbmpc.control.mpc import MPC, MpcConfig
@@ -104,13 +105,14 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     tuning = tuning_for(robot) if robot is not None else RobotTuning()
+    biped = biped_mpc_settings(robot, tuning.weights) if robot is not None else {}
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
                                          extra_options=({"recovery_max_iterations": RECOVERY_ITERATIONS_DELAYED}
                                                         if config.solver == "rti" and config.delay != "none" else {})),
-                     weights=tuning.weights, swing=tuning.swing, gait_period_s=tuning.gait_period_s,
+                     weights=biped.get("weights", tuning.weights), swing=tuning.swing, gait_period_s=tuning.gait_period_s,
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
@@ -120,9 +122,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
                      # that changes after a push lives in the solver process: keep the fixed schedule there
                      push_gait_period_scale=_push_cadence(config),
-                     # humanoids (flat feet): a hand with no task of its own swings free instead of pinned in
-                     # the world while the pelvis sways over the stance foot (MpcConfig.free_ee_without_command)
-                     free_ee_without_command=bool(robot is not None and robot.soles))
+                     # two feet: weight shift towards the stance foot, free hands (control/biped.py)
+                     free_ee_without_command=biped.get("free_ee_without_command", False),
+                     support_sway=biped.get("support_sway", 0.0))
 
 
 def _push_cadence(config: RunConfig) -> float | None:
