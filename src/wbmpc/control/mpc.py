@@ -136,6 +136,7 @@ class MpcConfig:
     # target moves (0: fixed targets, the paper's). Bipeds: their CoM must lean over the next stance foot
     # during double support (MPC._sway_towards_support)
     support_sway: float = 0.0
+    support_lead_s: float = 0.0  # ... of the stance feet this much later (a biped: its double-support phase)
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -376,8 +377,8 @@ class MPC:
         after_push = self._after_push(v, rot, base_velocity_world, t)
         self._adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
-        if self.config.support_sway:
-            dq_des = self._sway_towards_support(q, rot, dq_des, contact)
+        if self.config.support_sway:  # lean over the feet that will stand support_lead_s later
+            dq_des = self._sway_towards_support(q, rot, dq_des, self.gait.contact(t + node_times + self.config.support_lead_s))
         forces = self._force_guess(contact, commands)
         values = {
             "q_ref": q,

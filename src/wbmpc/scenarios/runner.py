@@ -124,7 +124,7 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      push_gait_period_scale=_push_cadence(config),
                      # two feet: weight shift towards the stance foot, free hands (control/biped.py)
                      free_ee_without_command=biped.get("free_ee_without_command", False),
-                     support_sway=biped.get("support_sway", 0.0))
+                     support_sway=biped.get("support_sway", 0.0), support_lead_s=biped.get("support_lead_s", 0.0))
 
 
 def _push_cadence(config: RunConfig) -> float | None:
