@@ -99,9 +99,13 @@ def test_spec_files_and_grid_flags(tmp_path):
     # the gait phase shifts the push time by a share of the trot period (0.8 s)
     phased = [c for c in cases if c.values["gait_phase"] == 0.5][0]
     assert phased.run_config().options.push_time_s == pytest.approx(2.0 + 0.4)
-    # ... the robot's own period where it has a tuning (a1 trots at 0.6 s)
+    # ... the robot's own period (derived from its size: a1 trots at 0.58 s)
+    from wbmpc.control.tuning import tuning_for
+
     a1_spec = CampaignSpec(scenario="push", robot="a1", grid={"gait_phase": [0.5]})
-    assert expand(a1_spec)[0].run_config().options.push_time_s == pytest.approx(2.0 + 0.3)
+    a1_period_s = tuning_for("a1").gait_period_s
+    assert 0.55 < a1_period_s < 0.6
+    assert expand(a1_spec)[0].run_config().options.push_time_s == pytest.approx(2.0 + 0.5 * a1_period_s)
     # the push cadence is an axis: 1 is the paper's fixed schedule, the default otherwise
     cadence = expand(CampaignSpec(scenario="push", grid={"push_gait_period_scale": [1.0, 0.5]}))
     assert sorted(c.run_config().push_gait_period_scale for c in cadence) == [0.5, 1.0]

@@ -100,7 +100,8 @@ def test_in_mujoco_the_feet_step_faster_after_a_kick_and_at_the_gait_period_with
     fast, fixed = run(0.5), run(1.0)
     assert fast.metrics["push_gait_period_scale"] == 0.5 and fixed.metrics["push_gait_period_scale"] is None
     assert not fast.metrics["fell"] and not fixed.metrics["fell"]
-    # a1 trots at 0.6 s: in the 0.6 s after the kick each foot swings once on the fixed schedule, twice at 0.3 s
+    # a1 trots at 0.58 s (tuning.py): in the 0.6 s after the kick each foot swings once on the fixed schedule,
+    # twice at half the period
     assert _swings(fixed, a1, 0.3).tolist() == [1, 1, 1, 1]
     assert _swings(fast, a1, 0.3).min() >= 2
     # before the kick both runs are the same closed loop

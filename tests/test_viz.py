@@ -269,43 +269,65 @@ def test_wipe_plot_rmse_is_the_metric(b1z1):
 
 
 # ----------------------------------------------------------------------------- replay
+def decoded_commands(data: dict) -> list[dict]:
+    """The replay's meshcat commands (base64 msgpack) as dicts."""
+    import base64
+
+    import umsgpack
+
+    return [umsgpack.unpackb(base64.b64decode(blob)) for blob in data["commands"]]
+
+
+def animation_tracks(commands: list[dict]) -> dict[str, dict[str, list]]:
+    """node path -> track name (".position", ".quaternion", ".scale") -> values per frame."""
+    (animation,) = [c for c in commands if c["type"] == "set_animation"]
+    return {a["path"]: {tr["name"]: [k["value"] for k in sorted(tr["keys"], key=lambda k: k["time"])]
+                        for tr in a["clip"]["tracks"]} for a in animation["animations"]}
+
+
 def test_replay_is_self_contained_and_matches_pinocchio(b1z1, tmp_path):
+    """Every visual mesh of the robot placed where pinocchio's geometry placements put it, frame by frame."""
     log = synthetic_log(b1z1, duration_s=0.5)
     t, q = np.array(log.t), np.array(log.q)
     ee = frame_positions(b1z1, q, [b1z1.arm_ee])[b1z1.arm_ee]
-    path = save_replay(b1z1, t, q, tmp_path / "replay.html", fps=30,
-                       extras=[{"name": "EE reference", "positions": ee + [0, 0, 0.05]},
-                               ("load", lambda s: np.array([1.0, 0.0, 0.2 + s]))])
+    extras = [{"name": "EE reference", "positions": ee + [0, 0, 0.05]}, ("load", lambda s: np.array([1.0, 0.0, 0.2 + s]))]
+    path = save_replay(b1z1, t, q, tmp_path / "replay.html", fps=30, extras=extras)
     html = path.read_text(encoding="utf-8")
-    assert "<canvas" in html and "requestAnimationFrame" in html
-    assert not re.search(r"https?://", html), "the replay must not reference external resources"
-    assert not re.search(r"<link\b|<script[^>]*\bsrc=|@import|url\(", html)
+    assert "MeshCat.Viewer" in html and "handle_command_bytearray" in html  # meshcat's own viewer, embedded
+    assert set(re.findall(r"https?://[^\s\"')]+", html)) <= {"http://www.w3.org/1999/xhtml"}, "no external resources"
+    assert not re.search(r"<link\b|<script[^>]*\bsrc=|@import", html)
 
-    data = embedded_json(html)
-    direct = json.loads(json.dumps(replay_data(b1z1, t, q, fps=30)))
-    assert {k: v for k, v in data.items() if k != "extras"} == {k: v for k, v in direct.items() if k != "extras"}
+    data = replay_data(b1z1, t, q, fps=30, extras=extras)
+    meta = embedded_json(html)
+    assert meta == {k: v for k, v in data.items() if k != "commands"}
     expected_frames = round(0.5 * 30)
-    assert data["n_frames"] == len(data["frames"]) == len(data["t"]) == expected_frames
-    assert data["duration_s"] == pytest.approx(0.5)
-    assert [e["name"] for e in data["extras"]] == ["EE reference", "load"]
-    assert all(len(e["frames"]) == expected_frames for e in data["extras"])
+    assert data["n_frames"] == len(data["t"]) == expected_frames and data["duration_s"] == pytest.approx(0.5)
+    assert data["geometry"] == "visual meshes" and 0 < data["triangles"] < 300_000
 
+    commands = decoded_commands(data)
+    meshes = {c["path"] for c in commands if c["type"] == "set_object"}
+    tracks = animation_tracks(commands)
+    from wbmpc.viz.replay import robot_geometry
+
+    geometry, _ = robot_geometry(b1z1)
+    gdata = geometry.createData()
     model, pdata = b1z1.model, b1z1.model.createData()
-    names = data["names"]
+    assert len(data["nodes"]) == geometry.ngeoms >= 20
     for k in (0, 7, expected_frames - 1):
         sample = int(np.argmin(np.abs(t - data["t"][k])))
-        pin.framesForwardKinematics(model, pdata, q[sample])
-        points = np.array(data["frames"][k], dtype=float).reshape(-1, 3) / 1e3
-        for j in range(1, model.njoints):
-            np.testing.assert_allclose(points[names.index(model.names[j])], pdata.oMi[j].translation, atol=1e-3)
-        for frame in (*b1z1.feet, b1z1.arm_ee):
-            np.testing.assert_allclose(points[names.index(frame)], pdata.oMf[b1z1.frame_id(frame)].translation, atol=1e-3)
-        np.testing.assert_allclose(np.array(data["extras"][0]["frames"][k]) / 1e3, ee[sample] + [0, 0, 0.05], atol=1e-3)
-        # the base box moves with the base
-        corners = points[[i for i, kind in enumerate(data["kinds"]) if kind == "box"]]
-        assert np.linalg.norm(corners.mean(axis=0) - pdata.oMi[1].translation) < 0.2
-    for i, j, group in data["links"]:
-        assert 0 <= i < len(names) and 0 <= j < len(names) and 0 <= group < len(data["groups"])
+        pin.updateGeometryPlacements(model, pdata, geometry, gdata, q[sample])
+        for g, node in enumerate(data["nodes"]):
+            path_name = f"/meshcat/{node}"
+            assert path_name in meshes
+            placement = gdata.oMg[g]
+            np.testing.assert_allclose(tracks[path_name][".position"][k], placement.translation, atol=1e-6)
+            x, y, z, w = tracks[path_name][".quaternion"][k]
+            np.testing.assert_allclose(pin.Quaternion(w, x, y, z).toRotationMatrix(), placement.rotation, atol=1e-6)
+        extra = tracks["/meshcat/wbmpc/extras/0"][".position"][k]
+        np.testing.assert_allclose(extra, ee[sample] + [0, 0, 0.05], atol=1e-6)
+    # the trunk of the B1 is a real mesh (Collada from example-robot-data), decimated, not a box
+    trunk = next(c for c in commands if c["type"] == "set_object" and c["path"].endswith("/trunk_0"))
+    assert trunk["object"]["geometries"][0]["type"] == "BufferGeometry"
 
 
 def test_replay_draws_the_scene_objects_and_names_the_scenario(b1z1, tmp_path):
@@ -325,47 +347,87 @@ def test_replay_draws_the_scene_objects_and_names_the_scenario(b1z1, tmp_path):
         plant.step(np.zeros(b1z1.n_joints))
         t.append(plant.time_s)
         q.append(plant.state()[0])
+    objects = scene.replay_objects()
     html = save_replay(b1z1, np.array(t), np.array(q), tmp_path / "scene.html", fps=100,
-                       objects=scene.replay_objects(), scenario="pull").read_text()
+                       objects=objects, scenario="pull").read_text()
     assert "<title>wbmpc replay: pull (b1_z1)</title>" in html
-    data = embedded_json(html)
-    assert data["scenario"] == "pull"
-    objects = {o["name"]: o for o in data["objects"]}
-    assert set(objects) == {"load", "load cable", "box", "box wall", "board", "board stand"}
+    data = replay_data(b1z1, np.array(t), np.array(q), fps=100, objects=objects, scenario="pull")
+    assert embedded_json(html)["scenario"] == "pull"
+    names = data["objects"]
+    assert set(names) == {"load", "load cable", "box", "box wall", "board", "board stand"}
+    commands = decoded_commands(data)
+    tracks = animation_tracks(commands)
+    node = {name: f"/meshcat/wbmpc/objects/{k}" for k, name in enumerate(names)}
+    shapes = {c["path"]: c["object"]["geometries"][0] for c in commands if c["type"] == "set_object"}
+    static = {c["path"]: np.array(c["matrix"]).reshape(4, 4).T for c in commands if c["type"] == "set_transform"}
     n = data["n_frames"]
-    assert all(len(objects[k]["frames"]) == n for k in ("load", "load cable", "box"))
-    assert len(objects["board"]["frames"]) == 1 and objects["board"]["half"] == [200, 300, 20]
+    assert all(len(tracks[node[k]][".position"]) == n for k in ("load", "load cable", "box"))
+    assert node["board"] not in tracks  # static
+    board = shapes[node["board"]]
+    assert (board["type"], board["width"], board["height"], board["depth"]) == ("BoxGeometry", 0.4, 0.6, 0.04)
     # the table top's upper face is at the configured height
-    board = objects["board"]["frames"][0]
-    assert board[2] + objects["board"]["half"][2] == pytest.approx(500 - 1e3 * table.contact_margin_m, abs=1)
+    assert static[node["board"]][2, 3] + 0.02 == pytest.approx(0.5 - table.contact_margin_m, abs=1e-3)
     rec_t, load_position = scene.recording.series("load", "object_position_m")
     _, cable = scene.recording.series("load", "cable_m")
     for k in (0, n // 2, n - 1):
         i = int(np.argmin(np.abs(rec_t - data["t"][k])))
-        np.testing.assert_allclose(np.array(objects["load"]["frames"][k][:3]) / 1e3, load_position[i], atol=1e-3)
-        np.testing.assert_allclose(np.array(objects["load cable"]["frames"][k]).reshape(2, 3) / 1e3, cable[i], atol=1e-3)
-    ee = b1z1.frame_trajectories(b1z1.q_nominal, [b1z1.arm_ee])[b1z1.arm_ee][0]
-    np.testing.assert_allclose(np.array(objects["load cable"]["frames"][0][:3]) / 1e3, ee, atol=2e-3)
-    np.testing.assert_allclose(objects["box"]["half"], [150, 250, 500])
-    np.testing.assert_allclose(np.array(objects["box"]["frames"][0][3:]).reshape(3, 3), np.eye(3), atol=1e-3)
-    assert "D.objects" in html  # drawn by the page's script
+        np.testing.assert_allclose(tracks[node["load"]][".position"][k], load_position[i], atol=1e-6)
+        # the cable: a unit cylinder at the segment's middle, stretched to its length
+        np.testing.assert_allclose(tracks[node["load cable"]][".position"][k], cable[i].mean(axis=0), atol=1e-6)
+        length = np.linalg.norm(cable[i][1] - cable[i][0])
+        assert tracks[node["load cable"]][".scale"][k][1] == pytest.approx(length, rel=1e-6)
+    box = shapes[node["box"]]
+    np.testing.assert_allclose([box["width"], box["height"], box["depth"]], [0.3, 0.5, 1.0])
 
 
 def test_replay_of_a_long_run_stays_small(tmp_path):
+    """20 s at the full 30 fps; 10 min with fewer frames per second, under 20 MB."""
+    from wbmpc.viz.replay import MAX_NODE_FRAMES
+
     robot = load_robot("b1_z1")
     t = np.arange(0.0, 20.0, 0.002)
     q = synthetic_q(robot, t)
     path = save_replay(robot, t, q, tmp_path / "long.html", fps=30, extras=[("trail", q[:, :3] + [0, 0, 0.3])])
     data = embedded_json(path.read_text(encoding="utf-8"))
-    assert data["n_frames"] == 600
-    assert path.stat().st_size < 5e6
+    assert data["n_frames"] == 600 and data["fps"] == 30
+    assert path.stat().st_size < 8e6  # meshes ~3 MB (decimated), ~0.1 MB of animation per second
+    t = np.arange(0.0, 600.0, 0.05)
+    path = save_replay(robot, t, synthetic_q(robot, t), tmp_path / "ten_minutes.html", fps=30)
+    data = embedded_json(path.read_text(encoding="utf-8"))
+    assert data["n_frames"] * len(data["nodes"]) <= MAX_NODE_FRAMES and 2 < data["fps"] < 30
+    assert data["t"][-1] > 599 and path.stat().st_size < 20e6
 
 
 def test_replay_of_a_biped(tmp_path):
     robot = bolt()
     t = np.arange(0.0, 0.2, 0.002)
     data = embedded_json(save_replay(robot, t, synthetic_q(robot, t), tmp_path / "bolt.html", fps=50).read_text())
-    assert data["n_frames"] == 10 and data["ee"] is None and len(data["feet"]) == 2
+    assert data["n_frames"] == 10 and data["geometry"] == "visual meshes" and len(data["nodes"]) >= 5
+
+
+def test_replay_without_meshes_falls_back_to_primitives_and_says_so(tmp_path, go2_without_meshes):
+    robot = go2_without_meshes
+    t = np.arange(0.0, 0.1, 0.002)
+    with pytest.warns(UserWarning, match="primitive shapes"):
+        path = save_replay(robot, t, synthetic_q(robot, t), tmp_path / "go2.html", fps=30)
+    data = embedded_json(path.read_text())
+    assert data["geometry"] == "primitive shapes" and data["triangles"] == 0 and len(data["nodes"]) >= 5
+    assert "meshes missing" in path.read_text()
+
+
+@pytest.fixture
+def go2_without_meshes(tmp_path):
+    """go2's URDF copied where its package:// meshes cannot be found."""
+    import dataclasses
+    import shutil
+
+    from wbmpc.robots.presets import preset_spec
+
+    spec = preset_spec("go2")
+    urdf = tmp_path / "alone" / "go2.urdf"
+    urdf.parent.mkdir()
+    shutil.copy(spec.urdf, urdf)
+    return RobotModel(dataclasses.replace(spec, urdf=urdf))
 
 
 def test_replay_rejects_bad_input(b1z1, tmp_path):
@@ -377,6 +439,8 @@ def test_replay_rejects_bad_input(b1z1, tmp_path):
         save_replay(b1z1, t, q, tmp_path / "x.html", fps=0)
     with pytest.raises(ConfigError, match="extra trajectory 'bad'"):
         save_replay(b1z1, t, q, tmp_path / "x.html", extras=[("bad", np.zeros((3, 3)))])
+    with pytest.raises(ConfigError, match="the replay draws 'box' and 'line'"):
+        save_replay(b1z1, t, q, tmp_path / "x.html", objects=[{"name": "cone", "kind": "cone"}])
 
 
 # ----------------------------------------------------------------------------- a real run

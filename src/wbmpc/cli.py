@@ -2,9 +2,10 @@
 
 With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
 text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
-fell, the load was not pulled, the solve did not converge, the simulation diverged), 2 bad input
-(the message names the option and the fix; nothing is built or written), 130 interrupted by
-Ctrl-C (a run keeps and writes what it measured so far).
+fell, the load was not pulled, the solve did not converge, the simulation diverged) or failed
+while running (`RunError`: the first MPC solve failed, a solver process did not start), 2 bad
+input (`ConfigError`, `ModelError`: the message names the option and the fix; nothing is built or
+written), 130 interrupted by Ctrl-C (a run keeps and writes what it measured so far).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from wbmpc.strict_json import to_json
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
-              "the solve did not converge or the simulation diverged", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              "the solve did not converge or the simulation diverged; or it failed while running: the first MPC "
+              "solve failed, a solver process did not start", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
                                        for code, text in EXIT_CODES.items())
@@ -37,7 +39,8 @@ FIELD_FLAGS = {
     "wipe_period_s": "--wipe-period", "hand_force_n": "--hand-force", "compliant_kp_arm": "--compliant-kp-arm",
     "compliant_kd_arm": "--compliant-kd-arm", "compliant_return_gain_1_s": "--compliant-return",
     "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t", "base_tracking": "--base-tracking",
-    "state": "--state", "push_gait_period_scale": "--push-cadence",
+    "state": "--state", "push_gait_period_scale": "--push-cadence", "step_budget_ms": "--step-budget",
+    "solver_options": "--solver-option", "delay_compensation": "--delay-compensation",
     "wipe_pad_stiffness_n_m": "--pad-stiffness", "wipe_integral_gain_1_s2": "--wipe-integral",
 }
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
@@ -54,14 +57,21 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
-    group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame (a custom robot's, or another frame "
-                       "of a preset, e.g. g1's left_rubber_hand)")
+    group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame: a custom robot's, another frame of "
+                       "a preset (e.g. g1's left_rubber_hand), or with --arm the mounted arm's (default its only leaf link)")
     group.add_argument("--foot-contact", choices=("point", "surface"),
                        help="point feet (3D force) or flat feet (6D wrench at the sole, hard wrench cone); presets say "
                        "their own (g1, talos: surface)")
     group.add_argument("--sole", metavar="LENGTH,WIDTH", help="sole rectangle of flat feet in metres (implies "
                        "--foot-contact surface); default: the foot link's URDF collision geometry")
     group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
+    arm = parser.add_argument_group("an arm mounted on the robot (a preset or --urdf; wbmpc.robots.compose)")
+    arm.add_argument("--arm", metavar="URDF|NAME", help="arm URDF, or z1 (example-robot-data's), to mount on the legged "
+                     "base (needs --mount); robot-sim/deploy: the model's Z1 goes over its UDP interface (--arm none: not)")
+    arm.add_argument("--mount", metavar="FRAME", help="link or joint of the base the arm is fixed to")
+    arm.add_argument("--mount-xyz", metavar="X,Y,Z", help="arm base position in the mount frame, m (default 0,0,0)")
+    arm.add_argument("--mount-rpy", metavar="R,P,Y", help="arm base roll, pitch, yaw in the mount frame, rad (default 0)")
+    arm.add_argument("--arm-lock", metavar="J1,J2,...", help="arm joints to lock at the reference pose (arm URDF names)")
     drive = parser.add_argument_group(
         "drive train of the controller's model (paper VI-D); VALUE or JOINT=VALUE,JOINT=VALUE (others 0)")
     drive.add_argument("--armature", metavar="KG_M2", help="rotor inertia added to the mass-matrix diagonal, kg m^2")
@@ -102,11 +112,94 @@ def _split(text: str | None) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()] if text else []
 
 
+def _triple(text: str | None, flag: str) -> tuple[float, float, float]:
+    if text is None:
+        return (0.0, 0.0, 0.0)
+    values = _split(text)
+    try:
+        numbers = tuple(float(v) for v in values)
+    except ValueError:
+        numbers = ()
+    if len(numbers) != 3 or not all(math.isfinite(v) for v in numbers):
+        raise ConfigError(f"{flag} needs three numbers X,Y,Z, got {text!r}")
+    return numbers  # type: ignore[return-value]
+
+
+def _arm_mount(args: argparse.Namespace):
+    """The --arm/--mount options as an ArmMount, or None without --arm."""
+    from pathlib import Path
+
+    from wbmpc.robots.compose import ArmMount
+
+    arm_flags = [flag for dest, flag in (("mount", "--mount"), ("mount_xyz", "--mount-xyz"), ("mount_rpy", "--mount-rpy"),
+                                         ("arm_lock", "--arm-lock")) if getattr(args, dest, None)]
+    if not getattr(args, "arm", None):
+        if arm_flags:
+            raise ConfigError(f"{', '.join(arm_flags)} place an arm and need --arm URDF")
+        return None
+    from wbmpc.robots.presets import NAMED_ARMS, example_robot_data_dir
+
+    if args.arm == "none" and not arm_flags:
+        return None  # robot-sim/deploy: leave the model's arm off its UDP link
+    named = NAMED_ARMS.get(args.arm) if not Path(args.arm).exists() else None
+    if not args.mount:
+        if named is not None and not arm_flags:
+            return None  # `--arm z1` on a robot that carries one (b1_z1, go2_z1): checked in robot_from_args
+        raise ConfigError("--arm needs --mount FRAME: the link or joint of the base the arm is fixed to")
+    if named is not None:  # an arm of example-robot-data by name, with the paper's locks and pose
+        return ArmMount(urdf=example_robot_data_dir() / named["urdf"], mount_frame=args.mount,
+                        mount_xyz_m=_triple(args.mount_xyz, "--mount-xyz"), mount_rpy_rad=_triple(args.mount_rpy, "--mount-rpy"),
+                        arm_ee=args.arm_ee or named["arm_ee"],
+                        locked_joints=tuple(_split(args.arm_lock)) if args.arm_lock else named["locked_joints"],
+                        joint_positions_rad=named["joint_positions_rad"])
+    return ArmMount(urdf=Path(args.arm), mount_frame=args.mount, mount_xyz_m=_triple(args.mount_xyz, "--mount-xyz"),
+                    mount_rpy_rad=_triple(args.mount_rpy, "--mount-rpy"), arm_ee=args.arm_ee,
+                    locked_joints=tuple(_split(args.arm_lock)))
+
+
+
 def robot_from_args(args: argparse.Namespace):
     import dataclasses
 
-    from wbmpc.robots import RobotModel, custom_spec, load_robot
+    from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
 
+    contact = _foot_contact(args)
+    arm = _arm_mount(args)
+    if args.urdf:
+        if not args.feet:
+            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
+        spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
+                           _split(args.lock))
+        spec = dataclasses.replace(spec, **contact) if contact else spec
+        robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
+    elif arm:
+        given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
+        if given:
+            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
+        spec = preset_spec(args.robot)
+        robot = RobotModel(_with_arm(dataclasses.replace(spec, **contact) if contact else spec, arm))
+    else:
+        given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
+        if given:
+            raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
+                              f"{'s' if len(given) == 1 else ''} --urdf; "
+                              f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
+        robot = load_robot(args.robot)
+        if getattr(args, "arm", None) not in (None, "none") and arm is None and not _carries_arm(robot, args.arm):
+            raise ConfigError(f"--robot {args.robot} carries no {args.arm} arm: mount one with --arm {args.arm} "
+                              f"--mount FRAME (e.g. --mount base), or pick a preset with one (b1_z1, go2_z1)")
+        preset = dict(contact)
+        if getattr(args, "arm_ee", None):
+            preset["arm_ee"] = args.arm_ee
+        if preset:
+            robot = RobotModel(dataclasses.replace(robot.spec, **preset))
+    drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
+             for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
+    return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+
+
+def _foot_contact(args: argparse.Namespace) -> dict:
+    """RobotSpec fields set by --foot-contact / --sole (flat feet: a 6D wrench at a sole rectangle)."""
     contact = {}
     if getattr(args, "sole", None):
         try:
@@ -122,26 +215,23 @@ def robot_from_args(args: argparse.Namespace):
         contact["foot_contact"] = args.foot_contact
         if args.foot_contact == "point":
             contact["sole_m"] = None
-    if args.urdf:
-        if not args.feet:
-            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
-        spec = custom_spec(args.urdf, _split(args.feet), args.arm_ee, args.srdf, args.pose, _split(args.lock))
-        robot = RobotModel(dataclasses.replace(spec, **contact) if contact else spec)
-    else:
-        given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
-        if given:
-            raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
-                              f"{'s' if len(given) == 1 else ''} --urdf; "
-                              f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
-        robot = load_robot(args.robot)
-        preset = dict(contact)
-        if getattr(args, "arm_ee", None):
-            preset["arm_ee"] = args.arm_ee
-        if preset:
-            robot = RobotModel(dataclasses.replace(robot.spec, **preset))
-    drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
-             for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
-    return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+    return contact
+
+
+def _carries_arm(robot, name: str) -> bool:
+    """The model's arm joints are those of the named arm (its URDF's joint names)."""
+    from wbmpc.hardware.mapping import has_z1_arm
+
+    return name == "z1" and has_z1_arm(robot)
+
+
+def _with_arm(spec, arm):
+    from wbmpc.robots.compose import compose_spec
+
+    composed, composition = compose_spec(spec, arm)
+    if composition.renamed:
+        print(f"wbmpc: note: {composition.note()}", file=sys.stderr)
+    return composed
 
 
 def plant_config_from_args(args: argparse.Namespace, robot):
@@ -162,16 +252,32 @@ def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from wbmpc.control.tuning import RobotScale, tuning_for
     from wbmpc.solvers import blasfeo
 
     robot = robot_from_args(args)
     info = robot.summary()
     lines = [f"{k}: {v}" for k, v in info.items()]
+    scale = RobotScale.of(robot)
+    info["scale"] = dataclasses.asdict(scale)
+    info["settings"] = tuning_for(robot).report()
+    lines.append(f"scale: {scale.mass_kg:.1f} kg, leg length {scale.leg_length_m:.3f} m, leg torque limit "
+                 f"{scale.leg_torque_nm:.1f} N m (mean){'' if scale.arm_mass_kg is None else f', arm carrying {scale.arm_mass_kg:.2f} kg'}")
+    lines.append("settings (source: derived from the scale with B1 + Z1 as reference; derived: biped = the two-feet "
+                 "rules of control/biped.py; table = control/tuning.py):")
+    lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
+              for name, entry in info["settings"].items()]
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _setting_text(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(f"{v:.4g}" for v in value) + ")"
+    return "-" if value is None else f"{value:.4g}"
 
 
 def cmd_setup(args: argparse.Namespace) -> int:
@@ -202,6 +308,7 @@ def cmd_bench_dynamics(args: argparse.Namespace) -> int:
 
 def cmd_bench_robots(args: argparse.Namespace) -> int:
     from wbmpc.bench.dynamics import validate_robots
+    from wbmpc.errors import check_number
     from wbmpc.robots import PRESET_NAMES
 
     names = _split(args.robots) or list(PRESET_NAMES)
@@ -213,8 +320,22 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
         return (f"  {r['robot']:16s} nv {r['nv']:3d}  {r['mass_kg']:6.1f} kg  RNEA {r['rnea_instructions']:5d}  "
                 f"max error {r['max_abs_error']:.1e}  joints: {types}")
 
+    check_number("steps", args.steps, low=1, high=100_000)
     print(f"symbolic dynamics vs pinocchio, {args.samples} random states per robot", file=sys.stderr)
     report = validate_robots(names, args.samples, args.seed, on_row=lambda r: print(row_text(r), file=sys.stderr))
+    if args.mpc:
+        from wbmpc.bench.robot_costs import costs_text, robot_costs
+        from wbmpc.robots import load_robot
+        from wbmpc.robots.presets import QUADRUPEDS
+
+        print(f"MPC per quadruped: wb_inverse OCP size, {args.steps} closed-loop steps of trot in place (MuJoCo), "
+              f"{'compiled ' if not args.no_compile else ''}Fatrop and RTI, CPU ms per step", file=sys.stderr)
+        for row in report["robots"]:
+            if row["robot"] not in QUADRUPEDS:
+                row["mpc"] = None  # bipeds: point feet, the MPC is not expected to balance them
+                continue
+            row["mpc"] = robot_costs(load_robot(row["robot"]), args.steps, compiled=not args.no_compile)
+            print(costs_text(row["robot"], row["mpc"]), file=sys.stderr)
     _emit(args, report, f"{len(report['robots'])} robots, worst error {report['max_abs_error']:.1e}")
     return 0
 
@@ -244,7 +365,33 @@ def _run_config(args: argparse.Namespace):
                      gains=PdGains(**{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}),
                      formulation=args.formulation,
                      compiled=args.compiled, solver=args.solver, base_tracking=args.base_tracking, state=args.state,
+                     solver_options=_solver_options(args.solver_option), step_budget_ms=args.step_budget,
+                     delay_compensation=None if args.delay_compensation is None else args.delay_compensation == "on",
                      **({} if args.push_cadence is None else {"push_gait_period_scale": args.push_cadence}))
+
+
+def _solver_options(items: list[str] | None) -> dict:
+    """--solver-option KEY=VALUE (repeatable) as {key: number, bool, None or text}."""
+    options = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--solver-option needs KEY=VALUE (e.g. sqp_iterations=2), got {item!r}")
+        lowered = text.strip().lower()
+        if lowered in ("none", "null"):
+            value = None
+        elif lowered in ("true", "false"):
+            value = lowered == "true"
+        else:
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError:
+                    value = text
+        options[key.strip()] = value
+    return options
 
 
 def _gains(args: argparse.Namespace, robot):
@@ -306,8 +453,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
-    print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {args.solver}"
-          f"{' (compiled)' if args.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+    print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
+          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
@@ -341,6 +488,16 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         f"recovered by a re-solve, {m['mpc_failures']} failed; solve {_fmt(solve['mean'])} ms mean "
         f"({_fmt(solve['max'])} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("solver"):
+        compiled = "compiled" if m["solver_compiled"] else (
+            f"NOT compiled (asked for; CasADi's VM instead, several times slower: {m['compile_error']})"
+            if m["compiled_requested"] else "not compiled")
+        budget = f", step budget {m['step_budget_ms']:.1f} ms" if m.get("step_budget_ms") else ""
+        sqp = (f", {m['sqp_iterations_mean']:.2f} SQP iterations per step, "
+               f"{100 * (m['solver_past_deadline_share'] or 0):.0f} % past the deadline"
+               if m.get("sqp_iterations_mean") is not None else "")
+        lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
+                     f"{', delay compensation on' if m.get('delay_compensation') else ''}")
     if m.get("delay") != "none":
         lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
@@ -488,8 +645,20 @@ def build_parser() -> argparse.ArgumentParser:
                      "see bench table1)")
     run.add_argument("--compiled", action="store_true",
                      help="generate C for the NLP, compile it once (cached in ~/.cache/wbmpc) and use it")
-    run.add_argument("--solver", default="fatrop",
-                     help="fatrop (default, converged), ipopt, or rti (one SQP iteration per step on HPIPM's QP)")
+    run.add_argument("--solver", default="auto",
+                     help="auto (default: fatrop for --compiled runs without --delay, else sqp), fatrop (converged), "
+                          "fatrop-direct (the same Fatrop through its C interface, always compiled), ipopt, rti (one SQP "
+                          "iteration per step on HPIPM's QP) or sqp (anytime SQP: iterations with a line search until "
+                          "converged or the step's deadline)")
+    run.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
+                     help="a setting of the rti/sqp solvers (RtiConfig/AnytimeConfig), repeatable: e.g. "
+                          "sqp_iterations=2, budget_ms=5, clock=cpu")
+    run.add_argument("--step-budget", type=float, metavar="MS",
+                     help="sqp: the MPC step's time budget (default: the 12.5 ms period less 2.5 ms of transport "
+                          "with a delay, on CPU time unless --delay realtime; none without delay)")
+    run.add_argument("--delay-compensation", choices=("on", "off"),
+                     help="plan from the state predicted for when the plan applies (the measurement rolled forward "
+                          "over the expected delay with the last plan); default: on with any --delay but none")
     run.add_argument("--gait", help="override the scenario's gait: stand, trot or walk (pull: stand = pull in stance)")
     manip = run.add_argument_group("loco-manipulation (pull, push-box, wipe, compliant)")
     manip.add_argument("--load-kg", type=float, default=10.0, help="pull: mass of the load on the floor, kg")
@@ -527,6 +696,10 @@ def build_parser() -> argparse.ArgumentParser:
     robots.add_argument("--robots", metavar="NAME,NAME", help="subset of presets (default: all)")
     robots.add_argument("--samples", type=int, default=10, help="random states per robot (default 10)")
     robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
+    robots.add_argument("--mpc", action="store_true", help="also per quadruped: decision variables and closed-loop "
+                        "Fatrop and RTI step times with its own settings (compiles each robot once, cached)")
+    robots.add_argument("--steps", type=int, default=40, help="with --mpc: MPC steps at 80 Hz per solver (default 40)")
+    robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 
@@ -537,7 +710,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--formulation", default="wb_inverse", help="OCP formulation (default wb_inverse)")
     solve.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     solve.add_argument("--nodes", type=int, default=15, help="horizon nodes, >= 2 (default 15 = the paper's)")
-    solve.add_argument("--solver", default="fatrop", help="fatrop (default), ipopt or rti (one SQP iteration)")
+    solve.add_argument("--solver", default="fatrop", help="fatrop (default), fatrop-direct, ipopt or rti (one SQP iteration)")
     solve.add_argument("--uniform-dt", type=float, metavar="MS", help="uniform steps of MS ms instead of 10-100 ms geometric")
     solve.add_argument("--t", type=float, default=0.0, metavar="S", help="gait time of the solve (default 0)")
     solve.add_argument("--compiled", action="store_true", help="compiled solver (C generated, compiled and cached)")
@@ -548,7 +721,7 @@ def build_parser() -> argparse.ArgumentParser:
     mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
-    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, ipopt, rti; the first (fatrop if listed) is the reference")
+    mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti; the first (fatrop if listed) is the reference")
     mpc.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15)")
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
@@ -620,7 +793,7 @@ def main(argv: list[str] | None = None) -> int:
     except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except WbmpcError as exc:  # e.g. the simulation diverged: the run failed, the input was fine
+    except WbmpcError as exc:  # RunError, a diverged simulation, a failed compile: the run failed, the input was fine
         print(f"wbmpc: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

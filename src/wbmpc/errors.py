@@ -21,6 +21,12 @@ class ModelError(WbmpcError):
     """A robot description is missing, malformed or names things that do not exist."""
 
 
+class RunError(WbmpcError, RuntimeError):
+    """A run that was set up correctly failed while running: the first MPC solve failed, a worker
+    process (real-time MPC, DDS echo) did not start. The CLI exits 1 (the run failed), not 2 (bad input).
+    """
+
+
 class ConfigError(WbmpcError):
     """A configuration or command is out of range or inconsistent.
 

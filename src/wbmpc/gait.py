@@ -144,18 +144,19 @@ def _cubic_velocity(x, p0, p1, m0, m1):
 
 
 # biped walking by dynamic similarity (equal Froude number v^2 / (g l) walks alike): the gait period scales
-# with sqrt(leg length / g). 3.6 is the human cycle (1.1 s on 0.9 m legs) and gives g1 (0.78 m) 1.02 s and
-# TALOS (1.02 m) 1.16 s. 40 % of the period in double support (two 20 % phases; humans 20-30 %): with g1's
+# with sqrt(leg length / g), the leg measured from the hip's first joint to the foot frame (as
+# control/tuning.RobotScale does). 4.0 is the human cycle (1.1-1.15 s on 0.75-0.8 m hip-to-ankle legs) and
+# gives g1 (0.65 m) 1.03 s and TALOS (0.75 m) 1.10 s. 40 % of the period in double support (two 20 % phases; humans 20-30 %): with g1's
 # 0.8 s period and 20 % the 0.08 s double support is too short to move the CoM towards the next stance foot
 # and its closed-loop OCPs fail from the second step on
-BIPED_FROUDE_PERIOD = 3.6
+BIPED_FROUDE_PERIOD = 4.0
 BIPED_DOUBLE_SUPPORT_SHARE = 0.4
 
 
 def biped_walk_timing(leg_length_m: float, gravity_m_s2: float = 9.81) -> tuple[float, float]:
     """(period_s, double_support_share) of a biped's walk from its leg length (Froude similarity).
 
-    The one place with the biped defaults: the robot-derived settings (control/tuning.py) can call it."""
+    The one place with the biped gait defaults; the robot-derived settings (control/tuning.py) call it."""
     check_number("leg_length_m", leg_length_m, low=0.05, high=5.0, unit="m")
     return BIPED_FROUDE_PERIOD * float(np.sqrt(leg_length_m / gravity_m_s2)), BIPED_DOUBLE_SUPPORT_SHARE
 

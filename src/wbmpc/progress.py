@@ -1,5 +1,8 @@
 """Progress bars on stderr (tqdm): ETA, a count of recovered MPC steps, silent when not a terminal.
 
+The one progress mechanism of wbmpc: `run`, `bench`, `campaign`, `robot-sim` and `deploy` all draw
+their bars with `ProgressBar`.
+
 Logs and pipes get nothing from a bar (tqdm's `disable=None`: off unless the stream is a TTY), so
 a redirected run writes only its messages. Messages go through `write`, above the bar, never onto
 its line; `close(complete=True)` shows 100 % for a run that finished (the last control tick of a
@@ -19,10 +22,10 @@ class ProgressBar:
     """A bar over `total` units (simulated seconds, steps, ...) updated with absolute positions."""
 
     def __init__(self, total: float, description: str = "", unit: str = "", enabled: bool | None = None,
-                 stream=None):
+                 stream=None, decimals: int = 1):
         self.total = max(float(total), 1e-9)
         self.stream = stream if stream is not None else sys.stderr
-        count = "{n:.1f}/{total:.1f}" + (f" {unit}" if unit else "")
+        count = f"{{n:.{decimals}f}}/{{total:.{decimals}f}}" + (f" {unit}" if unit else "")
         sized = _terminal_columns(self.stream) > 0  # a pty without a size (e.g. under `script`) reports 0
         self._bar = tqdm(total=self.total, desc=description, file=self.stream, leave=True, dynamic_ncols=sized,
                          ncols=None if sized else 100, nrows=None if sized else 24,
@@ -41,6 +44,14 @@ class ProgressBar:
             self._label = label
             self._bar.set_description_str(label, refresh=False)
         self._bar.update(min(max(float(done), 0.0), self.total) - self._bar.n)
+
+    def advance(self, units: float = 1.0) -> None:
+        """Move on by `units` (e.g. one finished case)."""
+        self.update(self._bar.n + units)
+
+    def set_status(self, text: str) -> None:
+        """A short status after the count (e.g. the last case's outcome)."""
+        self._bar.set_postfix_str(text, refresh=False)
 
     def set_recoveries(self, count: int) -> None:
         """Mark the steps the MPC recovered with a re-solve (shown once there is one)."""

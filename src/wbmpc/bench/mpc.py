@@ -65,21 +65,32 @@ def check_names(formulation: str | None = None, gait: str | None = None, solvers
 
 
 def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str = "fatrop", nodes: int = 15,
-               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False):
+               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False, robot=None):
+    """The benchmarks' MPC settings; with `robot`, its own weights, gait period and swing (control/tuning.py)."""
     from wbmpc.control import MpcConfig
     from wbmpc.ocp.problem import OcpConfig
     from wbmpc.solvers.nlp import SolverConfig
 
     check_names(formulation=formulation, gait=gait, solvers=[solver])
     grid = grid_for(nodes, uniform_dt_ms)
-    # measure the requested solver alone: RTI without its Fatrop recovery of failed QPs either
-    extra = {"recovery_barrier_init": None} if solver == "rti" else {}
+    # measure the requested solver alone: RTI and the anytime SQP (here without a deadline: iterated to
+    # convergence) without their Fatrop recovery of failed QPs either
+    extra = {"recovery_barrier_init": None} if solver in ("rti", "sqp") else {}
     config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid),
                        solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
     config = replace(config, fallback_solver=None, recovery_barrier_init=None)
+    if robot is not None:
+        from wbmpc.control.tuning import tuning_for
+
+        config = replace(config, **tuning_for(robot).mpc_fields())
     return config
+
+
+def _direct_fallback(solver) -> dict:
+    """fatrop-direct only: why it ran casadi's Fatrop instead (null when the direct binding ran)."""
+    return {"direct_fallback": solver.direct_error} if hasattr(solver, "direct_error") else {}
 
 
 def _finite(value) -> float | None:
@@ -112,7 +123,7 @@ def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", no
     from wbmpc.control import MPC, Commands
 
     check_number("t", t, low=0.0, high=1e6, unit="s")
-    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms, compiled=compiled)
+    config = mpc_config(formulation, gait, solver, nodes, uniform_dt_ms, compiled=compiled, robot=robot)
     start = time.perf_counter()
     mpc = MPC(robot, config)
     build_s = time.perf_counter() - start
@@ -137,6 +148,7 @@ def solve_nominal(robot, formulation: str = "wb_inverse", gait: str = "trot", no
         "compiled": mpc.solver.is_compiled,
         "compile": (mpc.solver.compile_report.as_dict() if mpc.solver.is_compiled
                     else {"error": mpc.solver.compile_error} if compiled else None),
+        **_direct_fallback(mpc.solver),
     }
 
 
@@ -242,7 +254,10 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     recorder = _Recorder(mpc)
     duration = steps / MPC_RATE_HZ
-    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none")).run(
+    from wbmpc.control.tuning import tuning_for
+
+    gains = tuning_for(robot).gains  # the robot's own PD (B1's Kd 5 saturates a Go2's legs)
+    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none", gains=gains)).run(
         duration, progress=lambda share, _recoveries: on_progress(share))
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))
@@ -301,7 +316,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     for name in solvers:
         progress.update(done, f"building {name}")
         start = time.perf_counter()
-        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled), problem=problem)
+        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled, robot=robot), problem=problem)
         build[f"{name}_s"] = time.perf_counter() - start
         done += 0.5
 
@@ -314,6 +329,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             progress.update(base + share * steps, f"closed loop {name}")
 
         runs[name], recorded, iterations = _closed_loop(robot, mpcs[name], plant, steps, on_progress)
+        runs[name].update(_direct_fallback(mpcs[name].solver))
         if name == reference:
             states, reference_iterations = recorded, iterations
         done = base + steps
@@ -323,10 +339,10 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     progress.update(done, "building cold / uniform variants")
     start = time.perf_counter()
     variants = {reference: mpcs[reference]}
-    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False,
+    variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False, robot=robot,
                                                                    compiled=compiled),
                                         problem=problem)
-    variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes,
+    variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, robot=robot,
                                                              uniform_dt_ms=uniform_dt_ms, compiled=compiled))
     for name in solvers:
         if name != reference:

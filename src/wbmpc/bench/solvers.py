@@ -29,7 +29,7 @@ def node_scaling(robot, nodes_list: list[int], steps: int, compiled: bool, progr
 
     rows = []
     for i, nodes in enumerate(nodes_list):
-        mpc = MPC(robot, mpc_config(nodes=nodes, compiled=compiled))
+        mpc = MPC(robot, mpc_config(nodes=nodes, compiled=compiled, robot=robot))
         summary, _, _ = _closed_loop(robot, mpc, "pinocchio", steps,
                                      lambda share, i=i: progress and progress(i + share, f"{nodes} nodes"))
         rows.append({"nodes": nodes, "decision_variables": summary["decision_variables"],

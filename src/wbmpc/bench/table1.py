@@ -69,7 +69,7 @@ def table1_row(robot, formulation: str, steps: int, compiled: bool, progress) ->
     from wbmpc.control import MPC
     from wbmpc.solvers.nlp import NlpSolver
 
-    config = mpc_config(formulation=formulation)
+    config = mpc_config(formulation=formulation, robot=robot)
     start = time.perf_counter()
     mpc = MPC(robot, config)
     build_s = time.perf_counter() - start

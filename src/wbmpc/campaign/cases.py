@@ -79,11 +79,14 @@ class Case:
     formulation: str
     params: tuple[tuple[str, float | str], ...]  # sorted (axis, value)
     seed: int
+    delay: str = "none"  # CampaignSpec.delay
+    solver: str | None = None
 
     @property
     def id(self) -> str:
+        extra = [] if self.delay == "none" and self.solver is None else [self.delay, self.solver]  # old ids unchanged
         payload = json.dumps([self.scenario, self.robot, self.duration_s, self.nodes, self.compiled, self.formulation,
-                              [list(p) for p in self.params], self.seed], sort_keys=True)
+                              [list(p) for p in self.params], self.seed, *extra], sort_keys=True)
         return hashlib.sha1(payload.encode()).hexdigest()[:16]
 
     @property
@@ -125,10 +128,10 @@ class Case:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
             period = make_gait(gait, 4, tuning_for(self.robot).gait_period_s).period_s  # a1: 0.6 s
             options.push_time_s += float(v["gait_phase"]) * period
-        delay = v.get("delay_ms")
+        delay = self.delay if v.get("delay_ms") is None else str(float(v["delay_ms"]))
+        solver = self.solver or ("auto" if delay == "realtime" else "fatrop")
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
-                         formulation=self.formulation, seed=self.seed, options=options,
-                         delay="none" if delay is None else str(float(delay)),
+                         formulation=self.formulation, seed=self.seed, options=options, delay=delay, solver=solver,
                          model_errors=self.model_errors(),
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
@@ -156,7 +159,7 @@ def expand(spec) -> list[Case]:
             params = tuple(sorted((k, _normal(k, x)) for k, x in values.items()))
             for seed in spec.seeds:
                 cases.append(Case(spec.scenario, robot, float(spec.duration_s), int(spec.nodes), bool(spec.compiled),
-                                  spec.formulation, params, int(seed)))
+                                  spec.formulation, params, int(seed), spec.delay, spec.solver))
     return cases
 
 

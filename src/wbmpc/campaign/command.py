@@ -19,6 +19,9 @@ def add_parser(sub) -> None:
     p.add_argument("--duration", type=float, help="simulated seconds per case (default 4)")
     p.add_argument("--nodes", type=int, help="horizon nodes (default 15)")
     p.add_argument("--compiled", action="store_true", default=None, help="compiled solver (C, cached)")
+    p.add_argument("--delay", help="none (default) | a fixed delay in ms | realtime (one case at a time beside its "
+                                   "solver process, wall-clock paced; the summary lists each case's MPC rate and late share)")
+    p.add_argument("--solver", help="solver of every case (default fatrop; with --delay realtime: the run's default)")
     p.add_argument("--grid", action="append", metavar="AXIS=V1,V2|START:STOP:STEP",
                    help="add a grid axis (repeatable); `--list-axes` shows the axes")
     p.add_argument("--set", action="append", metavar="AXIS=VALUE", help="fixed axis value for every case (repeatable)")
@@ -66,7 +69,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if not args.report_only:
         seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else None
         spec = load_spec(args.spec, scenario=args.scenario, robot=args.robot, duration_s=args.duration,
-                         nodes=args.nodes, compiled=args.compiled, seeds=seeds,
+                         nodes=args.nodes, compiled=args.compiled, seeds=seeds, delay=args.delay, solver=args.solver,
                          grid=_pairs(args.grid, "grid"), fixed=_pairs(args.set, "set"))
         cases = expand(spec)
         if args.dry_run:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
@@ -186,6 +185,15 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None
         table.compact()
         return run
     start = time.perf_counter()
+    if spec.delay == "realtime" and client is None and scheduler is None:
+        if workers not in (None, 1):
+            raise ConfigError(f"--delay realtime runs one case at a time (the two cores are the solver's and the "
+                              f"simulation's); drop --workers {workers} or set it to 1")
+        run.workers = 1
+        run = _run_here(todo, table, run, runner, progress)
+        run.wall_time_s = time.perf_counter() - start
+        table.compact()
+        return run
     own = client is None
     cluster = None
     if own:
@@ -207,13 +215,15 @@ def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runn
             no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S) -> CampaignRun:
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
-    from tqdm import tqdm
+
+    from wbmpc.progress import ProgressBar
 
     futures = {}
     for case in todo:
         future = client.submit(runner, case, key=f"case-{case.id}", pure=False)
         futures[future] = case
-    bar = tqdm(total=len(todo), disable=not progress, file=sys.stderr, unit="case", dynamic_ncols=True)
+    # silent off a terminal (a redirected log gets the messages only), or when progress=False
+    bar = ProgressBar(len(todo), "campaign ", unit="cases", enabled=None if progress else False, decimals=0)
     pending = as_completed(futures)
     workerless_since = None
     try:
@@ -227,8 +237,8 @@ def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runn
                 elif time.monotonic() - workerless_since > no_worker_timeout_s:
                     left = [futures[f] for f in futures if not f.done()]
                     run.unfinished += [case.id for case in left]  # no row: --resume runs them again
-                    print(f"campaign: no Dask worker for {no_worker_timeout_s:.0f} s; stopping with {len(left)} "
-                          "case(s) unfinished (run again with --resume)", file=sys.stderr)
+                    bar.write(f"campaign: no Dask worker for {no_worker_timeout_s:.0f} s; stopping with {len(left)} "
+                              "case(s) unfinished (run again with --resume)")
                     break
                 time.sleep(0.2)
                 continue
@@ -238,6 +248,25 @@ def _gather(client, todo: list[Case], table: ResultTable, run: CampaignRun, runn
         bar.close()
         for future in futures:
             future.release()
+    return run
+
+
+def _run_here(todo: list[Case], table: ResultTable, run: CampaignRun, runner, progress: bool) -> CampaignRun:
+    """The cases one after the other in this process (real time: a Dask worker is a daemon process, which
+    may not start the solver process, and a second case beside it would take the solver's core)."""
+    from wbmpc.progress import ProgressBar
+
+    bar = ProgressBar(len(todo), "campaign ", unit="cases", enabled=None if progress else False, decimals=0)
+    try:
+        for case in todo:
+            row = runner(case)
+            table.write(row)
+            run.recorded += 1
+            run.errors += row.get("error") is not None
+            bar.advance(1)
+            bar.set_status("ok" if row.get("recovered") else "FELL" if row.get("fell") else "error")
+    finally:
+        bar.close()
     return run
 
 
@@ -254,7 +283,7 @@ def _record(future, case: Case, table: ResultTable, run: CampaignRun, bar, kille
         row = future.result()
     except killed_worker:
         run.unfinished.append(case.id)  # no row: --resume runs it again
-        bar.update(1)
+        bar.advance(1)
         return
     except Exception as exc:  # the runner itself raised (run_case never does)
         row = _base_row(case)
@@ -262,5 +291,5 @@ def _record(future, case: Case, table: ResultTable, run: CampaignRun, bar, kille
     table.write(row)
     run.recorded += 1
     run.errors += row.get("error") is not None
-    bar.update(1)
-    bar.set_postfix_str(f"{'ok' if row.get('recovered') else 'FELL' if row.get('fell') else 'error'}")
+    bar.advance(1)
+    bar.set_status(f"{'ok' if row.get('recovered') else 'FELL' if row.get('fell') else 'error'}")

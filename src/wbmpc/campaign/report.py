@@ -87,19 +87,25 @@ def plot_push_map(pmap: dict, path: Path, goals=(0.8, 1.0)) -> Path:
     directions = sorted(pmap)
     theta = np.deg2rad(directions)
     all_speeds = sorted({s for d in directions for s in pmap[d]["recovered_share"]})
-    for d in directions:
-        for s, share in pmap[d]["recovered_share"].items():
-            ax.scatter(np.deg2rad(d), s, c=[[1 - share, share, 0.2]], s=60, edgecolors="k", linewidths=0.4, zorder=3)
+    # dots: share of cases recovered at that direction and speed, red (none) -> yellow -> green (all); the
+    # blue line (no markers, under the dots) joins the largest speeds recovered in every case
+    points = [(np.deg2rad(d), s, share) for d in directions for s, share in pmap[d]["recovered_share"].items()]
     closed = np.append(theta, theta[0]) if len(theta) > 1 else theta
     largest = [pmap[d]["largest_recovered_m_s"] for d in directions]
-    ax.plot(closed, np.append(largest, largest[0]) if len(theta) > 1 else largest, "b-o", lw=2,
-            label="largest speed recovered (all phases)", zorder=4)
+    ax.plot(closed, np.append(largest, largest[0]) if len(theta) > 1 else largest, "-", color="tab:blue", lw=2.5,
+            alpha=0.8, label="largest speed recovered (all phases)", zorder=2)
+    dots = ax.scatter([p[0] for p in points], [p[1] for p in points], c=[p[2] for p in points], cmap="RdYlGn",
+                      vmin=0.0, vmax=1.0, s=60, edgecolors="k", linewidths=0.4, zorder=3)
+    ax.scatter([], [], c="#1a9850", s=60, edgecolors="k", linewidths=0.4, label="every case recovered")
+    ax.scatter([], [], c="#d73027", s=60, edgecolors="k", linewidths=0.4, label="no case recovered")
+    bar = fig.colorbar(dots, ax=ax, shrink=0.6, pad=0.1)
+    bar.set_label("share of cases recovered (all gait phases and seeds)", fontsize=8)
     circle = np.linspace(0, 2 * np.pi, 200)
     for goal, style in zip(goals, ("k--", "k:")):
         ax.plot(circle, np.full_like(circle, goal), style, lw=1, label=f"goal {goal} m/s")
     ax.set_theta_zero_location("N")  # forward up, left to the left
     ax.set_rlim(0, max(all_speeds + [max(goals)]) * 1.05)
-    ax.set_title("push recovery map (m/s; dots: green = every case recovered, red = none)", fontsize=9)
+    ax.set_title("push recovery map (push speed in m/s by direction; forward up)", fontsize=9)
     ax.legend(loc="lower left", bbox_to_anchor=(-0.1, -0.12), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -130,6 +136,20 @@ def plot_curves(name: str, points: list[dict], path: Path) -> Path:
     return path
 
 
+def case_timing(rows: list[dict]) -> list[dict] | None:
+    """Per case with a delay: achieved MPC rate, share of late solutions, mean delay, solver (from its metrics)."""
+    out = []
+    for row in rows:
+        metrics = json.loads(row.get("metrics_json") or "{}")
+        if metrics.get("delay", "none") == "none" or "mpc_rate_hz" not in metrics:
+            continue
+        out.append({"case_id": row["case_id"], "params": json.loads(row.get("params_json") or "{}"),
+                    "delay": metrics["delay"], "solver": metrics.get("solver"), "fell": bool(row.get("fell")),
+                    "mpc_rate_hz": metrics["mpc_rate_hz"], "late_solution_share": metrics["late_solution_share"],
+                    "delay_ms_mean": metrics.get("delay_ms_mean"), "sqp_iterations_mean": metrics.get("sqp_iterations_mean")})
+    return out or None
+
+
 def write_report(out_dir: str | Path, run_info: dict | None = None) -> list[Path]:
     """summary.md, summary.json and PNGs in `out_dir` from its result table."""
     out_dir = Path(out_dir)
@@ -152,6 +172,7 @@ def write_report(out_dir: str | Path, run_info: dict | None = None) -> list[Path
         "solve_ms_max": _max([r.get("solve_ms_max") for r in rows]),
         "case_wall_time_s_mean": _mean([r.get("wall_time_s") for r in rows]),
         "push_map": {str(k): v for k, v in pmap.items()} if pmap else None,
+        "timing": case_timing(rows),
         "curves": curve_data,
         "run": run_info,
     }
@@ -190,6 +211,14 @@ def _markdown(path: Path, summary: dict, pmap, curve_data, errors) -> Path:
             lines.append(f"| {p['value']:g} | {p['cases']} | {p['recovered_share']:.2f} | "
                          f"{_fmt(p['max_torque_ratio'])} | {_fmt(p['base_drift_cm_s_mean'])} |")
         lines += ["", f"![{axis}](curve_{axis}.png)", ""]
+    if summary.get("timing"):
+        lines += ["## Timing per case", "", "| case | delay | solver | fell | MPC rate (Hz) | late share | mean delay (ms) | "
+                  "SQP iterations |", "|---|---|---|---|---|---|---|---|"]
+        for t in summary["timing"]:
+            shown = ", ".join(f"{k}={v}" for k, v in sorted(t["params"].items())) or t["case_id"]
+            lines.append(f"| {shown} | {t['delay']} | {t['solver']} | {t['fell']} | {_fmt(t['mpc_rate_hz'])} | "
+                         f"{_fmt(t['late_solution_share'])} | {_fmt(t['delay_ms_mean'])} | {_fmt(t['sqp_iterations_mean'])} |")
+        lines.append("")
     if errors:
         lines += ["## Errors", ""] + [f"- `{r['case_id']}` {r.get('params_json')}: {r['error']}" for r in errors[:20]]
     path.write_text("\n".join(lines) + "\n")

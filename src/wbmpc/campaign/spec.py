@@ -70,8 +70,16 @@ class CampaignSpec:
     fixed: dict[str, float | str] = field(default_factory=dict)
     grid: dict[str, list] = field(default_factory=dict)
     random: RandomSamples = field(default_factory=RandomSamples)
+    # "realtime": every case beside a solver process at wall-clock speed (one case at a time, in this process:
+    # the two cores are the solver's and the simulation's); a number: a fixed delay in ms (the delay_ms axis
+    # overrides it); "none": the simulation waits
+    delay: str = "none"
+    solver: str | None = None  # None: fatrop, or with delay realtime the run's default (--solver auto)
 
     def __post_init__(self):
+        from wbmpc.control.loop import fixed_delay_s
+
+        fixed_delay_s(self.delay)
         if isinstance(self.random, dict):
             self.random = RandomSamples(**self.random)
         if not self.duration_s > 0:

@@ -1,8 +1,11 @@
-"""MPC settings of two-legged robots, in one place (to be joined with the robot-derived tuning).
+"""Settings of two-legged robots: the rules `control/tuning.derive` applies on top of the size-derived
+settings when the robot stands on two feet (their source reads "derived: biped" in `wbmpc info`).
 
 A quadruped's trot keeps its CoM over the diagonal support line; a biped must move its CoM towards
 the foot it will stand on during double support, and its hands, pinned in the world, fight the
 pelvis' sway. So on two feet:
+- the walk's period by Froude similarity from the leg length with 40 % double support
+  (`wbmpc.gait.biped_walk_timing`), instead of the trot's 0.8 s scaled;
 - `support_sway`: the base xy targets lean 60 % of the way from the centre of the feet to the centre of
   the feet in stance one double-support phase later (`MPC._sway_towards_support`): the plan shifts the
   weight during double support. The OCP's nodes are dense at its start and its cost is not weighted
@@ -14,31 +17,27 @@ pelvis' sway. So on two feet:
   pelvis fix a biped's stance legs; the posture cost held the pelvis centred) and base velocity weight 5;
 - `free_ee_without_command`: a hand with no velocity command swings free (its pinned velocity rows
   drove g1's arm into its limits and stalled Fatrop in single support).
-The gait itself (period from leg length, double-support share) is `wbmpc.gait.biped_walk_timing`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
-from wbmpc.control.mpc import CostWeights
 from wbmpc.gait import biped_walk_timing
-from wbmpc.robots import RobotModel
 
+BIPED_SOURCE = "derived: biped"
 BIPED_SUPPORT_SWAY = 0.6
 BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 5.0
 BIPED_LEG_JOINT_WEIGHT = 2.0
 BIPED_CONTACT_FORCE_WEIGHT = 1e-5
 
 
-def biped_mpc_settings(robot: RobotModel, weights: CostWeights) -> dict:
-    """MpcConfig fields for a two-legged robot (weights derived from `weights`); {} for other robots."""
-    if len(robot.feet) != 2:
-        return {}
-    period_s, double_support_share = biped_walk_timing(float(robot.q_nominal[2]))
+def biped_overrides(leg_length_m: float) -> dict:
+    """{setting: value} (names of `RobotTuning.report`) of a two-legged robot with this leg length."""
+    period_s, double_support_share = biped_walk_timing(leg_length_m)
     return {
-        "weights": dataclasses.replace(weights, base_linear_velocity=BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
-                                      leg_joint_position=BIPED_LEG_JOINT_WEIGHT, contact_force=BIPED_CONTACT_FORCE_WEIGHT),
+        "gait_period_s": period_s,
+        "weights.base_linear_velocity": BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
+        "weights.leg_joint_position": BIPED_LEG_JOINT_WEIGHT,
+        "weights.contact_force": BIPED_CONTACT_FORCE_WEIGHT,
         "support_sway": BIPED_SUPPORT_SWAY,
         "support_lead_s": 0.5 * period_s * double_support_share,
         "free_ee_without_command": True,

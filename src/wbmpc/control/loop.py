@@ -21,8 +21,9 @@ import pinocchio as pin
 from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
+from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel
 from wbmpc.control.solution import Solution
-from wbmpc.errors import ConfigError, check_number
+from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
 DELAY_MODES = ("none", "measured", "measured-wall", "realtime")
@@ -87,6 +88,7 @@ class Event:
 COMMAND_WIDTH = 12  # a `Commands` as numbers: base velocity (3), yaw rate, ee velocity (3, NaN: none), ee force (3), height
 TICK_KEYS = ("t", "q", "v", "tau", "tau_ff", "q_des", "contact_forces")
 STEP_KEYS = ("mpc_t", "solve_ms", "iterations", "success", "planned_contact")
+SOLVER_DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")
 RSS_SAMPLE_PERIOD_S = 10.0  # simulated seconds between resident-memory samples
 
 
@@ -121,6 +123,10 @@ class RunLog:
         self._ticks: ChunkedTable | None = None  # built at the first row, when the sizes are known
         self._steps: ChunkedTable | None = None
         self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays")
+        # per step of a solver that reports them (the anytime SQP): its SQP iterations, the KKT residuals of the
+        # iterate it returned, its budget (NaN: none) and whether it ended past its deadline
+        self._solver_details = ChunkedTable({key: ((), float) for key in SOLVER_DETAIL_KEYS}, chunk_rows, spill_dir,
+                                            "solver_details")
         self._status_names: list[str] = []  # distinct solver statuses; steps store an index into it
         self._status_codes: dict[str, int] = {}
         self.events: list = []  # (time_s, name) of each event applied to the plant
@@ -182,6 +188,23 @@ class RunLog:
                             np.zeros(1) if planned_contact is None else planned_contact[k])
         return log
 
+    def record_solver_details(self, details: dict | None) -> None:
+        """A step's solver details (`SolverStats.details` of the anytime SQP); missing keys are NaN (a step a
+        recovery solver took over has none)."""
+        row = {}
+        for key in SOLVER_DETAIL_KEYS:
+            value = (details or {}).get(key)
+            row[key] = float("nan") if value is None else float(value)
+        self._solver_details.append(row)
+
+    @property
+    def has_solver_details(self) -> bool:
+        return len(self._solver_details) > 0
+
+    def solver_details(self) -> dict[str, np.ndarray]:
+        """{key: one value per step that reported details} (empty arrays when no step did)."""
+        return {key: self._solver_details.column(key) for key in SOLVER_DETAIL_KEYS}
+
     def record_delay(self, delay_ms: float) -> None:
         """The delay of a solution that was applied (failed ones are not)."""
         self._delays.append({"delay_ms": delay_ms})
@@ -199,7 +222,7 @@ class RunLog:
 
     def close(self) -> None:
         """Delete the spilled chunks now (otherwise when the log is garbage collected)."""
-        for table in (self._ticks, self._steps, self._delays):
+        for table in (self._ticks, self._steps, self._delays, self._solver_details):
             if table is not None:
                 table.close()
 
@@ -300,6 +323,7 @@ class ClosedLoop:
         self.kp, self.kd = config.gains.vectors(~self.robot.leg_joint_mask)
         self._rng = np.random.default_rng(config.seed)
         self._filtered_v: np.ndarray | None = None
+        self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -344,11 +368,25 @@ class ClosedLoop:
             return self._run_realtime(duration_s, commands, events, progress, stop)
         return self._run_simulated_time(duration_s, commands, events, progress, stop)
 
-    def _solve(self, log: RunLog, t: float, commands: CommandSource) -> Solution:
+    def _expected_delay_s(self, log: RunLog) -> float:
+        """The delay the next plan will see (for `MpcConfig.delay_compensation`): the fixed one, else the
+        running mean of the measured ones (0 before any)."""
+        if self.config.delay == "none":
+            return 0.0
+        fixed = self.config.fixed_delay_s
+        return fixed if fixed is not None else self._delay_mean_s
+
+    def _note_delay(self, delay_s: float) -> None:
+        self._delay_mean_s = delay_s if self._delay_mean_s == 0.0 else 0.8 * self._delay_mean_s + 0.2 * delay_s
+
+    def _solve(self, log: RunLog, t: float, commands: CommandSource, first: bool = False) -> Solution:
+        """One MPC step from the state measured now; `first`: the run's first step, applied at once."""
         q, v = self._measure()
         command = commands(t, q, v)
         start, start_cpu = time.perf_counter(), time.thread_time()
-        solution = self.mpc.solve(q, v, command, t)
+        delay_s = 0.0 if first else self._expected_delay_s(log)
+        # passed only when there is one: MPC stand-ins (benchmarks' recorders) take (q, v, commands, t)
+        solution = self.mpc.solve(q, v, command, t, **({"delay_s": delay_s} if delay_s else {}))
         solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
         solution.cpu_time_s = time.thread_time() - start_cpu  # type: ignore[attr-defined]
         self._log_solution(log, t, command, solution)
@@ -359,6 +397,8 @@ class ClosedLoop:
         solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
         log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
                         solution.contact[0])
+        if solution.stats.details or log.has_solver_details:  # one row per step once a solver reports them
+            log.record_solver_details(solution.stats.details)
 
     def _new_log(self) -> RunLog:
         return RunLog(self.log_dir, self.log_chunk_rows)
@@ -404,9 +444,9 @@ class ClosedLoop:
         wall_start = time.perf_counter()
         mpc_period = 1.0 / cfg.mpc_rate_hz
         t0 = plant.time_s
-        active = self._solve(log, t0, commands)
+        active = self._solve(log, t0, commands, first=True)
         if not active.success:
-            raise ConfigError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
+            raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
         pending: list[tuple[float, Solution]] = []
         next_mpc, next_control = t0 + mpc_period, t0
         solver_free_at = t0  # with a delay, the single solver is busy until its solution is out
@@ -420,6 +460,7 @@ class ClosedLoop:
                     solution.cpu_time_s if cfg.delay == "measured" else
                     solution.wall_time_s if cfg.delay == "measured-wall" else cfg.fixed_delay_s)
                 solver_free_at = t + delay
+                self._note_delay(delay)
                 if delay > mpc_period:
                     log.late_solutions += 1
                 while next_mpc <= t + 1e-9:
@@ -450,8 +491,10 @@ class ClosedLoop:
         log = self._new_log()
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
+        wakeups = SharedChannel.events(context)
+        channel: SharedChannel | None = None
         cpus = _cpu_split()
-        worker = context.Process(target=mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1]),
+        worker = context.Process(target=mpc_worker, args=(self.robot.spec, self.mpc.config, child_conn, cpus[1], wakeups),
                                  daemon=True)
         single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
         saved = {name: os.environ.get(name) for name in single_threaded}
@@ -476,40 +519,64 @@ class ClosedLoop:
                 log.interrupted = True
                 return log
             if not conn.poll(0) or conn.recv() != "ready":
-                raise ConfigError("the real-time MPC process did not start (see its error above)")
+                raise RunError("the real-time MPC process did not start (see its error above)")
             t0 = plant.time_s
-            active = self._solve(log, t0, commands)
+            active = self._solve(log, t0, commands, first=True)
             if not active.success:
-                raise ConfigError(f"the MPC failed on the initial state ({active.stats.status})")
+                raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
             mpc_period = 1.0 / cfg.mpc_rate_hz
             next_mpc, next_control = t0 + mpc_period, t0
             busy, request = False, None
+            # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
+            # solver's budget is the period less it, so that the answer is back before the next MPC tick
+            transport_s = REALTIME_TRANSPORT_GUESS_S
             tau = np.zeros(self.robot.n_joints)
+            # the solver process solves the first step too, before the clock: its MPC then warm-starts (a cold
+            # step of the anytime SQP ignores its deadline to converge) from the same state as this one's
+            q, v = self._measure()
+            conn.send((q, v, commands(t0, q, v), t0, 0.0, None))
+            conn.recv()
             conn.send("cpu")
             mpc_cpu_start = conn.recv()
+            # from here on requests and plans go through shared memory, woken by events (no pickles, no polling)
+            channel = SharedChannel.create(ChannelLayout.from_solution(active, len(command_row(Commands()))), wakeups)
+            conn.send(("channel", *channel.handle))
             wall_start, cpu_start = time.perf_counter(), time.process_time()
             while plant.time_s - t0 < duration_s - 1e-9:
                 t = plant.time_s
                 lag = (t - t0) - (time.perf_counter() - wall_start)
-                if lag > 0:
-                    time.sleep(lag)
+                if lag > 0:  # wait for the wall clock, woken early by the answer
+                    if busy:
+                        channel.answer_ready.wait(lag)
+                        lag = (t - t0) - (time.perf_counter() - wall_start)
+                    if lag > 0:
+                        time.sleep(lag)
                 self._apply_events(events, t, log)
-                if busy and conn.poll():
-                    solution = conn.recv()
+                if busy and channel.answer_ready.is_set():
+                    solution = channel.receive_solution()
+                    channel.answer_ready.clear()
                     busy = False
-                    elapsed = max(time.perf_counter() - wall_start, 1e-9)
+                    now = time.perf_counter()
+                    elapsed = max(now - wall_start, 1e-9)
                     log.mpc_cpu_share = (solution.process_cpu_s - mpc_cpu_start) / elapsed
                     self._log_solution(log, request[0], request[1], solution)
-                    log.record_delay(solution.wall_time_s * 1e3)
-                    if solution.wall_time_s > mpc_period:
+                    # the delay the plant sees: from the measurement to the plan's first tick, transport included
+                    delay = max(t - request[0], now - request[2])
+                    transport_s = 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
+                    log.record_delay(delay * 1e3)
+                    self._note_delay(delay)
+                    if delay > mpc_period:
                         log.late_solutions += 1
                     if solution.success or getattr(solution, "held_previous", False):
                         active = solution
                 if not busy and t >= next_mpc - 1e-9:
+                    if not worker.is_alive():
+                        raise ConfigError("the real-time MPC process died (see its error above)")
                     q, v = self._measure()
                     command = commands(t, q, v)
-                    conn.send((q, v, command, t))
-                    busy, request = True, (t, command)
+                    budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
+                    channel.send_request(q, v, command_row(command), t, self._delay_mean_s, budget)
+                    busy, request = True, (t, command, time.perf_counter())
                     while next_mpc <= t + 1e-9:
                         next_mpc += mpc_period
                 tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress,
@@ -529,15 +596,22 @@ class ClosedLoop:
                 except OSError:
                     pass
             try:
-                conn.send(None)
+                if channel is not None:
+                    channel.send_stop()
+                else:
+                    conn.send(None)
             except (BrokenPipeError, OSError):
                 pass
             worker.join(timeout=5)
             if worker.is_alive():
                 worker.terminate()
+            if channel is not None:
+                channel.close()
         return log
 
 
+REALTIME_TRANSPORT_GUESS_S = 1e-3  # the transport's first guess, before one was measured
+REALTIME_MARGIN_S = 0.5e-3  # kept free of the budget for the jitter of the transport
 REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
 
 
@@ -568,9 +642,10 @@ def _cpu_split() -> tuple[set[int], set[int]]:
     return {available[0]}, set(available[1:])
 
 
-def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
-    """Real-time mode's solver process: build the MPC, then answer (q, v, commands, t) requests
-    ("cpu" asks for the process's CPU time so far)."""
+def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None) -> None:
+    """Real-time mode's solver process: build the MPC, then answer requests: through the pipe ("cpu" asks
+    for the process's CPU time so far; (q, v, commands, t, delay_s, budget_s) a plan) until ("channel",
+    layout, name) moves them to the shared-memory channel (`realtime_channel.py`, with `events`)."""
     import signal
 
     from wbmpc.robots import RobotModel
@@ -589,9 +664,33 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None) -> None:
         if message == "cpu":
             conn.send(time.process_time())
             continue
-        q, v, command, t = message
+        if message[0] == "channel":
+            _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
+            return
+        q, v, command, t, *more = message  # (+ delay_s, budget_s from the real-time loop; deploy sends four)
+        delay_s, budget_s = more if more else (0.0, None)
         start = time.perf_counter()
-        solution = mpc.solve(q, v, command, t)
+        # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
+        budget = budget_s if mpc.config.step_budget_s is not None else None
+        solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
         solution.wall_time_s = time.perf_counter() - start
         solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
         conn.send(solution)
+
+
+def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
+    """The solver process's loop on the shared-memory channel: wait for a request, solve, write the plan."""
+    try:
+        while True:
+            request = channel.receive_request()
+            if request is None:
+                return
+            q, v, row, t, delay_s, budget_s = request
+            start = time.perf_counter()
+            budget = budget_s if mpc.config.step_budget_s is not None else None
+            solution = mpc.solve(q, v, command_from_row(row), t, delay_s=delay_s, budget_s=budget)
+            solution.wall_time_s = time.perf_counter() - start  # type: ignore[attr-defined]
+            solution.process_cpu_s = time.process_time()  # type: ignore[attr-defined]
+            channel.send_solution(solution)
+    finally:
+        channel.close()

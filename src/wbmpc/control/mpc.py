@@ -14,6 +14,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.delay import roll_forward
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, SwingProfile, make_gait
@@ -21,7 +22,7 @@ from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.buffered import BufferedFunction
-from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+from wbmpc.solvers.nlp import FATROP_SOLVERS, NlpSolver, SolverConfig
 
 COLD_FALLBACK_ITERATIONS = 300  # the fallback's cap on a run's first step (no plan to hold while it solves)
 
@@ -137,6 +138,13 @@ class MpcConfig:
     # during double support (MPC._sway_towards_support)
     support_sway: float = 0.0
     support_lead_s: float = 0.0  # ... of the stance feet this much later (a biped: its double-support phase)
+    # delay compensation (control/delay.py): `solve(..., delay_s=d)` plans from the state predicted for t + d
+    # (the measurement rolled forward with the previous plan's accelerations) and returns a plan starting at
+    # t + d; off: the plan starts at the measurement, d late
+    delay_compensation: bool = False
+    # the whole step's budget (s, on the solver's clock) for solvers with a deadline (the anytime SQP): the
+    # solver stops in time for the MPC's own work after it (measured); None: the solver's own setting
+    step_budget_s: float | None = None
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -157,6 +165,7 @@ class MpcConfig:
         check_number("push_gait_period_scale", self.push_gait_period_scale, low=0.0, high=1.0, low_open=True,
                      allow_none=True)
         check_number("push_cadence_hold_s", self.push_cadence_hold_s, low=0.0, unit="s")
+        check_number("step_budget_s", self.step_budget_s, low=0.0, low_open=True, high=10.0, unit="s", allow_none=True)
         bad = [tag for tag in self.push_relaxed_rows if tag not in ("ee_vel", "foot_vel")]
         if bad:
             raise ConfigError(f"push_relaxed_rows may hold ee_vel and foot_vel, got {bad}")
@@ -201,7 +210,8 @@ class MPC:
         self.config = config
         if not config.friction_coefficient > 0:
             raise ConfigError(f"friction coefficient must be positive, got {config.friction_coefficient}")
-        # the MPC's own clock: its period changes after pushes (push_gait_period_scale); estimators read it too
+        # the MPC's own clock: its period changes after pushes (push_gait_period_scale); estimators read it too.
+        # Without a period (the runner's comes from control/tuning.py) the base height stands in for a biped's leg
         self.gait = GaitClock(make_gait(config.gait, len(robot.feet), config.gait_period_s,
                                         leg_length_m=float(robot.q_nominal[2])))
         self.problem = problem or OcpProblem(robot, config.ocp)
@@ -227,6 +237,7 @@ class MPC:
         self._xy_reference: np.ndarray | None = None
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
+        self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
 
     def reset(self) -> None:
         """Forget the warm start and the position references (e.g. after a reset of the plant)."""
@@ -367,10 +378,21 @@ class MPC:
         return node_times, contact, swing_vz
 
     # ------------------------------------------------------------------ solve
-    def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0) -> Solution:
+    def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0,
+              delay_s: float = 0.0, budget_s: float | None = None) -> Solution:
+        """The plan from the state (q, v) measured at t. `delay_s`: when the plan will reach the robot, after t;
+        with `MpcConfig.delay_compensation` the plan starts there (state rolled forward, `Solution.t_s` = t +
+        delay_s). `budget_s`: this step's time budget (overrides `MpcConfig.step_budget_s`) for a solver
+        with a deadline."""
         start = time.perf_counter()
+        clock = getattr(self.solver, "clock", None)
+        clock_start = clock() if clock is not None else None
         commands = commands or Commands()
         q, v = self._check(q, v, commands, t)
+        check_number("delay_s", delay_s, low=0.0, high=1.0, unit="s")
+        if self.config.delay_compensation and delay_s > 0:
+            q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
+            t = t + delay_s
         problem = self.problem
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         dq_des, v_des, base_velocity_world = self._targets(q, rot, commands, t, problem.config.grid.node_times_s)
@@ -407,13 +429,19 @@ class MPC:
         soft_bounds = None if after_push or not problem.n_slack_variables else problem.bounds(
             replace(stage_bounds, soft=True, relaxed_rows=self.config.push_relaxed_rows))
         cfg = self.config
+        solve_end = None
         if self._fallback_until_t is not None and t < self._fallback_until_t and cfg.fallback_solver:
             result = self._fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
             result.stats.status = f"{result.stats.status} (recovery: {cfg.fallback_solver} first after a push)"
             if not result.stats.success:
                 result = self._recover(result, p, bounds, x0, t, fallback_tried=True, soft_bounds=soft_bounds)
         else:
-            result = self.solver.solve(p, *bounds, x0, warm_start=self._previous is not None and cfg.warm_start)
+            budget = budget_s if budget_s is not None else cfg.step_budget_s
+            deadline = {} if clock is None or budget is None else \
+                {"deadline": clock_start + budget - self._after_solve_s}
+            result = self.solver.solve(p, *bounds, x0, warm_start=self._previous is not None and cfg.warm_start,
+                                       **deadline)
+            solve_end = clock() if deadline else None
             if not result.stats.success:
                 result = self._recover(result, p, bounds, x0, t, soft_bounds=soft_bounds)
         solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
@@ -421,6 +449,8 @@ class MPC:
             self._previous = solution
         elif cfg.hold_previous_on_failure and self._previous is not None:
             solution = self._shifted_previous(t, node_times, contact, result.stats)
+        if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
+            self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
         # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
         result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
         return solution
@@ -436,7 +466,7 @@ class MPC:
         takes the build time: campaigns and real-time use want them before the clock runs)."""
         if self.config.fallback_solver:
             self._fallback_solver()
-        if self.config.recovery_barrier_init and self.solver.config.name == "fatrop":
+        if self.config.recovery_barrier_init and self.solver.config.name in FATROP_SOLVERS:
             self._recovery_fatrop()
         prepare_recovery = getattr(self.solver, "prepare_recovery", None)  # RTI: its Fatrop re-solve
         if prepare_recovery is not None:
@@ -531,7 +561,7 @@ class MPC:
             attempts.append(f"soft rows: {result.stats.status}")
             if result.stats.success:
                 self._push_until_t = t + cfg.push_hold_s
-        if not result.stats.success and cfg.recovery_barrier_init and self.solver.config.name == "fatrop" and budget_left():
+        if not result.stats.success and cfg.recovery_barrier_init and self.solver.config.name in FATROP_SOLVERS and budget_left():
             result = self._recovery_fatrop().solve(p, *bounds, x0)
             spent_s, iterations = spent_s + result.stats.cpu_time_s, iterations + result.stats.iterations
             wall_s += result.stats.solve_time_s
@@ -561,7 +591,7 @@ class MPC:
         shifted = Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=_interp_rows(new, old, prev.v),
                            a=_interp_rows(new[:-1], old[:-1], prev.a), forces=_interp_rows(new[:-1], old[:-1], prev.forces),
                            tau=_interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
-                           success=False, x=None)
+                           success=False, x=None, q_joints=self._joint_trajectory(q))
         shifted.held_previous = True  # type: ignore[attr-defined]
         return shifted
 

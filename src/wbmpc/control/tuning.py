@@ -1,64 +1,225 @@
-"""Per-robot control tuning: cost weights, joint PD gains, swing height and gait period.
+"""Control settings that follow the robot: derived from its size, with the paper's B1 + Z1 as reference.
 
-`CostWeights()` and `PdGains()` are tuned on the paper's 61 kg B1 + Z1. A robot a quarter of that
-mass tracks the same posture weights four times faster (same cost, a quarter of the inertia) and
-runs its light legs into their torque limits with the same damping gain, so presets may carry
-their own settings here; a robot without an entry gets the defaults. The scenario runner applies
-them; explicit options (e.g. `--kp/--kd`) still win.
+Every setting the paper tuned on its 61 kg B1 + Z1 (gait period, swing profile, cost weights of eq. (3),
+joint PD gains of eq. (10), push detection and cadence) is carried to another robot by dimensional
+analysis on its own mass M, leg length L (hip to foot in the standing pose) and the mass its arm carries,
+taking B1 + Z1 as the point where the derived settings equal the paper robot's (`REFERENCE`):
+
+- time: Froude similarity (equal v^2 / (g L)), so durations scale with sqrt(L / g): gait period, the
+  push hold times; speeds with sqrt(g L): lift-off/touch-down speeds, the push-detection threshold;
+- lengths with L: swing apex height;
+- cost weights of eq. (3) in the robot's own units, so that the tracking optimum is the same in units
+  of L and sqrt(L/g): weights on metres scale with 1/L^2, on m/s with 1/(g L), on rad/s with L/g, on
+  joint accelerations with (L/g)^2; angles are unscaled. The force and torque terms only regularise
+  (the force scale and the nominal standing forces are the weight shared over the stance feet in the
+  OCP already, `formulations.variable_scales`, `MPC._force_guess`): they keep the paper's weights per
+  N^2 and (N m)^2. Scaled by 1/(M g)^2 like the rest they grow 14x on a Go2 and hold the feet to equal
+  shares of the weight (5 s trot in place: drift 1.75 cm/s against 0.06 kept);
+- the legs' damping gain Kd with sqrt(M) (`_leg_damping`), as a critical damping 2 sqrt(k m) at the
+  same stiffness: 2.6 on a Go2, 5 on B1 + Z1 (Froude's M L^1.5 g^0.5 gives 0.6 on a Go2, where Kd 1
+  already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints); the arm's gains with the mass
+  it carries (the same Z1 gets the same gains on any base);
+- the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
+  robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
+  hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
+  cm/s (10 s) with 10x;
+- two feet: the biped rules of `control/biped.py` (walk period from the leg length, weight shift towards
+  the next stance foot, force regularisation, free hands), source "derived: biped".
+
+`TUNINGS` holds overrides per preset (empty fields keep the derived value); `tuning_for` returns the
+settings with `sources` saying for each one whether it was derived or comes from the table. A robot
+loaded with --urdf from a preset's files is the same robot and gets the same settings.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.control.biped import BIPED_SOURCE, biped_overrides
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import CostWeights
+from wbmpc.control.mpc import CostWeights, MpcConfig
 from wbmpc.gait import SwingProfile
 from wbmpc.robots import RobotModel
 
 
 @dataclass(frozen=True)
+class RobotScale:
+    """What the settings are derived from: the robot's mass, leg length and arm (torque limits and inertia
+    are reported by `wbmpc info`)."""
+
+    mass_kg: float
+    leg_length_m: float  # mean hip (first joint of the leg) to foot distance in the standing pose
+    leg_torque_nm: float  # mean effort limit of the leg joints
+    arm_mass_kg: float | None  # mass carried by the arm joints (None: no arm)
+    inertia_kg_m2: tuple[float, float, float]  # composite rotational inertia at the CoM, standing (reported)
+    feet: int = 4  # number of feet (two: the biped rules of control/biped.py)
+
+    @classmethod
+    def of(cls, robot: RobotModel) -> RobotScale:
+        model = robot.model
+        data = model.createData()
+        q = robot.q_nominal
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        lengths = []
+        for foot in robot.feet:
+            frame = robot.frame_id(foot)
+            joint, hip = model.frames[frame].parentJoint, None
+            while joint > 1:
+                hip, joint = joint, model.parents[joint]
+            origin = data.oMi[hip].translation if hip is not None else data.oMi[1].translation
+            lengths.append(float(np.linalg.norm(data.oMf[frame].translation - origin)))
+        pin.ccrba(model, data, q, np.zeros(model.nv))
+        legs = robot.leg_joint_mask
+        arm_joints = [model.getJointId(name) for name, leg in zip(robot.joint_names, legs) if not leg]
+        carried = {j for joint in arm_joints for j in model.subtrees[joint]}
+        arm_mass = float(sum(model.inertias[j].mass for j in carried))
+        return cls(mass_kg=robot.mass_kg, leg_length_m=float(np.mean(lengths)),
+                   leg_torque_nm=float(np.mean(robot.tau_max[legs])),
+                   arm_mass_kg=arm_mass if robot.arm_ee and arm_joints else None,
+                   inertia_kg_m2=tuple(float(x) for x in np.diag(data.Ig.inertia)), feet=len(robot.feet))
+
+
+ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
+# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the settings of today's
+# defaults belong to this robot (a test checks that the preset still measures this).
+REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
+                       arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217))
+REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
+ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
+
+
+@dataclass(frozen=True)
 class RobotTuning:
-    """Control settings for one robot (units in the names); `note` says what was checked."""
+    """Control settings of one robot (units in the names); `sources` says where each came from."""
 
     weights: CostWeights = field(default_factory=CostWeights)
     gains: PdGains = field(default_factory=PdGains)
     swing: SwingProfile = field(default_factory=SwingProfile)
     gait_period_s: float | None = None  # None: the gait's default
+    push_velocity_error_m_s: float = MpcConfig.push_velocity_error_m_s
+    push_hold_s: float = MpcConfig.push_hold_s
+    push_cadence_hold_s: float = MpcConfig.push_cadence_hold_s
+    support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
+    support_lead_s: float = MpcConfig.support_lead_s
+    free_ee_without_command: bool = MpcConfig.free_ee_without_command
     note: str = ""
+    sources: dict = field(default_factory=dict, compare=False)
+
+    def mpc_fields(self) -> dict:
+        """The MpcConfig fields these settings set."""
+        return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
+                "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
+                "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
+                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command}
+
+    def report(self, options: dict | None = None) -> dict:
+        """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
+        are settings given on the command line (source "option")."""
+        flat = {"gait_period_s": self.gait_period_s,
+                **{f"swing.{k}": v for k, v in dataclasses.asdict(self.swing).items()},
+                **{f"gains.{k}": v for k, v in dataclasses.asdict(self.gains).items()},
+                **{f"weights.{k}": (list(v) if isinstance(v, tuple) else v)
+                   for k, v in dataclasses.asdict(self.weights).items()},
+                "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
+                "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
+                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command}
+        out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
+        for name, value in (options or {}).items():
+            out[name] = {"value": value, "source": "option"}
+        return out
 
 
-def scaled_weights(scale: float, base: CostWeights | None = None) -> CostWeights:
-    """Tracking weights (posture and velocities) times `scale`; the a/F/tau regularisation kept.
+def _leg_damping(scale: RobotScale) -> float:
+    """Kd of the legs: 5 on B1 + Z1, times sqrt(M / M_ref) (2.6 on Go2, 2.4 on A1).
 
-    With scale = robot mass / B1-Z1 mass the tracking cost keeps its ratio to the robot's inertia.
-    """
-    base = base or CostWeights()
-    return CostWeights(
-        base_position=tuple(scale * w for w in base.base_position),
-        base_orientation=tuple(scale * w for w in base.base_orientation),
-        leg_joint_position=scale * base.leg_joint_position,
-        arm_joint_position=scale * base.arm_joint_position,
-        base_linear_velocity=scale * base.base_linear_velocity,
-        base_angular_velocity=scale * base.base_angular_velocity,
-        joint_velocity=scale * base.joint_velocity,
-        acceleration=base.acceleration,
-        contact_force=base.contact_force,
-        joint_torque=base.joint_torque,
+    A1, 2 s trot in place: Kd 1 drifts 9.4 cm/s, 3 holds, 5 (B1's) saturates the calves at touch-down;
+    Go2, 5 s: Kd 3.3 (proportional to L) saturates the thigh joints (torque ratio 1.0), 2.6 holds (0.55)."""
+    return PdGains().kd_leg * math.sqrt(scale.mass_kg / REFERENCE.mass_kg)
+
+
+def derive(scale: RobotScale) -> RobotTuning:
+    """The settings of a robot of this scale (module docstring): equal to today's defaults at `REFERENCE`."""
+    s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
+    time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
+    w = CostWeights()
+    anchor = 1.0 if scale.arm_mass_kg is not None else ANCHOR_WITHOUT_ARM
+    position = (anchor * w.base_position[0], anchor * w.base_position[1], w.base_position[2])
+    weights = CostWeights(
+        base_position=tuple(x / s**2 for x in position),
+        base_orientation=w.base_orientation,
+        leg_joint_position=w.leg_joint_position,
+        arm_joint_position=w.arm_joint_position,
+        base_linear_velocity=w.base_linear_velocity / speed**2,
+        base_angular_velocity=w.base_angular_velocity * time**2,
+        joint_velocity=w.joint_velocity * time**2,
+        acceleration=w.acceleration * time**4,
+        contact_force=w.contact_force,  # regularisation: per N^2 as on the paper robot (module docstring)
+        joint_torque=w.joint_torque,
+        soft_constraint=w.soft_constraint,
     )
+    g = PdGains()
+    arm = 1.0 if scale.arm_mass_kg is None else scale.arm_mass_kg / REFERENCE.arm_mass_kg
+    gains = PdGains(kp_leg=g.kp_leg, kd_leg=_leg_damping(scale), kp_arm=g.kp_arm * arm, kd_arm=g.kd_arm * arm)
+    sw = SwingProfile()
+    swing = SwingProfile(apex_height_m=sw.apex_height_m * s, liftoff_velocity_m_s=sw.liftoff_velocity_m_s * speed,
+                         touchdown_velocity_m_s=sw.touchdown_velocity_m_s * speed)
+    m = MpcConfig
+    tuning = RobotTuning(weights=weights, gains=gains, swing=swing, gait_period_s=REFERENCE_GAIT_PERIOD_S * time,
+                         push_velocity_error_m_s=m.push_velocity_error_m_s * speed, push_hold_s=m.push_hold_s * time,
+                         push_cadence_hold_s=m.push_cadence_hold_s * time, note="derived from the robot's size")
+    tuning = dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
+    if scale.feet == 2:
+        tuning = with_overrides(tuning, biped_overrides(scale.leg_length_m), source=BIPED_SOURCE)
+        tuning = dataclasses.replace(tuning, note="derived from the robot's size, biped rules (control/biped.py)")
+    return tuning
 
 
-TUNINGS: dict[str, RobotTuning] = {
-    # 2 s trot in place in MuJoCo (--duration 2), B1 defaults vs this tuning: drift 4.9 -> 4.4 cm/s,
-    # base velocity RMSE 0.20 -> 0.15 m/s, Fatrop iterations 21.9 -> 8.5 mean (234 -> 68 max),
-    # control ticks with a joint at its torque limit 2.8 % -> 0 (max ratio 0.99). Only the 5 cm /
-    # 0.6 s steps: 1.1 % of ticks saturated at touch-down; with Kd 1 instead of 5: drift 9.4 cm/s;
-    # tracking weights scaled by the mass ratio: drift 19 cm/s, 72 iterations.
-    "a1": RobotTuning(swing=SwingProfile(apex_height_m=0.05), gait_period_s=0.6, gains=PdGains(kd_leg=3.0),
-                      note="5 cm steps at 0.6 s and Kd 3: the B1's 8 cm / 0.8 s steps and Kd 5 saturate its light legs"),
+# Overrides per preset: {setting: value} with the names of `RobotTuning.report` ("gains.kd_leg",
+# "swing.apex_height_m", "gait_period_s", ...); every other setting stays derived.
+TUNINGS: dict[str, dict] = {
+    # ANYmal B + Kinova, 5 s trot in place: its 6-DoF arm's hand rows do not hold the trunk as the Z1's do
+    # on B1 (derived settings: drift 2.97 cm/s, 9.4 settled); the anchor of a robot without an arm: 0.31
+    "anymal_b_kinova": {"weights.base_position": (5180.0, 5180.0, 10360.0)},
+    # Go1, trot forward at 0.22 m/s (6 s, compiled Fatrop): the derived 4.3 cm steps run its 23.7 N m thigh
+    # motors into their limits, 14.4 iterations a step and 39 failed steps of 480; 3 cm steps: 6.0 and 0
+    # (trot in place, 10 s: 6.2 -> 5.5 iterations, drift 0.06 -> 0.05 cm/s)
+    "go1": {"swing.apex_height_m": 0.03},
+    # A1, the same (derived 4.1 cm): trotting forward at 0.22 m/s 6.8 -> 5.9 iterations, 7 -> 0 failed steps;
+    # in place (10 s) unchanged: drift 0.06 cm/s, 6.7 -> 6.4 iterations
+    "a1": {"swing.apex_height_m": 0.03},
 }
 
 
+def with_overrides(tuning: RobotTuning, overrides: dict, source: str = "table") -> RobotTuning:
+    """`tuning` with some settings replaced (names of `RobotTuning.report`), their source recorded."""
+    groups: dict[str, dict] = {}
+    top: dict = {}
+    sources = dict(tuning.sources)
+    for name, value in overrides.items():
+        group, _, key = name.partition(".")
+        if key:
+            groups.setdefault(group, {})[key] = tuple(value) if isinstance(value, list) else value
+        else:
+            top[name] = value
+        sources[name] = source
+    for group, values in groups.items():
+        top[group] = dataclasses.replace(getattr(tuning, group), **values)
+    return dataclasses.replace(tuning, **top, sources=sources)
+
+
 def tuning_for(robot: RobotModel | str) -> RobotTuning:
-    """The tuning of a preset (a robot or its preset name), or the defaults."""
-    return TUNINGS.get(robot if isinstance(robot, str) else robot.name, RobotTuning())
+    """The settings of a robot (or a preset by name): derived from its size, then the table's overrides."""
+    if isinstance(robot, str):
+        from wbmpc.robots import load_robot
+
+        robot = load_robot(robot)
+    tuning = derive(RobotScale.of(robot))
+    overrides = TUNINGS.get(robot.name)
+    tuning = with_overrides(tuning, overrides) if overrides else tuning
+    return tuning

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.network import check_interface
+from wbmpc.progress import ProgressBar
 
 DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "arm-track")
 
@@ -28,7 +30,16 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     sim.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
+    sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
+                     "until a controller releases it; '' for none)")
+    sim.add_argument("--refuse-sport-release", action="store_true", help="keep the sport mode when asked to release "
+                     "it (a robot that refuses)")
+    sim.add_argument("--arm-silent-after", type=float, metavar="S", help="fault: the Z1 stops sending its state S "
+                     "simulated seconds after the first LowCmd")
+    sim.add_argument("--corrupt-every", type=int, metavar="N", help="fault: every N-th LowState with a bad CRC and "
+                     "Z1 state with a NaN")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
 
     dep = sub.add_parser("deploy", help="run the MPC on a robot (or robot-sim) over LowState/LowCmd: stand up, "
@@ -42,10 +53,19 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--compiled", action="store_true", help="compiled solver (C generated and cached)")
     dep.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15 = the paper's)")
     dep.add_argument("--speed", type=float, default=0.2, help="trot-forward / arm-track speed, m/s")
-    dep.add_argument("--kp", type=float, default=0.0, help="leg joint Kp of eq. (10), sent in LowCmd")
-    dep.add_argument("--kd", type=float, default=5.0, help="leg joint Kd of eq. (10), sent in LowCmd")
+    dep.add_argument("--solver", default="auto", help="the MPC's solver (as `wbmpc run --solver`; auto: the anytime "
+                     "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step)")
+    dep.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), sent in LowCmd (default: the robot's, "
+                     "wbmpc info; 0 on B1)")
+    dep.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), sent in LowCmd (default: the robot's, "
+                     "wbmpc info; 5 on B1)")
+    dep.add_argument("--no-sport-release", action="store_true", help="do not call the motion switcher (a robot "
+                     "without one, its sport mode stopped by hand)")
+    dep.add_argument("--max-plan-age-ms", type=float, default=250.0, help="an MPC plan older than this -> damping "
+                     "and exit 1 (default 250 ms)")
+    _add_arm_options(dep)
     dep.add_argument("--no-lie-down", action="store_true", help="go straight to damping at the end")
-    dep.add_argument("--state-timeout-ms", type=float, help="no LowState for this long -> stop commanding (default "
+    dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
@@ -74,21 +94,45 @@ def cmd_bench_dds(args, robot_from_args, emit) -> int:
     return 0
 
 
+def _add_arm_options(parser) -> None:
+    """--arm (unless the robot options define it, as the model's arm) and the Z1's UDP ports."""
+    if "--arm" not in parser._option_string_actions:
+        parser.add_argument("--arm", default="auto", choices=("auto", "z1", "none"),
+                            help="z1: the model's Z1 arm over the Z1's UDP interface (auto: when the model has one)")
+    parser.add_argument("--z1-ports", default="8071,8072", metavar="CTRL,SDK", help="UDP ports of z1_controller and of "
+                        "its SDK (default 8071,8072 as Unitree's; robot-sim serves the first)")
+    if parser.prog.endswith("deploy"):
+        parser.add_argument("--z1-ip", default="127.0.0.1", help="address of z1_controller (it answers the SDK on "
+                            "127.0.0.1 only: run deploy on the arm's computer)")
+
+
+def _arm_settings(args) -> dict:
+    try:
+        ports = tuple(int(p) for p in args.z1_ports.split(","))
+    except ValueError:
+        ports = ()
+    if len(ports) != 2 or not all(0 < p < 65536 for p in ports):
+        raise ConfigError(f"--z1-ports takes two UDP ports CTRL,SDK (e.g. 8071,8072), got {args.z1_ports!r}")
+    # the robot options' --arm names the model's arm; the Z1 link follows the model (auto: when it has Z1 joints)
+    arm = getattr(args, "arm", None)
+    arm = arm if arm in ("z1", "none") else "auto"
+    return {"arm": arm, "z1_ports": ports}
+
+
+def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool):
+    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and scenario
+    with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import mpc_config_for
+
+    run_config = RunConfig(scenario=scenario_name, nodes=nodes, compiled=compiled, solver=solver, state="estimated",
+                           delay="none" if lockstep else "realtime")
+    return mpc_config_for(scenario, run_config, robot)
+
+
 def _add_network_options(parser) -> None:
     parser.add_argument("--network", default="lo", help="network interface of the robot (lo: robot-sim on this machine)")
     parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots)")
-
-
-_shown = [-1]
-
-
-def _progress(share: float) -> None:
-    percent = int(100 * min(share, 1.0))
-    if percent == _shown[0]:
-        return
-    _shown[0] = percent
-    bar = int(30 * min(share, 1.0))
-    print(f"\r[{'#' * bar}{' ' * (30 - bar)}] {100 * share:5.1f}%", end="", file=sys.stderr, flush=True)
 
 
 def _write(path, payload) -> None:
@@ -110,20 +154,27 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
     config = RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
                             start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
                             idle_exit_s=args.idle_exit, push_time_s=args.push_time,
-                            push_velocity_m_s=(0.0, args.push_speed, 0.0))
+                            push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
+                            refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
+                            corrupt_every=args.corrupt_every, **_arm_settings(args))
     sim = RobotSimulator(robot, config)
+    arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     print(f"wbmpc robot-sim: {robot.name} on {args.network} (DDS domain {args.domain}), {args.mode}, motors "
-          f"{sim.motors.describe()}; waiting for LowCmd (Ctrl-C stops)", file=sys.stderr, flush=True)
+          f"{sim.motors.describe()}{arm}; sport mode '{config.sport_mode}'; waiting for LowCmd (Ctrl-C stops)",
+          file=sys.stderr, flush=True)
     import signal
 
     signal.signal(signal.SIGINT, lambda *_: sim.stop())
     signal.signal(signal.SIGTERM, lambda *_: sim.stop())
-    result = sim.run(progress=_progress if args.duration else None)
+    if args.duration:  # the bar (silent off a terminal) counts the simulated seconds after the first LowCmd
+        with ProgressBar(args.duration, "robot-sim ", unit="s") as bar:
+            result = sim.run(progress=lambda share: bar.update(share * args.duration))
+    else:
+        result = sim.run()
     report = result.summary()
     if args.drift_window:
         start, end = (float(x) for x in args.drift_window.split(","))
         report["window_drift_cm_s"] = result.drift_cm_s(start, end)
-    print(file=sys.stderr)
     _write(args.out, report)
     share = report["ticks_on_time_share"]
     lines = [
@@ -133,49 +184,88 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         (f"  ticks {report['ticks']}, on time {100 * share:.2f} %; CPU per tick p50 {report['tick_cpu_ms_p50']:.2f} ms, "
          f"p99 {report['tick_cpu_ms_p99']:.2f} ms (budget {1e3 / config.state_rate_hz:.1f} ms)") if share else "  no ticks",
         f"  LowCmd received {report['commands_received']}, rejected {report['commands_rejected']}, "
-        f"watchdog (damping) at {report['watchdog_events_s']} s",
+        f"watchdog (damping) at {report['watchdog_events_s']} s, "
+        f"{', '.join(f'{x:.0f}' for x in report['watchdog_latency_ms']) or 'no'} ms after the last valid LowCmd",
     ]
     if "window_drift_cm_s" in report:
         lines.append(f"  true drift between {args.drift_window} s: {report['window_drift_cm_s']:.2f} cm/s")
     if report["rtt_ms_p50"] is not None:
         lines.append(f"  LowState -> LowCmd round trip p50 {report['rtt_ms_p50']:.2f} ms, p99 {report['rtt_ms_p99']:.2f} ms "
                      f"({report['rtt_samples']} samples; includes the controller's work)")
+    arm = report["arm"]
+    if arm is not None:
+        rtt = (f"; Z1 state -> command round trip p50 {arm['rtt_ms_p50']:.2f} ms, p99 {arm['rtt_ms_p99']:.2f} ms"
+               if arm["rtt_ms_p50"] is not None else "")
+        lines.append(f"  Z1 commands received {arm['commands_received']}, rejected {arm['commands_rejected']}, "
+                     f"watchdog (PASSIVE) {arm['watchdog_events']}x "
+                     f"({', '.join(f'{x:.0f}' for x in arm['watchdog_latency_ms']) or 'no'} ms after the last valid command), "
+                     f"passive at end {arm['passive_at_end']}{rtt}")
     emit(args, report, "\n".join(lines))
     return 0
 
 
 def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
-    from wbmpc.control.interpolator import PdGains
-    from wbmpc.hardware.deploy import Controller, DeployConfig
+
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.hardware.deploy import Controller, DeployConfig, DeployFailure
     from wbmpc.hardware.safety import SafetyConfig
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario
-    from wbmpc.scenarios.runner import mpc_config_for
+    from wbmpc.scenarios import ScenarioOptions, make_scenario
+    from wbmpc.solvers.nlp import SOLVERS
 
     load_sdk()
     if args.scenario not in DEPLOY_SCENARIOS:
         raise ConfigError(f"unknown deploy scenario '{args.scenario}'; available: {', '.join(DEPLOY_SCENARIOS)} "
                           "(scene objects and pushes exist only in simulation)")
+    if args.solver not in SOLVERS:
+        raise ConfigError(f"unknown solver '{args.solver}'; available: {', '.join(SOLVERS)}")
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
-    mpc_config = mpc_config_for(scenario, RunConfig(scenario=args.scenario, nodes=args.nodes, compiled=args.compiled))
+    mpc_config = deploy_mpc_config(robot, scenario, scenario_name=args.scenario, nodes=args.nodes,
+                                   compiled=args.compiled, solver=args.solver, lockstep=args.lockstep)
+    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
+                                                            if v is not None})
     config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
-                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(PdGains(kp_leg=args.kp, kd_leg=args.kd)),
-                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)))
+                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
+                          sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
+                          arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
+                          z1_ip=args.z1_ip, **_arm_settings(args))
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}), "
-          f"{'lock-step' if args.lockstep else 'real time'}; building the MPC", file=sys.stderr, flush=True)
+          f"{'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
+          file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
-    report = controller.run(scenario.commands(robot), progress=_progress).summary()
-    print(file=sys.stderr)
+    failure = None
+    try:
+        commands = scenario.commands(robot)
+        ee_reference = scenario.ee_reference(robot) if args.scenario == "arm-track" else None
+        with ProgressBar(args.duration, f"deploy {args.scenario} ", unit="s") as bar:  # silent off a terminal
+            report = controller.run(commands, progress=lambda share: bar.update(share * args.duration),
+                                    ee_reference=ee_reference).summary()
+    except DeployFailure as exc:
+        failure = exc
+        report = controller.report.summary()
     _write(args.out, report)
+    arm = report["arm"]
     lines = [
         f"deploy {args.scenario}: phases {' -> '.join(f'{p} ({t:.2f} s)' for t, p in report['phases'])}",
         f"  stopped by {report['stopped_by']}, fell {report['fell']}; LowState {report['states_received']} "
         f"(rejected {report['states_rejected']}), LowCmd {report['commands_sent']}",
         f"  MPC {report['mpc_solves']} solves, {report['mpc_failures']} failed, "
-        f"{report['solve_ms_mean'] or 0:.1f} ms mean; controller work per tick p50 "
+        f"{report['solve_ms_mean'] or 0:.1f} ms mean; plan age p50 {report['plan_age_ms_p50'] or 0:.1f} ms, max "
+        f"{report['plan_age_ms_max'] or 0:.1f} ms; controller work per tick p50 "
         f"{report['controller_tick_ms_p50'] or 0:.2f} ms, p99 {report['controller_tick_ms_p99'] or 0:.2f} ms",
     ]
+    if report["ee_rmse_estimated_m"] is not None:
+        lines.append(f"  end effector RMSE {100 * report['ee_rmse_estimated_m']:.2f} cm (from the estimated state)")
+    if arm is not None:
+        lines.append(f"  Z1 states {arm['states_received']} (rejected {arm['states_rejected']}), commands "
+                     f"{arm['commands_sent']}")
+    if report["sport_mode"] is not None:
+        lines.append(f"  sport mode '{report['sport_mode']['released']}' released, restored {report['sport_mode']['restored']}")
     emit(args, report, "\n".join(lines))
+    if failure is not None:
+        print(f"wbmpc: error: {failure}", file=sys.stderr)
+        return 1
     return 0 if not report["fell"] else 1

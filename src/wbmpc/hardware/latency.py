@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.estimation.sensors import SensorConfig, Sensors
 from wbmpc.hardware.mapping import unitree_motor_map
 from wbmpc.hardware.messages import (
@@ -91,7 +91,7 @@ def dds_round_trip(robot, network: str = "lo", domain_id: int = 0, samples: int 
         publisher = sdk.ChannelPublisher(_STATE, sdk.LowState_)
         publisher.Init()
         if not ready.wait(120):
-            raise ConfigError("the DDS echo process did not start")
+            raise RunError("the DDS echo process did not start")
         time.sleep(0.5)  # discovery
         period = 1.0 / rate_hz
         next_t = time.perf_counter()

@@ -4,11 +4,11 @@ Unitree quadrupeds (Go1/Go2/B1/B2, `unitree_go` messages, 20 motor slots) number
 FR hip, thigh, calf = 0, 1, 2; FL = 3, 4, 5; RR = 6, 7, 8; RL = 9, 10, 11 (the SDK's
 `LegID`). wbmpc's models order legs FL, FR, RL, RR, so the map is not the identity.
 
-Arm mapping (our definition): arm joints, in `robot.joint_names` order, take slots 12, 13, ...
-(slots 12-19 are unused on the quadruped). In `wbmpc robot-sim` they are simulated behind the same
-topics. On a real B1 + Z1 the Z1 is a separate robot driven by its own UDP SDK (z1_sdk, not on
-PyPI): a bridge on the robot forwards slots 12.. of LowCmd to the Z1's joint commands (q, dq, kp,
-kd, tau are the same motor law) and fills the Z1's joint states into the same slots of LowState.
+A Unitree Z1 arm (joints named as in its URDF: joint1..joint6, jointGripper) is not on the LowCmd
+bus: it has its own controller, driven over UDP (`wbmpc.hardware.z1_udp`); `z1_arm_map` says which
+model joint is which Z1 joint and holds the joints the model locks at their reference. Other arms
+(not Unitree's) take slots 12, 13, ... in `robot.joint_names` order, a convention of `wbmpc
+robot-sim` only: no Unitree robot forwards those slots to an arm.
 
 A motor is present in LowState when its temperature is reported (> 0 C); an absent slot reads 0.
 """
@@ -18,9 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.crc import N_MOTOR_SLOTS
+from wbmpc.hardware.z1_messages import N_Z1_JOINTS, Z1_JOINT_NAMES
 from wbmpc.robots import RobotModel
 
 UNITREE_LEG_SLOTS = {"FR": 0, "FL": 3, "RR": 6, "RL": 9}
@@ -47,10 +49,15 @@ class MotorMap:
 
 
 def unitree_motor_map(robot: RobotModel) -> MotorMap:
-    """The map for a Unitree-named quadruped (joints `FL_hip_joint`, ...) with an optional arm."""
-    slots = []
+    """The LowCmd map for a Unitree-named quadruped (joints `FL_hip_joint`, ...): its legs, and the joints of
+    an arm that is not a Z1 (a robot-sim convention, see the module's docstring)."""
+    slots, names = [], []
     next_arm = FIRST_ARM_SLOT
+    z1 = has_z1_arm(robot)
     for name, is_leg in zip(robot.joint_names, robot.leg_joint_mask):
+        if not is_leg and z1:
+            continue
+        names.append(name)
         if is_leg:
             leg, _, part = name.partition("_")
             part = part.replace("_joint", "")
@@ -61,8 +68,73 @@ def unitree_motor_map(robot: RobotModel) -> MotorMap:
         else:
             slots.append(next_arm)
             next_arm += 1
-    if max(slots) >= N_MOTOR_SLOTS:
+    if slots and max(slots) >= N_MOTOR_SLOTS:
         raise ConfigError(f"{robot.name} needs {max(slots) + 1} motor slots; unitree_go messages carry {N_MOTOR_SLOTS}")
     if len(set(slots)) != len(slots):
         raise ConfigError(f"two joints of {robot.name} map to the same motor slot: {slots}")
-    return MotorMap(tuple(robot.joint_names), tuple(slots))
+    return MotorMap(tuple(names), tuple(slots))
+
+
+def slot_joint_name(slot: int) -> str:
+    """The Unitree name of a leg motor slot (e.g. 3 -> FL_hip_joint), or `slot N` beyond the legs."""
+    for leg, first in UNITREE_LEG_SLOTS.items():
+        if first <= slot < first + 3:
+            return f"{leg}_{_LEG_PARTS[slot - first]}_joint"
+    return f"slot {slot}"
+
+
+def has_z1_arm(robot: RobotModel) -> bool:
+    """The model's arm joints are Z1 joints (its URDF names)."""
+    arm = [n for n, leg in zip(robot.joint_names, robot.leg_joint_mask) if not leg]
+    return bool(arm) and all(n in Z1_JOINT_NAMES for n in arm)
+
+
+@dataclass(frozen=True)
+class Z1ArmMap:
+    """Z1 joint k (0-5: joints 1-6, 6: gripper) is model joint `model_index[k]` (index into
+    `robot.joint_names`), or locked in the model (-1) and held at `locked_position_rad[k]`."""
+
+    model_index: tuple[int, ...]
+    locked_position_rad: tuple[float, ...]
+
+    @property
+    def driven(self) -> np.ndarray:
+        return np.array(self.model_index) >= 0
+
+    def describe(self) -> str:
+        return ", ".join(f"{name}->{'model' if i >= 0 else 'held %.2f rad' % self.locked_position_rad[k]}"
+                         for k, (name, i) in enumerate(zip(Z1_JOINT_NAMES, self.model_index)))
+
+
+def z1_arm_map(robot: RobotModel) -> Z1ArmMap:
+    """The Z1 joints of `robot`: driven by the MPC where the model has them, held where the model locks them."""
+    if not has_z1_arm(robot):
+        raise ConfigError(f"{robot.name} has no Z1 arm (arm joints named {', '.join(Z1_JOINT_NAMES[:6])}); the Z1 link "
+                          "needs a model with one (--robot b1_z1)")
+    locked = dict(zip(robot.spec.locked_joints, _locked_reference(robot)))
+    index, held = [], []
+    for name in Z1_JOINT_NAMES:
+        if name in robot.joint_names:
+            index.append(robot.joint_names.index(name))
+            held.append(0.0)
+        elif name in locked:
+            index.append(-1)
+            held.append(float(locked[name]))
+        else:
+            raise ConfigError(f"{robot.name}'s arm lacks Z1 joint '{name}' (neither modelled nor locked): the Z1 has "
+                              f"{N_Z1_JOINTS} joints ({', '.join(Z1_JOINT_NAMES)})")
+    return Z1ArmMap(tuple(index), tuple(held))
+
+
+def _locked_reference(robot: RobotModel) -> list[float]:
+    """Positions of the locked joints in the model's reference pose (where the reduced model froze them)."""
+    if not robot.spec.locked_joints:
+        return []
+    full = pin.buildModelFromUrdf(str(robot.spec.urdf), pin.JointModelFreeFlyer())
+    q_ref = RobotModel._reference_configuration(full, robot.spec)
+    out = []
+    for name in robot.spec.locked_joints:
+        jid = full.getJointId(name)
+        start, nq = full.idx_qs[jid], full.nqs[jid]
+        out.append(float(np.arctan2(q_ref[start + 1], q_ref[start])) if nq == 2 else float(q_ref[start]))
+    return out

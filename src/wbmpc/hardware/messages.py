@@ -10,20 +10,22 @@ LowState tick it answers (a real robot ignores it).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from wbmpc.errors import WbmpcError
 from wbmpc.estimation.sensors import SensorReadings
 from wbmpc.hardware.crc import low_cmd_crc, low_state_crc
-from wbmpc.hardware.mapping import MotorMap
 from wbmpc.hardware.sdk import load_sdk
+
+if TYPE_CHECKING:  # mapping imports the Z1 messages, which import MessageError from here
+    from wbmpc.hardware.mapping import MotorMap
 
 HEAD = (0xFE, 0xEF)
 LOWLEVEL = 0xFF
 MODE_SERVO, MODE_OFF = 0x01, 0x00
 PRESENT_TEMPERATURE_C = 30
-FOOT_CONTACT_THRESHOLD_N = 20.0  # foot_force above this counts as contact (as SensorConfig's switches)
 
 
 class MessageError(WbmpcError, ValueError):
@@ -91,9 +93,14 @@ def decode_low_state(msg, motors: MotorMap) -> SensorReadings:
         raise MessageError("LowState CRC mismatch (corrupted or not a unitree_go LowState)")
     present = present_slots(msg)
     if sorted(present) != sorted(motors.slots):
+        from wbmpc.hardware.mapping import slot_joint_name
+
+        missing = [slot_joint_name(s) for s in sorted(set(motors.slots) - set(present))]
+        extra = [slot_joint_name(s) for s in sorted(set(present) - set(motors.slots))]
         raise MessageError(
-            f"the robot reports {len(present)} motors (slots {present}); the model has {motors.n_motors} joints "
-            f"({motors.describe()}): run the controller with the robot's model (--robot)")
+            f"the robot reports {len(present)} motors; the model has {motors.n_motors} on this link: "
+            f"missing on the robot: {', '.join(missing) or 'none'}; extra on the robot: {', '.join(extra) or 'none'}. "
+            "Run the controller with the robot's model (--robot)")
     w, x, y, z = msg.imu_state.quaternion
     quat = np.array([x, y, z, w], dtype=float)
     q = np.array([msg.motor_state[s].q for s in motors.slots], dtype=float)
@@ -103,7 +110,9 @@ def decode_low_state(msg, motors: MotorMap) -> SensorReadings:
     values = np.concatenate([quat, q, dq, gyro, accel])
     if not np.all(np.isfinite(values)) or abs(np.linalg.norm(quat) - 1.0) > 1e-2:
         raise MessageError("LowState carries non-finite values or a non-unit IMU quaternion")
-    contact = np.array(msg.foot_force, dtype=float) > FOOT_CONTACT_THRESHOLD_N
+    # foot_force is a raw, uncalibrated sensor count on Unitree robots, not newtons: stance comes from the
+    # gait schedule in the estimator (EstimatorConfig.use_contact_sensors stays off on hardware)
+    contact = np.full(4, np.nan)
     return SensorReadings(msg.tick / 1e3, quat, gyro, accel, q, dq, contact)
 
 

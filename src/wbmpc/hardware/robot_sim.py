@@ -13,10 +13,19 @@ controller may take as long as its MPC needs), for controllers slower than real 
 Safety on the robot side: a LowCmd with a bad CRC, header, motor set or value is rejected and
 counted; no valid LowCmd for `command_timeout_ms` (lock-step: `lockstep_timeout_ms`) switches the
 motors to damping (kp = 0, kd = damping_kd, tau = 0) until valid commands come back.
+
+Sport mode: the process serves Unitree's motion switcher (`wbmpc.hardware.motion_switcher`) in mode
+`sport_mode` ("normal"); LowCmds are ignored (counted as `sport-mode`) until a client releases it.
+
+Arm: a Z1 arm of the model (`arm="z1"`, the default for a model with Z1 joints) is not on LowCmd but
+behind the Z1's UDP interface (`wbmpc.hardware.z1_udp.Z1Server`, z1_controller's ports): its state goes
+out every tick beside LowState, its latest LOWCMD command drives the modelled Z1 joints (joints the
+model locks are rigid here), and a silent arm link (`command_timeout_ms`) puts it in PASSIVE (damping).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections import Counter
@@ -26,7 +35,7 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.estimation.sensors import SensorConfig, Sensors
-from wbmpc.hardware.mapping import unitree_motor_map
+from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
 from wbmpc.hardware.messages import (
     MessageError,
     MotorCommand,
@@ -36,6 +45,7 @@ from wbmpc.hardware.messages import (
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.safety import SafetyConfig, fallen, lying_joint_positions
 from wbmpc.hardware.sdk import load_sdk
+from wbmpc.hardware.z1_messages import CONTROLLER_PORT, N_Z1_JOINTS, SDK_PORT
 from wbmpc.robots import RobotModel
 
 LOW_STATE_TOPIC, LOW_CMD_TOPIC = "rt/lowstate", "rt/lowcmd"
@@ -55,8 +65,16 @@ class RobotSimConfig:
     idle_exit_s: float | None = None  # exit when no valid LowCmd came for this long (after the first one)
     push_time_s: float | None = None  # base velocity kick at this simulated time
     push_velocity_m_s: tuple[float, float, float] = (0.0, 0.8, 0.0)
+    arm: str = "auto"  # "z1": the arm behind the Z1's UDP interface; "auto": z1 when the model has Z1 joints
+    z1_ports: tuple[int, int] = (CONTROLLER_PORT, SDK_PORT)  # (this process = the Z1 controller, the SDK's)
+    sport_mode: str = "normal"  # the motion switcher's mode at start ("": released)
+    refuse_sport_release: bool = False  # a robot that keeps its sport mode (fault injection)
+    arm_silent_after_s: float | None = None  # the Z1 stops sending its state at this simulated time (fault injection)
+    corrupt_every: int | None = None  # every n-th LowState with a bad CRC and Z1 state with NaN (fault injection)
 
     def __post_init__(self):
+        if self.arm not in ("auto", "z1", "none"):
+            raise ConfigError(f"--arm must be z1 (the arm over the Z1's UDP interface) or none, got {self.arm!r}")
         if self.mode not in ("realtime", "lockstep"):
             raise ConfigError(f"--mode must be realtime or lockstep, got {self.mode!r}")
         if self.start not in ("standing", "lying"):
@@ -77,6 +95,7 @@ class RobotSimReport:
     commands_received: int = 0
     commands_rejected: dict = field(default_factory=dict)
     watchdog_events: list = field(default_factory=list)  # simulated times when damping started
+    watchdog_latency_ms: list = field(default_factory=list)  # wall time from the last valid LowCmd to damping
     rtt_ms: list = field(default_factory=list)
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
@@ -86,6 +105,9 @@ class RobotSimReport:
     end_xy_m: list = field(default_factory=list)
     base_height_min_m: float | None = None
     damping_at_end: bool = False
+    arm: dict | None = None  # the Z1 link's counters (None: no Z1 arm)
+    sport_mode_at_end: str = ""
+    sport_calls: list = field(default_factory=list)  # motion switcher calls served, in order
     tick_cpu_ms: list = field(default_factory=list)  # CPU time of the tick loop's own thread per tick
     trajectory: list = field(default_factory=list)  # [t s, x, y, z, tilt deg] every 25 ticks (20 Hz), true base
 
@@ -99,6 +121,7 @@ class RobotSimReport:
             "commands_received": self.commands_received,
             "commands_rejected": dict(self.commands_rejected),
             "watchdog_events_s": self.watchdog_events,
+            "watchdog_latency_ms": self.watchdog_latency_ms,
             "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
             "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None,
             "rtt_samples": int(rtt.size),
@@ -109,6 +132,9 @@ class RobotSimReport:
             "base_drift_cm_s": float(100 * moved / self.sim_time_s) if self.sim_time_s > 0 else None,
             "base_height_min_m": self.base_height_min_m,
             "damping_at_end": self.damping_at_end,
+            "arm": self.arm,
+            "sport_mode_at_end": self.sport_mode_at_end,
+            "sport_calls": self.sport_calls,
             "tick_cpu_ms_p50": float(np.percentile(self.tick_cpu_ms, 50)) if self.tick_cpu_ms else None,
             "tick_cpu_ms_p99": float(np.percentile(self.tick_cpu_ms, 99)) if self.tick_cpu_ms else None,
             "trajectory": self.trajectory,
@@ -130,6 +156,9 @@ class RobotSimulator:
         check_interface(config.network)
         self.robot, self.config = robot, config
         self.motors = unitree_motor_map(robot)
+        self._leg_index = np.array([robot.joint_names.index(n) for n in self.motors.joint_names], dtype=int)
+        z1 = config.arm == "z1" or (config.arm == "auto" and has_z1_arm(robot))
+        self.arm_map = z1_arm_map(robot) if z1 else None
         self.plant = make_plant("mujoco", robot)
         q0 = robot.q_nominal.copy()
         if config.start == "lying":
@@ -150,6 +179,8 @@ class RobotSimulator:
         self.report = RobotSimReport(config.mode)
         self._rejected: Counter = Counter()
         self._stop = threading.Event()
+        self._switcher = None
+        self._z1 = None
 
     def stop(self) -> None:
         self._stop.set()
@@ -157,6 +188,10 @@ class RobotSimulator:
     # ------------------------------------------------------------------ DDS side
     def _on_command(self, msg) -> None:
         now = time.perf_counter()
+        if self._switcher is not None and not self._switcher.released:
+            with self._lock:
+                self._rejected["sport-mode"] += 1  # the built-in controller owns the motors
+            return
         try:
             command = decode_low_cmd(msg, self.motors)
         except MessageError as exc:
@@ -173,16 +208,51 @@ class RobotSimulator:
             self._lock.notify_all()
 
     # ------------------------------------------------------------------ loop
+    def _full_command(self, legs: MotorCommand | None) -> MotorCommand:
+        """The motor law of every model joint: legs from LowCmd (None: damping), the Z1's modelled joints
+        from its latest LOWCMD command (PASSIVE or stale: damping)."""
+        full = MotorCommand.damping(self.robot.n_joints, self.config.safety.damping_kd)
+        if legs is not None:
+            for name, value in zip(("q_rad", "dq_rad_s", "kp", "kd", "tau_nm"),
+                                   (legs.q_rad, legs.dq_rad_s, legs.kp, legs.kd, legs.tau_nm)):
+                getattr(full, name)[self._leg_index] = value
+        if self._z1 is not None:
+            arm = self._z1.command()
+            if arm is not None:
+                k = np.flatnonzero(self.arm_map.driven)
+                j = np.array(self.arm_map.model_index)[k]
+                full.q_rad[j], full.dq_rad_s[j], full.tau_nm[j] = arm.q_rad[k], arm.dq_rad_s[k], arm.tau_nm[k]
+                full.kp[j], full.kd[j] = arm.kp[k], arm.kd[k]
+        return full
+
+    def _publish_arm(self, reading, corrupt: bool = False) -> None:
+        if self._z1 is None:
+            return
+        q, dq = np.array(self.arm_map.locked_position_rad), np.zeros(N_Z1_JOINTS)
+        k = np.flatnonzero(self.arm_map.driven)
+        j = np.array(self.arm_map.model_index)[k]
+        q[k], dq[k] = reading.joint_position_rad[j], reading.joint_velocity_rad_s[j]
+        if corrupt:
+            q[0] = np.nan
+        self._z1.publish(q, dq, np.zeros(N_Z1_JOINTS))
+
     def run(self, progress=None) -> RobotSimReport:
+        from wbmpc.hardware.motion_switcher import MotionSwitcherServer
+        from wbmpc.hardware.z1_udp import Z1Server
+
         sdk = load_sdk()
         cfg, plant, report = self.config, self.plant, self.report
         sdk.ChannelFactoryInitialize(cfg.domain_id, cfg.network)
+        self._switcher = MotionSwitcherServer(cfg.sport_mode, cfg.refuse_sport_release)
+        if self.arm_map is not None:
+            self._z1 = Z1Server(own_port=cfg.z1_ports[0], sdk_port=cfg.z1_ports[1],
+                                command_timeout_ms=cfg.lockstep_timeout_ms if cfg.mode == "lockstep"
+                                else cfg.safety.command_timeout_ms)
         publisher = sdk.ChannelPublisher(LOW_STATE_TOPIC, sdk.LowState_)
         publisher.Init()
         subscriber = sdk.ChannelSubscriber(LOW_CMD_TOPIC, sdk.LowCmd_)
         subscriber.Init(self._on_command, 0)
         period = 1.0 / cfg.state_rate_hz
-        damping = MotorCommand.damping(self.robot.n_joints, cfg.safety.damping_kd)
         started_at: float | None = None  # simulated time of the first command
         in_damping, pushed, stood = False, False, False
         wall_start = time.perf_counter()
@@ -194,11 +264,19 @@ class RobotSimulator:
                 tick_ms = int(round(1e3 * t))
                 reading = self.sensors.read()
                 foot_force = np.linalg.norm(plant.contact_forces(), axis=1)
-                message = encode_low_state(reading, self.motors, tick_ms, foot_force)
+                corrupt = cfg.corrupt_every is not None and report.ticks % cfg.corrupt_every == cfg.corrupt_every - 1
+                if not (cfg.arm_silent_after_s is not None and started_at is not None
+                        and t - started_at >= cfg.arm_silent_after_s):
+                    self._publish_arm(reading, corrupt)
+                legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
+                                           joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
+                message = encode_low_state(legs, self.motors, tick_ms, foot_force)
                 with self._lock:
                     self._send_wall[tick_ms] = time.perf_counter()
                     if len(self._send_wall) > 2000:
                         self._send_wall.pop(next(iter(self._send_wall)))
+                if corrupt:
+                    message.crc ^= 1  # corrupted in transit
                 publisher.Write(message)
                 # wait for (lock-step) or take (real time) the command
                 with self._lock:
@@ -212,7 +290,7 @@ class RobotSimulator:
                         started_at = t
                         report.start_xy_m = plant.state()[0][:2].tolist()
                         wall_start = deadline = time.perf_counter()
-                    elif cfg.mode == "lockstep" and not in_damping:
+                    elif cfg.mode == "lockstep" and not in_damping and not corrupt:  # nobody answers a corrupted one
                         self._lock.wait_for(lambda: self._command_echo == tick_ms or self._stop.is_set(),
                                             timeout=cfg.lockstep_timeout_ms / 1e3)
                     command, command_wall = self._command, self._command_wall
@@ -220,9 +298,9 @@ class RobotSimulator:
                 stale = time.perf_counter() - command_wall > timeout_s
                 if stale and not in_damping:
                     report.watchdog_events.append(t - started_at)
+                    report.watchdog_latency_ms.append(1e3 * (time.perf_counter() - command_wall))
                 in_damping = stale
-                if in_damping:
-                    command = damping
+                command = self._full_command(None if in_damping else command)
                 if cfg.idle_exit_s is not None and time.perf_counter() - command_wall > cfg.idle_exit_s:
                     break
                 if cfg.push_time_s is not None and not pushed and t - started_at >= cfg.push_time_s:
@@ -259,6 +337,17 @@ class RobotSimulator:
         finally:
             subscriber.Close()
             publisher.Close()
+            if self._z1 is not None:
+                self._z1.close()
+        if self._z1 is not None:
+            rtt = np.array(self._z1.rtt_ms)
+            report.arm = {"commands_received": self._z1.received, "commands_rejected": dict(self._z1.rejected),
+                          "watchdog_events": self._z1.watchdog_events, "passive_at_end": self._z1.command() is None,
+                          "watchdog_latency_ms": list(self._z1.watchdog_latency_ms),
+                          "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
+                          "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None, "rtt_samples": int(rtt.size)}
+        report.sport_mode_at_end = self._switcher.mode
+        report.sport_calls = list(self._switcher.calls)
         report.sim_time_s = plant.time_s - started_at if started_at is not None else 0.0
         report.wall_time_s = time.perf_counter() - wall_start
         report.end_xy_m = plant.state()[0][:2].tolist()

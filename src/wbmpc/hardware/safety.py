@@ -85,11 +85,16 @@ def fallen(robot: RobotModel, q: np.ndarray, config: SafetyConfig, check_height:
 
 
 def lying_joint_positions(robot: RobotModel) -> np.ndarray:
-    """Folded legs (calf near its folding limit, thigh raised), arm at its nominal pose: a resting pose."""
+    """Folded legs (calf near its folding limit, thigh raised), a Z1 arm folded (its rest pose, z1_controller's
+    "startFlat"), another arm at its nominal pose: a resting pose."""
+    from wbmpc.hardware.z1_messages import Z1_REST_POSE_RAD
+
     q = robot.q_nominal[7:].copy()
     lower, upper = robot.model.lowerPositionLimit[7:], robot.model.upperPositionLimit[7:]
     for j, name in enumerate(robot.joint_names):
         if not robot.leg_joint_mask[j]:
+            if name in Z1_REST_POSE_RAD:
+                q[j] = np.clip(Z1_REST_POSE_RAD[name], lower[j], upper[j])
             continue
         if "calf" in name:
             q[j] = lower[j] + 0.15 if abs(lower[j]) > abs(upper[j]) else upper[j] - 0.15

@@ -7,6 +7,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from wbmpc.errors import ModelError, unknown_name
+from wbmpc.robots.compose import ArmMount, compose_spec
 from wbmpc.robots.model import RobotModel, RobotSpec
 
 QUADRUPED_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
@@ -103,7 +104,21 @@ _POSES = {
     "laikago": {f"{leg}_{joint}": value for leg in ("FL", "FR", "RL", "RR")
                 for joint, value in (("thigh_joint", 0.7), ("calf_joint", -1.4))},
 }
-QUADRUPEDS = ("b1_z1", "b1_z1_full", "b1", "go1", "go2", "a1", "laikago", "anymal_b", "anymal_b_kinova", "anymal_c",
+# an arm on a base, composed from the two URDFs (robots/compose.py): {preset: (base preset, arm)}
+Z1_ARM_UP = {"joint2": 0.26178, "joint3": -0.26178}  # z1.srdf's arm_up, as b1-z1.srdf's standing_with_arm_up
+# arms of example-robot-data by name (`--arm z1 --mount FRAME`): URDF, end effector, the paper's locks, pose
+NAMED_ARMS: dict[str, dict] = {
+    "z1": dict(urdf="z1_description/urdf/z1.urdf", arm_ee="gripperStator", locked_joints=("joint5", "joint6", "jointGripper"),
+               joint_positions_rad=Z1_ARM_UP),
+}
+_COMPOSED: dict[str, tuple[str, dict]] = {
+    # Z1 on the Go2's back: base frame (0, 0, 0.057) m, the centre of the top of its trunk (Unitree's trunk
+    # box 0.376 x 0.0935 x 0.114 m). With the arm up (z1.srdf's arm_up) the standing CoM is 6 mm ahead of
+    # the feet's centre (Go2 alone: 19 mm). The paper's four arm DoF: joint5, joint6 and the gripper locked
+    # as on b1_z1. 21.3 kg: the Z1 (4.7 kg) is heavy for a 16 kg Go2, a D1-class arm is lighter
+    "go2_z1": ("go2", dict(mount_frame="base", mount_xyz_m=(0.0, 0.0, 0.057), **NAMED_ARMS["z1"])),
+}
+QUADRUPEDS = ("b1_z1", "b1_z1_full", "go2_z1", "b1", "go1", "go2", "a1", "laikago", "anymal_b", "anymal_b_kinova", "anymal_c",
               "hyq", "solo8", "solo12", "quadruped", "centauro")
 
 
@@ -129,13 +144,17 @@ def _presets() -> dict[str, RobotSpec]:
     return presets
 
 
-PRESET_NAMES = ("b1_z1", "b1_z1_full", *_LEGGED)
+PRESET_NAMES = ("b1_z1", "b1_z1_full", "go2_z1", *_LEGGED)
 
 
 def preset_spec(name: str) -> RobotSpec:
     presets = _presets()
+    if name in _COMPOSED:
+        base, arm = _COMPOSED[name]
+        mount = ArmMount(**{**arm, "urdf": _erd(arm["urdf"])})
+        return compose_spec(presets[base], mount, name=name)[0]
     if name not in presets:
-        raise ModelError(unknown_name("robot", name, presets))
+        raise ModelError(unknown_name("robot", name, PRESET_NAMES))
     return presets[name]
 
 

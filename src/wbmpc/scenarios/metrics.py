@@ -58,6 +58,8 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "base_drift_settled_cm_s": float(100 * np.linalg.norm(settled_displacement) / settled_s) if settled_s > 0 else None,
         "base_drift_settled_from_s": float(ticks.settle_t - t0) if duration > 0 else None,
         "base_vel_rmse": float(np.sqrt(ticks.velocity_error_sq_sum / ticks.n)),
+        # after the start transient (the command steps from rest at t = 0), as base_drift_settled_cm_s
+        "base_vel_rmse_settled": float(np.sqrt(ticks.settled_error_sq_sum / ticks.settled_n)) if ticks.settled_n else None,
         "ee_pos_rmse_m": None,
         "ee_force_err_rel": None,
         "max_torque_ratio": float(np.max(torque_ratio)),
@@ -76,7 +78,30 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "mpc_cpu_share": log.mpc_cpu_share,
         "realtime_priority": log.realtime_priority,  # real time: "nice -10" where permitted, else "default"
         **stability_metrics(log, cmd_t, solve, duration),
+        **solver_detail_metrics(log),
     }
+
+
+def solver_detail_metrics(log: RunLog) -> dict:
+    """The anytime SQP's per-step record: SQP iterations, KKT residuals of the returned iterates, how
+    many steps it ended by its deadline and how many ended past it (None when the solver reports none)."""
+    details = log.solver_details()
+    n = details["sqp_iterations"].size
+    if not n:
+        return {"sqp_iterations_mean": None}
+
+    def stat(values, how):
+        values = values[np.isfinite(values)]
+        return float(how(values)) if values.size else None
+
+    iterations = details["sqp_iterations"][np.isfinite(details["sqp_iterations"])]
+    return {"sqp_iterations_mean": float(np.mean(iterations)) if iterations.size else None,
+            "sqp_iterations_min": int(np.min(iterations)) if iterations.size else None,
+            "primal_residual_median": stat(details["primal_residual"], np.median),
+            "primal_residual_max": stat(details["primal_residual"], np.max),
+            "dual_residual_median": stat(details["dual_residual"], np.median),
+            "step_budget_ms_mean": stat(details["budget_ms"], np.mean),
+            "solver_past_deadline_share": stat(details["late"], np.mean)}
 
 
 STABILITY_WINDOW_S = 60.0
@@ -116,6 +141,7 @@ class _TickStatistics:
         self._previous: tuple[float, np.ndarray] | None = None  # (t, commanded xy velocity) of the last tick
         self.settle_t, self.settle_q, self.settle_path = None, None, None
         self.velocity_error_sq_sum = 0.0
+        self.settled_error_sq_sum, self.settled_n = 0.0, 0  # the same after the start transient
         self.max_abs_tau = np.zeros(robot.n_joints)
         self.max_abs_tau_ff = np.zeros(robot.n_joints)
 
@@ -143,8 +169,13 @@ class _TickStatistics:
         self._previous = (float(t[-1]), cmd[-1, :2].copy())
         self.q_last = q[-1].copy()
         vel_world = base_world_velocity(q, v)
-        self.velocity_error_sq_sum += float(np.sum((vel_world[:, :2] - cmd[:, :2]) ** 2))
+        error_sq = np.sum((vel_world[:, :2] - cmd[:, :2]) ** 2, axis=1)
+        self.velocity_error_sq_sum += float(np.sum(error_sq))
         self.n += len(t)
+        if self.settle_time is not None:
+            settled = t >= self.settle_time
+            self.settled_error_sq_sum += float(np.sum(error_sq[settled]))
+            self.settled_n += int(np.sum(settled))
         self.max_abs_tau = np.maximum(self.max_abs_tau, np.max(np.abs(chunk["tau"]), axis=0))
         self.max_abs_tau_ff = np.maximum(self.max_abs_tau_ff, np.max(np.abs(chunk["tau_ff"]), axis=0))
 

@@ -9,7 +9,6 @@ from typing import Callable
 
 import numpy as np
 
-from wbmpc.control.biped import biped_mpc_settings
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
 from wbmpc.control.mpc import MPC, MpcConfig
@@ -61,6 +60,10 @@ class RunConfig:
     # MpcConfig.push_gait_period_scale: the gait period's factor after a push (1: the paper's fixed schedule).
     # None: the solver's default (`_push_cadence`: faster steps with Fatrop and IPOPT, fixed with RTI)
     push_gait_period_scale: float | None = None
+    solver_options: dict = field(default_factory=dict)  # SolverConfig.extra_options of rti/sqp (--solver-option)
+    # MpcConfig.delay_compensation; None: on whenever the plan applies late (any --delay but none)
+    delay_compensation: bool | None = None
+    step_budget_ms: float | None = None  # MpcConfig.step_budget_s of the anytime solver; None: see _step_budget_s
 
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
@@ -72,6 +75,8 @@ class RunConfig:
         check_number("uniform_dt_ms", self.uniform_dt_ms, low=0.0, high=1e3 * MAX_STEP_S, low_open=True, unit="ms",
                      allow_none=True)
         fixed_delay_s(self.delay)
+        if self.solver == "auto":
+            self.solver = default_solver(self.compiled, self.delay)
         if self.plant not in PLANTS:
             raise ConfigError.for_field("plant", f"must be one of {', '.join(PLANTS)}; got '{self.plant}'")
         if self.formulation not in FORMULATIONS:
@@ -88,6 +93,15 @@ class RunConfig:
             raise ConfigError("a faster step cadence after a push (--push-cadence) changes the MPC's gait clock in the "
                               "solver process, which the estimator of --state estimated --delay realtime cannot "
                               "see: leave --push-cadence out (that run keeps the fixed schedule) or set it to 1")
+        check_number("step_budget_ms", self.step_budget_ms, low=0.0, high=1e4, low_open=True, unit="ms", allow_none=True)
+        if self.solver_options and self.solver not in ("rti", "sqp"):
+            raise ConfigError(f"--solver-option sets the rti/sqp solvers' settings; the {self.solver} solver has none "
+                              "(use --solver rti or --solver sqp)")
+        if self.solver_options:  # unknown names and bad values refused before anything is built
+            from wbmpc.solvers.anytime import AnytimeConfig
+            from wbmpc.solvers.rti import RtiConfig
+
+            (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
 
@@ -101,30 +115,65 @@ class ScenarioResult:
 
 
 def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | None = None) -> MpcConfig:
-    """The MPC settings of a run: grid and solver from `config`, weights/swing/period from the robot's tuning."""
+    """The MPC settings of a run: grid and solver from `config`; weights, swing, gait period and push detection
+    derived from the robot (`wbmpc.control.tuning`)."""
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
-    tuning = tuning_for(robot) if robot is not None else RobotTuning()
-    biped = biped_mpc_settings(robot, tuning.weights) if robot is not None else {}
+    tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
-                                         extra_options=({"recovery_max_iterations": RECOVERY_ITERATIONS_DELAYED}
-                                                        if config.solver == "rti" and config.delay != "none" else {})),
-                     weights=biped.get("weights", tuning.weights), swing=tuning.swing, gait_period_s=tuning.gait_period_s,
+                                         extra_options=_solver_options(config)),
+                     delay_compensation=(config.delay != "none" if config.delay_compensation is None
+                                         else config.delay_compensation),
+                     step_budget_s=_step_budget_s(config),
+                     **tuning.mpc_fields(),
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
                      # shifted in time, is held instead
+                     # the anytime SQP continues from its own best iterate: no converged solver first after a rescue
+                     # (an uncompiled IPOPT step takes 100+ ms: real-time push cases fell to 5 Hz with it)
+                     fallback_first_s=0.0 if config.solver == "sqp" else MpcConfig.fallback_first_s,
                      recovery_time_limit_s=MpcConfig.recovery_time_limit_s if config.delay == "none"
                      else DELAYED_RECOVERY_LIMIT_S,
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
                      # that changes after a push lives in the solver process: keep the fixed schedule there
-                     push_gait_period_scale=_push_cadence(config),
-                     # two feet: weight shift towards the stance foot, free hands (control/biped.py)
-                     free_ee_without_command=biped.get("free_ee_without_command", False),
-                     support_sway=biped.get("support_sway", 0.0), support_lead_s=biped.get("support_lead_s", 0.0))
+                     push_gait_period_scale=_push_cadence(config))
+
+
+def default_solver(compiled: bool, delay: str) -> str:
+    """`--solver auto`: converged Fatrop for a compiled run whose plant waits for it (the paper's closed
+    loop); otherwise the anytime SQP, which keeps the MPC period: with a delay the plan must come in time,
+    and uncompiled Fatrop takes ~25 ms per step on b1_z1 (twice the period: "240/240 over budget" on the
+    main job) where one uncompiled SQP iteration takes ~5 ms."""
+    return "fatrop" if compiled and delay == "none" else "sqp"
+
+
+def _solver_options(config: RunConfig) -> dict:
+    """SolverConfig.extra_options of a run: --solver-option, and for rti/sqp with a delay a capped Fatrop
+    re-solve of a failed QP; the anytime SQP measures its budget on CPU time where the plant waits for it."""
+    options = {}
+    if config.solver in ("rti", "sqp") and config.delay != "none":
+        options["recovery_max_iterations"] = RECOVERY_ITERATIONS_DELAYED
+    if config.solver == "sqp" and config.delay not in ("realtime", "none", "measured-wall"):
+        options["clock"] = "cpu"  # what the step would take on a core of its own, whatever else the machine runs
+    return {**options, **config.solver_options}
+
+
+# the anytime SQP's step budget without --step-budget: the MPC period less the transport and the loop's
+# own work in real time (REALTIME_OVERHEAD_S), the same budget on CPU time with a simulated delay (the plant
+# waits, the plan still applies --delay ms late), on wall time without delay (the solve times the main job plots)
+REALTIME_OVERHEAD_S = 2.5e-3
+
+
+def _step_budget_s(config: RunConfig) -> float | None:
+    if config.step_budget_ms is not None:
+        return config.step_budget_ms / 1e3
+    if config.solver != "sqp":
+        return None
+    return 1.0 / LoopConfig.mpc_rate_hz - REALTIME_OVERHEAD_S
 
 
 def _push_cadence(config: RunConfig) -> float | None:
@@ -135,7 +184,9 @@ def _push_cadence(config: RunConfig) -> float | None:
     RTI (one SQP step per MPC step) after b1_z1's default 0.8 m/s push, 8 s runs: without delay it stays
     up on the fixed schedule and falls 2.9 s after the kick with the faster steps (scales 0.65 and 0.75
     fall too), running off sideways; in real time it falls either way (0.3 s after the kick on the
-    fixed schedule, ~2.8 s with the faster steps)."""
+    fixed schedule, ~2.8 s with the faster steps). The anytime SQP (~2.5 iterations per step, 6 ms delay,
+    compensated) takes the faster steps: the 0.8 m/s push at 0 deg falls 0.37 s after the kick on the
+    fixed schedule and stays up with them (no failed step)."""
     if config.state == "estimated" and config.delay == "realtime":
         return None
     scale = config.push_gait_period_scale
@@ -204,6 +255,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics["state"] = config.state
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
+    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
 
@@ -212,12 +264,40 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
                     "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking,
                     "push_gait_period_scale": mpc.config.push_gait_period_scale,
+                    **solver_summary(mpc, config),
                     "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
                     "drive_train": _drive_train_summary(robot, plant.config)})
     result = ScenarioResult(scenario, metrics, log, scene)
     result.plant = plant  # type: ignore[attr-defined]
     result.estimation = state_source.log if state_source is not None else None  # type: ignore[attr-defined]
     return result
+
+
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
+    """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
+    says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
+    tuning = tuning_for(robot)
+    used = dataclasses.replace(tuning, gains=gains, **{key: getattr(mpc.config, key) for key in tuning.mpc_fields()})
+    report = tuning.report()
+    used_report = used.report()
+    out = {"values": {}, "sources": {}}
+    for name, entry in used_report.items():
+        out["values"][name] = entry["value"]
+        out["sources"][name] = report[name]["source"] if entry["value"] == report[name]["value"] else "option"
+    return out
+
+
+def solver_summary(mpc: MPC, config: RunConfig) -> dict:
+    """Which solver ran and how: compiled or not (and why not, when asked to be), the step budget and the
+    delay compensation. A solver asked to be compiled that could not be runs in CasADi's VM, several
+    times slower: the summary and metrics say so instead of a warning alone."""
+    solver = mpc.solver
+    compiled = bool(getattr(solver, "is_compiled", False))
+    error = getattr(solver, "compile_error", None)
+    return {"solver": solver.config.name, "solver_compiled": compiled, "compiled_requested": bool(config.compiled),
+            "compile_error": error if config.compiled and not compiled else None,
+            "delay_compensation": bool(mpc.config.delay_compensation),
+            "step_budget_ms": None if mpc.config.step_budget_s is None else 1e3 * mpc.config.step_budget_s}
 
 
 def _drive_train_summary(robot: RobotModel, plant_config: PlantConfig) -> dict:

@@ -1,4 +1,5 @@
-"""Solvers on the stage-wise OCP: `make_solver` picks Fatrop/IPOPT (`nlp.py`) or RTI (`rti.py`).
+"""Solvers on the stage-wise OCP: `make_solver` picks Fatrop/IPOPT (`nlp.py`), RTI (`rti.py`) or Fatrop
+through its C interface (`fatrop_direct.py`).
 
 Importing this package first puts the fast BLASFEO under Fatrop and HPIPM where it is installed
 (`wbmpc setup`) and verified: see `blasfeo.py`.
@@ -12,7 +13,16 @@ _activate_fast_blasfeo()
 
 
 def make_solver(problem, config):
-    """The solver `config.name` names, built once for `problem` (NlpSolver or RtiSolver)."""
+    """The solver `config.name` names, built once for `problem` (NlpSolver, RtiSolver, AnytimeSqpSolver or
+    FatropDirectSolver)."""
+    if config.name == "fatrop-direct":
+        from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+
+        return FatropDirectSolver(problem, config)
+    if config.name == "sqp":
+        from wbmpc.solvers.anytime import AnytimeSqpSolver
+
+        return AnytimeSqpSolver(problem, config)
     if config.name == "rti":
         from wbmpc.solvers.rti import RtiSolver
 

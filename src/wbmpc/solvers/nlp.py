@@ -26,7 +26,10 @@ from wbmpc.solvers.codegen import (
     compile_nlp,
 )
 
-SOLVERS = ("fatrop", "ipopt", "rti")  # rti: solvers/rti.py, built by wbmpc.solvers.make_solver
+# rti: solvers/rti.py, sqp: the anytime SQP (solvers/anytime.py), fatrop-direct: solvers/fatrop_direct.py;
+# all three built by wbmpc.solvers.make_solver
+SOLVERS = ("fatrop", "ipopt", "rti", "sqp", "fatrop-direct")
+FATROP_SOLVERS = ("fatrop", "fatrop-direct")  # the same Fatrop: casadi's nlpsol or our direct binding
 
 
 @dataclass(frozen=True)
@@ -38,7 +41,7 @@ class SolverConfig:
     tolerance: float = 1e-4
     constraint_tolerance: float = 1e-6
     max_iterations: int = 100
-    time_limit_s: float | None = None  # IPOPT stops itself; Fatrop runs are flagged afterwards
+    time_limit_s: float | None = None  # IPOPT and fatrop-direct stop themselves; casadi's Fatrop is flagged afterwards
     barrier_init: float = 1e-3  # initial barrier parameter mu: small suits warm-started MPC
     # Fatrop, warm-started MPC steps (`solve(..., warm_start=True)`): first an attempt from this much smaller
     # barrier, capped at `warm_max_iterations`; if it does not converge, the step is solved from
@@ -80,6 +83,7 @@ class SolverStats:
     cost: float
     cpu_time_s: float = 0.0  # CPU time of the solving thread: robust to other processes on the machine
     split_ms: dict = field(default_factory=dict)  # where the solve time went (see `time_split_ms`)
+    details: dict = field(default_factory=dict)  # solver-specific (anytime SQP: iterations, KKT residuals, budget)
 
 
 def time_split_ms(name: str, stats: dict, elapsed_s: float) -> dict:
@@ -196,8 +200,9 @@ class NlpSolver:
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(), solver: ca.Function | None = None,
                  compile_report: CompileReport | None = None):
-        if config.name == "rti":
-            raise ConfigError("the 'rti' solver is not an nlpsol: build it with wbmpc.solvers.make_solver(problem, config)")
+        if config.name in ("rti", "sqp", "fatrop-direct"):
+            raise ConfigError(f"the '{config.name}' solver is not an nlpsol: build it with "
+                              "wbmpc.solvers.make_solver(problem, config)")
         self.problem = problem
         self.config = config
         self.compile_report: CompileReport | None = compile_report

@@ -41,7 +41,7 @@ from wbmpc.solvers.nlp import (
     bound_violation,
     failed_result,
 )
-from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, StructuredQp
+from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
 
 
 @dataclass(frozen=True)
@@ -86,16 +86,20 @@ class RtiConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(options) - known)
         if unknown:
-            raise ConfigError(f"unknown RTI option(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+            kind = "RTI" if cls is RtiConfig else "anytime SQP"
+            raise ConfigError(f"unknown {kind} option(s) {', '.join(unknown)} (--solver-option); available: "
+                              f"{', '.join(sorted(known))}")
         return cls(**options)
 
 
 class RtiSolver:
     """One SQP iteration with a Gauss-Newton Hessian per call, built once per OCP structure."""
 
+    solver_name = "rti"
+
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(name="rti"), rti: RtiConfig | None = None):
-        if config.name != "rti":
-            raise ConfigError(f"RtiSolver needs SolverConfig(name='rti'), got '{config.name}'")
+        if config.name != self.solver_name:
+            raise ConfigError(f"{type(self).__name__} needs SolverConfig(name='{self.solver_name}'), got '{config.name}'")
         self.problem = problem
         self.config = config
         self.rti = rti or RtiConfig.from_options(config.extra_options)
@@ -118,6 +122,8 @@ class RtiSolver:
         self._jacobian, self._gradient = functions["nlp_jac_g"], functions["nlp_grad_f"]
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
         self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
+        # the Gauss-Newton Hessian of the [q, v] formulations depends on the weights (p) alone: once per call
+        self.hessian_depends_on_x = bool(ca.depends_on(hessian, x))
         sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
                              hpipm_options=dict(self.rti.qp_options))
@@ -163,6 +169,24 @@ class RtiSolver:
         self.last_timing["recovery_ms"] = 1e3 * (result.stats.solve_time_s - failed.stats.solve_time_s)
         return result
 
+    def _solve_qp(self, qp_data) -> tuple[QpResult, float, int]:
+        """The QP in the first HPIPM mode, re-solved in the fallback mode if that fails (which then goes first
+        for `fallback_first_calls` calls). Returns the result, the time and the iterations of both attempts."""
+        qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
+        if self._fallback_first > 0:
+            self._fallback_first -= 1
+            qps.reverse()
+        result = qps[0][0].solve(*qp_data)
+        spent_s, iterations = result.solve_time_s, max(result.iterations, 0)
+        if not result.success and self.fallback_qp is not None:
+            first = result.status
+            result = qps[1][0].solve(*qp_data)
+            spent_s, iterations = spent_s + result.solve_time_s, iterations + max(result.iterations, 0)
+            result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
+            if qps[0][0] is self.qp:
+                self._fallback_first = self.rti.fallback_first_calls
+        return result, spent_s, iterations
+
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         return bound_violation(x, self._nlp(x, p)[1], lbx, ubx, lbg, ubg)
 
@@ -192,21 +216,9 @@ class RtiSolver:
             H = self._hessian(x, p)
             linearize_s += time.perf_counter() - tic
             qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
-            qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
-            if self._fallback_first > 0:
-                self._fallback_first -= 1
-                qps.reverse()
-            result = qps[0][0].solve(*qp_data)
-            qp_s += result.solve_time_s
-            qp_iterations += max(result.iterations, 0)
-            if not result.success and self.fallback_qp is not None:
-                first = result.status
-                result = qps[1][0].solve(*qp_data)
-                qp_s += result.solve_time_s
-                qp_iterations += max(result.iterations, 0)
-                result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
-                if qps[0][0] is self.qp:
-                    self._fallback_first = self.rti.fallback_first_calls
+            result, spent_s, iterations = self._solve_qp(qp_data)
+            qp_s += spent_s
+            qp_iterations += iterations
             status, success = result.status, result.success
             if not success:
                 break

@@ -1,25 +1,38 @@
-"""A self-contained HTML 3D replay of a run: plain JavaScript on a <canvas>, no network access.
+"""A self-contained HTML replay of a run with the robot's meshes: pinocchio's `MeshcatVisualizer` on
+meshcat's offline viewer (three.js, shipped in the `meshcat` wheel), as Crocoddyl and aligator show
+their trajectories.
 
-`save_replay(robot, time_s, q, out_path)` samples the run at `fps`, computes with pinocchio the
-world positions of every joint origin, the feet, the arm end-effector and the corners of the
-base box, and embeds them (rounded to millimetres) as JSON in one HTML file that draws the robot
-as a capsule figure over a ground grid: drag rotates the orbit camera, the wheel zooms, the
-camera follows the base; play/pause, time slider and playback speed at the bottom.
+`save_replay(robot, time_s, q, out_path)` loads the robot's geometry with pinocchio's URDF parser
+(visual meshes of example-robot-data; if they are missing: the URDF's collision geometry; if that is
+missing too: the primitive shapes of the MuJoCo scene, `wbmpc.sim.shapes`, with a warning that says
+so), draws it through `MeshcatVisualizer` into a recorder instead of a meshcat server, samples the
+run at `fps` and records every geometry's placement (`pin.updateGeometryPlacements`) as one meshcat
+animation frame. The page embeds the viewer's JavaScript and the recorded commands (msgpack, base64),
+so it opens offline from the file; meshcat's "Animations" panel (top right) has play/pause, reset
+and the time slider, and the mouse orbits (drag), pans (right drag) and zooms (wheel).
 
-JSON layout (`<script id="replay-data" type="application/json">`, also `replay_data(...)`):
-`frames[k]` = flat [x0, y0, z0, x1, ...] in mm of the points `names[i]` at time `t[k]`;
-`links` = [[i, j, group]] drawn as capsules; `box_edges` = [[i, j]]; `extras` = named
-trajectories [{"name", "color", "frames": [[x, y, z] | null]}] in mm; `objects` = the scene's
-objects (`wbmpc.sim.objects.Scene.replay_objects`): boxes {"name", "kind": "box", "color",
-"half": [mm x3], "frames": [[x, y, z (mm), R row-major x9]]} and lines {"name", "kind": "line",
-"color", "frames": [[x0, y0, z0, x1, y1, z1] (mm)]}, one frame per replay frame or a single one
-for static objects; `scenario` names the run shown in the page's title.
+Meshes are decimated (vertex clustering, at most `MAX_TRIANGLES_PER_MESH` triangles each) and sent
+as binary float32/uint32 buffers: the b1_z1 visual meshes are 60 MB of Collada text and 680k
+triangles. The decimated meshes are cached next to the compiled solvers (`WBMPC_CACHE_DIR`).
+
+Scene objects (`wbmpc.sim.objects.Scene.replay_objects`): boxes {"name", "kind": "box", "color",
+"half_size_m", "position_m", "rotation"} and lines {"name", "kind": "line", "color", "points_m"},
+static or over time ("t" with one pose per time), drawn as boxes and thin cylinders. `extras`: named
+world-point trajectories drawn as small spheres.
+
+Metadata (`<script id="replay-data" type="application/json">`, also `replay_data(...)`): robot,
+scenario, fps (lower than asked for long runs, see `MAX_NODE_FRAMES`), n_frames, duration_s, t (the
+frame times), geometry ("visual meshes", "collision geometry" or "primitive shapes"), nodes (the
+animated node paths), triangles.
 """
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import json
-import xml.etree.ElementTree as ET
+import os
+import warnings
 from html import escape as html_escape
 from pathlib import Path
 from typing import Any, Sequence
@@ -29,108 +42,339 @@ import pinocchio as pin
 
 from wbmpc.errors import ConfigError
 
-LEG_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
-ARM_COLOR = "#17becf"
+MAX_TRIANGLES_PER_MESH = 5000
+# animated node-frames (geometries x frames): ~70 bytes each; long runs get fewer frames per second so that
+# the file stays under ~15 MB (b1_z1, 41 geometries: 30 fps up to 97 s, 4.9 fps for 10 min)
+MAX_NODE_FRAMES = 120_000
 EXTRA_COLORS = ("#e6194b", "#3cb44b", "#f58231", "#911eb4", "#4363d8", "#808000")
+GEOMETRY_SOURCES = ("visual meshes", "collision geometry", "primitive shapes")
+_ROOT = "wbmpc"
 
 
 # ----------------------------------------------------------------------------- geometry
-def _root_bodies(model: pin.Model) -> list[int]:
-    return [i for i, f in enumerate(model.frames) if f.parentJoint == 1 and f.type == pin.FrameType.BODY]
+def _package_dirs(urdf: Path) -> list[str]:
+    """`package://name/...` is looked up in every folder above the URDF (example-robot-data's layout)."""
+    return [str(p) for p in urdf.resolve().parents]
 
 
-def base_box(robot) -> tuple[pin.SE3, np.ndarray]:
-    """Placement of the base box in the root-joint frame and its half sizes.
+def _mesh_files_exist(geometry: pin.GeometryModel) -> bool:
+    return all(not o.meshPath or o.meshPath.upper() in ("BOX", "SPHERE", "CYLINDER", "CAPSULE", "CONE")
+               or Path(o.meshPath).is_file() for o in geometry.geometryObjects)
 
-    The largest URDF collision box of a link on the root body when there is one, else a box
-    spanning the origins of the root's child joints.
+
+def robot_geometry(robot) -> tuple[pin.GeometryModel, str]:
+    """The robot's geometry for the replay and where it came from (one of `GEOMETRY_SOURCES`).
+
+    Parsing the meshes is slow (b1_z1: 60 MB of Collada, ~5 s): once parsed, the geometry's layout is
+    kept in the cache beside the decimated meshes and rebuilt from there while the URDF is unchanged.
     """
-    model = robot.model
-    best: tuple[float, pin.SE3, np.ndarray] | None = None
+    index = _index_path(robot)
+    if index is not None and index.is_file():
+        try:
+            return _geometry_from_index(json.loads(index.read_text()))
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # stale or broken: parse again
+    geometry, source = _parse_geometry(robot)
+    if index is not None:
+        _write_index(index, geometry, source)
+    return geometry, source
+
+
+def _index_path(robot) -> Path | None:
+    urdf = Path(robot.spec.urdf)
     try:
-        links = {link.get("name"): link for link in ET.parse(Path(robot.spec.urdf)).getroot().iter("link")}
-    except (ET.ParseError, OSError, AttributeError):
-        links = {}
-    for fid in _root_bodies(model):
-        link = links.get(model.frames[fid].name)
-        if link is None:
-            continue
-        for collision in link.iter("collision"):
-            box = collision.find("geometry/box")
-            if box is None:
-                continue
-            half = 0.5 * np.array([float(x) for x in box.get("size", "0 0 0").split()])
-            origin = collision.find("origin")
-            xyz = np.array([float(x) for x in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
-            rpy = np.array([float(x) for x in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
-            volume = float(np.prod(half))
-            if best is None or volume > best[0]:
-                best = (volume, model.frames[fid].placement * pin.SE3(pin.rpy.rpyToMatrix(rpy), xyz), half)
-    if best is not None and best[0] > 1e-6:
-        return best[1], best[2]
-    children = [model.jointPlacements[j].translation for j in range(2, model.njoints) if model.parents[j] == 1]
-    if not children:
-        return pin.SE3.Identity(), np.array([0.1, 0.05, 0.04])
-    pts = np.array(children)
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    half = np.maximum(0.5 * (hi - lo), 0.03)
-    half[2] = max(half[2], 0.25 * min(half[0], half[1]), 0.03)
-    return pin.SE3(np.eye(3), 0.5 * (hi + lo)), half
-
-
-_BOX_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
-_BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if np.sum(_BOX_SIGNS[a] != _BOX_SIGNS[b]) == 1]
-
-
-def _skeleton(robot) -> dict[str, Any]:
-    """Point names/kinds, links [i, j, group] and groups (one per leg, then the arm)."""
+        stat = urdf.stat()
+    except OSError:
+        return None
     model = robot.model
-    names: list[str] = [model.names[j] for j in range(1, model.njoints)]
-    kinds: list[str] = ["joint"] * len(names)
-    point_of_joint = {j: j - 1 for j in range(1, model.njoints)}
+    layout = "|".join(f"{model.names[j]}:{model.parents[j]}" for j in range(model.njoints))
+    key = f"{urdf.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|{layout}|{MAX_TRIANGLES_PER_MESH}|1"
+    return _cache_dir() / f"{robot.name}_{hashlib.sha256(key.encode()).hexdigest()[:20]}.json"
 
-    group_of_joint: dict[int, int] = {}
-    for g, foot in enumerate(robot.feet):
-        joint = model.frames[robot.frame_id(foot)].parentJoint
-        while joint > 1:
-            group_of_joint.setdefault(joint, g)
-            joint = model.parents[joint]
-    arm_group = len(robot.feet)
-    groups = [{"name": foot, "color": LEG_COLORS[g % len(LEG_COLORS)]} for g, foot in enumerate(robot.feet)]
-    groups.append({"name": "arm" if robot.arm_ee else "other", "color": ARM_COLOR})
 
-    links: list[list[int]] = []
-    for j in range(2, model.njoints):
-        parent = model.parents[j]
-        if parent >= 1:
-            links.append([point_of_joint[parent], point_of_joint[j], group_of_joint.get(j, arm_group)])
-    feet_idx = []
-    for g, foot in enumerate(robot.feet):
-        names.append(foot)
-        kinds.append("foot")
-        feet_idx.append(len(names) - 1)
-        parent = model.frames[robot.frame_id(foot)].parentJoint
-        links.append([point_of_joint[parent], feet_idx[-1], g])
-    ee_idx = None
-    if robot.arm_ee:
-        names.append(robot.arm_ee)
-        kinds.append("ee")
-        ee_idx = len(names) - 1
-        parent = model.frames[robot.frame_id(robot.arm_ee)].parentJoint
-        links.append([point_of_joint[parent], ee_idx, group_of_joint.get(parent, arm_group)])
-    box_start = len(names)
-    names.extend(f"base_box_{k}" for k in range(8))
-    kinds.extend(["box"] * 8)
-    return {
-        "names": names,
-        "kinds": kinds,
-        "links": links,
-        "groups": groups,
-        "feet": feet_idx,
-        "ee": ee_idx,
-        "base": 0,
-        "box_edges": [[box_start + a, box_start + b] for a, b in _BOX_EDGES],
-    }
+def _write_index(index: Path, geometry: pin.GeometryModel, source: str) -> None:
+    """Each geometry's placement, colour and shape: a mesh (decimated and cached) or a primitive."""
+    import coal
+
+    objects = []
+    for o in geometry.geometryObjects:
+        shape = o.geometry
+        entry = {"name": o.name, "joint": int(o.parentJoint), "frame": int(o.parentFrame),
+                 "placement": o.placement.homogeneous.tolist(), "color": np.asarray(o.meshColor).tolist(),
+                 "scale": np.asarray(o.meshScale).tolist(), "mesh": o.meshPath}
+        if isinstance(shape, coal.BVHModelBase):
+            if mesh_arrays(o) is None:
+                return  # a mesh that could not be cached: parse every time
+            entry["shape"] = ["mesh"]
+        elif isinstance(shape, coal.Box):
+            entry["shape"] = ["box", *(2 * np.asarray(shape.halfSide)).tolist()]
+        elif isinstance(shape, coal.Sphere):
+            entry["shape"] = ["sphere", float(shape.radius)]
+        elif isinstance(shape, (coal.Cylinder, coal.Capsule)):
+            entry["shape"] = [type(shape).__name__.lower(), float(shape.radius), 2 * float(shape.halfLength)]
+        else:
+            return  # another shape: parse every time
+        objects.append(entry)
+    try:
+        index.parent.mkdir(parents=True, exist_ok=True)
+        tmp = index.with_name(f"{index.stem}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"source": source, "objects": objects}))
+        tmp.replace(index)
+    except OSError:
+        pass
+
+
+def _geometry_from_index(index: dict) -> tuple[pin.GeometryModel, str]:
+    import coal
+
+    geometry = pin.GeometryModel()
+    for entry in index["objects"]:
+        kind, *size = entry["shape"]
+        shape = {"mesh": lambda: coal.Sphere(1e-3), "box": lambda: coal.Box(*size), "sphere": lambda: coal.Sphere(*size),
+                 "cylinder": lambda: coal.Cylinder(*size), "capsule": lambda: coal.Capsule(*size)}[kind]()
+        obj = pin.GeometryObject(entry["name"], entry["joint"], entry["frame"], pin.SE3(np.array(entry["placement"])),
+                                 shape)
+        obj.meshPath, obj.meshScale, obj.meshColor = entry["mesh"], np.array(entry["scale"]), np.array(entry["color"])
+        if kind == "mesh" and _cached_mesh(obj) is None:
+            raise KeyError(entry["mesh"])  # the decimated mesh was removed: parse again
+        geometry.addGeometryObject(obj)
+    return geometry, index["source"]
+
+
+def _parse_geometry(robot) -> tuple[pin.GeometryModel, str]:
+    urdf = Path(robot.spec.urdf)
+    problems = []
+    for kind, source in ((pin.GeometryType.VISUAL, GEOMETRY_SOURCES[0]), (pin.GeometryType.COLLISION, GEOMETRY_SOURCES[1])):
+        try:
+            geometry = pin.buildGeomFromUrdf(robot.model, str(urdf), kind, package_dirs=_package_dirs(urdf))
+        except (RuntimeError, ValueError, OSError) as exc:
+            problems.append(f"{source}: {str(exc).splitlines()[0]}")
+            continue
+        if geometry.ngeoms and _mesh_files_exist(geometry):
+            if problems:
+                warnings.warn(f"replay of {robot.name}: {'; '.join(problems)}; drawn with its {source} instead",
+                              stacklevel=3)
+            return geometry, source
+        problems.append(f"{source}: {'no geometry' if not geometry.ngeoms else 'mesh files missing'} in {urdf}")
+    warnings.warn(f"replay of {robot.name}: {'; '.join(problems)}; drawn with primitive shapes (spheres, capsules, "
+                  "boxes of the MuJoCo scene) instead of its meshes", stacklevel=3)
+    return _primitive_geometry(robot), GEOMETRY_SOURCES[2]
+
+
+def _primitive_geometry(robot) -> pin.GeometryModel:
+    import coal
+
+    from wbmpc.sim.shapes import robot_collision_shapes
+
+    geometry = pin.GeometryModel()
+    for k, shape in enumerate(robot_collision_shapes(robot)):
+        size = shape.size
+        if shape.kind == "sphere":
+            coal_shape = coal.Sphere(size[0])
+        elif shape.kind == "capsule":
+            coal_shape = coal.Capsule(size[0], 2 * size[1])
+        elif shape.kind == "cylinder":
+            coal_shape = coal.Cylinder(size[0], 2 * size[1])
+        else:
+            coal_shape = coal.Box(*(2 * np.asarray(size)))
+        parent_frame = robot.model.getFrameId(robot.model.names[shape.joint_id]) if shape.joint_id > 0 else 0
+        obj = pin.GeometryObject(f"{shape.name}_{k}", shape.joint_id, parent_frame,
+                                 pin.SE3(np.asarray(shape.rotation), np.asarray(shape.pos)), coal_shape)
+        obj.meshColor = np.array([0.35, 0.38, 0.42, 1.0]) if not shape.is_foot else np.array([0.1, 0.1, 0.1, 1.0])
+        geometry.addGeometryObject(obj)
+    return geometry
+
+
+def decimate(vertices: np.ndarray, faces: np.ndarray, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex clustering: vertices merged on a grid (coarsened until at most `max_triangles` remain),
+    collapsed and repeated triangles dropped. Keeps the outline within one grid cell."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) <= max_triangles:
+        return vertices.astype(np.float32), faces.astype(np.uint32)
+    low = vertices.min(axis=0)
+    extent = float((vertices.max(axis=0) - low).max()) or 1.0
+    cells = 256
+    while True:
+        cell = extent / cells
+        key = np.floor((vertices - low) / cell).astype(np.int64)
+        key = (key[:, 0] * (cells + 2) + key[:, 1]) * (cells + 2) + key[:, 2]
+        _, inverse = np.unique(key, return_inverse=True)
+        inverse = inverse.ravel()
+        merged = inverse[faces]
+        keep = (merged[:, 0] != merged[:, 1]) & (merged[:, 1] != merged[:, 2]) & (merged[:, 0] != merged[:, 2])
+        merged = merged[keep]
+        _, first = np.unique(np.sort(merged, axis=1), axis=0, return_index=True)
+        merged = merged[np.sort(first)]
+        if len(merged) <= max_triangles or cells <= 4:
+            break
+        cells = int(cells * 0.75)
+    counts = np.bincount(inverse)
+    points = np.zeros((counts.size, 3))
+    np.add.at(points, inverse, vertices)
+    points /= counts[:, None]
+    used, remap = np.unique(merged, return_inverse=True)  # drop vertices no triangle uses
+    return points[used].astype(np.float32), remap.reshape(-1, 3).astype(np.uint32)
+
+
+def _cache_dir() -> Path:
+    from wbmpc.solvers.codegen import default_cache_dir
+
+    return default_cache_dir() / "replay_meshes"
+
+
+def _mesh_cache_path(geometry_object: pin.GeometryObject, max_triangles: int) -> Path | None:
+    path = Path(geometry_object.meshPath) if geometry_object.meshPath else None
+    if path is None or not path.is_file():
+        return None
+    stat = path.stat()
+    scale = np.asarray(geometry_object.meshScale, dtype=float)
+    digest = hashlib.sha256(f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|{max_triangles}|"
+                            f"{scale.tolist()}|1".encode()).hexdigest()[:20]
+    return _cache_dir() / f"{path.stem}_{digest}.npz"
+
+
+def _cached_mesh(geometry_object: pin.GeometryObject,
+                 max_triangles: int = MAX_TRIANGLES_PER_MESH) -> tuple[np.ndarray, np.ndarray] | None:
+    cached = _mesh_cache_path(geometry_object, max_triangles)
+    if cached is None or not cached.is_file():
+        return None
+    try:
+        with np.load(cached) as stored:
+            return stored["vertices"], stored["faces"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def mesh_arrays(geometry_object: pin.GeometryObject,
+                max_triangles: int = MAX_TRIANGLES_PER_MESH) -> tuple[np.ndarray, np.ndarray] | None:
+    """Decimated (vertices, faces) of a mesh geometry, scale applied (cached by file, size, time, budget)."""
+    import coal
+
+    hit = _cached_mesh(geometry_object, max_triangles)
+    if hit is not None:
+        return hit
+    mesh = geometry_object.geometry
+    if not isinstance(mesh, coal.BVHModelBase) or mesh.num_tris == 0:
+        return None
+    scale = np.asarray(geometry_object.meshScale, dtype=float)
+    cached = _mesh_cache_path(geometry_object, max_triangles)
+    vertices = np.asarray(mesh.vertices(), dtype=float) * scale
+    faces = np.empty((mesh.num_tris, 3), dtype=np.int64)
+    for k in range(mesh.num_tris):
+        triangle = mesh.tri_indices(k)
+        faces[k] = (triangle[0], triangle[1], triangle[2])
+    if np.prod(np.sign(scale)) < 0:  # a mirrored mesh: keep the triangles facing out
+        faces = faces[:, ::-1]
+    vertices, faces = decimate(vertices, faces, max_triangles)
+    if cached is not None:
+        try:
+            cached.parent.mkdir(parents=True, exist_ok=True)
+            tmp = cached.with_name(f"{cached.stem}.{os.getpid()}.tmp.npz")
+            np.savez(tmp, vertices=vertices, faces=faces)
+            tmp.replace(cached)
+        except OSError:
+            pass  # a read-only cache only costs time
+    return vertices, faces
+
+
+# ----------------------------------------------------------------------------- recording
+class _Recorder:
+    """Stands in for meshcat's server window: keeps the last command per node and property, in order."""
+
+    def __init__(self):
+        self.commands: dict[tuple, bytes] = {}
+
+    def send(self, command) -> None:
+        import umsgpack
+
+        data = command.lower()
+        kind, path = data["type"], data.get("path", "")
+        key = (kind, path, data.get("property")) if kind == "set_property" else (kind, path)
+        self.commands[key] = umsgpack.packb(data)
+
+    def blobs(self) -> list[str]:
+        return [base64.b64encode(blob).decode("ascii") for blob in self.commands.values()]
+
+
+class _Animation:
+    """meshcat's animation clips (three.js keyframe tracks) built from arrays: one clip per node path.
+
+    Packed with the C msgpack in single precision (sub-micrometre at a few metres): meshcat's own
+    `Animation` computes each quaternion with an eigen-decomposition and packs in pure Python,
+    10 s per 20 s of b1_z1 run, and doubles the size.
+    """
+
+    def __init__(self, fps: float):
+        self.fps = fps
+        self.tracks: dict[str, dict[str, tuple[str, list]]] = {}
+
+    def add(self, node: str, frames: Sequence[int], name: str, kind: str, values: np.ndarray) -> None:
+        keys = [{"time": int(f), "value": [float(x) for x in v]} for f, v in zip(frames, np.asarray(values))]
+        self.tracks.setdefault(node, {})[name] = (kind, keys)
+
+    def add_pose(self, node: str, frames: Sequence[int], positions: np.ndarray, rotations: np.ndarray) -> None:
+        """Position and orientation tracks; `rotations` (n, 3, 3)."""
+        quaternions = np.array([pin.Quaternion(np.asarray(r, dtype=float).reshape(3, 3)).coeffs()  # x, y, z, w
+                                for r in rotations])
+        self.add(node, frames, "position", "vector3", positions)
+        self.add(node, frames, "quaternion", "quaternion", quaternions)
+
+    def command(self, repetitions: int = 1_000_000) -> bytes:
+        import msgpack
+
+        animations = [{"path": node, "clip": {"fps": self.fps, "name": "default", "tracks": [
+            {"name": "." + name, "type": kind, "keys": keys} for name, (kind, keys) in tracks.items()]}}
+            for node, tracks in self.tracks.items()]
+        return msgpack.packb({"type": "set_animation", "animations": animations, "path": "",
+                              "options": {"play": True, "repetitions": repetitions}}, use_single_float=True)
+
+
+def _import_meshcat():
+    """meshcat (its import pulls a zmq server module that warns about its own deprecated event loop)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import meshcat
+        import meshcat.animation
+        import meshcat.geometry
+    return meshcat
+
+
+def _viewer_class():
+    _import_meshcat()
+    import meshcat.geometry as mg
+    from pinocchio.visualize import MeshcatVisualizer
+
+    class FlatPhongMaterial(mg.MeshPhongMaterial):
+        """Phong with flat shading: the decimated meshes need no normals."""
+
+        def lower(self, object_data):
+            data = super().lower(object_data)
+            data["flatShading"] = True
+            return data
+
+    class ReplayVisualizer(MeshcatVisualizer):
+        """pinocchio's MeshcatVisualizer with our decimated, cached meshes in place of the raw files."""
+
+        triangles = 0
+
+        def loadMeshFromFile(self, geometry_object):
+            arrays = mesh_arrays(geometry_object)
+            return None if arrays is None else mg.TriangularMeshGeometry(*arrays)
+
+        def loadViewerGeometryObject(self, geometry_object, geometry_type, color=None):
+            arrays = mesh_arrays(geometry_object) if geometry_object.meshPath else None
+            if arrays is None:
+                return super().loadViewerGeometryObject(geometry_object, geometry_type, color)
+            rgba = np.asarray(geometry_object.meshColor if color is None else color, dtype=float)
+            material = FlatPhongMaterial(color=int(rgba[0] * 255) << 16 | int(rgba[1] * 255) << 8 | int(rgba[2] * 255))
+            if rgba[3] < 1:
+                material.transparent, material.opacity = True, float(rgba[3])
+            self.triangles += len(arrays[1])
+            self.viewer[self.getViewerNodeName(geometry_object, geometry_type)].set_object(
+                mg.TriangularMeshGeometry(*arrays), material)
+
+    return ReplayVisualizer
 
 
 def _frame_samples(time_s: np.ndarray, fps: float) -> tuple[np.ndarray, float]:
@@ -145,65 +389,107 @@ def _frame_samples(time_s: np.ndarray, fps: float) -> tuple[np.ndarray, float]:
     return _nearest(time_s, wanted), duration
 
 
-def _normalise_extras(extras, time_s: np.ndarray) -> list[tuple[str, Any, str | None]]:
-    out = []
-    for k, item in enumerate(extras or []):
-        if isinstance(item, dict):
-            name = item.get("name", f"extra {k}")
-            positions = item.get("positions", item.get("points"))
-            color = item.get("color")
-        else:
-            name, positions = item[0], item[1]
-            color = item[2] if len(item) > 2 else None
-        if positions is None:
-            raise ConfigError(f"extra trajectory '{name}' has no positions")
-        if not callable(positions):
-            positions = np.asarray(positions, dtype=float)
-            if positions.shape != (time_s.size, 3):
-                raise ConfigError(
-                    f"extra trajectory '{name}' has shape {positions.shape}; expected ({time_s.size}, 3), "
-                    "one world point per time sample (or a callable t -> (3,))"
-                )
-        out.append((str(name), positions, color))
-    return out
-
-
 def _nearest(times: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     right = np.clip(np.searchsorted(times, wanted), 0, times.size - 1)
     left = np.clip(right - 1, 0, times.size - 1)
     return np.where(np.abs(times[left] - wanted) <= np.abs(times[right] - wanted), left, right)
 
 
-def _objects(objects: Sequence[dict] | None, frame_times: np.ndarray) -> list[dict]:
-    """Scene objects sampled at the replay's frame times (see the module docstring)."""
-    out = []
+def _color(text: str | None, default: str) -> int:
+    text = (text or default).lstrip("#")
+    try:
+        return int(text[:6], 16)
+    except ValueError:
+        return int(default.lstrip("#"), 16)
+
+
+def _matrix(position, rotation=None, scale=None) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float).reshape(3, 3)
+    if scale is not None:
+        T[:3, :3] = T[:3, :3] @ np.diag(scale)
+    T[:3, 3] = position
+    return T
+
+
+def _segment(p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, rotation and scale of a unit cylinder (meshcat: along y) spanning p0 -> p1."""
+    axis = p1 - p0
+    length = float(np.linalg.norm(axis))
+    rotation = np.eye(3)
+    if length > 1e-9:
+        rotation = pin.Quaternion.FromTwoVectors(np.array([0.0, 1.0, 0.0]), axis / length).toRotationMatrix()
+    return 0.5 * (p0 + p1), rotation, np.array([1.0, max(length, 1e-6), 1.0])
+
+
+def _add_objects(viewer, animation, objects: Sequence[dict] | None, frame_times: np.ndarray) -> list[str]:
+    """The scene's boxes and lines, static or animated at the replay's frame times."""
+    import meshcat.geometry as mg
+
+    names = []
     for k, obj in enumerate(objects or []):
         name, kind = str(obj.get("name", f"object {k}")), obj.get("kind")
+        node = viewer[f"{_ROOT}/objects/{k}"]
         times = obj.get("t")
         index = None if times is None else _nearest(np.asarray(times, dtype=float), frame_times)
         if kind == "box":
             half = np.asarray(obj["half_size_m"], dtype=float).reshape(3)
             position = np.asarray(obj["position_m"], dtype=float).reshape(-1, 3)
             rotation = np.asarray(obj.get("rotation", np.eye(3)), dtype=float).reshape(-1, 9)
-            if index is not None:
-                position, rotation = position[index], rotation[index]
-            frames = [np.rint(1e3 * p).astype(int).tolist() + np.round(r, 3).tolist() for p, r in zip(position, rotation)]
-            out.append({"name": name, "kind": "box", "color": obj.get("color", "#999999"),
-                        "half": np.rint(1e3 * half).astype(int).tolist(), "frames": frames})
+            node.set_object(mg.Box(2 * half), mg.MeshLambertMaterial(color=_color(obj.get("color"), "#999999")))
+            poses = [(p, r, None) for p, r in zip(position, rotation)]
         elif kind == "line":
             points = np.asarray(obj["points_m"], dtype=float).reshape(-1, 6)
-            if index is not None:
-                points = points[index]
-            out.append({"name": name, "kind": "line", "color": obj.get("color", "#222222"),
-                        "frames": np.rint(1e3 * points).astype(int).tolist()})
+            node.set_object(mg.Cylinder(1.0, 0.006), mg.MeshLambertMaterial(color=_color(obj.get("color"), "#222222")))
+            poses = [_segment(p[:3], p[3:]) for p in points]
         else:
             raise ConfigError(f"scene object '{name}' has kind {kind!r}; the replay draws 'box' and 'line'")
+        node.set_transform(_matrix(*poses[0 if index is None else min(index[0], len(poses) - 1)]))
+        if index is not None and len(poses) > 1:
+            frames = range(len(index))
+            animation.add_pose(node.path.lower(), frames, np.array([poses[i][0] for i in index]),
+                               np.array([poses[i][1] for i in index]))
+            if kind == "line":
+                animation.add(node.path.lower(), frames, "scale", "vector3", np.array([poses[i][2] for i in index]))
+        names.append(name)
+    return names
+
+
+def _normalise_extras(extras, time_s: np.ndarray) -> list[tuple[str, Any, str | None]]:
+    out = []
+    for k, item in enumerate(extras or []):
+        if isinstance(item, dict):
+            name, positions, color = item.get("name", f"extra {k}"), item.get("positions", item.get("points")), item.get("color")
+        else:
+            name, positions, color = item[0], item[1], (item[2] if len(item) > 2 else None)
+        if positions is None:
+            raise ConfigError(f"extra trajectory '{name}' has no positions")
+        if not callable(positions):
+            positions = np.asarray(positions, dtype=float)
+            if positions.shape != (time_s.size, 3):
+                raise ConfigError(f"extra trajectory '{name}' has shape {positions.shape}; expected ({time_s.size}, 3), "
+                                  "one world point per time sample (or a callable t -> (3,))")
+        out.append((str(name), positions, color))
     return out
 
 
-def replay_data(robot, time_s, q, fps: float = 30, extras: Sequence | None = None,
-                objects: Sequence[dict] | None = None, scenario: str | None = None) -> dict[str, Any]:
-    """The JSON-ready replay content (see the module docstring for its layout)."""
+def _add_extras(viewer, animation, extras, time_s: np.ndarray, samples: np.ndarray) -> None:
+    import meshcat.geometry as mg
+
+    for k, (name, positions, color) in enumerate(_normalise_extras(extras, time_s)):
+        node = viewer[f"{_ROOT}/extras/{k}"]
+        node.set_object(mg.Sphere(0.02), mg.MeshLambertMaterial(color=_color(color, EXTRA_COLORS[k % len(EXTRA_COLORS)])))
+        last, track = np.zeros(3), []
+        for idx in samples:
+            p = np.asarray(positions(float(time_s[idx])) if callable(positions) else positions[idx], dtype=float).ravel()
+            if p.size >= 3 and np.all(np.isfinite(p[:3])):
+                last = p[:3]
+            track.append(last)
+        node.set_transform(_matrix(track[0]))
+        animation.add(node.path.lower(), range(len(samples)), "position", "vector3", np.array(track))
+
+
+def _check(robot, time_s, q, fps) -> tuple[np.ndarray, np.ndarray]:
     time_s = np.asarray(time_s, dtype=float).ravel()
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if not fps > 0:
@@ -214,58 +500,77 @@ def replay_data(robot, time_s, q, fps: float = 30, extras: Sequence | None = Non
         raise ConfigError(f"q has shape {q.shape}; expected ({time_s.size}, {robot.nq}) for robot '{robot.name}'")
     if np.any(np.diff(time_s) < 0):
         raise ConfigError("time_s must be non-decreasing")
-    skeleton = _skeleton(robot)
+    return time_s, q
+
+
+def _record(robot, time_s, q, fps: float, extras, objects) -> tuple[_Recorder, dict[str, Any]]:
+    """Drive pinocchio's MeshcatVisualizer into a recorder: the scene, then one animation frame per sample."""
+    meshcat = _import_meshcat()
+    geometry, source = robot_geometry(robot)
+    recorder = _Recorder()
+    viewer = meshcat.Visualizer(window=recorder)
+    viz = _viewer_class()(robot.model, None, geometry)
+    viz.initViewer(viewer=viewer)
+    viz.loadViewerModel(rootNodeName=f"{_ROOT}/robot")
+    span = float(time_s[-1] - time_s[0]) if time_s.size > 1 else 0.0
+    fps = min(float(fps), MAX_NODE_FRAMES / max(geometry.ngeoms + len(objects or []), 1) / max(span, 1e-9))
     samples, duration = _frame_samples(time_s, fps)
-    model, data = robot.model, robot.model.createData()
-    frame_ids = [robot.frame_id(n) for n, kind in zip(skeleton["names"], skeleton["kinds"]) if kind in ("foot", "ee")]
-    box_placement, half = base_box(robot)
-    corners_local = box_placement.translation + (box_placement.rotation @ (_BOX_SIGNS * half).T).T
-    frames = []
-    for idx in samples:
-        pin.forwardKinematics(model, data, q[idx])
-        points = [data.oMi[j].translation for j in range(1, model.njoints)]
-        points += [pin.updateFramePlacement(model, data, fid).translation for fid in frame_ids]
-        base = data.oMi[1]
-        points += list((base.rotation @ corners_local.T).T + base.translation)
-        frames.append(np.rint(1e3 * np.asarray(points)).astype(int).ravel().tolist())
+    viz.display(q[samples[0]])  # the first frame as the static scene (before play, after reset)
+    # then every geometry's placement per frame (pinocchio's geometry placements, as display() sets them)
+    gdata = geometry.createData()
+    data = robot.model.createData()
+    placements = np.empty((len(samples), geometry.ngeoms, 4, 4))
+    for frame, idx in enumerate(samples):
+        pin.updateGeometryPlacements(robot.model, data, geometry, gdata, q[idx])
+        placements[frame] = [gdata.oMg[g].homogeneous for g in range(geometry.ngeoms)]
+    animation = _Animation(fps)
+    frames = range(len(samples))
+    for g, obj in enumerate(geometry.geometryObjects):
+        node = viewer[viz.getViewerNodeName(obj, pin.GeometryType.VISUAL)].path.lower()
+        animation.add_pose(node, frames, placements[:, g, :3, 3], placements[:, g, :3, :3])
+    object_names = _add_objects(viewer, animation, objects, time_s[samples])
+    _add_extras(viewer, animation, extras, time_s, samples)
+    floor = viewer[f"{_ROOT}/floor"]  # a light floor just under meshcat's grid, so that the feet have ground
+    floor.set_object(meshcat.geometry.Box([30.0, 30.0, 0.01]), meshcat.geometry.MeshLambertMaterial(color=0xd9dce1))
+    floor.set_transform(_matrix([0.0, 0.0, -0.0055]))
+    height = max(float(robot.q_nominal[2]), 0.2)  # camera distance in proportion to the robot's size
+    viewer["/Cameras/default/rotated/<object>"].set_property("position", (height * np.array([5.0, 3.0, 5.0])).tolist())
+    recorder.commands[("set_animation", "")] = animation.command()
+    meta = {"version": 2, "robot": robot.name, "fps": float(fps), "n_frames": int(len(samples)),
+            "duration_s": round(duration, 6), "t": [round(float(time_s[i]), 4) for i in samples],
+            "geometry": source, "triangles": viz.triangles, "objects": object_names,
+            "nodes": [viz.getViewerNodeName(o, pin.GeometryType.VISUAL) for o in geometry.geometryObjects]}
+    return recorder, meta
 
-    extra_out = []
-    for k, (name, positions, color) in enumerate(_normalise_extras(extras, time_s)):
-        pts = []
-        for idx in samples:
-            p = np.asarray(positions(float(time_s[idx])) if callable(positions) else positions[idx], dtype=float).ravel()
-            pts.append(np.rint(1e3 * p[:3]).astype(int).tolist() if p.size >= 3 and np.all(np.isfinite(p[:3])) else None)
-        extra_out.append({"name": name, "color": color or EXTRA_COLORS[k % len(EXTRA_COLORS)], "frames": pts})
 
-    return {
-        "version": 1,
-        "robot": robot.name,
-        "fps": float(fps),
-        "n_frames": len(frames),
-        "duration_s": round(duration, 6),
-        "t": [round(float(time_s[i]), 4) for i in samples],
-        "foot_radius_m": float(getattr(robot, "foot_radius_m", 0.02)),
-        **skeleton,
-        "frames": frames,
-        "extras": extra_out,
-        "objects": _objects(objects, time_s[samples]),
-        "scenario": scenario,
-    }
+def replay_data(robot, time_s, q, fps: float = 30, extras: Sequence | None = None,
+                objects: Sequence[dict] | None = None, scenario: str | None = None) -> dict[str, Any]:
+    """The replay's metadata and its meshcat commands (base64 msgpack, in order): see the module docstring."""
+    time_s, q = _check(robot, time_s, q, fps)
+    recorder, meta = _record(robot, time_s, q, fps, extras, objects)
+    return {**meta, "scenario": scenario, "commands": recorder.blobs()}
 
 
 def save_replay(robot, time_s, q, out_path, fps: float = 30, extras: Sequence | None = None,
                 objects: Sequence[dict] | None = None, scenario: str | None = None) -> Path:
     """Write the HTML replay of configurations `q` (n, nq) at times `time_s` (n,) and return its path.
 
-    `extras`: optional named world-point trajectories drawn as coloured dots with a trail, each
-    `{"name": str, "positions": (n, 3) array or callable t -> (3,), "color": "#rrggbb"}` or a
-    `(name, positions[, color])` tuple; non-finite points are not drawn. `objects`: the scene's
-    boxes and lines (`Scene.replay_objects()`); `scenario`: the run's name, shown in the title.
+    `extras`: optional named world-point trajectories drawn as small spheres, each `{"name": str,
+    "positions": (n, 3) array or callable t -> (3,), "color": "#rrggbb"}` or a `(name, positions[,
+    color])` tuple (a non-finite point keeps the last one). `objects`: the scene's boxes and lines
+    (`Scene.replay_objects()`); `scenario`: the run's name, shown in the title.
     """
-    payload = replay_data(robot, time_s, q, fps, extras, objects, scenario)
-    blob = json.dumps(payload, separators=(",", ":")).replace("</", "<\\/")
+    meshcat = _import_meshcat()
+    data = replay_data(robot, time_s, q, fps, extras, objects, scenario)
+    commands = data.pop("commands")
+    viewer_js = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text(encoding="utf-8")
     title = f"wbmpc replay: {scenario} ({robot.name})" if scenario else f"wbmpc replay: {robot.name}"
-    html = _TEMPLATE.replace("__TITLE__", html_escape(title)).replace("__DATA__", blob)
+    note = "" if data["geometry"] == GEOMETRY_SOURCES[0] else f" &middot; drawn with {data['geometry']}: meshes missing"
+    html = (_TEMPLATE.replace("__TITLE__", html_escape(title))
+            .replace("__NOTE__", note)
+            .replace("__META__", json.dumps(data, separators=(",", ":")).replace("</", "<\\/"))
+            .replace("__COMMANDS__", json.dumps(commands, separators=(",", ":")))
+            .replace("__VIEWER__", viewer_js.replace("</script", "<\\/script")))
     path = Path(out_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(html, encoding="utf-8")
@@ -278,292 +583,37 @@ _TEMPLATE = r"""<!DOCTYPE html>
 <meta charset="utf-8">
 <title>__TITLE__</title>
 <style>
-  html, body { margin: 0; height: 100%; background: #f4f5f7; font: 13px system-ui, sans-serif; color: #222; overflow: hidden; }
-  #view { position: absolute; left: 0; top: 0; right: 0; bottom: 44px; }
-  canvas { width: 100%; height: 100%; display: block; cursor: grab; }
-  canvas.dragging { cursor: grabbing; }
-  #bar { position: absolute; left: 0; right: 0; bottom: 0; height: 44px; display: flex; align-items: center; gap: 10px;
-         padding: 0 12px; background: #fff; border-top: 1px solid #ccd; box-sizing: border-box; }
-  #bar button { min-width: 70px; height: 28px; font-size: 13px; }
-  #slider { flex: 1; }
-  #time { font-variant-numeric: tabular-nums; min-width: 150px; text-align: right; }
-  #info { position: absolute; left: 12px; top: 8px; pointer-events: none; }
+  body { margin: 0; font: 13px system-ui, sans-serif; }
+  #meshcat-pane { width: 100vw; height: 100vh; overflow: hidden; }
+  #info { position: absolute; left: 12px; top: 8px; pointer-events: none; color: #222; }
   #info b { font-size: 15px; }
-  #info span { color: #666; }
-  #legend { position: absolute; right: 12px; top: 8px; background: rgba(255,255,255,0.85); padding: 6px 9px;
-            border-radius: 4px; pointer-events: none; line-height: 1.5; }
-  .sw { display: inline-block; width: 11px; height: 11px; border-radius: 50%; margin-right: 5px; vertical-align: -1px; }
+  #clock { font-variant-numeric: tabular-nums; }
 </style>
 </head>
 <body>
-<div id="view"><canvas id="c"></canvas>
-  <div id="info"><b id="title"></b><br><span>drag: rotate &middot; wheel: zoom &middot; space: play/pause &middot; &larr;/&rarr;: step</span></div>
-  <div id="legend"></div>
-</div>
-<div id="bar">
-  <button id="play">Pause</button>
-  <input id="slider" type="range" min="0" max="0" value="0" step="1">
-  <span id="time"></span>
-  <label>speed <select id="speed">
-    <option value="0.1">0.1&times;</option><option value="0.25">0.25&times;</option><option value="0.5">0.5&times;</option>
-    <option value="1" selected>1&times;</option><option value="2">2&times;</option><option value="4">4&times;</option>
-  </select></label>
-  <label><input id="follow" type="checkbox" checked> follow base</label>
-</div>
-<script id="replay-data" type="application/json">__DATA__</script>
+<div id="meshcat-pane"></div>
+<div id="info"><b>__TITLE__</b><br><span id="clock">t = 0.00 s</span>
+  <span>&middot; Animations panel (top right): play, pause, time &middot; drag: rotate, wheel: zoom__NOTE__</span></div>
+<script id="replay-data" type="application/json">__META__</script>
+<script>__VIEWER__</script>
 <script>
-"use strict";
-const D = JSON.parse(document.getElementById("replay-data").textContent);
-const canvas = document.getElementById("c"), ctx = canvas.getContext("2d");
-const slider = document.getElementById("slider"), playBtn = document.getElementById("play");
-const timeEl = document.getElementById("time"), speedEl = document.getElementById("speed");
-const followEl = document.getElementById("follow");
-const N = D.n_frames, NP = D.names.length;
-document.getElementById("title").textContent = "wbmpc replay: " + (D.scenario ? D.scenario + " (" + D.robot + ")" : D.robot);
-slider.max = String(N - 1);
-
-// legend
-(function () {
-  const used = new Set(D.links.map(l => l[2]));
-  const rows = D.groups.filter((g, k) => used.has(k)).map(g => [g.color, g.name])
-    .concat(D.extras.map(e => [e.color, e.name])).concat(D.objects.map(o => [o.color, o.name]));
-  document.getElementById("legend").innerHTML = rows.map(r =>
-    '<div><span class="sw" style="background:' + r[0] + '"></span>' + escapeHtml(r[1]) + "</div>").join("");
-})();
-function escapeHtml(s) { return String(s).replace(/[&<>"']/g, c => ({"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;"}[c])); }
-
-function P(f, i) { const a = D.frames[f]; return [a[3 * i] / 1e3, a[3 * i + 1] / 1e3, a[3 * i + 2] / 1e3]; }
-function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
-function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
-function norm(a) { const n = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / n, a[1] / n, a[2] / n]; }
-
-// camera: orbit around a target that follows the base
-let yaw = -1.2, pitch = 0.38, dist = 2.5;
-(function () {  // fit the first frame
-  const b = P(0, D.base); let r = 0.3;
-  for (let i = 0; i < NP; i++) { const p = P(0, i); r = Math.max(r, Math.hypot(p[0] - b[0], p[1] - b[1], p[2] - b[2])); }
-  dist = Math.min(Math.max(4.0 * r, 1.2), 20);
-})();
-let target = P(0, D.base);
-const cam = {eye: [0, 0, 0], f: [1, 0, 0], r: [0, 1, 0], u: [0, 0, 1], focal: 500, W: 1, H: 1};
-const NEAR = 0.05;
-function setupCamera(W, H) {
-  const cp = Math.cos(pitch), sp = Math.sin(pitch);
-  cam.eye = [target[0] + dist * cp * Math.cos(yaw), target[1] + dist * cp * Math.sin(yaw), target[2] + dist * sp];
-  cam.f = norm(sub(target, cam.eye));
-  cam.r = norm(cross(cam.f, [0, 0, 1]));
-  cam.u = cross(cam.r, cam.f);
-  cam.W = W; cam.H = H; cam.focal = 0.5 * H / Math.tan(0.5 * 45 * Math.PI / 180);
-}
-function toCam(p) { const d = sub(p, cam.eye); return [dot(d, cam.r), dot(d, cam.u), dot(d, cam.f)]; }
-function screen(c) { return [cam.W / 2 + cam.focal * c[0] / c[2], cam.H / 2 - cam.focal * c[1] / c[2]]; }
-function project(p) { const c = toCam(p); return c[2] < NEAR ? null : [...screen(c), c[2]]; }
-function segment(a, b) {  // clipped to the near plane: [x0, y0, x1, y1, depth] or null
-  let ca = toCam(a), cb = toCam(b);
-  if (ca[2] < NEAR && cb[2] < NEAR) return null;
-  if (ca[2] < NEAR || cb[2] < NEAR) {
-    const s = (NEAR - ca[2]) / (cb[2] - ca[2]);
-    const m = [ca[0] + s * (cb[0] - ca[0]), ca[1] + s * (cb[1] - ca[1]), NEAR];
-    if (ca[2] < NEAR) ca = m; else cb = m;
+  // meshcat's viewer replays the recorded commands (scene, then the animation) in order
+  const meta = JSON.parse(document.getElementById("replay-data").textContent);
+  const viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
+  for (const blob of __COMMANDS__) {
+    viewer.handle_command_bytearray(Uint8Array.from(atob(blob), c => c.charCodeAt(0)));
   }
-  const sa = screen(ca), sb = screen(cb);
-  return [sa[0], sa[1], sb[0], sb[1], 0.5 * (ca[2] + cb[2])];
-}
-
-// playback state
-let frame = 0, playing = true, playT = 0, last = null;
-function setFrame(k) { frame = Math.max(0, Math.min(N - 1, k)); playT = frame / D.fps; }
-function togglePlay() { playing = !playing; playBtn.textContent = playing ? "Pause" : "Play"; last = null; }
-playBtn.onclick = togglePlay;
-slider.oninput = () => { setFrame(parseInt(slider.value, 10)); };
-window.addEventListener("keydown", e => {
-  if (e.code === "Space") { togglePlay(); e.preventDefault(); }
-  else if (e.code === "ArrowRight") { if (playing) togglePlay(); setFrame(frame + 1); }
-  else if (e.code === "ArrowLeft") { if (playing) togglePlay(); setFrame(frame - 1); }
-});
-
-// mouse: drag rotates, wheel zooms
-let drag = null;
-canvas.addEventListener("mousedown", e => { drag = [e.clientX, e.clientY]; canvas.classList.add("dragging"); });
-window.addEventListener("mouseup", () => { drag = null; canvas.classList.remove("dragging"); });
-window.addEventListener("mousemove", e => {
-  if (!drag) return;
-  yaw -= 0.008 * (e.clientX - drag[0]);
-  pitch = Math.max(-0.15, Math.min(1.5, pitch + 0.008 * (e.clientY - drag[1])));
-  drag = [e.clientX, e.clientY];
-});
-canvas.addEventListener("wheel", e => {
-  dist = Math.max(0.3, Math.min(40, dist * Math.exp(0.0012 * e.deltaY))); e.preventDefault();
-}, {passive: false});
-
-function linkWidth(depth, radius) { return Math.max(1.5, 2 * radius * cam.focal / depth); }
-
-function draw() {
-  const dpr = window.devicePixelRatio || 1;
-  const W = canvas.clientWidth, H = canvas.clientHeight;
-  if (canvas.width !== Math.round(W * dpr) || canvas.height !== Math.round(H * dpr)) {
-    canvas.width = Math.round(W * dpr); canvas.height = Math.round(H * dpr);
+  if (viewer.gui) { viewer.gui.open(); }  // the controls with the Animations panel shown from the start
+  const clock = document.getElementById("clock");
+  function tick() {
+    const t = viewer.animator && viewer.animator.mixer ? viewer.animator.mixer.time : 0;
+    const k = Math.min(meta.n_frames - 1, Math.max(0, Math.floor(t * meta.fps) % meta.n_frames));
+    clock.textContent = "t = " + meta.t[k].toFixed(2) + " s";
+    clock.dataset.frame = k;
+    requestAnimationFrame(tick);
   }
-  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-  const base = P(frame, D.base);
-  if (followEl.checked) target = [base[0], base[1], 0.6 * base[2]];
-  setupCamera(W, H);
-  const sky = ctx.createLinearGradient(0, 0, 0, H);
-  sky.addColorStop(0, "#e9eef5"); sky.addColorStop(1, "#f8f8f6");
-  ctx.fillStyle = sky; ctx.fillRect(0, 0, W, H);
-  ctx.lineCap = "round"; ctx.lineJoin = "round";
-
-  // ground grid (fixed in the world, so walking is visible), fading with distance
-  const step = 0.25, reach = Math.max(3, 1.5 * dist), gx = Math.round(target[0] / step) * step, gy = Math.round(target[1] / step) * step;
-  const n = Math.ceil(reach / step);
-  for (let i = -n; i <= n; i++) {
-    for (let j = -n; j < n; j++) {
-      for (const dir of [0, 1]) {
-        const a = dir ? [gx + i * step, gy + j * step, 0] : [gx + j * step, gy + i * step, 0];
-        const b = dir ? [a[0], a[1] + step, 0] : [a[0] + step, a[1], 0];
-        const dd = Math.hypot(0.5 * (a[0] + b[0]) - target[0], 0.5 * (a[1] + b[1]) - target[1]);
-        const alpha = Math.max(0, 1 - dd / reach);
-        if (alpha <= 0) continue;
-        const s = segment(a, b); if (!s) continue;
-        const major = dir ? Math.abs(Math.round(a[0] / step) % 4) === 0 : Math.abs(Math.round(a[1] / step) % 4) === 0;
-        ctx.strokeStyle = "rgba(90,100,120," + (alpha * (major ? 0.55 : 0.25)).toFixed(3) + ")";
-        ctx.lineWidth = major ? 1.2 : 0.7;
-        ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
-      }
-    }
-  }
-
-  // shadows (links projected on the ground)
-  ctx.strokeStyle = "rgba(0,0,0,0.13)";
-  for (const [i, j] of D.links) {
-    const a = P(frame, i), b = P(frame, j);
-    const s = segment([a[0], a[1], 0.001], [b[0], b[1], 0.001]); if (!s) continue;
-    ctx.lineWidth = linkWidth(s[4], 0.03);
-    ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
-  }
-
-  // scene objects (boxes: faces far to near, then edges; lines: cables), under the robot
-  const faces = [];
-  for (const o of D.objects) {
-    const f = o.frames.length === 1 ? o.frames[0] : o.frames[frame];
-    if (!f) continue;
-    if (o.kind === "line") {
-      const s = segment([f[0] / 1e3, f[1] / 1e3, f[2] / 1e3], [f[3] / 1e3, f[4] / 1e3, f[5] / 1e3]);
-      if (s) faces.push({d: s[4], line: s, color: o.color});
-      continue;
-    }
-    const c = [f[0] / 1e3, f[1] / 1e3, f[2] / 1e3], R = f.slice(3), h = o.half.map(x => x / 1e3);
-    const corner = (sx, sy, sz) => [0, 1, 2].map(r => c[r] + R[3 * r] * sx * h[0] + R[3 * r + 1] * sy * h[1] + R[3 * r + 2] * sz * h[2]);
-    const quads = [[[-1,-1,-1],[1,-1,-1],[1,1,-1],[-1,1,-1]], [[-1,-1,1],[1,-1,1],[1,1,1],[-1,1,1]],
-                   [[-1,-1,-1],[1,-1,-1],[1,-1,1],[-1,-1,1]], [[-1,1,-1],[1,1,-1],[1,1,1],[-1,1,1]],
-                   [[-1,-1,-1],[-1,1,-1],[-1,1,1],[-1,-1,1]], [[1,-1,-1],[1,1,-1],[1,1,1],[1,-1,1]]];
-    for (const quad of quads) {
-      const pts = quad.map(v => project(corner(v[0], v[1], v[2])));
-      if (pts.some(p => !p)) continue;
-      faces.push({d: pts.reduce((a, p) => a + p[2], 0) / 4, quad: pts, color: o.color});
-    }
-  }
-  faces.sort((a, b) => b.d - a.d);
-  for (const f of faces) {
-    if (f.line) {
-      ctx.strokeStyle = f.color; ctx.lineWidth = 2.5;
-      ctx.beginPath(); ctx.moveTo(f.line[0], f.line[1]); ctx.lineTo(f.line[2], f.line[3]); ctx.stroke();
-      continue;
-    }
-    ctx.beginPath(); ctx.moveTo(f.quad[0][0], f.quad[0][1]);
-    for (let k = 1; k < 4; k++) ctx.lineTo(f.quad[k][0], f.quad[k][1]);
-    ctx.closePath();
-    ctx.globalAlpha = 0.55; ctx.fillStyle = f.color; ctx.fill(); ctx.globalAlpha = 1;
-    ctx.strokeStyle = "rgba(40,40,40,0.8)"; ctx.lineWidth = 1; ctx.stroke();
-  }
-
-  // depth-sorted robot drawables
-  const items = [];
-  for (const [i, j, g] of D.links) {
-    const s = segment(P(frame, i), P(frame, j));
-    if (s) items.push({d: s[4], kind: "link", s: s, color: D.groups[g].color});
-  }
-  for (const [i, j] of D.box_edges) {
-    const s = segment(P(frame, i), P(frame, j));
-    if (s) items.push({d: s[4], kind: "edge", s: s});
-  }
-  for (let i = 0; i < NP; i++) {
-    const kind = D.kinds[i]; if (kind === "box") continue;
-    const p = P(frame, i), s = project(p); if (!s) continue;
-    items.push({d: s[2] - 1e-3, kind: kind, s: s, z: p[2]});
-  }
-  D.extras.forEach(e => {
-    const p = e.frames[frame]; if (!p) return;
-    const s = project([p[0] / 1e3, p[1] / 1e3, p[2] / 1e3]); if (s) items.push({d: s[2] - 2e-3, kind: "extra", s: s, color: e.color});
-  });
-  items.sort((a, b) => b.d - a.d);
-
-  // extra trails (last second) under the robot
-  D.extras.forEach(e => {
-    const k0 = Math.max(0, frame - Math.round(D.fps));
-    let prev = null;
-    for (let k = k0; k <= frame; k++) {
-      const p = e.frames[k]; if (!p) { prev = null; continue; }
-      const q = [p[0] / 1e3, p[1] / 1e3, p[2] / 1e3];
-      if (prev) {
-        const s = segment(prev, q);
-        if (s) {
-          ctx.strokeStyle = e.color; ctx.globalAlpha = 0.15 + 0.6 * (k - k0) / Math.max(1, frame - k0);
-          ctx.lineWidth = 2.5; ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
-        }
-      }
-      prev = q;
-    }
-    ctx.globalAlpha = 1;
-  });
-
-  for (const it of items) {
-    const s = it.s;
-    if (it.kind === "link") {
-      ctx.strokeStyle = "#2b2b2b"; ctx.lineWidth = linkWidth(s[4], 0.03) + 2;
-      ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
-      ctx.strokeStyle = it.color; ctx.lineWidth = linkWidth(s[4], 0.03);
-      ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
-    } else if (it.kind === "edge") {
-      ctx.strokeStyle = "#333a44"; ctx.lineWidth = Math.max(1.5, linkWidth(s[4], 0.006));
-      ctx.beginPath(); ctx.moveTo(s[0], s[1]); ctx.lineTo(s[2], s[3]); ctx.stroke();
-    } else {
-      const r = it.kind === "foot" ? linkWidth(s[2], D.foot_radius_m) / 2 + 1 : it.kind === "ee" ? linkWidth(s[2], 0.03) / 2 + 1
-              : it.kind === "extra" ? Math.max(4, linkWidth(s[2], 0.02) / 2) : linkWidth(s[2], 0.022) / 2;
-      ctx.beginPath(); ctx.arc(s[0], s[1], r, 0, 2 * Math.PI);
-      if (it.kind === "foot") {  // filled when touching the ground
-        const contact = it.z - D.foot_radius_m < 0.01;
-        ctx.fillStyle = contact ? "#111" : "#fff"; ctx.fill();
-        ctx.lineWidth = 2; ctx.strokeStyle = "#111"; ctx.stroke();
-      } else if (it.kind === "ee") {
-        ctx.fillStyle = "#f1c40f"; ctx.fill(); ctx.lineWidth = 2; ctx.strokeStyle = "#333"; ctx.stroke();
-      } else if (it.kind === "extra") {
-        ctx.fillStyle = it.color; ctx.fill(); ctx.lineWidth = 1.5; ctx.strokeStyle = "#fff"; ctx.stroke();
-      } else {
-        ctx.fillStyle = "#dfe3e8"; ctx.fill(); ctx.lineWidth = 1.2; ctx.strokeStyle = "#333"; ctx.stroke();
-      }
-    }
-  }
-  slider.value = String(frame);
-  const t0 = D.t[0];
-  timeEl.textContent = "t = " + (D.t[frame] - t0).toFixed(3) + " / " + D.duration_s.toFixed(3) + " s";
-}
-
-function loop(ts) {
-  if (playing) {
-    if (last !== null) {
-      playT += (ts - last) / 1000 * parseFloat(speedEl.value);
-      if (playT >= N / D.fps) playT = 0;
-      frame = Math.min(N - 1, Math.floor(playT * D.fps));
-    }
-    last = ts;
-  }
-  draw();
-  requestAnimationFrame(loop);
-}
-draw();
-requestAnimationFrame(loop);
+  tick();
+  window.wbmpcReplay = { viewer, meta };
 </script>
 </body>
 </html>

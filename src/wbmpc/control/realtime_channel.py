@@ -1,0 +1,168 @@
+"""Shared-memory channel between the real-time simulation and its MPC process (`--delay realtime`).
+
+Each MPC step moves a request (measured q, v, the command, t, the expected delay and the step budget)
+one way and a plan (the `Solution` arrays and its solver statistics) the other. Through a pipe that
+is two pickles, two copies through the kernel and a poll per simulation tick. Here both live in one
+`multiprocessing.shared_memory` block as NumPy views written in place, and each side is woken by an
+event (`multiprocessing.Event`, a semaphore): the solver process blocks on the request, the
+simulation checks (or waits with a timeout on) the answer. The layout is taken from a first solution
+of the same MPC, so both sides agree on every shape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from multiprocessing import shared_memory
+
+import numpy as np
+
+from wbmpc.control.solution import Solution
+from wbmpc.solvers.nlp import SolverStats
+
+SOLUTION_ARRAYS = ("node_times_s", "q", "v", "a", "forces", "tau", "contact", "q_joints")
+STATS_SCALARS = ("t_s", "success", "held_previous", "iterations", "solve_time_s", "cpu_time_s",
+                 "max_constraint_violation", "cost", "wall_time_s", "process_cpu_s")
+DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")
+STATUS_BYTES = 2048
+REQUEST_SCALARS = ("t", "delay_s", "budget_s", "stop")
+
+
+@dataclass(frozen=True)
+class ChannelLayout:
+    """Shapes of the request and of the plan: picklable, sent once to the solver process."""
+
+    nq: int
+    nv: int
+    command_width: int
+    arrays: tuple[tuple[str, tuple[int, ...]], ...]
+
+    @classmethod
+    def from_solution(cls, solution: Solution, command_width: int) -> "ChannelLayout":
+        arrays = tuple((name, tuple(np.shape(getattr(solution, name)))) for name in SOLUTION_ARRAYS)
+        return cls(solution.q.shape[1], solution.v.shape[1], command_width, arrays)
+
+    def fields(self) -> list[tuple[str, tuple[int, ...]]]:
+        """(name, shape) of every float64 view, in the block's order."""
+        out = [("req_q", (self.nq,)), ("req_v", (self.nv,)), ("req_command", (self.command_width,)),
+               ("req_scalars", (len(REQUEST_SCALARS),))]
+        out += [(f"sol_{name}", shape) for name, shape in self.arrays]
+        out += [("sol_scalars", (len(STATS_SCALARS),)), ("sol_details", (len(DETAIL_KEYS),))]
+        return out
+
+    @property
+    def n_bytes(self) -> int:
+        return 8 * sum(int(np.prod(shape)) for _, shape in self.fields()) + STATUS_BYTES + 8
+
+
+class SharedChannel:
+    """The block and its views; `create` in the simulation process, `attach` in the solver process."""
+
+    def __init__(self, layout: ChannelLayout, memory: shared_memory.SharedMemory, events, owner: bool):
+        self.layout, self.memory, self.owner = layout, memory, owner
+        self.request_ready, self.answer_ready = events
+        self.views: dict[str, np.ndarray] = {}
+        offset = 0
+        for name, shape in layout.fields():
+            size = int(np.prod(shape))
+            self.views[name] = np.ndarray(shape, dtype=np.float64, buffer=memory.buf, offset=offset)
+            offset += 8 * size
+        self._status = np.ndarray((STATUS_BYTES + 8,), dtype=np.uint8, buffer=memory.buf, offset=offset)
+
+    @staticmethod
+    def events(context) -> tuple:
+        """(request ready, answer ready): made before the solver process starts, which inherits them (events
+        cannot be sent through a pipe)."""
+        return context.Event(), context.Event()
+
+    @classmethod
+    def create(cls, layout: ChannelLayout, events) -> "SharedChannel":
+        memory = shared_memory.SharedMemory(create=True, size=layout.n_bytes)
+        return cls(layout, memory, events, owner=True)
+
+    @classmethod
+    def attach(cls, layout: ChannelLayout, name: str, events) -> "SharedChannel":
+        # the simulation process owns (and unlinks) the block; this process only maps it. (Before Python 3.13
+        # attaching registers the block with the resource tracker too: spawned processes share the parent's
+        # tracker, where it is the same entry, removed by the owner's unlink.)
+        try:
+            memory = shared_memory.SharedMemory(name=name, track=False)
+        except TypeError:
+            memory = shared_memory.SharedMemory(name=name)
+        return cls(layout, memory, events, owner=False)
+
+    @property
+    def handle(self) -> tuple:
+        """What the solver process needs to attach, sent through the pipe once: (layout, block name)."""
+        return self.layout, self.memory.name
+
+    def close(self) -> None:
+        self.views.clear()
+        self._status = None
+        self.memory.close()
+        if self.owner:
+            self.memory.unlink()
+
+    # ------------------------------------------------------------------ simulation side
+    def send_request(self, q, v, command_row: np.ndarray, t: float, delay_s: float, budget_s: float | None) -> None:
+        views = self.views
+        views["req_q"][:] = q
+        views["req_v"][:] = v
+        views["req_command"][:] = command_row
+        views["req_scalars"][:] = (t, delay_s, np.nan if budget_s is None else budget_s, 0.0)
+        self.answer_ready.clear()
+        self.request_ready.set()
+
+    def send_stop(self) -> None:
+        self.views["req_scalars"][3] = 1.0
+        self.request_ready.set()
+
+    def receive_solution(self) -> Solution:
+        """The plan the solver process wrote (copied out: the next answer reuses the block)."""
+        views = self.views
+        arrays = {name: views[f"sol_{name}"].copy() for name, _ in self.layout.arrays}
+        scalars = dict(zip(STATS_SCALARS, views["sol_scalars"].tolist()))
+        details = {key: value for key, value in zip(DETAIL_KEYS, views["sol_details"].tolist()) if np.isfinite(value)}
+        length = int(self._status[:8].view(np.int64)[0])
+        status = bytes(self._status[8 : 8 + length]).decode("utf-8", "replace")
+        stats = SolverStats(status=status, success=bool(scalars["success"]), iterations=int(scalars["iterations"]),
+                            solve_time_s=scalars["solve_time_s"], max_constraint_violation=scalars["max_constraint_violation"],
+                            cost=scalars["cost"], cpu_time_s=scalars["cpu_time_s"], details=details)
+        solution = Solution(t_s=scalars["t_s"], node_times_s=arrays["node_times_s"], q=arrays["q"], v=arrays["v"],
+                            a=arrays["a"], forces=arrays["forces"], tau=arrays["tau"], contact=arrays["contact"] > 0.5,
+                            stats=stats, success=bool(scalars["success"]), x=None, q_joints=arrays["q_joints"])
+        solution.wall_time_s = scalars["wall_time_s"]  # type: ignore[attr-defined]
+        solution.process_cpu_s = scalars["process_cpu_s"]  # type: ignore[attr-defined]
+        if scalars["held_previous"]:
+            solution.held_previous = True  # type: ignore[attr-defined]
+        return solution
+
+    # ------------------------------------------------------------------ solver side
+    def receive_request(self) -> tuple | None:
+        """Block until a request; None when asked to stop. Returns (q, v, command row, t, delay_s, budget_s)."""
+        self.request_ready.wait()
+        self.request_ready.clear()
+        views = self.views
+        t, delay_s, budget_s, stop = views["req_scalars"].tolist()
+        if stop:
+            return None
+        return (views["req_q"].copy(), views["req_v"].copy(), views["req_command"].copy(), t, delay_s,
+                None if np.isnan(budget_s) else budget_s)
+
+    def send_solution(self, solution: Solution) -> None:
+        views = self.views
+        for name, shape in self.layout.arrays:
+            value = np.asarray(getattr(solution, name), dtype=float)
+            if value.shape != shape:  # a plan of another shape cannot be one of this MPC's: refuse loudly
+                raise ValueError(f"real-time channel: {name} has shape {value.shape}, the layout {shape}")
+            views[f"sol_{name}"][:] = value
+        stats = solution.stats
+        views["sol_scalars"][:] = (solution.t_s, float(solution.success), float(getattr(solution, "held_previous", False)),
+                                   stats.iterations, stats.solve_time_s, stats.cpu_time_s,
+                                   stats.max_constraint_violation, stats.cost, solution.wall_time_s,
+                                   solution.process_cpu_s)
+        details = stats.details or {}
+        views["sol_details"][:] = [np.nan if details.get(key) is None else float(details[key]) for key in DETAIL_KEYS]
+        encoded = str(stats.status).encode("utf-8")[:STATUS_BYTES]
+        self._status[:8].view(np.int64)[0] = len(encoded)
+        self._status[8 : 8 + len(encoded)] = np.frombuffer(encoded, dtype=np.uint8)
+        self.answer_ready.set()

@@ -1,0 +1,234 @@
+"""Anytime SQP (`--solver sqp`): as many SQP iterations as fit before the step's deadline.
+
+Each iteration is the RTI's (`solvers/rti.py`): the OCP (eq. 1) linearised at the iterate, the
+Gauss-Newton QP on HPIPM's structured interior point (`solvers/qp.py`). Unlike the RTI's full step,
+the step is globalised by a backtracking line search on the l1 merit function
+
+    phi(x) = f(x) + nu * (sum of the bound violations of g(x) and x),   nu >= 1.1 max |lambda|,
+
+(Armijo condition on phi's directional derivative along the QP step, grad f' d - nu viol(x)). The
+iterations stop when the KKT residuals are below the tolerances (primal: largest bound violation;
+dual: |grad f + J' lam_g + lam_x|_inf with the last QP's multipliers, relative to max(1, |grad f|)),
+when the step is negligible, or when the next iteration would not end before the deadline
+(predicted from the iterations measured so far). The result is the iterate with the lowest merit
+(the last one, since every accepted step lowers it), with its status and KKT residuals in
+`stats.details` (primal of the returned iterate; dual of the last iterate linearised, which is the
+returned one when it converged or with `kkt_at_exit`); the MPC warm-starts the next step from it.
+
+The deadline is an absolute time on the solver's `clock` (wall time for real time, the thread's
+CPU time to measure on a shared machine, or any callable in tests), passed per call by the MPC
+(`MpcConfig.step_budget_s`: the step's budget less the MPC's own work after the solve) or set by
+`budget_ms`. A cold call (`warm_start=False`: the run's first step, solved before the clock runs)
+ignores the deadline and converges; a budget shorter than the shortest QP measured there is
+refused (`DeadlineError`): such a solver could never keep its deadline. A warm step always makes
+at least one iteration (a plan must come out of every step), late if it must.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats, bound_violation
+from wbmpc.solvers.rti import RtiConfig, RtiSolver
+
+CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}
+
+
+class DeadlineError(ConfigError):
+    """The step's time budget is shorter than one SQP iteration."""
+
+
+@dataclass(frozen=True)
+class AnytimeConfig(RtiConfig):
+    """Settings of the anytime SQP (`SolverConfig(name="sqp", extra_options={...})`); the RTI's QP settings apply."""
+
+    sqp_iterations: int = 20  # cap of SQP iterations per call (the deadline usually stops it first)
+    budget_ms: float | None = None  # per-call budget when the caller passes no deadline; None: none
+    clock: str = "wall"  # "wall": time.perf_counter (real time); "cpu": the thread's CPU time
+    primal_tolerance: float = 1e-5  # converged: largest bound violation of g and x below this
+    dual_tolerance: float = 1e-3  # and |grad L|_inf / max(1, |grad f|_inf) below this
+    armijo: float = 1e-4  # sufficient decrease of the merit function per unit of its directional derivative
+    backtrack: float = 0.5
+    min_step: float = 0.05  # smallest step length tried; below it the iterate is kept (first iteration: full step)
+    merit_margin: float = 1.1  # nu = margin * max |lambda| (never decreased within a call)
+    safety: float = 1.2  # the next iteration starts if now + safety * (its predicted time) is before the deadline
+    # linearise at the iterate returned to report its dual residual too (~0.8 ms on b1_z1); off: the dual
+    # residual is that of the last iterate linearised anyway (None after a single iteration)
+    kkt_at_exit: bool = False
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.clock not in CLOCKS:
+            raise ConfigError(f"anytime SQP clock must be one of {', '.join(CLOCKS)}, got {self.clock!r}")
+        if self.budget_ms is not None and not self.budget_ms > 0:
+            raise ConfigError(f"budget_ms must be positive or None, got {self.budget_ms}")
+        if not (0 < self.backtrack < 1 and 0 < self.min_step <= 1 and 0 < self.armijo < 0.5):
+            raise ConfigError("line search needs 0 < backtrack < 1, 0 < min_step <= 1, 0 < armijo < 0.5")
+
+
+class AnytimeSqpSolver(RtiSolver):
+    """SQP with a merit line search, stopped by convergence or its deadline; `NlpSolver`'s interface
+    plus `solve(..., deadline=t)` on `self.clock`."""
+
+    supports_deadline = True
+    solver_name = "sqp"
+
+    def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(name="sqp"),
+                 clock: Callable[[], float] | None = None):
+        if config.name != "sqp":
+            raise ConfigError(f"AnytimeSqpSolver needs SolverConfig(name='sqp'), got '{config.name}'")
+        self.anytime = AnytimeConfig.from_options(config.extra_options)
+        super().__init__(problem, config, rti=self.anytime)
+        self.clock = clock or CLOCKS[self.anytime.clock]
+        self._iteration_s: float | None = None  # running estimate of one iteration's time on `clock`
+        self.min_iteration_s: float | None = None  # shortest whole SQP iteration seen
+        self.min_qp_s: float | None = None  # shortest QP seen, CPU time (the floor of any budget)
+
+    def _merit(self, f: float, g: np.ndarray, x: np.ndarray, lbx, ubx, lbg, ubg, nu: float) -> tuple[float, float]:
+        violation = float(np.sum(np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0))
+                          + np.sum(np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)))
+        return f + nu * violation, violation
+
+    def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
+              deadline: float | None = None) -> NlpResult:
+        clock, cfg = self.clock, self.anytime
+        clock_start, start, cpu_start = clock(), time.perf_counter(), time.process_time()
+        if deadline is None and cfg.budget_ms is not None:
+            deadline = clock_start + cfg.budget_ms / 1e3
+        budget_s = None if deadline is None else deadline - clock_start
+        if not warm_start:
+            deadline = None  # a cold step (before the clock runs) converges and measures the iterations
+        lbx, ubx, lbg, ubg = (np.asarray(b, dtype=float) for b in (lbx, ubx, lbg, ubg))
+        x = np.asarray(x0, dtype=float).copy()
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x))):
+            return self._failure(x0, "invalid_input_nan")
+        if np.any(lbx > ubx) or np.any(lbg > ubg):
+            return self._failure(x0, "invalid_bounds")
+        f_out, g = self._nlp(x, p)
+        f, g = float(f_out[0]), g.copy()
+        nu, lam_g, lam_x = 0.0, None, None
+        status, success, qp_iterations, iterations, alphas = "not_started", False, 0, 0, []
+        primal = dual = float("nan")
+        H = None
+        linearize_s = qp_s = search_s = 0.0
+        while True:
+            tic = clock()
+            stop = None  # checked before linearising: a step that ends here skips the next linearisation
+            if iterations >= cfg.sqp_iterations:
+                stop = "Maximum_Iterations_Exceeded"
+            elif iterations > 0 and deadline is not None and \
+                    clock() + cfg.safety * self._predicted_iteration_s() > deadline:
+                stop = "Deadline"
+            if stop is not None and not cfg.kkt_at_exit:
+                status, success = stop, iterations > 0
+                break
+            g_lin, J = self._jacobian(x, p)
+            if not (np.all(np.isfinite(np.asarray(g_lin))) and J.is_regular()):
+                status = "invalid_input_nan_constraints"
+                break
+            gradient = self._gradient(x, p)
+            grad = np.asarray(gradient).ravel()
+            if lam_g is not None:
+                primal = bound_violation(x, g, lbx, ubx, lbg, ubg)
+                residual = grad + np.asarray(ca.mtimes(ca.DM(lam_g).T, J)).ravel() + lam_x
+                dual = float(np.max(np.abs(residual), initial=0.0) / max(1.0, np.max(np.abs(grad), initial=0.0)))
+                if primal < cfg.primal_tolerance and dual < cfg.dual_tolerance:
+                    status, success = "Converged", True
+                    break
+            if stop is not None:
+                status, success = stop, iterations > 0
+                break
+            if H is None or self.hessian_depends_on_x:
+                H = self._hessian(x, p)
+            linearize_s += clock() - tic
+            qp_tic, qp_cpu = clock(), time.thread_time()
+            result, _, n_qp = self._solve_qp((H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x))
+            qp_s += clock() - qp_tic
+            if result.success:  # on CPU time: the floor of any budget, whatever else the machine runs
+                one_qp_s = time.thread_time() - qp_cpu
+                self.min_qp_s = one_qp_s if self.min_qp_s is None else min(self.min_qp_s, one_qp_s)
+            qp_iterations += n_qp
+            if not result.success:
+                status = f"{result.status} at SQP iteration {iterations + 1}"
+                success = iterations > 0  # an earlier iterate is kept; none yet: the step failed
+                break
+            step_tic = clock()
+            d = result.step
+            nu = max(nu, cfg.merit_margin * max(np.max(np.abs(result.lam_g), initial=0.0),
+                                                np.max(np.abs(result.lam_x), initial=0.0)))
+            phi0, violation = self._merit(f, g, x, lbx, ubx, lbg, ubg, nu)
+            slope = float(grad @ d) - nu * violation
+            alpha, accepted = 1.0, False
+            while True:
+                trial = x + alpha * d
+                f_out, g_trial = self._nlp(trial, p)
+                f_trial = float(f_out[0])
+                phi, _ = self._merit(f_trial, g_trial, trial, lbx, ubx, lbg, ubg, nu)
+                # (a roundoff allowance: near the solution phi changes below its last digits)
+                if np.isfinite(phi) and phi <= phi0 + cfg.armijo * alpha * min(slope, 0.0) + 1e-13 * max(1.0, abs(phi0)):
+                    accepted = True
+                    break
+                if alpha * cfg.backtrack < cfg.min_step:
+                    break
+                alpha *= cfg.backtrack
+            if not accepted and iterations == 0:  # the RTI's full step: a plan must come out of every step
+                alpha = 1.0
+                trial = x + d
+                f_out, g_trial = self._nlp(trial, p)
+                f_trial, accepted = float(f_out[0]), bool(np.all(np.isfinite(g_trial)))
+            search_s += clock() - step_tic
+            if not accepted:
+                status, success = "Line_Search_Failed", True  # the iterate before this step is kept
+                break
+            x, f, g = trial, f_trial, g_trial.copy()
+            lam_g, lam_x = result.lam_g, result.lam_x
+            alphas.append(alpha)
+            iterations += 1
+            self._record_iteration(clock() - tic)
+            if np.max(np.abs(alpha * d), initial=0.0) < cfg.step_tolerance:
+                status, success = "Converged_Step", True
+                break
+        finite = bool(np.all(np.isfinite(g)) and np.isfinite(f))
+        primal = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")  # of the iterate returned
+        success = success and finite and iterations > 0
+        viol = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
+        if not success:
+            x, f, viol = np.full_like(x, np.nan), float("nan"), float("inf")
+        elapsed = time.perf_counter() - start
+        if budget_s is not None and not warm_start and self.min_qp_s is not None and budget_s < self.min_qp_s:
+            raise DeadlineError(f"the solver's share of the MPC step's budget (the step budget less the MPC's own "
+                                f"work) is {1e3 * budget_s:.2f} ms, shorter than one QP of "
+                                f"the SQP ({1e3 * self.min_qp_s:.2f} ms of CPU, the shortest on the first step): "
+                                "raise the budget (--step-budget or MpcConfig.step_budget_s, the anytime solver's budget_ms), lower "
+                                "the MPC rate, compile the solver (--compiled) or use a smaller horizon (--nodes)")
+        late = deadline is not None and clock() > deadline
+        self.last_timing = {"linearize_ms": 1e3 * linearize_s, "qp_ms": 1e3 * qp_s, "line_search_ms": 1e3 * search_s,
+                            "cpu_ms": 1e3 * (time.process_time() - cpu_start)}
+        n = self.problem.n_constraints
+        stats = SolverStats(status=status, success=success, iterations=qp_iterations, solve_time_s=elapsed,
+                            max_constraint_violation=viol, cost=f, cpu_time_s=self.last_timing["cpu_ms"] / 1e3,
+                            split_ms={"linearize": 1e3 * linearize_s, "qp": 1e3 * qp_s, "line_search": 1e3 * search_s})
+        stats.details = {"sqp_iterations": iterations, "primal_residual": primal, "dual_residual": dual,
+                         "step_lengths": alphas, "budget_ms": None if budget_s is None else 1e3 * budget_s,
+                         "late": bool(late), "merit_penalty": nu}
+        result = NlpResult(x=x, lam_g=lam_g if lam_g is not None else np.zeros(n),
+                           lam_x=lam_x if lam_x is not None else np.zeros_like(x), stats=stats)
+        if not success and iterations == 0 and self.rti.recovery_barrier_init is not None:
+            result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
+            result.stats.details = {**stats.details, "primal_residual": result.stats.max_constraint_violation,
+                                    "dual_residual": None, "late": deadline is not None and clock() > deadline}
+        return result
+
+    def _predicted_iteration_s(self) -> float:
+        return self._iteration_s if self._iteration_s is not None else 0.0
+
+    def _record_iteration(self, seconds: float) -> None:
+        self._iteration_s = seconds if self._iteration_s is None else 0.7 * self._iteration_s + 0.3 * seconds
+        self.min_iteration_s = seconds if self.min_iteration_s is None else min(self.min_iteration_s, seconds)

@@ -1,0 +1,270 @@
+"""Fatrop without casadi's nlpsol (`--solver fatrop-direct`): our compiled stage functions called by Fatrop.
+
+casadi's Fatrop plugin builds a new Fatrop instance in every solve, evaluates whole-NLP functions and
+copies each stage block out of their sparse results (the `interface` and `outside_solver` parts of
+a solve's time split). Here a generated C shim (`fatrop_shim.py`) answers Fatrop's per-stage
+callbacks with one generated call each, Fatrop instances are kept per row-count pattern (like
+`NlpSolver`) and options such as mu_init and max_iter change between calls on the same instance.
+
+Same problem, same row split and multiplier signs as casadi's plugin: the two solve to the same
+KKT point (tests/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
+small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `fatrop_shim.DRIVER_SOURCE`):
+a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
+instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT
+factorisation; `extra_options={"warm_duals": False}` turns it off) and a time limit per call
+(`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
+
+When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
+solver falls back to casadi's nlpsol Fatrop with a RuntimeWarning; `direct_error` says why (None
+when the direct binding runs).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.interrupt import deliver_after
+from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.codegen import CompileError, CompileReport
+from wbmpc.solvers.fatrop_shim import FatropUnavailable, build
+from wbmpc.solvers.nlp import (
+    _FATROP_FLAGS,
+    NlpResult,
+    NlpSolver,
+    SolverConfig,
+    SolverStats,
+    bound_violation,
+    failed_result,
+)
+
+NAME = "fatrop-direct"
+_N_STATS = 12
+_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+
+
+class _Library:
+    """The compiled shim loaded with ctypes, shared by every solver on the same problem."""
+
+    def __init__(self, report: CompileReport, p_index: np.ndarray):
+        self.report, self.p_index = report, p_index
+        lib = ctypes.CDLL(str(report.library))
+        lib.wb_ctx_new.restype = ctypes.c_void_p
+        lib.wb_ctx_free.argtypes = [ctypes.c_void_p]
+        lib.wb_solver_new.restype = ctypes.c_void_p
+        lib.wb_solver_new.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 4 + [ctypes.c_int]
+        lib.wb_solver_free.argtypes = [ctypes.c_void_p]
+        for name, kind in (("wb_option_double", ctypes.c_double), ("wb_option_int", ctypes.c_int),
+                           ("wb_option_bool", ctypes.c_int)):
+            getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
+        lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
+        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double, ctypes.c_int]
+        sizes = (ctypes.c_int * 4)()
+        lib.wb_sizes(sizes)
+        self.n_stages, self.n_stage_params, self.n_variables, self.n_constraints = list(sizes)
+        self.lib = lib
+
+
+def _ptr(array: np.ndarray):
+    return array.ctypes.data_as(_DOUBLE_P)
+
+
+def _f64(values) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=np.float64).ravel()
+
+
+class FatropDirectSolver:
+    """Fatrop through its OCP C interface on our compiled stage functions (see the module docstring)."""
+
+    def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(name=NAME),
+                 library: _Library | None = None):
+        if config.name != NAME:
+            raise ConfigError(f"FatropDirectSolver needs SolverConfig(name='{NAME}'), got '{config.name}'")
+        self.problem, self.config = problem, config
+        self.direct_error: str | None = None
+        self.compile_error: str | None = None
+        self._fallback: NlpSolver | None = None
+        self._library = library
+        if library is None:
+            try:
+                report, p_index = build(problem, config.codegen)
+                self._library = _Library(report, p_index)
+            except (CompileError, FatropUnavailable, OSError) as exc:
+                self.direct_error = self.compile_error = str(exc)
+                warnings.warn(f"the direct Fatrop binding is unavailable, using casadi's Fatrop: {exc}",
+                              RuntimeWarning, stacklevel=2)
+                self._fallback = NlpSolver(problem, replace(config, name="fatrop"))
+                return
+        lib = self._library
+        if (lib.n_variables, lib.n_constraints) != (problem.n_variables, problem.n_constraints):
+            raise ConfigError("the compiled Fatrop shim belongs to another problem structure")
+        self._ctx = ctypes.c_void_p(lib.lib.wb_ctx_new())
+        self._by_structure: dict[bytes, ctypes.c_void_p] = {}
+        self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
+        self._warm_pause = 0
+        self._warm_failures = 0
+        self._x = np.zeros(problem.n_variables)
+        self._g = np.zeros(problem.n_constraints)
+        self._stats = np.zeros(_N_STATS)
+        # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
+        # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
+        self.warm_duals = bool(config.extra_options.get("warm_duals", True))
+
+    # ---------------------------------------------------------------- NlpSolver's interface
+    @property
+    def compile_report(self) -> CompileReport | None:
+        return self._fallback.compile_report if self._fallback else self._library.report
+
+    @property
+    def is_compiled(self) -> bool:
+        return self._fallback.is_compiled if self._fallback else True
+
+    @property
+    def is_direct(self) -> bool:
+        return self._fallback is None
+
+    def recreated(self, **changes) -> "FatropDirectSolver | NlpSolver":
+        """A fresh solver on the same problem and compiled shim with some settings changed."""
+        if self._fallback is not None:
+            return self._fallback.recreated(**changes)
+        return FatropDirectSolver(self.problem, replace(self.config, **changes), library=self._library)
+
+    def __del__(self):
+        lib = getattr(self, "_library", None)
+        if lib is None or getattr(self, "_ctx", None) is None:
+            return
+        for solver in self._by_structure.values():
+            lib.lib.wb_solver_free(solver)
+        lib.lib.wb_ctx_free(self._ctx)
+
+    def stage_parameters(self, p) -> np.ndarray:
+        """(N+1, n_p) stage parameters, row k = `problem.stage_parameters(p, k)`."""
+        return np.ascontiguousarray(np.asarray(p, dtype=float).ravel()[self._library.p_index])
+
+    def constraints(self, x, p) -> np.ndarray:
+        """g(x) of the NLP, evaluated by the shim's compiled stage functions."""
+        if self._fallback is not None:
+            return np.asarray(self._fallback._g(x, p)[0]).ravel()
+        stage_p, x = self.stage_parameters(p), _f64(x)
+        self._library.lib.wb_eval_g(self._ctx, _ptr(stage_p), _ptr(x), _ptr(self._g))
+        return self._g.copy()
+
+    def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
+        return bound_violation(x, self.constraints(x, p), lbx, ubx, lbg, ubg)
+
+    def structure_key(self, lbx, ubx, lbg, ubg) -> bytes:
+        return NlpSolver.structure_key(self, lbx, ubx, lbg, ubg)  # same counting, same attributes
+
+    def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
+              max_iterations: int | None = None, time_limit_s: float | None = None) -> NlpResult:
+        """Solve from x0 (lam_g0 / lam_x0 are accepted and, like casadi's Fatrop, not used). `warm_start`:
+        first the small-barrier attempt (`SolverConfig.warm_barrier_init`). `max_iterations` caps this call;
+        `time_limit_s` (default `SolverConfig.time_limit_s`) stops it at the first evaluation after that
+        long, returning the last accepted iterate with status `time_limit_reached` (not a success)."""
+        if self._fallback is not None:
+            return self._fallback.solve(p, lbx, ubx, lbg, ubg, x0, lam_g0, lam_x0, warm_start=warm_start)
+        cfg = self.config
+        cap = cfg.max_iterations if max_iterations is None else max_iterations
+        limit = cfg.time_limit_s if time_limit_s is None else time_limit_s
+        deadline = time.perf_counter() + limit if limit else None
+        if not warm_start or cfg.warm_barrier_init is None:
+            return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
+        if self._warm_pause > 0:
+            self._warm_pause -= 1
+            return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
+        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.warm_barrier_init, min(cfg.warm_max_iterations, cap),
+                              deadline, warm_duals=True)
+        if attempt.stats.success or attempt.stats.status == "time_limit_reached":
+            self._warm_failures = 0 if attempt.stats.success else self._warm_failures
+            return attempt
+        self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
+        self._warm_failures += 1
+        result = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
+        stats = result.stats
+        stats.iterations += max(attempt.stats.iterations, 0)
+        stats.solve_time_s += attempt.stats.solve_time_s
+        stats.cpu_time_s += attempt.stats.cpu_time_s
+        stats.split_ms = {k: stats.split_ms.get(k, 0.0) + attempt.stats.split_ms.get(k, 0.0)
+                          for k in {**stats.split_ms, **attempt.stats.split_ms}}
+        stats.status = f"{stats.status} (after mu_init {cfg.warm_barrier_init:g}: {attempt.stats.status})"
+        return result
+
+    # ---------------------------------------------------------------- internals
+    def _solver_for(self, lbx, ubx, lbg, ubg) -> ctypes.c_void_p:
+        key = self.structure_key(lbx, ubx, lbg, ubg)
+        solver = self._by_structure.get(key)
+        if solver is None:
+            lib = self._library.lib
+            solver = ctypes.c_void_p(lib.wb_solver_new(self._ctx, _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
+                                                       int(self.config.print_level > 0)))
+            if not solver.value:
+                raise RuntimeError("Fatrop could not create a solver for this structure")
+            cfg = self.config
+            lib.wb_option_double(solver, b"tolerance", cfg.tolerance)
+            lib.wb_option_double(solver, b"constr_viol_tol", cfg.constraint_tolerance)
+            for key_, value in cfg.extra_options.get("fatrop", {}).items():
+                setter = {float: lib.wb_option_double, int: lib.wb_option_int, bool: lib.wb_option_bool}[type(value)]
+                setter(solver, key_.encode(), value)
+            self._by_structure[key] = solver
+        return solver
+
+    def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
+               deadline: float | None = None, warm_duals: bool = False) -> NlpResult:
+        problem = self.problem
+        lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
+        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x0))):
+            return failed_result(problem, x0, "invalid_input_nan")
+        if not np.all(np.isfinite(self.constraints(x0, p))):
+            return failed_result(problem, x0, "invalid_input_nan_constraints")
+        if np.any(lbx > ubx) or np.any(lbg > ubg):
+            return failed_result(problem, x0, "invalid_bounds")
+        lib = self._library.lib
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        stage_p = self.stage_parameters(p)
+        solver = self._solver_for(lbx, ubx, lbg, ubg)
+        # the driver maps the stored multipliers position by position within each stage: where a gait switch
+        # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
+        # requiring the same rows halved the warm starts used and cost 0.5-1 ms CPU per step on average)
+        warm_duals = warm_duals and self.warm_duals
+        lib.wb_option_double(solver, b"mu_init", mu_init)
+        lib.wb_option_int(solver, b"max_iter", int(max_iterations))
+        lib.wb_option_int(solver, b"print_level", int(self.config.print_level))
+        x = np.zeros(problem.n_variables)
+        lam_g, lam_x = np.zeros(problem.n_constraints), np.zeros(problem.n_variables)
+        stats = self._stats
+        budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
+        with deliver_after():
+            code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
+                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s,
+                                int(warm_duals))
+        elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+        if code == -1:
+            return failed_result(problem, x0, "solver_exception: Fatrop raised (see its output with print_level > 0)")
+        if code == -2:
+            return failed_result(problem, x0, "solver_exception: row structure changed under the solver")
+        flag = int(stats[1])
+        status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
+        success = flag in (0, 2) and bool(np.all(np.isfinite(x)))
+        viol = self.constraint_violation(x, p, lbx, ubx, lbg, ubg) if np.all(np.isfinite(x)) else float("inf")
+        return NlpResult(x=x, lam_g=lam_g, lam_x=lam_x, stats=SolverStats(
+            status=status, success=success, iterations=int(stats[0]), solve_time_s=elapsed,
+            max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
+            split_ms=_time_split_ms(stats, elapsed)))
+
+
+def _time_split_ms(stats: np.ndarray, elapsed_s: float) -> dict:
+    """The solve's time split in `nlp.time_split_ms`'s parts: functions (the generated code, timed by the
+    shim), linear algebra, initialization, interface (Fatrop's evaluation timers beyond the functions:
+    packing into BLASFEO), the rest inside Fatrop, and outside the solver (Python, ctypes, unpacking)."""
+    total, search_dir, init, callbacks, functions = (1e3 * float(v) for v in (stats[2], stats[3], stats[4],
+                                                                            np.sum(stats[5:10]), stats[10]))
+    return {"functions": functions, "linear_algebra": search_dir, "initialization": init,
+            "interface": max(callbacks - functions, 0.0),
+            "line_search_and_rest": max(total - search_dir - init - max(callbacks, functions), 0.0),
+            "outside_solver": max(1e3 * elapsed_s - total, 0.0)}
