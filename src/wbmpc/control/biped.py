@@ -6,6 +6,8 @@ the foot it will stand on during double support, and its hands, pinned in the wo
 pelvis' sway. So on two feet:
 - the walk's period by Froude similarity from the leg length with 40 % double support
   (`wbmpc.gait.biped_walk_timing`), instead of the trot's 0.8 s scaled;
+- feet lifted 7.5 % of the leg length (4.9 cm on g1), not the trot's 16 %: g1's first walking OCPs took
+  28 Fatrop iterations with 10 cm steps, 15 with 5 cm;
 - `support_sway`: the base xy targets lean 60 % of the way from the centre of the feet to the centre of
   the feet in stance one double-support phase later (`MPC._sway_towards_support`): the plan shifts the
   weight during double support. The OCP's nodes are dense at its start and its cost is not weighted
@@ -25,6 +27,7 @@ from wbmpc.gait import biped_walk_timing
 
 BIPED_SOURCE = "derived: biped"
 BIPED_SUPPORT_SWAY = 0.6
+BIPED_APEX_PER_LEG = 0.075  # swing apex / leg length: 4.9 cm on g1 (the trot's scaled 10 cm: 28 -> 15 iterations)
 BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 5.0
 BIPED_LEG_JOINT_WEIGHT = 2.0
 BIPED_CONTACT_FORCE_WEIGHT = 1e-5
@@ -35,6 +38,7 @@ def biped_overrides(leg_length_m: float) -> dict:
     period_s, double_support_share = biped_walk_timing(leg_length_m)
     return {
         "gait_period_s": period_s,
+        "swing.apex_height_m": BIPED_APEX_PER_LEG * leg_length_m,
         "weights.base_linear_velocity": BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
         "weights.leg_joint_position": BIPED_LEG_JOINT_WEIGHT,
         "weights.contact_force": BIPED_CONTACT_FORCE_WEIGHT,

@@ -91,6 +91,17 @@ _LEGGED: dict[str, tuple] = {
 # flat feet (6D wrench at the sole, soles.py): the sole from the foot link's collision geometry (None) or a size
 # (length, width) for feet whose links carry meshes only (TALOS: its 0.21 x 0.138 m sole, rounded inwards)
 _FLAT_FEET: dict[str, tuple[float, float] | None] = {"g1": None, "talos": (0.2, 0.13), "talos_full": (0.2, 0.13)}
+# rotor inertias reflected through the gearboxes (kg m^2), where the URDF lacks them: g1's from Unitree's
+# MJCF (MuJoCo Menagerie unitree_g1). They matter beyond the model: a lifted g1 foot (0.6 kg, ~3e-4 kg m^2
+# about its roll axis) under the legs' joint damping Kd ~4 at the 1 ms control tick is an unstable explicit
+# damper (Kd dt / I > 2: the ankle roll rate reached 160 rad/s 40 ms into a walk) unless the plant has them
+_G1_ROTORS = {"hip_pitch": 0.01017752, "hip_roll": 0.025101925, "hip_yaw": 0.01017752, "knee": 0.025101925,
+              "ankle_pitch": 0.00721945, "ankle_roll": 0.00721945, "shoulder_pitch": 0.003609725,
+              "shoulder_roll": 0.003609725, "shoulder_yaw": 0.003609725, "elbow": 0.003609725}
+_ARMATURE: dict[str, dict[str, float]] = {
+    "g1": {**{f"{side}_{joint}_joint": value for side in ("left", "right") for joint, value in _G1_ROTORS.items()},
+           "waist_yaw_joint": 0.01017752, "waist_roll_joint": 0.00721945, "waist_pitch_joint": 0.00721945},
+}
 # reference-pose overrides: laikago has no SRDF and its zero pose puts the knees beyond their limit;
 # simple_humanoid's URDF limits are shifted by one joint along the legs, outside which its SRDF
 # half-sitting pose lies, so it stands on straight legs
@@ -140,6 +151,7 @@ def _presets() -> dict[str, RobotSpec]:
             name=name, urdf=_erd(urdf), srdf=_erd(srdf) if srdf else None, pose=pose, feet=feet, arm_ee=arm_ee,
             locked_joints=locked, joint_positions_rad=_POSES.get(name, {}),
             foot_contact="surface" if name in _FLAT_FEET else "point", sole_m=_FLAT_FEET.get(name),
+            armature_kg_m2=_ARMATURE.get(name, 0.0),
         )
     return presets
 

@@ -220,6 +220,8 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
     plant_config = config.plant_config
+    if plant_config is None and np.any(robot.armature_kg_m2):  # a preset's rotors (g1) are the plant's too
+        plant_config = PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
     if scene is not None:
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
