@@ -148,7 +148,8 @@ def derive(scale: RobotScale) -> RobotTuning:
     s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
     time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
     w = CostWeights()
-    anchor = 1.0 if scale.arm_mass_kg is not None else ANCHOR_WITHOUT_ARM
+    # a biped's hands swing free (control/biped.py): no hand velocity rows hold its trunk either
+    anchor = 1.0 if scale.arm_mass_kg is not None and scale.feet != 2 else ANCHOR_WITHOUT_ARM
     position = (anchor * w.base_position[0], anchor * w.base_position[1], w.base_position[2])
     weights = CostWeights(
         base_position=tuple(x / s**2 for x in position),
@@ -175,7 +176,8 @@ def derive(scale: RobotScale) -> RobotTuning:
                          push_cadence_hold_s=m.push_cadence_hold_s * time, note="derived from the robot's size")
     tuning = dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
     if scale.feet == 2:
-        tuning = with_overrides(tuning, biped_overrides(scale.leg_length_m), source=BIPED_SOURCE)
+        tuning = with_overrides(tuning, {**biped_overrides(scale.leg_length_m),
+                                         "weights.base_position": weights.base_position}, source=BIPED_SOURCE)
         tuning = dataclasses.replace(tuning, note="derived from the robot's size, biped rules (control/biped.py)")
     return tuning
 
