@@ -1,5 +1,7 @@
 """Flat feet (6D surface contacts), biped gaits and humanoids: checked against pinocchio and MuJoCo."""
 
+import dataclasses
+
 import casadi as ca
 import numpy as np
 import pinocchio as pin
@@ -187,3 +189,53 @@ def _biped_urdf(with_box: bool) -> str:
   <joint name="{side}_knee" type="revolute"><parent link="{side}_thigh"/><child link="{side}_foot"/>
     <origin xyz="0 0 -0.5"/><axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="100" velocity="10"/></joint>"""
     return f'<robot name="biped"><link name="base">{inertial.format(m=10.0)}</link>{legs}\n</robot>'
+
+
+def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
+    from wbmpc.control.biped import BIPED_SOURCE
+    from wbmpc.control.tuning import ANCHOR_WITHOUT_ARM, REFERENCE, RobotScale, derive, tuning_for
+
+    scale = RobotScale.of(g1)
+    assert scale.feet == 2
+    tuning = tuning_for(g1)
+    report = tuning.report()
+    period, share = biped_walk_timing(scale.leg_length_m)
+    assert tuning.gait_period_s == pytest.approx(period) and 0.9 < period < 1.2  # g1: 1.03 s
+    assert tuning.support_lead_s == pytest.approx(0.5 * period * share)
+    assert tuning.free_ee_without_command and tuning.support_sway > 0
+    for name in ("gait_period_s", "support_sway", "weights.contact_force", "weights.base_position"):
+        assert report[name]["source"] == BIPED_SOURCE
+    assert report["gains.kd_leg"]["source"] == "derived"
+    # free hands hold no trunk: the anchor of a robot without an arm, scaled by the leg as on quadrupeds
+    s = scale.leg_length_m / REFERENCE.leg_length_m
+    assert tuning.weights.base_position[0] == pytest.approx(ANCHOR_WITHOUT_ARM * 500.0 / s**2)
+    # the same robot counted as four-footed gets none of it
+    quadruped = derive(dataclasses.replace(scale, feet=4))
+    assert quadruped.support_sway == 0.0 and not quadruped.free_ee_without_command
+    assert set(entry["source"] for entry in quadruped.report().values()) == {"derived"}
+
+
+def test_g1_rotor_inertias_reach_the_plant(g1):
+    """The preset's rotor inertias (Unitree's MJCF) are the MuJoCo plant's joint armature by default."""
+    from wbmpc.scenarios.runner import RunConfig, run_scenario
+
+    assert g1.armature_kg_m2.min() > 0.003
+    result = run_scenario(g1, RunConfig(scenario="stand", duration_s=0.05))
+    model = result.plant.model  # MuJoCo model
+    import mujoco
+
+    for name, value in zip(g1.joint_names, g1.armature_kg_m2):
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        assert model.dof_armature[model.jnt_dofadr[jid]] == pytest.approx(value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot_name,scenario", [("g1", "walk-in-place"), ("talos", "stand"), ("talos", "walk-in-place")])
+def test_humanoids_stay_up_with_the_cop_inside_their_soles(robot_name, scenario):
+    """Minutes-long: 4 s of the issue's 10 s runs (compiled Fatrop)."""
+    from wbmpc.scenarios.runner import RunConfig, run_scenario
+
+    metrics = run_scenario(load_robot(robot_name), RunConfig(scenario=scenario, duration_s=4.0, compiled=True,
+                                                             solver="fatrop")).metrics
+    assert not metrics["fell"]
+    assert metrics["cop_outside_sole_ticks"] == 0
