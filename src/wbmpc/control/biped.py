@@ -8,11 +8,12 @@ pelvis' sway. So on two feet:
   (`wbmpc.gait.biped_walk_timing`), instead of the trot's 0.8 s scaled;
 - feet lifted 7.5 % of the leg length (4.9 cm on g1), not the trot's 16 %: g1's first walking OCPs took
   28 Fatrop iterations with 10 cm steps, 15 with 5 cm;
-- `support_sway`: the base xy targets lean 60 % of the way from the centre of the feet to the centre of
+- `support_sway`: the base xy targets lean 30 % of the way from the centre of the feet to the centre of
   the feet in stance one double-support phase later (`MPC._sway_towards_support`): the plan shifts the
   weight during double support. The OCP's nodes are dense at its start and its cost is not weighted
   by the steps, so a target that leans only once a foot is in the air came too late: g1's plans kept
-  the CoM between the feet until lift-off and fell at 0.6 s;
+  the CoM between the feet until lift-off and fell at 0.6 s. With the rotor inertias and the anchor below,
+  60 % over-leant (6 s in place: 11 failed steps, 17 iterations; 30 %: 0 and 14.7);
 - the force regularisation towards equal shares (eq. 3's F term) 1e-5 instead of 1e-3: at 1e-3 a
   100 N shift costs 10 per node, ten times the base position error it corrects, and g1's plans kept
   both feet equally loaded until lift-off (then fell at 0.6 s); leg posture weight 2 (the soles and the
@@ -29,7 +30,7 @@ from __future__ import annotations
 from wbmpc.gait import biped_walk_timing
 
 BIPED_SOURCE = "derived: biped"
-BIPED_SUPPORT_SWAY = 0.6
+BIPED_SUPPORT_SWAY = 0.3
 BIPED_APEX_PER_LEG = 0.075  # swing apex / leg length: 4.9 cm on g1 (the trot's scaled 10 cm: 28 -> 15 iterations)
 BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 5.0
 BIPED_LEG_JOINT_WEIGHT = 2.0
