@@ -664,7 +664,7 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
         if message == "cpu":
             conn.send(time.process_time())
             continue
-        if message[0] == "channel":
+        if isinstance(message[0], str) and message[0] == "channel":  # else message[0] is q (an array)
             _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
             return
         q, v, command, t, *more = message  # (+ delay_s, budget_s from the real-time loop; deploy sends four)
