@@ -80,7 +80,8 @@ def go2_files():
     (["solve", "--t", "nan"], "--t must be a finite number"),
     (["info", "--feet", "a,b"], "--feet describes a custom robot and needs --urdf"),
     (["info", "--lock", "joint5"], "--lock describes a custom robot and needs --urdf"),
-    (["info", "--arm-ee", "x", "--srdf", "y.srdf"], "--srdf, --arm-ee describe a custom robot and need --urdf"),
+    (["info", "--lock", "x", "--srdf", "y.srdf"], "--srdf, --lock describe a custom robot and need --urdf"),
+    (["info", "--sole", "0.2"], "--sole needs LENGTH,WIDTH in metres"),
     (["info", "--pose", "standing"], "--pose describes a custom robot and needs --urdf"),
 ])
 def test_bad_input_exits_2_naming_the_flag_before_building(argv, words, capsys, no_build, tmp_path):

@@ -31,7 +31,7 @@ EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
 # those of `run` come from its config dataclasses (`_field_flags`)
 OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
-CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "arm_ee": "--arm-ee", "lock": "--lock"}
+CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
 
@@ -45,8 +45,13 @@ def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
-    group.add_argument("--arm-ee", metavar="FRAME", help="custom robot or --arm: arm end-effector frame (with --arm: "
-                       "default the arm's only leaf link)")
+    group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame: a custom robot's, another frame of "
+                       "a preset (e.g. g1's left_rubber_hand), or with --arm the mounted arm's (default its only leaf link)")
+    group.add_argument("--foot-contact", choices=("point", "surface"),
+                       help="point feet (3D force) or flat feet (6D wrench at the sole, hard wrench cone); presets say "
+                       "their own (g1, talos: surface)")
+    group.add_argument("--sole", metavar="LENGTH,WIDTH", help="sole rectangle of flat feet in metres (implies "
+                       "--foot-contact surface); default: the foot link's URDF collision geometry")
     group.add_argument("--lock", metavar="J1,J2,...", help="custom robot: joints to lock at the reference pose")
     arm = parser.add_argument_group("an arm mounted on the robot (a preset or --urdf; wbmpc.robots.compose)")
     arm.add_argument("--arm", metavar="URDF|NAME", help="arm URDF, or z1 (example-robot-data's), to mount on the legged "
@@ -146,18 +151,21 @@ def robot_from_args(args: argparse.Namespace):
 
     from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
 
+    contact = _foot_contact(args)
     arm = _arm_mount(args)
     if args.urdf:
         if not args.feet:
             raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
         spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
                            _split(args.lock))
+        spec = dataclasses.replace(spec, **contact) if contact else spec
         robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
     elif arm:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
         if given:
             raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
-        robot = RobotModel(_with_arm(preset_spec(args.robot), arm))
+        spec = preset_spec(args.robot)
+        robot = RobotModel(_with_arm(dataclasses.replace(spec, **contact) if contact else spec, arm))
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
@@ -168,9 +176,34 @@ def robot_from_args(args: argparse.Namespace):
         if getattr(args, "arm", None) not in (None, "none") and arm is None and not _carries_arm(robot, args.arm):
             raise ConfigError(f"--robot {args.robot} carries no {args.arm} arm: mount one with --arm {args.arm} "
                               f"--mount FRAME (e.g. --mount base), or pick a preset with one (b1_z1, go2_z1)")
+        preset = dict(contact)
+        if getattr(args, "arm_ee", None):
+            preset["arm_ee"] = args.arm_ee
+        if preset:
+            robot = RobotModel(dataclasses.replace(robot.spec, **preset))
     drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
              for option, field in _MODEL_DRIVE.items() if getattr(args, option, None) is not None}
     return RobotModel(dataclasses.replace(robot.spec, **drive)) if drive else robot
+
+
+def _foot_contact(args: argparse.Namespace) -> dict:
+    """RobotSpec fields set by --foot-contact / --sole (flat feet: a 6D wrench at a sole rectangle)."""
+    contact = {}
+    if getattr(args, "sole", None):
+        try:
+            contact["sole_m"] = tuple(float(x) for x in _split(args.sole))
+        except ValueError:
+            raise ConfigError(f"--sole needs LENGTH,WIDTH in metres, got {args.sole!r}") from None
+        if len(contact["sole_m"]) != 2:
+            raise ConfigError(f"--sole needs LENGTH,WIDTH in metres, got {args.sole!r}")
+        if getattr(args, "foot_contact", None) == "point":
+            raise ConfigError("--sole describes flat feet; drop --foot-contact point")
+        contact["foot_contact"] = "surface"
+    elif getattr(args, "foot_contact", None):
+        contact["foot_contact"] = args.foot_contact
+        if args.foot_contact == "point":
+            contact["sole_m"] = None
+    return contact
 
 
 def _carries_arm(robot, name: str) -> bool:
@@ -218,7 +251,8 @@ def cmd_info(args: argparse.Namespace) -> int:
     info["settings"] = tuning_for(robot).report()
     lines.append(f"scale: {scale.mass_kg:.1f} kg, leg length {scale.leg_length_m:.3f} m, leg torque limit "
                  f"{scale.leg_torque_nm:.1f} N m (mean){'' if scale.arm_mass_kg is None else f', arm carrying {scale.arm_mass_kg:.2f} kg'}")
-    lines.append("settings (source: derived from the scale with B1 + Z1 as reference, table = control/tuning.py):")
+    lines.append("settings (source: derived from the scale with B1 + Z1 as reference; derived: biped = the two-feet "
+                 "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
               for name, entry in info["settings"].items()]
     status = blasfeo.status()

@@ -143,16 +143,58 @@ def _cubic_velocity(x, p0, p1, m0, m1):
     return d00 * p0 + d10 * m0 + d01 * p1 + d11 * m1
 
 
-def make_gait(name: str, n_feet: int, period_s: float | None = None) -> Gait:
-    """Named gaits: `stand`, `trot` (diagonal pairs, 0.8 s), `walk` (one foot at a time, 1.2 s).
+# biped walking by dynamic similarity (equal Froude number v^2 / (g l) walks alike): the gait period scales
+# with sqrt(leg length / g), the leg measured from the hip's first joint to the foot frame (as
+# control/tuning.RobotScale does). 4.0 is the human cycle (1.1-1.15 s on 0.75-0.8 m hip-to-ankle legs) and
+# gives g1 (0.65 m) 1.03 s and TALOS (0.75 m) 1.10 s. 40 % of the period in double support (two 20 % phases; humans 20-30 %): with g1's
+# 0.8 s period and 20 % the 0.08 s double support is too short to move the CoM towards the next stance foot
+# and its closed-loop OCPs fail from the second step on
+BIPED_FROUDE_PERIOD = 4.0
+BIPED_DOUBLE_SUPPORT_SHARE = 0.4
+
+
+def biped_walk_timing(leg_length_m: float, gravity_m_s2: float = 9.81) -> tuple[float, float]:
+    """(period_s, double_support_share) of a biped's walk from its leg length (Froude similarity).
+
+    The one place with the biped gait defaults; the robot-derived settings (control/tuning.py) call it."""
+    check_number("leg_length_m", leg_length_m, low=0.05, high=5.0, unit="m")
+    return BIPED_FROUDE_PERIOD * float(np.sqrt(leg_length_m / gravity_m_s2)), BIPED_DOUBLE_SUPPORT_SHARE
+
+
+def biped_walk(period_s: float, double_support_share: float = BIPED_DOUBLE_SUPPORT_SHARE) -> Gait:
+    """Two feet in alternation: each swings for (1 - share) / 2 of the period, both stand in between
+    (two double-support phases of share / 2 each), left foot first."""
+    if not 0 <= double_support_share < 1:
+        raise ConfigError(f"double support share must be in [0, 1), got {double_support_share}")
+    return Gait("walk", period_s, 0.5 + 0.5 * double_support_share, (0.5, 0.0))
+
+
+def gaits_for(n_feet: int) -> tuple[str, ...]:
+    """Gait names a robot with n_feet can run."""
+    return {4: GAIT_NAMES, 2: BIPED_GAIT_NAMES}.get(n_feet, ("stand",))
+
+
+def natural_gait(n_feet: int) -> str:
+    """The gait of `walk-in-place`/`walk-forward` and of tasks that move the feet: trot on four feet,
+    walk on two."""
+    return "walk" if n_feet == 2 else "trot"
+
+
+def make_gait(name: str, n_feet: int, period_s: float | None = None, leg_length_m: float | None = None) -> Gait:
+    """Named gaits: `stand`, `trot` (diagonal pairs, 0.8 s), `walk` (one foot at a time, 1.2 s; on two feet
+    alternating single support with double support, its period from `leg_length_m`, `biped_walk_timing`).
 
     `period_s=None` takes the gait's default period; any other value is checked (0 is refused)."""
     if period_s is not None:
         check_number("gait_period_s", period_s, low=0.0, high=10.0, low_open=True, unit="s")
     if name == "stand":
         return Gait("stand", 1.0 if period_s is None else period_s, 1.0, tuple([0.0] * n_feet))
+    if n_feet == 2 and name == "walk":
+        default_s, share = biped_walk_timing(leg_length_m) if leg_length_m is not None else (0.8, BIPED_DOUBLE_SUPPORT_SHARE)
+        return biped_walk(default_s if period_s is None else period_s, share)
     if n_feet != 4 and name in ("trot", "walk"):
-        raise ConfigError(f"gait '{name}' is defined for 4 feet; this robot has {n_feet}")
+        raise ConfigError(f"gait '{name}' is defined for 4 feet; this robot has {n_feet} and runs: "
+                          f"{', '.join(gaits_for(n_feet))}")
     if name == "trot":  # FL+RR, FR+RL
         return Gait("trot", 0.8 if period_s is None else period_s, 0.5, (0.0, 0.5, 0.5, 0.0))
     if name == "walk":  # lateral-sequence walk: RL, FL, RR, FR
@@ -161,3 +203,4 @@ def make_gait(name: str, n_feet: int, period_s: float | None = None) -> Gait:
 
 
 GAIT_NAMES = ("stand", "trot", "walk")
+BIPED_GAIT_NAMES = ("stand", "walk")

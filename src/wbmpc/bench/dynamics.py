@@ -18,18 +18,26 @@ from wbmpc.symbolic import Motion, SymbolicDynamics
 
 
 def world_forces_to_pinocchio(robot: RobotModel, data: pin.Data, forces: np.ndarray) -> list:
-    """Stacked world-frame linear contact forces at the contact frames -> pinocchio fext (joint frames).
+    """Stacked contact forces (world-frame linear forces at the contact frames, then the sole-frame moments
+    of the flat feet) -> pinocchio fext (joint frames).
 
     Requires the frame placements in `data` to be up to date for the configuration.
     """
     model = robot.model
     fext = [pin.Force.Zero() for _ in range(model.njoints)]
-    for c, name in enumerate(robot.contact_frames):
+    frames = [robot.contact_frame(f) for f in robot.feet] + ([robot.arm_ee] if robot.arm_ee else [])
+    n_moments = 0
+    for c, name in enumerate(frames):
         fid = robot.frame_id(name)
         joint = model.frames[fid].parentJoint
         point = data.oMf[fid].translation
         force = forces[3 * c : 3 * c + 3]
-        fext[joint] += data.oMi[joint].actInv(pin.Force(force, np.cross(point, force)))
+        moment = np.cross(point, force)
+        if c < len(robot.feet) and robot.feet[c] in robot.soles:
+            start = 3 * len(frames) + 3 * n_moments
+            moment = moment + data.oMf[fid].rotation @ forces[start : start + 3]
+            n_moments += 1
+        fext[joint] += data.oMi[joint].actInv(pin.Force(force, moment))
     return fext
 
 

@@ -132,6 +132,16 @@ class MpcConfig:
     # None: the paper's fixed schedule
     push_gait_period_scale: float | None = 0.5625
     push_cadence_hold_s: float = 1.0
+    # True: with no end-effector velocity command (Commands.ee_velocity_m_s None) the arm's velocity rows of
+    # eq. (7) are dropped (the posture cost holds the arm) instead of carrying the hand with the base. A
+    # humanoid's hand pinned in the world while its pelvis sways over the stance foot drives the arm into its
+    # limits: g1's single-support OCPs then stall Fatrop (81 iterations; 17 with the rows dropped)
+    free_ee_without_command: bool = False
+    # share of the way from the centre of the feet to the centre of each node's stance feet that the base xy
+    # target moves (0: fixed targets, the paper's). Bipeds: their CoM must lean over the next stance foot
+    # during double support (MPC._sway_towards_support)
+    support_sway: float = 0.0
+    support_lead_s: float = 0.0  # ... of the stance feet this much later (a biped: its double-support phase)
     # delay compensation (control/delay.py): `solve(..., delay_s=d)` plans from the state predicted for t + d
     # (the measurement rolled forward with the previous plan's accelerations) and returns a plan starting at
     # t + d; off: the plan starts at the measurement, d late
@@ -204,8 +214,10 @@ class MPC:
         self.config = config
         if not config.friction_coefficient > 0:
             raise ConfigError(f"friction coefficient must be positive, got {config.friction_coefficient}")
-        # the MPC's own clock: its period changes after pushes (push_gait_period_scale); estimators read it too
-        self.gait = GaitClock(make_gait(config.gait, len(robot.feet), config.gait_period_s))
+        # the MPC's own clock: its period changes after pushes (push_gait_period_scale); estimators read it too.
+        # Without a period (the runner's comes from control/tuning.py) the base height stands in for a biped's leg
+        self.gait = GaitClock(make_gait(config.gait, len(robot.feet), config.gait_period_s,
+                                        leg_length_m=float(robot.q_nominal[2])))
         self.problem = problem or OcpProblem(robot, config.ocp)
         self.solver = solver or make_solver(self.problem, config.solver)
         dyn, N = self.problem.dyn, self.problem.N
@@ -217,7 +229,7 @@ class MPC:
         self._weights = config.weights.vectors(robot, self.problem.nf)
         self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
-        self._foot_ids = [robot.frame_id(foot) for foot in robot.feet]
+        self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._stance_reference = StanceReference(robot) if config.stance_posture_reference else None
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
@@ -335,6 +347,18 @@ class MPC:
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
         return dq_des, v_des, v_world
 
+    def _sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """Base xy targets moved by `support_sway` x (centre of each node's stance feet - centre of all feet):
+        a biped's pelvis leans over the foot it will stand on, so the plan shifts its weight in double
+        support instead of lifting a foot with the CoM between the feet (measured foot positions)."""
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation[:2] for i in self._foot_ids])
+        stance = contact / np.maximum(contact.sum(axis=1, keepdims=True), 1)
+        shift = self.config.support_sway * (stance @ feet - feet.mean(axis=0))  # (nodes, 2) world
+        dq_des = dq_des.copy()  # (nv, nodes); its base position part is (nearly) in the base frame
+        dq_des[:3] += rot.T[:, :2] @ shift.T
+        return dq_des
+
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
         model, data = self.robot.model, self._data
@@ -343,8 +367,12 @@ class MPC:
         def velocity(frame_id):
             return pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
 
-        return {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
-                "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
+        out = {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
+               "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
+        if self.robot.soles:
+            out["foot_angular_velocity_rad_s"] = np.array(
+                [pin.getFrameVelocity(model, data, i, pin.LOCAL_WORLD_ALIGNED).angular for i in self._foot_ids])
+        return out
 
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
@@ -390,6 +418,8 @@ class MPC:
         after_push = self._after_push(v, rot, base_velocity_world, t)
         self._adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
+        if self.config.support_sway:  # lean over the feet that will stand support_lead_s later
+            dq_des = self._sway_towards_support(q, rot, dq_des, self.gait.contact(t + node_times + self.config.support_lead_s))
         forces = self._force_guess(contact, commands)
         values = {
             "q_ref": q,
@@ -408,7 +438,7 @@ class MPC:
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
-            soft=after_push, relaxed_rows=self.config.push_relaxed_rows if after_push else (),
+            soft=after_push, relaxed_rows=self._relaxed_rows(after_push, commands),
         )
         x0 = self._initial_guess(q, v, t, node_times, forces)
         if not after_push:
@@ -443,6 +473,12 @@ class MPC:
         # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
         result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
         return solution
+
+    def _relaxed_rows(self, after_push: bool, commands: Commands) -> tuple[str, ...]:
+        rows = self.config.push_relaxed_rows if after_push else ()
+        if self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None:
+            rows = tuple(dict.fromkeys((*rows, "ee_vel")))
+        return rows
 
     def prepare_fallback(self) -> None:
         """Build the recovery solvers now (they are otherwise built at the first failed step, which then

@@ -23,7 +23,7 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
 - the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
   robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
   hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
-  cm/s (10 s) with 10x.
+  cm/s (10 s) with 10x;
 - two settings the reference robot does not keep, for trotting forward: the legs' posture weight 20x the paper's
   (`LEG_POSTURE`) and the acceleration regularisation 0.1x (`ACCELERATION`). With the paper's 50 per rad^2 and 1e-2
   the swing legs' acceleration cost wins over the posture targets (which move ahead with the command,
@@ -32,7 +32,9 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   velocity RMSE after 2 s, go2: 0.183 m/s (paper's weights, nominal pose targets), 0.169 (posture targets), 0.073
   (weight 10x, nominal targets), 0.033 (targets and 10x), 0.036 (20x), 0.027 (20x, acceleration 0.1x); anymal_c,
   the hardest of the list: 0.054 (10x), 0.047 (20x), 0.042 (20x, 0.1x). Fatrop needs fewer iterations (go2 7.2 ->
-  4.6), go2's 0.5 m/s push 1 failed step instead of 10, b1_z1's 0.8 m/s push no recovery re-solves instead of 3.
+  4.6), go2's 0.5 m/s push 1 failed step instead of 10, b1_z1's 0.8 m/s push no recovery re-solves instead of 3;
+- two feet: the biped rules of `control/biped.py` (walk period from the leg length, weight shift towards
+  the next stance foot, force regularisation, free hands), source "derived: biped".
 
 `TUNINGS` holds overrides per preset (empty fields keep the derived value); `tuning_for` returns the
 settings with `sources` saying for each one whether it was derived or comes from the table. A robot
@@ -48,6 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.biped import BIPED_SOURCE, biped_overrides
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.mpc import CostWeights, MpcConfig
 from wbmpc.gait import SwingProfile
@@ -64,6 +67,7 @@ class RobotScale:
     leg_torque_nm: float  # mean effort limit of the leg joints
     arm_mass_kg: float | None  # mass carried by the arm joints (None: no arm)
     inertia_kg_m2: tuple[float, float, float]  # composite rotational inertia at the CoM, standing (reported)
+    feet: int = 4  # number of feet (two: the biped rules of control/biped.py)
     # smallest leg joint inertia: diagonal of the joint-space inertia matrix (CRBA at the nominal pose)
     # plus the model's armature; None: no cap on the leg damping (`_leg_damping`)
     leg_joint_inertia_kg_m2: float | None = None
@@ -93,7 +97,7 @@ class RobotScale:
                    leg_torque_nm=float(np.mean(robot.tau_max[legs])),
                    arm_mass_kg=arm_mass if robot.arm_ee and arm_joints else None,
                    inertia_kg_m2=tuple(float(x) for x in np.diag(data.Ig.inertia)),
-                   leg_joint_inertia_kg_m2=float(joint_inertia[legs].min()))
+                   leg_joint_inertia_kg_m2=float(joint_inertia[legs].min()), feet=len(robot.feet))
 
 
 ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
@@ -121,6 +125,9 @@ class RobotTuning:
     push_velocity_error_m_s: float = MpcConfig.push_velocity_error_m_s
     push_hold_s: float = MpcConfig.push_hold_s
     push_cadence_hold_s: float = MpcConfig.push_cadence_hold_s
+    support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
+    support_lead_s: float = MpcConfig.support_lead_s
+    free_ee_without_command: bool = MpcConfig.free_ee_without_command
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
@@ -128,7 +135,8 @@ class RobotTuning:
         """The MpcConfig fields these settings set."""
         return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
-                "push_cadence_hold_s": self.push_cadence_hold_s}
+                "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
+                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command}
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -139,7 +147,8 @@ class RobotTuning:
                 **{f"weights.{k}": (list(v) if isinstance(v, tuple) else v)
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
-                "push_cadence_hold_s": self.push_cadence_hold_s}
+                "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
+                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
@@ -168,7 +177,8 @@ def derive(scale: RobotScale) -> RobotTuning:
     s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
     time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
     w = CostWeights()
-    anchor = 1.0 if scale.arm_mass_kg is not None else ANCHOR_WITHOUT_ARM
+    # a biped's hands swing free (control/biped.py): no hand velocity rows hold its trunk either
+    anchor = 1.0 if scale.arm_mass_kg is not None and scale.feet != 2 else ANCHOR_WITHOUT_ARM
     position = (anchor * w.base_position[0], anchor * w.base_position[1], w.base_position[2])
     weights = CostWeights(
         base_position=tuple(x / s**2 for x in position),
@@ -193,7 +203,12 @@ def derive(scale: RobotScale) -> RobotTuning:
     tuning = RobotTuning(weights=weights, gains=gains, swing=swing, gait_period_s=REFERENCE_GAIT_PERIOD_S * time,
                          push_velocity_error_m_s=m.push_velocity_error_m_s * speed, push_hold_s=m.push_hold_s * time,
                          push_cadence_hold_s=m.push_cadence_hold_s * time, note="derived from the robot's size")
-    return dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
+    tuning = dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
+    if scale.feet == 2:
+        tuning = with_overrides(tuning, {**biped_overrides(scale.leg_length_m),
+                                         "weights.base_position": weights.base_position}, source=BIPED_SOURCE)
+        tuning = dataclasses.replace(tuning, note="derived from the robot's size, biped rules (control/biped.py)")
+    return tuning
 
 
 # Overrides per preset: {setting: value} with the names of `RobotTuning.report` ("gains.kd_leg",

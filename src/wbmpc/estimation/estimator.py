@@ -76,7 +76,11 @@ class StateEstimator:
             raise ConfigError(f"the gait has {len(gait.phase_offsets)} feet, the robot {len(robot.feet)}")
         self.robot, self.gait, self.config = robot, gait, config
         self._data = robot.model.createData()
-        self._feet = [robot.frame_id(f) for f in robot.feet]
+        # stance kinematics at each foot's contact frame: the sole centre of a flat foot (on the ground), the
+        # foot frame of a point foot (a radius above it); the filter's states are translational, the soles'
+        # orientation in stance adds nothing the IMU's attitude does not give
+        self._feet = [robot.frame_id(robot.contact_frame(f)) for f in robot.feet]
+        self._contact_height_m = np.array([robot.contact_height_m(f) for f in robot.feet])
         self._nf = len(self._feet)
         self.n_state = 6 + 3 * self._nf
         self._gravity = np.array([0.0, 0.0, -GRAVITY_M_S2])
@@ -111,8 +115,8 @@ class StateEstimator:
 
     def _initialise(self, reading: SensorReadings, rot: np.ndarray, r: np.ndarray, start_xy: np.ndarray) -> None:
         cfg = self.config
-        foot_z = cfg.ground_height_m + self.robot.foot_radius_m
-        p = np.array([start_xy[0], start_xy[1], foot_z - np.mean((r @ rot.T)[:, 2])])
+        foot_z = cfg.ground_height_m + self._contact_height_m
+        p = np.array([start_xy[0], start_xy[1], np.mean(foot_z - (r @ rot.T)[:, 2])])
         feet = p + r @ rot.T
         self.x = np.concatenate([p, np.zeros(3), feet.ravel()])
         self.P = np.diag(np.concatenate([[1e-4] * 3, [1e-2] * 3, [1e-4] * 3 * self._nf]))
@@ -171,7 +175,7 @@ class StateEstimator:
         H = np.zeros((rows, n))
         z = np.zeros(rows)
         noise = np.zeros(rows)
-        foot_z = cfg.ground_height_m + self.robot.foot_radius_m
+        foot_z = cfg.ground_height_m + self._contact_height_m
         for i in range(nf):
             scale = 1.0 + (1.0 - trust[i]) * cfg.untrusted_noise_scale
             k = 3 * i
@@ -185,7 +189,7 @@ class StateEstimator:
             noise[j:j + 3] = (cfg.foot_velocity_noise_m_s * scale) ** 2
             h = 6 * nf + i  # stance foot on the ground
             H[h, 6 + k + 2] = 1.0
-            z[h] = foot_z
+            z[h] = foot_z[i]
             noise[h] = (cfg.foot_height_noise_m * scale) ** 2
         y = z - H @ self.x
         S = H @ self.P @ H.T + np.diag(noise)

@@ -14,7 +14,8 @@ q_hat (eq. 4) and use explicit Euler steps.
 | `centroidal_acc_path` | [dq, v]   | [a, F]       | path: hdot(F) = Adot v + A a                       |
 | `centroidal_acc`      | [dq, v]   | [a_j, F]     | transition: a_b = A_b^-1 (hdot(F) - Adot v - A_j a_j) |
 
-The centroidal ones evolve h with hdot = [sum F + m g; sum (p_i - c) x F_i]. Joint torques appear as
+The centroidal ones evolve h with hdot = [sum F + m g; sum (p_i - c) x F_i + sum R_i tau_i] (the
+moments tau_i of flat feet, in their sole frames R_i: `SymbolicDynamics.centroidal_wrench`). Joint torques appear as
 variables only where the formulation has them (`tau` on k < 3 for `wb_inverse`, every node for
 `wb_forward`); the centroidal ones bound the quasi-static estimate g_j(q) - J_j^T F on k < 3
 instead, as the paper does (section VI-A).
@@ -31,6 +32,8 @@ import numpy as np
 from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.robots import GRAVITY_M_S2
 from wbmpc.symbolic import Configuration, Motion, SymbolicDynamics
+
+MOMENT_ARM_SCALE_M = 0.02  # lever of a sole moment's variable (tau / (force scale x this)): 0.1 and 1 stall Fatrop on g1's single support
 
 
 @dataclass
@@ -118,6 +121,7 @@ class Formulation(ABC):
         """Typical magnitude of each input part: the NLP variable is part / scale."""
         robot = self.dyn.robot
         force = np.full(self.nf, robot.mass_kg * GRAVITY_M_S2 / max(len(robot.feet), 1))
+        force[self.dyn.n_linear_forces :] *= MOMENT_ARM_SCALE_M  # flat feet's sole moments
         return {"F": force, "tau": np.asarray(robot.tau_max, dtype=float)}
 
     def dynamics_row_scale(self, n_rows: int) -> np.ndarray:

@@ -10,6 +10,14 @@ Path constraints per node (section IV-B):
 - dynamics rows of the formulation (eq. 5 for wb_inverse);
 - contact (eq. 6): stance feet F_z >= 0 (bound), friction cone mu^2 F_z^2 - F_x^2 - F_y^2 >= 0,
   foot velocity = 0; swing feet F = 0 (bounds), foot v_z = spline reference, v_x, v_y free;
+- flat feet (surface contacts, 6D wrench [f; tau] at the sole, `robot.soles`): instead of the cone a
+  hard wrench cone of linear rows (`wrench_cone`): friction pyramid |f_x|, |f_y| <= mu f_z, centre of
+  pressure inside the sole rectangle |tau_x| <= (W/2) f_z, |tau_y| <= (L/2) f_z, and the yaw moment
+  |tau_z| <= mu min(L, W)/2 f_z (a conservative bound of the sole's torsional friction); f_z is the
+  world normal force (stance soles are flat on flat ground: the sole's normal is world z). Angular
+  velocity rows (`foot_ang`): zero in stance (with foot_vel the whole 6D sole velocity), roll and pitch
+  rates zero in swing, so the sole stays parallel to the ground from lift-off to touch-down while its
+  height follows eq. 6's spline; swing soles carry no wrench (bounds);
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds).
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
@@ -46,7 +54,8 @@ INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
-ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "ee_vel", "cone")
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "foot_ang", "ee_vel", "cone", "wrench_cone")
+WRENCH_CONE_ROWS = 10  # per flat foot: 4 friction pyramid, 4 centre of pressure, 2 yaw moment
 # rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
 # in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
 SOFTENABLE_ROWS = ("ee_vel", "foot_vel", "torque_limit")
@@ -89,6 +98,7 @@ class StageBounds:
     ee_force_on_robot_n: np.ndarray | None = None  # (3,) world, force acting on the robot
     foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
     ee_velocity_measured_m_s: np.ndarray | None = None  # (3,) measured world end-effector velocity
+    foot_angular_velocity_rad_s: np.ndarray | None = None  # (n_feet, 3) measured world sole angular velocities
     soft: bool = True  # False pins the soft rows' slacks to zero: the hard OCP (same structure per mode)
     relaxed_rows: tuple[str, ...] = ()  # row tags (ee_vel, foot_vel) left unconstrained on every node this step
 
@@ -110,6 +120,8 @@ class OcpProblem:
         self.N = config.n_intervals
         self.nv, self.nj, self.nf = self.dyn.nv, self.dyn.nv - 6, self.dyn.n_forces
         self.n_feet = len(robot.feet)
+        self.surface_feet = [i for i, foot in enumerate(robot.feet) if foot in robot.soles]  # flat feet (6D)
+        self.point_feet = [i for i in range(self.n_feet) if i not in self.surface_feet]
         self.has_arm = robot.arm_ee is not None
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
@@ -267,8 +279,12 @@ class OcpProblem:
         if self._has_torque_limit_rows(k):
             rows.append(("torque_limit", node["tau"] / self.robot.tau_max))
         if not first and node.motion is not None:
-            feet = [self.dyn.frame_linear_velocity(node.config, node.motion, f) for f in self.robot.feet]
+            contact_frames = self.dyn.contact_frames[:nf]  # sole frames of flat feet
+            feet = [self.dyn.frame_linear_velocity(node.config, node.motion, f) for f in contact_frames]
             rows.append(("foot_vel", ca.vertcat(*feet)))
+            if self.surface_feet:
+                soles = [self.dyn.frame_velocity(node.config, node.motion, contact_frames[i])[1] for i in self.surface_feet]
+                rows.append(("foot_ang", ca.vertcat(*soles)))
             if self.has_arm:
                 rows.append(("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee)))
         slacks = [parts[name] for name in ("slack_tau", "slack") if name in parts]
@@ -291,8 +307,12 @@ class OcpProblem:
             unit = parts["F"][: 3 * nf] / scales["F"][: 3 * nf]
             eps = CONE_SMOOTHING
             cone = [mu * unit[3 * i + 2] - ca.sqrt(unit[3 * i] ** 2 + unit[3 * i + 1] ** 2 + eps**2) + eps
-                    for i in range(nf)]
-            rows.append(("cone", ca.vertcat(*cone)))
+                    for i in self.point_feet]
+            if cone:
+                rows.append(("cone", ca.vertcat(*cone)))
+            if self.surface_feet:
+                rows.append(("wrench_cone", ca.vertcat(*[self._wrench_cone(parts["F"], i, mu, scales["F"][3 * i + 2])
+                                                          for i in self.surface_feet])))
 
         # eq. (3): diagonal tracking cost; the terminal cost is the stage cost on the state
         cost = ca.dot(local["w_dq"], (node["dq"] - local["dq_des"]) ** 2)
@@ -311,6 +331,19 @@ class OcpProblem:
         name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
         function = ca.Function(name, [x, u, local.vector], [next_state, path, cost], ["x", "u", "p"], ["x_next", "g", "cost"])
         return function, [(tag, expr.shape[0]) for tag, expr in rows]
+
+    def _wrench_cone(self, forces: ca.SX, i: int, mu: ca.SX, scale: float) -> ca.SX:
+        """The linear wrench cone rows (>= 0 in stance) of flat foot i, in units of the force scale."""
+        sole = self.robot.soles[self.robot.feet[i]]
+        fx, fy, fz = (forces[3 * i + k] / scale for k in range(3))
+        tx, ty, tz = (forces[self.dyn.moment_slice(i)][k] / scale for k in range(3))
+        yaw_arm = mu * min(sole.half_length_m, sole.half_width_m)
+        return ca.vertcat(
+            mu * fz - fx, mu * fz + fx, mu * fz - fy, mu * fz + fy,  # friction pyramid
+            sole.half_width_m * fz - tx, sole.half_width_m * fz + tx,  # centre of pressure across the sole
+            sole.half_length_m * fz - ty, sole.half_length_m * fz + ty,  # ... and along it
+            yaw_arm * fz - tz, yaw_arm * fz + tz,  # torsional friction
+        )
 
     def _assemble(self) -> dict:
         """The NLP with each stage Function called (inlined) once per node, and the row bookkeeping."""
@@ -455,6 +488,10 @@ class OcpProblem:
             lbx[feet_f[..., 2]] = 0.0
             ubx[feet_f] = np.where(stance[..., None], INF, 0.0)
             lbx[feet_f[..., :2]] = np.where(stance[..., None], -INF, 0.0)
+            for i in self.surface_feet:  # a flat foot's moments: free in stance (wrench cone rows), zero in swing
+                moments = self.idx["F"][:, self.dyn.moment_slice(i)]
+                lbx[moments] = np.where(stance[:, i : i + 1], -INF, 0.0)
+                ubx[moments] = np.where(stance[:, i : i + 1], INF, 0.0)
             if self.has_arm:
                 arm_f = self.idx["F"][:, 3 * nf : 3 * nf + 3]
                 force = np.zeros(3) if data.ee_force_on_robot_n is None else data.ee_force_on_robot_n
@@ -477,6 +514,18 @@ class OcpProblem:
             stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
             self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
                                          np.asarray(data.foot_velocity_m_s)[None], stance)
+        if self.surface_feet:  # flat feet: no rotation in stance, roll and pitch rates zero in swing
+            ang_rows = self.rows["foot_ang"].reshape(len(self.row_nodes["foot_ang"]), len(self.surface_feet), 3)
+            swing_ang = ~contact[self.row_nodes["foot_ang"]][:, self.surface_feet]
+            lbg[ang_rows] = 0.0
+            ubg[ang_rows] = 0.0
+            lbg[ang_rows[..., 2]] = np.where(swing_ang, -INF, 0.0)
+            ubg[ang_rows[..., 2]] = np.where(swing_ang, INF, 0.0)
+            if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
+                stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
+                measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
+                self._blend_from_measurement(lbg, ubg, ang_rows[stance_ang], self.row_nodes["foot_ang"],
+                                             np.zeros((1, len(self.surface_feet), 3)), measured[None], stance_ang)
         if self.has_arm:
             velocity = np.zeros(3) if data.ee_velocity_m_s is None else data.ee_velocity_m_s
             lbg[self.rows["ee_vel"]] = velocity
@@ -493,7 +542,11 @@ class OcpProblem:
         # friction cone: active in stance, free in swing
         if self.rows["cone"].size:
             ubg[self.rows["cone"]] = INF
-            lbg[self.rows["cone"]] = np.where(contact[:N], 0.0, -INF)
+            lbg[self.rows["cone"]] = np.where(contact[:N][:, self.point_feet], 0.0, -INF)
+        if self.rows["wrench_cone"].size:
+            wrench_rows = self.rows["wrench_cone"].reshape(N, len(self.surface_feet), WRENCH_CONE_ROWS)
+            ubg[wrench_rows] = INF
+            lbg[wrench_rows] = np.where(contact[:N][:, self.surface_feet, None], 0.0, -INF)
         return lbx / self.x_scale, ubx / self.x_scale, lbg, ubg
 
     def _blend_from_measurement(self, lbg, ubg, rows, nodes, target, measured, mask=None) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.errors import ModelError, unknown_name
+from wbmpc.robots.soles import FOOT_CONTACTS, Sole, sole_from_size, soles_from_collisions
 
 GRAVITY_M_S2 = 9.81
 SUPPORTED_JOINTS = frozenset(
@@ -76,8 +77,16 @@ class RobotSpec:
     viscous_friction_nm_s: JointValues = 0.0
     coulomb_friction_nm: JointValues = 0.0
     coulomb_velocity_rad_s: float = 0.05
+    # "point": 3D force at each foot frame; "surface": flat feet with a 6D wrench at the sole (soles.py),
+    # the sole rectangle from `sole_m` (length, width) or else the foot link's URDF collision geometry
+    foot_contact: str = "point"
+    sole_m: tuple[float, float] | None = None
 
     def __post_init__(self):
+        if self.foot_contact not in FOOT_CONTACTS:
+            raise ModelError(f"foot contact must be one of {', '.join(FOOT_CONTACTS)}, got {self.foot_contact!r}")
+        if self.sole_m is not None and self.foot_contact != "surface":
+            raise ModelError("a sole size (--sole) describes flat feet: it needs foot_contact='surface'")
         duplicates = sorted({f for f in self.feet if self.feet.count(f) > 1})
         if duplicates:
             raise ModelError(f"foot frames must be distinct; {', '.join(duplicates)} given more than once (--feet)")
@@ -151,6 +160,8 @@ class RobotModel:
             raise ModelError("a legged robot needs at least one foot frame (--feet F1,F2,...)")
 
         self.mass_kg = float(sum(inertia.mass for inertia in model.inertias))
+        self.soles: dict[str, Sole] = self._add_sole_frames(model, urdf, spec)
+        self.data = model.createData()
         self._set_limits(model, spec)
         self._set_drive_train(model, spec)
         self.foot_radius_m = (
@@ -167,6 +178,21 @@ class RobotModel:
         self.q_nominal = self._standing_configuration(q_ref)
 
     # ------------------------------------------------------------------ loading helpers
+    def _add_sole_frames(self, model: pin.Model, urdf: Path, spec: RobotSpec) -> dict[str, Sole]:
+        """Flat feet: the sole of each foot and a frame `<foot>_sole` at its centre (the contact frame)."""
+        if spec.foot_contact != "surface":
+            return {}
+        if spec.sole_m is not None:
+            soles = {foot: sole_from_size(foot, spec.sole_m) for foot in self.feet}
+        else:
+            soles = soles_from_collisions(model, urdf, self.feet, self.frame_id)
+        for foot, sole in soles.items():
+            fid = self.frame_id(foot)
+            frame = model.frames[fid]
+            placement = frame.placement * pin.SE3(np.eye(3), sole.centre_m)
+            model.addFrame(pin.Frame(sole.frame, frame.parentJoint, fid, placement, pin.FrameType.OP_FRAME))
+        return soles
+
     @staticmethod
     def _q_index_locked(full: pin.Model, lock_ids: list[int], i: int) -> bool:
         for jid in lock_ids:
@@ -249,8 +275,9 @@ class RobotModel:
         """Reference pose with the base lifted so that the lowest foot touches the ground."""
         q = q.copy()
         pin.framesForwardKinematics(self.model, self.data, q)
-        z_feet = [self.data.oMf[self.frame_id(f)].translation[2] for f in self.feet]
-        q[2] += self.foot_radius_m - min(z_feet)
+        z_feet = [self.data.oMf[self.frame_id(self.contact_frame(f))].translation[2] - self.contact_height_m(f)
+                  for f in self.feet]
+        q[2] -= min(z_feet)
         return q
 
     # ------------------------------------------------------------------ queries
@@ -287,6 +314,24 @@ class RobotModel:
                 legs.add(self.model.names[joint])
                 joint = self.model.parents[joint]
         return np.array([name in legs for name in self.joint_names])
+
+    @property
+    def surface_feet(self) -> tuple[str, ...]:
+        """Feet with a 6D wrench at their sole (flat feet), in `feet` order; the others are points."""
+        return tuple(f for f in self.feet if f in self.soles)
+
+    def contact_frame(self, foot: str) -> str:
+        """Frame at which a foot's contact acts: its sole frame (flat feet) or the foot frame itself."""
+        return self.soles[foot].frame if foot in self.soles else foot
+
+    def contact_height_m(self, foot: str) -> float:
+        """Height of the contact frame above the ground in stance: 0 on a sole, the radius on a point foot."""
+        return 0.0 if foot in self.soles else self.foot_radius_m
+
+    @property
+    def contact_kinds(self) -> dict[str, str]:
+        """{contact frame given by the user: "surface" (6D wrench) or "point" (3D force)}."""
+        return {name: "surface" if name in self.soles else "point" for name in self.contact_frames}
 
     @property
     def contact_frames(self) -> tuple[str, ...]:
@@ -352,6 +397,9 @@ class RobotModel:
             "mass_kg": self.mass_kg,
             "feet": list(self.feet),
             "arm_ee": self.arm_ee,
+            "contacts": self.contact_kinds,
+            "soles_m": {f: {"length": s.length_m, "width": s.width_m, "centre": [float(c) for c in s.centre_m]}
+                        for f, s in self.soles.items()},
             "joints": list(self.joint_names),
             "continuous_joints": [n for n, c in zip(self.joint_names, self.continuous) if c],
             "armature_kg_m2": _compact(self.armature_kg_m2, self.joint_names),

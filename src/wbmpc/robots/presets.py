@@ -41,8 +41,8 @@ def _erd(relative: str) -> Path:
 
 
 # Legged robots of example-robot-data: (urdf, srdf, pose, feet, arm end-effector, locked joints).
-# Quadrupeds trot under the MPC; bipeds and humanoids load, simulate and pass `bench dynamics`
-# (the MPC models point feet, so flat-footed humanoids are not expected to balance with it).
+# Quadrupeds trot under the MPC; g1 and TALOS stand and walk on flat feet (_FLAT_FEET); the other bipeds
+# and humanoids keep point feet: they load, simulate and pass `bench dynamics`.
 _LEGGED: dict[str, tuple] = {
     # quadrupeds (Unitree, ANYbotics, IIT, ODRI)
     "b1": ("b1_description/urdf/b1.urdf", "b1_description/srdf/b1.srdf", "standing", QUADRUPED_FEET, None, ()),
@@ -79,17 +79,43 @@ _LEGGED: dict[str, tuple] = {
              ("l_sole", "r_sole"), None, ()),
     "icub_full": ("icub_description/robots/icub.urdf", "icub_description/srdf/icub.srdf", "half_sitting",
                   ("l_sole", "r_sole"), None, ()),
+    # g1: the right hand as end-effector; the six wrist joints locked (the hand is a point in eq. 7, its
+    # orientation is not tracked, and the 1-3 N m wrists only add variables): 6 + 23 DoF
     "g1": ("g1_description/urdf/g1_29dof_rev_1_0.urdf", None, None, ("left_ankle_roll_link", "right_ankle_roll_link"),
-           None, ()),
+           "right_rubber_hand", tuple(f"{side}_wrist_{axis}_joint" for side in ("left", "right")
+                                      for axis in ("roll", "pitch", "yaw"))),
     "simple_humanoid": ("simple_humanoid_description/urdf/simple_humanoid.urdf",
                         "simple_humanoid_description/srdf/simple_humanoid.srdf", "half_sitting", ("l_ankle", "r_ankle"),
                         None, ()),
+}
+# flat feet (6D wrench at the sole, soles.py): the sole from the foot link's collision geometry (None) or a size
+# (length, width) for feet whose links carry meshes only (TALOS: its 0.21 x 0.138 m sole, rounded inwards)
+_FLAT_FEET: dict[str, tuple[float, float] | None] = {"g1": None, "talos": (0.2, 0.13), "talos_full": (0.2, 0.13)}
+# rotor inertias reflected through the gearboxes (kg m^2), where the URDF lacks them: g1's from Unitree's
+# MJCF (MuJoCo Menagerie unitree_g1). They matter beyond the model: a lifted g1 foot (0.6 kg, ~3e-4 kg m^2
+# about its roll axis) under the legs' joint damping Kd ~4 at the 1 ms control tick is an unstable explicit
+# damper (Kd dt / I > 2: the ankle roll rate reached 160 rad/s 40 ms into a walk) unless the plant has them
+_G1_ROTORS = {"hip_pitch": 0.01017752, "hip_roll": 0.025101925, "hip_yaw": 0.01017752, "knee": 0.025101925,
+              "ankle_pitch": 0.00721945, "ankle_roll": 0.00721945, "shoulder_pitch": 0.003609725,
+              "shoulder_roll": 0.003609725, "shoulder_yaw": 0.003609725, "elbow": 0.003609725}
+_ARMATURE: dict[str, dict[str, float] | float] = {
+    "g1": {**{f"{side}_{joint}_joint": value for side in ("left", "right") for joint, value in _G1_ROTORS.items()},
+           "waist_yaw_joint": 0.01017752, "waist_roll_joint": 0.00721945, "waist_pitch_joint": 0.00721945},
+    # TALOS: its URDF and example-robot-data carry none; 0.01 kg m^2 on every joint is a stand-in of g1's hip
+    # order, not PAL's data. Without it TALOS standing failed 57 of 104 steps in 1.3 s (explicit damping of its
+    # light distal links), with it 3
+    "talos": 0.01, "talos_full": 0.01,
 }
 # reference-pose overrides: laikago has no SRDF and its zero pose puts the knees beyond their limit;
 # simple_humanoid's URDF limits are shifted by one joint along the legs, outside which its SRDF
 # half-sitting pose lies, so it stands on straight legs
 _POSES = {
     "simple_humanoid": {f"{side}LEG_{joint}": 0.0 for side in "LR" for joint in ("HIP_P", "KNEE", "ANKLE_P")},
+    # g1 on slightly bent knees (Unitree's default standing pose; straight knees are singular), elbows bent
+    "g1": {**{f"{side}_{joint}": value for side in ("left", "right")
+              for joint, value in (("hip_pitch_joint", -0.1), ("knee_joint", 0.3), ("ankle_pitch_joint", -0.2),
+                                   ("shoulder_pitch_joint", 0.2), ("elbow_joint", 0.6))},
+           "left_shoulder_roll_joint": 0.2, "right_shoulder_roll_joint": -0.2},
     "laikago": {f"{leg}_{joint}": value for leg in ("FL", "FR", "RL", "RR")
                 for joint, value in (("thigh_joint", 0.7), ("calf_joint", -1.4))},
 }
@@ -128,6 +154,8 @@ def _presets() -> dict[str, RobotSpec]:
         presets[name] = RobotSpec(
             name=name, urdf=_erd(urdf), srdf=_erd(srdf) if srdf else None, pose=pose, feet=feet, arm_ee=arm_ee,
             locked_joints=locked, joint_positions_rad=_POSES.get(name, {}),
+            foot_contact="surface" if name in _FLAT_FEET else "point", sole_m=_FLAT_FEET.get(name),
+            armature_kg_m2=_ARMATURE.get(name, 0.0),
         )
     return presets
 

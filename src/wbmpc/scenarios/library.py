@@ -1,6 +1,7 @@
 """Named closed-loop scenarios: commands, disturbances and the metrics each one adds.
 
-`stand`, `trot-in-place`, `trot-forward` (0.2 m/s), `push` (lateral base velocity kick while
+`stand`, `trot-in-place`, `trot-forward` (0.2 m/s), `walk-in-place` and `walk-forward` (the robot's
+natural gait: trot on four feet, walk on two), `push` (lateral base velocity kick while
 trotting in place, section VI-B1 / Fig. 4) and `arm-track` (trot forward while the end-effector
 tracks a low/high reference, Fig. 3; position error becomes a velocity command by feedback);
 the loco-manipulation tasks of section VI-C (`pull`, `push-box`, `wipe`, `compliant`) live in
@@ -15,6 +16,7 @@ import pinocchio as pin
 from wbmpc.control.loop import Event
 from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.gait import gaits_for, natural_gait
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.manipulation import Compliant, Pull, PushBox, Wipe
@@ -23,7 +25,7 @@ from wbmpc.scenarios.metrics import SETTLE_S, _yaw, base_world_velocity, heading
 
 class Stand(Scenario):
     def __init__(self, options: ScenarioOptions):
-        super().__init__("stand", "stand still on four feet", "stand", 3.0, options=options)
+        super().__init__("stand", "stand still on all feet", "stand", 3.0, options=options)
 
 
 class TrotInPlace(Scenario):
@@ -57,6 +59,22 @@ class TrotForward(Scenario):
                  for k in range(cycles)]
         rmse = float(np.sqrt(np.mean(np.sum((np.array(means) - command) ** 2, axis=1)))) if cycles else None
         return {"base_vel_cycle_mean_rmse": rmse}
+
+
+class WalkInPlace(Scenario):
+    """Step in place in the robot's natural gait (trot on four feet, walk on two)."""
+
+    def __init__(self, options: ScenarioOptions):
+        super().__init__("walk-in-place", "step in place in the robot's gait (trot on four feet, walk on two)",
+                         "trot", 10.0, options=options)
+
+
+class WalkForward(TrotForward):
+    """Move forward at the commanded speed in the robot's natural gait."""
+
+    def __init__(self, options: ScenarioOptions):
+        Scenario.__init__(self, "walk-forward", "walk forward at the commanded speed (trot on four feet, walk on two)",
+                          "trot", 6.0, options=options)
 
 
 class Push(Scenario):
@@ -130,14 +148,22 @@ class ArmTrack(Scenario):
         return {"ee_pos_rmse_m": float(np.sqrt(np.mean(distance**2))), "ee_pos_max_err_m": float(distance.max())}
 
 
-SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, Push, ArmTrack,
-                                                                 Pull, PushBox, Wipe, Compliant)}
+SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, WalkInPlace, WalkForward,
+                                                                 Push, ArmTrack, Pull, PushBox, Wipe, Compliant)}
+TROT_SCENARIOS = ("trot-in-place", "trot-forward")  # trot by name: refused on robots without a trot
 
 
 def make_scenario(name: str, robot: RobotModel, options: ScenarioOptions | None = None) -> Scenario:
     if name not in SCENARIOS:
         raise ConfigError(unknown_name("scenario", name, SCENARIOS))
     scenario = SCENARIOS[name](options or ScenarioOptions())
+    gaits = gaits_for(len(robot.feet))
+    if scenario.gait not in gaits:
+        if name in TROT_SCENARIOS or (options is not None and options.gait is not None):
+            raise ConfigError(f"scenario '{name}' runs the {scenario.gait} gait, which {robot.name} "
+                              f"({len(robot.feet)} feet) does not have; its gaits: {', '.join(gaits)}"
+                              + (" (walk-in-place / walk-forward walk it)" if "walk" in gaits else ""))
+        scenario.gait = natural_gait(len(robot.feet))  # tasks that step: the robot's own gait
     if scenario.needs_arm and robot.arm_ee is None:
         raise ConfigError(f"scenario '{name}' needs a robot with an arm (--arm-ee); {robot.name} has none")
     scenario.check(robot)

@@ -269,6 +269,8 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
     plant_config = config.plant_config
+    if plant_config is None and np.any(robot.armature_kg_m2):  # a preset's rotors (g1) are the plant's too
+        plant_config = PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
     if scene is not None:
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
@@ -284,6 +286,12 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    sole_monitor = None
+    if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
+        from wbmpc.sim.sole_pressure import SolePressureMonitor
+
+        sole_monitor = SolePressureMonitor.for_robot(robot)
+        plant.add_step_hook(sole_monitor)
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
@@ -296,6 +304,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics["state"] = config.state
+    if sole_monitor is not None:
+        metrics.update(sole_monitor.metrics())
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics

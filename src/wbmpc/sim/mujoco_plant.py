@@ -148,6 +148,32 @@ class MujocoPlant:
                     forces[k] += sign * d.contact.frame[i].reshape(3, 3).T @ self._force[:3]
         return forces
 
+    def sole_pressure(self) -> dict[str, tuple[np.ndarray, float] | None]:
+        """Measured centre of pressure of each flat foot's box sole: {foot: ((x, y) in the sole frame, normal
+        force N)}, None while the sole carries no load. The contact points' positions weighted by their
+        normal forces (floor and scene objects), expressed in the sole frame (the box's bottom face)."""
+        m, d = self.model, self.data
+        out: dict[str, tuple[np.ndarray, float] | None] = {}
+        for foot in self.robot.soles:
+            gid = int(m.geom(foot).id)
+            weighted, total = np.zeros(3), 0.0
+            for i in range(d.ncon):
+                g1, g2 = (int(g) for g in d.contact.geom[i])
+                other = g1 if g2 == gid else g2 if g1 == gid else None
+                if other is None or m.geom_contype[other] & ROBOT_CONTYPE:
+                    continue
+                mujoco.mj_contactForce(m, d, i, self._force)
+                normal = float(self._force[0])
+                weighted += normal * d.contact.pos[i]
+                total += normal
+            if total <= 1e-9:
+                out[foot] = None
+                continue
+            rotation = d.geom_xmat[gid].reshape(3, 3)
+            local = rotation.T @ (weighted / total - d.geom_xpos[gid])
+            out[foot] = (local[:2], total)
+        return out
+
     # ------------------------------------------------------------------ extras
     def add_step_hook(self, hook) -> None:
         """`hook.before_step(plant)` runs before and `hook.after_step(plant)` after every physics step

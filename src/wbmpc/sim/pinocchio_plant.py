@@ -6,8 +6,9 @@ Time-stepping (semi-implicit Euler on the manifold), per step of dt:
     next step (v_n+ >= -gap/dt, penetration corrected at `penetration_correction_per_step`),
     Coulomb friction with coefficient `friction_mu`
     v+ = v_free + M^-1 J^T lam,   q+ = integrate(q, dt v+)
-The ground is the plane z = `ground_height_m`; feet are spheres of `robot.foot_radius_m` (the
-contact point rolls with the sphere). Only the feet touch the ground; joint limits are not
+The ground is the plane z = `ground_height_m`; point feet are spheres of `robot.foot_radius_m` (the
+contact point rolls with the sphere), flat feet (`robot.soles`) touch at the four corners of their
+sole rectangle (four frictional point contacts: their forces span the sole's wrench cone). Only the feet touch the ground; joint limits are not
 enforced (MuJoCo enforces both).
 """
 
@@ -70,7 +71,9 @@ class PinocchioPlant:
         self.data = self.model.createData()
         self.recording = Recording()
         self._lower = np.tril_indices(self.model.nv, -1)
-        self._foot_ids = [robot.frame_id(f) for f in robot.feet]
+        self._foot_ids = [robot.frame_id(robot.contact_frame(f)) for f in robot.feet]
+        # contact points of each foot in its contact frame: the sphere's centre, or a sole's four corners
+        self._foot_points = [robot.soles[f].corners_m() if f in robot.soles else None for f in robot.feet]
         self.reset()
 
     # ------------------------------------------------------------------ Plant interface
@@ -87,7 +90,7 @@ class PinocchioPlant:
         self._q, self._v = checked_state(self.robot, q, v)
         self._steps = 0
         self._forces = np.zeros((len(self.robot.feet), 3))
-        self._last_active: list[int] = []
+        self._last_active: list[tuple[int, int]] = []
         self.last_contact_solve: ContactSolution = solve_contact_impulses(np.zeros((0, 0)), np.zeros(0), 0.0)
         self.recording.clear()
         self._record()
@@ -119,7 +122,7 @@ class PinocchioPlant:
             )
             lam = self.last_contact_solve.impulses
             v_next = v_free + MinvJt @ lam
-            self._forces[active] = lam.reshape(-1, 3) / dt
+            np.add.at(self._forces, [foot for foot, _ in active], lam.reshape(-1, 3) / dt)
         else:
             v_next = v_free
             self.last_contact_solve = solve_contact_impulses(np.zeros((0, 0)), np.zeros(0), cfg.friction_mu)
@@ -150,21 +153,35 @@ class PinocchioPlant:
         return self._forces.copy()
 
     # ------------------------------------------------------------------ internals
-    def _candidate_contacts(self) -> tuple[list[int], list[np.ndarray], list[float]]:
-        """Feet that may touch the ground within this step: indices, 3 x nv contact Jacobians, gaps (m)."""
+    def _candidate_contacts(self) -> tuple[list[tuple[int, int]], list[np.ndarray], list[float]]:
+        """Contact points that may touch the ground within this step: (foot, point) indices, 3 x nv
+        contact Jacobians, gaps (m)."""
         model, data, cfg = self.model, self.data, self.config
         radius = self.robot.foot_radius_m
         active, jacobians, gaps = [], [], []
         for k, fid in enumerate(self._foot_ids):
             placement = pin.updateFramePlacement(model, data, fid)
-            gap = placement.translation[2] - radius - cfg.ground_height_m
-            if gap > cfg.contact_margin_m:
+            corners = self._foot_points[k]
+            if corners is None:  # point foot: a sphere
+                gap = placement.translation[2] - radius - cfg.ground_height_m
+                if gap > cfg.contact_margin_m:
+                    continue
+                J6 = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+                active.append((k, 0))
+                jacobians.append(J6[:3] + radius * _EZ_SKEW @ J6[3:])  # velocity of the sphere's lowest point
+                gaps.append(gap)
+                continue
+            offsets = corners @ placement.rotation.T  # flat foot: the sole's corners
+            corner_gaps = placement.translation[2] + offsets[:, 2] - cfg.ground_height_m
+            if corner_gaps.min() > cfg.contact_margin_m:
                 continue
             J6 = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-            J = J6[:3] + radius * _EZ_SKEW @ J6[3:]  # velocity of the sphere's lowest point
-            active.append(k)
-            jacobians.append(J)
-            gaps.append(gap)
+            for c, (offset, gap) in enumerate(zip(offsets, corner_gaps)):
+                if gap > cfg.contact_margin_m:
+                    continue
+                active.append((k, c))
+                jacobians.append(J6[:3] - pin.skew(offset) @ J6[3:])  # v + omega x offset
+                gaps.append(gap)
         return active, jacobians, gaps
 
     def _record(self) -> None:

@@ -6,9 +6,10 @@ Two sources, per moving body (= pinocchio joint):
 2. otherwise shapes guessed from the kinematics: a box spanning the children's joint origins for
    the floating base, and capsules from the joint origin to each child joint origin / frame of
    interest for the other bodies.
-Every foot gets a sphere of `robot.foot_radius_m` at its frame (the only shape on foot links, so
-that the contact point matches the MPC's point-foot model); the arm end-effector gets an optional
-sphere. Capsules ending at a foot stop short and are thin enough to stay inside the foot sphere.
+Every point foot gets a sphere of `robot.foot_radius_m` at its frame, every flat foot a box sole
+(`robot.soles`: the sole rectangle, SOLE_THICKNESS_M thick, its bottom face on the sole frame) -- the
+only shape on foot links, so that the contact matches the MPC's point or surface contact model; the
+arm end-effector gets an optional sphere. Capsules ending at a foot stop short and are thin enough to stay inside the foot sphere.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from wbmpc.robots import RobotModel
 from wbmpc.robots.urdf_geometry import collision_primitives
 
 MIN_SHAPE_SIZE_M = 0.005  # URDF shapes smaller than this in every direction (IMU boxes) are dropped
+SOLE_THICKNESS_M = 0.01  # box soles of flat feet
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,14 @@ def robot_collision_shapes(
     model = robot.model
     shapes: list[CollisionShape] = []
     for foot in robot.feet:
+        if foot in robot.soles:  # flat foot: a box whose bottom face is the sole rectangle
+            sole = robot.soles[foot]
+            frame = model.frames[robot.frame_id(sole.frame)]
+            half = 0.5 * SOLE_THICKNESS_M
+            centre = frame.placement.translation + frame.placement.rotation @ np.array([0.0, 0.0, half])
+            shapes.append(CollisionShape(foot, frame.parentJoint, "box", (sole.half_length_m, sole.half_width_m, half),
+                                         centre, frame.placement.rotation.copy(), True))
+            continue
         frame = model.frames[robot.frame_id(foot)]
         centre = frame.placement.translation.copy()
         shapes.append(CollisionShape(foot, frame.parentJoint, "sphere", (robot.foot_radius_m,), centre, np.eye(3), True))
@@ -88,6 +98,8 @@ def _kinematic_shapes(robot: RobotModel, jid: int) -> list[CollisionShape]:
         return [CollisionShape("base_box", jid, "box", (hx, hy, hy), np.zeros(3), np.eye(3))]
     ends = [(p, False) for p in children]
     for name in (*robot.feet, *([robot.arm_ee] if robot.arm_ee else [])):
+        if name in robot.soles:  # the box sole is the flat foot: no capsule down to it
+            continue
         frame = model.frames[robot.frame_id(name)]
         if frame.parentJoint == jid:
             ends.append((frame.placement.translation, name in robot.feet))

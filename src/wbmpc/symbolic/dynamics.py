@@ -1,9 +1,11 @@
 """Rigid-body algorithms in CasADi SX, built from a numeric pinocchio `Model`.
 
 Conventions follow pinocchio: q = [p_base, quat_xyzw, q_joints], v = [v_base (local), w_base
-(local), v_joints]; joint quantities live in joint (body) frames; contact forces are linear
-forces in world coordinates acting *on the robot* at the contact frames (feet, then arm
-end-effector), optionally followed by a world moment at the arm end-effector.
+(local), v_joints]; joint quantities live in joint (body) frames. The stacked contact forces F act
+*on the robot*: first a linear force in world coordinates at every contact frame (feet, then arm
+end-effector), then a moment for every surface contact (flat foot, `robot.soles`) in its sole frame's
+axes. A point contact carries a 3D force, a surface contact a 6D wrench (force at the sole centre plus
+moment): the moments in the sole frame make the wrench cone rows linear (ocp/problem.py).
 
 The graphs are kept small on purpose: joint rotations about aligned axes are sparse, constant
 zero/one entries of placements vanish through SX simplification, per-body dynamics use the
@@ -54,7 +56,8 @@ class _Body:
 class _Contact:
     joint: int
     offset: np.ndarray  # frame origin in the joint frame
-    with_moment: bool
+    rotation: np.ndarray  # contact frame axes in the joint frame
+    surface: bool  # a 6D wrench (flat foot) instead of a 3D force
 
 
 class Configuration:
@@ -189,13 +192,23 @@ class SymbolicDynamics:
         self.coulomb_friction = np.asarray(robot.coulomb_friction_nm, dtype=float)
         self.coulomb_velocity = float(robot.coulomb_velocity_rad_s)
         self.total_mass = sum(b.mass for b in self.bodies.values())
-        self.contact_frames = robot.contact_frames
-        self.contacts = [self._contact(name, with_moment=False) for name in self.contact_frames]
-        self.n_forces = 3 * len(self.contacts)
+        # frames where the contact forces act: the sole frame of a flat foot, else the named frame
+        self.contact_frames = tuple(robot.contact_frame(f) for f in robot.feet) + ((robot.arm_ee,) if robot.arm_ee else ())
+        self.contacts = [self._contact(name, surface=name not in robot.contact_frames)
+                         for name in self.contact_frames]
+        self.surface_contacts = [i for i, c in enumerate(self.contacts) if c.surface]
+        self.n_linear_forces = 3 * len(self.contacts)
+        self.n_forces = self.n_linear_forces + 3 * len(self.surface_contacts)
 
-    def _contact(self, frame: str, with_moment: bool) -> _Contact:
+    def _contact(self, frame: str, surface: bool) -> _Contact:
         f = self.model.frames[self.robot.frame_id(frame)]
-        return _Contact(joint=f.parentJoint, offset=np.array(f.placement.translation), with_moment=with_moment)
+        return _Contact(joint=f.parentJoint, offset=np.array(f.placement.translation),
+                        rotation=np.array(f.placement.rotation), surface=surface)
+
+    def moment_slice(self, i: int) -> slice:
+        """Where the moment of surface contact i (index into `contacts`) sits in the stacked F."""
+        start = self.n_linear_forces + 3 * self.surface_contacts.index(i)
+        return slice(start, start + 3)
 
     def chain(self, i: int) -> list[int]:
         """Joint indices from the root (1) down to joint i."""
@@ -352,9 +365,12 @@ class SymbolicDynamics:
             j = contact.joint
             force[j] = force[j] - f_local
             moment[j] = moment[j] - sp.cross(sp.const(contact.offset), f_local)
-        if forces.shape[0] > offset:  # optional moment at the last contact (arm end-effector)
-            j = self.contacts[-1].joint
-            moment[j] = moment[j] - cfg.to_local(j, forces[offset : offset + 3])
+        for i in self.surface_contacts:  # sole-frame moments: a constant rotation into the joint frame
+            contact = self.contacts[i]
+            tau = forces[self.moment_slice(i)]
+            if not sp.is_identity(contact.rotation):
+                tau = ca.mtimes(sp.const(contact.rotation), tau)
+            moment[contact.joint] = moment[contact.joint] - tau
 
     def _backward(self, cfg: Configuration, force: dict, moment: dict) -> ca.SX:
         """Backward pass: accumulate wrenches to the root, project on joint axes."""
@@ -517,14 +533,18 @@ class SymbolicDynamics:
         return ca.vertcat(lin / self.total_mass - sp.cross(omega, c), omega)
 
     def centroidal_wrench(self, cfg: Configuration, forces: ca.SX) -> ca.SX:
-        """dh_com/dt from the contact forces (world, at `contact_frames`) and gravity, about the CoM."""
+        """dh_com/dt from the contact wrenches (forces in world at `contact_frames`, sole moments) and
+        gravity, about the CoM."""
         com = self.com(cfg)
         lin = sp.const(self.total_mass * self.gravity)
         ang = ca.SX.zeros(3)
         for i, frame in enumerate(self.contact_frames):
             f = forces[3 * i : 3 * i + 3]
+            position, rotation = self.frame_placement(cfg, frame)
             lin = lin + f
-            ang = ang + sp.cross(self.frame_placement(cfg, frame)[0] - com, f)
+            ang = ang + sp.cross(position - com, f)
+            if self.contacts[i].surface:  # a flat foot's moment, sole frame -> world
+                ang = ang + ca.mtimes(rotation, forces[self.moment_slice(i)])
         return ca.vertcat(lin, ang)
 
     # ------------------------------------------------------------------ casadi Functions
@@ -539,7 +559,7 @@ class SymbolicDynamics:
         forces = ca.SX.sym("f", self.n_forces)
         cfg = self.configuration(q)
         motion = Motion(cfg, v)
-        ee = self.contact_frames[-1]
+        ee = self.robot.contact_frames[-1]
         fk_pos, fk_rot = self.frame_placement(cfg, ee)
         vel_lin, vel_ang = self.frame_velocity(cfg, motion, ee)
         frame_vel = ca.vertcat(vel_lin, vel_ang)

@@ -411,7 +411,9 @@ def _measured_contact(data: dict, n_feet: int, threshold_n: float = 5.0) -> np.n
 def foot_heights_figure(robot, data: dict, marks: RunMarks | None = None) -> Figure:
     t, q = data["t"], data["q"]
     feet = list(robot.feet)
-    pos = frame_positions(robot, q, feet)
+    contact = {foot: getattr(robot, "contact_frame", lambda f: f)(foot) for foot in feet}  # flat feet: the sole
+    pos = frame_positions(robot, q, list(contact.values()))
+    pos = {foot: pos[frame] for foot, frame in contact.items()}
     intervals = _planned_intervals(robot, data)
     measured = _measured_contact(data, len(feet))
     fig = _figure(10, 1.7 * len(feet) + 1.2)
@@ -419,7 +421,8 @@ def foot_heights_figure(robot, data: dict, marks: RunMarks | None = None) -> Fig
     for i, (ax, foot) in enumerate(zip(axes, feet)):
         if intervals is not None:
             _shade_stance(ax, intervals[i])
-        ax.plot(t, 100 * (pos[foot][:, 2] - robot.foot_radius_m), color=f"C{i}", linewidth=1.2, label="foot height (FK)")
+        height = robot.contact_height_m(foot) if hasattr(robot, "contact_height_m") else robot.foot_radius_m
+        ax.plot(t, 100 * (pos[foot][:, 2] - height), color=f"C{i}", linewidth=1.2, label="foot height (FK)")
         if measured is not None and np.any(measured[:, i]):
             ax.fill_between(t, 0, 0.08, where=measured[:, i], transform=ax.get_xaxis_transform(), color="0.25",
                             linewidth=0, label="measured contact")
