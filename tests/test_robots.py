@@ -34,9 +34,11 @@ def test_nominal_pose_stands_on_the_ground(name):
     robot = load_robot(name)
     data = robot.model.createData()
     pin.framesForwardKinematics(robot.model, data, robot.q_nominal)
-    heights = [data.oMf[robot.frame_id(f)].translation[2] for f in robot.feet]
-    assert min(heights) == pytest.approx(robot.foot_radius_m, abs=1e-9)
-    assert max(heights) - min(heights) < 0.02
+    # contact frames (a flat foot's sole, on the ground) above the ground by their contact height
+    clearance = [data.oMf[robot.frame_id(robot.contact_frame(f))].translation[2] - robot.contact_height_m(f)
+                 for f in robot.feet]
+    assert min(clearance) == pytest.approx(0.0, abs=1e-9)
+    assert max(clearance) - min(clearance) < 0.02
     # the nominal joint angles respect the URDF limits
     assert np.all(robot.q_nominal[7:] >= robot.q_min - 1e-9) and np.all(robot.q_nominal[7:] <= robot.q_max + 1e-9)
 

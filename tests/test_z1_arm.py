@@ -295,6 +295,11 @@ def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None,
             error = None
         except Exception as exc:  # noqa: BLE001
             error = exc
+        # the arm's UDP server runs in its own thread: its last packets (damping, PASSIVE) may still be on their
+        # way when deploy returns on a loaded machine
+        deadline = time.monotonic() + 2.0
+        while fake.z1.fsm != zm.ArmFsmState.PASSIVE and time.monotonic() < deadline:
+            time.sleep(0.01)
         time.sleep(0.05)
     finally:
         fake.close()

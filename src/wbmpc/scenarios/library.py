@@ -153,10 +153,14 @@ SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, Tr
 TROT_SCENARIOS = ("trot-in-place", "trot-forward")  # trot by name: refused on robots without a trot
 
 
-def make_scenario(name: str, robot: RobotModel, options: ScenarioOptions | None = None) -> Scenario:
+def make_scenario(name: str, robot: RobotModel | None, options: ScenarioOptions | None = None) -> Scenario:
+    """The scenario `name` for `robot` (its gait fitted to the robot's feet, checked against it); with no
+    robot, the scenario as declared (configuration tests)."""
     if name not in SCENARIOS:
         raise ConfigError(unknown_name("scenario", name, SCENARIOS))
     scenario = SCENARIOS[name](options or ScenarioOptions())
+    if robot is None:
+        return scenario
     gaits = gaits_for(len(robot.feet))
     if scenario.gait not in gaits:
         if name in TROT_SCENARIOS or (options is not None and options.gait is not None):
