@@ -16,7 +16,7 @@ import time
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
 from wbmpc.control.solution import Solution
-from wbmpc.errors import RunError
+from wbmpc.errors import RunError, WbmpcError
 
 REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
 BUILD_TIMEOUT_S = 300.0
@@ -115,6 +115,8 @@ class SolverProcess:
             self.channel.answer_ready.clear()
             return solution
         solution = self._conn.recv()
+        if isinstance(solution, BaseException):  # the first solve refused (its message says why)
+            raise solution
         self._conn.send("cpu")
         self.cpu_start_s = self._conn.recv()
         self.channel = SharedChannel.create(ChannelLayout.from_solution(solution, len(command_row(Commands()))),
@@ -163,7 +165,11 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
             _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
             return
         q, v, command, t, delay_s, budget_s = message
-        conn.send(_solve(mpc, q, v, command, t, delay_s, budget_s))
+        try:
+            conn.send(_solve(mpc, q, v, command, t, delay_s, budget_s))
+        except WbmpcError as exc:  # e.g. a budget below one QP: the parent raises it with its message
+            conn.send(exc)
+            return
 
 
 def _solve(mpc: MPC, q, v, command: Commands, t: float, delay_s: float, budget_s: float | None) -> Solution:
