@@ -139,6 +139,20 @@ def test_run_options_come_from_their_declarations():
     assert config.solver == "sqp" and config.options == ScenarioOptions(load_kg=12.0)  # auto, uncompiled: sqp
 
 
+@pytest.mark.parametrize("argv, flag", [(["deploy", "--speed", "2"], "--speed"), (["deploy", "--nodes", "1"], "--nodes"),
+                                        (["deploy", "--kd", "-1"], "--kd"),
+                                        (["robot-sim", "--push-speed", "9"], "--push-speed")])
+def test_robot_sim_and_deploy_share_the_run_declarations(argv, flag, capsys, no_build):
+    """deploy/robot-sim reuse `wbmpc run`'s declared options (type, range, unit): out of range -> exit 2
+    naming the flag, before any DDS or model work."""
+    pytest.importorskip("cyclonedds")
+    assert main(argv) == EXIT_BAD_INPUT
+    assert capsys.readouterr().err.startswith(f"wbmpc: error: {flag} must be ")
+    deploy = build_parser()._subparsers._group_actions[0].choices["deploy"]
+    kd = next(a for a in deploy._actions if "--kd" in a.option_strings)
+    assert "leg joint Kd of eq. (10)" in kd.help and "sent in LowCmd" in kd.help and kd.type is float
+
+
 def test_a_scenario_option_the_scenario_does_not_read_is_named_in_a_warning(capsys, no_build, tmp_path):
     from wbmpc.cli import _ignored_scenario_options
 

@@ -163,6 +163,22 @@ def add_arguments(parser, cls, scenarios: tuple[str, ...] | None | object = _UNS
             add_argument(parser, f, opt)
 
 
+def add_declared(parser, cls, name: str, **overrides) -> None:
+    """The flag of `cls`'s field `name` on another command's parser (`wbmpc deploy`, `robot-sim`), with
+    `Option` attributes overridden where that command reads it differently (help, cli_default, ...):
+    type, range and unit stay the declaration's."""
+    for f, opt in declared(cls):
+        if f.name == name:
+            add_argument(parser, f, dataclasses.replace(opt, **overrides))
+            return
+    raise KeyError(f"{cls.__name__} declares no option '{name}'")
+
+
+def declared_help(cls, name: str) -> str:
+    """The declared help of `cls`'s field `name` (without range and default)."""
+    return next(opt.help for f, opt in declared(cls) if f.name == name)
+
+
 def scenario_groups(cls) -> list[tuple[str, ...] | None]:
     """The distinct `Option.scenarios` of `cls`'s flags, in declaration order (None first: every scenario)."""
     groups: list[tuple[str, ...] | None] = []

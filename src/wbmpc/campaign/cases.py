@@ -11,11 +11,12 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from wbmpc.errors import ConfigError, unknown_name
+from wbmpc.options import declared, help_text
 from wbmpc.scenarios.base import ScenarioOptions
 
 # axis -> (where it goes, help); ScenarioOptions fields are added below
@@ -41,7 +42,8 @@ _OTHER_AXES = {
     "gait_phase": "push time shifted by this share of the gait period (0..1)",
     "robot": "robot preset (b1_z1, b1, go2, a1, ...)",
 }
-_SCENARIO_AXES = {f.name: "scenario option (see `wbmpc run --help`)" for f in fields(ScenarioOptions)}
+_SCENARIO_AXES = {f.name: f"scenario option: {help_text(f, opt)}" + (f" [{opt.flag}]" if opt.flag else "")
+                  for f, opt in declared(ScenarioOptions)}
 AXES: dict[str, str] = {**_SCENARIO_AXES, **_MODEL_AXES, **_LOOP_AXES, **_OTHER_AXES}
 STRING_AXES = {"robot", "gait", "board", "wipe_pattern"}
 

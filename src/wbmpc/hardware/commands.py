@@ -15,19 +15,26 @@ DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "arm-track")
 
 
 def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None:
+    """robot-sim and deploy; options they share with `wbmpc run` come from its declarations (`wbmpc.options`)."""
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.options import add_declared, declared_help
+    from wbmpc.scenarios import RunConfig, ScenarioOptions
+
     sim = sub.add_parser("robot-sim", help="MuJoCo standing in for the robot behind Unitree LowState/LowCmd (DDS)")
     add_robot_options(sim)
     _add_network_options(sim)
     sim.add_argument("--mode", default="realtime", choices=("realtime", "lockstep"),
                      help="realtime: wall-clock ticks; lockstep: wait for each tick's LowCmd (simulated time)")
-    sim.add_argument("--duration", type=float, help="simulated seconds after the first LowCmd (default: until Ctrl-C)")
+    add_declared(sim, RunConfig, "duration_s", cli_default=None, default_text="until Ctrl-C",
+                 help="simulated seconds after the first LowCmd")
     sim.add_argument("--start", default="standing", choices=("standing", "lying"), help="initial pose")
     sim.add_argument("--no-noise", action="store_true", help="perfect sensors (default: Unitree-like noise)")
     sim.add_argument("--watchdog-ms", type=float, default=100.0, help="no LowCmd for this long -> damping (realtime)")
     sim.add_argument("--idle-exit", type=float, metavar="S", help="exit when no valid LowCmd came for S seconds")
-    sim.add_argument("--push-time", type=float, metavar="S", help="base velocity kick at this simulated time")
-    sim.add_argument("--push-speed", type=float, default=0.8, help="kick speed, m/s, to the robot's left (world y)")
-    sim.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
+    add_declared(sim, ScenarioOptions, "push_time_s", cli_default=None, default_text="no kick",
+                 help="base velocity kick at this simulated time")
+    add_declared(sim, ScenarioOptions, "push_speed_m_s", help="kick speed to the robot's left (world y)")
+    add_declared(sim, RunConfig, "seed", help="seed of the sensor noise")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
@@ -47,18 +54,17 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     add_robot_options(dep)
     _add_network_options(dep)
     dep.add_argument("--scenario", default="trot-in-place", help=f"one of: {', '.join(DEPLOY_SCENARIOS)}")
-    dep.add_argument("--duration", type=float, default=10.0, help="seconds of MPC control (robot time)")
+    add_declared(dep, RunConfig, "duration_s", cli_default=10.0, default_text=None,
+                 help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
-    dep.add_argument("--compiled", action="store_true", help="compiled solver (C generated and cached)")
-    dep.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15 = the paper's)")
-    dep.add_argument("--speed", type=float, default=0.2, help="trot-forward / arm-track speed, m/s")
-    dep.add_argument("--solver", default="auto", help="the MPC's solver (as `wbmpc run --solver`; auto: the anytime "
-                     "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step)")
-    dep.add_argument("--kp", type=float, help="leg joint Kp of eq. (10), sent in LowCmd (default: the robot's, "
-                     "wbmpc info; 0 on B1)")
-    dep.add_argument("--kd", type=float, help="leg joint Kd of eq. (10), sent in LowCmd (default: the robot's, "
-                     "wbmpc info; 5 on B1)")
+    for name in ("compiled", "nodes"):
+        add_declared(dep, RunConfig, name)
+    add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
+    add_declared(dep, RunConfig, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
+                 "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
+    for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
+        add_declared(dep, PdGains, name, help=f"{declared_help(PdGains, name)}, sent in LowCmd")
     dep.add_argument("--no-sport-release", action="store_true", help="do not call the motion switcher (a robot "
                      "without one, its sport mode stopped by hand)")
     dep.add_argument("--max-plan-age-ms", type=float, default=250.0, help="an MPC plan older than this -> damping "
@@ -146,8 +152,10 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
     from wbmpc.hardware.robot_sim import RobotSimConfig, RobotSimulator
     from wbmpc.hardware.safety import SafetyConfig
     from wbmpc.hardware.sdk import load_sdk
+    from wbmpc.scenarios import ScenarioOptions
 
     load_sdk()
+    ScenarioOptions(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
     sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
