@@ -9,6 +9,7 @@ import pytest
 from wbmpc.control import MPC, MpcConfig
 from wbmpc.control.chunked_table import ChunkedTable
 from wbmpc.control.loop import (
+    COMMAND_WIDTH,
     ClosedLoop,
     LoopConfig,
     RunLog,
@@ -100,6 +101,7 @@ def test_commands_round_trip_through_their_numbers():
     for command in (Commands(), Commands(base_velocity_m_s=np.array([0.3, -0.1, 0.0]), base_yaw_rate_rad_s=0.2,
                                          ee_velocity_m_s=np.array([0.0, 0.1, -0.2]), ee_force_n=np.array([5.0, 0, 0]),
                                          base_height_m=0.4)):
+        assert command_row(command).shape == (COMMAND_WIDTH,)  # also the width of an empty log's command array
         back = command_from_row(command_row(command))
         for name in ("base_velocity_m_s", "ee_force_n"):
             np.testing.assert_array_equal(getattr(back, name), getattr(command, name))

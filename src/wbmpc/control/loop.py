@@ -21,7 +21,7 @@ import pinocchio as pin
 from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC, Commands
-from wbmpc.control.realtime_channel import command_from_row, command_row
+from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import SolverProcess, cpu_split, raise_priority
 from wbmpc.errors import ConfigError, RunError, check_number
@@ -86,7 +86,6 @@ class Event:
     name: str = "event"
 
 
-COMMAND_WIDTH = 12  # a `Commands` as numbers: base velocity (3), yaw rate, ee velocity (3, NaN: none), ee force (3), height
 TICK_KEYS = ("t", "q", "v", "tau", "tau_ff", "q_des", "contact_forces")
 STEP_KEYS = ("mpc_t", "solve_ms", "iterations", "success", "planned_contact")
 SOLVER_DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")

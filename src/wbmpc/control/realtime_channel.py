@@ -28,8 +28,11 @@ STATUS_BYTES = 2048
 REQUEST_SCALARS = ("t", "delay_s", "budget_s", "stop")
 
 
+COMMAND_WIDTH = 11  # numbers in a `command_row`
+
+
 def command_row(command: Commands) -> np.ndarray:
-    """`Commands` as 11 numbers (base velocity 3, yaw rate, ee velocity 3, ee force 3, base height) (None as NaN), the inverse of `command_from_row`."""
+    """`Commands` as COMMAND_WIDTH = 11 numbers (base velocity 3, yaw rate, ee velocity 3, ee force 3, base height) (None as NaN), the inverse of `command_from_row`."""
     ee_velocity = np.full(3, np.nan) if command.ee_velocity_m_s is None else command.ee_velocity_m_s
     height = np.nan if command.base_height_m is None else command.base_height_m
     return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height]
