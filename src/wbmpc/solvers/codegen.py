@@ -234,7 +234,7 @@ def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConf
     source_mb = len(code) / 1e6
     if library.exists():
         return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s)
-    source = cache / f"{stem}.c"
+    source = cache / f"{stem}.{os.getpid()}.c"  # per process: parallel builds of one key never share a file
     source.write_text(code)
     try:
         compile_s, peak_mb = _compile(source, library, config)

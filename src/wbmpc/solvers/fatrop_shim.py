@@ -22,6 +22,7 @@ The library (generated C of the stage functions, the shim and the driver) lands 
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -149,7 +150,8 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     source_mb = len(code) / 1e6
     if library.exists():
         return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s), p_index
-    source, helper = cache / f"{stem}.c", cache / f"{stem}_throw.cpp"
+    # per process: parallel builds of one key (campaign workers, test workers) never share a file
+    source, helper = cache / f"{stem}.{os.getpid()}.c", cache / f"{stem}.{os.getpid()}_throw.cpp"
     source.write_text(code)
     helper.write_text(DRIVER_SOURCE)
     try:  # the C++ helper rides along as one more input file of the same compiler call
