@@ -65,13 +65,13 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
     solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_barrier_init": None}))
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0)
     assert not result.stats.success
-    assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed: "
+    assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed_abs: "
                                    "QP_Maximum_Iterations_Exceeded)")
     assert result.stats.iterations == 2  # one per mode
     assert np.all(np.isnan(result.x)) and result.stats.max_constraint_violation == np.inf
     # after the first mode failed, the fallback mode goes first for `fallback_first_calls` calls
     again = solver.solve(p, lbx, ubx, lbg, ubg, x0)
-    assert again.stats.status == "QP_Maximum_Iterations_Exceeded (speed after balance: QP_Maximum_Iterations_Exceeded)"
+    assert again.stats.status == "QP_Maximum_Iterations_Exceeded (speed_abs after balance: QP_Maximum_Iterations_Exceeded)"
     bad = solver.solve(p, lbx, ubx, lbg, ubg, np.full_like(x0, np.nan))
     assert not bad.stats.success and bad.stats.status == "invalid_input_nan"
 
@@ -81,7 +81,7 @@ def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
     result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1)).solve(*data)
     assert result.stats.success
     assert result.stats.status.endswith("(fatrop recovery after rti: QP_Maximum_Iterations_Exceeded (balance after "
-                                        "speed: QP_Maximum_Iterations_Exceeded))")
+                                        "speed_abs: QP_Maximum_Iterations_Exceeded))")
     np.testing.assert_allclose(result.x, reference.x, atol=1e-4)  # converged to Fatrop's (default) tolerance
 
 

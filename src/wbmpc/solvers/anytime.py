@@ -30,13 +30,12 @@ import time
 from dataclasses import dataclass, replace
 from typing import Callable
 
-import casadi as ca
 import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats, bound_violation
-from wbmpc.solvers.qp import QpResult, StructuredQp
+from wbmpc.solvers.qp import QpResult
 from wbmpc.solvers.rti import RtiConfig, RtiSolver
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}
@@ -110,8 +109,9 @@ class AnytimeSqpSolver(RtiSolver):
         self._qp_iteration_s: float | None = None  # ... and of one of its HPIPM iterations
         self._qp_sums = [0.0] * 5  # decayed sums of 1, n, t, n^2, n t over successful QPs (see _record_qp)
         # the first mode's QP with lower iteration caps, for steps whose deadline leaves no room for the full cap
-        self._capped = {cap: StructuredQp(problem, self.qp.hessian_sparsity, self.qp.jacobian_sparsity,
-                                          replace(self.qp.config, max_iterations=cap))
+        qp_type = type(self.qp)
+        self._capped = {cap: qp_type(problem, self.qp.hessian_sparsity, self.qp.jacobian_sparsity,
+                                     replace(self.qp.config, max_iterations=cap))
                         for cap in QP_ITERATION_CAPS if cap < self.qp.config.max_iterations}
 
     def _merit(self, f: float, g: np.ndarray, x: np.ndarray, lbx, ubx, lbg, ubg, nu: float) -> tuple[float, float]:
@@ -154,14 +154,14 @@ class AnytimeSqpSolver(RtiSolver):
                 status, success = stop, iterations > 0
                 break
             g_lin, J = self._jacobian(x, p)
-            if not (np.all(np.isfinite(np.asarray(g_lin))) and J.is_regular()):
+            if not (np.all(np.isfinite(np.asarray(g_lin))) and self._regular(J)):
                 status = "invalid_input_nan_constraints"
                 break
             gradient = self._gradient(x, p)
             grad = np.asarray(gradient).ravel()
             if lam_g is not None:
                 primal = bound_violation(x, g, lbx, ubx, lbg, ubg)
-                residual = grad + np.asarray(ca.mtimes(ca.DM(lam_g).T, J)).ravel() + lam_x
+                residual = grad + self._jacobian_transpose_times(J, lam_g) + lam_x
                 dual = float(np.max(np.abs(residual), initial=0.0) / max(1.0, np.max(np.abs(grad), initial=0.0)))
                 if primal < cfg.primal_tolerance and dual < cfg.dual_tolerance:
                     status, success = "Converged", True

@@ -33,6 +33,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
+from wbmpc.solvers.hpipm_direct import DirectQp, make_qp
 from wbmpc.solvers.nlp import (
     NlpResult,
     NlpSolver,
@@ -50,7 +51,10 @@ class RtiConfig:
 
     sqp_iterations: int = 1  # 1 = real-time iteration; more iterate at the same data (tests, benchmarks)
     hessian_regularization: float = 1e-6  # delta of H + delta I: keeps HPIPM's Riccati recursion positive definite
-    qp_mode: str = "speed"  # HPIPM mode: speed_abs, speed, balance, robust
+    # HPIPM mode: speed_abs, speed, balance, robust. speed_abs (absolute tolerances): b1_z1's compiled closed-loop trot
+    # 4.20 ms of CPU per RTI step against 4.65 with speed (3.74 QP iterations against 3.93, same run); after pushes it
+    # solves QPs on which speed stops at its minimum step length (see solvers/anytime.py)
+    qp_mode: str = "speed_abs"
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
     # after a QP the first mode failed, the fallback mode goes first for this many calls: after a push
     # `speed` fails (minimum step length) on most QPs for a while, each failure a wasted ~20 iterations
@@ -61,6 +65,9 @@ class RtiConfig:
     # per MPC step needs no tighter QP; 1e-4 against 1e-6: same closed loop (trot, arm-track), ~10 % fewer
     # QP iterations; iterate to Fatrop's KKT point (sqp_iterations > 1) with a tighter one
     qp_tolerance: float = 1e-4
+    # HPIPM's mu0 (QpConfig.barrier_init is casadi conic's best, 100): on our own HPIPM binding, b1_z1's compiled closed-loop
+    # trot takes 3.17 QP iterations per RTI step with 1e3 against 4.36 with 100 (2.73 / 3.29 ms of CPU per step, same run)
+    qp_barrier_init: float = 1e3
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
     recovery_barrier_init: float | None = 0.1
@@ -117,19 +124,47 @@ class RtiSolver:
                 "nlp_jac_g": ca.Function("nlp_jac_g", [x, p], [nlp["g"], ca.jacobian(nlp["g"], x)]),
                 "nlp_grad_f": ca.Function("nlp_grad_f", [x, p], [ca.gradient(nlp["f"], x)]),
             }
-        # the Jacobian and gradient go to the QP as DMs (their sparsity); f and g come back as NumPy buffers
         self._nlp = BufferedFunction(functions["nlp"])
-        self._jacobian, self._gradient = functions["nlp_jac_g"], functions["nlp_grad_f"]
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
-        self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
+        hessian_function = ca.Function("rti_hessian", [x, p], [hessian])
         # the Gauss-Newton Hessian of the [q, v] formulations depends on the weights (p) alone: once per call
         self.hessian_depends_on_x = bool(ca.depends_on(hessian, x))
-        sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
+        sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
+        self.jacobian_sparsity = sparsity[1]
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
-                             hpipm_options=dict(self.rti.qp_options))
-        self.qp = StructuredQp(problem, *sparsity, qp_config)
-        self.fallback_qp = (StructuredQp(problem, *sparsity, replace(qp_config, mode=self.rti.fallback_qp_mode))
-                            if self.rti.fallback_qp_mode not in (None, self.rti.qp_mode) else None)
+                             barrier_init=self.rti.qp_barrier_init, hpipm_options=dict(self.rti.qp_options))
+        # HPIPM through our shim (solvers/hpipm_direct.py) where it builds: H, J and the gradient as NumPy nonzeros
+        # from buffered calls (b1_z1: Jacobian 0.20 ms against 0.48 ms for a DM, whose nonzeros cost 0.6 ms more);
+        # otherwise casadi's conic on DMs
+        self.qp, self.qp_error = make_qp(problem, *sparsity, qp_config, config.codegen) if not self.rti.qp_options \
+            else (StructuredQp(problem, *sparsity, qp_config), "qp_options are casadi conic options")
+        self.direct_qp = isinstance(self.qp, DirectQp)
+        fallback_mode = self.rti.fallback_qp_mode
+        self.fallback_qp = ((make_qp(problem, *sparsity, replace(qp_config, mode=fallback_mode), config.codegen)[0]
+                             if self.direct_qp else StructuredQp(problem, *sparsity, replace(qp_config, mode=fallback_mode)))
+                            if fallback_mode not in (None, self.rti.qp_mode) else None)
+        if self.direct_qp:
+            self._jacobian = BufferedFunction(functions["nlp_jac_g"])
+            self._gradient = _first_output(BufferedFunction(functions["nlp_grad_f"]))
+            self._hessian = _first_output(BufferedFunction(hessian_function))
+            self._jacobian_csc = None  # J' lam for the dual residual (scipy view of the Jacobian buffer)
+        else:
+            self._jacobian, self._gradient, self._hessian = functions["nlp_jac_g"], functions["nlp_grad_f"], hessian_function
+
+    def _regular(self, J) -> bool:
+        """No NaN/inf in the Jacobian (a DM checks in C++)."""
+        return bool(np.all(np.isfinite(J))) if isinstance(J, np.ndarray) else J.is_regular()
+
+    def _jacobian_transpose_times(self, J, lam: np.ndarray) -> np.ndarray:
+        """J' lam for a DM or the Jacobian's nonzero buffer."""
+        if not isinstance(J, np.ndarray):
+            return np.asarray(ca.mtimes(ca.DM(lam).T, J)).ravel()
+        if self._jacobian_csc is None or self._jacobian_csc.data is not J:
+            from scipy.sparse import csc_matrix
+
+            sp = self.jacobian_sparsity
+            self._jacobian_csc = csc_matrix((J, np.asarray(sp.row()), np.asarray(sp.colind())), shape=sp.shape, copy=False)
+        return self._jacobian_csc.T @ lam
 
     @property
     def is_compiled(self) -> bool:
@@ -210,7 +245,7 @@ class RtiSolver:
             tic = time.perf_counter()
             g, J = self._jacobian(x, p)
             g = np.asarray(g).ravel()
-            if not (np.all(np.isfinite(g)) and J.is_regular()):  # is_regular: no NaN/inf, checked in C++
+            if not (np.all(np.isfinite(g)) and self._regular(J)):
                 return self._failure(x0, "invalid_input_nan_constraints")
             gradient = self._gradient(x, p)
             H = self._hessian(x, p)
@@ -256,3 +291,8 @@ class RtiSolver:
         if not success and self.rti.recovery_barrier_init is not None:
             result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
         return result
+
+
+def _first_output(function: BufferedFunction):
+    """A buffered function returning its first output alone (as a plain call of a one-output Function does)."""
+    return lambda *args: function(*args)[0]
