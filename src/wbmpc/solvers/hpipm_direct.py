@@ -4,7 +4,7 @@ casadi's `conic('hpipm')` boxes every variable and keeps every constraint row, i
 +-1e8 (dummy inequalities the interior point iterates on), passes equality rows as two inequalities and
 allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks from the nonzeros of H and
 J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
-equalities, and keeps HPIPM's memory between calls (`hpipm_shim.c`, compiled once against the HPIPM
+equalities, and keeps HPIPM's memory between calls (`hpipm_shim.py`, C compiled once against the HPIPM
 and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
 as `StructuredQp` (tests/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
@@ -34,9 +34,8 @@ import numpy as np
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, _compile, cache_key, default_cache_dir
+from wbmpc.solvers.hpipm_shim import SOURCE
 from wbmpc.solvers.qp import HPIPM_MODES, HPIPM_STATUS, QpConfig, QpResult, stage_dimensions
-
-SHIM_SOURCE = Path(__file__).with_name("hpipm_shim.c")
 
 
 class HpipmUnavailable(WbmpcError, RuntimeError):
@@ -49,7 +48,7 @@ def _library(config: CodegenConfig = CodegenConfig()) -> Path:
     include = directory / "include"
     if not (include / "hpipm_d_ocp_qp_ipm.h").exists() or not list(directory.glob("libhpipm.so*")):
         raise HpipmUnavailable(f"HPIPM's headers or libhpipm are missing in {directory}: use casadi's hpipm conic")
-    source = SHIM_SOURCE.read_text()
+    source = SOURCE
     flags = (*config.flags, "-O2", f"-I{include}", f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo",
              f"-Wl,-rpath,{directory}")
     link = replace(config, flags=flags)
