@@ -22,6 +22,15 @@ CPU time to measure on a shared machine, or any callable in tests), passed per c
 ignores the deadline and converges; a budget shorter than the shortest QP measured there is
 refused (`DeadlineError`): such a solver could never keep its deadline. A warm step always makes
 at least one iteration (a plan must come out of every step), late if it must.
+
+A step with a deadline never waits for a converged re-solve. Its QPs get an HPIPM iteration cap that fits the
+time left (`QP_ITERATION_CAPS`, at least `min_qp_iterations`); a QP HPIPM does not solve (iteration cap, minimum
+step length: after hard pushes) still yields its last iterate, taken when the line search finds it lowers the
+merit (`details["inexact_steps"]`), and the step ends there; otherwise the step fails at once
+(`details["qp_failures"]`) and the MPC holds the last good plan shifted in time (`MpcConfig.recover_past_deadline`).
+Only a call without a deadline (the cold first step, `--delay none`) goes on to the capped Fatrop re-solve of
+`RtiConfig.recovery_barrier_init`. On b1_z1 after 0.8 m/s pushes those re-solves and the MPC's IPOPT fallback took
+50-150 ms per failed step, the real-time rate fell to 53-63 Hz and the robot fell on stale plans.
 """
 
 from __future__ import annotations
