@@ -53,12 +53,17 @@ def _solver(problem, clock=None, **options):
     return AnytimeSqpSolver(problem, SolverConfig(name="sqp", extra_options={"qp_tolerance": 1e-6, **options}), clock=clock)
 
 
-def test_without_deadline_it_converges_to_the_fatrop_solution(fixed_state):
+@pytest.mark.parametrize("binding", ["direct", "casadi"])
+def test_without_deadline_it_converges_to_the_fatrop_solution(fixed_state, binding):
     problem, data, reference = fixed_state
     solver = make_solver(problem, SolverConfig(name="sqp", extra_options={"qp_tolerance": 1e-6,
                                                                         "dual_tolerance": 1e-7,
-                                                                        "primal_tolerance": 1e-9}))
+                                                                        "primal_tolerance": 1e-9,
+                                                                        "hpipm_binding": binding}))
     assert isinstance(solver, AnytimeSqpSolver)
+    if binding == "direct" and not solver.direct_qp:
+        pytest.skip(f"no HPIPM binding here: {solver.direct_error}")
+    assert solver.direct_qp == (binding == "direct")
     result = solver.solve(*data)
     assert result.stats.success and result.stats.status.startswith("Converged"), result.stats.status
     details = result.stats.details

@@ -90,11 +90,13 @@ def test_a_failed_direct_qp_reports_hpipms_status(qp_data):
 
 
 def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypatch):
+    """Where the binding cannot be built (here: no compiler) the RTI and the anytime SQP warn, name the reason
+    (`direct_error`, the run's metrics `direct_fallback`) and run on casadi's conic: an MPC step still succeeds."""
     problem, data = qp_data
     rti = RtiSolver(problem, SolverConfig(name="rti"))
-    if rti.qp_error is not None:
-        pytest.skip(f"no HPIPM binding here: {rti.qp_error}")
-    assert rti.direct_qp and isinstance(rti.qp, DirectQp)
+    if rti.direct_error is not None:
+        pytest.skip(f"no HPIPM binding here: {rti.direct_error}")
+    assert rti.direct_qp and isinstance(rti.qp, DirectQp) and isinstance(rti.fallback_qp, DirectQp)
     import wbmpc.solvers.hpipm_direct as hd
 
     def unavailable(*args, **kwargs):
@@ -104,5 +106,28 @@ def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypa
     qp, error = make_qp(problem, data[0].sparsity(), data[2].sparsity(), QpConfig(mode="speed_abs"))
     # casadi's conic in the relative mode: its speed_abs returns no equality multipliers
     assert isinstance(qp, StructuredQp) and qp.config.mode == "speed" and "no compiler" in error
-    fallback = RtiSolver(problem, SolverConfig(name="rti"))
-    assert not fallback.direct_qp and "no compiler" in fallback.qp_error
+    with pytest.warns(RuntimeWarning, match="direct binding is unavailable.*no compiler"):
+        fallback = RtiSolver(problem, SolverConfig(name="rti"))
+    assert not fallback.direct_qp and "no compiler" in fallback.direct_error
+    assert isinstance(fallback.qp, StructuredQp) and isinstance(fallback.fallback_qp, StructuredQp)
+    robot = load_robot("go2")
+    with pytest.warns(RuntimeWarning, match="direct binding is unavailable"):
+        mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.05))
+    assert all(isinstance(q, StructuredQp) for q in (mpc.solver.qp, *mpc.solver._capped.values()))
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    second = mpc.solve(first.q[1], first.v[1], t=0.0125)
+    assert first.success and second.success, second.stats.status
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import solver_summary
+
+    assert "no compiler" in solver_summary(mpc, RunConfig(solver="sqp", delay="6"))["direct_fallback"]
+
+
+def test_casadis_conic_on_request_and_bad_binding_names_the_fix(qp_data):
+    from wbmpc.errors import ConfigError
+
+    problem, _ = qp_data
+    conic = RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": "casadi"}))
+    assert not conic.direct_qp and isinstance(conic.qp, StructuredQp) and conic.qp.config.mode == "speed"
+    with pytest.raises(ConfigError, match="unknown hpipm_binding 'ctypes'; available: direct, casadi"):
+        RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": "ctypes"}))

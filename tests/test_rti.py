@@ -42,13 +42,18 @@ def fixed_state():
     return mpc.problem, data, reference
 
 
-def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state):
+@pytest.mark.parametrize("binding", ["direct", "casadi"])
+def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state, binding):
+    """On our HPIPM binding and on casadi's conic alike: Fatrop's KKT point, a feasible plan."""
     problem, data, reference = fixed_state
-    one = RtiSolver(problem, SolverConfig(name="rti")).solve(*data)
+    one = RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": binding})).solve(*data)
     assert one.stats.success, one.stats.status
     assert np.abs(one.x - reference.x).max() > 1e-2  # a single step from the cold guess is not the optimum
     iterated = RtiSolver(problem, SolverConfig(name="rti", extra_options={"sqp_iterations": 12, "step_tolerance": 0.0,
-                                                                         "qp_tolerance": 1e-6}))
+                                                                         "qp_tolerance": 1e-6, "hpipm_binding": binding}))
+    if binding == "direct" and not iterated.direct_qp:
+        pytest.skip(f"no HPIPM binding here: {iterated.direct_error}")
+    assert iterated.direct_qp == (binding == "direct")
     result = iterated.solve(*data)
     assert result.stats.success, result.stats.status
     np.testing.assert_allclose(result.x, reference.x, atol=1e-5)

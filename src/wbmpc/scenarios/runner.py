@@ -345,6 +345,8 @@ def solver_summary(mpc: MPC, config: RunConfig) -> dict:
     error = getattr(solver, "compile_error", None)
     return {"solver": solver.config.name, "solver_compiled": compiled, "compiled_requested": bool(config.compiled),
             "compile_error": error if config.compiled and not compiled else None,
+            # why a direct binding (fatrop-direct's Fatrop, the SQP solvers' HPIPM) was not used; None: it was or has none
+            "direct_fallback": getattr(solver, "direct_error", None),
             "delay_compensation": bool(mpc.config.delay_compensation),
             "step_budget_ms": None if mpc.config.step_budget_s is None else 1e3 * mpc.config.step_budget_s}
 

@@ -118,9 +118,7 @@ class AnytimeSqpSolver(RtiSolver):
         self._qp_iteration_s: float | None = None  # ... and of one of its HPIPM iterations
         self._qp_sums = [0.0] * 5  # decayed sums of 1, n, t, n^2, n t over successful QPs (see _record_qp)
         # the first mode's QP with lower iteration caps, for steps whose deadline leaves no room for the full cap
-        qp_type = type(self.qp)
-        self._capped = {cap: qp_type(problem, self.qp.hessian_sparsity, self.qp.jacobian_sparsity,
-                                     replace(self.qp.config, max_iterations=cap))
+        self._capped = {cap: self._new_qp(replace(self.qp.config, max_iterations=cap))
                         for cap in QP_ITERATION_CAPS if cap < self.qp.config.max_iterations}
 
     def _merit(self, f: float, g: np.ndarray, x: np.ndarray, lbx, ubx, lbg, ubg, nu: float) -> tuple[float, float]:
@@ -289,7 +287,8 @@ class AnytimeSqpSolver(RtiSolver):
             if result.success:
                 self._record_qp(self.clock() - tic, result.iterations)
             return result, spent_s, iterations
-        qps = [(self._capped_qp(deadline - self.clock()), self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
+        qps = [(qp, qp.config.mode if qp is not None else None)
+               for qp in (self._capped_qp(deadline - self.clock()), self.fallback_qp)]
         if self._fallback_first > 0 and self.fallback_qp is not None:
             self._fallback_first -= 1
             qps.reverse()
@@ -307,7 +306,7 @@ class AnytimeSqpSolver(RtiSolver):
                 result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
                 if result.success:
                     self._record_qp(self.clock() - tic, result.iterations)
-                if qps[0][1] == self.rti.qp_mode:
+                if qps[0][0] is not self.fallback_qp:
                     self._fallback_first = self.rti.fallback_first_calls
             else:
                 result.status = f"{result.status} ({qps[0][1]}; no time for {qps[1][1]} before the deadline)"

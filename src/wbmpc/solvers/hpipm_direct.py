@@ -35,7 +35,9 @@ from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, _compile, cache_key, default_cache_dir
 from wbmpc.solvers.hpipm_shim import SOURCE
-from wbmpc.solvers.qp import HPIPM_MODES, HPIPM_STATUS, QpConfig, QpResult, stage_dimensions
+from wbmpc.solvers.qp import HPIPM_MODES, HPIPM_STATUS, QpConfig, QpResult, StructuredQp, stage_dimensions
+
+HPIPM_BINDINGS = ("direct", "casadi")  # RtiConfig.hpipm_binding
 
 
 class HpipmUnavailable(WbmpcError, RuntimeError):
@@ -247,16 +249,17 @@ class DirectQp:
                         solve_time_s=time.perf_counter() - start)
 
 
+def conic_config(config: QpConfig) -> QpConfig:
+    """The settings for casadi's hpipm conic: it returns no equality multipliers in HPIPM's absolute mode
+    (speed_abs), which the SQP's merit function and dual residual need, so it runs "speed" there."""
+    return replace(config, mode="speed") if config.mode == "speed_abs" else config
+
+
 def make_qp(problem: OcpProblem, hessian: ca.Sparsity, jacobian: ca.Sparsity, config: QpConfig,
             codegen: CodegenConfig = CodegenConfig()):
-    """(QP, None) on HPIPM directly, or (casadi's conic, why not) where the shim cannot be built. casadi's conic
-    returns no equality multipliers in HPIPM's absolute mode (speed_abs): there it runs "speed" instead."""
+    """(QP on HPIPM directly, None), or (casadi's conic, why not) where the binding cannot be built here (no HPIPM
+    headers or library in the casadi wheel, no compiler, a problem whose blocks are not HPIPM's stage form)."""
     try:
         return DirectQp(problem, hessian, jacobian, config, codegen=codegen), None
-    except (HpipmUnavailable, OSError) as exc:
-        from dataclasses import replace as _replace
-
-        from wbmpc.solvers.qp import StructuredQp
-
-        fallback = _replace(config, mode="speed") if config.mode == "speed_abs" else config
-        return StructuredQp(problem, hessian, jacobian, fallback), str(exc)
+    except (WbmpcError, OSError) as exc:
+        return StructuredQp(problem, hessian, jacobian, conic_config(config)), f"{type(exc).__name__}: {exc}"

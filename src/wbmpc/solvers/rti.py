@@ -33,7 +33,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
-from wbmpc.solvers.hpipm_direct import DirectQp, make_qp
+from wbmpc.solvers.hpipm_direct import HPIPM_BINDINGS, conic_config, make_qp
 from wbmpc.solvers.nlp import (
     NlpResult,
     NlpSolver,
@@ -43,6 +43,8 @@ from wbmpc.solvers.nlp import (
     failed_result,
 )
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
+
+DIRECT_QP_BARRIER_INIT = 1e3  # HPIPM's mu0 on our binding (RtiConfig.qp_barrier_init)
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,9 @@ class RtiConfig:
     # `speed` fails (minimum step length) on most QPs for a while, each failure a wasted ~20 iterations
     fallback_first_calls: int = 20
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
+    # "direct": our HPIPM binding (solvers/hpipm_direct.py, compiled once into the cache), casadi's hpipm conic where it
+    # cannot be built (a warning, the reason in `direct_error`); "casadi": the conic (qp_options are its options)
+    hpipm_binding: str = "direct"
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
     # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's): one inexact SQP step
     # per MPC step needs no tighter QP; 1e-4 against 1e-6: same closed loop (trot, arm-track), ~10 % fewer
@@ -67,7 +72,9 @@ class RtiConfig:
     qp_tolerance: float = 1e-4
     # HPIPM's mu0 (QpConfig.barrier_init is casadi conic's best, 100): on our own HPIPM binding, b1_z1's compiled closed-loop
     # trot takes 3.17 QP iterations per RTI step with 1e3 against 4.36 with 100 (2.73 / 3.29 ms of CPU per step, same run)
-    qp_barrier_init: float = 1e3
+    # None: 1e3 on our binding (DIRECT_QP_BARRIER_INIT), casadi conic's 100 on the conic (1e3 there: the anytime SQP's
+    # QPs stall at HPIPM's minimum step length on go2)
+    qp_barrier_init: float | None = None
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
     recovery_barrier_init: float | None = 0.1
@@ -81,6 +88,8 @@ class RtiConfig:
         for mode in (self.qp_mode, self.fallback_qp_mode):
             if mode is not None and mode not in HPIPM_MODES:
                 raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
+        if self.hpipm_binding not in HPIPM_BINDINGS:
+            raise ConfigError(f"unknown hpipm_binding '{self.hpipm_binding}'; available: {', '.join(HPIPM_BINDINGS)}")
         if self.fallback_first_calls < 0:
             raise ConfigError(f"fallback_first_calls must be >= 0, got {self.fallback_first_calls}")
         if self.recovery_max_iterations < 1:
@@ -132,16 +141,17 @@ class RtiSolver:
         sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
         self.jacobian_sparsity = sparsity[1]
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
-                             barrier_init=self.rti.qp_barrier_init, hpipm_options=dict(self.rti.qp_options))
+                             barrier_init=self.rti.qp_barrier_init or DIRECT_QP_BARRIER_INIT, hpipm_options=dict(self.rti.qp_options))
         # HPIPM through our shim (solvers/hpipm_direct.py) where it builds: H, J and the gradient as NumPy nonzeros
         # from buffered calls (b1_z1: Jacobian 0.20 ms against 0.48 ms for a DM, whose nonzeros cost 0.6 ms more);
         # otherwise casadi's conic on DMs
-        self.qp, self.qp_error = make_qp(problem, *sparsity, qp_config, config.codegen) if not self.rti.qp_options \
-            else (StructuredQp(problem, *sparsity, qp_config), "qp_options are casadi conic options")
-        self.direct_qp = isinstance(self.qp, DirectQp)
+        self._qp_sparsity = sparsity
+        self.direct_qp = self.rti.hpipm_binding == "direct" and not self.rti.qp_options
+        self.direct_error: str | None = None if self.direct_qp else (
+            "qp_options are casadi conic options" if self.rti.qp_options else "hpipm_binding 'casadi' asked for")
+        self.qp = self._new_qp(qp_config)
         fallback_mode = self.rti.fallback_qp_mode
-        self.fallback_qp = ((make_qp(problem, *sparsity, replace(qp_config, mode=fallback_mode), config.codegen)[0]
-                             if self.direct_qp else StructuredQp(problem, *sparsity, replace(qp_config, mode=fallback_mode)))
+        self.fallback_qp = (self._new_qp(replace(qp_config, mode=fallback_mode))
                             if fallback_mode not in (None, self.rti.qp_mode) else None)
         if self.direct_qp:
             self._jacobian = BufferedFunction(functions["nlp_jac_g"])
@@ -150,6 +160,23 @@ class RtiSolver:
             self._jacobian_csc = None  # J' lam for the dual residual (scipy view of the Jacobian buffer)
         else:
             self._jacobian, self._gradient, self._hessian = functions["nlp_jac_g"], functions["nlp_grad_f"], hessian_function
+
+    def _new_qp(self, config: QpConfig):
+        """A QP of this problem's structure: on the direct binding while it builds, else casadi's conic (which
+        runs HPIPM's "speed" for "speed_abs", see `hpipm_direct.conic_config`). The first failure to build the
+        binding warns once and switches every later QP to the conic (the linearisation then returns DMs)."""
+        if self.direct_qp:
+            qp, error = make_qp(self.problem, *self._qp_sparsity, config, self.config.codegen)
+            if error is None:
+                return qp
+            if getattr(self, "qp", None) is not None:  # a QP already built on the binding: keep one kind
+                raise ConfigError(f"HPIPM's direct binding failed after a first QP was built on it: {error}")
+            self.direct_qp, self.direct_error = False, error
+            warnings.warn(f"HPIPM's direct binding is unavailable, using casadi's hpipm conic (slower): {error}",
+                          RuntimeWarning, stacklevel=3)
+        if self.rti.qp_barrier_init is None:
+            config = replace(config, barrier_init=QpConfig.barrier_init)
+        return StructuredQp(self.problem, *self._qp_sparsity, conic_config(config))
 
     def _regular(self, J) -> bool:
         """No NaN/inf in the Jacobian (a DM checks in C++)."""
@@ -207,7 +234,7 @@ class RtiSolver:
     def _solve_qp(self, qp_data) -> tuple[QpResult, float, int]:
         """The QP in the first HPIPM mode, re-solved in the fallback mode if that fails (which then goes first
         for `fallback_first_calls` calls). Returns the result, the time and the iterations of both attempts."""
-        qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
+        qps = [(qp, qp.config.mode if qp is not None else None) for qp in (self.qp, self.fallback_qp)]
         if self._fallback_first > 0:
             self._fallback_first -= 1
             qps.reverse()
