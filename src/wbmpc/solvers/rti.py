@@ -3,7 +3,8 @@
 The paper names SQP as future work for speed. An RTI step linearises the OCP (eq. 1, same
 formulation, constraints and bounds as the Fatrop mode) at the MPC's warm start — the previous
 solution shifted in time with node 0 at the measured state — and takes the full step of one QP
-(`solvers/qp.py`, HPIPM):
+(`solvers/qp.py`, HPIPM; on our own HPIPM binding `solvers/hpipm_direct.py` where it builds, casadi's
+conic otherwise, `RtiConfig.hpipm_binding`):
 
     H = Hessian of the cost (eq. 3) + delta I,  gradient = grad f(x_lin),  J = dg/dx(x_lin).
 
