@@ -191,6 +191,10 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     mpc_config = mpc_config_for(make_scenario("push", robot, config.options), config, robot)
     assert mpc_config.solver.name == "sqp" and mpc_config.delay_compensation
     assert mpc_config.solver.extra_options["clock"] == "cpu" and mpc_config.step_budget_s == pytest.approx(0.01)
+    # a solver with a deadline drops the arm's velocity rows in push recovery mode (post-push QPs stay feasible)
+    assert mpc_config.push_relaxed_rows == ("ee_vel",)
+    converged = mpc_config_for(make_scenario("push", robot, config.options), RunConfig(solver="auto", compiled=True), robot)
+    assert converged.step_budget_s is None and converged.push_relaxed_rows == ()
 
 
 class FailingQp:
