@@ -460,8 +460,12 @@ class MPC:
                 result = self._recover(result, p, bounds, x0, t, fallback_tried=True, soft_bounds=soft_bounds)
         else:
             budget = budget_s if budget_s is not None else cfg.step_budget_s
+            # the cold first step's deadline only checks that the budget fits a QP (its solve converges): it counts
+            # from the solver's call, as that step's own work before it holds one-off costs and, on a wall clock,
+            # any load spike (a real-time run on a loaded machine was refused at start with 0.3 ms left of 10)
+            origin = clock_start if self._previous is not None or clock is None else clock()
             deadline = {} if clock is None or budget is None else \
-                {"deadline": clock_start + budget - self._after_solve_s}
+                {"deadline": origin + budget - self._after_solve_s}
             result = self.solver.solve(p, *bounds, x0, warm_start=self._previous is not None and cfg.warm_start,
                                        **deadline)
             solve_end = clock() if deadline else None
