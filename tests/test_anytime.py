@@ -53,12 +53,17 @@ def _solver(problem, clock=None, **options):
     return AnytimeSqpSolver(problem, SolverConfig(name="sqp", extra_options={"qp_tolerance": 1e-6, **options}), clock=clock)
 
 
-def test_without_deadline_it_converges_to_the_fatrop_solution(fixed_state):
+@pytest.mark.parametrize("binding", ["direct", "casadi"])
+def test_without_deadline_it_converges_to_the_fatrop_solution(fixed_state, binding):
     problem, data, reference = fixed_state
     solver = make_solver(problem, SolverConfig(name="sqp", extra_options={"qp_tolerance": 1e-6,
                                                                         "dual_tolerance": 1e-7,
-                                                                        "primal_tolerance": 1e-9}))
+                                                                        "primal_tolerance": 1e-9,
+                                                                        "hpipm_binding": binding}))
     assert isinstance(solver, AnytimeSqpSolver)
+    if binding == "direct" and not solver.direct_qp:
+        pytest.skip(f"no HPIPM binding here: {solver.direct_error}")
+    assert solver.direct_qp == (binding == "direct")
     result = solver.solve(*data)
     assert result.stats.success and result.stats.status.startswith("Converged"), result.stats.status
     details = result.stats.details
@@ -102,7 +107,7 @@ def test_stops_at_its_deadline_with_the_best_iterate(fixed_state):
 
 def test_a_budget_below_one_iteration_is_refused(fixed_state):
     problem, data, _ = fixed_state
-    solver = _solver(problem, clock=FakeClock(), budget_ms=0.5)
+    solver = _solver(problem, clock=FakeClock(), budget_ms=0.2)  # a go2 QP: ~0.8 ms of CPU
     with pytest.raises(DeadlineError, match="shorter than one QP"):
         solver.solve(*data)  # the cold first step measures the iteration and refuses the budget
 
@@ -136,6 +141,23 @@ def test_mpc_refuses_a_budget_below_one_iteration_on_the_first_step():
     mpc.solver.clock = clock
     with pytest.raises(DeadlineError):
         mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, budget_s=1e-4)
+
+
+def test_a_slow_first_step_before_the_solver_is_not_taken_for_a_short_budget(monkeypatch):
+    """The cold first step's own work before the solver (one-off costs, a load spike on a wall clock: here 9.7 ms
+    of a 10 ms budget) does not count against the budget check, which only asks whether a QP fits the budget."""
+    robot = load_robot("go2")
+    clock = FakeClock(tick=1e-7)
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.01))
+    mpc.solver.clock = clock
+    guess = mpc._initial_guess
+
+    def slow_guess(*args, **kwargs):
+        clock.now += 9.7e-3
+        return guess(*args, **kwargs)
+
+    monkeypatch.setattr(mpc, "_initial_guess", slow_guess)
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0).success
 
 
 def test_realtime_loop_with_the_anytime_solver_and_delay_compensation_stays_up():
@@ -186,3 +208,108 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     mpc_config = mpc_config_for(make_scenario("push", robot, config.options), config, robot)
     assert mpc_config.solver.name == "sqp" and mpc_config.delay_compensation
     assert mpc_config.solver.extra_options["clock"] == "cpu" and mpc_config.step_budget_s == pytest.approx(0.01)
+    # a solver with a deadline drops the arm's velocity rows in push recovery mode (post-push QPs stay feasible)
+    assert mpc_config.push_relaxed_rows == ("ee_vel",)
+    converged = mpc_config_for(make_scenario("push", robot, config.options), RunConfig(solver="auto", compiled=True), robot)
+    assert converged.step_budget_s is None and converged.push_relaxed_rows == ()
+
+
+class FailingQp:
+    """Stands in for the HPIPM QP: a failed solve (iteration cap) that returns `step` (NaN: no usable iterate)
+    and burns `cost_s` on the solver's FakeClock, as a QP that runs into its iteration cap after a push does."""
+
+    def __init__(self, real, clock: FakeClock, step=None, cost_s: float = 5e-3):
+        self.real, self.clock, self.step, self.cost_s, self.calls = real, clock, step, cost_s, 0
+        self.config = real.config
+
+    def solve(self, *data):
+        from wbmpc.solvers.qp import QpResult
+
+        self.calls += 1
+        self.clock.now += self.cost_s
+        exact = self.real.solve(*data)
+        step = exact.step if self.step is None else np.full_like(exact.step, self.step)
+        return QpResult(step=step, lam_g=exact.lam_g, lam_x=exact.lam_x, status="QP_Maximum_Iterations_Exceeded",
+                        success=False, iterations=30, solve_time_s=self.cost_s)
+
+
+def _failing(solver, clock, step):
+    failing = FailingQp(solver.qp, clock, step)
+    solver.qp = failing
+    solver._capped = {}  # every QP is the failing one
+    solver._recover = lambda *args, **kwargs: pytest.fail("a step with a deadline must not run the Fatrop recovery")
+    return failing
+
+
+def test_a_failed_qp_under_a_deadline_returns_in_time_with_a_counted_status(fixed_state):
+    """A QP that fails with no usable iterate: the warm step with a deadline ends right after it (no converged
+    Fatrop re-solve, no second QP mode), failed, with the failure counted; never NaN handed on as a plan."""
+    problem, (p, lbx, ubx, lbg, ubg, x0), _ = fixed_state
+    clock = FakeClock()
+    solver = _solver(problem, clock=clock, fallback_qp_mode="balance")
+    solver.solve(p, lbx, ubx, lbg, ubg, x0)  # cold: converges, measures the iterations
+    failing = _failing(solver, clock, step=np.nan)
+    solver.fallback_qp = FailingQp(solver.fallback_qp, clock, np.nan)
+    start = clock.now
+    deadline = start + 3e-3  # shorter than the failing QP: no time for the fallback mode after it
+    result = solver.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=deadline)
+    assert not result.stats.success and "QP_Maximum_Iterations_Exceeded" in result.stats.status
+    assert "no time for balance" in result.stats.status and solver.fallback_qp.calls == 0
+    assert failing.calls == 1 and result.stats.details["qp_failures"] == 1
+    assert result.stats.details["inexact_steps"] == 0 and result.stats.details["late"]
+    assert clock.now - start < failing.cost_s + 100 * clock.tick  # the QP and a few clock readings, no re-solve
+
+
+def test_a_failed_qps_usable_iterate_is_taken_when_it_lowers_the_merit(fixed_state):
+    """HPIPM stopped at its iteration cap with a good iterate (here the exact step): the line search takes it,
+    the step succeeds as an inexact one and ends (its QP took the whole cap)."""
+    problem, (p, lbx, ubx, lbg, ubg, x0), _ = fixed_state
+    clock = FakeClock()
+    solver = _solver(problem, clock=clock)
+    solver.solve(p, lbx, ubx, lbg, ubg, x0)
+    failing = _failing(solver, clock, step=None)
+    result = solver.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=clock.now + 1.0)
+    assert result.stats.success and "inexact step taken" in result.stats.status, result.stats.status
+    details = result.stats.details
+    assert details["inexact_steps"] == 1 and details["qp_failures"] == 1 and details["sqp_iterations"] == 1
+    assert failing.calls == 1 and np.all(np.isfinite(result.x))
+    # a garbage iterate (a huge step) is rejected by the line search, not applied
+    _failing(solver, clock, step=1e6)
+    rejected = solver.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=clock.now + 1.0)
+    assert not rejected.stats.success and "rejected by the line search" in rejected.stats.status
+
+
+def test_the_qp_iteration_cap_follows_the_time_left(fixed_state):
+    """With a deadline the QP's HPIPM iteration cap is the largest that fits the time left (never below
+    min_qp_iterations); without one, the full cap."""
+    from wbmpc.solvers.anytime import QP_ITERATION_CAPS
+
+    problem = fixed_state[0]
+    solver = _solver(problem, clock=FakeClock(), min_qp_iterations=6)
+    assert solver._capped_qp(1.0) is solver.qp  # nothing measured yet
+    for n, t in ((3, 2.65e-3), (10, 6.5e-3), (5, 3.75e-3)):  # 1 ms + 0.55 ms per iteration
+        solver._record_qp(t, n)
+    assert solver._qp_iteration_s == pytest.approx(0.55e-3, rel=1e-6)
+    per = solver.anytime.safety * solver._qp_iteration_s
+    assert solver._capped_qp(9.5 * per).config.max_iterations == 9
+    assert solver._capped_qp(1.0 * per).config.max_iterations == 6  # the floor
+    assert solver._capped_qp(1.0) is solver.qp
+    assert all(solver._capped[cap].config.max_iterations == cap for cap in QP_ITERATION_CAPS
+               if cap < solver.qp.config.max_iterations)
+
+
+def test_mpc_holds_the_last_good_plan_at_once_when_a_step_with_a_deadline_fails(monkeypatch):
+    """A failed step of the anytime SQP with a step budget: no recovery ladder (converged re-solves of 50-150 ms),
+    the last good plan shifted in time, counted as failed, finite torques."""
+    robot = load_robot("go2")
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.01))
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    assert first.success
+    failing = FailingQp(mpc.solver.qp, FakeClock(), np.nan, cost_s=0.0)
+    mpc.solver.qp, mpc.solver._capped = failing, {}
+    monkeypatch.setattr(mpc, "_recover", lambda *a, **k: pytest.fail("no recovery ladder within a deadline"))
+    second = mpc.solve(first.q[1], first.v[1], t=0.0125)
+    assert not second.success and second.held_previous
+    assert "no recovery re-solve past the step's deadline" in second.stats.status
+    assert second.stats.details["qp_failures"] == 1
+    assert np.all(np.isfinite(second.tau)) and np.all(np.isfinite(second.q))

@@ -42,13 +42,18 @@ def fixed_state():
     return mpc.problem, data, reference
 
 
-def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state):
+@pytest.mark.parametrize("binding", ["direct", "casadi"])
+def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state, binding):
+    """On our HPIPM binding and on casadi's conic alike: Fatrop's KKT point, a feasible plan."""
     problem, data, reference = fixed_state
-    one = RtiSolver(problem, SolverConfig(name="rti")).solve(*data)
+    one = RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": binding})).solve(*data)
     assert one.stats.success, one.stats.status
     assert np.abs(one.x - reference.x).max() > 1e-2  # a single step from the cold guess is not the optimum
     iterated = RtiSolver(problem, SolverConfig(name="rti", extra_options={"sqp_iterations": 12, "step_tolerance": 0.0,
-                                                                         "qp_tolerance": 1e-6}))
+                                                                         "qp_tolerance": 1e-6, "hpipm_binding": binding}))
+    if binding == "direct" and not iterated.direct_qp:
+        pytest.skip(f"no HPIPM binding here: {iterated.direct_error}")
+    assert iterated.direct_qp == (binding == "direct")
     result = iterated.solve(*data)
     assert result.stats.success, result.stats.status
     np.testing.assert_allclose(result.x, reference.x, atol=1e-5)
@@ -65,13 +70,13 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
     solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_barrier_init": None}))
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0)
     assert not result.stats.success
-    assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed: "
+    assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed_abs: "
                                    "QP_Maximum_Iterations_Exceeded)")
     assert result.stats.iterations == 2  # one per mode
     assert np.all(np.isnan(result.x)) and result.stats.max_constraint_violation == np.inf
     # after the first mode failed, the fallback mode goes first for `fallback_first_calls` calls
     again = solver.solve(p, lbx, ubx, lbg, ubg, x0)
-    assert again.stats.status == "QP_Maximum_Iterations_Exceeded (speed after balance: QP_Maximum_Iterations_Exceeded)"
+    assert again.stats.status == "QP_Maximum_Iterations_Exceeded (speed_abs after balance: QP_Maximum_Iterations_Exceeded)"
     bad = solver.solve(p, lbx, ubx, lbg, ubg, np.full_like(x0, np.nan))
     assert not bad.stats.success and bad.stats.status == "invalid_input_nan"
 
@@ -81,7 +86,7 @@ def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
     result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1)).solve(*data)
     assert result.stats.success
     assert result.stats.status.endswith("(fatrop recovery after rti: QP_Maximum_Iterations_Exceeded (balance after "
-                                        "speed: QP_Maximum_Iterations_Exceeded))")
+                                        "speed_abs: QP_Maximum_Iterations_Exceeded))")
     np.testing.assert_allclose(result.x, reference.x, atol=1e-4)  # converged to Fatrop's (default) tolerance
 
 

@@ -453,8 +453,9 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         sqp = (f", {m['sqp_iterations_mean']:.2f} SQP iterations per step, "
                f"{100 * (m['solver_past_deadline_share'] or 0):.0f} % past the deadline"
                if m.get("sqp_iterations_mean") is not None else "")
+        direct = f", NOT on its direct binding ({m['direct_fallback']})" if m.get("direct_fallback") else ""
         lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
-                     f"{', delay compensation on' if m.get('delay_compensation') else ''}")
+                     f"{', delay compensation on' if m.get('delay_compensation') else ''}{direct}")
     if m.get("delay") != "none":
         lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "

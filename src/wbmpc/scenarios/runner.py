@@ -187,7 +187,19 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      else DELAYED_RECOVERY_LIMIT_S,
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
                      # that changes after a push lives in the solver process: keep the fixed schedule there
-                     push_gait_period_scale=_push_cadence(config))
+                     push_gait_period_scale=_push_cadence(config),
+                     push_relaxed_rows=_push_relaxed_rows(config))
+
+
+# rows dropped in push recovery mode by a solver with a deadline (MpcConfig.push_relaxed_rows): the arm's velocity
+# rows of eq. (7) pin the hand in the world while the base flies off and make the post-push QPs infeasible (HPIPM runs
+# into its iteration cap, duals diverging). b1_z1, anytime SQP with a 10 ms CPU budget (--delay measured), 6 s push
+# runs at 0.8 m/s in 8 directions and 1.0 m/s at 90/270 deg: 45 deg 0.8 m/s fell without it (9 of 10 up), 10 of 10 with it
+DEADLINE_PUSH_RELAXED_ROWS = ("ee_vel",)
+
+
+def _push_relaxed_rows(config: RunConfig) -> tuple[str, ...]:
+    return DEADLINE_PUSH_RELAXED_ROWS if _step_budget_s(config) is not None else MpcConfig.push_relaxed_rows
 
 
 def default_solver(compiled: bool, delay: str) -> str:
@@ -345,6 +357,8 @@ def solver_summary(mpc: MPC, config: RunConfig) -> dict:
     error = getattr(solver, "compile_error", None)
     return {"solver": solver.config.name, "solver_compiled": compiled, "compiled_requested": bool(config.compiled),
             "compile_error": error if config.compiled and not compiled else None,
+            # why a direct binding (fatrop-direct's Fatrop, the SQP solvers' HPIPM) was not used; None: it was or has none
+            "direct_fallback": getattr(solver, "direct_error", None),
             "delay_compensation": bool(mpc.config.delay_compensation),
             "step_budget_ms": None if mpc.config.step_budget_s is None else 1e3 * mpc.config.step_budget_s}
 

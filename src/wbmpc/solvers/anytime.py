@@ -22,23 +22,35 @@ CPU time to measure on a shared machine, or any callable in tests), passed per c
 ignores the deadline and converges; a budget shorter than the shortest QP measured there is
 refused (`DeadlineError`): such a solver could never keep its deadline. A warm step always makes
 at least one iteration (a plan must come out of every step), late if it must.
+
+A step with a deadline never waits for a converged re-solve. Its QPs get an HPIPM iteration cap that fits the
+time left (`QP_ITERATION_CAPS`, at least `min_qp_iterations`); a QP HPIPM does not solve (iteration cap, minimum
+step length: after hard pushes) still yields its last iterate, taken when the line search finds it lowers the
+merit (`details["inexact_steps"]`), and the step ends there; otherwise the step fails at once
+(`details["qp_failures"]`) and the MPC holds the last good plan shifted in time (`MpcConfig.recover_past_deadline`).
+Only a call without a deadline (the cold first step, `--delay none`) goes on to the capped Fatrop re-solve of
+`RtiConfig.recovery_barrier_init`. On b1_z1 after 0.8 m/s pushes those re-solves and the MPC's IPOPT fallback took
+50-150 ms per failed step, the real-time rate fell to 53-63 Hz and the robot fell on stale plans.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
-import casadi as ca
 import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats, bound_violation
+from wbmpc.solvers.qp import QpResult
 from wbmpc.solvers.rti import RtiConfig, RtiSolver
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}
+# HPIPM iteration caps of the QPs of steps with a deadline (a QP that cannot be solved otherwise takes the whole
+# cap of SolverConfig.max_iterations; warm b1_z1 QPs take 3-4 iterations, 6-13 after a push, up to ~25)
+QP_ITERATION_CAPS = (4, 6, 9, 12, 16, 20)
 COLD_QP_SHARE = 0.5  # a warm QP's share of the shortest cold one, at least (the budget floor, see `solve`)
 
 
@@ -63,6 +75,17 @@ class AnytimeConfig(RtiConfig):
     # linearise at the iterate returned to report its dual residual too (~0.8 ms on b1_z1); off: the dual
     # residual is that of the last iterate linearised anyway (None after a single iteration)
     kkt_at_exit: bool = False
+    # a QP HPIPM did not solve (iteration cap, minimum step length: after hard pushes) still yields its last
+    # iterate: taken when the line search finds it lowers the merit function, counted in details["inexact_steps"];
+    # with a deadline the step then ends (that QP took its whole iteration cap). False: a failed QP ends the call
+    inexact_qp_steps: bool = True
+    # HPIPM's "speed_abs" (absolute tolerances) against the RTI's "speed": on 60 QPs of b1_z1's 0.8 m/s push at 315 deg
+    # it solved 53 (speed 25, balance 53, robust 53) in 10.9 iterations of 0.55 ms (speed 0.59, balance 0.83 ms) with
+    # the same steps; where it fails balance and robust fail too, so there is no fallback mode
+    qp_mode: str = "speed_abs"
+    # the lowest HPIPM iteration cap a step's deadline may impose (see QP_ITERATION_CAPS)
+    min_qp_iterations: int = 16
+    fallback_qp_mode: str | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -91,6 +114,12 @@ class AnytimeSqpSolver(RtiSolver):
         self._iteration_s: float | None = None  # running estimate of one iteration's time on `clock`
         self.min_iteration_s: float | None = None  # shortest whole SQP iteration seen
         self.min_qp_s: float | None = None  # shortest QP seen, CPU time (the floor of any budget)
+        self._qp_s: float | None = None  # running estimate of a successful QP's time on `clock`
+        self._qp_iteration_s: float | None = None  # ... and of one of its HPIPM iterations
+        self._qp_sums = [0.0] * 5  # decayed sums of 1, n, t, n^2, n t over successful QPs (see _record_qp)
+        # the first mode's QP with lower iteration caps, for steps whose deadline leaves no room for the full cap
+        self._capped = {cap: self._new_qp(replace(self.qp.config, max_iterations=cap))
+                        for cap in QP_ITERATION_CAPS if cap < self.qp.config.max_iterations}
 
     def _merit(self, f: float, g: np.ndarray, x: np.ndarray, lbx, ubx, lbg, ubg, nu: float) -> tuple[float, float]:
         violation = float(np.sum(np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0))
@@ -116,6 +145,7 @@ class AnytimeSqpSolver(RtiSolver):
         f, g = float(f_out[0]), g.copy()
         nu, lam_g, lam_x = 0.0, None, None
         status, success, qp_iterations, iterations, alphas = "not_started", False, 0, 0, []
+        qp_failures = inexact_steps = 0
         primal = dual = float("nan")
         H = None
         linearize_s = qp_s = search_s = 0.0
@@ -131,14 +161,14 @@ class AnytimeSqpSolver(RtiSolver):
                 status, success = stop, iterations > 0
                 break
             g_lin, J = self._jacobian(x, p)
-            if not (np.all(np.isfinite(np.asarray(g_lin))) and J.is_regular()):
+            if not (np.all(np.isfinite(np.asarray(g_lin))) and self._regular(J)):
                 status = "invalid_input_nan_constraints"
                 break
             gradient = self._gradient(x, p)
             grad = np.asarray(gradient).ravel()
             if lam_g is not None:
                 primal = bound_violation(x, g, lbx, ubx, lbg, ubg)
-                residual = grad + np.asarray(ca.mtimes(ca.DM(lam_g).T, J)).ravel() + lam_x
+                residual = grad + self._jacobian_transpose_times(J, lam_g) + lam_x
                 dual = float(np.max(np.abs(residual), initial=0.0) / max(1.0, np.max(np.abs(grad), initial=0.0)))
                 if primal < cfg.primal_tolerance and dual < cfg.dual_tolerance:
                     status, success = "Converged", True
@@ -150,16 +180,21 @@ class AnytimeSqpSolver(RtiSolver):
                 H = self._hessian(x, p)
             linearize_s += clock() - tic
             qp_tic, qp_cpu = clock(), time.thread_time()
-            result, _, n_qp = self._solve_qp((H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x))
+            result, _, n_qp = self._solve_qp((H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x), deadline)
             qp_s += clock() - qp_tic
             if result.success:  # on CPU time: the floor of any budget, whatever else the machine runs
                 one_qp_s = time.thread_time() - qp_cpu
                 self.min_qp_s = one_qp_s if self.min_qp_s is None else min(self.min_qp_s, one_qp_s)
             qp_iterations += n_qp
-            if not result.success:
-                status = f"{result.status} at SQP iteration {iterations + 1}"
-                success = iterations > 0  # an earlier iterate is kept; none yet: the step failed
-                break
+            inexact = not result.success
+            if inexact:
+                qp_failures += 1
+                failure = f"{result.status} at SQP iteration {iterations + 1}"
+                if not (cfg.inexact_qp_steps and np.all(np.isfinite(result.step))
+                        and np.all(np.isfinite(result.lam_g)) and np.all(np.isfinite(result.lam_x))):
+                    status = failure
+                    success = iterations > 0  # an earlier iterate is kept; none yet: the step failed
+                    break
             step_tic = clock()
             d = result.step
             nu = max(nu, cfg.merit_margin * max(np.max(np.abs(result.lam_g), initial=0.0),
@@ -179,20 +214,28 @@ class AnytimeSqpSolver(RtiSolver):
                 if alpha * cfg.backtrack < cfg.min_step:
                     break
                 alpha *= cfg.backtrack
-            if not accepted and iterations == 0:  # the RTI's full step: a plan must come out of every step
+            if not accepted and iterations == 0 and not inexact:  # the RTI's full step: a plan must come out of every step
                 alpha = 1.0
                 trial = x + d
                 f_out, g_trial = self._nlp(trial, p)
                 f_trial, accepted = float(f_out[0]), bool(np.all(np.isfinite(g_trial)))
             search_s += clock() - step_tic
             if not accepted:
-                status, success = "Line_Search_Failed", True  # the iterate before this step is kept
+                if inexact:  # the failed QP's iterate does not lower the merit either
+                    status, success = f"{failure}; its inexact step rejected by the line search", iterations > 0
+                else:
+                    status, success = "Line_Search_Failed", True  # the iterate before this step is kept
                 break
             x, f, g = trial, f_trial, g_trial.copy()
             lam_g, lam_x = result.lam_g, result.lam_x
             alphas.append(alpha)
             iterations += 1
             self._record_iteration(clock() - tic)
+            if inexact:
+                inexact_steps += 1
+                if deadline is not None:  # a QP that failed took its whole iteration cap: no time for another
+                    status, success = f"{failure}; its inexact step taken (merit lowered)", True
+                    break
             if np.max(np.abs(alpha * d), initial=0.0) < cfg.step_tolerance:
                 status, success = "Converged_Step", True
                 break
@@ -221,14 +264,79 @@ class AnytimeSqpSolver(RtiSolver):
                             split_ms={"linearize": 1e3 * linearize_s, "qp": 1e3 * qp_s, "line_search": 1e3 * search_s})
         stats.details = {"sqp_iterations": iterations, "primal_residual": primal, "dual_residual": dual,
                          "step_lengths": alphas, "budget_ms": None if budget_s is None else 1e3 * budget_s,
-                         "late": bool(late), "merit_penalty": nu}
+                         "late": bool(late), "merit_penalty": nu, "qp_failures": qp_failures,
+                         "inexact_steps": inexact_steps}
         result = NlpResult(x=x, lam_g=lam_g if lam_g is not None else np.zeros(n),
                            lam_x=lam_x if lam_x is not None else np.zeros_like(x), stats=stats)
-        if not success and iterations == 0 and self.rti.recovery_barrier_init is not None:
+        # a converged Fatrop re-solve takes up to ~150 ms after a push on b1_z1: never for a step with a deadline
+        # (the MPC holds the last good plan instead and the next step tries again within its own deadline)
+        if not success and iterations == 0 and self.rti.recovery_barrier_init is not None and deadline is None:
             result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
             result.stats.details = {**stats.details, "primal_residual": result.stats.max_constraint_violation,
                                     "dual_residual": None, "late": deadline is not None and clock() > deadline}
         return result
+
+    def _solve_qp(self, qp_data, deadline: float | None = None) -> tuple[QpResult, float, int]:
+        """The QP in the first HPIPM mode, its iteration cap lowered to what fits before `deadline` (on
+        `self.clock`, from the time per HPIPM iteration measured so far; a QP that cannot be solved, after
+        hard pushes, otherwise takes its whole cap, ~17 ms on b1_z1); a fallback mode re-solves a failed
+        QP only if a QP is predicted to end before the deadline. None: as the RTI."""
+        if deadline is None:
+            tic = self.clock()
+            result, spent_s, iterations = super()._solve_qp(qp_data)
+            if result.success:
+                self._record_qp(self.clock() - tic, result.iterations)
+            return result, spent_s, iterations
+        qps = [(qp, qp.config.mode if qp is not None else None)
+               for qp in (self._capped_qp(deadline - self.clock()), self.fallback_qp)]
+        if self._fallback_first > 0 and self.fallback_qp is not None:
+            self._fallback_first -= 1
+            qps.reverse()
+        tic = self.clock()
+        result = qps[0][0].solve(*qp_data)
+        spent_s, iterations = result.solve_time_s, max(result.iterations, 0)
+        if result.success:
+            self._record_qp(self.clock() - tic, result.iterations)
+        elif qps[1][0] is not None:
+            if self.clock() + (self._qp_s or 0.0) <= deadline:
+                first = result.status
+                tic = self.clock()
+                result = qps[1][0].solve(*qp_data)
+                spent_s, iterations = spent_s + result.solve_time_s, iterations + max(result.iterations, 0)
+                result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
+                if result.success:
+                    self._record_qp(self.clock() - tic, result.iterations)
+                if qps[0][0] is not self.fallback_qp:
+                    self._fallback_first = self.rti.fallback_first_calls
+            else:
+                result.status = f"{result.status} ({qps[0][1]}; no time for {qps[1][1]} before the deadline)"
+        return result, spent_s, iterations
+
+    def _capped_qp(self, remaining_s: float):
+        """The first mode's QP with the largest iteration cap (QP_ITERATION_CAPS, or the full one) whose
+        iterations are predicted to fit in `remaining_s`; the smallest cap when none does."""
+        if self._qp_iteration_s is None or not self._capped:
+            return self.qp
+        fits = remaining_s / (self.anytime.safety * self._qp_iteration_s)
+        caps = sorted(cap for cap in self._capped if cap >= self.anytime.min_qp_iterations)
+        if not caps or fits >= self.qp.config.max_iterations:
+            return self.qp
+        return self._capped[max([cap for cap in caps if cap <= fits], default=caps[0])]
+
+    def _record_qp(self, seconds: float, iterations: int) -> None:
+        """Running estimates of a QP's time and, by a least-squares fit of time = overhead + iterations x
+        per-iteration time over the recent QPs (exponential forgetting), of one HPIPM iteration's time."""
+        self._qp_s = seconds if self._qp_s is None else 0.7 * self._qp_s + 0.3 * seconds
+        if iterations <= 0:
+            return
+        sums = self._qp_sums = [0.95 * total for total in self._qp_sums]
+        for i, value in enumerate((1.0, iterations, seconds, iterations * iterations, iterations * seconds)):
+            sums[i] += value
+        weight, n, t, nn, nt = sums
+        spread = nn - n * n / weight
+        slope = (nt - n * t / weight) / spread if spread > 1.0 else 0.0  # some QPs with other iteration counts
+        fallback = t / n  # all QPs alike: their whole time per iteration (overestimates it, on the safe side)
+        self._qp_iteration_s = slope if 0.2 * fallback < slope <= fallback else fallback
 
     def _predicted_iteration_s(self) -> float:
         return self._iteration_s if self._iteration_s is not None else 0.0

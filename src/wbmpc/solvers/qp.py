@@ -87,6 +87,7 @@ class StructuredQp:
                       "warm_start": int(config.warm_start), **config.hpipm_options},
         }
         self.conic = ca.conic("ocp_qp_hpipm", "hpipm", {"h": hessian, "a": jacobian}, options)
+        self.hessian_sparsity, self.jacobian_sparsity = hessian, jacobian
 
     def solve(self, H, gradient, J, lbg, ubg, lbx, ubx) -> QpResult:
         """Bounds are on the step (already shifted by the linearisation point's g and x)."""

@@ -3,7 +3,8 @@
 The paper names SQP as future work for speed. An RTI step linearises the OCP (eq. 1, same
 formulation, constraints and bounds as the Fatrop mode) at the MPC's warm start — the previous
 solution shifted in time with node 0 at the measured state — and takes the full step of one QP
-(`solvers/qp.py`, HPIPM):
+(`solvers/qp.py`, HPIPM; on our own HPIPM binding `solvers/hpipm_direct.py` where it builds, casadi's
+conic otherwise, `RtiConfig.hpipm_binding`):
 
     H = Hessian of the cost (eq. 3) + delta I,  gradient = grad f(x_lin),  J = dg/dx(x_lin).
 
@@ -33,6 +34,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
+from wbmpc.solvers.hpipm_direct import HPIPM_BINDINGS, conic_config, make_qp
 from wbmpc.solvers.nlp import (
     NlpResult,
     NlpSolver,
@@ -43,6 +45,8 @@ from wbmpc.solvers.nlp import (
 )
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
 
+DIRECT_QP_BARRIER_INIT = 1e3  # HPIPM's mu0 on our binding (RtiConfig.qp_barrier_init)
+
 
 @dataclass(frozen=True)
 class RtiConfig:
@@ -50,17 +54,28 @@ class RtiConfig:
 
     sqp_iterations: int = 1  # 1 = real-time iteration; more iterate at the same data (tests, benchmarks)
     hessian_regularization: float = 1e-6  # delta of H + delta I: keeps HPIPM's Riccati recursion positive definite
-    qp_mode: str = "speed"  # HPIPM mode: speed_abs, speed, balance, robust
+    # HPIPM mode: speed_abs, speed, balance, robust. speed_abs (absolute tolerances): b1_z1's compiled closed-loop trot
+    # 4.20 ms of CPU per RTI step against 4.65 with speed (3.74 QP iterations against 3.93, same run); after pushes it
+    # solves QPs on which speed stops at its minimum step length (see solvers/anytime.py)
+    qp_mode: str = "speed_abs"
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
     # after a QP the first mode failed, the fallback mode goes first for this many calls: after a push
     # `speed` fails (minimum step length) on most QPs for a while, each failure a wasted ~20 iterations
     fallback_first_calls: int = 20
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
+    # "direct": our HPIPM binding (solvers/hpipm_direct.py, compiled once into the cache), casadi's hpipm conic where it
+    # cannot be built (a warning, the reason in `direct_error`); "casadi": the conic (qp_options are its options)
+    hpipm_binding: str = "direct"
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
     # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's): one inexact SQP step
     # per MPC step needs no tighter QP; 1e-4 against 1e-6: same closed loop (trot, arm-track), ~10 % fewer
     # QP iterations; iterate to Fatrop's KKT point (sqp_iterations > 1) with a tighter one
     qp_tolerance: float = 1e-4
+    # HPIPM's mu0 (QpConfig.barrier_init is casadi conic's best, 100): on our own HPIPM binding, b1_z1's compiled closed-loop
+    # trot takes 3.17 QP iterations per RTI step with 1e3 against 4.36 with 100 (2.73 / 3.29 ms of CPU per step, same run)
+    # None: 1e3 on our binding (DIRECT_QP_BARRIER_INIT), casadi conic's 100 on the conic (1e3 there: the anytime SQP's
+    # QPs stall at HPIPM's minimum step length on go2)
+    qp_barrier_init: float | None = None
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
     recovery_barrier_init: float | None = 0.1
@@ -74,6 +89,8 @@ class RtiConfig:
         for mode in (self.qp_mode, self.fallback_qp_mode):
             if mode is not None and mode not in HPIPM_MODES:
                 raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
+        if self.hpipm_binding not in HPIPM_BINDINGS:
+            raise ConfigError(f"unknown hpipm_binding '{self.hpipm_binding}'; available: {', '.join(HPIPM_BINDINGS)}")
         if self.fallback_first_calls < 0:
             raise ConfigError(f"fallback_first_calls must be >= 0, got {self.fallback_first_calls}")
         if self.recovery_max_iterations < 1:
@@ -117,19 +134,63 @@ class RtiSolver:
                 "nlp_jac_g": ca.Function("nlp_jac_g", [x, p], [nlp["g"], ca.jacobian(nlp["g"], x)]),
                 "nlp_grad_f": ca.Function("nlp_grad_f", [x, p], [ca.gradient(nlp["f"], x)]),
             }
-        # the Jacobian and gradient go to the QP as DMs (their sparsity); f and g come back as NumPy buffers
         self._nlp = BufferedFunction(functions["nlp"])
-        self._jacobian, self._gradient = functions["nlp_jac_g"], functions["nlp_grad_f"]
         hessian = ca.hessian(nlp["f"], x)[0] + self.rti.hessian_regularization * ca.SX.eye(problem.n_variables)
-        self._hessian = ca.Function("rti_hessian", [x, p], [hessian])
+        hessian_function = ca.Function("rti_hessian", [x, p], [hessian])
         # the Gauss-Newton Hessian of the [q, v] formulations depends on the weights (p) alone: once per call
         self.hessian_depends_on_x = bool(ca.depends_on(hessian, x))
-        sparsity = (self._hessian.sparsity_out(0), self._jacobian.sparsity_out(1))
+        sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
+        self.jacobian_sparsity = sparsity[1]
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
-                             hpipm_options=dict(self.rti.qp_options))
-        self.qp = StructuredQp(problem, *sparsity, qp_config)
-        self.fallback_qp = (StructuredQp(problem, *sparsity, replace(qp_config, mode=self.rti.fallback_qp_mode))
-                            if self.rti.fallback_qp_mode not in (None, self.rti.qp_mode) else None)
+                             barrier_init=self.rti.qp_barrier_init or DIRECT_QP_BARRIER_INIT, hpipm_options=dict(self.rti.qp_options))
+        # HPIPM through our shim (solvers/hpipm_direct.py) where it builds: H, J and the gradient as NumPy nonzeros
+        # from buffered calls (b1_z1: Jacobian 0.20 ms against 0.48 ms for a DM, whose nonzeros cost 0.6 ms more);
+        # otherwise casadi's conic on DMs
+        self._qp_sparsity = sparsity
+        self.direct_qp = self.rti.hpipm_binding == "direct" and not self.rti.qp_options
+        self.direct_error: str | None = None if self.direct_qp else (
+            "qp_options are casadi conic options" if self.rti.qp_options else "hpipm_binding 'casadi' asked for")
+        self.qp = self._new_qp(qp_config)
+        fallback_mode = self.rti.fallback_qp_mode
+        self.fallback_qp = (self._new_qp(replace(qp_config, mode=fallback_mode))
+                            if fallback_mode not in (None, self.rti.qp_mode) else None)
+        if self.direct_qp:
+            self._jacobian = BufferedFunction(functions["nlp_jac_g"])
+            self._gradient = _first_output(BufferedFunction(functions["nlp_grad_f"]))
+            self._hessian = _first_output(BufferedFunction(hessian_function))
+            sp = self.jacobian_sparsity  # row and column of each Jacobian nonzero: J' lam for the dual residual
+            self._jacobian_rows_cols = (np.asarray(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind())))
+        else:
+            self._jacobian, self._gradient, self._hessian = functions["nlp_jac_g"], functions["nlp_grad_f"], hessian_function
+
+    def _new_qp(self, config: QpConfig):
+        """A QP of this problem's structure: on the direct binding while it builds, else casadi's conic (which
+        runs HPIPM's "speed" for "speed_abs", see `hpipm_direct.conic_config`). The first failure to build the
+        binding warns once and switches every later QP to the conic (the linearisation then returns DMs)."""
+        if self.direct_qp:
+            qp, error = make_qp(self.problem, *self._qp_sparsity, config, self.config.codegen)
+            if error is None:
+                return qp
+            if getattr(self, "qp", None) is not None:  # a QP already built on the binding: keep one kind
+                raise ConfigError(f"HPIPM's direct binding failed after a first QP was built on it: {error}")
+            self.direct_qp, self.direct_error = False, error
+            warnings.warn(f"HPIPM's direct binding is unavailable, using casadi's hpipm conic (slower): {error}",
+                          RuntimeWarning, stacklevel=3)
+        if self.rti.qp_barrier_init is None:
+            config = replace(config, barrier_init=QpConfig.barrier_init)
+        return StructuredQp(self.problem, *self._qp_sparsity, conic_config(config))
+
+    def _regular(self, J) -> bool:
+        """No NaN/inf in the Jacobian (a DM checks in C++)."""
+        return bool(np.all(np.isfinite(J))) if isinstance(J, np.ndarray) else J.is_regular()
+
+    def _jacobian_transpose_times(self, J, lam: np.ndarray) -> np.ndarray:
+        """J' lam for a DM or the Jacobian's nonzero buffer."""
+        if not isinstance(J, np.ndarray):
+            return np.asarray(ca.mtimes(ca.DM(lam).T, J)).ravel()
+        # a sum over J's nonzeros by column: 0.04 ms on b1_z1 (a scipy CSC view built per call: 0.6 ms)
+        rows, cols = self._jacobian_rows_cols
+        return np.bincount(cols, weights=J * lam[rows], minlength=self.jacobian_sparsity.size2())
 
     @property
     def is_compiled(self) -> bool:
@@ -172,7 +233,7 @@ class RtiSolver:
     def _solve_qp(self, qp_data) -> tuple[QpResult, float, int]:
         """The QP in the first HPIPM mode, re-solved in the fallback mode if that fails (which then goes first
         for `fallback_first_calls` calls). Returns the result, the time and the iterations of both attempts."""
-        qps = [(self.qp, self.rti.qp_mode), (self.fallback_qp, self.rti.fallback_qp_mode)]
+        qps = [(qp, qp.config.mode if qp is not None else None) for qp in (self.qp, self.fallback_qp)]
         if self._fallback_first > 0:
             self._fallback_first -= 1
             qps.reverse()
@@ -210,7 +271,7 @@ class RtiSolver:
             tic = time.perf_counter()
             g, J = self._jacobian(x, p)
             g = np.asarray(g).ravel()
-            if not (np.all(np.isfinite(g)) and J.is_regular()):  # is_regular: no NaN/inf, checked in C++
+            if not (np.all(np.isfinite(g)) and self._regular(J)):
                 return self._failure(x0, "invalid_input_nan_constraints")
             gradient = self._gradient(x, p)
             H = self._hessian(x, p)
@@ -256,3 +317,8 @@ class RtiSolver:
         if not success and self.rti.recovery_barrier_init is not None:
             result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
         return result
+
+
+def _first_output(function: BufferedFunction):
+    """A buffered function returning its first output alone (as a plain call of a one-output Function does)."""
+    return lambda *args: function(*args)[0]

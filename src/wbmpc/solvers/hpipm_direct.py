@@ -1,0 +1,265 @@
+"""The structured QP of one SQP iteration (`solvers/qp.py`) on HPIPM's OCP QP interface directly.
+
+casadi's `conic('hpipm')` boxes every variable and keeps every constraint row, infinite bounds replaced by
++-1e8 (dummy inequalities the interior point iterates on), passes equality rows as two inequalities and
+allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks from the nonzeros of H and
+J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
+equalities, and keeps HPIPM's memory between calls (`hpipm_shim.py`, C compiled once against the HPIPM
+and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
+as `StructuredQp` (tests/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
+neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
+In HPIPM's absolute mode (speed_abs) the equality multipliers are computed on exit (comp_dual_sol_eq): the SQP's
+merit penalty and dual residual need them, and casadi's conic cannot ask for them.
+
+Measured on b1_z1 (60 QPs after a 0.8 m/s push, speed_abs): the same iterations as casadi's conic (11.8 / 10.9
+with mu0 100) at ~0.45 ms each (HPIPM's Riccati recursion: the floor of this QP's size), ~0.3 ms less overhead per
+QP; with mu0 1e3 (RtiConfig.qp_barrier_init) 11.1. The larger gain is upstream: H, J and the gradient reach it as
+NumPy nonzeros of buffered calls, no DMs (RtiSolver).
+
+Stage k of HPIPM holds (u_k, x_k); our variables are (x_0, u_0, x_1, ...) and our rows per stage the gap
+rows I x_{k+1} + A_k x_k + B_k u_k = rhs (HPIPM: x_{k+1} = -(A_k x_k + B_k u_k - rhs) / I) then the path
+rows; HPIPM's dynamics multipliers pi_k are those of its form, casadi's of the gap rows are -pi_k / I.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.errors import WbmpcError
+from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.codegen import CodegenConfig, CompileError, _compile, cache_key, default_cache_dir
+from wbmpc.solvers.hpipm_shim import SOURCE
+from wbmpc.solvers.qp import HPIPM_MODES, HPIPM_STATUS, QpConfig, QpResult, StructuredQp, stage_dimensions
+
+HPIPM_BINDINGS = ("direct", "casadi")  # RtiConfig.hpipm_binding
+
+
+class HpipmUnavailable(WbmpcError, RuntimeError):
+    """HPIPM's C interface cannot be built here (no headers or library in the casadi wheel, no compiler)."""
+
+
+def _library(config: CodegenConfig = CodegenConfig()) -> Path:
+    """The compiled shim (built on first use, cached under the hash of its source, flags and HPIPM's headers)."""
+    directory = Path(ca.__file__).parent
+    include = directory / "include"
+    if not (include / "hpipm_d_ocp_qp_ipm.h").exists() or not list(directory.glob("libhpipm.so*")):
+        raise HpipmUnavailable(f"HPIPM's headers or libhpipm are missing in {directory}: use casadi's hpipm conic")
+    source = SOURCE
+    flags = (*config.flags, "-O2", f"-I{include}", f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo",
+             f"-Wl,-rpath,{directory}")
+    link = replace(config, flags=flags)
+    cache = config.cache_dir or default_cache_dir()
+    library = Path(cache) / f"hpipm_shim_{cache_key(source + str(include), link)}.so"
+    if not library.exists():
+        library.parent.mkdir(parents=True, exist_ok=True)
+        staged = library.with_suffix(".c")
+        staged.write_text(source)
+        try:
+            _compile(staged, library, link)
+        except CompileError as exc:
+            raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
+        finally:
+            staged.unlink(missing_ok=True)
+    return library
+
+
+_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+
+
+class DirectQp:
+    """HPIPM on the stage blocks of (H, J) of an OCP, index maps built once; `solve` as `StructuredQp.solve`."""
+
+    def __init__(self, problem: OcpProblem, hessian: ca.Sparsity, jacobian: ca.Sparsity, config: QpConfig = QpConfig(),
+                 declare_equalities: bool = False, codegen: CodegenConfig = CodegenConfig()):
+        self.config = config
+        self.hessian_sparsity, self.jacobian_sparsity = hessian, jacobian
+        self._lib = ctypes.CDLL(str(_library(codegen)))
+        self._lib.wbqp_new.restype = ctypes.c_void_p
+        self._lib.wbqp_new.argtypes = [ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 3, ctypes.c_int, ctypes.c_int,
+                                       ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int]
+        self._lib.wbqp_solve.restype = ctypes.c_int
+        self._lib.wbqp_solve.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 22
+        self._lib.wbqp_iterations.restype = ctypes.c_int
+        self._lib.wbqp_iterations.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_free.argtypes = [ctypes.c_void_p]
+        dims = stage_dimensions(problem)
+        N, nx, nu, ng = dims["N"], dims["nx"], dims["nu"], dims["ng"]
+        self.N = N
+        self._maps(problem, nx, nu, ng, hessian, jacobian)
+        ints = [(ctypes.c_int * (N + 1))(*values) for values in (nx, nu, ng)]
+        self._handle = self._lib.wbqp_new(N, *ints, HPIPM_MODES.index(config.mode), config.max_iterations,
+                                          config.barrier_init, config.tolerance, int(config.warm_start),
+                                          config.infinity, int(declare_equalities))
+        self._pointers = [a.ctypes.data_as(_DOUBLE_P) for a in self._buffers]
+
+    def __del__(self):
+        handle = getattr(self, "_handle", None)
+        if handle:
+            self._lib.wbqp_free(handle)
+            self._handle = None
+
+    def _maps(self, problem, nx, nu, ng, hessian: ca.Sparsity, jacobian: ca.Sparsity) -> None:
+        """Where each nonzero of J and H, each variable and each row goes in HPIPM's stage-major blocks."""
+        N = self.N
+        n_var, n_row = problem.n_variables, problem.n_constraints
+        col_stage, col_part, col_local = (np.full(n_var, -1) for _ in range(3))
+        x_index, u_index, c = [], [], 0
+        for k in range(N + 1):
+            col_stage[c : c + nx[k] + nu[k]] = k
+            col_part[c : c + nx[k]], col_part[c + nx[k] : c + nx[k] + nu[k]] = 0, 1
+            col_local[c : c + nx[k]] = np.arange(nx[k])
+            col_local[c + nx[k] : c + nx[k] + nu[k]] = np.arange(nu[k])
+            x_index.append(np.arange(c, c + nx[k]))
+            u_index.append(np.arange(c + nx[k], c + nx[k] + nu[k]))
+            c += nx[k] + nu[k]
+        if c != n_var:
+            raise WbmpcError(f"HPIPM stage sizes cover {c} of {n_var} variables")
+        row_stage, row_kind, row_local = (np.full(n_row, -1) for _ in range(3))
+        gap_index, path_index, r = [], [], 0
+        for k in range(N + 1):
+            if k < N:
+                row_stage[r : r + nx[k + 1]], row_kind[r : r + nx[k + 1]] = k, 0
+                row_local[r : r + nx[k + 1]] = np.arange(nx[k + 1])
+                gap_index.append(np.arange(r, r + nx[k + 1]))
+                r += nx[k + 1]
+            row_stage[r : r + ng[k]], row_kind[r : r + ng[k]], row_local[r : r + ng[k]] = k, 1, np.arange(ng[k])
+            path_index.append(np.arange(r, r + ng[k]))
+            r += ng[k]
+        self.x_index, self.u_index = np.concatenate(x_index), np.concatenate(u_index)
+        self.gap_index, self.path_index = np.concatenate(gap_index), np.concatenate(path_index)
+
+        def offsets(sizes):
+            return np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+
+        size = {"A": [nx[k + 1] * nx[k] for k in range(N)], "B": [nx[k + 1] * nu[k] for k in range(N)],
+                "Q": [nx[k] ** 2 for k in range(N + 1)], "S": [nu[k] * nx[k] for k in range(N + 1)],
+                "R": [nu[k] ** 2 for k in range(N + 1)], "C": [ng[k] * nx[k] for k in range(N + 1)],
+                "D": [ng[k] * nu[k] for k in range(N + 1)]}
+        off = {name: offsets(sizes) for name, sizes in size.items()}
+        nx_arr, nu_arr, ng_arr = np.asarray(nx), np.asarray(nu), np.asarray(ng)
+        # J: nonzeros in CasADi's column-major order
+        rows = np.asarray(jacobian.row())
+        cols = np.repeat(np.arange(jacobian.size2()), np.diff(np.asarray(jacobian.colind())))
+        ks, kind, lr = row_stage[rows], row_kind[rows], row_local[rows]
+        cs, part, lc = col_stage[cols], col_part[cols], col_local[cols]
+        self._j_maps = {}
+        for name, mask, rows_of, dest in (
+                ("A", (kind == 0) & (cs == ks) & (part == 0), None, lambda: off["A"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
+                ("B", (kind == 0) & (cs == ks) & (part == 1), None, lambda: off["B"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
+                ("C", (kind == 1) & (cs == ks) & (part == 0), None, lambda: off["C"][ks] + lc * ng_arr[ks] + lr),
+                ("D", (kind == 1) & (cs == ks) & (part == 1), None, lambda: off["D"][ks] + lc * ng_arr[ks] + lr)):
+            where = np.nonzero(mask)[0]
+            self._j_maps[name] = (where, dest()[where])
+        eye = (kind == 0) & (cs == ks + 1) & (part == 0)
+        if np.any(eye & (lc != lr)):
+            raise WbmpcError("the gap rows' x_{k+1} block is not diagonal: HPIPM needs x_{k+1} = A x_k + B u_k + b")
+        covered = sum(len(w) for w, _ in self._j_maps.values()) + int(eye.sum())
+        if covered != len(rows):
+            raise WbmpcError(f"{len(rows) - covered} Jacobian nonzeros fall outside HPIPM's stage blocks")
+        self._eye = (np.nonzero(eye)[0], ks[eye] * 0 + self._gap_position(rows[eye]))
+        # the scale of each A / B entry: -1 / I of its row
+        self._a_rows = self._gap_position_of(off, "A", nx, N)
+        self._b_rows = self._gap_position_of(off, "B", nx, N, nu)
+        # H: both triangles written (a symmetric H stored whole writes each entry twice, the same value)
+        hrows = np.asarray(hessian.row())
+        hcols = np.repeat(np.arange(hessian.size2()), np.diff(np.asarray(hessian.colind())))
+        self._h_maps = []
+        for r_, c_ in ((hrows, hcols), (hcols, hrows)):
+            ks_r, ks_c = col_stage[r_], col_stage[c_]
+            if np.any(ks_r != ks_c):
+                raise WbmpcError("the QP Hessian couples stages: HPIPM needs a block-diagonal H")
+            pr, pc, lr_, lc_ = col_part[r_], col_part[c_], col_local[r_], col_local[c_]
+            for name, mask, dest in (("Q", (pr == 0) & (pc == 0), off["Q"][ks_r] + lc_ * nx_arr[ks_r] + lr_),
+                                     ("S", (pr == 1) & (pc == 0), off["S"][ks_r] + lc_ * nu_arr[ks_r] + lr_),
+                                     ("R", (pr == 1) & (pc == 1), off["R"][ks_r] + lc_ * nu_arr[ks_r] + lr_)):
+                where = np.nonzero(mask)[0]
+                self._h_maps.append((name, where, dest[where]))
+        n_gap = len(self.gap_index)
+        self._blocks = {name: np.zeros(int(off[name][-1])) for name in off}
+        self._b = np.zeros(n_gap)
+        self._eye_values = np.ones(n_gap)
+        self._q, self._r = np.zeros(len(self.x_index)), np.zeros(len(self.u_index))
+        self._bounds = [np.zeros(len(self.u_index)), np.zeros(len(self.u_index)), np.zeros(len(self.x_index)),
+                        np.zeros(len(self.x_index)), np.zeros(len(self.path_index)), np.zeros(len(self.path_index))]
+        self._u, self._x, self._pi = np.zeros(len(self.u_index)), np.zeros(len(self.x_index)), np.zeros(n_gap)
+        self._lam_u, self._lam_x, self._lam_g = (np.zeros(len(self.u_index)), np.zeros(len(self.x_index)),
+                                                 np.zeros(len(self.path_index)))
+        self._buffers = [self._blocks["A"], self._blocks["B"], self._b, self._blocks["Q"], self._blocks["S"],
+                         self._blocks["R"], self._q, self._r, self._blocks["C"], self._blocks["D"], *self._bounds,
+                         self._u, self._x, self._pi, self._lam_u, self._lam_x, self._lam_g]
+        self._n_var, self._n_row = n_var, n_row
+
+    def _gap_position(self, rows: np.ndarray) -> np.ndarray:
+        """Position of gap rows (NLP row numbers) among all gap rows."""
+        return np.searchsorted(self.gap_index, rows)
+
+    def _gap_position_of(self, off, name, nx, N, nu=None) -> np.ndarray:
+        """For each entry of the flat A (or B) blocks, the position of its row among the gap rows."""
+        positions, start = [], 0
+        for k in range(N):
+            cols = nx[k] if nu is None else nu[k]
+            positions.append(np.tile(np.arange(nx[k + 1]), cols) + start)
+            start += nx[k + 1]
+        return np.concatenate(positions) if positions else np.zeros(0, dtype=int)
+
+    def solve(self, H, gradient, J, lbg, ubg, lbx, ubx) -> QpResult:
+        """Bounds are on the step (already shifted by the linearisation point's g and x). H, J: DMs of the
+        sparsities given at construction, or their nonzeros."""
+        start = time.perf_counter()
+        h = np.asarray(H.nonzeros() if isinstance(H, ca.DM) else H, dtype=float)
+        j = np.asarray(J.nonzeros() if isinstance(J, ca.DM) else J, dtype=float)
+        g = np.asarray(gradient, dtype=float).ravel() if not isinstance(gradient, ca.DM) else \
+            np.asarray(gradient.full()).ravel()
+        lbg, ubg, lbx, ubx = (np.asarray(v, dtype=float).ravel() for v in (lbg, ubg, lbx, ubx))
+        blocks = self._blocks
+        for name, (where, dest) in self._j_maps.items():
+            blocks[name][dest] = j[where]
+        eye_where, eye_position = self._eye
+        self._eye_values[eye_position] = j[eye_where]
+        scale = -1.0 / self._eye_values
+        blocks["A"] *= scale[self._a_rows]
+        blocks["B"] *= scale[self._b_rows]
+        if np.any(lbg[self.gap_index] != ubg[self.gap_index]):
+            raise WbmpcError("HPIPM's dynamics rows must be equalities (lbg == ubg on the gap rows)")
+        self._b[:] = -lbg[self.gap_index] * scale
+        for name, where, dest in self._h_maps:
+            blocks[name][dest] = h[where]
+        self._q[:], self._r[:] = g[self.x_index], g[self.u_index]
+        lbu, ubu, lbx_, ubx_, lg, ug = self._bounds
+        lbu[:], ubu[:] = lbx[self.u_index], ubx[self.u_index]
+        lbx_[:], ubx_[:] = lbx[self.x_index], ubx[self.x_index]
+        lg[:], ug[:] = lbg[self.path_index], ubg[self.path_index]
+        flag = self._lib.wbqp_solve(self._handle, *self._pointers)
+        step = np.empty(self._n_var)
+        step[self.u_index], step[self.x_index] = self._u, self._x
+        lam_x = np.empty(self._n_var)
+        lam_x[self.u_index], lam_x[self.x_index] = self._lam_u, self._lam_x
+        lam_g = np.empty(self._n_row)
+        lam_g[self.path_index] = self._lam_g
+        lam_g[self.gap_index] = self._pi * scale
+        success = flag == 0 and bool(np.all(np.isfinite(step)))
+        return QpResult(step=step, lam_g=lam_g, lam_x=lam_x, status=HPIPM_STATUS.get(flag, f"hpipm_flag_{flag}"),
+                        success=success, iterations=int(self._lib.wbqp_iterations(self._handle)),
+                        solve_time_s=time.perf_counter() - start)
+
+
+def conic_config(config: QpConfig) -> QpConfig:
+    """The settings for casadi's hpipm conic: it returns no equality multipliers in HPIPM's absolute mode
+    (speed_abs), which the SQP's merit function and dual residual need, so it runs "speed" there."""
+    return replace(config, mode="speed") if config.mode == "speed_abs" else config
+
+
+def make_qp(problem: OcpProblem, hessian: ca.Sparsity, jacobian: ca.Sparsity, config: QpConfig,
+            codegen: CodegenConfig = CodegenConfig()):
+    """(QP on HPIPM directly, None), or (casadi's conic, why not) where the binding cannot be built here (no HPIPM
+    headers or library in the casadi wheel, no compiler, a problem whose blocks are not HPIPM's stage form)."""
+    try:
+        return DirectQp(problem, hessian, jacobian, config, codegen=codegen), None
+    except (WbmpcError, OSError) as exc:
+        return StructuredQp(problem, hessian, jacobian, conic_config(config)), f"{type(exc).__name__}: {exc}"
