@@ -24,6 +24,7 @@ rows; HPIPM's dynamics multipliers pi_k are those of its form, casadi's of the g
 from __future__ import annotations
 
 import ctypes
+import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -58,7 +59,7 @@ def _library(config: CodegenConfig = CodegenConfig()) -> Path:
     library = Path(cache) / f"hpipm_shim_{cache_key(source + str(include), link)}.so"
     if not library.exists():
         library.parent.mkdir(parents=True, exist_ok=True)
-        staged = library.with_suffix(".c")
+        staged = library.with_suffix(f".{os.getpid()}.c")  # per process: parallel builds never share a file
         staged.write_text(source)
         try:
             _compile(staged, library, link)
