@@ -41,3 +41,28 @@ def test_inertial_parameters_match_pinocchio_on_an_edited_model(b1z1):
         np.testing.assert_allclose((tau1 - tau0).ravel(), reference, atol=1e-9 * max(1.0, np.abs(reference).max()))
         mass_ref = pin.crba(model, data_edited, q) - pin.crba(b1z1.model, data_nominal, q)
         np.testing.assert_allclose(np.triu(mass1 - mass0), np.triu(mass_ref), atol=1e-9)
+
+
+def test_ocp_with_zero_inertial_parameters_is_todays(b1z1):
+    """The NLP with the parameters at zero evaluates to today's cost and rows; a payload changes the dynamics rows."""
+    from wbmpc.ocp.problem import OcpConfig, OcpProblem
+
+    today = OcpProblem(b1z1, OcpConfig())
+    edited = OcpProblem(b1z1, OcpConfig(inertial_parameters=True))
+    assert edited.params.size == today.params.size + 4
+    assert edited.n_constraints == today.n_constraints and edited.n_variables == today.n_variables
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=today.n_variables) * 0.1
+    p = rng.normal(size=today.params.size) * 0.1
+    p[today.params._slices["q_ref"]] = b1z1.q_nominal
+    p[today.params._slices["rot_ref"]] = np.eye(3).ravel()
+    p[today.params._slices["dt"]] = 0.02
+    functions = [ca.Function(name, [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
+                 for name, nlp in (("today", today.nlp), ("edited", edited.nlp))]
+    f0, g0 = (np.array(v).ravel() for v in functions[0](x, p))
+    f1, g1 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, np.zeros(4)]))
+    np.testing.assert_allclose(f1, f0, rtol=1e-12)
+    np.testing.assert_allclose(g1, g0, atol=1e-9)
+    _, g2 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, -0.05, 0, 0, 5.0]))
+    dynamics = edited.rows["dynamics"].ravel()
+    assert np.abs(g2[dynamics] - g0[dynamics]).max() > 1e-3

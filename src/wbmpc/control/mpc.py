@@ -227,6 +227,9 @@ class MPC:
         q1 = ca.SX.sym("q1", robot.nq)
         self._difference = BufferedFunction(ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1))
         self._weights = config.weights.vectors(robot, self.problem.nf)
+        # the model's mass distribution (OcpConfig.inertial_parameters): NLP parameters, set between steps
+        self._inertial = ({"base_com_offset": np.zeros(3), "payload_kg": np.zeros(1)}
+                          if self.problem.config.inertial_parameters else {})
         self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
@@ -243,6 +246,17 @@ class MPC:
         self._yaw_reference: float | None = None
         self._last_t: float | None = None
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
+
+    def set_inertial_parameters(self, base_com_offset_m, payload_kg: float) -> None:
+        """The base CoM offset (base frame, m) and hand payload (kg) the next plans use (no rebuild); needs an
+        OCP built with `OcpConfig.inertial_parameters`."""
+        if not self._inertial:
+            raise ConfigError("this MPC's OCP has no inertial parameters: build it with "
+                              "OcpConfig(inertial_parameters=True) (wbmpc run --identify-mass)")
+        offset = np.asarray(base_com_offset_m, dtype=float).reshape(3)
+        if not (np.all(np.isfinite(offset)) and np.isfinite(payload_kg)):
+            raise ConfigError(f"inertial parameters must be finite, got offset {offset} m and payload {payload_kg} kg")
+        self._inertial = {"base_com_offset": offset, "payload_kg": np.array([float(payload_kg)])}
 
     def reset(self) -> None:
         """Forget the warm start and the position references (e.g. after a reset of the plant)."""
@@ -379,7 +393,8 @@ class MPC:
         N, n_feet = self.problem.N, len(self.robot.feet)
         forces = np.zeros((N, self.problem.nf))
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
-        support = self.robot.mass_kg * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
+        mass = self.robot.mass_kg + (float(self._inertial["payload_kg"][0]) if self._inertial else 0.0)
+        support = mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
         stance = contact[:N]
         n_stance = np.maximum(stance.sum(axis=1, keepdims=True), 1)
         forces[:, 2 : 3 * n_feet : 3] = stance * support / n_stance
@@ -430,6 +445,7 @@ class MPC:
             "F_des": forces.T,
             "mu": [self.config.friction_coefficient],
             **self._weights,
+            **self._inertial,
         }
         p = problem.params.pack(values)
         stage_bounds = StageBounds(
