@@ -66,3 +66,31 @@ def test_ocp_with_zero_inertial_parameters_is_todays(b1z1):
     _, g2 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, -0.05, 0, 0, 5.0]))
     dynamics = edited.rows["dynamics"].ravel()
     assert np.abs(g2[dynamics] - g0[dynamics]).max() > 1e-3
+
+
+def test_estimator_recovers_offset_and_payload_from_pinocchio_data(b1z1):
+    """Samples of the edited model's dynamics (pinocchio forward dynamics with random torques and contact
+    forces on the feet): the estimator recovers the offset and the payload."""
+    from wbmpc.estimation.inertial import InertialEstimator, InertialEstimatorConfig
+
+    offset, payload = np.array([-0.05, 0.01, 0.0]), 5.0
+    model = InertialParameters.apply_to(b1z1, offset, payload)
+    data = model.createData()
+    estimator = InertialEstimator(b1z1, InertialEstimatorConfig(forgetting_time_s=100.0))
+    rng = np.random.default_rng(4)
+    feet = [b1z1.frame_id(b1z1.contact_frame(f)) for f in b1z1.feet]
+    dt = 1e-3
+    for _ in range(200):
+        q = pin.integrate(model, b1z1.q_nominal, rng.normal(size=b1z1.nv) * 0.1)
+        v = rng.normal(size=b1z1.nv) * 0.3
+        tau = rng.normal(size=b1z1.n_joints) * 10
+        f = np.r_[[rng.normal(size=3) * 20 + [0, 0, 180] for _ in feet]].ravel()
+        pin.framesForwardKinematics(model, data, q)
+        fext = [pin.Force.Zero() for _ in range(model.njoints)]
+        for k, fid in enumerate(feet):
+            joint = model.frames[fid].parentJoint
+            fext[joint] += data.oMi[joint].actInv(pin.Force(f[3 * k : 3 * k + 3], np.cross(data.oMf[fid].translation, f[3 * k : 3 * k + 3])))
+        a = pin.aba(model, data, q, v, np.r_[np.zeros(6), tau], fext)
+        estimator.observe(q, v, v + a * dt, tau, dt)
+    np.testing.assert_allclose(estimator.base_com_offset_m, offset, atol=2e-3)
+    assert abs(estimator.payload_kg - payload) < 0.05
