@@ -268,6 +268,8 @@ class MPC:
         self._push_until_t = None
         self._fast_cadence_until_t = None
         self.gait.reset()
+        if self._inertial:  # the nominal mass distribution until an estimator sets it again
+            self._inertial = {"base_com_offset": np.zeros(3), "payload_kg": np.zeros(1)}
 
     def continue_from(self, solution: Solution) -> None:
         """Take `solution` as the last good plan, as after a successful step: the next step warm-starts

@@ -189,3 +189,14 @@ class InertialIdentification:
         if self.mpc is not None and est.settled:
             self.mpc.set_inertial_parameters(est.base_com_offset_m, est.payload_kg)
 
+    def metrics(self, model_errors=None) -> dict:
+        """metrics.json keys: the final estimate, its history (every `record_every_s` of observed time: t, offset
+        x, y, z, payload) and, against a plant with known `ModelErrors`, the estimate's errors."""
+        out = {**self.estimator.report(),
+               "inertial_estimate_history": [[t, *offset, payload] for t, offset, payload in self.history]}
+        if model_errors is not None:
+            true_offset = np.asarray(model_errors.base_com_offset_m, dtype=float)
+            out["base_com_offset_estimate_error_m"] = float(np.linalg.norm(self.estimator.base_com_offset_m - true_offset))
+            out["payload_estimate_error_kg"] = abs(self.estimator.payload_kg - float(model_errors.ee_payload_kg))
+        return out
+
