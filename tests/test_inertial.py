@@ -94,3 +94,24 @@ def test_estimator_recovers_offset_and_payload_from_pinocchio_data(b1z1):
         estimator.observe(q, v, v + a * dt, tau, dt)
     np.testing.assert_allclose(estimator.base_com_offset_m, offset, atol=2e-3)
     assert abs(estimator.payload_kg - payload) < 0.05
+
+
+def test_estimator_recovers_offset_and_payload_in_mujoco(b1z1):
+    """The step hook on a MuJoCo plant whose base CoM sits 5 cm back and whose hand carries 3 kg, the robot
+    held standing by joint PD: the estimate after 0.6 s is within 1 cm and 0.3 kg."""
+    from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
+    from wbmpc.sim import make_plant
+    from wbmpc.sim.model_errors import ModelErrors
+
+    errors = ModelErrors(base_com_offset_m=(-0.05, 0.0, 0.0), ee_payload_kg=3.0)
+    plant = make_plant("mujoco", b1z1, errors.plant_config(b1z1))
+    hook = InertialIdentification(InertialEstimator(b1z1))
+    plant.add_step_hook(hook)
+    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
+    q_joints = b1z1.joint_positions(b1z1.q_nominal)
+    for _ in range(600):
+        q, v = plant.state()
+        plant.step(300.0 * (q_joints - b1z1.joint_positions(q)) - 5.0 * v[6:])
+    metrics = hook.metrics(errors)
+    assert metrics["base_com_offset_estimate_error_m"] < 0.01, (metrics["base_com_offset_estimate_m"], metrics["payload_estimate_kg"])
+    assert metrics["payload_estimate_error_kg"] < 0.3, metrics["payload_estimate_kg"]

@@ -40,8 +40,12 @@ class InertialEstimatorConfig:
     force_noise_n: float = 20.0  # base force rows (impacts and finite differences)
     moment_noise_nm: float = 5.0  # base moment rows
     arm_torque_noise_nm: float = 2.0  # arm joint rows
-    prior_offset_m: float = 0.05  # prior std of the CoM offset around 0 (keeps the weakly seen z in place)
+    prior_offset_m: float = 0.05  # prior std of the CoM offset's x and y around 0
+    # ... and of its z: on a level base gravity's moment does not see it, only tilts and accelerations do, where
+    # it trades off against x (a 3 kg hand payload, standing: z -2 cm, x -4.4 cm of a true -5 cm with 5 cm)
+    prior_offset_z_m: float = 0.005
     prior_payload_kg: float = 5.0
+    huber_threshold: float = 2.0  # in units of a row's noise
     estimate_payload: bool = True
     max_offset_m: float = 0.2  # the estimate is clipped to |offset_i| <= this and 0 <= payload <= max_payload_kg
     max_payload_kg: float = 20.0
@@ -49,7 +53,7 @@ class InertialEstimatorConfig:
 
     def __post_init__(self):
         for name in ("forgetting_time_s", "force_noise_n", "moment_noise_nm", "arm_torque_noise_nm",
-                     "prior_offset_m", "prior_payload_kg", "max_offset_m", "max_payload_kg"):
+                     "prior_offset_m", "prior_offset_z_m", "prior_payload_kg", "huber_threshold", "max_offset_m", "max_payload_kg"):
             check_number(f"inertial_estimator.{name}", getattr(self, name), low=0.0, low_open=True)
         check_number("inertial_estimator.settle_s", self.settle_s, low=0.0)
 
@@ -67,6 +71,10 @@ class InertialEstimator:
         self.payload_joint, self.payload_offset = payload_placement(robot)
         self.foot_ids = [robot.frame_id(robot.contact_frame(f)) for f in robot.feet]
         self.foot_rows = [6 if f in robot.soles else 3 for f in robot.feet]
+        # a point foot's force acts at the bottom of its sphere, not at the frame (the sphere's centre): on
+        # b1_z1 standing, the tangential forces' moments about the centre read as a CoM 1.4 cm low otherwise
+        radius = float(robot.foot_radius_m or 0.0)
+        self._contact_offset = np.array([[0.0, radius, 0.0], [-radius, 0.0, 0.0], [0.0, 0.0, 0.0]])  # skew(-R e_z)
         legs = np.flatnonzero(robot.leg_joint_mask) + 6
         self.leg_rows = legs
         self.model_rows = np.r_[np.arange(6), np.flatnonzero(~robot.leg_joint_mask) + 6]  # base + arm
@@ -74,7 +82,7 @@ class InertialEstimator:
                       [config.arm_torque_noise_nm] * (self.model_rows.size - 6)]
         self._row_weight = 1.0 / noise
         self.n_theta = 4 if config.estimate_payload else 3
-        prior = np.r_[[config.prior_offset_m] * 3, [config.prior_payload_kg]][: self.n_theta]
+        prior = np.r_[[config.prior_offset_m] * 2, [config.prior_offset_z_m], [config.prior_payload_kg]][: self.n_theta]
         self._prior_information = np.diag(1.0 / prior**2)
         self._information = np.zeros((self.n_theta, self.n_theta))
         self._vector = np.zeros(self.n_theta)
@@ -117,8 +125,13 @@ class InertialEstimator:
         residual = regressor @ self.pi_nominal + drive - np.r_[np.zeros(6), tau_joints]
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
-        jacobian = np.vstack([pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:rows]
-                              for fid, rows in zip(self.foot_ids, self.foot_rows)])
+        blocks = []
+        for fid, rows in zip(self.foot_ids, self.foot_rows):
+            frame_jacobian = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+            if rows == 3:  # velocity of the sphere's lowest point: v - [d]x w, d = -R e_z
+                frame_jacobian = frame_jacobian[:3] - self._contact_offset @ frame_jacobian[3:]
+            blocks.append(frame_jacobian)
+        jacobian = np.vstack(blocks)
         forces = np.linalg.lstsq(jacobian[:, self.leg_rows].T, residual[self.leg_rows], rcond=None)[0]
         rows = self.model_rows
         error = residual[rows] - jacobian[:, rows].T @ forces  # = -Y_B delta_pi(theta)
@@ -133,6 +146,10 @@ class InertialEstimator:
         a = (np.asarray(v_next, float) - np.asarray(v, float)) / dt_s
         a_rows, b_rows = self.rows(q, v, a, tau_joints)
         w = self._row_weight[:, None]
+        # Huber weights: a row off the current estimate by more than huber_threshold of its noise (impacts,
+        # the drop at the start) counts as if it were that far off
+        residual = np.abs(w[:, 0] * (b_rows - a_rows @ self.theta))
+        w = w * np.sqrt(np.minimum(1.0, self.config.huber_threshold / np.maximum(residual, 1e-12)))[:, None]
         decay = np.exp(-dt_s / self.config.forgetting_time_s)
         self._information = decay * self._information + (w * a_rows).T @ (w * a_rows)
         self._vector = decay * self._vector + (w * a_rows).T @ (w[:, 0] * b_rows)
