@@ -4,6 +4,7 @@ and the online estimator recovering a known base CoM offset / payload."""
 import casadi as ca
 import numpy as np
 import pinocchio as pin
+import pytest
 
 from wbmpc.bench.dynamics import random_samples, world_forces_to_pinocchio
 from wbmpc.symbolic import InertialParameters, Motion, SymbolicDynamics
@@ -115,3 +116,16 @@ def test_estimator_recovers_offset_and_payload_in_mujoco(b1z1):
     metrics = hook.metrics(errors)
     assert metrics["base_com_offset_estimate_error_m"] < 0.01, (metrics["base_com_offset_estimate_m"], metrics["payload_estimate_kg"])
     assert metrics["payload_estimate_error_kg"] < 0.3, metrics["payload_estimate_kg"]
+
+
+def test_identify_mass_refuses_what_it_cannot_observe_or_feed():
+    from wbmpc.errors import ConfigError
+    from wbmpc.ocp.problem import OcpConfig
+    from wbmpc.scenarios import RunConfig
+
+    with pytest.raises(ConfigError, match="--plant mujoco"):
+        RunConfig(identify_mass=True, plant="pinocchio")
+    with pytest.raises(ConfigError, match="realtime"):
+        RunConfig(identify_mass=True, delay="realtime")
+    with pytest.raises(ConfigError, match="wb_inverse"):
+        OcpConfig(formulation="centroidal_velocity", inertial_parameters=True)
