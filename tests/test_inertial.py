@@ -99,7 +99,7 @@ def test_estimator_recovers_offset_and_payload_from_pinocchio_data(b1z1):
 
 def test_estimator_recovers_offset_and_payload_in_mujoco(b1z1):
     """The step hook on a MuJoCo plant whose base CoM sits 5 cm back and whose hand carries 3 kg, the robot
-    held standing by joint PD: the estimate after 0.6 s is within 1 cm and 0.3 kg."""
+    held standing by joint PD: the estimate after 0.6 s is within 5 mm and 0.1 kg (the elbow reaches its limit under the load)."""
     from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
     from wbmpc.sim import make_plant
     from wbmpc.sim.model_errors import ModelErrors
@@ -114,8 +114,8 @@ def test_estimator_recovers_offset_and_payload_in_mujoco(b1z1):
         q, v = plant.state()
         plant.step(300.0 * (q_joints - b1z1.joint_positions(q)) - 5.0 * v[6:])
     metrics = hook.metrics(errors)
-    assert metrics["base_com_offset_estimate_error_m"] < 0.01, (metrics["base_com_offset_estimate_m"], metrics["payload_estimate_kg"])
-    assert metrics["payload_estimate_error_kg"] < 0.3, metrics["payload_estimate_kg"]
+    assert metrics["base_com_offset_estimate_error_m"] < 0.005, (metrics["base_com_offset_estimate_m"], metrics["payload_estimate_kg"])
+    assert metrics["payload_estimate_error_kg"] < 0.1, metrics["payload_estimate_kg"]
 
 
 def test_identify_mass_refuses_what_it_cannot_observe_or_feed():

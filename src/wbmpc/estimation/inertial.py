@@ -46,6 +46,9 @@ class InertialEstimatorConfig:
     prior_offset_z_m: float = 0.005
     prior_payload_kg: float = 5.0
     huber_threshold: float = 2.0  # in units of a row's noise
+    # a joint this close to a position limit gets the limit's unmeasured torque: its row is left out (a leg's:
+    # the whole sample; b1_z1's elbow rests 0.26 rad below its limit, a 5 kg hand payload pushes it there)
+    limit_margin_rad: float = 0.02
     estimate_payload: bool = True
     max_offset_m: float = 0.2  # the estimate is clipped to |offset_i| <= this and 0 <= payload <= max_payload_kg
     max_payload_kg: float = 20.0
@@ -53,7 +56,7 @@ class InertialEstimatorConfig:
 
     def __post_init__(self):
         for name in ("forgetting_time_s", "force_noise_n", "moment_noise_nm", "arm_torque_noise_nm",
-                     "prior_offset_m", "prior_offset_z_m", "prior_payload_kg", "huber_threshold", "max_offset_m", "max_payload_kg"):
+                     "prior_offset_m", "prior_offset_z_m", "prior_payload_kg", "huber_threshold", "limit_margin_rad", "max_offset_m", "max_payload_kg"):
             check_number(f"inertial_estimator.{name}", getattr(self, name), low=0.0, low_open=True)
         check_number("inertial_estimator.settle_s", self.settle_s, low=0.0)
 
@@ -118,8 +121,14 @@ class InertialEstimator:
 
     # ------------------------------------------------------------------ observation
     def rows(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, tau_joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(A, b) of one sample: A theta ~= b on the base and arm rows (unweighted)."""
+        """(A, b) of one sample: A theta ~= b on the base and arm rows (unweighted; NaN rows: a joint at its
+        position limit, whose torque is not measured)."""
         model, data = self.model, self.data
+        angles = self.robot.joint_positions(q)
+        margin = self.config.limit_margin_rad
+        at_limit = np.r_[np.zeros(6, bool), (angles < self.robot.q_min + margin) | (angles > self.robot.q_max - margin)]
+        if at_limit[self.leg_rows].any():  # the leg's force from its torques would be wrong: no rows at all
+            return np.full((self.model_rows.size, self.n_theta), np.nan), np.full(self.model_rows.size, np.nan)
         regressor = pin.computeJointTorqueRegressor(model, data, q, v, a)
         drive = self._armature * a + self._viscous * v + self._coulomb * np.tanh(v / self.robot.coulomb_velocity_rad_s)
         residual = regressor @ self.pi_nominal + drive - np.r_[np.zeros(6), tau_joints]
@@ -139,12 +148,15 @@ class InertialEstimator:
         g = self._jacobian(self.theta)
         a_rows = y @ g
         b_rows = -error - y @ (self._delta_pi(self.theta) - g @ self.theta)
+        b_rows[at_limit[rows]] = np.nan
         return a_rows, b_rows
 
     def observe(self, q: np.ndarray, v: np.ndarray, v_next: np.ndarray, tau_joints: np.ndarray, dt_s: float) -> None:
         """One plant step: state (q, v) before it, velocity after it, the torques applied over it."""
         a = (np.asarray(v_next, float) - np.asarray(v, float)) / dt_s
         a_rows, b_rows = self.rows(q, v, a, tau_joints)
+        valid = np.isfinite(b_rows)
+        a_rows, b_rows = np.where(valid[:, None], a_rows, 0.0), np.where(valid, b_rows, 0.0)
         w = self._row_weight[:, None]
         # Huber weights: a row off the current estimate by more than huber_threshold of its noise (impacts,
         # the drop at the start) counts as if it were that far off
