@@ -46,6 +46,11 @@ class InertialEstimatorConfig:
     prior_offset_z_m: float = 0.005
     prior_payload_kg: float = 5.0
     huber_threshold: float = 2.0  # in units of a row's noise
+    # once settled, a sample with a base row this far off (row noises) is dropped: a contact the model does not
+    # have (a shin on the floor: 60 N, 20 N m). Rejections that last gate_reopen_s are a new mass distribution
+    # (a payload picked up): the samples count again
+    gate_threshold: float = 6.0
+    gate_reopen_s: float = 0.3
     # a joint this close to a position limit gets the limit's unmeasured torque: its row is left out (a leg's:
     # the whole sample; b1_z1's elbow rests 0.26 rad below its limit, a 5 kg hand payload pushes it there)
     limit_margin_rad: float = 0.02
@@ -56,9 +61,10 @@ class InertialEstimatorConfig:
 
     def __post_init__(self):
         for name in ("forgetting_time_s", "force_noise_n", "moment_noise_nm", "arm_torque_noise_nm",
-                     "prior_offset_m", "prior_offset_z_m", "prior_payload_kg", "huber_threshold", "limit_margin_rad", "max_offset_m", "max_payload_kg"):
+                     "prior_offset_m", "prior_offset_z_m", "prior_payload_kg", "huber_threshold", "gate_threshold", "limit_margin_rad", "max_offset_m", "max_payload_kg"):
             check_number(f"inertial_estimator.{name}", getattr(self, name), low=0.0, low_open=True)
         check_number("inertial_estimator.settle_s", self.settle_s, low=0.0)
+        check_number("inertial_estimator.gate_reopen_s", self.gate_reopen_s, low=0.0)
 
 
 class InertialEstimator:
@@ -92,6 +98,8 @@ class InertialEstimator:
         self.theta = np.zeros(self.n_theta)
         self.observed_s = 0.0
         self.samples = 0
+        self.rejected = 0  # samples dropped by the gate
+        self._rejecting_s = 0.0
         self._armature = np.r_[np.zeros(6), robot.armature_kg_m2]
         self._viscous = np.r_[np.zeros(6), robot.viscous_friction_nm_s]
         self._coulomb = np.r_[np.zeros(6), robot.coulomb_friction_nm]
@@ -164,6 +172,14 @@ class InertialEstimator:
         # Huber weights: a row off the current estimate by more than huber_threshold of its noise (impacts,
         # the drop at the start) counts as if it were that far off
         residual = np.abs(w[:, 0] * (b_rows - a_rows @ self.theta))
+        self.observed_s += elapsed_s
+        if self.settled and residual[:6].max() > self.config.gate_threshold:
+            if self._rejecting_s < self.config.gate_reopen_s:  # after that long off, the samples count again
+                self._rejecting_s += elapsed_s
+                self.rejected += 1
+                return
+        else:
+            self._rejecting_s = 0.0
         w = w * np.sqrt(np.minimum(1.0, self.config.huber_threshold / np.maximum(residual, 1e-12)))[:, None]
         decay = np.exp(-elapsed_s / self.config.forgetting_time_s)
         self._information = decay * self._information + (w * a_rows).T @ (w * a_rows)
@@ -174,7 +190,6 @@ class InertialEstimator:
         if self.n_theta == 4:
             theta[3] = np.clip(theta[3], 0.0, cfg.max_payload_kg)
         self.theta = theta
-        self.observed_s += elapsed_s
         self.samples += 1
 
     # ------------------------------------------------------------------ estimate
@@ -193,7 +208,8 @@ class InertialEstimator:
     def report(self) -> dict:
         """JSON keys of a run (issue 22's contract): the final estimate."""
         return {"base_com_offset_estimate_m": [float(x) for x in self.base_com_offset_m],
-                "payload_estimate_kg": self.payload_kg, "inertial_estimate_samples": self.samples}
+                "payload_estimate_kg": self.payload_kg, "inertial_estimate_samples": self.samples,
+                "inertial_estimate_rejected": self.rejected}
 
 
 class InertialIdentification:
