@@ -147,3 +147,35 @@ def test_identify_mass_run_reports_the_estimate(b1z1):
     assert metrics["base_com_offset_estimate_error_m"] < 0.01, metrics["base_com_offset_estimate_m"]
     assert metrics["payload_estimate_kg"] < 0.5
     assert len(metrics["inertial_estimate_history"]) >= 10
+
+
+
+def test_row_filter_averages_out_velocity_noise(b1z1):
+    """MuJoCo, 5 cm back + 3 kg at the hand, the legs swaying at 1 Hz (feet lift, a shin touches down); the
+    velocities the estimator sees carry 0.01 (m|rad)/s of noise, differenced over 2 ms: with the 5 Hz row
+    filter x and the payload stay within 5 mm and 0.1 kg after 3 s (unfiltered: x -2.3 cm, 0.2 kg)."""
+    from wbmpc.estimation.inertial import InertialEstimator, InertialEstimatorConfig
+    from wbmpc.sim import make_plant
+    from wbmpc.sim.model_errors import ModelErrors
+
+    errors = ModelErrors(base_com_offset_m=(-0.05, 0.0, 0.0), ee_payload_kg=3.0)
+    plant = make_plant("mujoco", b1z1, errors.plant_config(b1z1))
+    estimator = InertialEstimator(b1z1, InertialEstimatorConfig(row_filter_hz=5.0))
+    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
+    rng = np.random.default_rng(0)
+    q_joints = b1z1.joint_positions(b1z1.q_nominal)
+    previous = None
+    for k in range(3000):
+        q, v = plant.state()
+        if k % 2 == 0:  # the 500 Hz loop: torques held over two steps, one sample per tick
+            target = q_joints + 0.1 * np.sin(2 * np.pi * k * 1e-3) * b1z1.leg_joint_mask
+            tau = 300.0 * (target - b1z1.joint_positions(q)) - 5.0 * v[6:]
+            measured = v + rng.normal(0.0, 0.01, b1z1.nv)
+            if previous is not None:
+                estimator.observe(previous[0], previous[1], measured, previous[2], 2e-3)
+            previous = (q, measured, None)
+        plant.step(tau)
+        if k % 2 == 0:
+            previous = (previous[0], previous[1], plant.applied_torques())
+    assert abs(estimator.base_com_offset_m[0] + 0.05) < 0.005, estimator.base_com_offset_m
+    assert abs(estimator.payload_kg - 3.0) < 0.1, estimator.payload_kg

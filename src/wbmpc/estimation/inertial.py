@@ -51,6 +51,10 @@ class InertialEstimatorConfig:
     # (a payload picked up): the samples count again
     gate_threshold: float = 6.0
     gate_reopen_s: float = 0.3
+    # measured velocities differenced over one step amplify their noise (1e-2 rad/s -> 10 rad/s^2 at 1 ms): a
+    # first-order low-pass of this cutoff on both sides of the regression (exact for constant parameters,
+    # the rows are linear in them) averages it out; None: the rows as they come (noise-free simulator state)
+    row_filter_hz: float | None = None
     # a joint this close to a position limit gets the limit's unmeasured torque: its row is left out (a leg's:
     # the whole sample; b1_z1's elbow rests 0.26 rad below its limit, a 5 kg hand payload pushes it there)
     limit_margin_rad: float = 0.02
@@ -65,6 +69,7 @@ class InertialEstimatorConfig:
             check_number(f"inertial_estimator.{name}", getattr(self, name), low=0.0, low_open=True)
         check_number("inertial_estimator.settle_s", self.settle_s, low=0.0)
         check_number("inertial_estimator.gate_reopen_s", self.gate_reopen_s, low=0.0)
+        check_number("inertial_estimator.row_filter_hz", self.row_filter_hz, low=0.0, low_open=True, allow_none=True)
 
 
 class InertialEstimator:
@@ -99,6 +104,7 @@ class InertialEstimator:
         self.observed_s = 0.0
         self.samples = 0
         self.rejected = 0  # samples dropped by the gate
+        self._filtered: tuple[np.ndarray, np.ndarray] | None = None
         self._rejecting_s = 0.0
         self._armature = np.r_[np.zeros(6), robot.armature_kg_m2]
         self._viscous = np.r_[np.zeros(6), robot.viscous_friction_nm_s]
@@ -168,6 +174,13 @@ class InertialEstimator:
         a_rows, b_rows = self.rows(q, v, a, tau_joints)
         valid = np.isfinite(b_rows)
         a_rows, b_rows = np.where(valid[:, None], a_rows, 0.0), np.where(valid, b_rows, 0.0)
+        if self.config.row_filter_hz is not None:
+            if self._filtered is None:
+                self._filtered = (a_rows, b_rows)
+            alpha = 1.0 - np.exp(-2 * np.pi * self.config.row_filter_hz * elapsed_s)
+            a_f, b_f = self._filtered
+            a_rows, b_rows = a_f + alpha * (a_rows - a_f), b_f + alpha * (b_rows - b_f)
+            self._filtered = (a_rows, b_rows)
         w = self._row_weight[:, None]
         # Huber weights: a row off the current estimate by more than huber_threshold of its noise (impacts,
         # the drop at the start) counts as if it were that far off
