@@ -13,29 +13,29 @@ from wbmpc.symbolic import InertialParameters, Motion, SymbolicDynamics
 def _symbolic(robot):
     dyn = SymbolicDynamics(robot)
     q, v, a = ca.SX.sym("q", robot.nq), ca.SX.sym("v", robot.nv), ca.SX.sym("a", robot.nv)
-    f, dc, m_p = ca.SX.sym("f", dyn.n_forces), ca.SX.sym("dc", 3), ca.SX.sym("m_p")
+    f, dc, m_p, m_b = ca.SX.sym("f", dyn.n_forces), ca.SX.sym("dc", 3), ca.SX.sym("m_p"), ca.SX.sym("m_b")
     cfg = dyn.configuration(q)
     nominal = ca.Function("nominal", [q, v, a, f], [dyn.rnea(cfg, Motion(cfg, v), a, f), dyn.mass_matrix(cfg)])
     cfg = dyn.configuration(q)
-    cfg.inertial = InertialParameters(dc, m_p)
-    edited = ca.Function("edited", [q, v, a, f, dc, m_p], [dyn.rnea(cfg, Motion(cfg, v), a, f), dyn.mass_matrix(cfg)])
+    cfg.inertial = InertialParameters(dc, m_p, m_b)
+    edited = ca.Function("edited", [q, v, a, f, dc, m_p, m_b], [dyn.rnea(cfg, Motion(cfg, v), a, f), dyn.mass_matrix(cfg)])
     return dyn, nominal, edited
 
 
 def test_inertial_parameters_match_pinocchio_on_an_edited_model(b1z1):
-    """RNEA and CRBA with a base CoM offset and a hand payload change exactly as pinocchio's on the edited
-    model; zero parameters give today's functions."""
+    """RNEA and CRBA with a base CoM offset, a hand payload and a load on the base change exactly as
+    pinocchio's on the edited model; zero parameters give today's functions."""
     dyn, nominal, edited = _symbolic(b1z1)
-    offset, payload = np.array([-0.05, 0.02, 0.01]), 5.0
-    model = InertialParameters.apply_to(b1z1, offset, payload)
+    offset, payload, base_payload = np.array([-0.05, 0.02, 0.01]), 5.0, 7.0
+    model = InertialParameters.apply_to(b1z1, offset, payload, base_payload)
     data_nominal, data_edited = b1z1.model.createData(), model.createData()
     for s in random_samples(b1z1, dyn.n_forces, 5, seed=11):
         q, v, a, f = s["q"], s["v"], s["a"], s["f"]
         tau0, mass0 = (np.array(x) for x in nominal(q, v, a, f))
-        tau_zero, mass_zero = (np.array(x) for x in edited(q, v, a, f, np.zeros(3), 0.0))
+        tau_zero, mass_zero = (np.array(x) for x in edited(q, v, a, f, np.zeros(3), 0.0, 0.0))
         np.testing.assert_allclose(tau_zero, tau0, atol=1e-9)
         np.testing.assert_allclose(mass_zero, mass0, atol=1e-9)
-        tau1, mass1 = (np.array(x) for x in edited(q, v, a, f, offset, payload))
+        tau1, mass1 = (np.array(x) for x in edited(q, v, a, f, offset, payload, base_payload))
         pin.framesForwardKinematics(b1z1.model, data_nominal, q)
         fext = world_forces_to_pinocchio(b1z1, data_nominal, f)
         reference = pin.rnea(model, data_edited, q, v, a, fext) - pin.rnea(b1z1.model, data_nominal, q, v, a, fext)
@@ -50,7 +50,7 @@ def test_ocp_with_zero_inertial_parameters_is_todays(b1z1):
 
     today = OcpProblem(b1z1, OcpConfig())
     edited = OcpProblem(b1z1, OcpConfig(inertial_parameters=True))
-    assert edited.params.size == today.params.size + 4
+    assert edited.params.size == today.params.size + 5  # offset, hand payload, base payload
     assert edited.n_constraints == today.n_constraints and edited.n_variables == today.n_variables
     rng = np.random.default_rng(3)
     x = rng.normal(size=today.n_variables) * 0.1
@@ -61,21 +61,21 @@ def test_ocp_with_zero_inertial_parameters_is_todays(b1z1):
     functions = [ca.Function(name, [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
                  for name, nlp in (("today", today.nlp), ("edited", edited.nlp))]
     f0, g0 = (np.array(v).ravel() for v in functions[0](x, p))
-    f1, g1 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, np.zeros(4)]))
+    f1, g1 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, np.zeros(5)]))
     np.testing.assert_allclose(f1, f0, rtol=1e-12)
     np.testing.assert_allclose(g1, g0, atol=1e-9)
-    _, g2 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, -0.05, 0, 0, 5.0]))
+    _, g2 = (np.array(v).ravel() for v in functions[1](x, np.r_[p, -0.05, 0, 0, 5.0, 3.0]))
     dynamics = edited.rows["dynamics"].ravel()
     assert np.abs(g2[dynamics] - g0[dynamics]).max() > 1e-3
 
 
 def test_estimator_recovers_offset_and_payload_from_pinocchio_data(b1z1):
-    """Samples of the edited model's dynamics (pinocchio forward dynamics with random torques and contact
+    """A base CoM offset, a hand payload and a load on the base from samples of the edited model's dynamics (pinocchio forward dynamics with random torques and contact
     forces at the feet spheres' lowest points): the estimator recovers the offset and the payload."""
     from wbmpc.estimation.inertial import InertialEstimator, InertialEstimatorConfig
 
-    offset, payload = np.array([-0.05, 0.01, 0.0]), 5.0
-    model = InertialParameters.apply_to(b1z1, offset, payload)
+    offset, payload, base_payload = np.array([-0.05, 0.01, 0.0]), 5.0, 4.0
+    model = InertialParameters.apply_to(b1z1, offset, payload, base_payload)
     data = model.createData()
     estimator = InertialEstimator(b1z1, InertialEstimatorConfig(forgetting_time_s=100.0))
     rng = np.random.default_rng(4)
@@ -96,6 +96,7 @@ def test_estimator_recovers_offset_and_payload_from_pinocchio_data(b1z1):
         estimator.observe(q, v, v + a * dt, tau, dt)
     np.testing.assert_allclose(estimator.base_com_offset_m, offset, atol=5e-4)  # the prior pulls a little
     assert abs(estimator.payload_kg - payload) < 0.01
+    assert abs(estimator.base_payload_kg - base_payload) < 0.05
 
 
 def test_estimator_recovers_offset_and_payload_in_mujoco(b1z1):
@@ -180,3 +181,30 @@ def test_row_filter_averages_out_velocity_noise(b1z1):
             previous = (previous[0], previous[1], plant.applied_torques())
     assert abs(estimator.base_com_offset_m[0] + 0.05) < 0.005, estimator.base_com_offset_m
     assert abs(estimator.payload_kg - 3.0) < 0.1, estimator.payload_kg
+
+
+def test_estimator_tells_a_load_on_the_base_from_a_hand_payload_in_mujoco(b1z1):
+    """6 kg on the base 10 cm ahead of and 5 cm above its origin (MuJoCo body), standing under joint PD: a 6 kg
+    base payload, no hand payload, and the base CoM offset its first moment gives in x (m p_x / m_base)."""
+    from dataclasses import replace
+
+    from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
+    from wbmpc.sim import make_plant
+    from wbmpc.sim.base import specialised_config
+    from wbmpc.sim.mujoco_scene import MujocoPlantConfig, body_names
+
+    def load(spec):
+        spec.body(body_names(b1z1)[0]).add_body(name="back_load", pos=[0.1, 0.0, 0.05], ipos=[0, 0, 0], mass=6.0,
+                                                inertia=[1e-3] * 3, explicitinertial=True)
+
+    plant = make_plant("mujoco", b1z1, replace(specialised_config(None, MujocoPlantConfig), spec_callback=load))
+    hook = InertialIdentification(InertialEstimator(b1z1))
+    plant.add_step_hook(hook)
+    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
+    q_joints = b1z1.joint_positions(b1z1.q_nominal)
+    for _ in range(1000):
+        q, v = plant.state()
+        plant.step(300.0 * (q_joints - b1z1.joint_positions(q)) - 5.0 * v[6:])
+    estimator = hook.estimator
+    assert abs(estimator.base_payload_kg - 6.0) < 0.1 and estimator.payload_kg < 0.1
+    assert abs(estimator.base_com_offset_m[0] - 6.0 * 0.1 / b1z1.model.inertias[1].mass) < 0.002

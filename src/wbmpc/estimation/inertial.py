@@ -7,8 +7,8 @@ and the contact Jacobian J_c of the feet:
 
     tau_applied + J_c^T f = Y (pi_nominal + delta_pi(theta)) + drive train (armature, friction),
 
-theta = [base CoM offset (3, base frame, m), payload (kg) at the hand or the base origin]. Neither moves a
-leg's own rows (the base and the hand are not below a leg joint), so the leg rows give the feet's contact
+theta = [base CoM offset (3, base frame, m), payload (kg) at the hand or the base origin, and with an arm a load
+at the base origin (kg)]. None moves a leg's own rows (the base and the hand are not below a leg joint), so the leg rows give the feet's contact
 forces from the measured torques, f = (J_c,legs^T)^+ r_legs, r = Y pi_nominal + drive - tau_applied; the
 base's six rows and the arm's rows are then linear in theta:
 
@@ -59,6 +59,7 @@ class InertialEstimatorConfig:
     # the whole sample; b1_z1's elbow rests 0.26 rad below its limit, a 5 kg hand payload pushes it there)
     limit_margin_rad: float = 0.02
     estimate_payload: bool = True
+    estimate_base_payload: bool = True  # robots with an arm: a load at the base origin too (told apart by the arm rows)
     max_offset_m: float = 0.2  # the estimate is clipped to |offset_i| <= this and 0 <= payload <= max_payload_kg
     max_payload_kg: float = 20.0
     settle_s: float = 0.5  # the MPC gets the estimate after this much observed time
@@ -95,8 +96,9 @@ class InertialEstimator:
         noise = np.r_[[config.force_noise_n] * 3, [config.moment_noise_nm] * 3,
                       [config.arm_torque_noise_nm] * (self.model_rows.size - 6)]
         self._row_weight = 1.0 / noise
-        self.n_theta = 4 if config.estimate_payload else 3
-        prior = np.r_[[config.prior_offset_m] * 2, [config.prior_offset_z_m], [config.prior_payload_kg]][: self.n_theta]
+        n_payloads = 0 if not config.estimate_payload else 2 if config.estimate_base_payload and robot.arm_ee else 1
+        self.n_theta = 3 + n_payloads
+        prior = np.r_[[config.prior_offset_m] * 2, [config.prior_offset_z_m], [config.prior_payload_kg] * 2][: self.n_theta]
         self._prior_information = np.diag(1.0 / prior**2)
         self._information = np.zeros((self.n_theta, self.n_theta))
         self._vector = np.zeros(self.n_theta)
@@ -118,9 +120,11 @@ class InertialEstimator:
         base = self.model.inertias[1]
         edited = pin.Inertia(base.mass, np.array(base.lever) + theta[:3], np.array(base.inertia))
         delta[0:10] = edited.toDynamicParameters() - base.toDynamicParameters()
-        if self.n_theta == 4:
+        if self.n_theta >= 4:
             k = 10 * (self.payload_joint - 1)
             delta[k : k + 10] += pin.Inertia(1.0, self.payload_offset, np.zeros((3, 3))).toDynamicParameters() * theta[3]
+        if self.n_theta == 5:
+            delta[0] += theta[4]  # a point mass at the base origin: mass only
         return delta
 
     def _jacobian(self, theta: np.ndarray) -> np.ndarray:
@@ -200,8 +204,7 @@ class InertialEstimator:
         theta = np.linalg.solve(self._information + self._prior_information, self._vector)
         cfg = self.config
         theta[:3] = np.clip(theta[:3], -cfg.max_offset_m, cfg.max_offset_m)
-        if self.n_theta == 4:
-            theta[3] = np.clip(theta[3], 0.0, cfg.max_payload_kg)
+        theta[3:] = np.clip(theta[3:], 0.0, cfg.max_payload_kg)
         self.theta = theta
         self.samples += 1
 
@@ -212,7 +215,11 @@ class InertialEstimator:
 
     @property
     def payload_kg(self) -> float:
-        return float(self.theta[3]) if self.n_theta == 4 else 0.0
+        return float(self.theta[3]) if self.n_theta >= 4 else 0.0
+
+    @property
+    def base_payload_kg(self) -> float:
+        return float(self.theta[4]) if self.n_theta == 5 else 0.0
 
     @property
     def settled(self) -> bool:
@@ -221,7 +228,8 @@ class InertialEstimator:
     def report(self) -> dict:
         """JSON keys of a run (issue 22's contract): the final estimate."""
         return {"base_com_offset_estimate_m": [float(x) for x in self.base_com_offset_m],
-                "payload_estimate_kg": self.payload_kg, "inertial_estimate_samples": self.samples,
+                "payload_estimate_kg": self.payload_kg, "base_payload_estimate_kg": self.base_payload_kg,
+                "inertial_estimate_samples": self.samples,
                 "inertial_estimate_rejected": self.rejected}
 
 
@@ -234,7 +242,7 @@ class InertialIdentification:
         self.estimator, self.mpc = estimator, mpc
         self._before: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._every, self._steps = max(1, int(every_n_steps)), 0
-        self.history: list[tuple[float, list[float], float]] = []  # (observed s, offset, payload)
+        self.history: list[tuple[float, list[float], float, float]] = []  # (observed s, offset, payload, base payload)
         self._record_every_s = record_every_s
 
     def before_step(self, plant) -> None:
@@ -252,15 +260,15 @@ class InertialIdentification:
         est = self.estimator
         est.observe(q, v, v_next, tau, plant.dt_s, elapsed_s=self._every * plant.dt_s)
         if est.observed_s + 1e-9 >= len(self.history) * self._record_every_s:
-            self.history.append((est.observed_s, est.base_com_offset_m.tolist(), est.payload_kg))
+            self.history.append((est.observed_s, est.base_com_offset_m.tolist(), est.payload_kg, est.base_payload_kg))
         if self.mpc is not None and est.settled:
-            self.mpc.set_inertial_parameters(est.base_com_offset_m, est.payload_kg)
+            self.mpc.set_inertial_parameters(est.base_com_offset_m, est.payload_kg, est.base_payload_kg)
 
     def metrics(self, model_errors=None) -> dict:
         """metrics.json keys: the final estimate, its history (every `record_every_s` of observed time: t, offset
-        x, y, z, payload) and, against a plant with known `ModelErrors`, the estimate's errors."""
+        x, y, z, payload, base payload) and, against a plant with known `ModelErrors`, the estimate's errors."""
         out = {**self.estimator.report(),
-               "inertial_estimate_history": [[t, *offset, payload] for t, offset, payload in self.history]}
+               "inertial_estimate_history": [[t, *offset, payload, base] for t, offset, payload, base in self.history]}
         if model_errors is not None:
             true_offset = np.asarray(model_errors.base_com_offset_m, dtype=float)
             out["base_com_offset_estimate_error_m"] = float(np.linalg.norm(self.estimator.base_com_offset_m - true_offset))

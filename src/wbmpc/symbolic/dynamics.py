@@ -14,8 +14,9 @@ chain one joint at a time instead of through world Jacobians.
 
 Mass distribution (issue 22): a `Configuration` may carry `InertialParameters` (symbols of the NLP or
 numbers): the base body's centre of mass moved by `base_com_offset` (base frame, its mass and rotational
-inertia about the CoM kept) and a point mass `payload_kg` at `SymbolicDynamics.payload_frame` (the arm's
-end-effector, else the base origin). RNEA and CRBA then equal pinocchio's on the model edited alike
+inertia about the CoM kept), a point mass `payload_kg` at `SymbolicDynamics.payload_frame` (the arm's
+end-effector, else the base origin) and, on a robot with an arm, optionally a second one `base_payload_kg` at
+the base origin (a load on the back: its position shows in the CoM offset). RNEA and CRBA then equal pinocchio's on the model edited alike
 (`InertialParameters.apply_to`); zero values give today's model exactly.
 """
 
@@ -64,9 +65,10 @@ class InertialParameters:
 
     base_com_offset: ca.SX
     payload_kg: ca.SX
+    base_payload_kg: ca.SX | None = None  # a point mass at the base origin (robots with an arm)
 
     @staticmethod
-    def apply_to(robot: RobotModel, base_com_offset_m, payload_kg: float) -> pin.Model:
+    def apply_to(robot: RobotModel, base_com_offset_m, payload_kg: float, base_payload_kg: float = 0.0) -> pin.Model:
         """A copy of `robot.model` with these numeric values (the independent reference of the symbolic ones)."""
         model = robot.model.copy()
         base = model.inertias[1]
@@ -74,7 +76,15 @@ class InertialParameters:
                                         np.array(base.inertia))
         joint, offset = payload_placement(robot)
         model.inertias[joint] = model.inertias[joint] + pin.Inertia(float(payload_kg), offset, np.zeros((3, 3)))
+        model.inertias[1] = model.inertias[1] + pin.Inertia(float(base_payload_kg), np.zeros(3), np.zeros((3, 3)))
         return model
+
+    def point_masses(self, dyn: "SymbolicDynamics") -> list[tuple[int, np.ndarray, ca.SX]]:
+        """(joint, offset in its frame, mass) of each payload."""
+        masses = [(dyn.payload_joint, dyn.payload_offset, self.payload_kg)]
+        if self.base_payload_kg is not None:
+            masses.append((1, np.zeros(3), self.base_payload_kg))
+        return masses
 
 
 def payload_placement(robot: RobotModel) -> tuple[int, np.ndarray]:
@@ -391,11 +401,11 @@ class SymbolicDynamics:
             f = body.mass * a_com
             n_com = ca.mtimes(inertia, accel_ang[i]) + sp.cross(w, ca.mtimes(inertia, w))
             force[i], moment[i] = f, n_com + sp.cross(c, f)
-        if inertial is not None:  # the payload: a point mass at payload_offset of joint payload_joint
-            j, r = self.payload_joint, sp.const(self.payload_offset)
+        for j, offset, mass in inertial.point_masses(self) if inertial is not None else ():  # the payloads
+            r = sp.const(offset)
             w = motion.ang[j]
             a_point = accel_lin[j] + sp.cross(accel_ang[j], r) + sp.cross(w, motion.lin[j] + sp.cross(w, r))
-            f = inertial.payload_kg * a_point
+            f = mass * a_point
             force[j], moment[j] = force[j] + f, moment[j] + sp.cross(r, f)
         return force, moment
 
@@ -466,12 +476,12 @@ class SymbolicDynamics:
             bottom = np.hstack([body.mass * cx, body.inertia_com - body.mass * cx @ cx])
             comp[i] = sp.const(np.vstack([top, bottom]))
         if cfg.inertial is not None:
-            dc, m_p = cfg.inertial.base_com_offset, cfg.inertial.payload_kg
+            dc = cfg.inertial.base_com_offset
             base = self.bodies[1]
             comp[1] = comp[1] + _first_moment_inertia(base.mass, sp.const(base.com) + dc) - sp.const(
                 _first_moment_inertia(base.mass, base.com))
-            j = self.payload_joint
-            comp[j] = comp[j] + _first_moment_inertia(m_p, sp.const(self.payload_offset))
+            for j, offset, mass in cfg.inertial.point_masses(self):
+                comp[j] = comp[j] + _first_moment_inertia(mass, sp.const(offset))
         for i in sorted(self.joints, reverse=True):
             p = self.joints[i].parent
             xm = _motion_transform(cfg.local_rotation[i], cfg.local_translation[i])
