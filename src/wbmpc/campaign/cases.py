@@ -37,6 +37,7 @@ _LOOP_AXES = {
     "joint_velocity_noise_rad_s": "std of the joint velocity measurement noise (rad/s)",
     "delay_ms": "fixed solver delay before a solution applies (ms)",
     "push_gait_period_scale": "gait period factor after a push, (0, 1]; 1: the paper's fixed schedule",
+    "identify_mass": "1: estimate the base CoM offset and hand payload online and plan with them (--identify-mass)",
 }
 _OTHER_AXES = {
     "gait_phase": "push time shifted by this share of the gait period (0..1)",
@@ -137,6 +138,7 @@ class Case:
                          model_errors=self.model_errors(),
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
+                         identify_mass=bool(float(v.get("identify_mass", 0.0))),
                          **({"push_gait_period_scale": float(v["push_gait_period_scale"])}
                             if "push_gait_period_scale" in v else {}))
 

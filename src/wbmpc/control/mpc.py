@@ -231,6 +231,8 @@ class MPC:
         q1 = ca.SX.sym("q1", robot.nq)
         self._difference = BufferedFunction(ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1))
         self._weights = config.weights.vectors(robot, self.problem.nf)
+        # the model's mass distribution (OcpConfig.inertial_parameters): NLP parameters, set between steps
+        self._inertial = self._nominal_inertial()
         self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
@@ -248,6 +250,26 @@ class MPC:
         self._last_t: float | None = None
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
 
+    def _nominal_inertial(self) -> dict[str, np.ndarray]:
+        names = [n for n in ("base_com_offset", "payload_kg", "base_payload_kg") if n in self.problem.params.names]
+        return {name: np.zeros(self.problem.params.shape(name)[0]) for name in names}
+
+    def set_inertial_parameters(self, base_com_offset_m, payload_kg: float, base_payload_kg: float = 0.0) -> None:
+        """The base CoM offset (base frame, m), hand payload (kg; the base's without an arm) and, with an arm, a
+        load at the base origin (kg) the next plans use (no rebuild); needs `OcpConfig.inertial_parameters`."""
+        if not self._inertial:
+            raise ConfigError("this MPC's OCP has no inertial parameters: build it with "
+                              "OcpConfig(inertial_parameters=True) (wbmpc run --identify-mass)")
+        offset = np.asarray(base_com_offset_m, dtype=float).reshape(3)
+        if not (np.all(np.isfinite(offset)) and np.isfinite(payload_kg) and np.isfinite(base_payload_kg)):
+            raise ConfigError(f"inertial parameters must be finite, got offset {offset} m, payload {payload_kg} kg "
+                              f"and base payload {base_payload_kg} kg")
+        if base_payload_kg and "base_payload_kg" not in self._inertial:
+            raise ConfigError(f"{self.robot.name} has no arm: its payload_kg already sits at the base origin")
+        self._inertial = {"base_com_offset": offset, "payload_kg": np.array([float(payload_kg)]),
+                          **({"base_payload_kg": np.array([float(base_payload_kg)])} if "base_payload_kg" in self._inertial
+                             else {})}
+
     def reset(self) -> None:
         """Forget the warm start and the position references (e.g. after a reset of the plant)."""
         self._previous = None
@@ -258,6 +280,7 @@ class MPC:
         self._push_until_t = None
         self._fast_cadence_until_t = None
         self.gait.reset()
+        self._inertial = self._nominal_inertial()  # until an estimator sets it again
 
     def continue_from(self, solution: Solution) -> None:
         """Take `solution` as the last good plan, as after a successful step: the next step warm-starts
@@ -383,7 +406,9 @@ class MPC:
         N, n_feet = self.problem.N, len(self.robot.feet)
         forces = np.zeros((N, self.problem.nf))
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
-        support = self.robot.mass_kg * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
+        mass = self.robot.mass_kg + sum(float(self._inertial[name][0]) for name in ("payload_kg", "base_payload_kg")
+                                        if name in self._inertial)
+        support = mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
         stance = contact[:N]
         n_stance = np.maximum(stance.sum(axis=1, keepdims=True), 1)
         forces[:, 2 : 3 * n_feet : 3] = stance * support / n_stance
@@ -434,6 +459,7 @@ class MPC:
             "F_des": forces.T,
             "mu": [self.config.friction_coefficient],
             **self._weights,
+            **self._inertial,
         }
         p = problem.params.pack(values)
         stage_bounds = StageBounds(

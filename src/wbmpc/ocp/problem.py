@@ -48,7 +48,7 @@ from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.parameters import ParameterPack
 from wbmpc.robots import RobotModel
-from wbmpc.symbolic import SymbolicDynamics
+from wbmpc.symbolic import InertialParameters, SymbolicDynamics
 
 INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
@@ -74,8 +74,15 @@ class OcpConfig:
     # CPU per trot step (Fatrop makes each fixed variable an equality row), so the MPC's default
     # recovers from pushes by relaxing the arm rows instead (StageBounds.relaxed_rows)
     soft_rows: tuple[str, ...] = ()
+    # the base CoM offset (3, base frame, m), a payload at the hand (kg; the base origin without an arm) and, with
+    # an arm, a load at the base origin as NLP parameters "base_com_offset", "payload_kg", "base_payload_kg" of
+    # the whole-body dynamics (issue 22: mass distribution online)
+    inertial_parameters: bool = False
 
     def __post_init__(self):
+        if self.inertial_parameters and not self.formulation.startswith("wb_"):
+            raise ConfigError(f"inertial parameters enter the whole-body dynamics only; formulation "
+                              f"'{self.formulation}' has none: use wb_inverse or wb_forward")
         unknown = [tag for tag in self.soft_rows if tag not in SOFTENABLE_ROWS]
         if unknown:
             raise ConfigError(f"soft_rows {unknown} cannot be softened; choose from {', '.join(SOFTENABLE_ROWS)} "
@@ -180,6 +187,11 @@ class OcpProblem:
         params.add("w_tau", self.nj)
         params.add("mu", 1)
         params.add("w_slack", 1)  # L1 weight of the soft rows' slacks
+        if self.config.inertial_parameters:
+            params.add("base_com_offset", 3)
+            params.add("payload_kg", 1)
+            if self.robot.arm_ee:
+                params.add("base_payload_kg", 1)
         self.params = params
         self.state_names = [name for name, _ in form.state_parts()]
         self.nx = sum(size for _, size in form.state_parts())
@@ -264,6 +276,9 @@ class OcpProblem:
             offset += size
         node = Node(k, parts)
         form.kinematics(node, q_ref, rot_ref)
+        if self.config.inertial_parameters:
+            self._set_inertial(node, local["base_com_offset"], local["payload_kg"],
+                               local["base_payload_kg"] if "base_payload_kg" in local.names else None)
 
         rows: list[tuple[str, ca.SX]] = []
         if first:
@@ -331,6 +346,11 @@ class OcpProblem:
         name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
         function = ca.Function(name, [x, u, local.vector], [next_state, path, cost], ["x", "u", "p"], ["x_next", "g", "cost"])
         return function, [(tag, expr.shape[0]) for tag, expr in rows]
+
+    @staticmethod
+    def _set_inertial(node: Node, base_com_offset, payload_kg, base_payload_kg) -> None:
+        """The node's dynamics use the mass distribution of these parameters."""
+        node.config.inertial = InertialParameters(base_com_offset, payload_kg, base_payload_kg)
 
     def _wrench_cone(self, forces: ca.SX, i: int, mu: ca.SX, scale: float) -> ca.SX:
         """The linear wrench cone rows (>= 0 in stance) of flat foot i, in units of the force scale."""
@@ -406,6 +426,9 @@ class OcpProblem:
         for k in range(N + 1):
             node = Node(k, {name: physical[rows[k]] for name, rows in self.idx.items() if k < len(rows)})
             form.kinematics(node, q_ref, rot_ref)
+            if self.config.inertial_parameters:
+                self._set_inertial(node, self.params.select(p, "base_com_offset"), self.params.select(p, "payload_kg"),
+                                   self.params.select(p, "base_payload_kg") if "base_payload_kg" in self.params.names else None)
             nodes.append(node)
         velocities = [n.motion.v if n.motion is not None else None for n in nodes]
         for k in range(N + 1):

@@ -101,6 +101,11 @@ class RunConfig:
         help="sqp: the MPC step's time budget", default_text="the 12.5 ms period less 2.5 ms of transport with a "
         "delay, on CPU time unless --delay realtime; none without delay")
 
+    # issue 22: the base CoM offset and a hand payload identified online and fed to the NLP (estimation/inertial.py)
+    identify_mass: bool = option(False, flag="--identify-mass", help="estimate the base CoM offset and a payload at "
+                                 "the hand online from the measured motion and torques and plan with them (NLP "
+                                 "parameters); reports base_com_offset_estimate_m and payload_estimate_kg")
+
     def __post_init__(self):
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
         check_fields(self)
@@ -125,6 +130,9 @@ class RunConfig:
             (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
+        if self.identify_mass and (self.plant != "mujoco" or self.delay == "realtime" or not self.formulation.startswith("wb_")):
+            raise ConfigError("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of "
+                              "the MPC in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
 
 
 def parse_solver_options(items: list[str] | None) -> dict:
@@ -167,7 +175,8 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
-    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
+    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, inertial_parameters=config.identify_mass),
+                     gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
@@ -304,6 +313,12 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
 
         sole_monitor = SolePressureMonitor.for_robot(robot)
         plant.add_step_hook(sole_monitor)
+    identification = None
+    if config.identify_mass:
+        from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
+
+        identification = InertialIdentification(InertialEstimator(robot), mpc)
+        plant.add_step_hook(identification)
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
@@ -319,6 +334,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
+    if identification is not None:
+        metrics.update(identification.metrics(config.model_errors))
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
 

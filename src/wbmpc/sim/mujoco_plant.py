@@ -113,6 +113,10 @@ class MujocoPlant:
             hook.after_step(self)
         return tau
 
+    def applied_torques(self) -> np.ndarray:
+        """The joint torques of the current step (clamped), robot joint order (step hooks read them)."""
+        return np.array(self.data.ctrl[self._act])
+
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """(q, v) in pinocchio layout."""
         d = self.data

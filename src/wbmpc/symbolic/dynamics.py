@@ -11,6 +11,13 @@ The graphs are kept small on purpose: joint rotations about aligned axes are spa
 zero/one entries of placements vanish through SX simplification, per-body dynamics use the
 Newton-Euler equations about the centre of mass, and contact forces are rotated down the
 chain one joint at a time instead of through world Jacobians.
+
+Mass distribution (issue 22): a `Configuration` may carry `InertialParameters` (symbols of the NLP or
+numbers): the base body's centre of mass moved by `base_com_offset` (base frame, its mass and rotational
+inertia about the CoM kept), a point mass `payload_kg` at `SymbolicDynamics.payload_frame` (the arm's
+end-effector, else the base origin) and, on a robot with an arm, optionally a second one `base_payload_kg` at
+the base origin (a load on the back: its position shows in the CoM offset). RNEA and CRBA then equal pinocchio's on the model edited alike
+(`InertialParameters.apply_to`); zero values give today's model exactly.
 """
 
 from __future__ import annotations
@@ -53,6 +60,42 @@ class _Body:
 
 
 @dataclass(frozen=True)
+class InertialParameters:
+    """Base CoM offset (3, base frame, m) and a payload point mass (kg) at the payload frame: SX or numbers."""
+
+    base_com_offset: ca.SX
+    payload_kg: ca.SX
+    base_payload_kg: ca.SX | None = None  # a point mass at the base origin (robots with an arm)
+
+    @staticmethod
+    def apply_to(robot: RobotModel, base_com_offset_m, payload_kg: float, base_payload_kg: float = 0.0) -> pin.Model:
+        """A copy of `robot.model` with these numeric values (the independent reference of the symbolic ones)."""
+        model = robot.model.copy()
+        base = model.inertias[1]
+        model.inertias[1] = pin.Inertia(base.mass, np.array(base.lever) + np.asarray(base_com_offset_m, float),
+                                        np.array(base.inertia))
+        joint, offset = payload_placement(robot)
+        model.inertias[joint] = model.inertias[joint] + pin.Inertia(float(payload_kg), offset, np.zeros((3, 3)))
+        model.inertias[1] = model.inertias[1] + pin.Inertia(float(base_payload_kg), np.zeros(3), np.zeros((3, 3)))
+        return model
+
+    def point_masses(self, dyn: "SymbolicDynamics") -> list[tuple[int, np.ndarray, ca.SX]]:
+        """(joint, offset in its frame, mass) of each payload."""
+        masses = [(dyn.payload_joint, dyn.payload_offset, self.payload_kg)]
+        if self.base_payload_kg is not None:
+            masses.append((1, np.zeros(3), self.base_payload_kg))
+        return masses
+
+
+def payload_placement(robot: RobotModel) -> tuple[int, np.ndarray]:
+    """(joint index, offset in its frame) where a payload sits: the arm's end-effector, else the base origin."""
+    if robot.arm_ee is None:
+        return 1, np.zeros(3)
+    frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
+    return frame.parentJoint, np.array(frame.placement.translation)
+
+
+@dataclass(frozen=True)
 class _Contact:
     joint: int
     offset: np.ndarray  # frame origin in the joint frame
@@ -87,6 +130,7 @@ class Configuration:
                 self.local_translation[i] = sp.const(joint.placement_translation) + ca.mtimes(
                     sp.const(joint.placement_rotation), sp.const(joint.axis)
                 ) * value
+        self.inertial: InertialParameters | None = None  # the model's own mass distribution when None
         self._world_rotation: dict[int, ca.SX] = {1: base_rotation}
         self._world_position: dict[int, ca.SX] = {1: base_position}
 
@@ -197,6 +241,7 @@ class SymbolicDynamics:
         self.contacts = [self._contact(name, surface=name not in robot.contact_frames)
                          for name in self.contact_frames]
         self.surface_contacts = [i for i, c in enumerate(self.contacts) if c.surface]
+        self.payload_joint, self.payload_offset = payload_placement(robot)
         self.n_linear_forces = 3 * len(self.contacts)
         self.n_forces = self.n_linear_forces + 3 * len(self.surface_contacts)
 
@@ -344,15 +389,24 @@ class SymbolicDynamics:
                 lin = lin + axis * qdd + sp.cross(motion.ang[i], axis * qd)
             accel_lin[i], accel_ang[i] = lin, ang
         force, moment = {}, {}
+        inertial = cfg.inertial
         for i, body in self.bodies.items():
             w, v = motion.ang[i], motion.lin[i]
             c = sp.const(body.com)
+            if i == 1 and inertial is not None:
+                c = c + inertial.base_com_offset
             inertia = sp.const(body.inertia_com)
             v_com = v + sp.cross(w, c)
             a_com = accel_lin[i] + sp.cross(accel_ang[i], c) + sp.cross(w, v_com)
             f = body.mass * a_com
             n_com = ca.mtimes(inertia, accel_ang[i]) + sp.cross(w, ca.mtimes(inertia, w))
             force[i], moment[i] = f, n_com + sp.cross(c, f)
+        for j, offset, mass in inertial.point_masses(self) if inertial is not None else ():  # the payloads
+            r = sp.const(offset)
+            w = motion.ang[j]
+            a_point = accel_lin[j] + sp.cross(accel_ang[j], r) + sp.cross(w, motion.lin[j] + sp.cross(w, r))
+            f = mass * a_point
+            force[j], moment[j] = force[j] + f, moment[j] + sp.cross(r, f)
         return force, moment
 
     def _apply_contacts(self, cfg: Configuration, force: dict, moment: dict, forces: ca.SX | None) -> None:
@@ -421,6 +475,13 @@ class SymbolicDynamics:
             top = np.hstack([body.mass * np.eye(3), -body.mass * cx])
             bottom = np.hstack([body.mass * cx, body.inertia_com - body.mass * cx @ cx])
             comp[i] = sp.const(np.vstack([top, bottom]))
+        if cfg.inertial is not None:
+            dc = cfg.inertial.base_com_offset
+            base = self.bodies[1]
+            comp[1] = comp[1] + _first_moment_inertia(base.mass, sp.const(base.com) + dc) - sp.const(
+                _first_moment_inertia(base.mass, base.com))
+            for j, offset, mass in cfg.inertial.point_masses(self):
+                comp[j] = comp[j] + _first_moment_inertia(mass, sp.const(offset))
         for i in sorted(self.joints, reverse=True):
             p = self.joints[i].parent
             xm = _motion_transform(cfg.local_rotation[i], cfg.local_translation[i])
@@ -585,6 +646,16 @@ class SymbolicDynamics:
             "integrate": ca.Function("integrate", [q, dq], [self.integrate(q, dq)]),
             "difference": ca.Function("difference", [q, q1], [self.difference(q, q1)]),
         }
+
+
+def _first_moment_inertia(mass, com):
+    """The mass and CoM part of a 6x6 spatial inertia about the joint origin (a point mass `mass` at `com`):
+    [[m I, -m [c]x], [m [c]x, -m [c]x [c]x]] (numeric for NumPy inputs, SX otherwise)."""
+    if isinstance(com, np.ndarray) and not isinstance(mass, ca.SX):
+        cx = _skew_np(com)
+        return np.vstack([np.hstack([mass * np.eye(3), -mass * cx]), np.hstack([mass * cx, -mass * cx @ cx])])
+    cx = sp.skew(com)
+    return ca.vertcat(ca.horzcat(mass * ca.SX.eye(3), -mass * cx), ca.horzcat(mass * cx, -mass * ca.mtimes(cx, cx)))
 
 
 def _inverse_3x3(m: ca.SX) -> ca.SX:
