@@ -137,6 +137,10 @@ class MpcConfig:
     # humanoid's hand pinned in the world while its pelvis sways over the stance foot drives the arm into its
     # limits: g1's single-support OCPs then stall Fatrop (81 iterations; 17 with the rows dropped)
     free_ee_without_command: bool = False
+    # True: the soft rows' slacks (OcpConfig.soft_rows) are free on every step, not only in push recovery
+    # mode. Collision avoidance: an end-effector velocity command that leads into the body conflicts with
+    # the collision rows; with soft arm rows the hand stops at the margin instead of the OCP turning infeasible
+    soft_rows_always: bool = False
     # share of the way from the centre of the feet to the centre of each node's stance feet that the base xy
     # target moves (0: fixed targets, the paper's). Bipeds: their CoM must lean over the next stance foot
     # during double support (MPC._sway_towards_support)
@@ -438,14 +442,17 @@ class MPC:
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
-            soft=after_push, relaxed_rows=self._relaxed_rows(after_push, commands),
+            soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),
+            collision_measured_m=problem.collision_rows_at(q) if problem.collision is not None else None,
         )
+        if problem.collision is not None and self._previous is None:  # the start: refuse a pose in collision
+            problem.collision.check_clear(q)
         x0 = self._initial_guess(q, v, t, node_times, forces)
         if not after_push:
             x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
         # with soft rows, a hard step that fails is re-solved with the slacks free first (it may be infeasible)
-        soft_bounds = None if after_push or not problem.n_slack_variables else problem.bounds(
+        soft_bounds = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else problem.bounds(
             replace(stage_bounds, soft=True, relaxed_rows=self.config.push_relaxed_rows))
         cfg = self.config
         solve_end = None
