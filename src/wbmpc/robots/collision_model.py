@@ -15,11 +15,13 @@ that carries each link:
 Capsules inside another capsule of the same body and shapes under 5 mm are dropped. Links without any
 collision geometry are skipped and listed (`skipped_links`).
 
-Pairs: every arm capsule against the base and the legs, and the last two bodies of each leg against
-those of the other legs (leg vs leg, swing foot vs stance leg). Left out: capsules of one body or of a
-parent and child body (adjacent in the kinematic tree), pairs closer than the margin at the nominal
-pose (touching by design) and pairs that never come within `reach_slack_m` of the margin over
-`reach_samples` random joint configurations within the limits (they cannot collide).
+Pairs: the capsules of the arm's last `arm_bodies` bodies (forearm and hand) against the base and the
+legs, and the last two bodies of each leg against those of the other legs (leg vs leg, swing foot vs
+stance leg). Left out: capsules of one body or of a parent and child body (adjacent in the kinematic
+tree), pairs closer than margin + `nominal_clearance_m` at the nominal pose (neighbours by design),
+pairs that never come within `reach_slack_m` of the margin over `reach_samples` random joint
+configurations (they cannot collide) and pairs at a constant distance. Every pair costs: its exact
+Hessian is ~2500 instructions per node (capsule against capsule), so the selection stays lean.
 """
 
 from __future__ import annotations
@@ -49,19 +51,23 @@ class CollisionError(ConfigError):
 class CollisionConfig:
     """What collision avoidance checks (changing it rebuilds the OCP)."""
 
-    margin_m: float = 0.02  # smallest distance kept between two capsules
+    margin_m: float = 0.03  # smallest distance kept between two capsules
     arm_vs_body: bool = True  # arm capsules against the base and the legs
+    arm_bodies: int = 2  # ... of the last this many bodies with capsules of the arm's chain (forearm and hand)
+    nominal_clearance_m: float = 0.01  # pairs closer than margin + this at the nominal pose are neighbours (left out)
     leg_vs_leg: bool = True  # the last two bodies of each leg against those of the other legs
     reach_samples: int = 800  # random joint configurations that decide which pairs can meet: the arm's joints
     # anywhere within their limits, the legs' within this of the nominal pose (trotting, stepping after a push)
     leg_range_rad: float = 0.5
-    reach_slack_m: float = 0.05  # ... a pair is kept when it came this close to the margin in one of them
+    reach_slack_m: float = 0.03  # ... a pair is kept when it came this close to the margin in one of them
     seed: int = 0
 
     def __post_init__(self):
         check_number("margin_m", self.margin_m, low=0.0, high=0.5, unit="m")
         check_number("reach_samples", self.reach_samples, low=0, high=100_000)
         check_number("reach_slack_m", self.reach_slack_m, low=0.0, high=1.0, unit="m")
+        check_number("nominal_clearance_m", self.nominal_clearance_m, low=0.0, high=1.0, unit="m")
+        check_number("arm_bodies", self.arm_bodies, low=1, high=100)
         check_number("leg_range_rad", self.leg_range_rad, low=0.0, high=2 * np.pi, unit="rad")
 
 
@@ -110,17 +116,11 @@ class CollisionModel:
         self.pairs = self._choose_pairs()
 
     # ------------------------------------------------------------------ pair selection
-    def _chain(self, joint_id: int) -> list[int]:
-        out = []
-        while joint_id > 1:  # below the free-flyer root
-            out.append(joint_id)
-            joint_id = self.robot.model.parents[joint_id]
-        return out[::-1]
-
     def _candidates(self) -> list[tuple[Capsule, Capsule, str, str]]:
         robot, model = self.robot, self.robot.model
-        legs = [self._chain(model.frames[robot.frame_id(f)].parentJoint) for f in robot.feet]
-        arm = set(self._chain(model.frames[robot.frame_id(robot.arm_ee)].parentJoint)) if robot.arm_ee else set()
+        legs = [_chain(model, model.frames[robot.frame_id(f)].parentJoint) for f in robot.feet]
+        arm = set(_chain(model, model.frames[robot.frame_id(robot.arm_ee)].parentJoint)) if robot.arm_ee else set()
+        arm_checked = sorted({c.joint_id for c in self.capsules if c.joint_id in arm})[-self.config.arm_bodies:]
         leg_of = {j: i for i, chain in enumerate(legs) for j in chain if j not in arm}
         distal = {j for chain in legs for j in chain[-2:]}
         names = model.names
@@ -130,10 +130,10 @@ class CollisionModel:
                 ja, jb = a.joint_id, b.joint_id
                 if ja == jb or model.parents[ja] == jb or model.parents[jb] == ja:
                     continue
-                if self.config.arm_vs_body and (ja in arm) != (jb in arm):
+                if self.config.arm_vs_body and (ja in arm) != (jb in arm) and (ja in arm_checked or jb in arm_checked):
                     arm_capsule, other = (a, b) if ja in arm else (b, a)
                     out.append((arm_capsule, other, "arm-body", f"{names[arm_capsule.joint_id]} vs body"))
-                elif (self.config.leg_vs_leg and ja in distal and jb in distal
+                elif (self.config.leg_vs_leg and ja not in arm and jb not in arm and ja in distal and jb in distal
                       and leg_of.get(ja) is not None and leg_of.get(jb) is not None and leg_of[ja] != leg_of[jb]):
                     i, k = sorted((leg_of[ja], leg_of[jb]))
                     out.append((a, b, "leg-leg", f"{robot.feet[i]} vs {robot.feet[k]} legs"))
@@ -155,8 +155,8 @@ class CollisionModel:
         pairs = []
         for (a, b, kind, group), d_nominal, d_reach, d_far in zip(candidates, nominal, reach, farthest):
             pair = CollisionPair(a, b, kind, group)
-            if d_nominal < cfg.margin_m:
-                self.excluded[pair.name] = f"{d_nominal:.3f} m apart at the nominal pose (touching by design)"
+            if d_nominal < cfg.margin_m + cfg.nominal_clearance_m:
+                self.excluded[pair.name] = f"{d_nominal:.3f} m apart at the nominal pose (neighbours by design)"
             elif cfg.reach_samples and d_reach > cfg.margin_m + cfg.reach_slack_m:
                 self.excluded[pair.name] = f"never closer than {d_reach:.3f} m over {cfg.reach_samples} random configurations"
             elif cfg.reach_samples and d_far - d_reach < 1e-6:
@@ -197,6 +197,15 @@ class CollisionModel:
     def summary(self) -> dict:
         return {"capsules": len(self.capsules), "pairs": [p.name for p in self.pairs],
                 "skipped_links": list(self.skipped_links), "margin_m": self.config.margin_m}
+
+
+def _chain(model: pin.Model, joint_id: int) -> list[int]:
+    """Joints from below the free-flyer root down to `joint_id`."""
+    out = []
+    while joint_id > 1:
+        out.append(joint_id)
+        joint_id = model.parents[joint_id]
+    return out[::-1]
 
 
 # ------------------------------------------------------------------------------ capsules
@@ -353,6 +362,50 @@ def _random_configurations(robot: RobotModel, n: int, seed: int, leg_range_rad: 
     high[legs] = np.minimum(high[legs], nominal[legs] + leg_range_rad)
     for _ in range(n):
         yield robot.with_joint_positions(robot.q_nominal, rng.uniform(low, high))
+
+
+@dataclass(frozen=True)
+class ArmWorkspace:
+    """Where the hand can be without touching the body, at the nominal pose (base-relative points
+    expressed as at q_nominal): within `reach_m` of the arm's first joint and farther than `clearance_m`
+    from every capsule of the base and the legs."""
+
+    shoulder_m: np.ndarray
+    reach_m: float
+    body: tuple[tuple[np.ndarray, np.ndarray, float], ...]  # (start, end, radius) in the world at q_nominal
+    clearance_m: float
+
+    def reaches(self, points: np.ndarray) -> np.ndarray:
+        points = np.atleast_2d(points)
+        inside = np.linalg.norm(points - self.shoulder_m, axis=1) <= self.reach_m
+        for start, end, radius in self.body:
+            n = len(points)
+            d = segment_distances(points, points, np.tile(start, (n, 1)), np.tile(end, (n, 1))) - radius
+            inside &= d >= self.clearance_m
+        return inside
+
+
+def arm_workspace(robot: RobotModel, margin_m: float = 0.03, samples: int = 2000) -> ArmWorkspace:
+    """The arm's `ArmWorkspace`: its reach sampled over random joint configurations, the clearance the hand
+    capsule's radius plus `margin_m`."""
+    if robot.arm_ee is None:
+        raise ConfigError(f"{robot.name} has no arm (--arm-ee)")
+    model = robot.model
+    data = model.createData()
+    ee_joint = model.frames[robot.frame_id(robot.arm_ee)].parentJoint
+    arm = _chain(model, ee_joint)
+    pin.framesForwardKinematics(model, data, robot.q_nominal)
+    shoulder = data.oMi[arm[0]].translation.copy()
+    reach = 0.0
+    for q in _random_configurations(robot, samples, 0, 0.0):
+        pin.framesForwardKinematics(model, data, q)
+        reach = max(reach, float(np.linalg.norm(data.oMf[robot.frame_id(robot.arm_ee)].translation - data.oMi[arm[0]].translation)))
+    pin.forwardKinematics(model, data, robot.q_nominal)
+    capsules, _ = robot_capsules(robot)
+    hand = max((c.radius_m for c in capsules if c.joint_id == ee_joint), default=0.0)
+    body = tuple((data.oMi[c.joint_id].act(c.start_m), data.oMi[c.joint_id].act(c.end_m), c.radius_m)
+                 for c in capsules if c.joint_id not in arm)
+    return ArmWorkspace(shoulder, reach, body, hand + margin_m)
 
 
 def collision_model_for(robot: RobotModel, config: CollisionConfig | None) -> CollisionModel | None:

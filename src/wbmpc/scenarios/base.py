@@ -38,6 +38,11 @@ class ScenarioOptions:
                                  low_open=True, unit="s", scenarios=ARM_TRACK)
     arm_feedback_gain_1_s: float = option(4.0, help="feedback gain on the end-effector position error", low=0.0,
                                           high=100.0, unit="1/s", scenarios=ARM_TRACK)
+    arm_target_path: str = option("sine", flag="--target-path", choices=("sine", "behind-base"),
+                                  help="sine: the low/high reference of Fig. 3; behind-base: from the nominal hand "
+                                  "position straight to behind the base at trunk height, through the trunk's rear "
+                                  "(provokes self-collisions; --collision-avoidance), held, and back",
+                                  scenarios=ARM_TRACK)
     gait: str | None = option(None, flag="--gait", choices=GAIT_NAMES, help="override the scenario's gait (pull: "
                               "stand = pull in stance)", default_text="the scenario's")
     # loco-manipulation (section VI-C)

@@ -20,6 +20,7 @@ from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
+from wbmpc.robots.collision_model import CollisionConfig
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
@@ -70,6 +71,13 @@ class RunConfig:
                                 help="position: base x/y/yaw anchored to the integrated command, corrects drift; "
                                 "velocity: the paper's velocity-only base tracking, drift uncorrected")
     seed: int = option(0, flag="--seed", help="seed of the measurement noise", integer=True, low=0)
+    # collision avoidance (issue 22, beyond the paper): capsule distance rows in the OCP (robots/collision_model.py)
+    collision_avoidance: bool = option(False, flag="--collision-avoidance", help="hard rows keeping the arm off "
+                                       "the base and the legs and the legs apart (capsules from the URDF's collision "
+                                       "geometry); the arm's velocity command becomes soft, so the hand stops at the "
+                                       "margin instead of the OCP turning infeasible")
+    collision_margin_m: float = option(0.03, flag="--collision-margin", help="with --collision-avoidance: smallest "
+                                       "distance kept between two capsules", low=0.0, high=0.3, unit="m")
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
     state: str = option("true", flag="--state", choices=("true", "estimated"), help="state fed to the MPC: the "
                         "simulator's (true) or estimated from simulated IMU + encoders (noise on; section V-B filter; "
@@ -167,7 +175,11 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
-    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid), gait=scenario.gait,
+    collision = CollisionConfig(margin_m=config.collision_margin_m) if config.collision_avoidance else None
+    soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
+    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
+                                   soft_rows=("ee_vel",) if soft_arm else ()),
+                     soft_rows_always=soft_arm, gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
@@ -306,6 +318,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics["state"] = config.state
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
+    metrics.update(self_collision_metrics(plant, mpc, log))
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
@@ -320,6 +333,28 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     "drive_train": _drive_train_summary(robot, plant.config)})
     return ScenarioResult(scenario, metrics, log, scene, plant=plant,
                           estimation=state_source.log if state_source is not None else None)
+
+
+def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
+    """Robot-robot contacts counted in MuJoCo over the run (null on a plant that does not simulate them) and,
+    with collision avoidance, its pairs and the smallest capsule distance of the run (500 Hz ticks)."""
+    counter = getattr(plant, "self_contacts", None)
+    if counter is not None and getattr(plant.config, "self_collision", False):
+        out = counter.metrics(plant.dt_s)
+    else:
+        out = {"self_collision_contacts": None, "self_collision_time_s": None, "self_collision_pairs": None}
+    model = mpc.problem.collision
+    out["collision_avoidance"] = None
+    if model is not None:
+        q = log.arrays(("q",))["q"]
+        distances = np.array([model.distances(qk) for qk in q]) if len(q) else np.zeros((0, len(model.pairs)))
+        worst = int(np.argmin(distances.min(axis=0))) if distances.size else None
+        out["collision_avoidance"] = {
+            "margin_m": model.config.margin_m, "pairs": len(model.pairs), "rows_per_node": len(model.groups),
+            "skipped_links": list(model.skipped_links),
+            "min_distance_m": float(distances.min()) if distances.size else None,
+            "closest_pair": model.pairs[worst].name if worst is not None else None}
+    return out
 
 
 def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
