@@ -191,3 +191,22 @@ def test_run_reports_self_collision_contacts():
     result = run_scenario(a1, RunConfig(scenario="stand", duration_s=0.1, nodes=4))
     assert result.metrics["self_collision_contacts"] == 0
     assert result.metrics["collision_avoidance"] is None
+
+
+def test_run_option_sets_the_ocp(robot):
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import mpc_config_for
+
+    scenario = make_scenario_for(robot)
+    config = mpc_config_for(scenario, RunConfig(scenario="arm-track", collision_avoidance=True, collision_margin_m=0.04),
+                            robot)
+    assert config.ocp.collision.margin_m == 0.04
+    assert config.ocp.soft_rows == ("ee_vel",) and config.soft_rows_always
+    plain = mpc_config_for(scenario, RunConfig(scenario="arm-track"), robot)
+    assert plain.ocp.collision is None and plain.ocp.soft_rows == () and not plain.soft_rows_always
+
+
+def make_scenario_for(robot):
+    from wbmpc.scenarios import ScenarioOptions, make_scenario
+
+    return make_scenario("arm-track", robot, ScenarioOptions(arm_target_path="behind-base"))

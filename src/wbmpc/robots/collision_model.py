@@ -60,6 +60,7 @@ class CollisionConfig:
     # anywhere within their limits, the legs' within this of the nominal pose (trotting, stepping after a push)
     leg_range_rad: float = 0.5
     reach_slack_m: float = 0.03  # ... a pair is kept when it came this close to the margin in one of them
+    max_pairs_per_group: int = 16  # ... at most this many per OCP row: those closest in the nearest 5 % of samples
     seed: int = 0
 
     def __post_init__(self):
@@ -68,6 +69,7 @@ class CollisionConfig:
         check_number("reach_slack_m", self.reach_slack_m, low=0.0, high=1.0, unit="m")
         check_number("nominal_clearance_m", self.nominal_clearance_m, low=0.0, high=1.0, unit="m")
         check_number("arm_bodies", self.arm_bodies, low=1, high=100)
+        check_number("max_pairs_per_group", self.max_pairs_per_group, low=1, high=10_000)
         check_number("leg_range_rad", self.leg_range_rad, low=0.0, high=2 * np.pi, unit="rad")
 
 
@@ -147,13 +149,14 @@ class CollisionModel:
         first = [c[0] for c in candidates]
         second = [c[1] for c in candidates]
         nominal = capsule_distances(robot, robot.q_nominal, first, second)
-        reach, farthest = np.full(len(candidates), np.inf), nominal.copy()
         data = robot.model.createData()
-        for q in _random_configurations(robot, cfg.reach_samples, cfg.seed, cfg.leg_range_rad):
-            d = capsule_distances(robot, q, first, second, data)
-            reach, farthest = np.minimum(reach, d), np.maximum(farthest, d)
-        pairs = []
-        for (a, b, kind, group), d_nominal, d_reach, d_far in zip(candidates, nominal, reach, farthest):
+        samples = np.array([capsule_distances(robot, q, first, second, data)
+                            for q in _random_configurations(robot, cfg.reach_samples, cfg.seed, cfg.leg_range_rad)])
+        samples = samples if len(samples) else nominal[None, :]
+        reach, farthest = samples.min(axis=0), np.maximum(samples.max(axis=0), nominal)
+        likely = np.percentile(samples, 5, axis=0)
+        pairs, ranks = [], []
+        for (a, b, kind, group), d_nominal, d_reach, d_far, d_likely in zip(candidates, nominal, reach, farthest, likely):
             pair = CollisionPair(a, b, kind, group)
             if d_nominal < cfg.margin_m + cfg.nominal_clearance_m:
                 self.excluded[pair.name] = f"{d_nominal:.3f} m apart at the nominal pose (neighbours by design)"
@@ -163,7 +166,14 @@ class CollisionModel:
                 self.excluded[pair.name] = f"always {d_nominal:.3f} m apart (the joints between them do not move them)"
             else:
                 pairs.append(pair)
-        return pairs
+                ranks.append(d_likely)
+        kept = []
+        for group in dict.fromkeys(p.group for p in pairs):
+            members = sorted((i for i, p in enumerate(pairs) if p.group == group), key=lambda i: ranks[i])
+            for i in members[cfg.max_pairs_per_group:]:
+                self.excluded[pairs[i].name] = f"beyond the {cfg.max_pairs_per_group} pairs of {group} most likely to meet"
+            kept += members[: cfg.max_pairs_per_group]
+        return [pairs[i] for i in sorted(kept)]
 
     @property
     def groups(self) -> dict[str, list[int]]:
