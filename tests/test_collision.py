@@ -12,11 +12,13 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control import MPC, Commands
+from wbmpc.errors import ConfigError
 from wbmpc.robots import load_robot
 from wbmpc.robots.collision_model import (
     CollisionConfig,
     CollisionError,
     CollisionModel,
+    Obstacle,
     _random_configurations,
     arm_workspace,
 )
@@ -29,9 +31,17 @@ def robot():
     return load_robot("b1_z1")
 
 
+OBSTACLE = Obstacle("crate", (0.9, 0.3, 0.3), (0.15, 0.12, 0.1))
+
+
 @pytest.fixture(scope="module")
 def collision(robot):
     return CollisionModel(robot, CollisionConfig())
+
+
+@pytest.fixture(scope="module")
+def with_obstacle(robot):
+    return CollisionModel(robot, CollisionConfig(obstacles=(OBSTACLE,)))
 
 
 def _coal_geometry(model: CollisionModel) -> pin.GeometryModel:
@@ -65,17 +75,22 @@ def test_capsules_and_pairs_of_b1_z1(collision):
     assert collision.distances(load_robot("b1_z1").q_nominal).min() > collision.config.margin_m
 
 
-def test_capsule_distances_match_coal(robot, collision):
-    """CasADi rows (our FK in the base frame + branch-free segment distance) against pinocchio's FK and coal's
-    capsule distance on random configurations, deep penetrations and parallel capsules included."""
+def test_capsule_distances_match_coal(robot, with_obstacle):
+    """CasADi rows (our FK in the base frame, the world for the obstacle + branch-free segment distance) against
+    pinocchio's FK and coal's capsule distance on random configurations and base poses, deep penetrations and
+    parallel capsules included."""
+    collision = with_obstacle
+    assert any(p.kind == "obstacle" for p in collision.pairs)
     geometry = _coal_geometry(collision)
     geometry_data = pin.GeometryData(geometry)
     data = robot.model.createData()
     function = collision_function(collision, SymbolicDynamics(robot))
     checked = 0
+    rng = np.random.default_rng(7)
     for q in _random_configurations(robot, 40, seed=3, leg_range_rad=1.0):
         q = q.copy()
-        q[:3] += np.array([0.3, -0.2, 0.1])  # any base pose: the rows read the joints only
+        q[:3] += rng.uniform(-0.3, 0.3, 3)
+        q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(rng.uniform(-0.3, 0.3, 3))).coeffs()
         pin.computeDistances(robot.model, data, geometry, geometry_data, q)
         reference = np.array([r.min_distance for r in geometry_data.distanceResults])
         ours = np.asarray(function(q)[0]).ravel()
@@ -103,6 +118,16 @@ def _colliding_arm(robot, collision) -> np.ndarray:
         if min(d[i] for i, n in enumerate(names) if "trunk" in n) < -0.03:
             return q
     raise AssertionError("no colliding arm configuration found")
+
+
+def test_obstacle_in_the_way_of_the_start_names_it(robot):
+    crate_on_hand = Obstacle("crate", tuple(robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]),
+                             (0.1, 0.1, 0.1))
+    model = CollisionModel(robot, CollisionConfig(obstacles=(crate_on_hand,)))
+    with pytest.raises(CollisionError, match="crate"):
+        model.check_clear(robot.q_nominal)
+    with pytest.raises(ConfigError, match="half_size_m"):
+        Obstacle("flat", (0.0, 0.0, 0.0), (0.1, 0.0, 0.1))
 
 
 def test_start_in_collision_names_the_pair(robot, collision):

@@ -12,7 +12,8 @@ that carries each link:
   so corners and edges are rounded off by up to a few centimetres: the distance margin covers them;
 - mesh: the capsule around its bounding box (as a thick bar, of half length a: it contains the mesh).
 
-Capsules inside another capsule of the same body and shapes under 5 mm are dropped. Links without any
+Capsules inside another capsule of the same body and shapes under 5 mm are dropped. Obstacles
+(`CollisionConfig.obstacles`, boxes in the world) become capsules the same way. Links without any
 collision geometry are skipped and listed (`skipped_links`).
 
 Pairs: the capsules of the arm's last `arm_bodies` bodies (forearm and hand) against the base and the
@@ -48,6 +49,21 @@ class CollisionError(ConfigError):
 
 
 @dataclass(frozen=True)
+class Obstacle:
+    """A box fixed in the world (a wall, a table): centre and half sizes along the world axes (m)."""
+
+    name: str
+    centre_m: tuple[float, float, float]
+    half_size_m: tuple[float, float, float]
+
+    def __post_init__(self):
+        if len(self.centre_m) != 3 or len(self.half_size_m) != 3 or min(self.half_size_m) <= 0 \
+                or not np.all(np.isfinite(self.centre_m)):
+            raise ConfigError(f"obstacle {self.name!r}: centre_m needs 3 finite numbers and half_size_m 3 positive "
+                              f"ones, got {self.centre_m} and {self.half_size_m}")
+
+
+@dataclass(frozen=True)
 class CollisionConfig:
     """What collision avoidance checks (changing it rebuilds the OCP)."""
 
@@ -61,6 +77,9 @@ class CollisionConfig:
     leg_range_rad: float = 0.5
     reach_slack_m: float = 0.03  # ... a pair is kept when it came this close to the margin in one of them
     max_pairs_per_group: int = 16  # ... at most this many per OCP row: those closest in the nearest 5 % of samples
+    # boxes in the world kept off the hand (the arm's last body) and the feet (each leg's last body): one row
+    # per limb and obstacle (these rows read the base pose too); Python API only, no MuJoCo body of their own yet
+    obstacles: tuple[Obstacle, ...] = ()
     seed: int = 0
 
     def __post_init__(self):
@@ -97,7 +116,7 @@ class Capsule:
 class CollisionPair:
     first: Capsule
     second: Capsule
-    kind: str  # "arm-body" | "leg-leg"
+    kind: str  # "arm-body" | "leg-leg" | "obstacle" (second: a capsule of the obstacle, joint 0 = the world)
     group: str  # pairs of one group share one OCP row (their smooth minimum): an arm body, or two legs
 
     @property
@@ -115,14 +134,12 @@ class CollisionModel:
         if self.skipped_links:
             log.info("collision avoidance: links without collision geometry skipped: %s", ", ".join(self.skipped_links))
         self.excluded: dict[str, str] = {}  # pair name -> why it is not checked
-        self.pairs = self._choose_pairs()
+        self.pairs = self._choose_pairs() + self._obstacle_pairs()
 
     # ------------------------------------------------------------------ pair selection
     def _candidates(self) -> list[tuple[Capsule, Capsule, str, str]]:
         robot, model = self.robot, self.robot.model
-        legs = [_chain(model, model.frames[robot.frame_id(f)].parentJoint) for f in robot.feet]
-        arm = set(_chain(model, model.frames[robot.frame_id(robot.arm_ee)].parentJoint)) if robot.arm_ee else set()
-        arm_checked = sorted({c.joint_id for c in self.capsules if c.joint_id in arm})[-self.config.arm_bodies:]
+        legs, arm, arm_checked = self._limbs()
         leg_of = {j: i for i, chain in enumerate(legs) for j in chain if j not in arm}
         distal = {j for chain in legs for j in chain[-2:]}
         names = model.names
@@ -140,6 +157,32 @@ class CollisionModel:
                     i, k = sorted((leg_of[ja], leg_of[jb]))
                     out.append((a, b, "leg-leg", f"{robot.feet[i]} vs {robot.feet[k]} legs"))
         return out
+
+    def _limbs(self) -> tuple[list[list[int]], set[int], list[int]]:
+        """The legs' joint chains, the arm's joints and its checked bodies (the last `arm_bodies` with capsules)."""
+        robot, model = self.robot, self.robot.model
+        legs = [_chain(model, model.frames[robot.frame_id(f)].parentJoint) for f in robot.feet]
+        arm = set(_chain(model, model.frames[robot.frame_id(robot.arm_ee)].parentJoint)) if robot.arm_ee else set()
+        arm_checked = sorted({c.joint_id for c in self.capsules if c.joint_id in arm})[-self.config.arm_bodies:]
+        return legs, arm, arm_checked
+
+    def _obstacle_pairs(self) -> list[CollisionPair]:
+        """Every capsule of the hand (the arm's last body with capsules) and of each leg's last body against every
+        obstacle. A flat box is ceil(b / c) capsules: a 1 m x 10 cm wall is 10, so 50 pairs with b1_z1's hand and
+        feet (~2500 Hessian instructions each per node): obstacles are for thick boxes today."""
+        legs, _, arm_checked = self._limbs()
+        names = self.robot.model.names
+        limbs = [(names[j], j) for j in arm_checked[-1:]] + [(foot, chain[-1]) for foot, chain in zip(self.robot.feet, legs)]
+        pairs = []
+        for obstacle in self.config.obstacles:
+            pieces = _box_capsules(np.asarray(obstacle.half_size_m, dtype=float), np.asarray(obstacle.centre_m, dtype=float),
+                                   bounding=False)
+            boxes = [Capsule(f"{obstacle.name}_{k}", obstacle.name, 0, start, end, radius)
+                     for k, (start, end, radius) in enumerate(pieces)]
+            for label, joint in limbs:
+                pairs += [CollisionPair(c, box, "obstacle", f"{label} vs {obstacle.name}")
+                          for c in self.capsules if c.joint_id == joint for box in boxes]
+        return pairs
 
     def _choose_pairs(self) -> list[CollisionPair]:
         candidates = self._candidates()

@@ -1,7 +1,8 @@
 """Capsule distances in CasADi SX: the collision avoidance rows of the OCP (issue 22, beyond the paper).
 
-Capsule end points are placed by forward kinematics in the base frame (a distance does not depend on
-where the base is, so these rows read the joint angles only). The distance of two segments uses the
+Capsule end points are placed by forward kinematics in the base frame (a distance between two links does
+not depend on where the base is, so these rows read the joint angles only); against an obstacle, fixed
+in the world, the robot's capsule is placed in the world (those rows read the base pose too). The distance of two segments uses the
 clamped closest points written without branches,
 
     s = clamp((b f - c e) / (a e - b^2)), t = clamp((b s + f) / e), s = clamp((b t - c) / a),
@@ -83,17 +84,26 @@ def _ends(placements, capsule: Capsule) -> tuple[ca.SX, ca.SX]:
     return pos + ca.mtimes(rot, sp.const(capsule.start_m)), pos + ca.mtimes(rot, sp.const(capsule.end_m))
 
 
+def _world(cfg: Configuration, point: ca.SX) -> ca.SX:
+    return cfg.base_position + ca.mtimes(cfg.base_rotation, point)
+
+
 def pair_distances(model: CollisionModel, cfg: Configuration) -> ca.SX:
     """Surface distance (m) of every checked pair of `model` at configuration `cfg`."""
-    joints = {c.joint_id for pair in model.pairs for c in (pair.first, pair.second)}
+    joints = {c.joint_id for pair in model.pairs for c in (pair.first, pair.second) if c.joint_id > 0}
     placements = base_frame_placements(cfg, joints)
-    ends = {}
+    ends, world = {}, {}
     out = []
     for pair in model.pairs:
         for c in (pair.first, pair.second):
             if c.name not in ends:
-                ends[c.name] = _ends(placements, c)
-        (p0, p1), (q0, q1) = ends[pair.first.name], ends[pair.second.name]
+                ends[c.name] = _ends(placements, c) if c.joint_id > 0 else (sp.const(c.start_m), sp.const(c.end_m))
+        if pair.second.joint_id == 0:  # an obstacle: in the world frame, the robot's capsule placed there
+            if pair.first.name not in world:
+                world[pair.first.name] = tuple(_world(cfg, p) for p in ends[pair.first.name])
+            (p0, p1), (q0, q1) = world[pair.first.name], ends[pair.second.name]
+        else:
+            (p0, p1), (q0, q1) = ends[pair.first.name], ends[pair.second.name]
         d_sq = segment_distance_sq(p0, p1, q0, q1, pair.first.is_sphere, pair.second.is_sphere)
         out.append(ca.sqrt(d_sq + DISTANCE_EPS_M**2) - pair.first.radius_m - pair.second.radius_m)
     return ca.vertcat(*out)
