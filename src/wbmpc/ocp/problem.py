@@ -134,7 +134,8 @@ class OcpProblem:
         self.point_feet = [i for i in range(self.n_feet) if i not in self.surface_feet]
         self.has_arm = robot.arm_ee is not None
         self.collision: CollisionModel | None = collision_model_for(robot, config.collision)
-        self._collision_function: ca.Function | None = None
+        # built now: the first MPC step is timed (the anytime solver's budget check)
+        self._collision_function = collision_function(self.collision, self.dyn) if self.collision is not None else None
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
@@ -567,8 +568,6 @@ class OcpProblem:
 
     def collision_rows_at(self, q: np.ndarray) -> np.ndarray:
         """The collision rows (smooth minimum distance per pair group, m) at configuration q."""
-        if self._collision_function is None:
-            self._collision_function = collision_function(self.collision, self.dyn)
         return np.asarray(self._collision_function(q)[1], dtype=float).ravel()
 
     def _collision_bounds(self, lbg, ubg, data: StageBounds) -> None:
