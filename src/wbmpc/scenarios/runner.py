@@ -187,7 +187,8 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      delay_compensation=(config.delay != "none" if config.delay_compensation is None
                                          else config.delay_compensation),
                      step_budget_s=_step_budget_s(config),
-                     **{**tuning.mpc_fields(), "weights": scenario.cost_weights(tuning.weights)},
+                     **{**tuning.mpc_fields(), "weights": _collision_weights(scenario.cost_weights(tuning.weights),
+                                                                         soft_arm)},
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
@@ -200,6 +201,17 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
                      # that changes after a push lives in the solver process: keep the fixed schedule there
                      push_gait_period_scale=_push_cadence(config))
+
+
+COLLISION_SOFT_WEIGHT = 1000.0  # L1 weight of the arm's velocity rows with collision avoidance (per m/s)
+
+
+def _collision_weights(weights, soft_arm: bool):
+    """With collision avoidance the arm's velocity rows are soft on every step: their slacks weigh
+    COLLISION_SOFT_WEIGHT, so the hand follows its command wherever the collision rows allow (at the default
+    100 the plan trades hand velocity for posture and base velocity: the hand lagged its path by 30-50 cm)."""
+    return dataclasses.replace(weights, soft_constraint=max(weights.soft_constraint, COLLISION_SOFT_WEIGHT)) \
+        if soft_arm else weights
 
 
 def default_solver(compiled: bool, delay: str) -> str:
