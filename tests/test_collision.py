@@ -235,3 +235,55 @@ def make_scenario_for(robot):
     from wbmpc.scenarios import ScenarioOptions, make_scenario
 
     return make_scenario("arm-track", robot, ScenarioOptions(arm_target_path="behind-base"))
+
+
+def test_around_obstacle_path_crosses_the_post(robot):
+    """--target-path around-obstacle: the straight sweep goes through the post (reference inside the box, not
+    reachable there), the base trots in place, the MPC's obstacle is the MuJoCo box, kept off the arm only."""
+    from wbmpc.scenarios import ScenarioOptions, make_scenario
+    from wbmpc.sim.objects import FixedBox
+
+    scenario = make_scenario("arm-track", robot, ScenarioOptions(arm_target_path="around-obstacle"))
+    post = scenario.post(robot)
+    assert isinstance(post, FixedBox)
+    assert post.centre_m[2] == pytest.approx(post.half_size_m[2])  # stands on the floor
+    reference = scenario.ee_reference(robot)
+    middle = np.asarray(reference(4.75))  # halfway from the left to the right of the robot
+    assert np.all(np.abs(middle[:2] - np.asarray(post.centre_m[:2])) < np.asarray(post.half_size_m[:2]) + 0.05)
+    assert middle[2] < post.centre_m[2] + post.half_size_m[2]
+    t = np.linspace(0.0, 8.0, 161)
+    reachable = scenario.reachable(robot, t)
+    assert reachable[t <= 3.5].all() and not reachable[np.isclose(t, 4.75)].any()
+    assert scenario.commands(robot)(0.0, robot.q_nominal, np.zeros(robot.nv)).base_velocity_m_s[0] == 0.0
+    (obstacle,) = scenario.obstacles(robot)
+    assert obstacle.keep_off == ("arm",) and obstacle.half_size_m == post.half_size_m
+    model = CollisionModel(robot, CollisionConfig(obstacles=(obstacle,)))
+    on_post = [p for p in model.pairs if p.kind == "obstacle"]
+    assert {p.group for p in on_post} == {"arm vs post"}  # one row: forearm and hand
+    assert {p.first.link for p in on_post} >= {"link03"}
+    model.check_clear(robot.q_nominal)  # the nominal pose is clear of it
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import mpc_config_for
+
+    config = mpc_config_for(scenario, RunConfig(scenario="arm-track", collision_avoidance=True), robot)
+    assert config.ocp.collision.obstacles == (obstacle,)
+
+
+def test_mujoco_post_measures_the_robot_touching_it(robot):
+    """The post (a FixedBox in the MuJoCo scene): `touching` when the hand is inside it, not at the nominal pose;
+    contact_count counts touches once."""
+    from wbmpc.sim.mujoco_plant import MujocoPlant
+    from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+    from wbmpc.sim.objects import FixedBox, Scene, contact_count
+
+    hand = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
+    for centre, expected in (((hand[0] + 0.5, 0.0, 0.5), 0.0), ((hand[0], hand[1], hand[2] + 0.05), 1.0)):
+        scene = Scene(robot, [FixedBox(centre, (0.05, 0.05, 0.05))])
+        plant = MujocoPlant(robot, scene.plant_config(MujocoPlantConfig(record_every_n_steps=0)))
+        scene.attach(plant)
+        plant.reset(robot.q_nominal)
+        plant.step(np.zeros(robot.n_joints))
+        assert scene.recording.series("post", "touching")[1][-1] == expected
+    assert contact_count(np.arange(6) * 0.002, [0, 1, 1, 0, 1, 0]) == {"contacts": 2, "time_s": pytest.approx(0.006)}
+    with pytest.raises(ConfigError, match="keep_off"):
+        Obstacle("crate", (1.0, 0.0, 0.5), (0.1, 0.1, 0.1), keep_off=("head",))

@@ -55,12 +55,15 @@ class Obstacle:
     name: str
     centre_m: tuple[float, float, float]
     half_size_m: tuple[float, float, float]
+    keep_off: tuple[str, ...] = ("arm", "feet")  # what it is kept off: the arm's checked bodies, each leg's last body
 
     def __post_init__(self):
         if len(self.centre_m) != 3 or len(self.half_size_m) != 3 or min(self.half_size_m) <= 0 \
                 or not np.all(np.isfinite(self.centre_m)):
             raise ConfigError(f"obstacle {self.name!r}: centre_m needs 3 finite numbers and half_size_m 3 positive "
                               f"ones, got {self.centre_m} and {self.half_size_m}")
+        if not self.keep_off or not set(self.keep_off) <= {"arm", "feet"}:
+            raise ConfigError(f"obstacle {self.name!r}: keep_off takes 'arm' and/or 'feet', got {self.keep_off}")
 
 
 @dataclass(frozen=True)
@@ -77,8 +80,8 @@ class CollisionConfig:
     leg_range_rad: float = 0.5
     reach_slack_m: float = 0.03  # ... a pair is kept when it came this close to the margin in one of them
     max_pairs_per_group: int = 16  # ... at most this many per OCP row: those closest in the nearest 5 % of samples
-    # boxes in the world kept off the hand (the arm's last body) and the feet (each leg's last body): one row
-    # per limb and obstacle (these rows read the base pose too); Python API only, no MuJoCo body of their own yet
+    # boxes in the world kept off the arm's checked bodies and the feet (each leg's last body): one row per
+    # limb and obstacle (these rows read the base pose too); a scenario's scene boxes (Scenario.obstacles)
     obstacles: tuple[Obstacle, ...] = ()
     seed: int = 0
 
@@ -167,21 +170,21 @@ class CollisionModel:
         return legs, arm, arm_checked
 
     def _obstacle_pairs(self) -> list[CollisionPair]:
-        """Every capsule of the hand (the arm's last body with capsules) and of each leg's last body against every
-        obstacle. A flat box is ceil(b / c) capsules: a 1 m x 10 cm wall is 10, so 50 pairs with b1_z1's hand and
-        feet (~2500 Hessian instructions each per node): obstacles are for thick boxes today."""
+        """Every capsule of the arm's checked bodies (forearm and hand: one row) and of each leg's last body (a
+        row per leg) against every obstacle, as its `keep_off` says. A flat box is ceil(b / c) capsules: a 1 m x
+        10 cm wall is 10, so 60 pairs with b1_z1's arm and feet (~2500 Hessian instructions each per node):
+        obstacles are for thick boxes today."""
         legs, _, arm_checked = self._limbs()
-        names = self.robot.model.names
-        limbs = [(names[j], j) for j in arm_checked[-1:]] + [(foot, chain[-1]) for foot, chain in zip(self.robot.feet, legs)]
+        limbs = {"arm": [("arm", set(arm_checked))], "feet": [(foot, {chain[-1]}) for foot, chain in zip(self.robot.feet, legs)]}
         pairs = []
         for obstacle in self.config.obstacles:
             pieces = _box_capsules(np.asarray(obstacle.half_size_m, dtype=float), np.asarray(obstacle.centre_m, dtype=float),
                                    bounding=False)
             boxes = [Capsule(f"{obstacle.name}_{k}", obstacle.name, 0, start, end, radius)
                      for k, (start, end, radius) in enumerate(pieces)]
-            for label, joint in limbs:
+            for label, joints in (limb for kind in obstacle.keep_off for limb in limbs[kind]):
                 pairs += [CollisionPair(c, box, "obstacle", f"{label} vs {obstacle.name}")
-                          for c in self.capsules if c.joint_id == joint for box in boxes]
+                          for c in self.capsules if c.joint_id in joints for box in boxes]
         return pairs
 
     def _choose_pairs(self) -> list[CollisionPair]:

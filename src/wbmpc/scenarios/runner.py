@@ -175,7 +175,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
-    collision = CollisionConfig(margin_m=config.collision_margin_m) if config.collision_avoidance else None
+    collision = (CollisionConfig(margin_m=config.collision_margin_m,
+                                 obstacles=tuple(scenario.obstacles(robot)) if robot is not None else ())
+                 if config.collision_avoidance else None)
     soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
                                    soft_rows=("ee_vel",) if soft_arm else ()),
