@@ -50,6 +50,11 @@ class CostWeights:
     # velocity): above the rows' multipliers on nominal trot steps (<= 60 on b1_z1), so those plans
     # stay exact; 1e3 leaves nominal Fatrop steps unconverged after 200 iterations, 50 is not exact
     soft_constraint: float = 100.0
+    # quadratic weight of the same slacks per (m/s)^2 (0: the exact L1 penalty alone). With collision avoidance
+    # the arm's command meets the collision rows: under L1 alone a command pointing within 45 deg of a surface's
+    # normal stops the hand there (moving along the surface costs more than stopping), a quadratic weight makes it
+    # slide along (the command's projection); Fatrop's interior point also converges on it where a 1e3 L1 does not
+    soft_constraint_quadratic: float = 0.0
 
     def __post_init__(self):
         for name, value in vars(self).items():
@@ -66,6 +71,7 @@ class CostWeights:
             "w_F": np.full(nf, self.contact_force),
             "w_tau": np.full(nj, self.joint_torque),
             "w_slack": [self.soft_constraint],
+            "w_slack_sq": [self.soft_constraint_quadratic],
         }
 
 

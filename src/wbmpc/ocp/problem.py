@@ -193,6 +193,7 @@ class OcpProblem:
         params.add("w_tau", self.nj)
         params.add("mu", 1)
         params.add("w_slack", 1)  # L1 weight of the soft rows' slacks
+        params.add("w_slack_sq", 1)  # ... and their quadratic weight (CostWeights.soft_constraint_quadratic)
         self.params = params
         self.state_names = [name for name, _ in form.state_parts()]
         self.nx = sum(size for _, size in form.state_parts())
@@ -341,6 +342,7 @@ class OcpProblem:
             cost += ca.dot(local["w_tau"], node["tau"] ** 2) if node.get("tau") is not None else 0
         for slack in slacks:
             cost += local["w_slack"] * ca.sum1(slack)  # exact L1 penalty of the soft rows
+            cost += local["w_slack_sq"] * ca.sumsqr(slack)  # (s+)^2 + (s-)^2: the squared violation
         next_state = form.transition(node, dt) if has_input else ca.SX(0, 1)
         path = ca.vertcat(*[expr for _, expr in rows]) if rows else ca.SX(0, 1)
         name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
