@@ -74,8 +74,10 @@ class RunConfig:
     # collision avoidance (issue 22, beyond the paper): capsule distance rows in the OCP (robots/collision_model.py)
     collision_avoidance: bool = option(False, flag="--collision-avoidance", help="hard rows keeping the arm off "
                                        "the base and the legs and the legs apart (capsules from the URDF's collision "
-                                       "geometry); the arm's velocity command becomes soft, so the hand stops at the "
-                                       "margin instead of the OCP turning infeasible")
+                                       "geometry) and the scene's boxes (arm-track --target-path around-obstacle) "
+                                       "off the arm; the arm's velocity command becomes soft, so the hand stops at "
+                                       "or slides along the margin instead of the OCP turning infeasible; solver "
+                                       "auto: the anytime SQP")
     collision_margin_m: float = option(0.03, flag="--collision-margin", help="with --collision-avoidance: smallest "
                                        "distance kept between two capsules", low=0.0, high=0.3, unit="m")
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
