@@ -32,8 +32,8 @@ bounds and the cost gains w_slack (s+ + s-), an exact L1 penalty: while the hard
 feasible and |multiplier| < w_slack the slacks are zero and the solution is the hard one; after a
 push that makes the hard rows infeasible (the arm pinned in the world while the base flies off)
 the OCP stays solvable with the least weighted violation; w_slack_sq (s+^2 + s-^2, 0 by default) adds a
-quadratic penalty, no longer exact (a hard row's multiplier lambda leaves a violation lambda / (2 w_slack_sq))
-but smooth: a command that meets a collision row is followed along the surface instead of stopped (collision
+quadratic penalty (a hard row's multiplier |lambda| > w_slack leaves a violation (|lambda| - w_slack) /
+(2 w_slack_sq); below it the rows stay exact) that is smooth beyond: a command that meets a collision row is followed along the surface instead of stopped (collision
 avoidance's arm rows). The slacks are inputs of their own
 stage (Fatrop's structure holds); the terminal node keeps its rows hard. `StageBounds.soft=False`
 pins the slacks to zero (the hard OCP: free slacks cost nominal steps ~2 extra iterations, so the
