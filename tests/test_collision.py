@@ -290,3 +290,34 @@ def test_mujoco_post_measures_the_robot_touching_it(robot):
     assert contact_count(np.arange(6) * 0.002, [0, 1, 1, 0, 1, 0]) == {"contacts": 2, "time_s": pytest.approx(0.006)}
     with pytest.raises(ConfigError, match="keep_off"):
         Obstacle("crate", (1.0, 0.0, 0.5), (0.1, 0.1, 0.1), keep_off=("head",))
+
+
+@pytest.mark.slow
+def test_quadratic_slack_slides_the_hand_along_an_obstacle(robot):
+    """A post 5 cm past the margin beside the hand, its axis 3 cm beyond the hand, a command straight into it:
+    under the L1 weight alone the plan stops the hand at the margin; with the quadratic weight of collision
+    runs it slides along the post (towards the robot); both keep the margin (pinocchio FK on the planned q)."""
+    from wbmpc.bench.mpc import mpc_config
+    from wbmpc.ocp.grid import TimeGrid
+    from wbmpc.scenarios.runner import COLLISION_SOFT_WEIGHT_SQ
+
+    q = robot.q_nominal.copy()
+    hand = robot.frame_trajectories(q, [robot.arm_ee])[robot.arm_ee][0]
+    post = Obstacle("post", (hand[0] + 0.03, hand[1] - 0.19, 0.5), (0.05, 0.05, 0.5), keep_off=("arm",))
+    config = mpc_config(robot=robot, nodes=8, solver="sqp")
+    moved = {}
+    for weight in (0.0, COLLISION_SOFT_WEIGHT_SQ):
+        mpc = MPC(robot, replace(config, soft_rows_always=True,
+                                 weights=replace(config.weights, soft_constraint_quadratic=weight),
+                                 ocp=replace(config.ocp, grid=TimeGrid(n_intervals=7), soft_rows=("ee_vel",),
+                                             collision=CollisionConfig(obstacles=(post,)))))
+        model = mpc.problem.collision
+        on_post = [i for i, p in enumerate(model.pairs) if p.kind == "obstacle"]
+        assert 0.04 < model.distances(q)[on_post].min() < 0.07
+        solution = mpc.solve(q, np.zeros(robot.nv), Commands(ee_velocity_m_s=np.array([0.0, -0.3, 0.0])), 0.0)
+        assert solution.success, solution.stats.status
+        assert min(model.distances(qk)[on_post].min() for qk in solution.q[1:]) >= model.config.margin_m - 2e-3
+        ee = robot.frame_trajectories(np.asarray(solution.q), [robot.arm_ee])[robot.arm_ee]
+        moved[weight] = ee[-1] - ee[0]
+    assert abs(moved[0.0][0]) < 0.005  # stopped
+    assert moved[COLLISION_SOFT_WEIGHT_SQ][0] < -0.01  # slid along the post, towards the robot
