@@ -600,6 +600,8 @@ def _add_bench_parsers(sub, formatter):
     mpc.add_argument("--nodes", type=int, default=15, help="horizon nodes (default 15)")
     mpc.add_argument("--uniform-dt", type=float, metavar="MS", help="step of the uniform grid compared (default: same horizon)")
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
+    mpc.add_argument("--collision-avoidance", action="store_true", help="also re-solve the same states with the "
+                     "collision avoidance rows (their cost: same_states.collision_vs_plain)")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))

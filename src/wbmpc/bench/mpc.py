@@ -282,8 +282,10 @@ def _ratio(numerator: float | None, denominator: float | None) -> float | None:
 
 def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocchio",
               solvers: tuple[str, ...] = ("fatrop", "ipopt"), nodes: int = 15, uniform_dt_ms: float | None = None,
-              show_progress: bool = True, compiled: bool = False) -> dict:
-    """Closed-loop receding-horizon benchmark plus same-state comparisons (see module docstring)."""
+              show_progress: bool = True, compiled: bool = False, collision_avoidance: bool = False) -> dict:
+    """Closed-loop receding-horizon benchmark plus same-state comparisons (see module docstring);
+    `collision_avoidance` adds the reference solver with the collision rows (`OcpConfig.collision`) to the
+    same-state re-solves: the rows' cost on the very same states."""
     from wbmpc.control import MPC
     from wbmpc.ocp.problem import OcpProblem
 
@@ -302,7 +304,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
 
     machine_start = _machine()
     wall_start = time.perf_counter()
-    n_resolve = 3 + (len(solvers) - 1)  # warm, cold, uniform, other solvers
+    n_resolve = 3 + (len(solvers) - 1) + int(collision_avoidance)  # warm, cold, uniform, other solvers, collision
     progress = ProgressBar(len(solvers) * steps + n_resolve * steps + 0.5 * (len(solvers) + 2), unit="solves",
                            enabled=None if show_progress else False)
     done = 0.0
@@ -347,6 +349,11 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     for name in solvers:
         if name != reference:
             variants[name] = mpcs[name]
+    if collision_avoidance:
+        from wbmpc.robots.collision_model import CollisionConfig
+
+        config = mpc_config(gait=gait, solver=reference, nodes=nodes, robot=robot, compiled=compiled)
+        variants[f"{reference}_collision"] = MPC(robot, replace(config, ocp=replace(config.ocp, collision=CollisionConfig())))
     build["variants_s"] = time.perf_counter() - start
     done += 1.0
     for mpc in variants.values():
@@ -388,6 +395,18 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             "time_ratio": _ratio(same["fatrop"]["solve_ms"]["mean"], same["rti"]["solve_ms"]["mean"]),
             "cpu_ratio": _ratio(same["fatrop"]["step_cpu_ms"]["mean"], same["rti"]["step_cpu_ms"]["mean"]),
         }
+    collision_vs_plain = None
+    if collision_avoidance:
+        plain, rows = same[reference], same[f"{reference}_collision"]
+        problem_c = variants[f"{reference}_collision"].problem
+        collision_vs_plain = {
+            "pairs": len(problem_c.collision.pairs), "rows_per_node": len(problem_c.collision.groups),
+            "plain_solve_ms": plain["solve_ms"], "collision_solve_ms": rows["solve_ms"],
+            "plain_iterations_mean": plain["iterations"]["mean"], "collision_iterations_mean": rows["iterations"]["mean"],
+            "collision_failures": rows["failures"],
+            "time_ratio": _ratio(rows["solve_ms"]["mean"], plain["solve_ms"]["mean"]),
+            "cpu_ratio": _ratio(rows["step_cpu_ms"]["mean"], plain["step_cpu_ms"]["mean"]),
+        }
     return {
         "robot": robot.name,
         "gait": gait,
@@ -405,6 +424,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             "runs": same,
             "fatrop_vs_ipopt": fatrop_vs_ipopt,
             "rti_vs_fatrop": rti_vs_fatrop,
+            "collision_vs_plain": collision_vs_plain,
             "warm_vs_cold": {
                 "warm": {"solve_ms": warm["solve_ms"], "iterations_mean": warm["iterations"]["mean"],
                          "failures": warm["failures"]},
@@ -478,6 +498,12 @@ def bench_markdown(report: dict) -> str:
         lines.append(f"- converged Fatrop / one RTI step: {_fmt(rvf['time_ratio'], '.2f')}x wall time, "
                      f"{_fmt(rvf['cpu_ratio'], '.2f')}x CPU time (RTI step {_fmt(rvf['rti_solve_ms']['mean'])} ms mean, "
                      f"{_fmt(rvf['rti_solve_ms']['max'])} max; target <= 5 / 10 ms)")
+    cvp = same.get("collision_vs_plain")
+    if cvp:
+        lines.append(f"- collision avoidance rows ({cvp['pairs']} capsule pairs, {cvp['rows_per_node']} rows per node) / "
+                     f"plain solve time: {_fmt(cvp['time_ratio'], '.2f')}x, step CPU {_fmt(cvp['cpu_ratio'], '.2f')}x "
+                     f"({_fmt(cvp['plain_iterations_mean'], '.2f')} -> {_fmt(cvp['collision_iterations_mean'], '.2f')} "
+                     "iterations; goal <= 1.2x)")
     wc = same["warm_vs_cold"]
     lines.append(f"- warm start vs cold: {_fmt(wc['iteration_reduction_pct'])} % fewer iterations, "
                  f"{_fmt(wc['time_reduction_pct'])} % less solve time; paper: 15-20 % less time")
@@ -500,7 +526,7 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     robot = robot_from_args(args)
     report = bench_mpc(robot, steps=args.steps, gait=args.gait, plant=args.plant, solvers=tuple(solvers),
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress,
-                       compiled=args.compiled)
+                       compiled=args.compiled, collision_avoidance=getattr(args, "collision_avoidance", False))
     if args.out:
         path = Path(args.out)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -50,6 +50,11 @@ class CostWeights:
     # velocity): above the rows' multipliers on nominal trot steps (<= 60 on b1_z1), so those plans
     # stay exact; 1e3 leaves nominal Fatrop steps unconverged after 200 iterations, 50 is not exact
     soft_constraint: float = 100.0
+    # quadratic weight of the same slacks per (m/s)^2 (0: the exact L1 penalty alone). With collision avoidance
+    # the arm's command meets the collision rows: under L1 alone a command pointing within 45 deg of a surface's
+    # normal stops the hand there (moving along the surface costs more than stopping), a quadratic weight makes it
+    # slide along (the command's projection); Fatrop's interior point also converges on it where a 1e3 L1 does not
+    soft_constraint_quadratic: float = 0.0
 
     def __post_init__(self):
         for name, value in vars(self).items():
@@ -66,6 +71,7 @@ class CostWeights:
             "w_F": np.full(nf, self.contact_force),
             "w_tau": np.full(nj, self.joint_torque),
             "w_slack": [self.soft_constraint],
+            "w_slack_sq": [self.soft_constraint_quadratic],
         }
 
 
@@ -137,6 +143,10 @@ class MpcConfig:
     # humanoid's hand pinned in the world while its pelvis sways over the stance foot drives the arm into its
     # limits: g1's single-support OCPs then stall Fatrop (81 iterations; 17 with the rows dropped)
     free_ee_without_command: bool = False
+    # True: the soft rows' slacks (OcpConfig.soft_rows) are free on every step, not only in push recovery
+    # mode. Collision avoidance: an end-effector velocity command that leads into the body conflicts with
+    # the collision rows; with soft arm rows the hand stops at the margin instead of the OCP turning infeasible
+    soft_rows_always: bool = False
     # share of the way from the centre of the feet to the centre of each node's stance feet that the base xy
     # target moves (0: fixed targets, the paper's). Bipeds: their CoM must lean over the next stance foot
     # during double support (MPC._sway_towards_support)
@@ -468,14 +478,17 @@ class MPC:
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
-            soft=after_push, relaxed_rows=self._relaxed_rows(after_push, commands),
+            soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),
+            collision_measured_m=problem.collision_rows_at(q) if problem.collision is not None else None,
         )
+        if problem.collision is not None and self._previous is None:  # the start: refuse a pose in collision
+            problem.collision.check_clear(q)
         x0 = self._initial_guess(q, v, t, node_times, forces)
         if not after_push:
             x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
         # with soft rows, a hard step that fails is re-solved with the slacks free first (it may be infeasible)
-        soft_bounds = None if after_push or not problem.n_slack_variables else problem.bounds(
+        soft_bounds = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else problem.bounds(
             replace(stage_bounds, soft=True, relaxed_rows=self.config.push_relaxed_rows))
         cfg = self.config
         solve_end = None

@@ -19,7 +19,11 @@ Path constraints per node (section IV-B):
   rates zero in swing, so the sole stays parallel to the ground from lift-off to touch-down while its
   height follows eq. 6's spline; swing soles carry no wrench (bounds);
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
-- limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds).
+- limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds);
+- collision avoidance (beyond the paper, `OcpConfig.collision`, `symbolic/collision.py`): on nodes 1..N
+  one row per group of capsule pairs, their smooth minimum distance >= margin (node 1 is free where
+  the measurement fixes its configuration; the following nodes start from the measured distance when
+  it is below the margin and reach the margin over COLLISION_BLEND_TIME_S).
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
 Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
@@ -27,7 +31,10 @@ Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows o
 bounds and the cost gains w_slack (s+ + s-), an exact L1 penalty: while the hard problem is
 feasible and |multiplier| < w_slack the slacks are zero and the solution is the hard one; after a
 push that makes the hard rows infeasible (the arm pinned in the world while the base flies off)
-the OCP stays solvable with the least weighted violation. The slacks are inputs of their own
+the OCP stays solvable with the least weighted violation; w_slack_sq (s+^2 + s-^2, 0 by default) adds a
+quadratic penalty (a hard row's multiplier |lambda| > w_slack leaves a violation (|lambda| - w_slack) /
+(2 w_slack_sq); below it the rows stay exact) that is smooth beyond: a command that meets a collision row is followed along the surface instead of stopped (collision
+avoidance's arm rows). The slacks are inputs of their own
 stage (Fatrop's structure holds); the terminal node keeps its rows hard. `StageBounds.soft=False`
 pins the slacks to zero (the hard OCP: free slacks cost nominal steps ~2 extra iterations, so the
 MPC releases them only after a push). `StageBounds.relaxed_rows` instead drops rows for one step
@@ -48,13 +55,17 @@ from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.parameters import ParameterPack
 from wbmpc.robots import RobotModel
+from wbmpc.robots.collision_model import CollisionConfig, CollisionModel, collision_model_for
 from wbmpc.symbolic import InertialParameters, SymbolicDynamics
+from wbmpc.symbolic.collision import collision_function, collision_rows
 
 INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
-ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "foot_ang", "ee_vel", "cone", "wrench_cone")
+COLLISION_BLEND_TIME_S = 0.1  # a measured distance below the margin reaches it over this time
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "foot_ang", "ee_vel", "collision", "cone",
+            "wrench_cone")
 WRENCH_CONE_ROWS = 10  # per flat foot: 4 friction pyramid, 4 centre of pressure, 2 yaw moment
 # rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
 # in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
@@ -74,6 +85,7 @@ class OcpConfig:
     # CPU per trot step (Fatrop makes each fixed variable an equality row), so the MPC's default
     # recovers from pushes by relaxing the arm rows instead (StageBounds.relaxed_rows)
     soft_rows: tuple[str, ...] = ()
+    collision: CollisionConfig | None = None  # collision avoidance rows (None: off, the paper's OCP)
     # the base CoM offset (3, base frame, m), a payload at the hand (kg; the base origin without an arm) and, with
     # an arm, a load at the base origin as NLP parameters "base_com_offset", "payload_kg", "base_payload_kg" of
     # the whole-body dynamics (issue 22: mass distribution online)
@@ -106,6 +118,7 @@ class StageBounds:
     foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
     ee_velocity_measured_m_s: np.ndarray | None = None  # (3,) measured world end-effector velocity
     foot_angular_velocity_rad_s: np.ndarray | None = None  # (n_feet, 3) measured world sole angular velocities
+    collision_measured_m: np.ndarray | None = None  # collision rows at the measured configuration (m)
     soft: bool = True  # False pins the soft rows' slacks to zero: the hard OCP (same structure per mode)
     relaxed_rows: tuple[str, ...] = ()  # row tags (ee_vel, foot_vel) left unconstrained on every node this step
 
@@ -130,6 +143,9 @@ class OcpProblem:
         self.surface_feet = [i for i, foot in enumerate(robot.feet) if foot in robot.soles]  # flat feet (6D)
         self.point_feet = [i for i in range(self.n_feet) if i not in self.surface_feet]
         self.has_arm = robot.arm_ee is not None
+        self.collision: CollisionModel | None = collision_model_for(robot, config.collision)
+        # built now: the first MPC step is timed (the anytime solver's budget check)
+        self._collision_function = collision_function(self.collision, self.dyn) if self.collision is not None else None
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
@@ -187,6 +203,7 @@ class OcpProblem:
         params.add("w_tau", self.nj)
         params.add("mu", 1)
         params.add("w_slack", 1)  # L1 weight of the soft rows' slacks
+        params.add("w_slack_sq", 1)  # ... and their quadratic weight (CostWeights.soft_constraint_quadratic)
         if self.config.inertial_parameters:
             params.add("base_com_offset", 3)
             params.add("payload_kg", 1)
@@ -302,6 +319,8 @@ class OcpProblem:
                 rows.append(("foot_ang", ca.vertcat(*soles)))
             if self.has_arm:
                 rows.append(("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee)))
+        if not first and self.collision is not None:
+            rows.append(("collision", collision_rows(self.collision, node.config)))
         slacks = [parts[name] for name in ("slack_tau", "slack") if name in parts]
         for name in ("slack_tau", "slack"):  # soft rows: r - s+ + s- (slacks in the order of the rows)
             if name not in parts:
@@ -341,6 +360,7 @@ class OcpProblem:
             cost += ca.dot(local["w_tau"], node["tau"] ** 2) if node.get("tau") is not None else 0
         for slack in slacks:
             cost += local["w_slack"] * ca.sum1(slack)  # exact L1 penalty of the soft rows
+            cost += local["w_slack_sq"] * ca.sumsqr(slack)  # (s+)^2 + (s-)^2: the squared violation
         next_state = form.transition(node, dt) if has_input else ca.SX(0, 1)
         path = ca.vertcat(*[expr for _, expr in rows]) if rows else ca.SX(0, 1)
         name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
@@ -557,6 +577,8 @@ class OcpProblem:
                 ee_rows = self.rows["ee_vel"]
                 self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), self.row_nodes["ee_vel"], velocity[None],
                                              np.asarray(data.ee_velocity_measured_m_s)[None])
+        if self.collision is not None:
+            self._collision_bounds(lbg, ubg, data)
         for tag in data.relaxed_rows:
             if tag not in ("ee_vel", "foot_vel"):
                 raise ConfigError(f"relaxed_rows: only ee_vel and foot_vel rows can be relaxed, got {tag!r}")
@@ -571,6 +593,26 @@ class OcpProblem:
             ubg[wrench_rows] = INF
             lbg[wrench_rows] = np.where(contact[:N][:, self.surface_feet, None], 0.0, -INF)
         return lbx / self.x_scale, ubx / self.x_scale, lbg, ubg
+
+    def collision_rows_at(self, q: np.ndarray) -> np.ndarray:
+        """The collision rows (smooth minimum distance per pair group, m) at configuration q."""
+        return np.asarray(self._collision_function(q)[1], dtype=float).ravel()
+
+    def _collision_bounds(self, lbg, ubg, data: StageBounds) -> None:
+        """Rows >= margin; free on node 1 where the measurement fixes its configuration ([dq, v] states);
+        a measured distance below the margin is the bound at the measurement and reaches the margin
+        linearly over COLLISION_BLEND_TIME_S (a state past the margin would otherwise be infeasible)."""
+        rows, nodes = self.rows["collision"], self.row_nodes["collision"]
+        margin = self.collision.config.margin_m
+        lower = np.full(rows.shape, margin)
+        if data.collision_measured_m is not None:
+            deficit = np.maximum(margin - np.asarray(data.collision_measured_m, dtype=float), 0.0)
+            decay = np.clip(1.0 - self.config.grid.node_times_s[nodes] / COLLISION_BLEND_TIME_S, 0.0, 1.0)
+            lower = lower - decay[:, None] * (deficit[None, :] + 1e-3 * (deficit[None, :] > 0))
+        if "v" in self.state_names:
+            lower[nodes == 1] = -INF
+        lbg[rows] = lower
+        ubg[rows] = INF
 
     def _blend_from_measurement(self, lbg, ubg, rows, nodes, target, measured, mask=None) -> None:
         """Move the targets of equality rows "velocity = target" on the first nodes onto the path that

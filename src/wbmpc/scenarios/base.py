@@ -38,6 +38,14 @@ class ScenarioOptions:
                                  low_open=True, unit="s", scenarios=ARM_TRACK)
     arm_feedback_gain_1_s: float = option(4.0, help="feedback gain on the end-effector position error", low=0.0,
                                           high=100.0, unit="1/s", scenarios=ARM_TRACK)
+    arm_target_path: str = option("sine", flag="--target-path", choices=("sine", "behind-base", "around-obstacle"),
+                                  help="sine: the low/high reference of Fig. 3; behind-base: from the nominal hand "
+                                  "position straight to behind the base at trunk height, through the trunk's rear "
+                                  "(provokes self-collisions; --collision-avoidance), held, and back; "
+                                  "around-obstacle: trotting in place (--speed ignored), the hand sweeps from the "
+                                  "robot's front left to its front right straight through a post standing there "
+                                  "(a fixed box in MuJoCo, an obstacle of --collision-avoidance), and back",
+                                  scenarios=ARM_TRACK)
     gait: str | None = option(None, flag="--gait", choices=GAIT_NAMES, help="override the scenario's gait (pull: "
                               "stand = pull in stance)", default_text="the scenario's")
     # loco-manipulation (section VI-C)
@@ -125,6 +133,11 @@ class Scenario:
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""
         return None
+
+    def obstacles(self, robot: RobotModel) -> tuple:
+        """Boxes fixed in the world (`wbmpc.robots.collision_model.Obstacle`) that collision avoidance keeps
+        the hand and the feet off (the scene's own boxes, seen by the MPC); none by default."""
+        return ()
 
     def pd_gains(self, gains: PdGains) -> PdGains:
         """Joint PD gains of eq. (10) for this task, given the configured ones."""

@@ -20,6 +20,7 @@ from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
+from wbmpc.robots.collision_model import CollisionConfig
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
@@ -70,6 +71,15 @@ class RunConfig:
                                 help="position: base x/y/yaw anchored to the integrated command, corrects drift; "
                                 "velocity: the paper's velocity-only base tracking, drift uncorrected")
     seed: int = option(0, flag="--seed", help="seed of the measurement noise", integer=True, low=0)
+    # collision avoidance (issue 22, beyond the paper): capsule distance rows in the OCP (robots/collision_model.py)
+    collision_avoidance: bool = option(False, flag="--collision-avoidance", help="hard rows keeping the arm off "
+                                       "the base and the legs and the legs apart (capsules from the URDF's collision "
+                                       "geometry) and the scene's boxes (arm-track --target-path around-obstacle) "
+                                       "off the arm; the arm's velocity command becomes soft, so the hand stops at "
+                                       "or slides along the margin instead of the OCP turning infeasible; solver "
+                                       "auto: the anytime SQP")
+    collision_margin_m: float = option(0.03, flag="--collision-margin", help="with --collision-avoidance: smallest "
+                                       "distance kept between two capsules", low=0.0, high=0.3, unit="m")
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
     state: str = option("true", flag="--state", choices=("true", "estimated"), help="state fed to the MPC: the "
                         "simulator's (true) or estimated from simulated IMU + encoders (noise on; section V-B filter; "
@@ -111,7 +121,7 @@ class RunConfig:
         check_fields(self)
         fixed_delay_s(self.delay)
         if self.solver == "auto":
-            self.solver = default_solver(self.compiled, self.delay)
+            self.solver = default_solver(self.compiled, self.delay, self.collision_avoidance)
         if self.formulation not in FORMULATIONS:
             raise ConfigError(unknown_name("formulation", self.formulation, FORMULATIONS))
         if self.solver not in SOLVERS:
@@ -175,8 +185,14 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
     tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
-    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, inertial_parameters=config.identify_mass),
-                     gait=scenario.gait,
+    collision = (CollisionConfig(margin_m=config.collision_margin_m,
+                                 obstacles=tuple(scenario.obstacles(robot)) if robot is not None else ())
+                 if config.collision_avoidance else None)
+    soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
+    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
+                                   soft_rows=("ee_vel",) if soft_arm else (),
+                                   inertial_parameters=config.identify_mass),
+                     soft_rows_always=soft_arm, gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
@@ -184,7 +200,8 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      delay_compensation=(config.delay != "none" if config.delay_compensation is None
                                          else config.delay_compensation),
                      step_budget_s=_step_budget_s(config),
-                     **{**tuning.mpc_fields(), "weights": scenario.cost_weights(tuning.weights)},
+                     **{**tuning.mpc_fields(), "weights": _collision_weights(scenario.cost_weights(tuning.weights),
+                                                                         soft_arm)},
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
@@ -211,14 +228,29 @@ def _push_relaxed_rows(config: RunConfig) -> tuple[str, ...]:
     return DEADLINE_PUSH_RELAXED_ROWS if _step_budget_s(config) is not None else MpcConfig.push_relaxed_rows
 
 
-def default_solver(compiled: bool, delay: str) -> str:
+COLLISION_SOFT_WEIGHT_SQ = 1e4  # quadratic weight of the arm's soft velocity rows with collision avoidance, (m/s)^-2
+
+
+def _collision_weights(weights, soft_arm: bool):
+    """With collision avoidance the arm's velocity rows are soft on every step, their slacks weighed
+    quadratically too (COLLISION_SOFT_WEIGHT_SQ): the hand follows its command wherever the collision rows
+    allow and slides along a surface the command points into. With the L1 weight alone, at the default 100 the
+    plan traded hand velocity for posture (the hand lagged the behind-base path by 30-50 cm), at 1000 a hand
+    sent through a post stopped at it and Fatrop's interior point needed ~38 iterations per step."""
+    return dataclasses.replace(weights, soft_constraint_quadratic=max(weights.soft_constraint_quadratic,
+                                                                     COLLISION_SOFT_WEIGHT_SQ)) if soft_arm else weights
+
+
+def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False) -> str:
     """`--solver auto`: converged Fatrop for a compiled run whose plant waits for it (the paper's closed
     loop), through our direct binding (`fatrop-direct`: the same iterates as casadi's Fatrop without its
     nlpsol copies and per-solve initialisation, ~35 % less time per b1_z1 step; it falls back to casadi's
     Fatrop with a warning where the shim cannot be built); otherwise the anytime SQP, which keeps the MPC
     period: with a delay the plan must come in time, and uncompiled Fatrop takes ~25 ms per step on b1_z1
-    (twice the period: "240/240 over budget" on the main job) where one uncompiled SQP iteration takes ~5 ms."""
-    return "fatrop-direct" if compiled and delay == "none" else "sqp"
+    (twice the period: "240/240 over budget" on the main job) where one uncompiled SQP iteration takes ~5 ms.
+    With collision avoidance the anytime SQP always: Fatrop's interior point needs 11-16 iterations per step
+    on the arm's soft velocity rows (3-5 with them hard; ~38 with an L1 weight of 1000)."""
+    return "fatrop-direct" if compiled and delay == "none" and not collision_avoidance else "sqp"
 
 
 def _solver_options(config: RunConfig) -> dict:
@@ -333,6 +365,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics["state"] = config.state
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
+    metrics.update(self_collision_metrics(plant, mpc, log))
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
@@ -349,6 +382,28 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     "drive_train": _drive_train_summary(robot, plant.config)})
     return ScenarioResult(scenario, metrics, log, scene, plant=plant,
                           estimation=state_source.log if state_source is not None else None)
+
+
+def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
+    """Robot-robot contacts counted in MuJoCo over the run (null on a plant that does not simulate them) and,
+    with collision avoidance, its pairs and the smallest capsule distance of the run (500 Hz ticks)."""
+    counter = getattr(plant, "self_contacts", None)
+    if counter is not None and getattr(plant.config, "self_collision", False):
+        out = counter.metrics(plant.dt_s)
+    else:
+        out = {"self_collision_contacts": None, "self_collision_time_s": None, "self_collision_pairs": None}
+    model = mpc.problem.collision
+    out["collision_avoidance"] = None
+    if model is not None:
+        q = log.arrays(("q",))["q"]
+        distances = np.array([model.distances(qk) for qk in q]) if len(q) else np.zeros((0, len(model.pairs)))
+        worst = int(np.argmin(distances.min(axis=0))) if distances.size else None
+        out["collision_avoidance"] = {
+            "margin_m": model.config.margin_m, "pairs": len(model.pairs), "rows_per_node": len(model.groups),
+            "skipped_links": list(model.skipped_links),
+            "min_distance_m": float(distances.min()) if distances.size else None,
+            "closest_pair": model.pairs[worst].name if worst is not None else None}
+    return out
 
 
 def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:

@@ -28,6 +28,7 @@ from wbmpc.sim.mujoco_scene import (
     MujocoPlantConfig,
     body_names,
     build_model,
+    is_robot_geom,
 )
 
 _INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
@@ -51,6 +52,8 @@ class MujocoPlant:
         self._foot_index = {int(m.geom(f).id): k for k, f in enumerate(robot.feet)}
         self._body_names = body_names(robot)
         self._steps = 0
+        self._robot_geom = is_robot_geom(m)
+        self.self_contacts = SelfContactCounter()
         self._force = np.zeros(6)
         self._step_hooks: list = []
         self.ee_body: str | None = None
@@ -78,6 +81,7 @@ class MujocoPlant:
         mujoco.mj_resetData(self.model, self.data)
         self.set_state(q, v)
         self._steps = 0
+        self.self_contacts = SelfContactCounter()
         self.recording.clear()
         self._record()
 
@@ -108,6 +112,8 @@ class MujocoPlant:
                 "reset its state); reduce dt_s, gains or velocities, then reset() the plant"
             )
         self._steps += 1
+        if self.config.self_collision:
+            self._count_self_contacts()
         self._record()
         for hook in self._step_hooks:
             hook.after_step(self)
@@ -212,10 +218,46 @@ class MujocoPlant:
         """MuJoCo body carrying pinocchio joint `joint_id` (1 = base)."""
         return self._body_names[joint_id - 1]
 
+    def _count_self_contacts(self) -> None:
+        d, n = self.data, self.data.ncon
+        if not n:
+            self.self_contacts.update(self, ())
+            return
+        geoms = d.contact.geom[:n]
+        robot = self._robot_geom[geoms[:, 0]] & self._robot_geom[geoms[:, 1]]
+        self.self_contacts.update(self, np.sort(geoms[robot], axis=1) if robot.any() else ())
+
     def _record(self) -> None:
         every = self.config.record_every_n_steps
         if every and self._steps % every == 0:
             self.recording.append(self.time_s, self.state()[0])
+
+
+class SelfContactCounter:
+    """Robot-robot contacts over a run: `contacts` counts each touch once (a geom pair touching at a step
+    where it did not touch at the step before), `steps` the physics steps with any, `pairs` the touches
+    per pair of bodies ("link04 / base")."""
+
+    def __init__(self):
+        self.contacts = 0
+        self.steps = 0
+        self.pairs: dict[str, int] = {}
+        self._touching: set[tuple[int, int]] = set()
+
+    def update(self, plant: "MujocoPlant", geom_pairs) -> None:
+        touching = {(int(a), int(b)) for a, b in geom_pairs}
+        if touching:
+            self.steps += 1
+            m = plant.model
+            for a, b in touching - self._touching:
+                self.contacts += 1
+                name = " / ".join(sorted((m.body(int(m.geom_bodyid[a])).name, m.body(int(m.geom_bodyid[b])).name)))
+                self.pairs[name] = self.pairs.get(name, 0) + 1
+        self._touching = touching
+
+    def metrics(self, dt_s: float) -> dict:
+        return {"self_collision_contacts": self.contacts, "self_collision_time_s": self.steps * dt_s,
+                "self_collision_pairs": dict(sorted(self.pairs.items(), key=lambda item: -item[1]))}
 
 
 def _in_subtree(m: mujoco.MjModel, body: int, root: int) -> bool:

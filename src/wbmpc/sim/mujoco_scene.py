@@ -4,8 +4,12 @@ One MuJoCo body per pinocchio joint, named after the link that joint carries (e.
 `FL_calf`); joints keep pinocchio's names (`root_joint` is the free joint); one `motor` actuator
 per joint in `robot.joint_names` order. Inertias are written with `fullinertia` at full precision.
 
-Collision filtering: robot geoms have contype=2/conaffinity=1, everything else (floor, objects)
-contype=1/conaffinity=3, so the robot touches the environment but never itself. Extra scene
+Collision filtering: robot geoms have contype=2, everything else (floor, objects) contype=1/conaffinity=3,
+so the robot touches the environment. Robot-robot contacts (`self_collision`, on by default) give robot
+geoms conaffinity=3 (else 1: the robot never touches itself); MuJoCo leaves out a body and its parent,
+and `<exclude>` leaves out the body pairs whose shapes touch at the nominal pose (the arm's base on the
+trunk) and those of a body and its grandparent that touch somewhere within the joint limits (a hip
+rotor on the trunk and the thigh: the URDF's primitives overlap where the real parts do not). Extra scene
 objects are MJCF `<body>` snippets added to the worldbody (their geoms inherit the environment
 defaults), or arbitrary edits through `spec_callback(spec: mujoco.MjSpec)` before compilation.
 """
@@ -25,7 +29,10 @@ from wbmpc.sim.base import PlantConfig, PlantInputError
 from wbmpc.sim.shapes import CollisionShape, robot_collision_shapes
 
 ROBOT_CONTYPE, ROBOT_CONAFFINITY = 2, 1
+ROBOT_SELF_CONAFFINITY = ROBOT_CONAFFINITY | ROBOT_CONTYPE  # robot geoms that touch the robot too
 ENV_CONTYPE, ENV_CONAFFINITY = 1, 3
+SELF_CONTACT_TOUCH_M = 0.005  # robot shapes this close at the nominal pose touch by design (excluded)
+SELF_CONTACT_SAMPLES = 200  # random joint configurations for the grandparent exclusions
 MIN_MASS_KG = 1e-9
 MIN_INERTIA_KG_M2 = 1e-9
 _JOINT_AXES = {
@@ -57,6 +64,7 @@ class MujocoPlantConfig(PlantConfig):
     ee_sphere_radius_m: float | None = 0.03
     extra_bodies_mjcf: tuple[str, ...] = ()
     spec_callback: Callable[[mujoco.MjSpec], None] | None = None
+    self_collision: bool = True  # robot-robot contacts (see the module docstring); counted by the plant
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -167,7 +175,55 @@ def build_model(robot: RobotModel, config: MujocoPlantConfig | None = None) -> m
     spec = mujoco.MjSpec.from_string(build_mjcf(robot, config))
     if config.spec_callback is not None:
         config.spec_callback(spec)
+    model = spec.compile()
+    if not config.self_collision:
+        return model
+    for first, second in self_contact_exclusions(robot, model):
+        spec.add_exclude(bodyname1=first, bodyname2=second)
     return spec.compile()
+
+
+def is_robot_geom(model: mujoco.MjModel) -> np.ndarray:
+    """(ngeom,) True for the robot's geoms (contype ROBOT_CONTYPE)."""
+    return (np.asarray(model.geom_contype) & ROBOT_CONTYPE) > 0
+
+
+def self_contact_exclusions(robot: RobotModel, model: mujoco.MjModel, seed: int = 0) -> list[tuple[str, str]]:
+    """Body pairs left out of robot-robot contacts (see the module docstring): touching at the nominal pose,
+    or a body and its grandparent touching in one of SELF_CONTACT_SAMPLES random configurations."""
+    data = mujoco.MjData(model)
+    robot_geoms = np.flatnonzero(is_robot_geom(model))
+    parent = np.asarray(model.body_parentid)
+    body = np.asarray(model.geom_bodyid)
+    pairs = [(g1, g2) for i, g1 in enumerate(robot_geoms) for g2 in robot_geoms[i + 1:]
+             if body[g1] != body[g2] and parent[body[g1]] != body[g2] and parent[body[g2]] != body[g1]]
+    root = model.joint("root_joint")
+    qadr = np.array([model.joint(n).qposadr[0] for n in robot.joint_names])
+
+    def pose(q):
+        data.qpos[root.qposadr[0]: root.qposadr[0] + 3] = q[:3]
+        data.qpos[root.qposadr[0] + 3: root.qposadr[0] + 7] = q[[6, 3, 4, 5]]
+        data.qpos[qadr] = robot.joint_positions(q)
+        mujoco.mj_forward(model, data)
+
+    def touching(g1, g2) -> bool:
+        return mujoco.mj_geomDistance(model, data, int(g1), int(g2), SELF_CONTACT_TOUCH_M, None) < SELF_CONTACT_TOUCH_M
+
+    excluded = set()
+    pose(robot.q_nominal)
+    for g1, g2 in pairs:
+        if touching(g1, g2):
+            excluded.add(tuple(sorted((int(body[g1]), int(body[g2])))))
+    grand = [(g1, g2) for g1, g2 in pairs if parent[parent[body[g1]]] == body[g2] or parent[parent[body[g2]]] == body[g1]]
+    rng = np.random.default_rng(seed)
+    low = np.where(np.isfinite(robot.q_min), robot.q_min, -np.pi)
+    high = np.where(np.isfinite(robot.q_max), robot.q_max, np.pi)
+    for _ in range(SELF_CONTACT_SAMPLES if grand else 0):
+        pose(robot.with_joint_positions(robot.q_nominal, rng.uniform(low, high)))
+        for g1, g2 in grand:
+            if touching(g1, g2):
+                excluded.add(tuple(sorted((int(body[g1]), int(body[g2])))))
+    return [(model.body(a).name, model.body(b).name) for a, b in sorted(excluded)]
 
 
 # --------------------------------------------------------------------------------- helpers
@@ -185,7 +241,8 @@ def _defaults(root: ET.Element, config: MujocoPlantConfig) -> None:
         solimp=_v(config.contact_solimp),
     )
     robot_class = ET.SubElement(default, "default", attrib={"class": "robot"})
-    ET.SubElement(robot_class, "geom", contype=str(ROBOT_CONTYPE), conaffinity=str(ROBOT_CONAFFINITY), rgba=".7 .7 .75 1")
+    affinity = ROBOT_SELF_CONAFFINITY if config.self_collision else ROBOT_CONAFFINITY
+    ET.SubElement(robot_class, "geom", contype=str(ROBOT_CONTYPE), conaffinity=str(affinity), rgba=".7 .7 .75 1")
 
 
 def _drive_train(robot: RobotModel, config: MujocoPlantConfig) -> dict[str, dict[str, str]]:
