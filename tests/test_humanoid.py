@@ -10,7 +10,7 @@ import pytest
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError, ModelError
 from wbmpc.gait import biped_walk_timing, make_gait
-from wbmpc.ocp.problem import WRENCH_CONE_ROWS
+from wbmpc.ocp.problem import WRENCH_CONE_ROWS, OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel, RobotSpec, load_robot
 from wbmpc.scenarios.base import ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
@@ -52,6 +52,51 @@ def test_surface_contact_rnea_matches_pinocchio_fext(g1, rng):
         forces = rng.normal(size=dyn.n_forces) * 100
         reference = pin.rnea(g1.model, data, qs, vs, acc, _pinocchio_fext(g1, qs, forces))
         np.testing.assert_allclose(np.array(rnea(qs, vs, acc, forces)).ravel(), reference, atol=1e-9 * max(1, np.abs(reference).max()))
+
+
+def test_implied_torque_rows_match_pinocchio_rnea_with_fext(g1, rng):
+    """The plain nodes' torque rows (eq. 8 where the torques are no variables) are the joint torques of
+    pinocchio's RNEA with the soles' wrenches and the hand's force as fext, at q = q_ref (+) dq."""
+    problem = OcpProblem(g1)
+    assert problem.implied_torque_joints.size == g1.n_joints  # flat feet: every joint by default
+    k = problem.config.n_torque_nodes + 1
+    function, tags = problem.stage_function(k)
+    names = [tag for tag, _ in tags]
+    start = sum(size for _, size in tags[: names.index("implied_torque")])
+    stage_p = ca.Function("p_k", [problem.nlp["p"]], [problem.stage_parameters(problem.nlp["p"], k)])
+    scales = problem.formulation.variable_scales()
+    data = g1.model.createData()
+    for _ in range(4):
+        q_ref = g1.random_configuration(rng)
+        dq = rng.normal(size=g1.nv) * 0.1
+        v, a, forces = rng.normal(size=g1.nv), rng.normal(size=g1.nv) * 5, rng.normal(size=problem.nf) * 100
+        values = {name: np.zeros(problem.params.shape(name)) for name in problem.params.names}
+        values.update(q_ref=q_ref, rot_ref=pin.Quaternion(q_ref[3:7]).normalized().toRotationMatrix(), mu=0.5)
+        _, rows, _ = function(np.r_[dq, v], np.r_[a, forces / scales["F"]], stage_p(problem.params.pack(values)))
+        torques = np.array(rows).ravel()[start : start + g1.n_joints] * g1.tau_max
+        q = pin.integrate(g1.model, q_ref, dq)
+        reference = pin.rnea(g1.model, data, q, v, a, _pinocchio_fext(g1, q, forces))[6:]
+        np.testing.assert_allclose(torques, reference, atol=1e-9 * np.abs(reference).max())
+    # bounded by the torque limits on every input node past the torque variables, and nowhere else
+    assert list(problem.row_nodes["implied_torque"]) == list(range(problem.config.n_torque_nodes, problem.N))
+    lbg, ubg = problem.bounds(_standing_bounds(problem, g1))[2:]
+    assert np.all(lbg[problem.rows["implied_torque"]] == -1.0) and np.all(ubg[problem.rows["implied_torque"]] == 1.0)
+
+
+def test_implied_torque_rows_choice(g1):
+    assert OcpProblem(g1, OcpConfig(implied_torque_rows="none")).implied_torque_joints.size == 0
+    legs = OcpProblem(g1, OcpConfig(implied_torque_rows="legs")).implied_torque_joints
+    assert [g1.joint_names[j] for j in legs] == [n for n in g1.joint_names if n.startswith(("left_", "right_"))
+                                                 and ("hip" in n or "knee" in n or "ankle" in n)]
+    assert OcpProblem(load_robot("b1_z1")).implied_torque_joints.size == 0  # point feet: the paper's OCP
+    with pytest.raises(ConfigError, match="implied_torque_rows"):
+        OcpConfig(implied_torque_rows="ankles")
+
+
+def _standing_bounds(problem: OcpProblem, robot: RobotModel) -> StageBounds:
+    n = problem.N + 1
+    return StageBounds(v0=np.zeros(robot.nv), q_ref=robot.q_nominal, contact=np.ones((n, len(robot.feet))),
+                       swing_vz_m_s=np.zeros((n, len(robot.feet))))
 
 
 def test_centroidal_wrench_includes_sole_moments(g1, rng):

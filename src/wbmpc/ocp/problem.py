@@ -19,7 +19,11 @@ Path constraints per node (section IV-B):
   rates zero in swing, so the sole stays parallel to the ground from lift-off to touch-down while its
   height follows eq. 6's spline; swing soles carry no wrench (bounds);
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
-- limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds).
+- limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
+  later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
+  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: every joint on robots
+  with flat feet by default). Without them a humanoid's plan put the CoP at the toe in single support
+  beyond what the 35 N m ankle of g1 can hold, on every node but the first three.
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
 Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
@@ -54,7 +58,9 @@ INF = np.inf
 EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened (about 50 ms)
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
-ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "foot_ang", "ee_vel", "cone", "wrench_cone")
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "implied_torque", "foot_vel", "foot_ang", "ee_vel", "cone",
+            "wrench_cone")
+IMPLIED_TORQUE_ROWS = ("auto", "all", "legs", "none")  # OcpConfig.implied_torque_rows
 WRENCH_CONE_ROWS = 10  # per flat foot: 4 friction pyramid, 4 centre of pressure, 2 yaw moment
 # rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
 # in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
@@ -74,8 +80,16 @@ class OcpConfig:
     # CPU per trot step (Fatrop makes each fixed variable an equality row), so the MPC's default
     # recovers from pushes by relaxing the arm rows instead (StageBounds.relaxed_rows)
     soft_rows: tuple[str, ...] = ()
+    # joints whose torques implied by the plan (the RNEA's joint rows with the contact wrenches) are
+    # bounded by tau_max on the input nodes without torque variables (k >= n_torque_nodes, eq. 8 on every
+    # node): "all", "legs" (joints on a root-to-foot chain), "none" (the paper's OCP) or "auto" (see
+    # `OcpProblem.implied_torque_joints`)
+    implied_torque_rows: str = "auto"
 
     def __post_init__(self):
+        if self.implied_torque_rows not in IMPLIED_TORQUE_ROWS:
+            raise ConfigError(f"implied_torque_rows {self.implied_torque_rows!r}: choose from "
+                              f"{', '.join(IMPLIED_TORQUE_ROWS)}")
         unknown = [tag for tag in self.soft_rows if tag not in SOFTENABLE_ROWS]
         if unknown:
             raise ConfigError(f"soft_rows {unknown} cannot be softened; choose from {', '.join(SOFTENABLE_ROWS)} "
@@ -123,6 +137,7 @@ class OcpProblem:
         self.surface_feet = [i for i, foot in enumerate(robot.feet) if foot in robot.soles]  # flat feet (6D)
         self.point_feet = [i for i in range(self.n_feet) if i not in self.surface_feet]
         self.has_arm = robot.arm_ee is not None
+        self.implied_torque_joints = self._implied_torque_joints()
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
@@ -204,6 +219,18 @@ class OcpProblem:
         self.idx = {name: np.array(rows) for name, rows in index.items()}
         self.x_scale = np.concatenate(x_scale)
 
+    def _implied_torque_joints(self) -> np.ndarray:
+        """Indices of the joints with implied-torque rows. "auto": every joint on robots with flat feet
+        (a sole's wrench moves the CoP to where the ankle's torque runs out: g1's 35 N m ankle pitch
+        holds the CoP at most 10.6 cm ahead of the ankle under its weight, its sole reaches 12.5 cm),
+        none on point feet (whose joints carry no contact moment)."""
+        choice = self.config.implied_torque_rows
+        if choice == "auto":
+            choice = "all" if self.surface_feet else "none"
+        mask = {"all": np.ones(self.nj, dtype=bool), "legs": np.asarray(self.robot.leg_joint_mask, dtype=bool),
+                "none": np.zeros(self.nj, dtype=bool)}[choice]
+        return np.flatnonzero(mask)
+
     def _has_torque_limit_rows(self, k: int) -> bool:
         return ("torque_limit" in self.config.soft_rows and k < min(self.config.n_torque_nodes, self.N)
                 and any(name == "tau" for name, _ in self.formulation.input_parts(k)))
@@ -276,6 +303,11 @@ class OcpProblem:
                 estimate = form.torque_estimate(node)
                 if estimate is not None:
                     rows.append(("torque", estimate / self.robot.tau_max))
+            elif self.implied_torque_joints.size:
+                implied = form.implied_torques(node)
+                if implied is not None:
+                    joints = self.implied_torque_joints
+                    rows.append(("implied_torque", implied[joints.tolist()] / self.robot.tau_max[joints]))
         if self._has_torque_limit_rows(k):
             rows.append(("torque_limit", node["tau"] / self.robot.tau_max))
         if not first and node.motion is not None:
@@ -478,9 +510,10 @@ class OcpProblem:
         if self.rows["torque_limit"].size:  # the torque limits as (soft) rows
             lbg[self.rows["torque_limit"]] = -1.0
             ubg[self.rows["torque_limit"]] = 1.0
-        if self.rows["torque"].size:  # estimated torques of the centroidal formulations, in limits
-            lbg[self.rows["torque"]] = -1.0
-            ubg[self.rows["torque"]] = 1.0
+        for tag in ("torque", "implied_torque"):  # estimated / implied torques, in their limits
+            if self.rows[tag].size:
+                lbg[self.rows[tag]] = -1.0
+                ubg[self.rows[tag]] = 1.0
         # eq. (6) forces: stance F_z >= 0, swing F = 0; eq. (7): arm force fixed to the command
         if "F" in self.idx:
             feet_f = self.idx["F"][:, : 3 * nf].reshape(N, nf, 3)
