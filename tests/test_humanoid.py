@@ -57,8 +57,8 @@ def test_surface_contact_rnea_matches_pinocchio_fext(g1, rng):
 def test_implied_torque_rows_match_pinocchio_rnea_with_fext(g1, rng):
     """The plain nodes' torque rows (eq. 8 where the torques are no variables) are the joint torques of
     pinocchio's RNEA with the soles' wrenches and the hand's force as fext, at q = q_ref (+) dq."""
-    problem = OcpProblem(g1)
-    assert problem.implied_torque_joints.size == g1.n_joints  # flat feet: every joint by default
+    problem = OcpProblem(g1, OcpConfig(implied_torque_rows="all"))  # every joint: the whole RNEA checked
+    assert problem.implied_torque_joints.size == g1.n_joints
     k = problem.config.n_torque_nodes + 1
     function, tags = problem.stage_function(k)
     names = [tag for tag, _ in tags]
@@ -86,6 +86,7 @@ def test_implied_torque_rows_match_pinocchio_rnea_with_fext(g1, rng):
 def test_implied_torque_rows_choice(g1):
     assert OcpProblem(g1, OcpConfig(implied_torque_rows="none")).implied_torque_joints.size == 0
     legs = OcpProblem(g1, OcpConfig(implied_torque_rows="legs")).implied_torque_joints
+    assert list(OcpProblem(g1).implied_torque_joints) == list(legs)  # flat feet: the legs by default
     assert [g1.joint_names[j] for j in legs] == [n for n in g1.joint_names if n.startswith(("left_", "right_"))
                                                  and ("hip" in n or "knee" in n or "ankle" in n)]
     assert OcpProblem(load_robot("b1_z1")).implied_torque_joints.size == 0  # point feet: the paper's OCP

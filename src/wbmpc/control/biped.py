@@ -49,4 +49,5 @@ def biped_overrides(leg_length_m: float) -> dict:
         "support_sway": BIPED_SUPPORT_SWAY,
         "support_lead_s": 0.5 * period_s * double_support_share,
         "free_ee_without_command": True,
+        "swing_placement": True,
     }

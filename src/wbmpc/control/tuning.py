@@ -128,6 +128,7 @@ class RobotTuning:
     support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
     support_lead_s: float = MpcConfig.support_lead_s
     free_ee_without_command: bool = MpcConfig.free_ee_without_command
+    swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
@@ -136,7 +137,8 @@ class RobotTuning:
         return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command}
+                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command,
+                "swing_placement": self.swing_placement}
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -148,7 +150,8 @@ class RobotTuning:
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command}
+                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command,
+                "swing_placement": self.swing_placement}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}

@@ -9,7 +9,8 @@ references, arm commands, joint limits): one build serves every step.
 Path constraints per node (section IV-B):
 - dynamics rows of the formulation (eq. 5 for wb_inverse);
 - contact (eq. 6): stance feet F_z >= 0 (bound), friction cone mu^2 F_z^2 - F_x^2 - F_y^2 >= 0,
-  foot velocity = 0; swing feet F = 0 (bounds), foot v_z = spline reference, v_x, v_y free;
+  foot velocity = 0; swing feet F = 0 (bounds), foot v_z = spline reference, v_x, v_y free (or, where
+  `StageBounds.swing_vxy_m_s` gives them, equal to a placement reference: bipeds' steps);
 - flat feet (surface contacts, 6D wrench [f; tau] at the sole, `robot.soles`): instead of the cone a
   hard wrench cone of linear rows (`wrench_cone`): friction pyramid |f_x|, |f_y| <= mu f_z, centre of
   pressure inside the sole rectangle |tau_x| <= (W/2) f_z, |tau_y| <= (L/2) f_z, and the yaw moment
@@ -21,7 +22,7 @@ Path constraints per node (section IV-B):
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
   later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
-  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: every joint on robots
+  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: the leg joints of robots
   with flat feet by default). Without them a humanoid's plan put the CoP at the toe in single support
   beyond what the 35 N m ankle of g1 can hold, on every node but the first three.
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
@@ -108,6 +109,8 @@ class StageBounds:
     q_ref: np.ndarray  # measured configuration (node 0, reference of dq)
     contact: np.ndarray  # (N+1, n_feet) 1 = stance
     swing_vz_m_s: np.ndarray  # (N+1, n_feet) vertical velocity reference of swing feet
+    # (N+1, n_feet, 2) world horizontal velocity references of swing feet (NaN or None: free)
+    swing_vxy_m_s: np.ndarray | None = None
     ee_velocity_m_s: np.ndarray | None = None  # (3,) world
     ee_force_on_robot_n: np.ndarray | None = None  # (3,) world, force acting on the robot
     foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
@@ -220,13 +223,16 @@ class OcpProblem:
         self.x_scale = np.concatenate(x_scale)
 
     def _implied_torque_joints(self) -> np.ndarray:
-        """Indices of the joints with implied-torque rows. "auto": every joint on robots with flat feet
+        """Indices of the joints with implied-torque rows. "auto": the leg joints of robots with flat feet
         (a sole's wrench moves the CoP to where the ankle's torque runs out: g1's 35 N m ankle pitch
         holds the CoP at most 10.6 cm ahead of the ankle under its weight, its sole reaches 12.5 cm),
-        none on point feet (whose joints carry no contact moment)."""
+        none on point feet (whose joints carry no contact moment). Legs, not every joint: a leg joint's
+        torque depends on its leg's links and its sole's wrench only (RNEA's backward pass over the leg's
+        subtree), so its rows stay small to differentiate; every joint's rows depend on the whole tree
+        (TALOS, 32 joints: its compiled NLP did not build within 15 minutes)."""
         choice = self.config.implied_torque_rows
         if choice == "auto":
-            choice = "all" if self.surface_feet else "none"
+            choice = "legs" if self.surface_feet else "none"
         mask = {"all": np.ones(self.nj, dtype=bool), "legs": np.asarray(self.robot.leg_joint_mask, dtype=bool),
                 "none": np.zeros(self.nj, dtype=bool)}[choice]
         return np.flatnonzero(mask)
@@ -543,6 +549,11 @@ class OcpProblem:
         ubg[foot_rows[..., 2]] = vz
         lbg[foot_rows[..., :2]] = np.where(swing[..., None], -INF, 0.0)
         ubg[foot_rows[..., :2]] = np.where(swing[..., None], INF, 0.0)
+        if data.swing_vxy_m_s is not None:  # swing feet carried to their placement
+            vxy = np.asarray(data.swing_vxy_m_s, dtype=float)[foot_nodes]
+            placed = swing[..., None] & np.isfinite(vxy)
+            lbg[foot_rows[..., :2][placed]] = vxy[placed]
+            ubg[foot_rows[..., :2][placed]] = vxy[placed]
         if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
             stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
             self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
