@@ -9,7 +9,7 @@ import pytest
 
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError, ModelError
-from wbmpc.gait import biped_walk_timing, make_gait
+from wbmpc.gait import SwingProfile, biped_walk_timing, make_gait
 from wbmpc.ocp.problem import WRENCH_CONE_ROWS, OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel, RobotSpec, load_robot
 from wbmpc.scenarios.base import ScenarioOptions
@@ -98,6 +98,70 @@ def _standing_bounds(problem: OcpProblem, robot: RobotModel) -> StageBounds:
     n = problem.N + 1
     return StageBounds(v0=np.zeros(robot.nv), q_ref=robot.q_nominal, contact=np.ones((n, len(robot.feet))),
                        swing_vz_m_s=np.zeros((n, len(robot.feet))))
+
+
+def test_single_support_plan_keeps_the_leg_torques_in_their_limits_on_every_node(g1):
+    """g1 on its right foot, walking forward: pinocchio's RNEA of the plan (q, v, a and the soles' wrenches)
+    stays within the leg joints' torque limits on every node, not only on the torque nodes k < 3."""
+    from wbmpc.control.tuning import tuning_for
+
+    mpc = MPC(g1, MpcConfig(gait="walk", **tuning_for(g1).mpc_fields()))
+    t = 0.3  # the left foot in swing (0.21-0.51 s), the right one carrying the robot
+    assert list(mpc.schedule(t)[1][0]) == [0.0, 1.0]
+    solution = mpc.solve(g1.q_nominal, np.zeros(g1.nv), Commands(base_velocity_m_s=np.array([0.3, 0.0, 0.0])), t)
+    assert solution.success
+    legs, data = g1.leg_joint_mask, g1.model.createData()
+    ratios = []
+    for k in range(len(solution.a)):
+        fext = _pinocchio_fext(g1, solution.q[k], solution.forces[k])
+        tau = pin.rnea(g1.model, data, solution.q[k], solution.v[k], solution.a[k], fext)[6:]
+        ratios.append(np.abs(tau[legs]) / g1.tau_max[legs])
+    assert np.max(ratios) <= 1 + 1e-6
+
+
+def test_swing_placement_carries_each_swing_foot_to_its_landing_point(g1):
+    """The swing feet's xy velocity references integrate, over the swing left, to Raibert's landing point
+    (under the hip at touch-down, v T_st / 2 ahead, capture-point feedback); stance nodes stay free."""
+    from wbmpc.control.foot_placement import SwingPlacement
+
+    placement = SwingPlacement(g1)
+    gait = make_gait("walk", 2, leg_length_m=0.65)
+    swing_s, stance_s = (1 - gait.duty_factor) * gait.period_s, gait.duty_factor * gait.period_s
+    lift_off, touch_down = 0.2 * gait.period_s, 0.5 * gait.period_s  # the left foot's first swing
+    command, measured = np.array([0.3, 0.0, 0.0]), np.array([0.2, 0.1, 0.0])
+    q = g1.q_nominal.copy()
+    data = g1.model.createData()
+    pin.framesForwardKinematics(g1.model, data, q)
+    feet = np.array([data.oMf[g1.frame_id(g1.contact_frame(f))].translation for f in g1.feet])
+    for t in (0.0, lift_off + 0.3 * swing_s):  # before lift-off (from the planted foot) and mid-swing
+        start = feet[0, :2] + (0.05 if t > lift_off else 0.0)
+        feet_now = feet.copy()
+        feet_now[0, :2] = start
+        times = np.linspace(0.0, touch_down - t, 20001)[:-1]
+        v_ref = placement.velocities(gait, t, times, q, measured, command, 0.0, feet_now)
+        assert np.all(np.isnan(v_ref[:, 1]))  # the right foot stands throughout
+        swinging = np.isfinite(v_ref[:, 0, 0])
+        assert np.all(swinging[t + times > lift_off + 1e-9]) and not np.any(swinging[t + times < lift_off - 1e-9])
+        landed = start + np.trapezoid(np.nan_to_num(v_ref[:, 0]), times, axis=0)
+        capture = (measured[:2] - command[:2]) * np.sqrt(g1.q_nominal[2] / 9.81)
+        target = q[:2] + (touch_down - t) * command[:2] + feet[0, :2] - q[:2] + command[:2] * stance_s / 2 + capture
+        np.testing.assert_allclose(landed, target, atol=2e-3)
+    # the OCP's swing rows take the references (both feet swing within this horizon), stance rows stay zero
+    problem = OcpProblem(g1)
+    times = 0.3 + problem.config.grid.node_times_s
+    contact = gait.contact(times)
+    swing_vz = SwingProfile().vertical_velocity(gait.swing_phase(times), gait.swing_duration_s)
+    vxy = placement.velocities(gait, 0.3, problem.config.grid.node_times_s, q, measured, command, 0.0, feet)
+    bounds = StageBounds(v0=np.zeros(g1.nv), q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=vxy)
+    lbg, ubg = problem.bounds(bounds)[2:]
+    nodes = problem.row_nodes["foot_vel"]
+    rows = problem.rows["foot_vel"].reshape(len(nodes), 2, 3)[..., :2]
+    swing = contact[nodes] == 0
+    assert swing[:, 0].any() and swing[:, 1].any()
+    placed = swing[..., None] & np.isfinite(vxy[nodes])
+    np.testing.assert_allclose(lbg[rows[placed]], vxy[nodes][placed])
+    np.testing.assert_allclose(ubg[rows[placed]], vxy[nodes][placed])
+    assert np.all(lbg[rows[~swing]] == 0.0) and np.all(ubg[rows[~swing]] == 0.0)
 
 
 def test_centroidal_wrench_includes_sole_moments(g1, rng):
