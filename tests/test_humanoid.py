@@ -90,6 +90,7 @@ def test_implied_torque_rows_choice(g1):
     assert [g1.joint_names[j] for j in legs] == [n for n in g1.joint_names if n.startswith(("left_", "right_"))
                                                  and ("hip" in n or "knee" in n or "ankle" in n)]
     assert OcpProblem(load_robot("b1_z1")).implied_torque_joints.size == 0  # point feet: the paper's OCP
+    assert OcpProblem(load_robot("talos")).implied_torque_joints.size == 0  # 100 N m legs, 88 N m at its sole's edge
     with pytest.raises(ConfigError, match="implied_torque_rows"):
         OcpConfig(implied_torque_rows="ankles")
 

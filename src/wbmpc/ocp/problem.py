@@ -22,8 +22,8 @@ Path constraints per node (section IV-B):
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
   later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
-  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: the leg joints of robots
-  with flat feet by default). Without them a humanoid's plan put the CoP at the toe in single support
+  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: by default the leg joints
+  of robots with flat feet and a leg joint weaker than their weight on a sole's edge). Without them a humanoid's plan put the CoP at the toe in single support
   beyond what the 35 N m ankle of g1 can hold, on every node but the first three.
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
@@ -52,7 +52,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.parameters import ParameterPack
-from wbmpc.robots import RobotModel
+from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.symbolic import SymbolicDynamics
 
 INF = np.inf
@@ -223,19 +223,32 @@ class OcpProblem:
         self.x_scale = np.concatenate(x_scale)
 
     def _implied_torque_joints(self) -> np.ndarray:
-        """Indices of the joints with implied-torque rows. "auto": the leg joints of robots with flat feet
-        (a sole's wrench moves the CoP to where the ankle's torque runs out: g1's 35 N m ankle pitch
-        holds the CoP at most 10.6 cm ahead of the ankle under its weight, its sole reaches 12.5 cm),
-        none on point feet (whose joints carry no contact moment). Legs, not every joint: a leg joint's
-        torque depends on its leg's links and its sole's wrench only (RNEA's backward pass over the leg's
-        subtree), so its rows stay small to differentiate; every joint's rows depend on the whole tree
-        (TALOS, 32 joints: its compiled NLP did not build within 15 minutes)."""
+        """Indices of the joints with implied-torque rows. "auto": the leg joints of a robot with flat feet
+        whose weakest leg joint is weaker than its weight on a sole's edge (M g times the horizontal distance
+        from the foot link's origin to the sole's farthest edge): there a sole's wrench can put the CoP where
+        a leg joint's torque runs out (g1: 35 N m ankles, 41 N m at its toe 12.5 cm ahead of the ankle; its
+        plans put the CoP there in single support), elsewhere none (TALOS: 100 N m, 88 N m; with its leg rows
+        its compiled NLP was 26 MB of C that -O1 did not build within 30 minutes on a loaded machine; point
+        feet carry no contact moment). Legs, not every joint: a leg joint's torque depends on its leg's links
+        and its sole's wrench only (RNEA's backward pass over the leg's subtree), every joint's on the whole
+        tree; the arms' torques do not depend on where the CoP is."""
         choice = self.config.implied_torque_rows
         if choice == "auto":
-            choice = "legs" if self.surface_feet else "none"
+            choice = "legs" if self._weak_legs() else "none"
         mask = {"all": np.ones(self.nj, dtype=bool), "legs": np.asarray(self.robot.leg_joint_mask, dtype=bool),
                 "none": np.zeros(self.nj, dtype=bool)}[choice]
         return np.flatnonzero(mask)
+
+    def _weak_legs(self) -> bool:
+        """Flat feet with a leg joint weaker than the robot's weight on a sole's edge (`_implied_torque_joints`)."""
+        if not self.surface_feet:
+            return False
+        robot = self.robot
+        # the sole's farthest edge from the foot link's origin (g1's ankle: 3.5 cm behind the sole's centre)
+        edge_m = max(max(abs(sole.centre_m[0]) + sole.half_length_m, abs(sole.centre_m[1]) + sole.half_width_m)
+                     for sole in robot.soles.values())
+        legs = np.asarray(robot.leg_joint_mask, dtype=bool)
+        return bool(legs.any() and robot.tau_max[legs].min() < robot.mass_kg * GRAVITY_M_S2 * edge_m)
 
     def _has_torque_limit_rows(self, k: int) -> bool:
         return ("torque_limit" in self.config.soft_rows and k < min(self.config.n_torque_nodes, self.N)
