@@ -343,6 +343,7 @@ def test_g1_rotor_inertias_reach_the_plant(g1):
 @pytest.mark.slow
 @pytest.mark.parametrize("robot_name,scenario", [
     ("g1", "walk-in-place"),
+    ("g1", "walk-forward"),  # swing placement: 10 s at 0.3 m/s up, 0 failed steps
     *(pytest.param("talos", name, marks=pytest.mark.xfail(reason="TALOS drifts backwards and falls at ~1.6 s standing "
                                                                   "(Fatrop steps fail from 0.4 s): open"))
       for name in ("stand", "walk-in-place")),
