@@ -358,3 +358,15 @@ def test_humanoids_stay_up_with_the_cop_inside_their_soles(robot_name, scenario)
                                                              solver="fatrop")).metrics
     assert not metrics["fell"]
     assert metrics["cop_outside_sole_ticks"] == 0
+
+
+def test_pull_tipping_check_counts_the_soles(g1):
+    """g1's 5 kg pull needs the CoP 5 cm ahead of its ankles: inside its soles (toes 10 cm ahead), so the
+    scenario is accepted; a pull far beyond the soles is still refused with the CoP it would need."""
+    from wbmpc.scenarios.manipulation import _support_points
+
+    points = _support_points(g1)
+    assert points.shape == (8, 2) and points[:, 0].max() > 0.09  # two soles' corners
+    make_scenario("pull", g1, ScenarioOptions(load_kg=5.0))
+    with pytest.raises(ConfigError, match="tip the robot over"):
+        make_scenario("pull", g1, ScenarioOptions(load_kg=5.0, force_n=60.0))
