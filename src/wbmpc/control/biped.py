@@ -18,10 +18,6 @@ pelvis' sway. So on two feet:
   100 N shift costs 10 per node, ten times the base position error it corrects, and g1's plans kept
   both feet equally loaded until lift-off (then fell at 0.6 s); leg posture weight 2 (the soles and the
   pelvis fix a biped's stance legs; the posture cost held the pelvis centred) and base velocity weight 5;
-- the torque regularisation (eq. 3's tau term on the torque nodes k < 3) 1e-5 instead of 1e-3: two legs
-  carry the whole weight, and on TALOS (90 kg) 1e-3 (N m)^-2 outweighed the posture: its standing plans
-  let the soles carry 829 N of its 886 N weight on the torque nodes (base accelerating down at 0.7 m/s^2
-  and pitching back), so the applied torques sagged it backwards and it fell at 0.9 s; 1e-5: 885 N;
 - `free_ee_without_command`: a hand with no velocity command swings free (its pinned velocity rows
   drove g1's arm into its limits and stalled Fatrop in single support). Then no hand rows hold the trunk
   in place, so the base xy position weight gets the anchor of a robot without an arm
@@ -45,7 +41,6 @@ BIPED_APEX_PER_LEG = 0.075  # swing apex / leg length: 4.9 cm on g1 (the trot's 
 BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 5.0
 BIPED_LEG_JOINT_WEIGHT = 2.0
 BIPED_CONTACT_FORCE_WEIGHT = 1e-5
-BIPED_JOINT_TORQUE_WEIGHT = 1e-5
 
 
 def biped_overrides(leg_length_m: float) -> dict:
@@ -57,7 +52,6 @@ def biped_overrides(leg_length_m: float) -> dict:
         "weights.base_linear_velocity": BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
         "weights.leg_joint_position": BIPED_LEG_JOINT_WEIGHT,
         "weights.contact_force": BIPED_CONTACT_FORCE_WEIGHT,
-        "weights.joint_torque": BIPED_JOINT_TORQUE_WEIGHT,
         "support_sway": BIPED_SUPPORT_SWAY,
         "support_lead_s": 0.5 * period_s * double_support_share,
         "free_ee_without_command": True,
