@@ -349,8 +349,8 @@ def test_g1_rotor_inertias_reach_the_plant(g1):
 @pytest.mark.parametrize("robot_name,scenario", [
     ("g1", "walk-in-place"),
     ("g1", "walk-forward"),  # swing placement: 10 s at 0.3 m/s up, 0 failed steps
-    ("talos", "stand"),  # the biped torque weight: 10 s up, drift 0.02 cm/s
-    pytest.param("talos", "walk-in-place", marks=pytest.mark.xfail(reason="TALOS walking in place: open")),
+    ("talos", "stand"),  # its torque weight (control/tuning.py): 10 s up, drift 0.02 cm/s
+    ("talos", "walk-in-place"),  # 10 s up, 0 failed steps
 ])
 def test_humanoids_stay_up_with_the_cop_inside_their_soles(robot_name, scenario):
     """Minutes-long: 4 s of the issue's 10 s runs (compiled Fatrop on g1; TALOS's generated C, 25 MB, took
