@@ -310,12 +310,11 @@ class Pull(_ForceTask):
         self.force_window_start_s = self.MOVE_START_S + 0.5
 
     def cost_weights(self, weights: CostWeights) -> CostWeights:
-        """The legs' posture weight the paper pulled with (tuning.LEG_POSTURE times less): the stiffer posture
-        that keeps a trot from swaying biased the cable tension low (b1_z1, 14 kg: 39.5 N for 40.4 N, -2.2 %,
-        and the load did not slide; x5: -0.8 %, still stuck; the paper's: -0.2 %, pulled 0.64 m)."""
-        from wbmpc.control.tuning import LEG_POSTURE
-
-        return replace(weights, leg_joint_position=weights.leg_joint_position / LEG_POSTURE)
+        """The legs' posture weight the paper pulled with, at most (tuning.LEG_POSTURE times less on a
+        quadruped): the stiffer posture that keeps a trot from swaying biased the cable tension low (b1_z1,
+        14 kg: 39.5 N for 40.4 N, -2.2 %, and the load did not slide; x5: -0.8 %, still stuck; the paper's:
+        -0.2 %, pulled 0.64 m). A biped's lighter posture weight (control/biped.py) stays."""
+        return replace(weights, leg_joint_position=min(weights.leg_joint_position, CostWeights().leg_joint_position))
 
     def _hook(self, robot) -> np.ndarray:
         ee = nominal_ee_position(robot)
