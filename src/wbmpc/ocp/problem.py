@@ -22,9 +22,10 @@ Path constraints per node (section IV-B):
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
   later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
-  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: by default the leg joints
-  of robots with flat feet and a leg joint weaker than their weight on a sole's edge). Without them a humanoid's plan put the CoP at the toe in single support
-  beyond what the 35 N m ankle of g1 can hold, on every node but the first three.
+  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: by default the leg
+  joints of robots with flat feet and a leg joint weaker than their weight on a sole's edge). Without
+  them a humanoid's plan put the CoP at the toe in single support beyond what the 35 N m ankle of g1
+  can hold, on every node but the first three.
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
 Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
