@@ -9,8 +9,8 @@ import pytest
 
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError, ModelError
-from wbmpc.gait import biped_walk_timing, make_gait
-from wbmpc.ocp.problem import WRENCH_CONE_ROWS
+from wbmpc.gait import SwingProfile, biped_walk_timing, make_gait
+from wbmpc.ocp.problem import WRENCH_CONE_ROWS, OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel, RobotSpec, load_robot
 from wbmpc.scenarios.base import ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
@@ -52,6 +52,120 @@ def test_surface_contact_rnea_matches_pinocchio_fext(g1, rng):
         forces = rng.normal(size=dyn.n_forces) * 100
         reference = pin.rnea(g1.model, data, qs, vs, acc, _pinocchio_fext(g1, qs, forces))
         np.testing.assert_allclose(np.array(rnea(qs, vs, acc, forces)).ravel(), reference, atol=1e-9 * max(1, np.abs(reference).max()))
+
+
+def test_implied_torque_rows_match_pinocchio_rnea_with_fext(g1, rng):
+    """The plain nodes' torque rows (eq. 8 where the torques are no variables) are the joint torques of
+    pinocchio's RNEA with the soles' wrenches and the hand's force as fext, at q = q_ref (+) dq."""
+    problem = OcpProblem(g1, OcpConfig(implied_torque_rows="all"))  # every joint: the whole RNEA checked
+    assert problem.implied_torque_joints.size == g1.n_joints
+    k = problem.config.n_torque_nodes + 1
+    function, tags = problem.stage_function(k)
+    names = [tag for tag, _ in tags]
+    start = sum(size for _, size in tags[: names.index("implied_torque")])
+    stage_p = ca.Function("p_k", [problem.nlp["p"]], [problem.stage_parameters(problem.nlp["p"], k)])
+    scales = problem.formulation.variable_scales()
+    data = g1.model.createData()
+    for _ in range(4):
+        q_ref = g1.random_configuration(rng)
+        dq = rng.normal(size=g1.nv) * 0.1
+        v, a, forces = rng.normal(size=g1.nv), rng.normal(size=g1.nv) * 5, rng.normal(size=problem.nf) * 100
+        values = {name: np.zeros(problem.params.shape(name)) for name in problem.params.names}
+        values.update(q_ref=q_ref, rot_ref=pin.Quaternion(q_ref[3:7]).normalized().toRotationMatrix(), mu=0.5)
+        _, rows, _ = function(np.r_[dq, v], np.r_[a, forces / scales["F"]], stage_p(problem.params.pack(values)))
+        torques = np.array(rows).ravel()[start : start + g1.n_joints] * g1.tau_max
+        q = pin.integrate(g1.model, q_ref, dq)
+        reference = pin.rnea(g1.model, data, q, v, a, _pinocchio_fext(g1, q, forces))[6:]
+        np.testing.assert_allclose(torques, reference, atol=1e-9 * np.abs(reference).max())
+    # bounded by the torque limits on every input node past the torque variables, and nowhere else
+    assert list(problem.row_nodes["implied_torque"]) == list(range(problem.config.n_torque_nodes, problem.N))
+    lbg, ubg = problem.bounds(_standing_bounds(problem, g1))[2:]
+    assert np.all(lbg[problem.rows["implied_torque"]] == -1.0) and np.all(ubg[problem.rows["implied_torque"]] == 1.0)
+
+
+def test_implied_torque_rows_choice(g1):
+    assert OcpProblem(g1, OcpConfig(implied_torque_rows="none")).implied_torque_joints.size == 0
+    legs = OcpProblem(g1, OcpConfig(implied_torque_rows="legs")).implied_torque_joints
+    assert list(OcpProblem(g1).implied_torque_joints) == list(legs)  # flat feet: the legs by default
+    assert [g1.joint_names[j] for j in legs] == [n for n in g1.joint_names if n.startswith(("left_", "right_"))
+                                                 and ("hip" in n or "knee" in n or "ankle" in n)]
+    assert OcpProblem(load_robot("b1_z1")).implied_torque_joints.size == 0  # point feet: the paper's OCP
+    assert OcpProblem(load_robot("talos")).implied_torque_joints.size == 0  # 100 N m legs, 88 N m at its sole's edge
+    with pytest.raises(ConfigError, match="implied_torque_rows"):
+        OcpConfig(implied_torque_rows="ankles")
+
+
+def _standing_bounds(problem: OcpProblem, robot: RobotModel) -> StageBounds:
+    n = problem.N + 1
+    return StageBounds(v0=np.zeros(robot.nv), q_ref=robot.q_nominal, contact=np.ones((n, len(robot.feet))),
+                       swing_vz_m_s=np.zeros((n, len(robot.feet))))
+
+
+def test_single_support_plan_keeps_the_leg_torques_in_their_limits_on_every_node(g1):
+    """g1 on its right foot, its base moving forward at 0.4 m/s: pinocchio's RNEA of the plan (q, v, a and the
+    soles' wrenches) stays within the leg joints' torque limits on every node, not only on the torque nodes
+    k < 3 (without the implied-torque rows this plan asks 1.74 times the right ankle pitch's 35 N m on 4 nodes)."""
+    from wbmpc.control.tuning import tuning_for
+
+    mpc = MPC(g1, MpcConfig(gait="walk", **tuning_for(g1).mpc_fields()))
+    t = 0.3  # the left foot in swing (0.21-0.51 s), the right one carrying the robot
+    assert list(mpc.schedule(t)[1][0]) == [0.0, 1.0]
+    v0 = np.zeros(g1.nv)
+    v0[0] = 0.4
+    solution = mpc.solve(g1.q_nominal, v0, Commands(base_velocity_m_s=np.array([0.3, 0.0, 0.0])), t)
+    assert solution.success
+    legs, data = g1.leg_joint_mask, g1.model.createData()
+    ratios = []
+    for k in range(len(solution.a)):
+        fext = _pinocchio_fext(g1, solution.q[k], solution.forces[k])
+        tau = pin.rnea(g1.model, data, solution.q[k], solution.v[k], solution.a[k], fext)[6:]
+        ratios.append(np.abs(tau[legs]) / g1.tau_max[legs])
+    assert np.max(ratios) <= 1 + 1e-6
+
+
+def test_swing_placement_carries_each_swing_foot_to_its_landing_point(g1):
+    """The swing feet's xy velocity references integrate, over the swing left, to Raibert's landing point
+    (under the hip at touch-down, v T_st / 2 ahead, capture-point feedback); stance nodes stay free."""
+    from wbmpc.control.foot_placement import SwingPlacement
+
+    placement = SwingPlacement(g1)
+    gait = make_gait("walk", 2, leg_length_m=0.65)
+    swing_s, stance_s = (1 - gait.duty_factor) * gait.period_s, gait.duty_factor * gait.period_s
+    lift_off, touch_down = 0.2 * gait.period_s, 0.5 * gait.period_s  # the left foot's first swing
+    command, measured = np.array([0.3, 0.0, 0.0]), np.array([0.2, 0.1, 0.0])
+    q = g1.q_nominal.copy()
+    data = g1.model.createData()
+    pin.framesForwardKinematics(g1.model, data, q)
+    feet = np.array([data.oMf[g1.frame_id(g1.contact_frame(f))].translation for f in g1.feet])
+    for t in (0.0, lift_off + 0.3 * swing_s):  # before lift-off (from the planted foot) and mid-swing
+        start = feet[0, :2] + (0.05 if t > lift_off else 0.0)
+        feet_now = feet.copy()
+        feet_now[0, :2] = start
+        times = np.linspace(0.0, touch_down - t, 20001)[:-1]
+        v_ref = placement.velocities(gait, t, times, q, measured, command, 0.0, feet_now)
+        assert np.all(np.isnan(v_ref[:, 1]))  # the right foot stands throughout
+        swinging = np.isfinite(v_ref[:, 0, 0])
+        assert np.all(swinging[t + times > lift_off + 1e-9]) and not np.any(swinging[t + times < lift_off - 1e-9])
+        landed = start + np.trapezoid(np.nan_to_num(v_ref[:, 0]), times, axis=0)
+        capture = (measured[:2] - command[:2]) * np.sqrt(g1.q_nominal[2] / 9.81)
+        target = q[:2] + (touch_down - t) * command[:2] + feet[0, :2] - q[:2] + command[:2] * stance_s / 2 + capture
+        np.testing.assert_allclose(landed, target, atol=2e-3)
+    # the OCP's swing rows take the references (both feet swing within this horizon), stance rows stay zero
+    problem = OcpProblem(g1)
+    times = 0.3 + problem.config.grid.node_times_s
+    contact = gait.contact(times)
+    swing_vz = SwingProfile().vertical_velocity(gait.swing_phase(times), gait.swing_duration_s)
+    vxy = placement.velocities(gait, 0.3, problem.config.grid.node_times_s, q, measured, command, 0.0, feet)
+    bounds = StageBounds(v0=np.zeros(g1.nv), q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=vxy)
+    lbg, ubg = problem.bounds(bounds)[2:]
+    nodes = problem.row_nodes["foot_vel"]
+    rows = problem.rows["foot_vel"].reshape(len(nodes), 2, 3)[..., :2]
+    swing = contact[nodes] == 0
+    assert swing[:, 0].any() and swing[:, 1].any()
+    placed = swing[..., None] & np.isfinite(vxy[nodes])
+    np.testing.assert_allclose(lbg[rows[placed]], vxy[nodes][placed])
+    np.testing.assert_allclose(ubg[rows[placed]], vxy[nodes][placed])
+    assert np.all(lbg[rows[~swing]] == 0.0) and np.all(ubg[rows[~swing]] == 0.0)
 
 
 def test_centroidal_wrench_includes_sole_moments(g1, rng):
@@ -203,7 +317,9 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     assert tuning.gait_period_s == pytest.approx(period) and 0.9 < period < 1.2  # g1: 1.03 s
     assert tuning.support_lead_s == pytest.approx(0.5 * period * share)
     assert tuning.free_ee_without_command and tuning.support_sway > 0
-    for name in ("gait_period_s", "support_sway", "weights.contact_force", "weights.base_position"):
+    assert tuning.swing_placement
+    assert tuning_for(load_robot("talos")).report()["weights.joint_torque"] == {"value": 1e-5, "source": "table"}
+    for name in ("gait_period_s", "support_sway", "weights.contact_force", "weights.base_position", "swing_placement"):
         assert report[name]["source"] == BIPED_SOURCE
     assert report["gains.kd_leg"]["source"] == "derived"
     # free hands hold no trunk: the anchor of a robot without an arm, scaled by the leg as on quadrupeds
@@ -211,7 +327,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     assert tuning.weights.base_position[0] == pytest.approx(ANCHOR_WITHOUT_ARM * 500.0 / s**2)
     # the same robot counted as four-footed gets none of it
     quadruped = derive(dataclasses.replace(scale, feet=4))
-    assert quadruped.support_sway == 0.0 and not quadruped.free_ee_without_command
+    assert quadruped.support_sway == 0.0 and not quadruped.free_ee_without_command and not quadruped.swing_placement
     assert set(entry["source"] for entry in quadruped.report().values()) == {"derived"}
 
 
@@ -232,15 +348,28 @@ def test_g1_rotor_inertias_reach_the_plant(g1):
 @pytest.mark.slow
 @pytest.mark.parametrize("robot_name,scenario", [
     ("g1", "walk-in-place"),
-    *(pytest.param("talos", name, marks=pytest.mark.xfail(reason="TALOS drifts backwards and falls at ~1.6 s standing "
-                                                                  "(Fatrop steps fail from 0.4 s): open"))
-      for name in ("stand", "walk-in-place")),
+    ("g1", "walk-forward"),  # swing placement: 10 s at 0.3 m/s up, 0 failed steps
+    ("talos", "stand"),  # its torque weight (control/tuning.py): 10 s up, drift 0.02 cm/s
+    ("talos", "walk-in-place"),  # 10 s up, 0 failed steps
 ])
 def test_humanoids_stay_up_with_the_cop_inside_their_soles(robot_name, scenario):
-    """Minutes-long: 4 s of the issue's 10 s runs (compiled Fatrop)."""
+    """Minutes-long: 4 s of the issue's 10 s runs (compiled Fatrop on g1; TALOS's generated C, 25 MB, took
+    over 30 minutes to compile at -O1, so it runs Fatrop in CasADi's VM: 0.25 s a standing step)."""
     from wbmpc.scenarios.runner import RunConfig, run_scenario
 
-    metrics = run_scenario(load_robot(robot_name), RunConfig(scenario=scenario, duration_s=4.0, compiled=True,
-                                                             solver="fatrop")).metrics
+    metrics = run_scenario(load_robot(robot_name), RunConfig(scenario=scenario, duration_s=4.0,
+                                                             compiled=robot_name == "g1", solver="fatrop")).metrics
     assert not metrics["fell"]
     assert metrics["cop_outside_sole_ticks"] == 0
+
+
+def test_pull_tipping_check_counts_the_soles(g1):
+    """g1's 5 kg pull needs the CoP 5 cm ahead of its ankles: inside its soles (toes 10 cm ahead), so the
+    scenario is accepted; a pull far beyond the soles is still refused with the CoP it would need."""
+    from wbmpc.scenarios.manipulation import _support_points
+
+    points = _support_points(g1)
+    assert points.shape == (8, 2) and points[:, 0].max() > 0.09  # two soles' corners
+    make_scenario("pull", g1, ScenarioOptions(load_kg=5.0))
+    with pytest.raises(ConfigError, match="tip the robot over"):
+        make_scenario("pull", g1, ScenarioOptions(load_kg=5.0, force_n=60.0))

@@ -111,3 +111,86 @@ class StanceReference:
             v_hip = np.asarray(velocity_m_s[:2], dtype=float) + yaw_rate_rad_s * np.array([-hip[1], hip[0]])
             out[:, columns] += np.outer(lever[:, i] * stance_s, v_hip) @ inverse.T
         return out
+
+
+CAPTURE_GAIN = 1.0  # capture-point feedback: the foot lands (v - v_cmd) sqrt(h / g) further along the error
+PLACEMENT_END_SHARE = 0.1  # the last share of a swing's path profile: its xy velocity rows are left free
+MAX_STEP_PER_LEG = 0.5  # landing target at most this many leg lengths from the foot's nominal place under the hip
+
+
+class SwingPlacement:
+    """Horizontal velocity references of swing feet that carry each one to a landing point (a biped's step).
+
+    A biped's posture cost is light (`control/biped.py`), so nothing in the OCP makes a swing foot step ahead:
+    walking forward, g1's plans kept the swing foot near where it lifted off and leant the base over the
+    toes of the stance foot (CoM 9 cm ahead of both soles at touch-down, ankles at their torque limit).
+    The landing point of each swing is Raibert's with capture-point feedback,
+
+        p_td = p_base + (t_td - t) v_cmd + R_heading r_foot + v_cmd T_st / 2 + k (v - v_cmd) sqrt(h / g),
+
+    p_base the measured base, r_foot the foot's place under its hip in the nominal pose (heading frame),
+    T_st the stance duration, h the nominal base height; within MAX_STEP_PER_LEG leg lengths of
+    p_base + (t_td - t) v_cmd + R r_foot. The foot's path to it follows the profile 6 s (1 - s) over swing
+    progress s (zero velocity at lift-off and touch-down), rescaled every MPC step from the measured foot
+    over the swing left, so the reference corrects itself; the last PLACEMENT_END_SHARE of the profile is
+    left free (the rescaling would divide by almost nothing).
+    """
+
+    def __init__(self, robot: RobotModel):
+        model = robot.model
+        self._model, self._data = model, model.createData()
+        self._frames = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]
+        q = robot.q_nominal.copy()
+        q[3:7] = (0.0, 0.0, 0.0, 1.0)
+        pin.framesForwardKinematics(model, self._data, q)
+        base = q[:2]
+        self._foot_offsets_m = np.array([self._data.oMf[f].translation[:2] - base for f in self._frames])
+        self._height_m = float(robot.q_nominal[2])
+        self._reach_m = MAX_STEP_PER_LEG * self._height_m
+
+    def velocities(self, gait: Gait, t: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
+                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray) -> np.ndarray:
+        """(nodes, n_feet, 2) world xy velocity references of swing feet at t + node_times_s (NaN: stance or
+        the free end of a swing). `v_world`: the measured base velocity, `command_world` the commanded one,
+        both world xy; `feet_m`: measured foot positions (n_feet, >= 2)."""
+        times = t + np.asarray(node_times_s, dtype=float)
+        n, n_feet = len(times), len(self._frames)
+        out = np.full((n, n_feet, 2), np.nan)
+        duty = gait.duty_factor
+        if duty >= 1:
+            return out
+        period = gait.period_s
+        swing_s, stance_s = (1 - duty) * period, duty * period
+        heading = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+        command = np.asarray(command_world, dtype=float)[:2]
+        capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self._height_m / 9.81)
+        phase = gait.phase(times)  # (n, feet)
+        progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
+        now_phase = gait.phase(np.array([t]))[0]
+        for i in range(n_feet):
+            start = np.asarray(feet_m[i][:2], dtype=float)
+            swinging = progress[:, i] >= 0
+            if not swinging.any():
+                continue
+            # swings in the horizon, in order: a new one starts where progress drops (or at the first swing node)
+            previous = np.r_[-1.0, progress[:-1, i]]
+            labels = np.cumsum(swinging & ((previous < 0) | (progress[:, i] < previous))) * swinging
+            s_now = (now_phase[i] - duty) / (1 - duty) if now_phase[i] >= duty else 0.0
+            for label in np.unique(labels[labels > 0]):
+                nodes = np.flatnonzero(labels == label)
+                s = progress[nodes, i]
+                lift_off_t = times[nodes[0]] - s[0] * swing_s
+                touch_down_t = lift_off_t + swing_s
+                s0 = s_now if lift_off_t <= t else 0.0
+                under_hip = q[:2] + (touch_down_t - t) * command + heading @ self._foot_offsets_m[i]
+                step = command * stance_s / 2 + capture
+                reach = np.linalg.norm(step)
+                if reach > self._reach_m:
+                    step *= self._reach_m / reach
+                target = under_hip + step
+                left = 1 - 3 * s0**2 + 2 * s0**3  # integral of 6 s (1 - s) from s0 to 1
+                if left > PLACEMENT_END_SHARE:
+                    shape = 6 * s * (1 - s) / (swing_s * left)
+                    out[nodes, i] = np.outer(shape, target - start)
+                start = target  # a later swing of this foot starts where this one lands
+        return out

@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.delay import roll_forward
-from wbmpc.control.foot_placement import StanceReference
+from wbmpc.control.foot_placement import StanceReference, SwingPlacement
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, SwingProfile, make_gait
@@ -152,6 +152,9 @@ class MpcConfig:
     # during double support (MPC._sway_towards_support)
     support_sway: float = 0.0
     support_lead_s: float = 0.0  # ... of the stance feet this much later (a biped: its double-support phase)
+    # swing feet's horizontal velocities carried to a landing point (`foot_placement.SwingPlacement`: Raibert's
+    # with capture-point feedback) instead of free; bipeds, whose light posture cost does not make them step
+    swing_placement: bool = False
     # delay compensation (control/delay.py): `solve(..., delay_s=d)` plans from the state predicted for t + d
     # (the measurement rolled forward with the previous plan's accelerations) and returns a plan starting at
     # t + d; off: the plan starts at the measurement, d late
@@ -247,6 +250,7 @@ class MPC:
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._stance_reference = StanceReference(robot) if config.stance_posture_reference else None
+        self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
@@ -396,6 +400,15 @@ class MPC:
         dq_des[:3] += rot.T[:, :2] @ shift.T
         return dq_des
 
+    def _swing_velocities(self, q, v, rot, t, node_times, command_world) -> np.ndarray | None:
+        """Swing feet's xy velocity references to their landing points (`SwingPlacement`), or None."""
+        if self._swing_placement is None:
+            return None
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        return self._swing_placement.velocities(self.gait, t, node_times, q, rot @ v[:3], command_world, yaw, feet)
+
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
         model, data = self.robot.model, self._data
@@ -460,6 +473,7 @@ class MPC:
         if self.config.support_sway:  # lean over the feet that will stand support_lead_s later
             dq_des = self._sway_towards_support(q, rot, dq_des, self.gait.contact(t + node_times + self.config.support_lead_s))
         forces = self._force_guess(contact, commands)
+        swing_vxy = self._swing_velocities(q, v, rot, t, node_times, base_velocity_world)
         values = {
             "q_ref": q,
             "rot_ref": rot,
@@ -473,7 +487,7 @@ class MPC:
         }
         p = problem.params.pack(values)
         stage_bounds = StageBounds(
-            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
+            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
             ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),

@@ -45,7 +45,7 @@ class Node:
     config: Configuration | None = None
     motion: Motion | None = None
     acceleration: ca.SX | None = None  # generalized acceleration of an input node, built once
-
+    inverse_dynamics: ca.SX | None = None  # RNEA(q, v, a, F) of the node's plan, where a row computed it
 
     def __getitem__(self, name: str) -> ca.SX:
         return self.parts[name]
@@ -111,6 +111,11 @@ class Formulation(ABC):
         zero = ca.SX.zeros(self.nv)
         return self.dyn.rnea(node.config, Motion(node.config, zero), zero, node["F"])[6:]
 
+    def implied_torques(self, node: Node) -> ca.SX | None:
+        """Joint torques the node's plan implies where they are no variables (None: the formulation
+        has none to offer). Call after `dynamics_rows` (it may reuse that node's RNEA)."""
+        return None
+
     def joint_torques(self, node: Node, a: ca.SX) -> ca.SX:
         """Joint torques to apply (eq. 10's tau_ff): the variable, or inverse dynamics of the plan."""
         if node.get("tau") is not None:
@@ -170,8 +175,18 @@ class WholeBodyInverse(Formulation):
 
     def dynamics_rows(self, node):
         tau = self.dyn.rnea(node.config, node.motion, node["a"], node["F"])
+        node.inverse_dynamics = tau
         rows = tau - ca.vertcat(ca.SX.zeros(6), node["tau"]) if node.get("tau") is not None else tau[:6]
         return rows / self.dynamics_row_scale(rows.shape[0])
+
+    def implied_torques(self, node):
+        """The joint rows of the node's RNEA (eq. 5 with the contact wrenches): the torques the motors
+        must give for the planned accelerations and forces, on nodes without torque variables."""
+        if node.get("tau") is not None or node.get("a") is None:
+            return None
+        if node.inverse_dynamics is None:
+            node.inverse_dynamics = self.dyn.rnea(node.config, node.motion, node["a"], node["F"])
+        return node.inverse_dynamics[6:]
 
 
 class WholeBodyForward(Formulation):

@@ -9,7 +9,8 @@ references, arm commands, joint limits): one build serves every step.
 Path constraints per node (section IV-B):
 - dynamics rows of the formulation (eq. 5 for wb_inverse);
 - contact (eq. 6): stance feet F_z >= 0 (bound), friction cone mu^2 F_z^2 - F_x^2 - F_y^2 >= 0,
-  foot velocity = 0; swing feet F = 0 (bounds), foot v_z = spline reference, v_x, v_y free;
+  foot velocity = 0; swing feet F = 0 (bounds), foot v_z = spline reference, v_x, v_y free (or, where
+  `StageBounds.swing_vxy_m_s` gives them, equal to a placement reference: bipeds' steps);
 - flat feet (surface contacts, 6D wrench [f; tau] at the sole, `robot.soles`): instead of the cone a
   hard wrench cone of linear rows (`wrench_cone`): friction pyramid |f_x|, |f_y| <= mu f_z, centre of
   pressure inside the sole rectangle |tau_x| <= (W/2) f_z, |tau_y| <= (L/2) f_z, and the yaw moment
@@ -19,7 +20,12 @@ Path constraints per node (section IV-B):
   rates zero in swing, so the sole stays parallel to the ground from lift-off to touch-down while its
   height follows eq. 6's spline; swing soles carry no wrench (bounds);
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
-- limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds);
+- limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
+  later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
+  wrenches, `implied_torque`) within tau_max (`OcpConfig.implied_torque_rows`: by default the leg
+  joints of robots with flat feet and a leg joint weaker than their weight on a sole's edge). Without
+  them a humanoid's plan put the CoP at the toe in single support beyond what the 35 N m ankle of g1
+  can hold, on every node but the first three.
 - collision avoidance (beyond the paper, `OcpConfig.collision`, `symbolic/collision.py`): on nodes 1..N
   one row per group of capsule pairs, their smooth minimum distance >= margin (node 1 is free where
   the measurement fixes its configuration; the following nodes start from the measured distance when
@@ -54,7 +60,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.parameters import ParameterPack
-from wbmpc.robots import RobotModel
+from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.robots.collision_model import CollisionConfig, CollisionModel, collision_model_for
 from wbmpc.symbolic import InertialParameters, SymbolicDynamics
 from wbmpc.symbolic.collision import collision_function, collision_rows
@@ -64,8 +70,9 @@ EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 COLLISION_BLEND_TIME_S = 0.1  # a measured distance below the margin reaches it over this time
-ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "foot_vel", "foot_ang", "ee_vel", "collision", "cone",
-            "wrench_cone")
+ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "implied_torque", "foot_vel", "foot_ang", "ee_vel",
+            "collision", "cone", "wrench_cone")
+IMPLIED_TORQUE_ROWS = ("auto", "all", "legs", "none")  # OcpConfig.implied_torque_rows
 WRENCH_CONE_ROWS = 10  # per flat foot: 4 friction pyramid, 4 centre of pressure, 2 yaw moment
 # rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
 # in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
@@ -86,12 +93,20 @@ class OcpConfig:
     # recovers from pushes by relaxing the arm rows instead (StageBounds.relaxed_rows)
     soft_rows: tuple[str, ...] = ()
     collision: CollisionConfig | None = None  # collision avoidance rows (None: off, the paper's OCP)
+    # joints whose torques implied by the plan (the RNEA's joint rows with the contact wrenches) are
+    # bounded by tau_max on the input nodes without torque variables (k >= n_torque_nodes, eq. 8 on every
+    # node): "all", "legs" (joints on a root-to-foot chain), "none" (the paper's OCP) or "auto" (see
+    # `OcpProblem.implied_torque_joints`)
+    implied_torque_rows: str = "auto"
     # the base CoM offset (3, base frame, m), a payload at the hand (kg; the base origin without an arm) and, with
     # an arm, a load at the base origin as NLP parameters "base_com_offset", "payload_kg", "base_payload_kg" of
     # the whole-body dynamics (issue 22: mass distribution online)
     inertial_parameters: bool = False
 
     def __post_init__(self):
+        if self.implied_torque_rows not in IMPLIED_TORQUE_ROWS:
+            raise ConfigError(f"implied_torque_rows {self.implied_torque_rows!r}: choose from "
+                              f"{', '.join(IMPLIED_TORQUE_ROWS)}")
         if self.inertial_parameters and not self.formulation.startswith("wb_"):
             raise ConfigError(f"inertial parameters enter the whole-body dynamics only; formulation "
                               f"'{self.formulation}' has none: use wb_inverse or wb_forward")
@@ -113,6 +128,8 @@ class StageBounds:
     q_ref: np.ndarray  # measured configuration (node 0, reference of dq)
     contact: np.ndarray  # (N+1, n_feet) 1 = stance
     swing_vz_m_s: np.ndarray  # (N+1, n_feet) vertical velocity reference of swing feet
+    # (N+1, n_feet, 2) world horizontal velocity references of swing feet (NaN or None: free)
+    swing_vxy_m_s: np.ndarray | None = None
     ee_velocity_m_s: np.ndarray | None = None  # (3,) world
     ee_force_on_robot_n: np.ndarray | None = None  # (3,) world, force acting on the robot
     foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
@@ -146,6 +163,7 @@ class OcpProblem:
         self.collision: CollisionModel | None = collision_model_for(robot, config.collision)
         # built now: the first MPC step is timed (the anytime solver's budget check)
         self._collision_function = collision_function(self.collision, self.dyn) if self.collision is not None else None
+        self.implied_torque_joints = self._implied_torque_joints()
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
@@ -233,6 +251,34 @@ class OcpProblem:
         self.idx = {name: np.array(rows) for name, rows in index.items()}
         self.x_scale = np.concatenate(x_scale)
 
+    def _implied_torque_joints(self) -> np.ndarray:
+        """Indices of the joints with implied-torque rows. "auto": the leg joints of a robot with flat feet
+        whose weakest leg joint is weaker than its weight on a sole's edge (M g times the horizontal distance
+        from the foot link's origin to the sole's farthest edge): there a sole's wrench can put the CoP where
+        a leg joint's torque runs out (g1: 35 N m ankles, 41 N m at its toe 12.5 cm ahead of the ankle; its
+        plans put the CoP there in single support), elsewhere none (TALOS: 100 N m, 88 N m; with its leg rows
+        its compiled NLP was 26 MB of C that -O1 did not build within 30 minutes on a loaded machine; point
+        feet carry no contact moment). Legs, not every joint: a leg joint's torque depends on its leg's links
+        and its sole's wrench only (RNEA's backward pass over the leg's subtree), every joint's on the whole
+        tree; the arms' torques do not depend on where the CoP is."""
+        choice = self.config.implied_torque_rows
+        if choice == "auto":
+            choice = "legs" if self._weak_legs() else "none"
+        mask = {"all": np.ones(self.nj, dtype=bool), "legs": np.asarray(self.robot.leg_joint_mask, dtype=bool),
+                "none": np.zeros(self.nj, dtype=bool)}[choice]
+        return np.flatnonzero(mask)
+
+    def _weak_legs(self) -> bool:
+        """Flat feet with a leg joint weaker than the robot's weight on a sole's edge (`_implied_torque_joints`)."""
+        if not self.surface_feet:
+            return False
+        robot = self.robot
+        # the sole's farthest edge from the foot link's origin (g1's ankle: 3.5 cm behind the sole's centre)
+        edge_m = max(max(abs(sole.centre_m[0]) + sole.half_length_m, abs(sole.centre_m[1]) + sole.half_width_m)
+                     for sole in robot.soles.values())
+        legs = np.asarray(robot.leg_joint_mask, dtype=bool)
+        return bool(legs.any() and robot.tau_max[legs].min() < robot.mass_kg * GRAVITY_M_S2 * edge_m)
+
     def _has_torque_limit_rows(self, k: int) -> bool:
         return ("torque_limit" in self.config.soft_rows and k < min(self.config.n_torque_nodes, self.N)
                 and any(name == "tau" for name, _ in self.formulation.input_parts(k)))
@@ -308,6 +354,11 @@ class OcpProblem:
                 estimate = form.torque_estimate(node)
                 if estimate is not None:
                     rows.append(("torque", estimate / self.robot.tau_max))
+            elif self.implied_torque_joints.size:
+                implied = form.implied_torques(node)
+                if implied is not None:
+                    joints = self.implied_torque_joints
+                    rows.append(("implied_torque", implied[joints.tolist()] / self.robot.tau_max[joints]))
         if self._has_torque_limit_rows(k):
             rows.append(("torque_limit", node["tau"] / self.robot.tau_max))
         if not first and node.motion is not None:
@@ -521,9 +572,10 @@ class OcpProblem:
         if self.rows["torque_limit"].size:  # the torque limits as (soft) rows
             lbg[self.rows["torque_limit"]] = -1.0
             ubg[self.rows["torque_limit"]] = 1.0
-        if self.rows["torque"].size:  # estimated torques of the centroidal formulations, in limits
-            lbg[self.rows["torque"]] = -1.0
-            ubg[self.rows["torque"]] = 1.0
+        for tag in ("torque", "implied_torque"):  # estimated / implied torques, in their limits
+            if self.rows[tag].size:
+                lbg[self.rows[tag]] = -1.0
+                ubg[self.rows[tag]] = 1.0
         # eq. (6) forces: stance F_z >= 0, swing F = 0; eq. (7): arm force fixed to the command
         if "F" in self.idx:
             feet_f = self.idx["F"][:, : 3 * nf].reshape(N, nf, 3)
@@ -553,6 +605,11 @@ class OcpProblem:
         ubg[foot_rows[..., 2]] = vz
         lbg[foot_rows[..., :2]] = np.where(swing[..., None], -INF, 0.0)
         ubg[foot_rows[..., :2]] = np.where(swing[..., None], INF, 0.0)
+        if data.swing_vxy_m_s is not None:  # swing feet carried to their placement
+            vxy = np.asarray(data.swing_vxy_m_s, dtype=float)[foot_nodes]
+            placed = swing[..., None] & np.isfinite(vxy)
+            lbg[foot_rows[..., :2][placed]] = vxy[placed]
+            ubg[foot_rows[..., :2][placed]] = vxy[placed]
         if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
             stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
             self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),

@@ -23,7 +23,7 @@ class ScenarioOptions:
     scenario's default."""
 
     speed_m_s: float = option(0.2, flag="--speed", help="forward speed", low=-1.5, high=1.5, unit="m/s",
-                              scenarios=("trot-forward", "arm-track"))
+                              scenarios=("trot-forward", "walk-forward", "arm-track"))
     push_speed_m_s: float = option(0.8, flag="--push-speed", help="base velocity kick", low=0.0, high=5.0, unit="m/s",
                                    scenarios=PUSH)
     push_direction_deg: float = option(90.0, flag="--push-direction", help="direction of the kick in the heading "

@@ -99,6 +99,19 @@ def support_centre_of_pressure(robot: RobotModel, force_applied_n: np.ndarray) -
     return np.array([moment[1], -moment[0]]) / reaction_z
 
 
+def _support_points(robot: RobotModel) -> np.ndarray:
+    """(n, 2) ground points of the feet at the nominal pose: point feet, and the corners of flat feet's soles
+    (two point feet side by side support no fore-aft moment; two soles do)."""
+    model, data = robot.model, robot.model.createData()
+    pin.framesForwardKinematics(model, data, robot.q_nominal)
+    points = []
+    for foot in robot.feet:
+        placement = data.oMf[robot.frame_id(robot.contact_frame(foot))]
+        local = robot.soles[foot].corners_m() if foot in robot.soles else np.zeros((1, 3))
+        points.extend(placement.rotation @ corner + placement.translation for corner in local)
+    return np.array(points)[:, :2]
+
+
 def check_arm_force(robot: RobotModel, force_applied_n: np.ndarray, what: str) -> np.ndarray:
     """Raise `ConfigError` when the arm cannot hold the force target at its nominal pose, or the
     force would tip the standing robot over its feet; warn near the arm's torque limits.
@@ -114,8 +127,7 @@ def check_arm_force(robot: RobotModel, force_applied_n: np.ndarray, what: str) -
               f"pose (limit {limits[worst]:.1f} Nm)")
     if ratio[worst] > 1.0:
         raise ConfigError(f"{detail}: beyond the arm's torque limits; lower the force (--force-n) or the load (--load-kg)")
-    feet = robot.frame_trajectories(robot.q_nominal, list(robot.feet))
-    xy = np.array([feet[f][0, :2] for f in robot.feet])
+    xy = _support_points(robot)
     cop = support_centre_of_pressure(robot, force_applied_n)
     if not (np.all(cop >= xy.min(axis=0)) and np.all(cop <= xy.max(axis=0))):
         raise ConfigError(f"{what} of {magnitude:.1f} N would tip the robot over: the centre of pressure it needs "
@@ -298,12 +310,11 @@ class Pull(_ForceTask):
         self.force_window_start_s = self.MOVE_START_S + 0.5
 
     def cost_weights(self, weights: CostWeights) -> CostWeights:
-        """The legs' posture weight the paper pulled with (tuning.LEG_POSTURE times less): the stiffer posture
-        that keeps a trot from swaying biased the cable tension low (b1_z1, 14 kg: 39.5 N for 40.4 N, -2.2 %,
-        and the load did not slide; x5: -0.8 %, still stuck; the paper's: -0.2 %, pulled 0.64 m)."""
-        from wbmpc.control.tuning import LEG_POSTURE
-
-        return replace(weights, leg_joint_position=weights.leg_joint_position / LEG_POSTURE)
+        """The legs' posture weight the paper pulled with, at most (tuning.LEG_POSTURE times less on a
+        quadruped): the stiffer posture that keeps a trot from swaying biased the cable tension low (b1_z1,
+        14 kg: 39.5 N for 40.4 N, -2.2 %, and the load did not slide; x5: -0.8 %, still stuck; the paper's:
+        -0.2 %, pulled 0.64 m). A biped's lighter posture weight (control/biped.py) stays."""
+        return replace(weights, leg_joint_position=min(weights.leg_joint_position, CostWeights().leg_joint_position))
 
     def _hook(self, robot) -> np.ndarray:
         ee = nominal_ee_position(robot)
