@@ -72,8 +72,8 @@ def test_friction_torques_in_the_inverse_dynamics(a1_drive, rng):
 def test_mujoco_inverse_dynamics_with_armature_and_damping_match_ours(a1_drive, rng):
     """MuJoCo's mj_inverse (rotor inertia in its mass matrix, damping as passive force) against our RNEA."""
     plant = MujocoPlant(a1_drive, MujocoPlantConfig(joint_armature_kg_m2={**ARMATURE, "FL_hip_joint": 0.01},
-                                                    joint_damping_nm_s_per_rad=0.3))
-    model, data = plant.model, plant.data
+                                                    joint_damping_nm_s_per_rad=0.3, self_collision=False))
+    model, data = plant.model, plant.data  # random configurations: legs would touch each other (robot-robot contacts)
     vadr = np.array([model.joint(n).dofadr[0] for n in a1_drive.joint_names])
     root = model.joint("root_joint").dofadr[0]
     spec = dataclasses.replace(preset_spec("a1"), armature_kg_m2={**ARMATURE, "FL_hip_joint": 0.01},
