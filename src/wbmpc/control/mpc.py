@@ -505,6 +505,23 @@ class MPC:
         soft_bounds = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else problem.bounds(
             replace(stage_bounds, soft=True, relaxed_rows=self.config.push_relaxed_rows))
         cfg = self.config
+        result, solve_end = self._solve_step(p, bounds, soft_bounds, x0, t, budget_s, clock, clock_start)
+        solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
+        if solution.success:
+            self._previous = solution
+        elif cfg.hold_previous_on_failure and self._previous is not None:
+            solution = self._shifted_previous(t, node_times, contact, result.stats)
+        if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
+            self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
+        # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
+        result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
+        return solution
+
+    def _solve_step(self, p, bounds, soft_bounds, x0, t: float, budget_s: float | None, clock, clock_start):
+        """One step's solve: the push fallback solver first in the wake of a push, else the solver on this
+        step's deadline, then the recovery ladder unless a deadline forbids it. Returns the result and the
+        solver clock's time at the end of a deadline-bound solve (None otherwise)."""
+        cfg = self.config
         solve_end = None
         if self._fallback_until_t is not None and t < self._fallback_until_t and cfg.fallback_solver:
             result = self._fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
@@ -528,16 +545,7 @@ class MPC:
                 result.stats.status = f"{result.stats.status}; no recovery re-solve past the step's deadline"
             elif not result.stats.success:
                 result = self._recover(result, p, bounds, x0, t, soft_bounds=soft_bounds)
-        solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
-        if solution.success:
-            self._previous = solution
-        elif cfg.hold_previous_on_failure and self._previous is not None:
-            solution = self._shifted_previous(t, node_times, contact, result.stats)
-        if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
-            self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
-        # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
-        result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
-        return solution
+        return result, solve_end
 
     def _relaxed_rows(self, after_push: bool, commands: Commands) -> tuple[str, ...]:
         rows = self.config.push_relaxed_rows if after_push else ()
