@@ -27,8 +27,8 @@ from wbmpc.symbolic.collision import collision_function
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return load_robot("b1_z1")
+def robot(b1z1):  # the session's B1 + Z1 (conftest)
+    return b1z1
 
 
 OBSTACLE = Obstacle("crate", (0.9, 0.3, 0.3), (0.15, 0.12, 0.1))

@@ -22,6 +22,21 @@ def _symbolic(robot):
     return dyn, nominal, edited
 
 
+def _stand_and_identify(robot, plant, steps: int):
+    """`steps` physics steps of the plant held at the nominal pose by joint PD, an inertial identification
+    hook on it (returned)."""
+    from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
+
+    hook = InertialIdentification(InertialEstimator(robot))
+    plant.add_step_hook(hook)
+    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    q_joints = robot.joint_positions(robot.q_nominal)
+    for _ in range(steps):
+        q, v = plant.state()
+        plant.step(300.0 * (q_joints - robot.joint_positions(q)) - 5.0 * v[6:])
+    return hook
+
+
 def test_inertial_parameters_match_pinocchio_on_an_edited_model(b1z1):
     """RNEA and CRBA with a base CoM offset, a hand payload and a load on the base change exactly as
     pinocchio's on the edited model; zero parameters give today's functions."""
@@ -102,19 +117,12 @@ def test_estimator_recovers_offset_and_payload_from_pinocchio_data(b1z1):
 def test_estimator_recovers_offset_and_payload_in_mujoco(b1z1):
     """The step hook on a MuJoCo plant whose base CoM sits 5 cm back and whose hand carries 3 kg, the robot
     held standing by joint PD: the estimate after 0.6 s is within 5 mm and 0.1 kg (the elbow reaches its limit under the load)."""
-    from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
     from wbmpc.sim import make_plant
     from wbmpc.sim.model_errors import ModelErrors
 
     errors = ModelErrors(base_com_offset_m=(-0.05, 0.0, 0.0), ee_payload_kg=3.0)
     plant = make_plant("mujoco", b1z1, errors.plant_config(b1z1))
-    hook = InertialIdentification(InertialEstimator(b1z1))
-    plant.add_step_hook(hook)
-    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
-    q_joints = b1z1.joint_positions(b1z1.q_nominal)
-    for _ in range(600):
-        q, v = plant.state()
-        plant.step(300.0 * (q_joints - b1z1.joint_positions(q)) - 5.0 * v[6:])
+    hook = _stand_and_identify(b1z1, plant, steps=600)
     metrics = hook.metrics(errors)
     assert metrics["base_com_offset_estimate_error_m"] < 0.005, (metrics["base_com_offset_estimate_m"], metrics["payload_estimate_kg"])
     assert metrics["payload_estimate_error_kg"] < 0.1, metrics["payload_estimate_kg"]
@@ -188,7 +196,6 @@ def test_estimator_tells_a_load_on_the_base_from_a_hand_payload_in_mujoco(b1z1):
     base payload, no hand payload, and the base CoM offset its first moment gives in x (m p_x / m_base)."""
     from dataclasses import replace
 
-    from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
     from wbmpc.sim import make_plant
     from wbmpc.sim.base import specialised_config
     from wbmpc.sim.mujoco_scene import MujocoPlantConfig, body_names
@@ -198,13 +205,7 @@ def test_estimator_tells_a_load_on_the_base_from_a_hand_payload_in_mujoco(b1z1):
                                                 inertia=[1e-3] * 3, explicitinertial=True)
 
     plant = make_plant("mujoco", b1z1, replace(specialised_config(None, MujocoPlantConfig), spec_callback=load))
-    hook = InertialIdentification(InertialEstimator(b1z1))
-    plant.add_step_hook(hook)
-    plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
-    q_joints = b1z1.joint_positions(b1z1.q_nominal)
-    for _ in range(1000):
-        q, v = plant.state()
-        plant.step(300.0 * (q_joints - b1z1.joint_positions(q)) - 5.0 * v[6:])
+    hook = _stand_and_identify(b1z1, plant, steps=1000)
     estimator = hook.estimator
     assert abs(estimator.base_payload_kg - 6.0) < 0.1 and estimator.payload_kg < 0.1
     assert abs(estimator.base_com_offset_m[0] - 6.0 * 0.1 / b1z1.model.inertias[1].mass) < 0.002

@@ -109,8 +109,6 @@ class InertialEstimator:
         self._filtered: tuple[np.ndarray, np.ndarray] | None = None
         self._rejecting_s = 0.0
         self._armature = np.r_[np.zeros(6), robot.armature_kg_m2]
-        self._viscous = np.r_[np.zeros(6), robot.viscous_friction_nm_s]
-        self._coulomb = np.r_[np.zeros(6), robot.coulomb_friction_nm]
         self._nv = nv
 
     # ------------------------------------------------------------------ parameters
@@ -148,7 +146,7 @@ class InertialEstimator:
         if at_limit[self.leg_rows].any():  # the leg's force from its torques would be wrong: no rows at all
             return np.full((self.model_rows.size, self.n_theta), np.nan), np.full(self.model_rows.size, np.nan)
         regressor = pin.computeJointTorqueRegressor(model, data, q, v, a)
-        drive = self._armature * a + self._viscous * v + self._coulomb * np.tanh(v / self.robot.coulomb_velocity_rad_s)
+        drive = self._armature * a + np.r_[np.zeros(6), self.robot.joint_friction_torque(v[6:])]
         residual = regressor @ self.pi_nominal + drive - np.r_[np.zeros(6), tau_joints]
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
