@@ -375,12 +375,16 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         plant.add_step_hook(sole_monitor)
     identification = None
     if config.identify_mass:
-        from wbmpc.estimation.inertial import InertialEstimator, InertialIdentification
+        from wbmpc.estimation.inertial import ESTIMATED_STATE_CONFIG, InertialEstimator, InertialIdentification
 
-        identification = InertialIdentification(InertialEstimator(robot), mpc)
+        from_estimate = config.state == "estimated"
+        estimator = InertialEstimator(robot, ESTIMATED_STATE_CONFIG) if from_estimate else InertialEstimator(robot)
+        identification = InertialIdentification(estimator, mpc, from_estimate=from_estimate)
         plant.add_step_hook(identification)
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
+    if identification is not None and state_source is not None:  # the estimate is what the robot would know
+        state_source.listeners.append(identification.on_estimate)
     loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
