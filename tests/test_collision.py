@@ -227,11 +227,39 @@ def test_run_option_sets_the_ocp(robot):
                             robot)
     assert config.ocp.collision.margin_m == 0.04
     assert config.ocp.soft_rows == ("ee_vel",) and config.soft_rows_always
-    plain = mpc_config_for(scenario, RunConfig(scenario="arm-track"), robot)
+    plain = mpc_config_for(scenario, RunConfig(scenario="arm-track", collision_avoidance=False), robot)
     assert plain.ocp.collision is None and plain.ocp.soft_rows == () and not plain.soft_rows_always
     # compiled without delay: Fatrop, but the anytime SQP with collision avoidance (the soft arm rows)
-    assert RunConfig(scenario="arm-track", solver="auto", compiled=True).solver.startswith("fatrop")  # -direct, or its fallback
+    assert RunConfig(scenario="arm-track", solver="auto", compiled=True,
+                     collision_avoidance=False).solver.startswith("fatrop")  # -direct, or its fallback
     assert RunConfig(scenario="arm-track", solver="auto", compiled=True, collision_avoidance=True).solver == "sqp"
+
+
+def test_arm_track_avoids_collisions_unless_told_otherwise(robot):
+    """Left open, collision avoidance is on for arm-track on a legged base with an arm (the paper's path brings the
+    Z1's wrist onto its shoulder in MuJoCo) and the automatic solver is chosen again with it; elsewhere it stays off,
+    and what the user set or chose is kept."""
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import mpc_config_for
+
+    auto = RunConfig(scenario="arm-track", solver="auto", compiled=True)
+    assert auto.collision_avoidance is None and auto.solver.startswith("fatrop")  # before the robot is known
+    on_robot = replace(auto, seed=1).for_robot(robot)  # the CLI's replace keeps the automatic choice
+    assert on_robot.collision_avoidance is True and on_robot.solver == "sqp"
+    assert mpc_config_for(make_scenario_for(robot), RunConfig(scenario="arm-track"), robot).ocp.collision is not None
+    assert RunConfig(scenario="arm-track", solver="fatrop").for_robot(robot).solver == "fatrop"  # chosen: kept
+    assert RunConfig(scenario="arm-track", collision_avoidance=False).for_robot(robot).collision_avoidance is False
+    assert RunConfig(scenario="trot-in-place", solver="auto", compiled=True).for_robot(robot).collision_avoidance is False
+    assert RunConfig(scenario="arm-track").for_robot(load_robot("a1")).collision_avoidance is False  # no arm
+
+
+def test_collision_avoidance_flag():
+    from wbmpc.cli import _run_config, build_parser
+
+    parser = build_parser()
+    values = [_run_config(parser.parse_args(["run", "arm-track", *extra])).collision_avoidance
+              for extra in ([], ["--collision-avoidance"], ["--collision-avoidance", "on"], ["--collision-avoidance", "off"])]
+    assert values == [None, True, True, False]
 
 
 def make_scenario_for(robot):

@@ -405,7 +405,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=_gains(args, robot), plant_config=plant_config_from_args(args, robot))
+    config = dataclasses.replace(config, gains=_gains(args, robot),
+                                 plant_config=plant_config_from_args(args, robot)).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)

@@ -69,4 +69,5 @@ def unknown_name(kind: str, name: str, known: Iterable[str]) -> str:
     """Message for an unknown frame/joint/gait/... that lists what exists."""
     known = sorted(known)
     shown = ", ".join(known[:60]) + (" ..." if len(known) > 60 else "")
-    return f"unknown {kind} '{name}'; available {kind}s: {shown}"
+    plural = kind[:-2] + "es" if kind.endswith("is") else kind + "s"  # axis -> axes
+    return f"unknown {kind} '{name}'; available {plural}: {shown}"

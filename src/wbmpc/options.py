@@ -44,6 +44,7 @@ class Option:
     default_text: str | None = None  # how the help states the default when the value alone does not say it
     parse: Callable[[Any], Any] | None = None  # the parsed flag value -> the field's value (e.g. "on" -> True)
     repeat: bool = False  # the flag may be given several times (argparse "append"); `parse` gets the list
+    const: Any = _UNSET  # the flag's value when given without one (`--collision-avoidance` = `--collision-avoidance on`)
 
     @property
     def dest(self) -> str:
@@ -144,6 +145,8 @@ def add_argument(parser, f: dataclasses.Field, opt: Option) -> None:
         kwargs.update(action="store_true")
     else:
         kwargs.update(default=default)
+        if opt.const is not _UNSET:
+            kwargs.update(nargs="?", const=opt.const)
         if opt.choices is not None:
             kwargs["choices"] = opt.choices
         elif opt.integer:

@@ -52,6 +52,7 @@ class EstimatedState:
         self.log = EstimationLog()
         self._time_s: float | None = None
         self._start_xy = plant.state()[0][:2].copy()  # the estimate starts where the robot is placed
+        self.listeners: list = []  # f(t_s, q, v) on every new estimate (e.g. the inertial identification)
 
     def measure(self) -> tuple[np.ndarray, np.ndarray]:
         t = self.plant.time_s
@@ -60,4 +61,6 @@ class EstimatedState:
             q, v = self.estimator.update(self.sensors.read(), self._start_xy)
             q_true, v_true = self.plant.state()
             self.log.record(t, q, v, q_true, v_true)
+            for listener in self.listeners:
+                listener(t, q, v)
         return self.estimator.q.copy(), self.estimator.v.copy()
