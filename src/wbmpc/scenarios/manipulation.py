@@ -52,6 +52,7 @@ from wbmpc.sim.objects import (
     CableLoad,
     CompliantPad,
     ExternalHand,
+    FreeBox,
     HandPush,
     Scene,
 )
@@ -418,18 +419,46 @@ class Pull(_ForceTask):
 
 # ----------------------------------------------------------------------------- push-box
 class PushBox(_ForceTask):
-    """Press a box against a wall while trotting in place, with a force target (section VI-C)."""
+    """Press a box against a wall while trotting in place, with a force target (section VI-C); or (`--box-path
+    turn`, implied by `--object-model`) push a free box along a path with a 90 degree turn (issue 22: with the
+    box inside the MPC, or with a force command as the paper's MPC would)."""
 
     object_name = "box"
     RAMP_S = (0.4, 0.9)
     APPROACH_END_S = 0.4
     GAP_M = 0.02
     DEFAULT_FORCE_N = 20.0
+    PATH_DURATION_AFTER_S = 1.0  # the run continues this long after the path's turn
 
     def __init__(self, options: ScenarioOptions):
-        super().__init__("push-box", "press a box against the wall while trotting in place",
-                         "trot", 6.0, needs_arm=True, options=options)
+        super().__init__("push-box", "press a box against the wall while trotting in place (or push it along a "
+                         "path: --box-path turn, --object-model)", "trot", 6.0, needs_arm=True, options=options)
         self.force_window_start_s = self.RAMP_S[1] + 0.2
+        self._path = None
+        if self.follows_path:
+            from wbmpc.scenarios.object_paths import BoxPath
+
+            self._path = BoxPath()
+            self.default_duration_s = round(self._path.start_s + self._path.moving_s + self.PATH_DURATION_AFTER_S)
+
+    @property
+    def follows_path(self) -> bool:
+        return self.options.object_model or self.options.box_path == "turn"
+
+    def free_box(self, robot) -> FreeBox:
+        return FreeBox(near_face_x_m=self._face_x(robot), mass_kg=self.options.box_kg)
+
+    def box_path(self, robot):
+        """The commanded path of the free box's centre, from where the box starts."""
+        from wbmpc.scenarios.object_paths import BoxPath
+
+        return replace(self._path or BoxPath(), start_xy_m=tuple(self.free_box(robot).centre_xy_m))
+
+    def object_model(self, robot):
+        """The OCP's model of the scene's box (`--object-model`)."""
+        from wbmpc.ocp.objects import SlidingBox
+
+        return SlidingBox.from_scene(self.free_box(robot), EE_SPHERE_RADIUS_M)
 
     @property
     def force_magnitude_n(self) -> float:
@@ -439,12 +468,21 @@ class PushBox(_ForceTask):
         return float(nominal_ee_position(robot)[0] + EE_SPHERE_RADIUS_M + self.GAP_M)
 
     def _objects(self, robot):
+        if self.follows_path:
+            return [self.free_box(robot)]
         return [BoxAtWall(near_face_x_m=self._face_x(robot), mass_kg=self.options.box_kg)]
 
     def check(self, robot):
+        if self.follows_path:
+            box = self.free_box(robot)
+            force = box.friction_mu * box.mass_kg * GRAVITY_M_S2
+            check_arm_force(robot, np.array([force, 0.0, 0.0]), "force that slides the box")
+            return
         check_arm_force(robot, np.array([self.force_magnitude_n, 0.0, 0.0]), "pushing force target")
 
     def commands(self, robot):
+        if self.follows_path:
+            return self._path_commands(robot)
         ee = _EeState(robot)
         normal = np.array([1.0, 0.0, 0.0])  # into the box
         p_ref = nominal_ee_position(robot)
@@ -457,6 +495,34 @@ class PushBox(_ForceTask):
                             ee_force_n=ramp(t, *self.RAMP_S) * force)
 
         return command
+
+    def _path_commands(self, robot):
+        """The base follows the box's path; the hand pushes by force command, or (object model) the MPC plans it."""
+        from wbmpc.scenarios.object_paths import PathFollower, force_command, object_command
+
+        path, box, ee = self.box_path(robot), self.free_box(robot), _EeState(robot)
+        follower = PathFollower(path, robot.q_nominal[:2])
+        height = float(nominal_ee_position(robot)[2])
+
+        def command(t, q, v):
+            base = follower.base_command(t, q)
+            if self.options.object_model:
+                return Commands(**base, object_command=object_command(path, self._scene, self.object_name, t))
+            velocity, force = force_command(path, t, box, EE_SPHERE_RADIUS_M, height, ee.position(q), _feedback)
+            return Commands(**base, ee_velocity_m_s=velocity, ee_force_n=force)
+
+        return command
+
+    def extra_metrics(self, robot, log):
+        out = super().extra_metrics(robot, log)
+        out["object_model"] = bool(self.options.object_model)
+        if self.follows_path:
+            from wbmpc.scenarios.object_paths import path_metrics
+
+            t, states = self._scene.recording.series(self.object_name, "planar_state")
+            out.update(path_metrics(self.box_path(robot), t, states))
+            out["box_kg"] = self.options.box_kg
+        return out
 
 
 # ----------------------------------------------------------------------------- wipe

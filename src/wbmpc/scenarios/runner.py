@@ -18,7 +18,7 @@ from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
-from wbmpc.options import check_fields, option
+from wbmpc.options import check_fields, declared, option
 from wbmpc.robots import RobotModel
 from wbmpc.robots.collision_model import CollisionConfig
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
@@ -31,6 +31,7 @@ from wbmpc.sim.model_errors import ModelErrors
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 from wbmpc.strict_json import to_json
 
+OBJECT_MODEL_SCENARIOS = next(opt.scenarios for f, opt in declared(ScenarioOptions) if f.name == "object_model")
 DELAYED_RECOVERY_LIMIT_S = 0.05  # four MPC periods at 80 Hz
 RECOVERY_ITERATIONS_DELAYED = 10  # the RTI's Fatrop re-solve of a failed QP, when the plant does not wait (~50 ms)
 MAX_DURATION_S = 3600.0  # one simulated hour; longer runs are split by the caller
@@ -140,6 +141,9 @@ class RunConfig:
             (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
+        if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
+            raise ConfigError(f"--object-model plans with the manipulated object inside the MPC; scenario "
+                              f"'{self.scenario}' has no object: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
         if self.identify_mass and (self.plant != "mujoco" or self.delay == "realtime" or not self.formulation.startswith("wb_")):
             raise ConfigError("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of "
                               "the MPC in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
@@ -191,7 +195,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
                                    soft_rows=("ee_vel",) if soft_arm else (),
-                                   inertial_parameters=config.identify_mass),
+                                   inertial_parameters=config.identify_mass,
+                                   object_model=(scenario.object_model(robot) if config.options.object_model and robot is not None
+                                                 else None)),
                      soft_rows_always=soft_arm, gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100

@@ -221,6 +221,69 @@ class BoxAtWall:
 
 
 @dataclass(frozen=True)
+class FreeBox:
+    """A free box of `mass_kg` on the floor (no wall) for the end-effector to push along a path.
+
+    `near_face_x_m` is the world x of the face the end-effector pushes (the box's -x face at the start);
+    its friction `friction_mu` is that of the floor and of the end-effector on it (priority: MuJoCo uses
+    the box's coefficient in both contacts). Wide and deep for its height, so that the push at the hand's
+    height (~0.87 m on b1_z1) slides it without tipping it (mu h < depth / 2). The object model of the MPC
+    (`wbmpc.ocp.objects.SlidingBox.from_scene`) reads these same numbers. Measured: the end-effector's
+    contact force on the box and its planar state [x, y, yaw, vx, vy, wz] (`planar_state`).
+    """
+
+    near_face_x_m: float = 0.45
+    mass_kg: float = 5.0
+    friction_mu: float = 0.3
+    size_m: tuple[float, float, float] = (0.6, 0.6, 1.0)
+    name: str = "box"
+
+    def __post_init__(self):
+        _positive("box mass (kg)", self.mass_kg)
+        _positive("box friction coefficient", self.friction_mu, allow_zero=True)
+        for s in self.size_m:
+            _positive("box size (m)", s)
+
+    @property
+    def centre_xy_m(self) -> np.ndarray:
+        return np.array([self.near_face_x_m + self.size_m[0] / 2, 0.0])
+
+    def bodies_mjcf(self, robot):
+        sx, sy, sz = self.size_m
+        cx, cy = self.centre_xy_m
+        return [
+            f'<body name="{self.name}" pos="{_vec([cx, cy, sz / 2 + 1e-3])}"><freejoint name="{self.name}_joint"/>'
+            f'<geom name="{self.name}" type="box" size="{_vec([sx / 2, sy / 2, sz / 2])}" mass="{self.mass_kg!r}" '
+            f'friction="{_friction(self.friction_mu)}" priority="2" rgba=".6 .45 .3 1"/></body>',
+        ]
+
+    def edit_spec(self, spec, robot):
+        pass
+
+    def before_step(self, plant) -> None:
+        pass
+
+    def measure(self, plant):
+        return {"force_n": -plant.ee_contact_force([self.name]), **planar_box_state(plant, self.name)}
+
+    def replay_shapes(self, recording):
+        t, position = recording.series(self.name, "object_position_m")
+        _, rotation = recording.series(self.name, "object_rotation")
+        return [_box(self.name, "#99734d", np.asarray(self.size_m) / 2, position, rotation, t)]
+
+
+def planar_box_state(plant, name: str) -> dict:
+    """Position, rotation and the planar state [x, y, yaw, vx, vy, wz] (world) of a free body."""
+    body = plant.data.body(name)
+    rotation = body.xmat.reshape(3, 3).copy()
+    qvel = plant.data.joint(f"{name}_joint").qvel  # free joint: world linear, local angular velocity
+    yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
+    angular = rotation @ qvel[3:6]
+    return {"object_position_m": body.xpos.copy(), "object_rotation": rotation,
+            "planar_state": np.array([body.xpos[0], body.xpos[1], yaw, qvel[0], qvel[1], angular[2]])}
+
+
+@dataclass(frozen=True)
 class Board:
     """A fixed board to wipe: `normal` is the direction from the board face towards the robot side.
 

@@ -1,0 +1,242 @@
+"""The manipulated object inside the OCP (issue 22 part 2; the paper's future work, section VII: "model
+object-level dynamics for interaction, allowing the MPC to optimize arm end-effector force and motion
+instead of having them as an external command").
+
+An `ObjectModel` adds, stage-ordered as Fatrop needs:
+
+- object states `obj` on every node (appended to the robot's x_k: the gap rows x_{k+1} - f(x_k, u_k) stay
+  one block per stage), measured on node 0 (the `x0` rows);
+- object inputs `obj_u` on the input nodes: the object's velocity at the end of the interval (the object
+  is integrated with implicit Euler, see below);
+- rows `obj_dyn` (its dynamics, = 0) and `obj_cone` (the hand force's friction cone / the cable's sign,
+  >= 0) on input nodes, `obj_contact` (where the hand must be: on the box face, at the cable's length)
+  on nodes 2..N (node 1's configuration follows from the measurement alone, as for collision rows);
+- a tracking cost on the object's state against a reference per node (the command: the object's path),
+  parameters `obj_ref` (n_obj, N+1) and `obj_w` (n_obj).
+
+The coupling force is the arm force F_arm of eq. (2) (the force ON the robot, a variable of the OCP):
+the object feels -F_arm. Without an object model it is fixed to the command (eq. 7); with one it is free
+within the object's cone rows, and the arm's velocity rows of eq. 7 are dropped (the contact rows say
+where the hand goes).
+
+Ground friction: Coulomb friction smoothed as f = -mu N u / sqrt(|u|^2 + eps^2) (u the sliding velocity,
+eps `smoothing_m_s`), evaluated at the END of each interval (implicit Euler in the velocity, the velocity
+at the end an input). Why this model: f is the gradient of the convex dissipation potential
+mu N sqrt(|u|^2 + eps^2), so m (u' - u) / dt = F_hand + f(u') has exactly one solution u' for any hand
+force: the rows are smooth and well posed, Fatrop's interior point converges on them. A complementarity
+model (stick/slip as |f| <= mu N with v (mu N - |f|) = 0) violates the constraint qualifications an
+interior point needs (it stalls without relaxation schemes), and explicit Euler on the smoothed law is
+unstable: its stiffness mu N / (m eps) is ~250 1/s on the 5 kg box, the horizon's steps are 10-100 ms.
+The price: below the static friction the object creeps at about eps F / (mu N - F).
+
+- `SlidingBox`: a box pushed by the hand sphere on its near face (-x face in the box frame), states
+  [x, y, yaw, vx, vy, wz] (world), ground friction at its four bottom corners with a quarter of the
+  weight each (as MuJoCo's box-plane contact: translation and rotation friction coupled, the yaw moment
+  from the footprint), hand force in the face's friction cone (normal >= 0, |tangential| <= mu normal,
+  no vertical force), the hand on the face (gap = 0) within its width.
+- `CableLoad1D`: a load dragged along the floor by a cable; states [s, ds] (position along the pull
+  direction, world -x from the load towards the robot... see the class), the cable's tension T >= 0
+  along the cable, the cable taut: |hand - hook| = length.
+
+Numbers (box mass, friction, size; load mass, friction, cable length) come from the scene objects
+(`wbmpc.sim.objects`), the one source of truth: `SlidingBox.from_scene`, `CableLoad1D.from_scene`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.errors import ConfigError
+from wbmpc.robots import GRAVITY_M_S2
+
+OBJECT_ROW_TAGS = ("obj_dyn", "obj_cone", "obj_contact")
+CONTACT_BLEND_TIME_S = 0.1  # a measured hand-object gap reaches zero over this time
+CONTACT_FORCE_GAP_M = 2e-3  # no force planned on nodes whose gap target is beyond this (complementarity)
+
+
+@dataclass(frozen=True)
+class ObjectCommand:
+    """Per MPC step: the measured object state (node 0) and its reference, a function of the node times
+    (absolute, s) -> (nodes, n_obj) states (the object's commanded path)."""
+
+    state: np.ndarray
+    reference: Callable[[np.ndarray], np.ndarray]
+
+    def __post_init__(self):
+        state = np.asarray(self.state, dtype=float).ravel()
+        if not np.all(np.isfinite(state)):
+            raise ConfigError(f"the measured object state must be finite, got {state}")
+        object.__setattr__(self, "state", state)
+
+
+@dataclass(frozen=True)
+class ObjectModel:
+    """Shared interface; see the module docstring. Frozen: part of `OcpConfig` (a new build per model)."""
+
+    name = "object"
+    state_names: tuple[str, ...] = ()
+
+    @property
+    def n_states(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def n_inputs(self) -> int:
+        raise NotImplementedError
+
+    def weights(self) -> np.ndarray:
+        """Tracking weights of the object's states (cost per unit^2)."""
+        raise NotImplementedError
+
+    def transition(self, x, u, dt) -> ca.SX:
+        raise NotImplementedError
+
+    def input_rows(self, x, u, force_on_robot, hand, dt) -> list[tuple[str, ca.SX]]:
+        """obj_dyn (= 0) and obj_cone (>= 0) rows of an input node (hand: world position of the hand)."""
+        raise NotImplementedError
+
+    def contact_rows(self, x, hand) -> ca.SX:
+        """obj_contact rows of a state node (bounds from `contact_bounds`)."""
+        raise NotImplementedError
+
+    def contact_values(self, x: np.ndarray, hand: np.ndarray) -> np.ndarray:
+        """The contact rows at a measured state (numeric)."""
+        return np.asarray(self._numeric_contact(x, hand), dtype=float).ravel()
+
+    @cached_property
+    def _numeric_contact(self) -> ca.Function:
+        """Built once per model (cached_property writes the instance dict: fine on a frozen dataclass)."""
+        xs, hs = ca.SX.sym("x", self.n_states), ca.SX.sym("hand", 3)
+        return ca.Function("contact", [xs, hs], [self.contact_rows(xs, hs)])
+
+    def contact_bounds(self, measured: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lower, upper) of the obj_contact rows on nodes at `times` (nodes, rows), and per node whether the
+        hand may exert force there (the measured gap closes over CONTACT_BLEND_TIME_S; no force before)."""
+        raise NotImplementedError
+
+    def arm_force_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) of F_arm (world, on the robot) as variable bounds; the cone rows do the rest."""
+        return np.full(3, -np.inf), np.full(3, np.inf)
+
+    def cone_upper(self, may_push: np.ndarray) -> np.ndarray:
+        """ubg of the obj_cone rows per input node (nodes, rows): 0 on the first row where no force may act."""
+        raise NotImplementedError
+
+    def input_guess(self, state: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+def _smooth_friction(velocity, normal_n, mu, eps):
+    """Smoothed Coulomb friction -mu N u / sqrt(|u|^2 + eps^2) of a point sliding at `velocity` (2D)."""
+    return -mu * normal_n * velocity / ca.sqrt(ca.sumsqr(velocity) + eps**2)
+
+
+def _rot2(yaw):
+    c, s = ca.cos(yaw), ca.sin(yaw)
+    return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
+
+
+@dataclass(frozen=True)
+class SlidingBox(ObjectModel):
+    """A box sliding on the floor pushed on its near face (-x in the box frame) by the hand sphere."""
+
+    name = "box"
+    mass_kg: float = 5.0
+    friction_mu: float = 0.3  # box-ground and hand-box (the box's geom friction in MuJoCo)
+    size_m: tuple[float, float, float] = (0.6, 0.6, 1.0)
+    hand_radius_m: float = 0.03  # the end-effector sphere: the hand frame is this far off the face
+    smoothing_m_s: float = 0.01
+    face_margin_m: float = 0.08  # the hand stays this far inside the face's side edges
+    state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
+    # tracking weights of [x, y, yaw, vx, vy, wz]
+    tracking_weights: tuple[float, ...] = (2e4, 2e4, 300.0, 300.0, 300.0, 10.0)
+
+    @classmethod
+    def from_scene(cls, box, hand_radius_m: float, **overrides) -> "SlidingBox":
+        """The model of a scene's `wbmpc.sim.objects.FreeBox` (its mass, friction and size)."""
+        return cls(mass_kg=box.mass_kg, friction_mu=box.friction_mu, size_m=tuple(box.size_m),
+                   hand_radius_m=hand_radius_m, **overrides)
+
+    @property
+    def n_inputs(self) -> int:
+        return 3
+
+    @property
+    def inertia_kg_m2(self) -> float:
+        sx, sy, _ = self.size_m
+        return self.mass_kg * (sx**2 + sy**2) / 12.0
+
+    @property
+    def weight_n(self) -> float:
+        return self.mass_kg * GRAVITY_M_S2
+
+    def weights(self):
+        return np.asarray(self.tracking_weights, dtype=float)
+
+    def corners_m(self) -> np.ndarray:
+        """(4, 2) bottom corners in the box frame."""
+        sx, sy, _ = self.size_m
+        return np.array([[a * sx / 2, b * sy / 2] for a in (-1, 1) for b in (-1, 1)])
+
+    def transition(self, x, u, dt):
+        """Positions advance with the velocity at the end of the interval (semi-implicit Euler)."""
+        return ca.vertcat(x[:3] + dt * u, u)
+
+    def ground_wrench(self, x, u):
+        """Friction force (2) and yaw moment of the floor at velocities u = [vx, vy, wz] (yaw of x)."""
+        rot = _rot2(x[2])
+        force, moment = ca.SX.zeros(2), 0
+        for corner in self.corners_m():
+            r = ca.mtimes(rot, ca.DM(corner))
+            sliding = u[:2] + u[2] * ca.vertcat(-r[1], r[0])
+            f = _smooth_friction(sliding, self.weight_n / 4, self.friction_mu, self.smoothing_m_s)
+            force += f
+            moment += r[0] * f[1] - r[1] * f[0]
+        return force, moment
+
+    def input_rows(self, x, u, force_on_robot, hand, dt):
+        """Newton-Euler of the box over the interval (scaled by the weight and the half diagonal) and the hand
+        force on the box, -F_arm, in the face's friction pyramid: [f_n, mu f_n - f_t, mu f_n + f_t] >= 0."""
+        push = -force_on_robot[:2]
+        lever = hand[:2] - x[:2]
+        friction, friction_moment = self.ground_wrench(x, u)
+        moment = lever[0] * push[1] - lever[1] * push[0] + friction_moment
+        half_diagonal = 0.5 * float(np.hypot(*self.size_m[:2]))
+        dynamics = ca.vertcat((self.mass_kg * (u[:2] - x[3:5]) / dt - push - friction) / self.weight_n,
+                              (self.inertia_kg_m2 * (u[2] - x[5]) / dt - moment) / (self.weight_n * half_diagonal))
+        local = ca.mtimes(_rot2(x[2]).T, push) / self.weight_n
+        mu = self.friction_mu
+        cone = ca.vertcat(local[0], mu * local[0] - local[1], mu * local[0] + local[1])
+        return [("obj_dyn", dynamics), ("obj_cone", cone)]
+
+    def contact_rows(self, x, hand):
+        """[gap of the hand sphere to the near face (m), the hand's offset along the face (m)]."""
+        local = ca.mtimes(_rot2(x[2]).T, hand[:2] - x[:2])
+        return ca.vertcat(local[0] + self.size_m[0] / 2 + self.hand_radius_m, local[1])
+
+    def contact_bounds(self, measured, times):
+        gap = float(measured[0])
+        decay = np.clip(1.0 - times / CONTACT_BLEND_TIME_S, 0.0, 1.0)
+        target = decay * gap
+        half = self.size_m[1] / 2 - self.face_margin_m
+        side = max(half, abs(float(measured[1])) + 1e-3)  # a hand measured beyond the margin is not infeasible
+        lower = np.column_stack([target, np.full(len(times), -side)])
+        upper = np.column_stack([target, np.full(len(times), side)])
+        return lower, upper, target <= CONTACT_FORCE_GAP_M
+
+    def arm_force_bounds(self):
+        return np.array([-np.inf, -np.inf, 0.0]), np.array([np.inf, np.inf, 0.0])
+
+    def cone_upper(self, may_push):
+        upper = np.full((len(may_push), 3), np.inf)
+        upper[~may_push, 0] = 0.0
+        return upper
+
+    def input_guess(self, state):
+        return np.asarray(state, dtype=float)[3:6]
+
