@@ -55,8 +55,11 @@ from wbmpc.errors import ConfigError
 from wbmpc.robots import GRAVITY_M_S2
 
 OBJECT_ROW_TAGS = ("obj_dyn", "obj_cone", "obj_contact")
-CONTACT_BLEND_TIME_S = 0.1  # a measured hand-object gap reaches zero over this time
+CONTACT_BLEND_TIME_S = 0.3  # a measured hand-object gap reaches zero over this time
 CONTACT_FORCE_GAP_M = 2e-3  # no force planned on nodes whose gap target is beyond this (complementarity)
+# the hand's gap to the object within this of its target, not exactly on it: with an equality Fatrop's line search
+# failed on most steps (the hand pinned to a box that only friction holds); 2 mm is within MuJoCo's contact softness
+CONTACT_TOLERANCE_M = 2e-3
 
 
 @dataclass(frozen=True)
@@ -124,7 +127,7 @@ class ObjectModel:
         return np.full(3, -np.inf), np.full(3, np.inf)
 
     def cone_upper(self, may_push: np.ndarray) -> np.ndarray:
-        """ubg of the obj_cone rows per input node (nodes, rows): 0 on the first row where no force may act."""
+        """ubg of the obj_cone rows per input node (nodes, rows): no force where the hand may not push."""
         raise NotImplementedError
 
     def input_guess(self, state: np.ndarray) -> np.ndarray:
@@ -150,11 +153,13 @@ class SlidingBox(ObjectModel):
     friction_mu: float = 0.3  # box-ground and hand-box (the box's geom friction in MuJoCo)
     size_m: tuple[float, float, float] = (0.6, 0.6, 1.0)
     hand_radius_m: float = 0.03  # the end-effector sphere: the hand frame is this far off the face
-    smoothing_m_s: float = 0.01
+    smoothing_m_s: float = 0.03
     face_margin_m: float = 0.08  # the hand stays this far inside the face's side edges
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]
-    tracking_weights: tuple[float, ...] = (2e4, 2e4, 300.0, 300.0, 300.0, 10.0)
+    # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at
+    # mu 0.3) of the face normal, so the box only goes where its face points
+    tracking_weights: tuple[float, ...] = (2e4, 2e4, 3000.0, 300.0, 300.0, 10.0)
 
     @classmethod
     def from_scene(cls, box, hand_radius_m: float, **overrides) -> "SlidingBox":
@@ -201,7 +206,9 @@ class SlidingBox(ObjectModel):
 
     def input_rows(self, x, u, force_on_robot, hand, dt):
         """Newton-Euler of the box over the interval (scaled by the weight and the half diagonal) and the hand
-        force on the box, -F_arm, in the face's friction pyramid: [f_n, mu f_n - f_t, mu f_n + f_t] >= 0."""
+        force on the box, -F_arm, in the face's friction pyramid: [mu f_n - f_t, mu f_n + f_t] >= 0 (they imply
+        f_n >= 0; a third row f_n >= 0 would make three rows active in two variables at zero force, where the
+        box rests: degenerate for the interior point)."""
         push = -force_on_robot[:2]
         lever = hand[:2] - x[:2]
         friction, friction_moment = self.ground_wrench(x, u)
@@ -211,7 +218,7 @@ class SlidingBox(ObjectModel):
                               (self.inertia_kg_m2 * (u[2] - x[5]) / dt - moment) / (self.weight_n * half_diagonal))
         local = ca.mtimes(_rot2(x[2]).T, push) / self.weight_n
         mu = self.friction_mu
-        cone = ca.vertcat(local[0], mu * local[0] - local[1], mu * local[0] + local[1])
+        cone = ca.vertcat(mu * local[0] - local[1], mu * local[0] + local[1])
         return [("obj_dyn", dynamics), ("obj_cone", cone)]
 
     def contact_rows(self, x, hand):
@@ -225,16 +232,16 @@ class SlidingBox(ObjectModel):
         target = decay * gap
         half = self.size_m[1] / 2 - self.face_margin_m
         side = max(half, abs(float(measured[1])) + 1e-3)  # a hand measured beyond the margin is not infeasible
-        lower = np.column_stack([target, np.full(len(times), -side)])
-        upper = np.column_stack([target, np.full(len(times), side)])
+        lower = np.column_stack([np.minimum(target, 0.0) - CONTACT_TOLERANCE_M, np.full(len(times), -side)])
+        upper = np.column_stack([np.maximum(target, 0.0) + CONTACT_TOLERANCE_M, np.full(len(times), side)])
         return lower, upper, target <= CONTACT_FORCE_GAP_M
 
     def arm_force_bounds(self):
         return np.array([-np.inf, -np.inf, 0.0]), np.array([np.inf, np.inf, 0.0])
 
     def cone_upper(self, may_push):
-        upper = np.full((len(may_push), 3), np.inf)
-        upper[~may_push, 0] = 0.0
+        upper = np.full((len(may_push), 2), np.inf)
+        upper[~may_push] = 0.0  # both pyramid rows = 0: no force
         return upper
 
     def input_guess(self, state):

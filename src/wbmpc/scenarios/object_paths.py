@@ -20,12 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.mpc import Commands
 from wbmpc.ocp.objects import ObjectCommand
 from wbmpc.robots import GRAVITY_M_S2
 
 BASE_GAIN_1_S = 1.0  # base position / yaw feedback of the path-following commands
 MAX_BASE_SPEED_M_S = 0.5
+MAX_YAW_RATE_RAD_S = 0.8
 
 
 def _rot(yaw: float) -> np.ndarray:
@@ -103,7 +103,7 @@ class PathFollower:
             world *= MAX_BASE_SPEED_M_S / speed
         base_yaw = _base_yaw(q)
         local = _rot(base_yaw).T @ world
-        yaw_rate = wz + BASE_GAIN_1_S * float(_wrap(yaw - base_yaw))
+        yaw_rate = float(np.clip(wz + BASE_GAIN_1_S * float(_wrap(yaw - base_yaw)), -MAX_YAW_RATE_RAD_S, MAX_YAW_RATE_RAD_S))
         return {"base_velocity_m_s": np.array([local[0], local[1], 0.0]), "base_yaw_rate_rad_s": yaw_rate}
 
 
