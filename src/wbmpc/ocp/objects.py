@@ -247,3 +247,76 @@ class SlidingBox(ObjectModel):
     def input_guess(self, state):
         return np.asarray(state, dtype=float)[3:6]
 
+
+
+@dataclass(frozen=True)
+class CableLoad1D(ObjectModel):
+    """A load dragged on the floor along world x by a cable from the hand: states [x, vx] of the load's centre, inputs
+    [vx at the interval's end, cable tension T]. The arm force on the robot is T along the cable towards the hook
+    (rows `obj_dyn`: F_arm - T d / |d| = 0, d = hook - hand), T >= 0 (`obj_cone`), the load's normal force its
+    weight less the cable's lift; the cable taut, |d| = length (`obj_contact`, within CONTACT_TOLERANCE_M, the
+    measured slack closed over CONTACT_BLEND_TIME_S; no tension before)."""
+
+    name = "load"
+    mass_kg: float = 10.0
+    friction_mu: float = 0.3
+    size_m: tuple[float, float, float] = (0.3, 0.3, 0.2)
+    hook_height_m: float = 0.1
+    hook_y_m: float = 0.0
+    cable_length_m: float = 1.6
+    smoothing_m_s: float = 0.03
+    state_names: tuple[str, ...] = ("x_m", "vx_m_s")
+    tracking_weights: tuple[float, ...] = (100.0, 3000.0)  # the load's speed is the command; its position mildly
+
+    @classmethod
+    def from_scene(cls, load, **overrides) -> "CableLoad1D":
+        """The model of a scene's `wbmpc.sim.objects.CableLoad` (mass, friction, size, hook, cable)."""
+        return cls(mass_kg=load.mass_kg, friction_mu=load.friction_mu, size_m=tuple(load.size_m),
+                   hook_height_m=load.hook_height_m, hook_y_m=float(load.position_m[1]),
+                   cable_length_m=load.cable_length_m, **overrides)
+
+    @property
+    def n_inputs(self) -> int:
+        return 2
+
+    @property
+    def weight_n(self) -> float:
+        return self.mass_kg * GRAVITY_M_S2
+
+    def weights(self):
+        return np.asarray(self.tracking_weights, dtype=float)
+
+    def hook(self, x):
+        return ca.vertcat(x[0] - self.size_m[0] / 2, self.hook_y_m, self.hook_height_m)
+
+    def transition(self, x, u, dt):
+        return ca.vertcat(x[0] + dt * u[0], u[0])
+
+    def input_rows(self, x, u, force_on_robot, hand, dt):
+        d = self.hook(x) - hand
+        along = d / ca.sqrt(ca.sumsqr(d) + 1e-9)
+        tension = u[1]
+        on_load = -force_on_robot
+        normal = self.weight_n - on_load[2]
+        friction = -self.friction_mu * normal * u[0] / ca.sqrt(u[0] ** 2 + self.smoothing_m_s**2)
+        dynamics = ca.vertcat((self.mass_kg * (u[0] - x[1]) / dt - on_load[0] - friction) / self.weight_n,
+                              (force_on_robot - tension * along) / self.weight_n)
+        return [("obj_dyn", dynamics), ("obj_cone", tension / self.weight_n)]
+
+    def contact_rows(self, x, hand):
+        """The cable's stretch |hook - hand| - length (m; < 0: slack)."""
+        return ca.norm_2(self.hook(x) - hand) - self.cable_length_m
+
+    def contact_bounds(self, measured, times):
+        stretch = float(measured[0])
+        decay = np.clip(1.0 - times / CONTACT_BLEND_TIME_S, 0.0, 1.0)
+        target = decay * stretch
+        lower = (np.minimum(target, 0.0) - CONTACT_TOLERANCE_M)[:, None]
+        upper = (np.maximum(target, 0.0) + CONTACT_TOLERANCE_M)[:, None]
+        return lower, upper, target >= -CONTACT_FORCE_GAP_M
+
+    def cone_upper(self, may_push):
+        return np.where(may_push, np.inf, 0.0)[:, None]
+
+    def input_guess(self, state):
+        return np.array([float(np.asarray(state)[1]), 0.0])

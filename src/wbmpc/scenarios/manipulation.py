@@ -345,6 +345,36 @@ class Pull(_ForceTask):
 
     def check(self, robot):
         check_arm_force(robot, self.target_force(robot), "pulling force target")
+        if self.options.object_model and not self.walking:
+            raise ConfigError("pull --object-model commands the load's speed while the robot walks backwards; "
+                              "--gait stand has no steady speed to command: use --gait trot or walk")
+
+    SPEED_WINDOW_AFTER_MOVE_S = 1.0  # load_speed_rmse_m_s counts from this long after the move starts
+
+    def object_model(self, robot):
+        """The OCP's model of the scene's load and cable (`--object-model`)."""
+        from wbmpc.ocp.objects import CableLoad1D
+
+        return CableLoad1D.from_scene(self._objects(robot)[0])
+
+    def load_reference(self, x0_m: float):
+        """The load's commanded state [x, vx] at times t: at rest until the move starts, then towards the robot
+        (-x) at the pull speed."""
+        speed = self.options.pull_speed_m_s
+
+        def reference(t):
+            moving = np.maximum(np.asarray(t, dtype=float) - self.MOVE_START_S, 0.0)
+            return np.column_stack([x0_m - speed * moving, np.where(moving > 0, -speed, 0.0)])
+
+        return reference
+
+    def _object_command(self, robot, t):
+        from wbmpc.ocp.objects import ObjectCommand
+
+        load = self._objects(robot)[0]
+        values = self._scene.recording.values.get(self.object_name, {}).get("planar_state") if self._scene else None
+        state = np.array([values[-1][0], values[-1][3]]) if values else np.array([load.position_m[0], 0.0])
+        return ObjectCommand(state=state, reference=self.load_reference(load.position_m[0]))
 
     @property
     def walking(self) -> bool:
@@ -378,6 +408,8 @@ class Pull(_ForceTask):
                 if t < retract_end:
                     base_velocity[0] = -self.STANCE_BASE_SHIFT_M / window
                     ee_velocity_ref = heading @ np.array([-speed, 0.0, 0.0])
+            if self.options.object_model:  # the MPC plans the hand's force and motion on the load's speed
+                return Commands(base_velocity_m_s=base_velocity, object_command=self._object_command(robot, t))
             # hold the end-effector at its (retracting) place relative to the base, in the heading frame
             p_ref = q[:3] + heading @ offset
             return Commands(base_velocity_m_s=base_velocity,
@@ -408,8 +440,22 @@ class Pull(_ForceTask):
             "load_moved_m": moved,
             "load_expected_move_m": expected,
             "pulled": bool(not log.fell and expected > 0 and moved >= 0.5 * expected),
+            "object_model": bool(self.options.object_model),
+            **self._speed_metrics(),
         })
         return out
+
+    def _speed_metrics(self) -> dict:
+        """`load_speed_rmse_m_s`: the load's measured velocity along the pull (-x) against the pull speed, from
+        SPEED_WINDOW_AFTER_MOVE_S after the move starts (walking gaits)."""
+        t, state = self._scene.recording.series(self.object_name, "planar_state")
+        use = t >= self.MOVE_START_S + self.SPEED_WINDOW_AFTER_MOVE_S
+        if not self.walking or not use.any():
+            return {"load_speed_rmse_m_s": None}
+        speed = -state[use, 3]
+        error = speed - self.options.pull_speed_m_s
+        return {"load_speed_rmse_m_s": float(np.sqrt(np.mean(error**2))), "load_speed_mean_m_s": float(np.mean(speed)),
+                "load_speed_window_start_s": self.MOVE_START_S + self.SPEED_WINDOW_AFTER_MOVE_S}
 
     def failure(self, metrics):
         if not metrics.get("interrupted") and not metrics.get("fell") and metrics.get("pulled") is False:

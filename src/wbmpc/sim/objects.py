@@ -153,8 +153,7 @@ class CableLoad:
         return {
             "tension_n": tension,
             "force_n": tension * towards_ee,  # the end-effector pulls the cable towards itself
-            "object_position_m": d.body(self.name).xpos.copy(),
-            "object_rotation": d.body(self.name).xmat.reshape(3, 3).copy(),
+            **planar_box_state(plant, self.name),
             "cable_m": np.array([ee, hook]),
         }
 
