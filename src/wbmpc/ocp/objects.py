@@ -159,7 +159,7 @@ class SlidingBox(ObjectModel):
     # tracking weights of [x, y, yaw, vx, vy, wz]
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at
     # mu 0.3) of the face normal, so the box only goes where its face points
-    tracking_weights: tuple[float, ...] = (2e4, 2e4, 3000.0, 300.0, 300.0, 10.0)
+    tracking_weights: tuple[float, ...] = (2e4, 2e4, 3e4, 300.0, 300.0, 10.0)
 
     @classmethod
     def from_scene(cls, box, hand_radius_m: float, **overrides) -> "SlidingBox":

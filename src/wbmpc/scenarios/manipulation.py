@@ -551,9 +551,10 @@ class PushBox(_ForceTask):
         height = float(nominal_ee_position(robot)[2])
 
         def command(t, q, v):
-            base = follower.base_command(t, q)
+            measured = object_command(path, self._scene, self.object_name, t)
+            base = follower.base_command(t, q, measured.state)
             if self.options.object_model:
-                return Commands(**base, object_command=object_command(path, self._scene, self.object_name, t))
+                return Commands(**base, object_command=measured)
             velocity, force = force_command(path, t, box, EE_SPHERE_RADIUS_M, height, ee.position(q), _feedback)
             return Commands(**base, ee_velocity_m_s=velocity, ee_force_n=force)
 
