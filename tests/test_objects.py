@@ -116,7 +116,7 @@ def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
         assert abs(inertia * (u[k, 2] - obj[k, 5]) / dt[k] - moment) < 1e-3 * weight
         assert np.allclose(obj[k + 1], np.concatenate([obj[k, :3] + dt[k] * u[k], u[k]]), atol=1e-6)  # transition
         normal, tangential = rot.T @ push[k, :2]
-        assert normal >= -1e-4 * weight and abs(tangential) <= model.friction_mu * normal + 1e-4 * weight
+        assert normal >= -1e-4 * weight and abs(tangential) <= model.cone_share * model.friction_mu * normal + 1e-4 * weight
         assert abs(push[k, 2]) < 1e-9  # no vertical force
     for k in range(2, len(obj)):  # nodes 2..N: the hand sphere on the face (within the band), within its width
         yaw = obj[k, 2]

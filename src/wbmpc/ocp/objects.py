@@ -153,13 +153,17 @@ class SlidingBox(ObjectModel):
     friction_mu: float = 0.3  # box-ground and hand-box (the box's geom friction in MuJoCo)
     size_m: tuple[float, float, float] = (0.6, 0.6, 1.0)
     hand_radius_m: float = 0.03  # the end-effector sphere: the hand frame is this far off the face
-    smoothing_m_s: float = 0.03
+    smoothing_m_s: float = 0.01
     face_margin_m: float = 0.08  # the hand stays this far inside the face's side edges
+    # the plan's hand force within this share of the face's friction cone: a margin against slipping on the face, and
+    # the box turned by where the hand pushes rather than by sideways force (with the full cone the plan turned the box
+    # with a tangential push that also shoved it sideways, 14 cm off its path through a 0.8 m turn)
+    cone_share: float = 0.3
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at
     # mu 0.3) of the face normal, so the box only goes where its face points
-    tracking_weights: tuple[float, ...] = (2e4, 2e4, 3e4, 300.0, 300.0, 10.0)
+    tracking_weights: tuple[float, ...] = (1e5, 1e5, 3e4, 3000.0, 3000.0, 10.0)
 
     @classmethod
     def from_scene(cls, box, hand_radius_m: float, **overrides) -> "SlidingBox":
@@ -217,7 +221,7 @@ class SlidingBox(ObjectModel):
         dynamics = ca.vertcat((self.mass_kg * (u[:2] - x[3:5]) / dt - push - friction) / self.weight_n,
                               (self.inertia_kg_m2 * (u[2] - x[5]) / dt - moment) / (self.weight_n * half_diagonal))
         local = ca.mtimes(_rot2(x[2]).T, push) / self.weight_n
-        mu = self.friction_mu
+        mu = self.cone_share * self.friction_mu
         cone = ca.vertcat(mu * local[0] - local[1], mu * local[0] + local[1])
         return [("obj_dyn", dynamics), ("obj_cone", cone)]
 
@@ -264,7 +268,7 @@ class CableLoad1D(ObjectModel):
     hook_height_m: float = 0.1
     hook_y_m: float = 0.0
     cable_length_m: float = 1.6
-    smoothing_m_s: float = 0.03
+    smoothing_m_s: float = 0.01
     state_names: tuple[str, ...] = ("x_m", "vx_m_s")
     tracking_weights: tuple[float, ...] = (100.0, 3000.0)  # the load's speed is the command; its position mildly
 
