@@ -172,7 +172,9 @@ def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str =
         return {f"{prefix}_pos_rmse_m": None}
     error = np.linalg.norm(states[use, :2] - reference[use, :2], axis=1)
     yaw_error = np.degrees(_wrap(states[use, 2] - reference[use, 2]))
+    straight = path.distance(t[use])[0] <= path.straight_m  # before the turn
     return {f"{prefix}_pos_rmse_m": float(np.sqrt(np.mean(error**2))),
+            f"{prefix}_pos_rmse_before_turn_m": float(np.sqrt(np.mean(error[straight] ** 2))) if straight.any() else None,
             f"{prefix}_pos_max_err_m": float(error.max()),
             f"{prefix}_pos_final_err_m": float(error[-1]),
             f"{prefix}_yaw_rmse_deg": float(np.sqrt(np.mean(yaw_error**2))),
