@@ -7,10 +7,11 @@ An `ObjectModel` adds, stage-ordered as Fatrop needs:
 - object states `obj` on every node (appended to the robot's x_k: the gap rows x_{k+1} - f(x_k, u_k) stay
   one block per stage), measured on node 0 (the `x0` rows);
 - object inputs `obj_u` on the input nodes: the object's velocity at the end of the interval (the object
-  is integrated with implicit Euler, see below);
+  is integrated with implicit Euler, see below; the load's cable tension too);
 - rows `obj_dyn` (its dynamics, = 0) and `obj_cone` (the hand force's friction cone / the cable's sign,
-  >= 0) on input nodes, `obj_contact` (where the hand must be: on the box face, at the cable's length)
-  on nodes 2..N (node 1's configuration follows from the measurement alone, as for collision rows);
+  >= 0) on input nodes, `obj_contact` (where the hand must be: on the box face, at the cable's length, within
+  CONTACT_TOLERANCE_M) on nodes 2..N (node 1's configuration follows from the measurement alone, as for
+  collision rows); a measured gap closes over CONTACT_BLEND_TIME_S and no force is planned before;
 - a tracking cost on the object's state against a reference per node (the command: the object's path),
   parameters `obj_ref` (n_obj, N+1) and `obj_w` (n_obj).
 
@@ -26,17 +27,21 @@ mu N sqrt(|u|^2 + eps^2), so m (u' - u) / dt = F_hand + f(u') has exactly one so
 force: the rows are smooth and well posed, Fatrop's interior point converges on them. A complementarity
 model (stick/slip as |f| <= mu N with v (mu N - |f|) = 0) violates the constraint qualifications an
 interior point needs (it stalls without relaxation schemes), and explicit Euler on the smoothed law is
-unstable: its stiffness mu N / (m eps) is ~250 1/s on the 5 kg box, the horizon's steps are 10-100 ms.
-The price: below the static friction the object creeps at about eps F / (mu N - F).
+unstable: its stiffness mu N / (m eps) is ~300 1/s, the horizon's steps are 10-100 ms. The price: below
+the static friction the object creeps at about eps F / (mu N - F), and at speed v the friction is
+v / sqrt(v^2 + eps^2) of Coulomb's: eps = 1 cm/s gives 99.5 % at 0.1 m/s (3 cm/s gave 95.8 %, and a MuJoCo box
+under the planned force lagged the plan by 1.1 cm over 0.48 s). Fatrop's line search still failed on most
+push-box steps with the contact rows (IPOPT solved them in 10-50 iterations): `wbmpc run --object-model`
+uses the anytime SQP by default (`scenarios/runner.default_solver`).
 
 - `SlidingBox`: a box pushed by the hand sphere on its near face (-x face in the box frame), states
   [x, y, yaw, vx, vy, wz] (world), ground friction at its four bottom corners with a quarter of the
   weight each (as MuJoCo's box-plane contact: translation and rotation friction coupled, the yaw moment
   from the footprint), hand force in the face's friction cone (normal >= 0, |tangential| <= mu normal,
   no vertical force), the hand on the face (gap = 0) within its width.
-- `CableLoad1D`: a load dragged along the floor by a cable; states [s, ds] (position along the pull
-  direction, world -x from the load towards the robot... see the class), the cable's tension T >= 0
-  along the cable, the cable taut: |hand - hook| = length.
+- `CableLoad1D`: a load dragged along the floor (world x) by a cable; states [x, vx] of its centre, inputs its
+  velocity and the cable's tension T >= 0, the arm force T along the cable, the cable taut: |hand - hook| =
+  length.
 
 Numbers (box mass, friction, size; load mass, friction, cable length) come from the scene objects
 (`wbmpc.sim.objects`), the one source of truth: `SlidingBox.from_scene`, `CableLoad1D.from_scene`.

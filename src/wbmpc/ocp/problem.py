@@ -30,6 +30,9 @@ Path constraints per node (section IV-B):
   one row per group of capsule pairs, their smooth minimum distance >= margin (node 1 is free where
   the measurement fixes its configuration; the following nodes start from the measured distance when
   it is below the margin and reach the margin over COLLISION_BLEND_TIME_S).
+- the manipulated object (beyond the paper, `OcpConfig.object_model`, `ocp/objects.py`): its states appended to
+  x_k on every node, its inputs to u_k, its dynamics / cone / contact rows; the arm force becomes a variable
+  (no longer the command's bounds) and the arm's velocity rows of eq. 7 are dropped.
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
 Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
