@@ -152,6 +152,15 @@ def test_object_model_on_a_scenario_without_an_object_names_those_with_one():
         RunConfig(scenario="trot-in-place", options=ScenarioOptions(object_model=True))
 
 
+def test_cli_refuses_object_model_without_an_object():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "wbmpc", "run", "wipe", "--object-model"], capture_output=True, text=True)
+    assert out.returncode == 2
+    assert "push-box or pull" in out.stderr and "warning" not in out.stderr
+
+
 def test_mpc_with_an_object_model_needs_the_object_command(box_plan, b1z1):
     mpc = MPC.__new__(MPC)  # the check runs before any solve: only the problem is needed
     mpc.problem = box_plan["problem"]

@@ -370,10 +370,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(unknown_name("scenario", args.scenario, SCENARIOS))
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
+    config = _run_config(args)  # refused options (e.g. --object-model without an object) before warnings about them
     for flag, scenarios in _ignored_scenario_options(args):
         readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
         print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)
-    config = _run_config(args)
     loads = None
     if args.sweep is not None:
         from wbmpc.scenarios.sweep import parse_loads

@@ -143,7 +143,7 @@ class RunConfig:
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
         if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
             raise ConfigError(f"--object-model plans with the manipulated object inside the MPC; scenario "
-                              f"'{self.scenario}' has no object: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
+                              f"'{self.scenario}' has no object the MPC can model: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
         if self.identify_mass and (self.plant != "mujoco" or self.delay == "realtime" or not self.formulation.startswith("wb_")):
             raise ConfigError("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of "
                               "the MPC in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
