@@ -95,7 +95,8 @@ def test_box_plan_reproduces_a_mujoco_box_sliding_under_the_planned_force(box_pl
 
 def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
     """Residuals of the plan recomputed without CasADi: Newton-Euler of the box with Coulomb friction smoothed at its
-    four corners, the hand force in the face's friction pyramid, the hand on the face within its width."""
+    four corners (loads shifted by the push's tipping moment), the hand force in the face's friction pyramid, the hand on
+    the face within its width."""
     model, obj, u, push, hands = (box_plan[k] for k in ("model", "obj", "obj_u", "push", "hands"))
     dt = box_plan["grid"].dt_s
     weight = model.mass_kg * GRAVITY_M_S2
@@ -106,10 +107,14 @@ def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
         force, moment = push[k, :2].copy(), 0.0
         lever = hands[k, :2] - obj[k, :2]
         moment += lever[0] * push[k, 1] - lever[1] * push[k, 0]
+        local_push = rot.T @ push[k, :2]
+        sx, sy = model.size_m[:2]
         for corner in model.corners_m():
             r = rot @ corner
+            a, b = np.sign(corner)  # the push's tipping moment shifts the load towards the far corners
+            load = weight / 4 + hands[k, 2] / 2 * (a * local_push[0] / sx + b * local_push[1] / sy)
             sliding = u[k, :2] + u[k, 2] * np.array([-r[1], r[0]])
-            f = -model.friction_mu * weight / 4 * sliding / np.sqrt(sliding @ sliding + model.smoothing_m_s**2)
+            f = -model.friction_mu * load * sliding / np.sqrt(sliding @ sliding + model.smoothing_m_s**2)
             force += f
             moment += r[0] * f[1] - r[1] * f[0]
         assert np.allclose(model.mass_kg * (u[k, :2] - obj[k, 3:5]) / dt[k], force, atol=1e-3 * weight)
