@@ -491,15 +491,6 @@ class PushBox(_ForceTask):
     def follows_path(self) -> bool:
         return self.options.object_model or self.options.box_path == "turn"
 
-    OBJECT_MODEL_ARM_POSTURE = 10.0  # the arm's posture weight with the box in the MPC (CostWeights: 100)
-
-    def cost_weights(self, weights: CostWeights) -> CostWeights:
-        """With the box inside the MPC a weaker arm posture weight: the plan places the hand along the face where its
-        push turns the box (at the default weight it kept the hand within 4 cm of the face's centre)."""
-        if not self.options.object_model:
-            return weights
-        return replace(weights, arm_joint_position=min(weights.arm_joint_position, self.OBJECT_MODEL_ARM_POSTURE))
-
     def free_box(self, robot) -> FreeBox:
         return FreeBox(near_face_x_m=self._face_x(robot), mass_kg=self.options.box_kg)
 
