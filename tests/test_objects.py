@@ -95,7 +95,7 @@ def test_box_plan_reproduces_a_mujoco_box_sliding_under_the_planned_force(box_pl
 
 def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
     """Residuals of the plan recomputed without CasADi: Newton-Euler of the box with Coulomb friction smoothed at its
-    four corners (loads shifted by the push's tipping moment), the hand force in the face's friction pyramid, the hand on
+    four corners (with `push_shifts_loads`, loads shifted by the push's tipping moment), the hand force in the face's friction pyramid, the hand on
     the face within its width."""
     model, obj, u, push, hands = (box_plan[k] for k in ("model", "obj", "obj_u", "push", "hands"))
     dt = box_plan["grid"].dt_s
@@ -112,7 +112,8 @@ def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
         for corner in model.corners_m():
             r = rot @ corner
             a, b = np.sign(corner)  # the push's tipping moment shifts the load towards the far corners
-            load = weight / 4 + hands[k, 2] / 2 * (a * local_push[0] / sx + b * local_push[1] / sy)
+            load = weight / 4 + (hands[k, 2] / 2 * (a * local_push[0] / sx + b * local_push[1] / sy)
+                                 if model.push_shifts_loads else 0.0)
             sliding = u[k, :2] + u[k, 2] * np.array([-r[1], r[0]])
             f = -model.friction_mu * load * sliding / np.sqrt(sliding @ sliding + model.smoothing_m_s**2)
             force += f

@@ -164,6 +164,10 @@ class SlidingBox(ObjectModel):
     # the box turned by where the hand pushes rather than by sideways force (with the full cone the plan turned the box
     # with a tangential push that also shoved it sideways, 14 cm off its path through a 0.8 m turn)
     cone_share: float = 0.3
+    # the push's tipping moment shifts the corners' loads (`corner_loads`); off: a quarter of the weight each. Closer to
+    # MuJoCo's box, yet push-box --object-model (16 s, b1_z1, SQP) did worse with it: 31.5 cm RMSE, the box overshooting
+    # the turn's end by 66 cm, against 22.9 cm with even loads
+    push_shifts_loads: bool = False
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at
@@ -204,8 +208,7 @@ class SlidingBox(ObjectModel):
     def corner_loads(self, push_local, height):
         """Normal force on each bottom corner (`corners_m` order): a quarter of the weight, shifted towards the far edges
         by the push's tipping moment at the hand's `height` (moment balance about the footprint, the box not tipping).
-        On b1_z1 the hand pushes at ~0.87 m: 14.7 N put 91 % of the weight on the front corners; with even loads the
-        plan's box turned about its centre where MuJoCo's turned about its front edge and slid sideways."""
+        On b1_z1 the hand pushes at ~0.87 m: 14.7 N put 91 % of the weight on the front corners (`push_shifts_loads`)."""
         sx, sy, _ = self.size_m
         return [self.weight_n / 4 + height / 2 * (a * push_local[0] / sx + b * push_local[1] / sy)
                 for a, b in np.sign(self.corners_m())]
@@ -232,7 +235,8 @@ class SlidingBox(ObjectModel):
         push = -force_on_robot[:2]
         lever = hand[:2] - x[:2]
         push_local = ca.mtimes(_rot2(x[2]).T, push)
-        friction, friction_moment = self.ground_wrench(x, u, push_local, hand[2])
+        friction, friction_moment = (self.ground_wrench(x, u, push_local, hand[2]) if self.push_shifts_loads
+                                     else self.ground_wrench(x, u))
         moment = lever[0] * push[1] - lever[1] * push[0] + friction_moment
         half_diagonal = 0.5 * float(np.hypot(*self.size_m[:2]))
         dynamics = ca.vertcat((self.mass_kg * (u[:2] - x[3:5]) / dt - push - friction) / self.weight_n,
