@@ -64,7 +64,7 @@ class ScenarioOptions:
                            unit="kg", scenarios=("push-box",))
     box_path: str = option("wall", flag="--box-path", choices=("wall", "turn"), help="wall: press the box against a "
                            "wall trotting in place; turn: push a free box along a path at 0.1 m/s with a 90 degree "
-                           "turn (implied by --object-model), a force command without --object-model",
+                           "turn of 0.8 m radius (implied by --object-model), a force command without --object-model",
                            scenarios=("push-box",))
     # issue 22 part 2: the manipulated object inside the MPC (wbmpc.ocp.objects)
     object_model: bool = option(False, flag="--object-model", help="plan with the manipulated object inside the "
