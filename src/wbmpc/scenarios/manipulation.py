@@ -1,6 +1,7 @@
 """Loco-manipulation scenarios of section VI-C, in MuJoCo where the forces can be measured.
 
-The MPC never models the objects: it receives the end-effector force target F_arm^des and the
+The MPC never models the objects (unless `--object-model`, issue 22: push-box and pull then plan with the box or the
+load inside the OCP, `wbmpc.ocp.objects`): it receives the end-effector force target F_arm^des and the
 end-effector velocity command v_arm^des of eq. (7) (`Commands.ee_force_n`, `ee_velocity_m_s`).
 The velocity command comes from a position reference by feedback (v = v_ref + K (p_ref - p)),
 except along a contact normal, where the force target alone presses the end-effector on.
@@ -9,7 +10,9 @@ except along a contact normal, where the force target alone presses the end-effe
   (`--gait trot|walk`) or, in stance (`--gait stand`), leans back and retracts the arm. The force target is the
   cable tension that makes the load slide: T = mu m g / (cos(theta) + mu sin(theta)) along the
   cable (theta above horizontal), unless `--force-n` sets it.
-- `push-box`: trotting in place, press a box against a wall with `--force-n` (default 20 N).
+- `push-box`: trotting in place, press a box against a wall with `--force-n` (default 20 N); or (`--box-path turn`,
+  `--object-model`) push a free box along a path at 0.1 m/s with a 90 degree turn (`scenarios/object_paths.py`),
+  measured by `box_pos_rmse_m`.
 - `wipe`: standing, move over a board in a circle or figure-eight pressing with `--force-n`
   (default 10 N) along the normal; the target also contains the board's friction along the motion.
   The end-effector carries a sprung wiping pad (`CompliantPad`, `--pad-stiffness`, 0 for the rigid

@@ -3,13 +3,16 @@
 Each object adds MuJoCo bodies (`bodies_mjcf`), optional model edits (`edit_spec`: tendons, sites
 on the robot), an optional scripted action before every physics step (`before_step`) and a
 measurement after it (`measure`): the force the end-effector applies ON the object, in world
-coordinates, which the MPC never sees (it treats the arm force as a fixed input, eq. 7).
+coordinates, which the MPC never sees (it treats the arm force as a fixed input, eq. 7; with
+`--object-model` it plans that force and reads the object's measured state instead).
 
 - `CableLoad`: a box on the floor with its own friction, tied to the end-effector by a massless
   cable (a MuJoCo spatial tendon with a length limit: it pulls, never pushes). Measured: the
   cable tension and the force along the cable.
 - `BoxAtWall`: a free box on the floor standing against a fixed wall. Measured: contact force of
   the end-effector sphere on the box.
+- `FreeBox`: a free box on the floor to push along a path. Measured: the end-effector's contact force
+  on it and its planar state (`planar_state`: x, y, yaw, vx, vy, wz), which `--object-model` feeds to the MPC.
 - `Board`: a fixed board (vertical like a whiteboard, or horizontal like a table) with its own
   friction. Measured: contact force of the end-effector sphere on the board.
 - `FixedBox`: a box fixed in the world (a post to reach around). Measured: whether the robot touches it.
