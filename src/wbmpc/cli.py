@@ -370,6 +370,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(unknown_name("scenario", args.scenario, SCENARIOS))
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
+    if args.object_model:  # on a scenario without an object: its own error, not a warning that the scenario ignores it
+        _run_config(args)
     for flag, scenarios in _ignored_scenario_options(args):
         readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
         print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)

@@ -19,6 +19,7 @@ from wbmpc.control.foot_placement import StanceReference, SwingPlacement
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, SwingProfile, make_gait
+from wbmpc.ocp.objects import ObjectCommand
 from wbmpc.ocp.problem import OcpConfig, OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
@@ -207,6 +208,9 @@ class Commands:
     ee_velocity_m_s: np.ndarray | None = None
     ee_force_n: np.ndarray = field(default_factory=lambda: np.zeros(3))
     base_height_m: float | None = None
+    # with an object model in the OCP (OcpConfig.object_model): the object's measured state and its path; the
+    # arm force is then the OCP's (ee_force_n and ee_velocity_m_s are not used)
+    object_command: ObjectCommand | None = None
 
     def __post_init__(self):
         """Refuse NaN/inf and wrong shapes here: a NaN command would give NaN torques."""
@@ -424,6 +428,28 @@ class MPC:
                 [pin.getFrameVelocity(model, data, i, pin.LOCAL_WORLD_ALIGNED).angular for i in self._foot_ids])
         return out
 
+    def _object_data(self, q: np.ndarray, t: float, node_times: np.ndarray, commands: Commands) -> tuple[dict, dict]:
+        """With an object model: its reference and weights (NLP parameters) and its measured state and contact
+        rows (bounds); empty without one."""
+        model = self.problem.object
+        if model is None:
+            return {}, {}
+        command = commands.object_command
+        if command is None:
+            raise ConfigError(f"this MPC plans with the {model.name} inside the OCP: each step's commands need its "
+                              "measured state and path (Commands.object_command)")
+        if command.state.size != model.n_states:
+            raise ConfigError(f"the {model.name}'s state has {model.n_states} values ({', '.join(model.state_names)}), "
+                              f"got {command.state.size}")
+        reference = np.asarray(command.reference(t + node_times), dtype=float)
+        if reference.shape != (len(node_times), model.n_states) or not np.all(np.isfinite(reference)):
+            raise ConfigError(f"the {model.name}'s path must give {model.n_states} finite values per node time, got "
+                              f"shape {reference.shape}")
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        hand = self._data.oMf[self._ee_id].translation
+        return ({"obj_ref": reference.T, "obj_w": model.weights()},
+                {"object_state": command.state, "object_contact_measured": model.contact_values(command.state, hand)})
+
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""
         N, n_feet = self.problem.N, len(self.robot.feet)
@@ -474,6 +500,7 @@ class MPC:
             dq_des = self._sway_towards_support(q, rot, dq_des, self.gait.contact(t + node_times + self.config.support_lead_s))
         forces = self._force_guess(contact, commands)
         swing_vxy = self._swing_velocities(q, v, rot, t, node_times, base_velocity_world)
+        object_values, object_bounds = self._object_data(q, t, node_times, commands)
         values = {
             "q_ref": q,
             "rot_ref": rot,
@@ -484,6 +511,7 @@ class MPC:
             "mu": [self.config.friction_coefficient],
             **self._weights,
             **self._inertial,
+            **object_values,
         }
         p = problem.params.pack(values)
         stage_bounds = StageBounds(
@@ -494,10 +522,11 @@ class MPC:
             **self._measured_frame_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),
             collision_measured_m=problem.collision_rows_at(q) if problem.collision is not None else None,
+            **object_bounds,
         )
         if problem.collision is not None and self._previous is None:  # the start: refuse a pose in collision
             problem.collision.check_clear(q)
-        x0 = self._initial_guess(q, v, t, node_times, forces)
+        x0 = self._initial_guess(q, v, t, node_times, forces, object_bounds.get("object_state"))
         if not after_push:
             x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
@@ -686,15 +715,17 @@ class MPC:
                            success=False, x=None, q_joints=self._joint_trajectory(q), held_previous=True)
         return shifted
 
-    def _initial_guess(self, q, v, t, node_times, forces) -> np.ndarray:
+    def _initial_guess(self, q, v, t, node_times, forces, object_state=None) -> np.ndarray:
         """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous
-        solution's variables shifted to the new node times (any formulation), forces re-initialised."""
+        solution's variables shifted to the new node times (any formulation), forces re-initialised (the arm's
+        shifted, where an object model makes it a variable of the plan)."""
         problem, idx = self.problem, self.problem.idx
-        x0 = problem.formulation.initial_state(q, v)
-        guess, offset = {}, 0
-        for name, size in problem.formulation.state_parts():
-            guess[name] = np.tile(x0[offset : offset + size], (len(idx[name]), 1))
-            offset += size
+        x0 = problem.initial_state(q, v, object_state)
+        guess = {}
+        for name in problem.state_names:
+            guess[name] = np.tile(x0[problem.state_offsets[name]], (len(idx[name]), 1))
+        if problem.object is not None:
+            guess["obj_u"] = np.tile(problem.object.input_guess(object_state), (len(idx["obj_u"]), 1))
         for name, value in (("v", v), ("vj", v[6:])):
             if name in idx and name not in problem.state_names:
                 guess[name] = np.tile(value, (len(idx[name]), 1))
@@ -709,6 +740,10 @@ class MPC:
                     guess[name] = _interp_rows(new_times[: len(values)], old_times[: len(values)], values)
             for name in problem.state_names:  # node 0 is the measurement
                 guess[name][0] = x0[problem.state_offsets[name]]
+            if problem.object is not None:  # the arm force is the plan's: shifted like the motion
+                arm = slice(3 * len(self.robot.feet), 3 * len(self.robot.feet) + 3)
+                forces = forces.copy()
+                forces[:, arm] = _interp_rows(new_times[:-1], old_times[:-1], previous.forces[:, arm])
         guess["F"] = forces
         return problem.pack(guess)
 

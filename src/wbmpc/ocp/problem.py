@@ -30,6 +30,9 @@ Path constraints per node (section IV-B):
   one row per group of capsule pairs, their smooth minimum distance >= margin (node 1 is free where
   the measurement fixes its configuration; the following nodes start from the measured distance when
   it is below the margin and reach the margin over COLLISION_BLEND_TIME_S).
+- the manipulated object (beyond the paper, `OcpConfig.object_model`, `ocp/objects.py`): its states appended to
+  x_k on every node, its inputs to u_k, its dynamics / cone / contact rows; the arm force becomes a variable
+  (no longer the command's bounds) and the arm's velocity rows of eq. 7 are dropped.
 State-only rows (foot/arm velocities, joint limits) start at node 1: node 0 is the measurement.
 
 Soft rows (`OcpConfig.soft_rows`, off by default; e.g. the arm's velocity rows of eq. 7): on nodes
@@ -59,6 +62,7 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.objects import OBJECT_ROW_TAGS, ObjectModel
 from wbmpc.ocp.parameters import ParameterPack
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.robots.collision_model import CollisionConfig, CollisionModel, collision_model_for
@@ -71,7 +75,7 @@ BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constra
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 COLLISION_BLEND_TIME_S = 0.1  # a measured distance below the margin reaches it over this time
 ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "implied_torque", "foot_vel", "foot_ang", "ee_vel",
-            "collision", "cone", "wrench_cone")
+            "collision", "cone", "wrench_cone") + OBJECT_ROW_TAGS
 IMPLIED_TORQUE_ROWS = ("auto", "all", "legs", "none")  # OcpConfig.implied_torque_rows
 WRENCH_CONE_ROWS = 10  # per flat foot: 4 friction pyramid, 4 centre of pressure, 2 yaw moment
 # rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
@@ -102,6 +106,9 @@ class OcpConfig:
     # an arm, a load at the base origin as NLP parameters "base_com_offset", "payload_kg", "base_payload_kg" of
     # the whole-body dynamics (issue 22: mass distribution online)
     inertial_parameters: bool = False
+    # the manipulated object's states, inputs, rows and tracking cost (issue 22: `wbmpc.ocp.objects`); None: the
+    # paper's OCP, the arm force fixed to the command
+    object_model: ObjectModel | None = None
 
     def __post_init__(self):
         if self.implied_torque_rows not in IMPLIED_TORQUE_ROWS:
@@ -138,6 +145,8 @@ class StageBounds:
     collision_measured_m: np.ndarray | None = None  # collision rows at the measured configuration (m)
     soft: bool = True  # False pins the soft rows' slacks to zero: the hard OCP (same structure per mode)
     relaxed_rows: tuple[str, ...] = ()  # row tags (ee_vel, foot_vel) left unconstrained on every node this step
+    object_state: np.ndarray | None = None  # measured object state (node 0), with OcpConfig.object_model
+    object_contact_measured: np.ndarray | None = None  # the object's contact rows at the measured state
 
 
 class OcpProblem:
@@ -160,6 +169,9 @@ class OcpProblem:
         self.surface_feet = [i for i, foot in enumerate(robot.feet) if foot in robot.soles]  # flat feet (6D)
         self.point_feet = [i for i in range(self.n_feet) if i not in self.surface_feet]
         self.has_arm = robot.arm_ee is not None
+        self.object: ObjectModel | None = config.object_model
+        if self.object is not None and not self.has_arm:
+            raise ConfigError(f"an object model couples the object to the arm's force; {robot.name} has no arm")
         self.collision: CollisionModel | None = collision_model_for(robot, config.collision)
         # built now: the first MPC step is timed (the anytime solver's budget check)
         self._collision_function = collision_function(self.collision, self.dyn) if self.collision is not None else None
@@ -227,10 +239,13 @@ class OcpProblem:
             params.add("payload_kg", 1)
             if self.robot.arm_ee:
                 params.add("base_payload_kg", 1)
+        if self.object is not None:
+            params.add("obj_ref", self.object.n_states, N + 1)
+            params.add("obj_w", self.object.n_states)
         self.params = params
-        self.state_names = [name for name, _ in form.state_parts()]
-        self.nx = sum(size for _, size in form.state_parts())
-        bounds = np.cumsum([0] + [size for _, size in form.state_parts()])
+        self.state_names = [name for name, _ in self._state_parts()]
+        self.nx = sum(size for _, size in self._state_parts())
+        bounds = np.cumsum([0] + [size for _, size in self._state_parts()])
         self.state_offsets = {name: slice(bounds[i], bounds[i + 1]) for i, name in enumerate(self.state_names)}
         scales = form.variable_scales()
         if any(name in scales for name in self.state_names):
@@ -241,8 +256,7 @@ class OcpProblem:
         self.stage_slices: list[tuple[slice, slice]] = []  # (state, input) of each node in x
         for k in range(N + 1):
             start = offset
-            layout = form.state_parts() + (form.input_parts(k) if k < N else []) + self._slack_parts(k)
-            for name, size in layout:
+            for name, size in self._stage_parts(k):
                 x_scale.append(np.asarray(scales.get(name, np.ones(size)), dtype=float))
                 index.setdefault(name, []).append(np.arange(offset, offset + size))
                 offset += size
@@ -250,6 +264,28 @@ class OcpProblem:
         self.n_variables = offset
         self.idx = {name: np.array(rows) for name, rows in index.items()}
         self.x_scale = np.concatenate(x_scale)
+
+    def _state_parts(self) -> list[tuple[str, int]]:
+        """The robot's state parts, then the object's (`obj`)."""
+        extra = [("obj", self.object.n_states)] if self.object is not None else []
+        return self.formulation.state_parts() + extra
+
+    def _stage_parts(self, k: int) -> list[tuple[str, int]]:
+        """Node k's variables in order: states, inputs (the robot's, the object's `obj_u`), slacks."""
+        inputs = self.formulation.input_parts(k) if k < self.N else []
+        if inputs and self.object is not None:
+            inputs = inputs + [("obj_u", self.object.n_inputs)]
+        return self._state_parts() + inputs + self._slack_parts(k)
+
+    def initial_state(self, q_ref: np.ndarray, v0: np.ndarray, object_state: np.ndarray | None = None) -> np.ndarray:
+        """x_0: the robot's measured state and, with an object model, the object's."""
+        x0 = self.formulation.initial_state(q_ref, v0)
+        if self.object is None:
+            return x0
+        if object_state is None or np.size(object_state) != self.object.n_states:
+            raise ConfigError(f"the OCP models the {self.object.name}: each step needs its measured state "
+                              f"({self.object.n_states} values: {', '.join(self.object.state_names)})")
+        return np.concatenate([x0, np.asarray(object_state, dtype=float).ravel()])
 
     def _implied_torque_joints(self) -> np.ndarray:
         """Indices of the joints with implied-torque rows. "auto": the leg joints of a robot with flat feet
@@ -310,7 +346,7 @@ class OcpProblem:
         """The slice of the global parameter vector stage k reads (its own dt, targets and forces)."""
         N, params = self.N, self.params
         names = params.names
-        columns = {"dt": min(k, N - 1), "dq_des": k, "F_des": min(k, N - 1)}
+        columns = {"dt": min(k, N - 1), "dq_des": k, "F_des": min(k, N - 1), "obj_ref": k}
         return ca.vertcat(*[params.select(p, name, columns.get(name)) for name in names])
 
     def stage_function(self, k: int) -> tuple[ca.Function, list[tuple[str, int]]]:
@@ -328,7 +364,7 @@ class OcpProblem:
             rows, cols = self.params.shape(name)
             local.add(name, rows, cols if name == "rot_ref" else 1)
         q_ref, rot_ref, dt, mu = local["q_ref"], local["rot_ref"], local["dt"], local["mu"]
-        layout = form.state_parts() + (form.input_parts(k) if has_input else []) + self._slack_parts(k)
+        layout = self._stage_parts(k)
         x = ca.SX.sym("x", self.nx)
         u = ca.SX.sym("u", sum(size for name, size in layout) - self.nx)
         scales = form.variable_scales()
@@ -372,6 +408,8 @@ class OcpProblem:
                 rows.append(("ee_vel", self.dyn.frame_linear_velocity(node.config, node.motion, self.robot.arm_ee)))
         if not first and self.collision is not None:
             rows.append(("collision", collision_rows(self.collision, node.config)))
+        if self.object is not None:
+            rows.extend(self._object_rows(node, parts, dt, has_input, first))
         slacks = [parts[name] for name in ("slack_tau", "slack") if name in parts]
         for name in ("slack_tau", "slack"):  # soft rows: r - s+ + s- (slacks in the order of the rows)
             if name not in parts:
@@ -412,11 +450,26 @@ class OcpProblem:
         for slack in slacks:
             cost += local["w_slack"] * ca.sum1(slack)  # exact L1 penalty of the soft rows
             cost += local["w_slack_sq"] * ca.sumsqr(slack)  # (s+)^2 + (s-)^2: the squared violation
+        if self.object is not None:
+            cost += ca.dot(local["obj_w"], (parts["obj"] - local["obj_ref"]) ** 2)
         next_state = form.transition(node, dt) if has_input else ca.SX(0, 1)
+        if has_input and self.object is not None:
+            next_state = ca.vertcat(next_state, self.object.transition(parts["obj"], parts["obj_u"], dt))
         path = ca.vertcat(*[expr for _, expr in rows]) if rows else ca.SX(0, 1)
         name = f"stage_{'first' if first else 'torque' if has_torque else 'plain' if has_input else 'terminal'}"
         function = ca.Function(name, [x, u, local.vector], [next_state, path, cost], ["x", "u", "p"], ["x_next", "g", "cost"])
         return function, [(tag, expr.shape[0]) for tag, expr in rows]
+
+    def _object_rows(self, node: Node, parts: dict, dt, has_input: bool, first: bool) -> list[tuple[str, ca.SX]]:
+        """The object's dynamics and cone rows (input nodes) and contact rows (nodes after the measurement)."""
+        hand = self.dyn.frame_placement(node.config, self.robot.arm_ee)[0]
+        rows = []
+        if has_input:
+            arm = parts["F"][3 * self.n_feet : 3 * self.n_feet + 3]
+            rows.extend(self.object.input_rows(parts["obj"], parts["obj_u"], arm, hand, dt))
+        if not first:
+            rows.append(("obj_contact", self.object.contact_rows(parts["obj"], hand)))
+        return rows
 
     @staticmethod
     def _set_inertial(node: Node, base_com_offset, payload_kg, base_payload_kg) -> None:
@@ -590,10 +643,11 @@ class OcpProblem:
             if self.has_arm:
                 arm_f = self.idx["F"][:, 3 * nf : 3 * nf + 3]
                 force = np.zeros(3) if data.ee_force_on_robot_n is None else data.ee_force_on_robot_n
-                lbx[arm_f] = force
-                ubx[arm_f] = force
+                lower, upper = (force, force) if self.object is None else self.object.arm_force_bounds()
+                lbx[arm_f] = lower
+                ubx[arm_f] = upper
         # node 0 = measured state
-        x0 = self.formulation.initial_state(data.q_ref, data.v0)
+        x0 = self.initial_state(data.q_ref, data.v0, data.object_state)
         lbg[self.rows["x0"][0]] = x0
         ubg[self.rows["x0"][0]] = x0
         # eq. (6) foot velocities on nodes 1..N: stance 0, swing v_z = reference, v_xy free
@@ -636,6 +690,8 @@ class OcpProblem:
                                              np.asarray(data.ee_velocity_measured_m_s)[None])
         if self.collision is not None:
             self._collision_bounds(lbg, ubg, data)
+        if self.object is not None:
+            self._object_bounds(lbg, ubg, data)
         for tag in data.relaxed_rows:
             if tag not in ("ee_vel", "foot_vel"):
                 raise ConfigError(f"relaxed_rows: only ee_vel and foot_vel rows can be relaxed, got {tag!r}")
@@ -650,6 +706,30 @@ class OcpProblem:
             ubg[wrench_rows] = INF
             lbg[wrench_rows] = np.where(contact[:N][:, self.surface_feet, None], 0.0, -INF)
         return lbx / self.x_scale, ubx / self.x_scale, lbg, ubg
+
+    def _object_bounds(self, lbg, ubg, data: StageBounds) -> None:
+        """Object rows: dynamics = 0, cone >= 0 (no force while the hand is still planned off the object), contact
+        rows from the measured gap to contact over CONTACT_BLEND_TIME_S, free on node 1; the arm's velocity rows of
+        eq. (7) dropped (the contact rows place the hand)."""
+        if data.object_contact_measured is None:
+            raise ConfigError(f"the OCP models the {self.object.name}: pass the measured contact rows "
+                              "(StageBounds.object_contact_measured)")
+        times = self.config.grid.node_times_s
+        nodes = self.row_nodes["obj_contact"]
+        lower, upper, may_push = self.object.contact_bounds(np.asarray(data.object_contact_measured), times)
+        rows = self.rows["obj_contact"]
+        lbg[rows] = lower[nodes]
+        ubg[rows] = upper[nodes]
+        lbg[rows[nodes == 1]] = -INF
+        ubg[rows[nodes == 1]] = INF
+        lbg[self.rows["obj_dyn"]] = 0.0
+        ubg[self.rows["obj_dyn"]] = 0.0
+        cone_nodes = self.row_nodes["obj_cone"]
+        lbg[self.rows["obj_cone"]] = 0.0
+        ubg[self.rows["obj_cone"]] = self.object.cone_upper(may_push[cone_nodes + 1])
+        if self.has_arm:
+            lbg[self.rows["ee_vel"]] = -INF
+            ubg[self.rows["ee_vel"]] = INF
 
     def collision_rows_at(self, q: np.ndarray) -> np.ndarray:
         """The collision rows (smooth minimum distance per pair group, m) at configuration q."""

@@ -62,6 +62,15 @@ class ScenarioOptions:
                                    default_text="pull: the load's sliding tension; push-box: 20; wipe: 10 normal")
     box_kg: float = option(5.0, flag="--box-kg", help="mass of the box", low=0.0, high=1000.0, low_open=True,
                            unit="kg", scenarios=("push-box",))
+    box_path: str = option("wall", flag="--box-path", choices=("wall", "turn"), help="wall: press the box against a "
+                           "wall trotting in place; turn: push a free box along a path at 0.1 m/s with a 90 degree "
+                           "turn of 0.8 m radius (implied by --object-model), a force command without --object-model",
+                           scenarios=("push-box",))
+    # issue 22 part 2: the manipulated object inside the MPC (wbmpc.ocp.objects)
+    object_model: bool = option(False, flag="--object-model", help="plan with the manipulated object inside the "
+                                "MPC: its state and dynamics in the OCP, the hand force a variable, the object's "
+                                "motion the command (push-box: the box's path; pull: the load's speed)",
+                                scenarios=("push-box", "pull"))
     board: str = option("vertical", flag="--board", choices=("vertical", "horizontal"),
                         help="vertical (whiteboard) or horizontal (table)", scenarios=WIPE)
     board_friction_mu: float = option(0.3, flag="--board-friction", help="board friction coefficient", low=0.0,
@@ -132,6 +141,10 @@ class Scenario:
 
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""
+        return None
+
+    def object_model(self, robot: RobotModel):
+        """The OCP's model of the manipulated object (`wbmpc.ocp.objects.ObjectModel`, `--object-model`), or None."""
         return None
 
     def obstacles(self, robot: RobotModel) -> tuple:

@@ -1,6 +1,7 @@
 """Loco-manipulation scenarios of section VI-C, in MuJoCo where the forces can be measured.
 
-The MPC never models the objects: it receives the end-effector force target F_arm^des and the
+The MPC never models the objects (unless `--object-model`, issue 22: push-box and pull then plan with the box or the
+load inside the OCP, `wbmpc.ocp.objects`): it receives the end-effector force target F_arm^des and the
 end-effector velocity command v_arm^des of eq. (7) (`Commands.ee_force_n`, `ee_velocity_m_s`).
 The velocity command comes from a position reference by feedback (v = v_ref + K (p_ref - p)),
 except along a contact normal, where the force target alone presses the end-effector on.
@@ -9,7 +10,9 @@ except along a contact normal, where the force target alone presses the end-effe
   (`--gait trot|walk`) or, in stance (`--gait stand`), leans back and retracts the arm. The force target is the
   cable tension that makes the load slide: T = mu m g / (cos(theta) + mu sin(theta)) along the
   cable (theta above horizontal), unless `--force-n` sets it.
-- `push-box`: trotting in place, press a box against a wall with `--force-n` (default 20 N).
+- `push-box`: trotting in place, press a box against a wall with `--force-n` (default 20 N); or (`--box-path turn`,
+  `--object-model`) push a free box along a path at 0.1 m/s with a 90 degree turn (`scenarios/object_paths.py`),
+  measured by `box_pos_rmse_m`.
 - `wipe`: standing, move over a board in a circle or figure-eight pressing with `--force-n`
   (default 10 N) along the normal; the target also contains the board's friction along the motion.
   The end-effector carries a sprung wiping pad (`CompliantPad`, `--pad-stiffness`, 0 for the rigid
@@ -52,6 +55,7 @@ from wbmpc.sim.objects import (
     CableLoad,
     CompliantPad,
     ExternalHand,
+    FreeBox,
     HandPush,
     Scene,
 )
@@ -344,6 +348,36 @@ class Pull(_ForceTask):
 
     def check(self, robot):
         check_arm_force(robot, self.target_force(robot), "pulling force target")
+        if self.options.object_model and not self.walking:
+            raise ConfigError("pull --object-model commands the load's speed while the robot walks backwards; "
+                              "--gait stand has no steady speed to command: use --gait trot or walk")
+
+    SPEED_WINDOW_AFTER_MOVE_S = 1.0  # load_speed_rmse_m_s counts from this long after the move starts
+
+    def object_model(self, robot):
+        """The OCP's model of the scene's load and cable (`--object-model`)."""
+        from wbmpc.ocp.objects import CableLoad1D
+
+        return CableLoad1D.from_scene(self._objects(robot)[0])
+
+    def load_reference(self, x0_m: float):
+        """The load's commanded state [x, vx] at times t: at rest until the move starts, then towards the robot
+        (-x) at the pull speed."""
+        speed = self.options.pull_speed_m_s
+
+        def reference(t):
+            moving = np.maximum(np.asarray(t, dtype=float) - self.MOVE_START_S, 0.0)
+            return np.column_stack([x0_m - speed * moving, np.where(moving > 0, -speed, 0.0)])
+
+        return reference
+
+    def _object_command(self, robot, t):
+        from wbmpc.ocp.objects import ObjectCommand
+
+        load = self._objects(robot)[0]
+        values = self._scene.recording.values.get(self.object_name, {}).get("planar_state") if self._scene else None
+        state = np.array([values[-1][0], values[-1][3]]) if values else np.array([load.position_m[0], 0.0])
+        return ObjectCommand(state=state, reference=self.load_reference(load.position_m[0]))
 
     @property
     def walking(self) -> bool:
@@ -377,6 +411,8 @@ class Pull(_ForceTask):
                 if t < retract_end:
                     base_velocity[0] = -self.STANCE_BASE_SHIFT_M / window
                     ee_velocity_ref = heading @ np.array([-speed, 0.0, 0.0])
+            if self.options.object_model:  # the MPC plans the hand's force and motion on the load's speed
+                return Commands(base_velocity_m_s=base_velocity, object_command=self._object_command(robot, t))
             # hold the end-effector at its (retracting) place relative to the base, in the heading frame
             p_ref = q[:3] + heading @ offset
             return Commands(base_velocity_m_s=base_velocity,
@@ -407,8 +443,22 @@ class Pull(_ForceTask):
             "load_moved_m": moved,
             "load_expected_move_m": expected,
             "pulled": bool(not log.fell and expected > 0 and moved >= 0.5 * expected),
+            "object_model": bool(self.options.object_model),
+            **self._speed_metrics(),
         })
         return out
+
+    def _speed_metrics(self) -> dict:
+        """`load_speed_rmse_m_s`: the load's measured velocity along the pull (-x) against the pull speed, from
+        SPEED_WINDOW_AFTER_MOVE_S after the move starts (walking gaits)."""
+        t, state = self._scene.recording.series(self.object_name, "planar_state")
+        use = t >= self.MOVE_START_S + self.SPEED_WINDOW_AFTER_MOVE_S
+        if not self.walking or not use.any():
+            return {"load_speed_rmse_m_s": None}
+        speed = -state[use, 3]
+        error = speed - self.options.pull_speed_m_s
+        return {"load_speed_rmse_m_s": float(np.sqrt(np.mean(error**2))), "load_speed_mean_m_s": float(np.mean(speed)),
+                "load_speed_window_start_s": self.MOVE_START_S + self.SPEED_WINDOW_AFTER_MOVE_S}
 
     def failure(self, metrics):
         if not metrics.get("interrupted") and not metrics.get("fell") and metrics.get("pulled") is False:
@@ -418,18 +468,46 @@ class Pull(_ForceTask):
 
 # ----------------------------------------------------------------------------- push-box
 class PushBox(_ForceTask):
-    """Press a box against a wall while trotting in place, with a force target (section VI-C)."""
+    """Press a box against a wall while trotting in place, with a force target (section VI-C); or (`--box-path
+    turn`, implied by `--object-model`) push a free box along a path with a 90 degree turn (issue 22: with the
+    box inside the MPC, or with a force command as the paper's MPC would)."""
 
     object_name = "box"
     RAMP_S = (0.4, 0.9)
     APPROACH_END_S = 0.4
     GAP_M = 0.02
     DEFAULT_FORCE_N = 20.0
+    PATH_DURATION_AFTER_S = 1.0  # the run continues this long after the path's turn
 
     def __init__(self, options: ScenarioOptions):
-        super().__init__("push-box", "press a box against the wall while trotting in place",
-                         "trot", 6.0, needs_arm=True, options=options)
+        super().__init__("push-box", "press a box against the wall while trotting in place (or push it along a "
+                         "path: --box-path turn, --object-model)", "trot", 6.0, needs_arm=True, options=options)
         self.force_window_start_s = self.RAMP_S[1] + 0.2
+        self._path = None
+        if self.follows_path:
+            from wbmpc.scenarios.object_paths import BoxPath
+
+            self._path = BoxPath()
+            self.default_duration_s = round(self._path.start_s + self._path.moving_s + self.PATH_DURATION_AFTER_S)
+
+    @property
+    def follows_path(self) -> bool:
+        return self.options.object_model or self.options.box_path == "turn"
+
+    def free_box(self, robot) -> FreeBox:
+        return FreeBox(near_face_x_m=self._face_x(robot), mass_kg=self.options.box_kg)
+
+    def box_path(self, robot):
+        """The commanded path of the free box's centre, from where the box starts."""
+        from wbmpc.scenarios.object_paths import BoxPath
+
+        return replace(self._path or BoxPath(), start_xy_m=tuple(self.free_box(robot).centre_xy_m))
+
+    def object_model(self, robot):
+        """The OCP's model of the scene's box (`--object-model`)."""
+        from wbmpc.ocp.objects import SlidingBox
+
+        return SlidingBox.from_scene(self.free_box(robot), EE_SPHERE_RADIUS_M)
 
     @property
     def force_magnitude_n(self) -> float:
@@ -439,12 +517,21 @@ class PushBox(_ForceTask):
         return float(nominal_ee_position(robot)[0] + EE_SPHERE_RADIUS_M + self.GAP_M)
 
     def _objects(self, robot):
+        if self.follows_path:
+            return [self.free_box(robot)]
         return [BoxAtWall(near_face_x_m=self._face_x(robot), mass_kg=self.options.box_kg)]
 
     def check(self, robot):
+        if self.follows_path:
+            box = self.free_box(robot)
+            force = box.friction_mu * box.mass_kg * GRAVITY_M_S2
+            check_arm_force(robot, np.array([force, 0.0, 0.0]), "force that slides the box")
+            return
         check_arm_force(robot, np.array([self.force_magnitude_n, 0.0, 0.0]), "pushing force target")
 
     def commands(self, robot):
+        if self.follows_path:
+            return self._path_commands(robot)
         ee = _EeState(robot)
         normal = np.array([1.0, 0.0, 0.0])  # into the box
         p_ref = nominal_ee_position(robot)
@@ -457,6 +544,35 @@ class PushBox(_ForceTask):
                             ee_force_n=ramp(t, *self.RAMP_S) * force)
 
         return command
+
+    def _path_commands(self, robot):
+        """The base follows the box's path; the hand pushes by force command, or (object model) the MPC plans it."""
+        from wbmpc.scenarios.object_paths import PathFollower, force_command, object_command
+
+        path, box, ee = self.box_path(robot), self.free_box(robot), _EeState(robot)
+        follower = PathFollower(path, robot.q_nominal[:2])
+        height = float(nominal_ee_position(robot)[2])
+
+        def command(t, q, v):
+            measured = object_command(path, self._scene, self.object_name, t)
+            base = follower.base_command(t, q, measured.state)
+            if self.options.object_model:
+                return Commands(**base, object_command=measured)
+            velocity, force = force_command(path, t, box, EE_SPHERE_RADIUS_M, height, ee.position(q), _feedback)
+            return Commands(**base, ee_velocity_m_s=velocity, ee_force_n=force)
+
+        return command
+
+    def extra_metrics(self, robot, log):
+        out = super().extra_metrics(robot, log)
+        out["object_model"] = bool(self.options.object_model)
+        if self.follows_path:
+            from wbmpc.scenarios.object_paths import path_metrics
+
+            t, states = self._scene.recording.series(self.object_name, "planar_state")
+            out.update(path_metrics(self.box_path(robot), t, states))
+            out["box_kg"] = self.options.box_kg
+        return out
 
 
 # ----------------------------------------------------------------------------- wipe

@@ -18,7 +18,7 @@ from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
-from wbmpc.options import check_fields, option
+from wbmpc.options import check_fields, declared, option
 from wbmpc.robots import RobotModel
 from wbmpc.robots.collision_model import CollisionConfig
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
@@ -31,6 +31,7 @@ from wbmpc.sim.model_errors import ModelErrors
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 from wbmpc.strict_json import to_json
 
+OBJECT_MODEL_SCENARIOS = next(opt.scenarios for f, opt in declared(ScenarioOptions) if f.name == "object_model")
 DELAYED_RECOVERY_LIMIT_S = 0.05  # four MPC periods at 80 Hz
 RECOVERY_ITERATIONS_DELAYED = 10  # the RTI's Fatrop re-solve of a failed QP, when the plant does not wait (~50 ms)
 MAX_DURATION_S = 3600.0  # one simulated hour; longer runs are split by the caller
@@ -125,7 +126,8 @@ class RunConfig:
         fixed_delay_s(self.delay)
         if self.solver == "auto":
             self.auto_solver = True
-            self.solver = default_solver(self.compiled, self.delay, bool(self.collision_avoidance))
+            self.solver = default_solver(self.compiled, self.delay,
+                                         bool(self.collision_avoidance) or self.options.object_model)
         if self.formulation not in FORMULATIONS:
             raise ConfigError(unknown_name("formulation", self.formulation, FORMULATIONS))
         if self.solver not in SOLVERS:
@@ -144,6 +146,9 @@ class RunConfig:
             (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
+        if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
+            raise ConfigError(f"--object-model plans with the manipulated object inside the MPC; scenario "
+                              f"'{self.scenario}' has no object the MPC can model: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
         if self.identify_mass and (self.plant != "mujoco" or self.delay == "realtime" or not self.formulation.startswith("wb_")):
             raise ConfigError("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of "
                               "the MPC in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
@@ -218,7 +223,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
     soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
                                    soft_rows=("ee_vel",) if soft_arm else (),
-                                   inertial_parameters=config.identify_mass),
+                                   inertial_parameters=config.identify_mass,
+                                   object_model=(scenario.object_model(robot) if config.options.object_model and robot is not None
+                                                 else None)),
                      soft_rows_always=soft_arm, gait=scenario.gait,
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
@@ -276,7 +283,9 @@ def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False
     period: with a delay the plan must come in time, and uncompiled Fatrop takes ~25 ms per step on b1_z1
     (twice the period: "240/240 over budget" on the main job) where one uncompiled SQP iteration takes ~5 ms.
     With collision avoidance the anytime SQP always: Fatrop's interior point needs 11-16 iterations per step
-    on the arm's soft velocity rows (3-5 with them hard; ~38 with an L1 weight of 1000)."""
+    on the arm's soft velocity rows (3-5 with them hard; ~38 with an L1 weight of 1000). With the object inside the
+    MPC (--object-model) too: Fatrop's line search failed on most push-box steps (hand-box contact rows with the
+    box's smoothed friction), IPOPT rescued them in 10-50 iterations (0.1-0.7 s); the SQP's QPs take them."""
     return "fatrop-direct" if compiled and delay == "none" and not collision_avoidance else "sqp"
 
 

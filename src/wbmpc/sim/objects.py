@@ -3,13 +3,16 @@
 Each object adds MuJoCo bodies (`bodies_mjcf`), optional model edits (`edit_spec`: tendons, sites
 on the robot), an optional scripted action before every physics step (`before_step`) and a
 measurement after it (`measure`): the force the end-effector applies ON the object, in world
-coordinates, which the MPC never sees (it treats the arm force as a fixed input, eq. 7).
+coordinates, which the MPC never sees (it treats the arm force as a fixed input, eq. 7; with
+`--object-model` it plans that force and reads the object's measured state instead).
 
 - `CableLoad`: a box on the floor with its own friction, tied to the end-effector by a massless
   cable (a MuJoCo spatial tendon with a length limit: it pulls, never pushes). Measured: the
   cable tension and the force along the cable.
 - `BoxAtWall`: a free box on the floor standing against a fixed wall. Measured: contact force of
   the end-effector sphere on the box.
+- `FreeBox`: a free box on the floor to push along a path. Measured: the end-effector's contact force
+  on it and its planar state (`planar_state`: x, y, yaw, vx, vy, wz), which `--object-model` feeds to the MPC.
 - `Board`: a fixed board (vertical like a whiteboard, or horizontal like a table) with its own
   friction. Measured: contact force of the end-effector sphere on the board.
 - `FixedBox`: a box fixed in the world (a post to reach around). Measured: whether the robot touches it.
@@ -153,8 +156,7 @@ class CableLoad:
         return {
             "tension_n": tension,
             "force_n": tension * towards_ee,  # the end-effector pulls the cable towards itself
-            "object_position_m": d.body(self.name).xpos.copy(),
-            "object_rotation": d.body(self.name).xmat.reshape(3, 3).copy(),
+            **planar_box_state(plant, self.name),
             "cable_m": np.array([ee, hook]),
         }
 
@@ -218,6 +220,69 @@ class BoxAtWall:
         wall_x = self.near_face_x_m + sx + self.wall_thickness_m / 2 + 1e-3
         return [_box(self.name, "#99734d", np.asarray(self.size_m) / 2, position, rotation, t),
                 _box(f"{self.name} wall", "#bfbfb3", [self.wall_thickness_m / 2, 1.5, 1.0], [wall_x, 0.0, 1.0])]
+
+
+@dataclass(frozen=True)
+class FreeBox:
+    """A free box of `mass_kg` on the floor (no wall) for the end-effector to push along a path.
+
+    `near_face_x_m` is the world x of the face the end-effector pushes (the box's -x face at the start);
+    its friction `friction_mu` is that of the floor and of the end-effector on it (priority: MuJoCo uses
+    the box's coefficient in both contacts). Wide and deep for its height, so that the push at the hand's
+    height (~0.87 m on b1_z1) slides it without tipping it (mu h < depth / 2). The object model of the MPC
+    (`wbmpc.ocp.objects.SlidingBox.from_scene`) reads these same numbers. Measured: the end-effector's
+    contact force on the box and its planar state [x, y, yaw, vx, vy, wz] (`planar_state`).
+    """
+
+    near_face_x_m: float = 0.45
+    mass_kg: float = 5.0
+    friction_mu: float = 0.3
+    size_m: tuple[float, float, float] = (0.6, 0.6, 1.0)
+    name: str = "box"
+
+    def __post_init__(self):
+        _positive("box mass (kg)", self.mass_kg)
+        _positive("box friction coefficient", self.friction_mu, allow_zero=True)
+        for s in self.size_m:
+            _positive("box size (m)", s)
+
+    @property
+    def centre_xy_m(self) -> np.ndarray:
+        return np.array([self.near_face_x_m + self.size_m[0] / 2, 0.0])
+
+    def bodies_mjcf(self, robot):
+        sx, sy, sz = self.size_m
+        cx, cy = self.centre_xy_m
+        return [
+            f'<body name="{self.name}" pos="{_vec([cx, cy, sz / 2 + 1e-3])}"><freejoint name="{self.name}_joint"/>'
+            f'<geom name="{self.name}" type="box" size="{_vec([sx / 2, sy / 2, sz / 2])}" mass="{self.mass_kg!r}" '
+            f'friction="{_friction(self.friction_mu)}" priority="2" rgba=".6 .45 .3 1"/></body>',
+        ]
+
+    def edit_spec(self, spec, robot):
+        pass
+
+    def before_step(self, plant) -> None:
+        pass
+
+    def measure(self, plant):
+        return {"force_n": -plant.ee_contact_force([self.name]), **planar_box_state(plant, self.name)}
+
+    def replay_shapes(self, recording):
+        t, position = recording.series(self.name, "object_position_m")
+        _, rotation = recording.series(self.name, "object_rotation")
+        return [_box(self.name, "#99734d", np.asarray(self.size_m) / 2, position, rotation, t)]
+
+
+def planar_box_state(plant, name: str) -> dict:
+    """Position, rotation and the planar state [x, y, yaw, vx, vy, wz] (world) of a free body."""
+    body = plant.data.body(name)
+    rotation = body.xmat.reshape(3, 3).copy()
+    qvel = plant.data.joint(f"{name}_joint").qvel  # free joint: world linear, local angular velocity
+    yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
+    angular = rotation @ qvel[3:6]
+    return {"object_position_m": body.xpos.copy(), "object_rotation": rotation,
+            "planar_state": np.array([body.xpos[0], body.xpos[1], yaw, qvel[0], qvel[1], angular[2]])}
 
 
 @dataclass(frozen=True)

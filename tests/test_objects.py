@@ -1,0 +1,183 @@
+"""The manipulated object inside the MPC (issue 22 part 2, `wbmpc.ocp.objects`): the box model's plan against a
+MuJoCo box sliding under the planned force, the plan's rows recomputed independently in NumPy, a short
+closed loop, and bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+import pytest
+
+from wbmpc.control.mpc import MPC, Commands
+from wbmpc.errors import ConfigError
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.objects import ObjectCommand, SlidingBox
+from wbmpc.robots import GRAVITY_M_S2
+from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario, run_scenario
+from wbmpc.scenarios.runner import mpc_config_for
+from wbmpc.sim.objects import FreeBox
+
+SPEED_M_S = 0.1
+
+
+@pytest.fixture(scope="module")
+def box_plan(b1z1):
+    """One converged plan (IPOPT, 12 uniform 40 ms steps) of push-box --object-model from the nominal stance, the box
+    already sliding at SPEED_M_S with the hand on its face, its path straight ahead at that speed."""
+    robot = b1z1
+    options = ScenarioOptions(object_model=True)
+    scenario = make_scenario("push-box", robot, options)
+    config = mpc_config_for(scenario, RunConfig(scenario="push-box", options=options, solver="ipopt"), robot)
+    grid = TimeGrid.uniform_steps(12, 0.04)
+    config = dataclasses.replace(config, ocp=dataclasses.replace(config.ocp, grid=grid),
+                                 solver=dataclasses.replace(config.solver, max_iterations=300))
+    mpc = MPC(robot, config)
+    model: SlidingBox = config.ocp.object_model
+    hand = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
+    start = np.array([hand[0] + model.hand_radius_m + model.size_m[0] / 2, hand[1], 0.0, SPEED_M_S, 0.0, 0.0])
+
+    def reference(times):
+        times = np.asarray(times, dtype=float)
+        return np.column_stack([start[0] + SPEED_M_S * times, np.zeros((len(times), 2)),
+                                np.full(len(times), SPEED_M_S), np.zeros((len(times), 2))])
+
+    solution = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(object_command=ObjectCommand(start, reference)))
+    assert solution.success, solution.stats.status
+    parts = mpc.problem.unpack(solution.x)
+    hands = robot.frame_trajectories(solution.q, [robot.arm_ee])[robot.arm_ee]
+    nf = 3 * len(robot.feet)
+    return {"model": model, "grid": grid, "obj": parts["obj"], "obj_u": parts["obj_u"], "hands": hands,
+            "push": -solution.forces[:, nf : nf + 3], "problem": mpc.problem}
+
+
+def _mujoco_box(model: SlidingBox) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """The scene's box alone on the floor (the same MJCF as `FreeBox` and the plant's floor and options)."""
+    box = FreeBox(near_face_x_m=0.0, mass_kg=model.mass_kg, friction_mu=model.friction_mu, size_m=model.size_m)
+    xml = ('<mujoco><option timestep="0.001" integrator="implicitfast" cone="elliptic"/><worldbody>'
+           '<geom name="floor" type="plane" size="0 0 0.05" priority="1"/>' + box.bodies_mjcf(None)[0] +
+           "</worldbody></mujoco>")
+    m = mujoco.MjModel.from_xml_string(xml)
+    return m, mujoco.MjData(m)
+
+
+def test_box_plan_reproduces_a_mujoco_box_sliding_under_the_planned_force(box_plan):
+    """The planned hand force (zero-order hold per interval, at the planned hand position) applied to a free MuJoCo box
+    moves it as the plan says: within 1 cm and 2 degrees over the 0.48 s horizon (the plan's friction is smoothed
+    Coulomb, MuJoCo's a soft elliptic cone)."""
+    model, obj = box_plan["model"], box_plan["obj"]
+    m, d = _mujoco_box(model)
+    mujoco.mj_resetData(m, d)
+    d.qpos[:3] = [obj[0, 0], obj[0, 1], model.size_m[2] / 2]
+    d.qvel[:2] = obj[0, 3:5]
+    for _ in range(200):  # settle on the floor at the initial speed (contacts made), then restart from the plan's state
+        mujoco.mj_step(m, d)
+        d.qvel[:2] = obj[0, 3:5]
+        d.qpos[:2] = obj[0, :2]
+    body = m.body("box").id
+    dt = box_plan["grid"].dt_s
+    reached = [obj[0, :3].copy()]
+    for k, step in enumerate(dt):
+        push = box_plan["push"][k]
+        lever = box_plan["hands"][k] - d.xipos[body]
+        d.xfrc_applied[body, :3] = [push[0], push[1], 0.0]
+        d.xfrc_applied[body, 3:] = [0.0, 0.0, lever[0] * push[1] - lever[1] * push[0]]
+        for _ in range(round(step / m.opt.timestep)):
+            mujoco.mj_step(m, d)
+        rot = d.xmat[body].reshape(3, 3)
+        reached.append([d.xpos[body][0], d.xpos[body][1], np.arctan2(rot[1, 0], rot[0, 0])])
+    reached = np.array(reached)
+    assert np.linalg.norm(obj[-1, :2] - obj[0, :2]) > 0.03  # the box slides in the plan
+    assert np.abs(reached[:, :2] - obj[:, :2]).max() < 0.01
+    assert np.degrees(np.abs(reached[:, 2] - obj[:, 2]).max()) < 2.0
+
+
+def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
+    """Residuals of the plan recomputed without CasADi: Newton-Euler of the box with Coulomb friction smoothed at its
+    four corners (with `push_shifts_loads`, loads shifted by the push's tipping moment), the hand force in the face's friction pyramid, the hand on
+    the face within its width."""
+    model, obj, u, push, hands = (box_plan[k] for k in ("model", "obj", "obj_u", "push", "hands"))
+    dt = box_plan["grid"].dt_s
+    weight = model.mass_kg * GRAVITY_M_S2
+    inertia = model.mass_kg * (model.size_m[0] ** 2 + model.size_m[1] ** 2) / 12
+    for k in range(len(dt)):
+        yaw = obj[k, 2]
+        rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+        force, moment = push[k, :2].copy(), 0.0
+        lever = hands[k, :2] - obj[k, :2]
+        moment += lever[0] * push[k, 1] - lever[1] * push[k, 0]
+        local_push = rot.T @ push[k, :2]
+        sx, sy = model.size_m[:2]
+        for corner in model.corners_m():
+            r = rot @ corner
+            a, b = np.sign(corner)  # the push's tipping moment shifts the load towards the far corners
+            load = weight / 4 + (hands[k, 2] / 2 * (a * local_push[0] / sx + b * local_push[1] / sy)
+                                 if model.push_shifts_loads else 0.0)
+            sliding = u[k, :2] + u[k, 2] * np.array([-r[1], r[0]])
+            f = -model.friction_mu * load * sliding / np.sqrt(sliding @ sliding + model.smoothing_m_s**2)
+            force += f
+            moment += r[0] * f[1] - r[1] * f[0]
+        assert np.allclose(model.mass_kg * (u[k, :2] - obj[k, 3:5]) / dt[k], force, atol=1e-3 * weight)
+        assert abs(inertia * (u[k, 2] - obj[k, 5]) / dt[k] - moment) < 1e-3 * weight
+        assert np.allclose(obj[k + 1], np.concatenate([obj[k, :3] + dt[k] * u[k], u[k]]), atol=1e-6)  # transition
+        normal, tangential = rot.T @ push[k, :2]
+        assert normal >= -1e-4 * weight and abs(tangential) <= model.cone_share * model.friction_mu * normal + 1e-4 * weight
+        assert abs(push[k, 2]) < 1e-9  # no vertical force
+    for k in range(2, len(obj)):  # nodes 2..N: the hand sphere on the face (within the band), within its width
+        yaw = obj[k, 2]
+        local = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]]) @ (hands[k, :2] - obj[k, :2])
+        assert abs(local[0] + model.size_m[0] / 2 + model.hand_radius_m) < 2.5e-3
+        assert abs(local[1]) <= model.size_m[1] / 2 - model.face_margin_m + 1e-4
+
+
+def test_push_box_object_model_stays_up_and_moves_the_box(b1z1):
+    # the anytime SQP, as `wbmpc run --object-model` picks by default (RunConfig's own default is Fatrop, whose line
+    # search fails on the contact rows)
+    result = run_scenario(b1z1, RunConfig(scenario="push-box", duration_s=1.6, solver="sqp",
+                                          options=ScenarioOptions(object_model=True)))
+    m = result.metrics
+    assert not m["fell"] and m["object_model"]
+    assert m["box_pos_rmse_m"] is not None and m["box_pos_rmse_m"] < 0.03
+    assert m["box_travel_m"] > 0.01  # the path started at 1 s: the box moved with it
+
+
+def test_object_model_is_read_from_the_scene(b1z1):
+    """One source of truth: the OCP's box is the scene's (mass from --box-kg, friction and size from FreeBox)."""
+    scenario = make_scenario("push-box", b1z1, ScenarioOptions(object_model=True, box_kg=7.0))
+    box = scenario.free_box(b1z1)
+    model = scenario.object_model(b1z1)
+    assert (model.mass_kg, model.friction_mu, model.size_m) == (7.0, box.friction_mu, tuple(box.size_m))
+    pull = make_scenario("pull", b1z1, ScenarioOptions(object_model=True, load_kg=14.0))
+    load = pull.object_model(b1z1)
+    assert load.mass_kg == 14.0 and load.cable_length_m == pull.options.cable_length_m
+
+
+def test_object_model_on_a_scenario_without_an_object_names_those_with_one():
+    with pytest.raises(ConfigError, match="push-box or pull"):
+        RunConfig(scenario="trot-in-place", options=ScenarioOptions(object_model=True))
+
+
+def test_cli_refuses_object_model_without_an_object():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "wbmpc", "run", "wipe", "--object-model"], capture_output=True, text=True)
+    assert out.returncode == 2
+    assert "push-box or pull" in out.stderr and "warning" not in out.stderr
+
+
+def test_mpc_with_an_object_model_needs_the_object_command(box_plan, b1z1):
+    mpc = MPC.__new__(MPC)  # the check runs before any solve: only the problem is needed
+    mpc.problem = box_plan["problem"]
+    with pytest.raises(ConfigError, match="object_command"):
+        mpc._object_data(b1z1.q_nominal, 0.0, np.zeros(3), Commands())
+
+
+@pytest.mark.slow
+def test_pull_object_model_drags_the_load_at_the_commanded_speed(b1z1):
+    result = run_scenario(b1z1, RunConfig(scenario="pull", duration_s=4.0, solver="sqp",
+                                          options=ScenarioOptions(object_model=True, load_kg=14.0)))
+    m = result.metrics
+    assert not m["fell"] and m["pulled"]
+    assert m["load_speed_rmse_m_s"] < 0.05
