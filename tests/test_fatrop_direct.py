@@ -10,6 +10,7 @@ from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
 from wbmpc.solvers import make_solver
+from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
@@ -29,7 +30,8 @@ def problem(robot):
 
 @pytest.fixture(scope="module")
 def codegen(tmp_path_factory):
-    return CodegenConfig(flags=("-O0",), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+    # -march=native: the AVX2 kernels of fatrop_kernels.py are compiled in where the CPU has AVX2/FMA
+    return CodegenConfig(flags=("-O0", "-march=native"), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
 
 
 @pytest.fixture(scope="module")
@@ -58,9 +60,15 @@ def step_data(robot, problem):
 
 
 def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
-    """Tight tolerance: both follow the same iterates to the same KKT point; residuals below tolerance."""
+    """Tight tolerance: both follow the same iterates to the same KKT point; residuals below tolerance.
+    casadi's Fatrop runs on Fatrop's own elimination kernels, the direct binding on ours (fatrop_kernels.py)."""
     config = SolverConfig(tolerance=1e-10, warm_barrier_init=None)
-    expected = NlpSolver(problem, config).solve(**step_data)
+    kernels = direct._library.lib.wbd_fatrop_kernels
+    kernels(0)
+    try:
+        expected = NlpSolver(problem, config).solve(**step_data)
+    finally:
+        assert (kernels(1) > 0) == direct.kernels
     got = direct.recreated(tolerance=1e-10, warm_barrier_init=None).solve(**step_data)
     assert expected.stats.success and got.stats.success, (expected.stats, got.stats)
     assert got.stats.iterations == expected.stats.iterations
@@ -75,6 +83,25 @@ def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
     assert np.all(g >= lbg - config.constraint_tolerance) and np.all(g <= ubg + config.constraint_tolerance)
     assert np.all(got.x >= lbx - config.constraint_tolerance) and np.all(got.x <= ubx + config.constraint_tolerance)
     assert got.stats.max_constraint_violation <= config.constraint_tolerance
+
+
+def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
+    """Our AVX2 LU and triangular solve (fatrop_kernels.py) against Fatrop's own: same iterations, same point."""
+    if not cpu_has_avx2_fma():
+        pytest.skip("the kernels need AVX2/FMA")
+    assert direct.kernels
+    solver = direct.recreated(tolerance=1e-10, warm_barrier_init=None)
+    kernels = direct._library.lib.wbd_fatrop_kernels
+    ours = solver.solve(**step_data)
+    assert kernels(0) == 0
+    try:
+        fatrops = solver.solve(**step_data)
+    finally:
+        assert kernels(1) > 0
+    assert ours.stats.success and fatrops.stats.success
+    assert ours.stats.iterations == fatrops.stats.iterations
+    np.testing.assert_allclose(ours.x, fatrops.x, atol=1e-10)
+    np.testing.assert_allclose(ours.lam_g, fatrops.lam_g, atol=1e-8 * max(1.0, np.abs(fatrops.lam_g).max()))
 
 
 def test_shim_constraints_equal_the_nlp(problem, direct, step_data):

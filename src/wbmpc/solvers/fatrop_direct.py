@@ -64,6 +64,8 @@ class _Library:
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
         lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double, ctypes.c_int]
+        lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
+        lib.wbd_fatrop_kernels.restype = ctypes.c_int
         sizes = (ctypes.c_int * 4)()
         lib.wb_sizes(sizes)
         self.n_stages, self.n_stage_params, self.n_variables, self.n_constraints = list(sizes)
@@ -114,6 +116,8 @@ class FatropDirectSolver:
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
+        # Fatrop's equality elimination on our AVX2 kernels (fatrop_kernels.py; process-wide, same iterates)
+        self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property

@@ -14,7 +14,8 @@ each in NLP order. Fatrop's dynamics multipliers are those of f(x_k, u_k) - x_{k
 of casadi's (our gap rows are x_{k+1} - f). Stage parameters are rows of a (N+1, n_p) array.
 
 Fatrop itself is driven by a small C++ driver (`DRIVER_SOURCE`) built from the same exported pieces as
-Fatrop's own `fatrop_ocp_c_create`, which adds a primal-dual warm start and a time limit (see there).
+Fatrop's own `fatrop_ocp_c_create`, which adds a primal-dual warm start and a time limit (see there), and
+carries faster kernels for Fatrop's equality elimination (`fatrop_kernels.py`).
 
 The library (generated C of the stage functions, the shim and the driver) lands in the cache directory of
 `codegen.py` under the hash of its sources, compiler, flags and the Fatrop headers' directory.
@@ -33,6 +34,7 @@ import numpy as np
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, default_cache_dir
+from wbmpc.solvers.fatrop_kernels import KERNELS_SOURCE
 
 
 class FatropUnavailable(WbmpcError, RuntimeError):
@@ -140,7 +142,8 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     cache = Path(config.cache_dir or default_cache_dir())
     stem_flags = (*config.flags, "-fexceptions", f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop",
                   "-lblasfeo", "-lstdc++", f"-Wl,-rpath,{lib_dir}")
-    key = cache_key(code + DRIVER_SOURCE, replace(config, flags=stem_flags))
+    driver = DRIVER_SOURCE + KERNELS_SOURCE
+    key = cache_key(code + driver, replace(config, flags=stem_flags))
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -153,7 +156,7 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     # per process: parallel builds of one key (campaign workers, test workers) never share a file
     source, helper = cache / f"{stem}.{os.getpid()}.c", cache / f"{stem}.{os.getpid()}_throw.cpp"
     source.write_text(code)
-    helper.write_text(DRIVER_SOURCE)
+    helper.write_text(driver)
     try:  # the C++ helper rides along as one more input file of the same compiler call
         compile_s, peak_mb = _compile(source, library, replace(config, flags=(str(helper), *stem_flags)))
     finally:
@@ -172,6 +175,9 @@ SHIM_PRELUDE = r"""
 #include <string.h>
 #include <math.h>
 #include <time.h>
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 typedef int (*wb_fn)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int);
 void wb_throw_deadline(void); /* C++ (DRIVER_SOURCE): throws std::runtime_error */
@@ -389,6 +395,40 @@ typedef struct {
   int n_eq[WB_K], n_ineq[WB_K];
 } wb_solver;
 
+static int wb_panel4 = -1; /* BLASFEO's panel height is 4 (the layout wb_pack writes) */
+
+static int wb_check_panel4(void) {
+  double memory[256 + 64];
+  struct blasfeo_dmat A;
+  if (blasfeo_memsize_dmat(8, 8) > (int) sizeof(double) * 256) return 0;
+  blasfeo_create_dmat(8, 8, &A, (void*) (((size_t) memory + 63) & ~(size_t) 63));
+  memset(A.pA, 0, sizeof(double) * 64);
+  blasfeo_dgein1(1.0, &A, 5, 1);
+  return A.pA[4 * A.cn + 1 * 4 + 1] == 1.0;
+}
+
+/* blasfeo_pack_dmat(m, n, A, lda, B, 0, 0): column-major A into panel-major B (BLASFEO's took ~8 % of a solve) */
+static void wb_pack(int m, int n, const double* A, int lda, struct blasfeo_dmat* B) {
+#if defined(__AVX__)
+  if (wb_panel4 == 1) {
+    double* pB = B->pA;
+    int p, j, t;
+    for (p = 0; p + 4 <= m; p += 4) {
+      double* panel = pB + (size_t) p * B->cn;
+      for (j = 0; j < n; ++j) _mm256_storeu_pd(panel + 4 * j, _mm256_loadu_pd(A + p + (size_t) j * lda));
+    }
+    if (p < m) {
+      double* panel = pB + (size_t) p * B->cn;
+      for (j = 0; j < n; ++j)
+        for (t = 0; t < m - p; ++t) panel[4 * j + t] = A[p + t + (size_t) j * lda];
+    }
+    B->use_dA = 0;
+    return;
+  }
+#endif
+  blasfeo_pack_dmat(m, n, (double*) A, lda, B, 0, 0);
+}
+
 static double wb_now(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);
@@ -501,7 +541,7 @@ static fatrop_int cb_RSQrqt(const double* scale, const double* u, const double* 
   for (i = c->a_ineq_i[k], col = 0; i < c->a_ineq_i[k + 1]; ++i, ++col)
     c->lam_rows[c->a_ineq[i] - wb_ro[k]] = lam_ineq[col];
   wb_call(c, wb_hess[wb_kind[k]], u, x, k, scale, lam_dyn ? lam_dyn : c->zeros, c->lam_rows, c->hess, 0);
-  blasfeo_pack_dmat(n, n, c->hess, n, res, 0, 0);
+  wb_pack(n, n, c->hess, n, res);
   return 0;
 }
 
@@ -509,7 +549,7 @@ static fatrop_int cb_BAbt(const double* x_next, const double* u, const double* x
                           struct blasfeo_dmat* res, fatrop_int k, void* d) {
   wb_ctx* c = (wb_ctx*) d;
   int n = wb_nu[k] + wb_nx[k];
-  blasfeo_pack_dmat(n, wb_nx[k + 1], c->jac_next[k], n, res, 0, 0);
+  wb_pack(n, wb_nx[k + 1], c->jac_next[k], n, res);
   return 0;
 }
 
@@ -591,7 +631,10 @@ static fatrop_int cb_full_obj(double scale, const double* primal, const double* 
 }
 
 /* ---- exported API (ctypes) ---- */
-void* wb_ctx_new(void) { return calloc(1, sizeof(wb_ctx)); }
+void* wb_ctx_new(void) {
+  if (wb_panel4 < 0) wb_panel4 = wb_check_panel4();
+  return calloc(1, sizeof(wb_ctx));
+}
 void wb_ctx_free(void* c) { free(c); }
 int wb_sizes(int* out) { out[0] = WB_K; out[1] = WB_NP; out[2] = WB_NV; out[3] = WB_NG; return 0; }
 
