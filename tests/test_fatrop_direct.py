@@ -123,7 +123,7 @@ def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
     without the multiplier warm start both follow the same iterates."""
     _, expected = _trot_steps(robot, problem, SolverConfig())
     mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
-                                                        extra_options={"warm_duals": False}))
+                                                        extra_options={"warm_duals": False, "mpc_tolerances": False}))
     assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
     for e, g in zip(expected, got):
         assert e.success and g.success, (e.stats, g.stats)
@@ -135,12 +135,31 @@ def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
     """With the primal-dual warm start (default) the steps converge to the same plans within the
     solver tolerance, in no more iterations in total."""
     _, expected = _trot_steps(robot, problem, SolverConfig())
-    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
+                                                      extra_options={"mpc_tolerances": False}))
     for e, g in zip(expected, got):
         assert g.success, g.stats
         np.testing.assert_allclose(g.x, e.x, atol=1e-3)
         assert g.stats.max_constraint_violation <= SolverConfig().constraint_tolerance
     assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+
+
+def test_mpc_tolerances(robot, problem, codegen):
+    """By default the binding stops at its own MPC tolerances (fatrop_direct.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
+    the plans stay within them of casadi's Fatrop at SolverConfig's tolerances, in no more iterations;
+    tolerances set in SolverConfig are kept."""
+    from wbmpc.solvers.fatrop_direct import MPC_CONSTRAINT_TOLERANCE, MPC_TOLERANCE
+
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert (mpc.solver.tolerance, mpc.solver.constraint_tolerance) == (MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE)
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        assert g.stats.max_constraint_violation <= MPC_CONSTRAINT_TOLERANCE
+        np.testing.assert_allclose(g.x, e.x, atol=1e-2)
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+    kept = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-6))
+    assert (kept.tolerance, kept.constraint_tolerance) == (1e-6, SolverConfig().constraint_tolerance)
 
 
 def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):
