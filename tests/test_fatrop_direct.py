@@ -13,7 +13,7 @@ from wbmpc.solvers import make_solver
 from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
-from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
 
 TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
 
@@ -83,6 +83,8 @@ def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
     assert np.all(g >= lbg - config.constraint_tolerance) and np.all(g <= ubg + config.constraint_tolerance)
     assert np.all(got.x >= lbx - config.constraint_tolerance) and np.all(got.x <= ubx + config.constraint_tolerance)
     assert got.stats.max_constraint_violation <= config.constraint_tolerance
+    # the shim's violation (computed in C) is nlp.bound_violation's on casadi's g
+    assert got.stats.max_constraint_violation == pytest.approx(bound_violation(got.x, g, lbx, ubx, lbg, ubg), abs=1e-12)
 
 
 def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
@@ -167,6 +169,21 @@ def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):
     assert not result.stats.success and result.stats.status == "Maximum_Iterations_Exceeded"
     # Fatrop's convergence check sees the iteration count before its increment: max_iter 1 stops after 2
     assert result.stats.iterations <= 2 and np.all(np.isfinite(result.x))
+
+
+def test_a_new_row_structure_gets_its_own_fatrop(direct, step_data):
+    """A step whose rows split differently (a contact switch) is refused by the last Fatrop instance and solved by
+    one built for it; the next step of the first structure goes back to the first instance."""
+    solver = direct.recreated()
+    first = solver.solve(**step_data)
+    lbg, ubg = step_data["lbg"].copy(), step_data["ubg"].copy()
+    free = np.nonzero(np.isinf(lbg) & np.isinf(ubg))[0]
+    lbg[free[0]], ubg[free[0]] = -1e3, 1e3  # one more inequality row in some stage
+    other = solver.solve(**{**step_data, "lbg": lbg, "ubg": ubg})
+    again = solver.solve(**step_data)
+    assert first.stats.success and other.stats.success and again.stats.success
+    assert len(solver._by_structure) == 2
+    np.testing.assert_allclose(again.x, first.x, atol=1e-6)
 
 
 def test_nan_guess_is_refused(direct, step_data):

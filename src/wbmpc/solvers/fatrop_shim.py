@@ -685,10 +685,28 @@ int wb_eval_g(void* ctx, const double* P, const double* x, double* g) {
   return 0;
 }
 
+/* largest violation of the NLP's bounds at x (nlp.bound_violation's measure: rows g(x), then the variables) */
+static double wb_violation(wb_ctx* c, const double* x) {
+  int k, i;
+  double worst = 0, v;
+#define WB_VIOL(value, lo, hi) \
+  v = (value); v = ((lo) - v > 0 ? (lo) - v : 0) + (v - (hi) > 0 ? v - (hi) : 0); if (v > worst) worst = v;
+  for (k = 0; k < WB_K; ++k) {
+    const double* xk = x + wb_xo[k];
+    wb_call(c, wb_val[wb_kind[k]], xk + wb_nx[k], xk, k, 0, 0, 0, c->f, c->r);
+    if (k < WB_K - 1)
+      for (i = 0; i < wb_nx[k + 1]; ++i) { WB_VIOL(x[wb_xo[k + 1] + i] - c->f[i], c->lbg[wb_go[k] + i], c->ubg[wb_go[k] + i]) }
+    for (i = 0; i < wb_nr[k]; ++i) { WB_VIOL(c->r[i], c->lbg[wb_ro[k] + i], c->ubg[wb_ro[k] + i]) }
+  }
+  for (i = 0; i < WB_NV; ++i) { WB_VIOL(x[i], c->lbx[i], c->ubx[i]) }
+#undef WB_VIOL
+  return worst;
+}
+
 /* stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s),
-   generated functions (s), cost. budget_s > 0: stop at the first callback after that many seconds and
+   generated functions (s), cost, largest bound violation at the solution. budget_s > 0: stop at the first callback after that many seconds and
    return the last accepted iterate (return value 3, flag -3). */
-#define WB_NSTATS 12
+#define WB_NSTATS 13
 int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const double* ubx, const double* lbg,
              const double* ubg, const double* x0, double* x_out, double* lam_g_out, double* lam_x_out,
              double* stats, double budget_s, int warm_duals) {
@@ -740,6 +758,7 @@ int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const 
     if (k < WB_K - 1)
       for (i = 0; i < wb_nx[k + 1]; ++i) lam_g_out[wb_go[k] + i] = -dual[dims->dyn_eq_offs[k] + i];
   }
+  stats[12] = wb_violation(c, x_out);
   return ret;
 }
 """
