@@ -679,6 +679,34 @@ int wb_option_bool(void* solver, const char* name, int value) {
   return wbd_option_bool(((wb_solver*) solver)->solver, name, value);
 }
 
+/* one call of every generated function and one Fatrop instance (every row free) built and freed: a new process's
+   first MPC step would otherwise pay the library's page faults and the heap's first growth to this problem's size */
+int wb_warm_up(void* ctx) {
+  wb_ctx* c = (wb_ctx*) ctx;
+  double *P = (double*) calloc((size_t) WB_K * WB_NP + 1, sizeof(double));
+  double *zeros = (double*) calloc(WB_MAXN + WB_MAXX + WB_MAXR + 3, sizeof(double));
+  double *lo = (double*) malloc(sizeof(double) * (WB_NV + WB_NG)), *hi = (double*) malloc(sizeof(double) * (WB_NV + WB_NG));
+  double *grad = (double*) calloc(WB_MAXN + 1, sizeof(double)), scale = 1.0, value;
+  int k, i;
+  void* solver;
+  if (!P || !zeros || !lo || !hi || !grad) { free(P); free(zeros); free(lo); free(hi); free(grad); return -1; }
+  c->P = P;
+  for (k = 0; k < WB_K; ++k) {
+    int kind = wb_kind[k];
+    wb_call(c, wb_hess[kind], zeros, zeros, k, &scale, zeros, zeros, c->hess, 0);
+    wb_call(c, wb_jac[kind], zeros, zeros, k, 0, 0, 0, c->jac_next[k], c->jac_rows[k]);
+    wb_call(c, wb_val[kind], zeros, zeros, k, 0, 0, 0, c->f, c->r);
+    wb_call(c, wb_grad[kind], zeros, zeros, k, 0, 0, 0, grad, 0);
+    wb_call(c, wb_cost[kind], zeros, zeros, k, 0, 0, 0, &value, 0);
+  }
+  for (i = 0; i < WB_NV + WB_NG; ++i) { lo[i] = -INFINITY; hi[i] = INFINITY; }
+  solver = wb_solver_new(ctx, lo, hi, lo + WB_NV, hi + WB_NV, 0);
+  if (solver) wb_solver_free(solver);
+  c->P = c->lbx = c->ubx = c->lbg = c->ubg = 0;
+  free(P); free(zeros); free(lo); free(hi); free(grad);
+  return solver ? 0 : -1;
+}
+
 /* NLP constraint values g(x) (gap rows x_{k+1} - f, then path rows), for checks and reports */
 int wb_eval_g(void* ctx, const double* P, const double* x, double* g) {
   wb_ctx* c = (wb_ctx*) ctx;
