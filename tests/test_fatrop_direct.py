@@ -10,9 +10,10 @@ from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
 from wbmpc.solvers import make_solver
+from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
-from wbmpc.solvers.nlp import NlpSolver, SolverConfig
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
 
 TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
 
@@ -29,7 +30,8 @@ def problem(robot):
 
 @pytest.fixture(scope="module")
 def codegen(tmp_path_factory):
-    return CodegenConfig(flags=("-O0",), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+    # -march=native: the AVX2 kernels of fatrop_kernels.py are compiled in where the CPU has AVX2/FMA
+    return CodegenConfig(flags=("-O0", "-march=native"), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
 
 
 @pytest.fixture(scope="module")
@@ -58,9 +60,15 @@ def step_data(robot, problem):
 
 
 def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
-    """Tight tolerance: both follow the same iterates to the same KKT point; residuals below tolerance."""
+    """Tight tolerance: both follow the same iterates to the same KKT point; residuals below tolerance.
+    casadi's Fatrop runs on Fatrop's own elimination kernels, the direct binding on ours (fatrop_kernels.py)."""
     config = SolverConfig(tolerance=1e-10, warm_barrier_init=None)
-    expected = NlpSolver(problem, config).solve(**step_data)
+    kernels = direct._library.lib.wbd_fatrop_kernels
+    kernels(0)
+    try:
+        expected = NlpSolver(problem, config).solve(**step_data)
+    finally:
+        assert (kernels(1) > 0) == direct.kernels
     got = direct.recreated(tolerance=1e-10, warm_barrier_init=None).solve(**step_data)
     assert expected.stats.success and got.stats.success, (expected.stats, got.stats)
     assert got.stats.iterations == expected.stats.iterations
@@ -75,6 +83,27 @@ def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
     assert np.all(g >= lbg - config.constraint_tolerance) and np.all(g <= ubg + config.constraint_tolerance)
     assert np.all(got.x >= lbx - config.constraint_tolerance) and np.all(got.x <= ubx + config.constraint_tolerance)
     assert got.stats.max_constraint_violation <= config.constraint_tolerance
+    # the shim's violation (computed in C) is nlp.bound_violation's on casadi's g
+    assert got.stats.max_constraint_violation == pytest.approx(bound_violation(got.x, g, lbx, ubx, lbg, ubg), abs=1e-12)
+
+
+def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
+    """Our AVX2 LU and triangular solve (fatrop_kernels.py) against Fatrop's own: same iterations, same point."""
+    if not cpu_has_avx2_fma():
+        pytest.skip("the kernels need AVX2/FMA")
+    assert direct.kernels
+    solver = direct.recreated(tolerance=1e-10, warm_barrier_init=None)
+    kernels = direct._library.lib.wbd_fatrop_kernels
+    ours = solver.solve(**step_data)
+    assert kernels(0) == 0
+    try:
+        fatrops = solver.solve(**step_data)
+    finally:
+        assert kernels(1) > 0
+    assert ours.stats.success and fatrops.stats.success
+    assert ours.stats.iterations == fatrops.stats.iterations
+    np.testing.assert_allclose(ours.x, fatrops.x, atol=1e-10)
+    np.testing.assert_allclose(ours.lam_g, fatrops.lam_g, atol=1e-8 * max(1.0, np.abs(fatrops.lam_g).max()))
 
 
 def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
@@ -96,7 +125,7 @@ def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
     without the multiplier warm start both follow the same iterates."""
     _, expected = _trot_steps(robot, problem, SolverConfig())
     mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
-                                                        extra_options={"warm_duals": False}))
+                                                        extra_options={"warm_duals": False, "mpc_tolerances": False}))
     assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
     for e, g in zip(expected, got):
         assert e.success and g.success, (e.stats, g.stats)
@@ -108,7 +137,8 @@ def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
     """With the primal-dual warm start (default) the steps converge to the same plans within the
     solver tolerance, in no more iterations in total."""
     _, expected = _trot_steps(robot, problem, SolverConfig())
-    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
+                                                      extra_options={"mpc_tolerances": False}))
     for e, g in zip(expected, got):
         assert g.success, g.stats
         np.testing.assert_allclose(g.x, e.x, atol=1e-3)
@@ -116,11 +146,44 @@ def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
     assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
 
 
+def test_mpc_tolerances(robot, problem, codegen):
+    """By default the binding stops at its own MPC tolerances (fatrop_direct.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
+    the plans stay within them of casadi's Fatrop at SolverConfig's tolerances, in no more iterations;
+    tolerances set in SolverConfig are kept."""
+    from wbmpc.solvers.fatrop_direct import MPC_CONSTRAINT_TOLERANCE, MPC_TOLERANCE
+
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert (mpc.solver.tolerance, mpc.solver.constraint_tolerance) == (MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE)
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        assert g.stats.max_constraint_violation <= MPC_CONSTRAINT_TOLERANCE
+        np.testing.assert_allclose(g.x, e.x, atol=1e-2)
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+    kept = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-6))
+    assert (kept.tolerance, kept.constraint_tolerance) == (1e-6, SolverConfig().constraint_tolerance)
+
+
 def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):
     result = direct.solve(**step_data, max_iterations=1)
     assert not result.stats.success and result.stats.status == "Maximum_Iterations_Exceeded"
     # Fatrop's convergence check sees the iteration count before its increment: max_iter 1 stops after 2
     assert result.stats.iterations <= 2 and np.all(np.isfinite(result.x))
+
+
+def test_a_new_row_structure_gets_its_own_fatrop(direct, step_data):
+    """A step whose rows split differently (a contact switch) is refused by the last Fatrop instance and solved by
+    one built for it; the next step of the first structure goes back to the first instance."""
+    solver = direct.recreated()
+    first = solver.solve(**step_data)
+    lbg, ubg = step_data["lbg"].copy(), step_data["ubg"].copy()
+    free = np.nonzero(np.isinf(lbg) & np.isinf(ubg))[0]
+    lbg[free[0]], ubg[free[0]] = -1e3, 1e3  # one more inequality row in some stage
+    other = solver.solve(**{**step_data, "lbg": lbg, "ubg": ubg})
+    again = solver.solve(**step_data)
+    assert first.stats.success and other.stats.success and again.stats.success
+    assert len(solver._by_structure) == 2
+    np.testing.assert_allclose(again.x, first.x, atol=1e-6)
 
 
 def test_nan_guess_is_refused(direct, step_data):

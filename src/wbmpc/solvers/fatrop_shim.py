@@ -14,7 +14,8 @@ each in NLP order. Fatrop's dynamics multipliers are those of f(x_k, u_k) - x_{k
 of casadi's (our gap rows are x_{k+1} - f). Stage parameters are rows of a (N+1, n_p) array.
 
 Fatrop itself is driven by a small C++ driver (`DRIVER_SOURCE`) built from the same exported pieces as
-Fatrop's own `fatrop_ocp_c_create`, which adds a primal-dual warm start and a time limit (see there).
+Fatrop's own `fatrop_ocp_c_create`, which adds a primal-dual warm start and a time limit (see there), and
+carries faster kernels for Fatrop's equality elimination (`fatrop_kernels.py`).
 
 The library (generated C of the stage functions, the shim and the driver) lands in the cache directory of
 `codegen.py` under the hash of its sources, compiler, flags and the Fatrop headers' directory.
@@ -33,6 +34,7 @@ import numpy as np
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, default_cache_dir
+from wbmpc.solvers.fatrop_kernels import KERNELS_SOURCE
 
 
 class FatropUnavailable(WbmpcError, RuntimeError):
@@ -40,6 +42,7 @@ class FatropUnavailable(WbmpcError, RuntimeError):
 
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")
+O2_MAX_SOURCE_MB = 10.0  # generated C up to this size compiles at -O2 instead of CodegenConfig's -O1 (see build)
 
 
 def casadi_paths() -> tuple[Path, Path]:
@@ -138,9 +141,16 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     generate_s = time.perf_counter() - start
     # libraries after the source and not --as-needed: the shim must record libfatrop as a dependency
     cache = Path(config.cache_dir or default_cache_dir())
-    stem_flags = (*config.flags, "-fexceptions", f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop",
+    # CodegenConfig's default -O1 (chosen for the whole-NLP library's compile time) becomes -O2 for shims up to
+    # O2_MAX_SOURCE_MB: b1_z1's stage functions evaluate 2.63 -> 1.60 ms per closed-loop step (0.89x the step's
+    # CPU) for one longer, cached compile (7.6 MB of C, load ~4: 80 s and 0.86 GB at -O1, 254 s and 0.96 GB at
+    # -O2); larger robots' shims and other levels are compiled as given
+    optimize = len(code) <= O2_MAX_SOURCE_MB * 1e6
+    flags = tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)
+    stem_flags = (*flags, "-fexceptions", f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop",
                   "-lblasfeo", "-lstdc++", f"-Wl,-rpath,{lib_dir}")
-    key = cache_key(code + DRIVER_SOURCE, replace(config, flags=stem_flags))
+    driver = DRIVER_SOURCE + KERNELS_SOURCE
+    key = cache_key(code + driver, replace(config, flags=stem_flags))
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -153,7 +163,7 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     # per process: parallel builds of one key (campaign workers, test workers) never share a file
     source, helper = cache / f"{stem}.{os.getpid()}.c", cache / f"{stem}.{os.getpid()}_throw.cpp"
     source.write_text(code)
-    helper.write_text(DRIVER_SOURCE)
+    helper.write_text(driver)
     try:  # the C++ helper rides along as one more input file of the same compiler call
         compile_s, peak_mb = _compile(source, library, replace(config, flags=(str(helper), *stem_flags)))
     finally:
@@ -172,6 +182,9 @@ SHIM_PRELUDE = r"""
 #include <string.h>
 #include <math.h>
 #include <time.h>
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 typedef int (*wb_fn)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int);
 void wb_throw_deadline(void); /* C++ (DRIVER_SOURCE): throws std::runtime_error */
@@ -389,6 +402,40 @@ typedef struct {
   int n_eq[WB_K], n_ineq[WB_K];
 } wb_solver;
 
+static int wb_panel4 = -1; /* BLASFEO's panel height is 4 (the layout wb_pack writes) */
+
+static int wb_check_panel4(void) {
+  double memory[256 + 64];
+  struct blasfeo_dmat A;
+  if (blasfeo_memsize_dmat(8, 8) > (int) sizeof(double) * 256) return 0;
+  blasfeo_create_dmat(8, 8, &A, (void*) (((size_t) memory + 63) & ~(size_t) 63));
+  memset(A.pA, 0, sizeof(double) * 64);
+  blasfeo_dgein1(1.0, &A, 5, 1);
+  return A.pA[4 * A.cn + 1 * 4 + 1] == 1.0;
+}
+
+/* blasfeo_pack_dmat(m, n, A, lda, B, 0, 0): column-major A into panel-major B (BLASFEO's took ~8 % of a solve) */
+static void wb_pack(int m, int n, const double* A, int lda, struct blasfeo_dmat* B) {
+#if defined(__AVX__)
+  if (wb_panel4 == 1) {
+    double* pB = B->pA;
+    int p, j, t;
+    for (p = 0; p + 4 <= m; p += 4) {
+      double* panel = pB + (size_t) p * B->cn;
+      for (j = 0; j < n; ++j) _mm256_storeu_pd(panel + 4 * j, _mm256_loadu_pd(A + p + (size_t) j * lda));
+    }
+    if (p < m) {
+      double* panel = pB + (size_t) p * B->cn;
+      for (j = 0; j < n; ++j)
+        for (t = 0; t < m - p; ++t) panel[4 * j + t] = A[p + t + (size_t) j * lda];
+    }
+    B->use_dA = 0;
+    return;
+  }
+#endif
+  blasfeo_pack_dmat(m, n, (double*) A, lda, B, 0, 0);
+}
+
 static double wb_now(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);
@@ -501,7 +548,7 @@ static fatrop_int cb_RSQrqt(const double* scale, const double* u, const double* 
   for (i = c->a_ineq_i[k], col = 0; i < c->a_ineq_i[k + 1]; ++i, ++col)
     c->lam_rows[c->a_ineq[i] - wb_ro[k]] = lam_ineq[col];
   wb_call(c, wb_hess[wb_kind[k]], u, x, k, scale, lam_dyn ? lam_dyn : c->zeros, c->lam_rows, c->hess, 0);
-  blasfeo_pack_dmat(n, n, c->hess, n, res, 0, 0);
+  wb_pack(n, n, c->hess, n, res);
   return 0;
 }
 
@@ -509,7 +556,7 @@ static fatrop_int cb_BAbt(const double* x_next, const double* u, const double* x
                           struct blasfeo_dmat* res, fatrop_int k, void* d) {
   wb_ctx* c = (wb_ctx*) d;
   int n = wb_nu[k] + wb_nx[k];
-  blasfeo_pack_dmat(n, wb_nx[k + 1], c->jac_next[k], n, res, 0, 0);
+  wb_pack(n, wb_nx[k + 1], c->jac_next[k], n, res);
   return 0;
 }
 
@@ -591,7 +638,10 @@ static fatrop_int cb_full_obj(double scale, const double* primal, const double* 
 }
 
 /* ---- exported API (ctypes) ---- */
-void* wb_ctx_new(void) { return calloc(1, sizeof(wb_ctx)); }
+void* wb_ctx_new(void) {
+  if (wb_panel4 < 0) wb_panel4 = wb_check_panel4();
+  return calloc(1, sizeof(wb_ctx));
+}
 void wb_ctx_free(void* c) { free(c); }
 int wb_sizes(int* out) { out[0] = WB_K; out[1] = WB_NP; out[2] = WB_NV; out[3] = WB_NG; return 0; }
 
@@ -629,6 +679,34 @@ int wb_option_bool(void* solver, const char* name, int value) {
   return wbd_option_bool(((wb_solver*) solver)->solver, name, value);
 }
 
+/* one call of every generated function and one Fatrop instance (every row free) built and freed: a new process's
+   first MPC step would otherwise pay the library's page faults and the heap's first growth to this problem's size */
+int wb_warm_up(void* ctx) {
+  wb_ctx* c = (wb_ctx*) ctx;
+  double *P = (double*) calloc((size_t) WB_K * WB_NP + 1, sizeof(double));
+  double *zeros = (double*) calloc(WB_MAXN + WB_MAXX + WB_MAXR + 3, sizeof(double));
+  double *lo = (double*) malloc(sizeof(double) * (WB_NV + WB_NG)), *hi = (double*) malloc(sizeof(double) * (WB_NV + WB_NG));
+  double *grad = (double*) calloc(WB_MAXN + 1, sizeof(double)), scale = 1.0, value;
+  int k, i;
+  void* solver;
+  if (!P || !zeros || !lo || !hi || !grad) { free(P); free(zeros); free(lo); free(hi); free(grad); return -1; }
+  c->P = P;
+  for (k = 0; k < WB_K; ++k) {
+    int kind = wb_kind[k];
+    wb_call(c, wb_hess[kind], zeros, zeros, k, &scale, zeros, zeros, c->hess, 0);
+    wb_call(c, wb_jac[kind], zeros, zeros, k, 0, 0, 0, c->jac_next[k], c->jac_rows[k]);
+    wb_call(c, wb_val[kind], zeros, zeros, k, 0, 0, 0, c->f, c->r);
+    wb_call(c, wb_grad[kind], zeros, zeros, k, 0, 0, 0, grad, 0);
+    wb_call(c, wb_cost[kind], zeros, zeros, k, 0, 0, 0, &value, 0);
+  }
+  for (i = 0; i < WB_NV + WB_NG; ++i) { lo[i] = -INFINITY; hi[i] = INFINITY; }
+  solver = wb_solver_new(ctx, lo, hi, lo + WB_NV, hi + WB_NV, 0);
+  if (solver) wb_solver_free(solver);
+  c->P = c->lbx = c->ubx = c->lbg = c->ubg = 0;
+  free(P); free(zeros); free(lo); free(hi); free(grad);
+  return solver ? 0 : -1;
+}
+
 /* NLP constraint values g(x) (gap rows x_{k+1} - f, then path rows), for checks and reports */
 int wb_eval_g(void* ctx, const double* P, const double* x, double* g) {
   wb_ctx* c = (wb_ctx*) ctx;
@@ -642,10 +720,28 @@ int wb_eval_g(void* ctx, const double* P, const double* x, double* g) {
   return 0;
 }
 
+/* largest violation of the NLP's bounds at x (nlp.bound_violation's measure: rows g(x), then the variables) */
+static double wb_violation(wb_ctx* c, const double* x) {
+  int k, i;
+  double worst = 0, v;
+#define WB_VIOL(value, lo, hi) \
+  v = (value); v = ((lo) - v > 0 ? (lo) - v : 0) + (v - (hi) > 0 ? v - (hi) : 0); if (v > worst) worst = v;
+  for (k = 0; k < WB_K; ++k) {
+    const double* xk = x + wb_xo[k];
+    wb_call(c, wb_val[wb_kind[k]], xk + wb_nx[k], xk, k, 0, 0, 0, c->f, c->r);
+    if (k < WB_K - 1)
+      for (i = 0; i < wb_nx[k + 1]; ++i) { WB_VIOL(x[wb_xo[k + 1] + i] - c->f[i], c->lbg[wb_go[k] + i], c->ubg[wb_go[k] + i]) }
+    for (i = 0; i < wb_nr[k]; ++i) { WB_VIOL(c->r[i], c->lbg[wb_ro[k] + i], c->ubg[wb_ro[k] + i]) }
+  }
+  for (i = 0; i < WB_NV; ++i) { WB_VIOL(x[i], c->lbx[i], c->ubx[i]) }
+#undef WB_VIOL
+  return worst;
+}
+
 /* stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s),
-   generated functions (s), cost. budget_s > 0: stop at the first callback after that many seconds and
+   generated functions (s), cost, largest bound violation at the solution. budget_s > 0: stop at the first callback after that many seconds and
    return the last accepted iterate (return value 3, flag -3). */
-#define WB_NSTATS 12
+#define WB_NSTATS 13
 int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const double* ubx, const double* lbg,
              const double* ubg, const double* x0, double* x_out, double* lam_g_out, double* lam_x_out,
              double* stats, double budget_s, int warm_duals) {
@@ -697,6 +793,7 @@ int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const 
     if (k < WB_K - 1)
       for (i = 0; i < wb_nx[k + 1]; ++i) lam_g_out[wb_go[k] + i] = -dual[dims->dyn_eq_offs[k] + i];
   }
+  stats[12] = wb_violation(c, x_out);
   return ret;
 }
 """

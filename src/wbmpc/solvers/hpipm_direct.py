@@ -165,8 +165,8 @@ class DirectQp:
             raise WbmpcError(f"{len(rows) - covered} Jacobian nonzeros fall outside HPIPM's stage blocks")
         self._eye = (np.nonzero(eye)[0], ks[eye] * 0 + self._gap_position(rows[eye]))
         # the scale of each A / B entry: -1 / I of its row
-        self._a_rows = self._gap_position_of(off, "A", nx, N)
-        self._b_rows = self._gap_position_of(off, "B", nx, N, nu)
+        self._ab_scale_rows = {"A": self._gap_position_of(off, "A", nx, N)[self._j_maps["A"][1]],
+                               "B": self._gap_position_of(off, "B", nx, N, nu)[self._j_maps["B"][1]]}
         # H: both triangles written (a symmetric H stored whole writes each entry twice, the same value)
         hrows = np.asarray(hessian.row())
         hcols = np.repeat(np.arange(hessian.size2()), np.diff(np.asarray(hessian.colind())))
@@ -219,13 +219,14 @@ class DirectQp:
             np.asarray(gradient.full()).ravel()
         lbg, ubg, lbx, ubx = (np.asarray(v, dtype=float).ravel() for v in (lbg, ubg, lbx, ubx))
         blocks = self._blocks
-        for name, (where, dest) in self._j_maps.items():
-            blocks[name][dest] = j[where]
         eye_where, eye_position = self._eye
         self._eye_values[eye_position] = j[eye_where]
         scale = -1.0 / self._eye_values
-        blocks["A"] *= scale[self._a_rows]
-        blocks["B"] *= scale[self._b_rows]
+        # A and B scaled by -1 / (x_{k+1}'s coefficient) of their row at their nonzeros alone (the rest of the
+        # dense blocks stays zero): scaling the whole blocks took 0.09 ms of a 2.6 ms RTI step
+        for name, (where, dest) in self._j_maps.items():
+            rows = self._ab_scale_rows.get(name)
+            blocks[name][dest] = j[where] if rows is None else j[where] * scale[rows]
         if np.any(lbg[self.gap_index] != ubg[self.gap_index]):
             raise WbmpcError("HPIPM's dynamics rows must be equalities (lbg == ubg on the gap rows)")
         self._b[:] = -lbg[self.gap_index] * scale

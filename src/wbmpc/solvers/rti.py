@@ -139,6 +139,10 @@ class RtiSolver:
         hessian_function = ca.Function("rti_hessian", [x, p], [hessian])
         # the Gauss-Newton Hessian of the [q, v] formulations depends on the weights (p) alone: once per call
         self.hessian_depends_on_x = bool(ca.depends_on(hessian, x))
+        # ... and on few of the parameters (the weights): kept between calls while those stay (RTI: one call per step)
+        self._hessian_p_index = None if self.hessian_depends_on_x else \
+            np.unique(np.asarray(hessian_function.sparsity_jac(1, 0).get_col(), dtype=int))
+        self._hessian_cache: tuple[np.ndarray, object] | None = None
         sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
         self.jacobian_sparsity = sparsity[1]
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
@@ -162,6 +166,17 @@ class RtiSolver:
             self._jacobian_rows_cols = (np.asarray(sp.row()), np.repeat(np.arange(sp.size2()), np.diff(sp.colind())))
         else:
             self._jacobian, self._gradient, self._hessian = functions["nlp_jac_g"], functions["nlp_grad_f"], hessian_function
+
+    def _weights_hessian(self, x, p):
+        """The QP Hessian; where it depends on the parameters alone, the last one while those entries of p stay."""
+        index = self._hessian_p_index
+        if index is None:
+            return self._hessian(x, p)
+        key = np.asarray(p, dtype=float).ravel()[index]
+        if self._hessian_cache is None or not np.array_equal(self._hessian_cache[0], key):
+            H = self._hessian(x, p)
+            self._hessian_cache = (key, H.copy() if isinstance(H, np.ndarray) else H)  # buffered outputs are reused
+        return self._hessian_cache[1]
 
     def _new_qp(self, config: QpConfig):
         """A QP of this problem's structure: on the direct binding while it builds, else casadi's conic (which
@@ -274,7 +289,7 @@ class RtiSolver:
             if not (np.all(np.isfinite(g)) and self._regular(J)):
                 return self._failure(x0, "invalid_input_nan_constraints")
             gradient = self._gradient(x, p)
-            H = self._hessian(x, p)
+            H = self._weights_hessian(x, p)
             linearize_s += time.perf_counter() - tic
             qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
             result, spent_s, iterations = self._solve_qp(qp_data)

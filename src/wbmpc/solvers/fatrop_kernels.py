@@ -1,0 +1,251 @@
+"""Faster kernels under Fatrop's equality elimination, swapped into the loaded libfatrop (`--solver fatrop-direct`).
+
+Fatrop eliminates each stage's equality rows with a fully pivoted LU of their transposed Jacobian
+(`fatrop_lu_fact_transposed`, scalar loops over BLASFEO's panel-major storage) followed by a triangular
+solve (`blasfeo_dtrsm_rlnn`, which the AVX2 BLASFEO only has as its reference C code). On b1_z1's
+wb_inverse OCP (37 columns, 82 rows, rank 26 per stage) these two took ~40 % of a converged solve's CPU,
+more than the Riccati recursion itself. `KERNELS_SOURCE` holds the same two operations written for
+panel-major storage with AVX2/FMA: the same pivots (the first largest |a| in column-major order, as
+Fatrop's search) and the same eliminations rounded the same way (the LU's factors and the triangular solve's
+result are bitwise BLASFEO's and Fatrop's on 3000 random shapes, ranks and ties), so the iterates are Fatrop's own (tests/test_fatrop_direct.py compares both).
+
+They reach Fatrop through its procedure linkage table: `wbd_fatrop_kernels(1)` writes their addresses
+into libfatrop's GOT slots for those two symbols (found through its dynamic section), `(0)` puts the
+saved entries back. The swap is process-wide (casadi's Fatrop plugin uses the same libfatrop) and only
+made when the shim was compiled with AVX2/FMA and BLASFEO's panel height is 4; otherwise Fatrop keeps
+its own kernels. `SolverConfig.extra_options={"fatrop_kernels": False}` leaves Fatrop untouched.
+"""
+
+KERNELS_SOURCE = r"""
+/* ---- wbmpc: AVX2 kernels for Fatrop's equality elimination (fatrop_kernels.py) ---- */
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <elf.h>
+#include <link.h>
+#include <sys/mman.h>
+#include <unistd.h>
+#include <fatrop/linear_algebra/blasfeo_wrapper.hpp>
+#include <fatrop/linear_algebra/lu_factorization.hpp>
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#pragma GCC push_options
+#pragma GCC optimize("O3", "fp-contract=off") /* BLASFEO's dgead rounds B + (a A) twice: so do we */
+namespace {
+#define WB_EL(A, i, j) ((A)->pA[((i) - ((i) & 3)) * (A)->cn + (j) * 4 + ((i) & 3)])
+
+/* lanes of the panel starting at row p whose rows lie in [first, end) */
+inline __m256d wb_row_mask(int first, int end, int p) {
+  const __m256i lane = _mm256_setr_epi64x(p, p + 1, p + 2, p + 3);
+  const __m256i ge = _mm256_cmpgt_epi64(lane, _mm256_set1_epi64x(first - 1));
+  const __m256i lt = _mm256_cmpgt_epi64(_mm256_set1_epi64x(end), lane);
+  return _mm256_castsi256_pd(_mm256_and_si256(ge, lt));
+}
+
+/* Fatrop's fatrop_lu_fact_transposed: At (n x m) holds the transposed equality Jacobian; pivots are
+   searched in rows < n_max, columns >= i; rank = number of pivots >= tol */
+void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank, blasfeo_dmat* At,
+                           fatrop::PermutationMatrix& Pl, fatrop::PermutationMatrix& Pr, double tol) {
+  At->use_dA = 0;
+  const int minmn = m < n_max ? m : n_max;
+  double* const pA = At->pA;
+  const int cn = At->cn;
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+  int r = 0;
+  for (int i = 0; i < minmn; i++) {
+    /* the first largest |A(row, col)| in column-major order (Fatrop: strict >, starting from A(i, i)) */
+    const int p0 = i & ~3;
+    const __m256d head = wb_row_mask(i, n_max, p0);
+    double best = std::fabs(WB_EL(At, i, i));
+    int bc = i;
+    for (int col = i; col < m; ++col) {
+      __m256d acc = _mm256_and_pd(_mm256_and_pd(_mm256_loadu_pd(pA + p0 * cn + col * 4), abs_mask), head);
+      for (int p = p0 + 4; p < n_max; p += 4) {
+        __m256d v = _mm256_and_pd(_mm256_loadu_pd(pA + p * cn + col * 4), abs_mask);
+        if (p + 4 > n_max) v = _mm256_and_pd(v, wb_row_mask(i, n_max, p));
+        acc = _mm256_max_pd(v, acc);
+      }
+      const __m128d h = _mm_max_pd(_mm256_castpd256_pd128(acc), _mm256_extractf128_pd(acc, 1));
+      const double col_best = _mm_cvtsd_f64(_mm_max_sd(_mm_unpackhi_pd(h, h), h));
+      if (col_best > best) { best = col_best; bc = col; }
+    }
+    int br = i;
+    if (bc != i || !(std::fabs(WB_EL(At, i, i)) >= best))
+      for (int row = i; row < n_max; ++row)
+        if (std::fabs(WB_EL(At, row, bc)) == best) { br = row; break; }
+    if (std::fabs(WB_EL(At, br, bc)) < tol) break;
+    if (bc != i) {
+      int p = 0;
+      for (; p + 4 <= n; p += 4) {
+        double *a = pA + p * cn + i * 4, *b = pA + p * cn + bc * 4;
+        const __m256d t = _mm256_loadu_pd(a);
+        _mm256_storeu_pd(a, _mm256_loadu_pd(b));
+        _mm256_storeu_pd(b, t);
+      }
+      for (int row = p; row < n; ++row) { double t = WB_EL(At, row, i); WB_EL(At, row, i) = WB_EL(At, row, bc); WB_EL(At, row, bc) = t; }
+    }
+    Pl[i] = bc;
+    if (br != i)
+      for (int col = 0; col < m; ++col) { double t = WB_EL(At, i, col); WB_EL(At, i, col) = WB_EL(At, br, col); WB_EL(At, br, col) = t; }
+    Pr[i] = br;
+    const double pivot = WB_EL(At, i, i);
+    for (int j = i + 1; j < m; j++) WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
+    /* rows i+1 .. n-1: column j -= L_ij column i */
+    for (int p = p0; p < n; p += 4) {
+      double* panel = pA + p * cn;
+      __m256d ci = _mm256_loadu_pd(panel + i * 4);
+      if (p == p0 || p + 4 > n) ci = _mm256_and_pd(ci, wb_row_mask(i + 1, n, p));
+      for (int j = i + 1; j < m; j++)
+        _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(-WB_EL(At, i, j)), ci)));
+    }
+    r = i + 1;
+  }
+  rank = r;
+}
+
+/* BLASFEO's dtrsm_rlnn: D = alpha B A^-1, A (n x n) lower triangular, in the order of BLASFEO's reference code
+   (the one the AVX2 build runs): columns from the last in pairs, the inverse diagonal kept in A's dA; vectorised
+   over four rows of D at a time. The fast path needs D's first row at a panel start and D apart from A and B
+   (Fatrop's call), otherwise BLASFEO's own routine runs */
+void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi, int bj,
+                   blasfeo_dmat* sD, int di, int dj) {
+  if ((di & 3) != 0 || sD == sB || sD == sA || m <= 0 || n <= 0) {
+    blasfeo_dtrsm_rlnn(m, n, alpha, sA, ai, aj, sB, bi, bj, sD, di, dj);
+    return;
+  }
+  sD->use_dA = 0;
+  double* dA = sA->dA;
+  if (ai == 0 && aj == 0) {
+    if (sA->use_dA < n) {
+      for (int i = 0; i < n; i++) dA[i] = 1.0 / WB_EL(sA, i, i);
+      sA->use_dA = n;
+    }
+  } else {
+    for (int i = 0; i < n; i++) dA[i] = 1.0 / WB_EL(sA, ai + i, aj + i);
+    sA->use_dA = 0;
+  }
+  const __m256d valpha = _mm256_set1_pd(alpha);
+  for (int p = 0; p < m; p += 4) {
+    double* Dp = sD->pA + (di + p) * sD->cn;
+    const int rows = m - p < 4 ? m - p : 4;
+    const __m256i store = _mm256_castpd_si256(wb_row_mask(0, rows, 0));
+    auto b_col = [&](int j) {
+      double b[4] = {0.0, 0.0, 0.0, 0.0};
+      for (int t = 0; t < rows; ++t) b[t] = WB_EL(sB, bi + p + t, bj + j);
+      return _mm256_mul_pd(valpha, _mm256_loadu_pd(b));
+    };
+    auto minus = [](__m256d x, double a, __m256d d) { return _mm256_sub_pd(x, _mm256_mul_pd(_mm256_set1_pd(a), d)); };
+    int jj = 0;
+    for (; jj < n - 1; jj += 2) {
+      const int id = n - jj - 2;
+      __m256d d0 = b_col(id), d1 = b_col(id + 1);
+      for (int kk = id + 2; kk < n; kk++) {
+        const __m256d dk = _mm256_loadu_pd(Dp + (dj + kk) * 4);
+        d0 = minus(d0, WB_EL(sA, ai + kk, aj + id), dk);
+        d1 = minus(d1, WB_EL(sA, ai + kk, aj + id + 1), dk);
+      }
+      d1 = _mm256_mul_pd(d1, _mm256_set1_pd(dA[id + 1]));
+      d0 = minus(d0, WB_EL(sA, ai + id + 1, aj + id), d1);
+      d0 = _mm256_mul_pd(d0, _mm256_set1_pd(dA[id]));
+      _mm256_maskstore_pd(Dp + (dj + id) * 4, store, d0);
+      _mm256_maskstore_pd(Dp + (dj + id + 1) * 4, store, d1);
+    }
+    for (; jj < n; jj++) {
+      const int id = n - jj - 1;
+      __m256d d0 = b_col(id);
+      for (int kk = id + 1; kk < n; kk++) d0 = minus(d0, WB_EL(sA, ai + kk, aj + id), _mm256_loadu_pd(Dp + (dj + kk) * 4));
+      _mm256_maskstore_pd(Dp + (dj + id) * 4, store, _mm256_mul_pd(d0, _mm256_set1_pd(dA[id])));
+    }
+  }
+}
+#undef WB_EL
+
+struct WbSlot { const char* symbol; void* replacement; void** slot; void* saved; };
+WbSlot wb_slots[] = {
+  {"_ZN6fatrop25fatrop_lu_fact_transposedEiiiRiP12blasfeo_dmatRNS_17PermutationMatrixES4_d",
+   reinterpret_cast<void*>(&wb_lu_fact_transposed), nullptr, nullptr},
+  {"blasfeo_dtrsm_rlnn", reinterpret_cast<void*>(&wb_dtrsm_rlnn), nullptr, nullptr},
+};
+int wb_slots_found = -1;
+
+/* libfatrop's GOT slots (jump-slot relocations) of the symbols above */
+int wb_find_slots(struct dl_phdr_info* info, size_t, void*) {
+  if (!info->dlpi_name || !std::strstr(info->dlpi_name, "libfatrop.so")) return 0;
+  const ElfW(Addr) base = info->dlpi_addr;
+  const ElfW(Dyn)* dyn = nullptr;
+  for (int i = 0; i < info->dlpi_phnum; ++i)
+    if (info->dlpi_phdr[i].p_type == PT_DYNAMIC) dyn = reinterpret_cast<const ElfW(Dyn)*>(base + info->dlpi_phdr[i].p_vaddr);
+  if (!dyn) return 0;
+  ElfW(Addr) jmprel = 0, symtab = 0, strtab = 0;
+  size_t size = 0;
+  for (; dyn->d_tag != DT_NULL; ++dyn) {
+    if (dyn->d_tag == DT_JMPREL) jmprel = dyn->d_un.d_ptr;
+    else if (dyn->d_tag == DT_PLTRELSZ) size = dyn->d_un.d_val;
+    else if (dyn->d_tag == DT_SYMTAB) symtab = dyn->d_un.d_ptr;
+    else if (dyn->d_tag == DT_STRTAB) strtab = dyn->d_un.d_ptr;
+  }
+  if (!jmprel || !symtab || !strtab) return 0;
+  /* the loader relocates these entries on most targets; an unrelocated one is an offset below the base */
+  if (jmprel < base) jmprel += base;
+  if (symtab < base) symtab += base;
+  if (strtab < base) strtab += base;
+  const ElfW(Rela)* rela = reinterpret_cast<const ElfW(Rela)*>(jmprel);
+  const ElfW(Sym)* syms = reinterpret_cast<const ElfW(Sym)*>(symtab);
+  int found = 0;
+  for (size_t r = 0; r < size / sizeof(ElfW(Rela)); ++r) {
+    if (ELF64_R_TYPE(rela[r].r_info) != R_X86_64_JUMP_SLOT) continue;
+    const char* name = reinterpret_cast<const char*>(strtab) + syms[ELF64_R_SYM(rela[r].r_info)].st_name;
+    for (WbSlot& s : wb_slots)
+      if (!s.slot && std::strcmp(name, s.symbol) == 0) { s.slot = reinterpret_cast<void**>(base + rela[r].r_offset); ++found; }
+  }
+  wb_slots_found = found;
+  return 1;
+}
+
+bool wb_panel_height_is_4() {
+  double memory[256 + 64];
+  blasfeo_dmat A;
+  const int size = blasfeo_memsize_dmat(8, 8);
+  if (size > static_cast<int>(sizeof(memory)) - 64) return false;
+  void* aligned = reinterpret_cast<void*>((reinterpret_cast<uintptr_t>(memory) + 63) & ~uintptr_t(63));
+  blasfeo_create_dmat(8, 8, &A, aligned);
+  std::memset(A.pA, 0, sizeof(double) * 64);
+  blasfeo_dgein1(1.0, &A, 5, 1);
+  return A.pA[4 * A.cn + 1 * 4 + 1] == 1.0;
+}
+
+bool wb_write(void** slot, void* value) {
+  const long page = sysconf(_SC_PAGESIZE);
+  void* start = reinterpret_cast<void*>(reinterpret_cast<uintptr_t>(slot) & ~uintptr_t(page - 1));
+  if (mprotect(start, page, PROT_READ | PROT_WRITE) != 0) return false;
+  __atomic_store_n(slot, value, __ATOMIC_SEQ_CST);
+  return true;
+}
+}  // namespace
+#pragma GCC pop_options
+
+/* 1: put the kernels into libfatrop's GOT, 0: restore. Returns how many slots hold them now, -1 when this build
+   cannot (no AVX2/FMA, BLASFEO panels not 4 rows), -2 when libfatrop or its slots are not found */
+extern "C" int wbd_fatrop_kernels(int enable) {
+  if (!wb_panel_height_is_4()) return -1;
+  if (wb_slots_found < 0) dl_iterate_phdr(wb_find_slots, nullptr);
+  if (wb_slots_found <= 0) return -2;
+  int active = 0;
+  for (WbSlot& s : wb_slots) {
+    if (!s.slot) continue;
+    if (enable) {
+      if (*s.slot != s.replacement) {
+        s.saved = *s.slot;
+        if (!wb_write(s.slot, s.replacement)) return -2;
+      }
+      ++active;
+    } else if (*s.slot == s.replacement && s.saved) {
+      wb_write(s.slot, s.saved);
+    }
+  }
+  return active;
+}
+#else
+extern "C" int wbd_fatrop_kernels(int) { return -1; }
+#endif
+"""
