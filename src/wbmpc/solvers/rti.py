@@ -121,6 +121,14 @@ class RtiConfig:
         return cls(**options)
 
 
+def qp_defaults(rti: RtiConfig, flat_feet: bool) -> tuple[float, float]:
+    """HPIPM's (tolerance, mu0) on our binding: RtiConfig's where given, else by the kind of contacts (flat feet:
+    an OCP with surface contacts) and, for the tolerance, one iteration per step or more."""
+    tolerance = rti.qp_tolerance or (FLAT_FOOT_RTI_QP_TOLERANCE if flat_feet and rti.sqp_iterations == 1
+                                     else QP_TOLERANCE)
+    return tolerance, rti.qp_barrier_init or (FLAT_FOOT_QP_BARRIER_INIT if flat_feet else DIRECT_QP_BARRIER_INIT)
+
+
 class RtiSolver:
     """One SQP iteration with a Gauss-Newton Hessian per call, built once per OCP structure."""
 
@@ -153,10 +161,7 @@ class RtiSolver:
         self.hessian_depends_on_x = bool(ca.depends_on(hessian, x))
         sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
         self.jacobian_sparsity = sparsity[1]
-        flat_feet = bool(problem.surface_feet)
-        tolerance = self.rti.qp_tolerance or (FLAT_FOOT_RTI_QP_TOLERANCE if flat_feet and self.rti.sqp_iterations == 1
-                                              else QP_TOLERANCE)
-        barrier_init = self.rti.qp_barrier_init or (FLAT_FOOT_QP_BARRIER_INIT if flat_feet else DIRECT_QP_BARRIER_INIT)
+        tolerance, barrier_init = qp_defaults(self.rti, bool(problem.surface_feet))
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=tolerance, max_iterations=config.max_iterations,
                              barrier_init=barrier_init, hpipm_options=dict(self.rti.qp_options))
         # HPIPM through our shim (solvers/hpipm_direct.py) where it builds: H, J and the gradient as NumPy nonzeros
