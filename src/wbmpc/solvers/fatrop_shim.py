@@ -32,7 +32,15 @@ import numpy as np
 
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, default_cache_dir
+from wbmpc.solvers.codegen import (
+    CodegenConfig,
+    CompileError,
+    CompileReport,
+    _compile,
+    cache_key,
+    default_cache_dir,
+    for_source,
+)
 
 
 class FatropUnavailable(WbmpcError, RuntimeError):
@@ -136,6 +144,7 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     start = time.perf_counter()
     code, p_index = generate_source(problem)
     generate_s = time.perf_counter() - start
+    config = for_source(config, len(code) / 1e6)  # TALOS-sized sources at -O0 (CodegenConfig.large_source_mb)
     # libraries after the source and not --as-needed: the shim must record libfatrop as a dependency
     cache = Path(config.cache_dir or default_cache_dir())
     stem_flags = (*config.flags, "-fexceptions", f"-I{include}", "-Wl,--no-as-needed", f"-L{lib_dir}", "-lfatrop",
