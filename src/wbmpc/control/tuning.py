@@ -127,6 +127,7 @@ class RobotTuning:
     push_cadence_hold_s: float = MpcConfig.push_cadence_hold_s
     support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
     support_lead_s: float = MpcConfig.support_lead_s
+    support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
     free_ee_without_command: bool = MpcConfig.free_ee_without_command
     swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
     note: str = ""
@@ -137,8 +138,8 @@ class RobotTuning:
         return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command,
-                "swing_placement": self.swing_placement}
+                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -150,8 +151,8 @@ class RobotTuning:
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command,
-                "swing_placement": self.swing_placement}
+                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
@@ -238,8 +239,9 @@ TUNINGS: dict[str, dict] = {
     # fall towards the stance foot): 0.62 s, 0.107 m/s (0.100 across, 0.037 along; 0.005 per cycle), 1 failed step
     # of 800. RTI, 6 s, periods 1.03 / 0.82 / 0.72 / 0.62 / 0.51 s without the lean: 0.132 / 0.095 / 0.079 / 0.067 /
     # 0.062 m/s; without the lean (support_sway 0) at 0.62 s Fatrop gave 0.069 (0.055 across) but arm-track while
-    # walking fell at 5.8 s of 10 (with the lean: up, hand RMSE 0.35 cm, 25 failed steps of 800)
-    "g1": {"gait_period_s": 0.62},
+    # walking fell at 5.8 s of 10 (with the lean: up, hand RMSE 0.35 cm, 25 failed steps of 800), so the lean goes
+    # only while the hands swing free (support_sway_free_hands): the placed swing foot does its work there
+    "g1": {"gait_period_s": 0.62, "support_sway_free_hands": 0.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }
