@@ -233,15 +233,16 @@ TUNINGS: dict[str, dict] = {
     # accelerating down at 0.7 m/s^2, pitching back), the applied torques sagged it backwards and it fell at 0.9 s;
     # 1e-5: 885 N, 10 s standing with 0 failed steps. Not a biped rule: on g1 (33 kg) 1e-5 took walking forward
     # from 0 to 35 failed steps of 800 (14.5 -> 17.0 iterations)
-    # g1 walking forward at 0.3 m/s (compiled Fatrop, 10 s, delay none): with the biped rules' 1.03 s period the base
-    # velocity's per-tick error after the start was 0.175 m/s RMS, 0.163 of it across the heading (the sway from one
-    # sole to the other), 0.063 along it, for 0.005 per gait cycle. Quicker steps sway less (the CoM has less time to
-    # fall towards the stance foot): 0.62 s, 0.107 m/s (0.100 across, 0.037 along; 0.005 per cycle), 1 failed step
-    # of 800. RTI, 6 s, periods 1.03 / 0.82 / 0.72 / 0.62 / 0.51 s without the lean: 0.132 / 0.095 / 0.079 / 0.067 /
-    # 0.062 m/s; without the lean (support_sway 0) at 0.62 s Fatrop gave 0.069 (0.055 across) but arm-track while
-    # walking fell at 5.8 s of 10 (with the lean: up, hand RMSE 0.35 cm, 25 failed steps of 800), so the lean goes
-    # only while the hands swing free (support_sway_free_hands): the placed swing foot does its work there
-    "g1": {"gait_period_s": 0.62, "support_sway_free_hands": 0.0},
+    # g1 walking forward at 0.3 m/s (compiled Fatrop, 10 s, delay none): with the biped rules the base velocity's
+    # per-tick error after the start was 0.175 m/s RMS, 0.163 of it across the heading (the sway from one sole to
+    # the other), 0.063 along it, for 0.005 per gait cycle. With the hands free the lean over the next stance foot
+    # is not needed (the placed swing foot does the work) and only adds sway: support_sway_free_hands 0 gives 0.134
+    # m/s (0.110 across, 0.077 along; 0.004 per cycle), 2 failed steps of 800, both recovered (arm-track
+    # while walking, a hand held, keeps it: without it, at a 0.62 s period, it fell at 5.8 s of 10). Quicker steps
+    # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
+    # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
+    # as delay (--delay measured) fell in 3 of 4 runs at 0.62 s, stayed up at 80 Hz in 2 of 2 at 1.03 s
+    "g1": {"support_sway_free_hands": 0.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }
