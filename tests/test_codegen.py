@@ -9,7 +9,7 @@ from wbmpc.control import MPC, MpcConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
-from wbmpc.solvers.codegen import CodegenConfig, nlp_functions
+from wbmpc.solvers.codegen import CodegenConfig, cache_key, nlp_functions
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 
 TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
@@ -101,3 +101,15 @@ def test_native_code_is_cached_per_cpu(monkeypatch):
     assert codegen.cache_key("code", native) != key_a
     assert codegen.cache_key("code", portable) == key_portable_a
     assert codegen.cache_key("other code", portable) != key_portable_a
+
+
+def test_large_sources_compile_at_a_lower_optimisation_level():
+    """TALOS-sized generated C (23.6 MB) at -O0: gcc's -O1 on its 200k-line stage Hessians ran past 30 minutes."""
+    from wbmpc.solvers.codegen import for_source
+
+    config = CodegenConfig(flags=("-O1", "-march=native"))
+    assert for_source(config, 17.5) is config  # g1 keeps -O1
+    large = for_source(config, 23.6)
+    assert large.flags == ("-march=native", "-O0") and large.large_source_mb == config.large_source_mb
+    assert cache_key("code", large) != cache_key("code", config)  # the cache follows the flags used
+    assert for_source(CodegenConfig(flags=("-O2",), large_source_mb=None), 1e3).flags == ("-O2",)

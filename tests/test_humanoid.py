@@ -86,9 +86,15 @@ def test_implied_torque_rows_match_pinocchio_rnea_with_fext(g1, rng):
 def test_implied_torque_rows_choice(g1):
     assert OcpProblem(g1, OcpConfig(implied_torque_rows="none")).implied_torque_joints.size == 0
     legs = OcpProblem(g1, OcpConfig(implied_torque_rows="legs")).implied_torque_joints
-    assert list(OcpProblem(g1).implied_torque_joints) == list(legs)  # flat feet: the legs by default
     assert [g1.joint_names[j] for j in legs] == [n for n in g1.joint_names if n.startswith(("left_", "right_"))
                                                  and ("hip" in n or "knee" in n or "ankle" in n)]
+    # flat feet: by default the leg joints weaker than g1's weight on its sole's edge (41 N m), its 35 N m ankles
+    weak = OcpProblem(g1, OcpConfig(implied_torque_rows="weak")).implied_torque_joints
+    assert list(OcpProblem(g1).implied_torque_joints) == list(weak)
+    assert [g1.joint_names[j] for j in weak] == [f"{side}_ankle_{axis}_joint" for side in ("left", "right")
+                                                 for axis in ("pitch", "roll")]
+    edge_nm = g1.mass_kg * 9.81 * max(abs(s.centre_m[0]) + s.half_length_m for s in g1.soles.values())
+    assert np.all(g1.tau_max[weak] < edge_nm) and np.all(g1.tau_max[np.setdiff1d(legs, weak)] >= edge_nm)
     assert OcpProblem(load_robot("b1_z1")).implied_torque_joints.size == 0  # point feet: the paper's OCP
     assert OcpProblem(load_robot("talos")).implied_torque_joints.size == 0  # 100 N m legs, 88 N m at its sole's edge
     with pytest.raises(ConfigError, match="implied_torque_rows"):
@@ -315,6 +321,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     report = tuning.report()
     period, share = biped_walk_timing(scale.leg_length_m)
     assert tuning.gait_period_s == pytest.approx(period) and 0.9 < period < 1.2  # g1: 1.03 s
+    assert tuning_for(g1).mpc_fields()["support_sway_free_hands"] == 0.0  # g1 leans only while a hand is held
     assert tuning.support_lead_s == pytest.approx(0.5 * period * share)
     assert tuning.free_ee_without_command and tuning.support_sway > 0
     assert tuning.swing_placement
@@ -343,6 +350,35 @@ def test_g1_rotor_inertias_reach_the_plant(g1):
     for name, value in zip(g1.joint_names, g1.armature_kg_m2):
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         assert model.dof_armature[model.jnt_dofadr[jid]] == pytest.approx(value)
+
+
+def test_plants_made_without_a_config_get_the_robots_rotor_inertias(g1):
+    """`make_plant` (bench mpc's plants) as the runner: without them the pinocchio plant's lifted ankle roll
+    of g1 reached 110 rad/s within 0.25 s of walking (an explicit damper unstable at the 1 ms tick)."""
+    from wbmpc.sim import PlantConfig, make_plant
+
+    plant = make_plant("pinocchio", g1)
+    assert plant.model.armature[6:] == pytest.approx(g1.armature_kg_m2)
+    mass = pin.crba(plant.model, plant.model.createData(), g1.q_nominal)
+    bare = pin.crba(g1.model, g1.model.createData(), g1.q_nominal) - np.diag(np.r_[np.zeros(6), g1.armature_kg_m2])
+    assert np.diag(mass)[6:] - np.diag(bare)[6:] == pytest.approx(g1.armature_kg_m2)  # the inertia the plant integrates
+    assert not np.any(make_plant("pinocchio", g1, PlantConfig()).model.armature)  # a config given is the plant's own
+
+
+def test_walk_velocity_error_splits_into_forward_and_lateral():
+    """The walk's per-tick velocity error along and across the start's heading; squares add up to the planar one."""
+    from wbmpc.scenarios.library import _forward_lateral_rmse
+
+    t = np.linspace(0.0, 4.0, 2001)
+    heading = np.array([np.cos(0.5), np.sin(0.5)])  # started facing 0.5 rad
+    across = np.array([-heading[1], heading[0]])
+    command = 0.3 * heading
+    velocity = command + np.outer(0.02 * np.ones_like(t), heading) + np.outer(0.1 * np.sin(2 * np.pi * t), across)
+    out = _forward_lateral_rmse(velocity, command, yaw=0.5)
+    assert out["base_vel_rmse_settled_forward"] == pytest.approx(0.02)
+    assert out["base_vel_rmse_settled_lateral"] == pytest.approx(0.1 / np.sqrt(2), rel=1e-3)
+    planar = np.sqrt(np.mean(np.sum((velocity - command) ** 2, axis=1)))
+    assert np.hypot(out["base_vel_rmse_settled_forward"], out["base_vel_rmse_settled_lateral"]) == pytest.approx(planar)
 
 
 @pytest.mark.slow

@@ -13,7 +13,15 @@ from wbmpc.robots import load_robot
 from wbmpc.sim import make_plant
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
-from wbmpc.solvers.rti import RtiConfig, RtiSolver
+from wbmpc.solvers.rti import (
+    DIRECT_QP_BARRIER_INIT,
+    FLAT_FOOT_QP_BARRIER_INIT,
+    FLAT_FOOT_RTI_QP_TOLERANCE,
+    QP_TOLERANCE,
+    RtiConfig,
+    RtiSolver,
+    qp_defaults,
+)
 
 SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
 
@@ -111,8 +119,19 @@ def test_bad_rti_settings_name_the_fix(fixed_state):
         RtiConfig(recovery_max_iterations=0)
     with pytest.raises(ConfigError, match="unknown HPIPM mode"):
         make_solver(problem, SolverConfig(name="rti", extra_options={"qp_mode": "fast"}))
+    with pytest.raises(ConfigError, match="qp_tolerance must be positive"):
+        RtiConfig(qp_tolerance=0.0)
     with pytest.raises(ConfigError, match="make_solver"):
         NlpSolver(problem, SolverConfig(name="rti"))
+
+
+def test_hpipm_settings_follow_the_contacts():
+    """Flat feet (a wrench cone with rows active on most nodes) start HPIPM from a lower barrier and, for one
+    iteration per step, stop it at a looser tolerance; point feet keep 1e3 and 1e-4; given settings win."""
+    assert qp_defaults(RtiConfig(), flat_feet=False) == (QP_TOLERANCE, DIRECT_QP_BARRIER_INIT) == (1e-4, 1e3)
+    assert qp_defaults(RtiConfig(), flat_feet=True) == (FLAT_FOOT_RTI_QP_TOLERANCE, FLAT_FOOT_QP_BARRIER_INIT)
+    assert qp_defaults(RtiConfig(sqp_iterations=5), flat_feet=True) == (QP_TOLERANCE, FLAT_FOOT_QP_BARRIER_INIT)
+    assert qp_defaults(RtiConfig(qp_tolerance=1e-6, qp_barrier_init=100.0), flat_feet=True) == (1e-6, 100.0)
 
 
 def test_rti_trot_stays_up_in_mujoco(b1z1):

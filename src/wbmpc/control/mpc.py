@@ -153,6 +153,8 @@ class MpcConfig:
     # during double support (MPC._sway_towards_support)
     support_sway: float = 0.0
     support_lead_s: float = 0.0  # ... of the stance feet this much later (a biped: its double-support phase)
+    # ... while the hands swing free (free_ee_without_command and no end-effector command); None: support_sway
+    support_sway_free_hands: float | None = None
     # swing feet's horizontal velocities carried to a landing point (`foot_placement.SwingPlacement`: Raibert's
     # with capture-point feedback) instead of free; bipeds, whose light posture cost does not make them step
     swing_placement: bool = False
@@ -392,14 +394,15 @@ class MPC:
         v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
         return dq_des, v_des, v_world
 
-    def _sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, contact: np.ndarray) -> np.ndarray:
-        """Base xy targets moved by `support_sway` x (centre of each node's stance feet - centre of all feet):
+    def _sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, contact: np.ndarray,
+                              sway: float) -> np.ndarray:
+        """Base xy targets moved by `sway` x (centre of each node's stance feet - centre of all feet):
         a biped's pelvis leans over the foot it will stand on, so the plan shifts its weight in double
         support instead of lifting a foot with the CoM between the feet (measured foot positions)."""
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         feet = np.array([self._data.oMf[i].translation[:2] for i in self._foot_ids])
         stance = contact / np.maximum(contact.sum(axis=1, keepdims=True), 1)
-        shift = self.config.support_sway * (stance @ feet - feet.mean(axis=0))  # (nodes, 2) world
+        shift = sway * (stance @ feet - feet.mean(axis=0))  # (nodes, 2) world
         dq_des = dq_des.copy()  # (nv, nodes); its base position part is (nearly) in the base frame
         dq_des[:3] += rot.T[:, :2] @ shift.T
         return dq_des
@@ -496,8 +499,12 @@ class MPC:
         after_push = self._after_push(v, rot, base_velocity_world, t)
         self._adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
-        if self.config.support_sway:  # lean over the feet that will stand support_lead_s later
-            dq_des = self._sway_towards_support(q, rot, dq_des, self.gait.contact(t + node_times + self.config.support_lead_s))
+        sway = self.config.support_sway
+        if self.config.support_sway_free_hands is not None and self._hands_free(commands):
+            sway = self.config.support_sway_free_hands
+        if sway:  # lean over the feet that will stand support_lead_s later
+            dq_des = self._sway_towards_support(q, rot, dq_des, self.gait.contact(t + node_times + self.config.support_lead_s),
+                                                sway)
         forces = self._force_guess(contact, commands)
         swing_vxy = self._swing_velocities(q, v, rot, t, node_times, base_velocity_world)
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
@@ -576,9 +583,13 @@ class MPC:
                 result = self._recover(result, p, bounds, x0, t, soft_bounds=soft_bounds)
         return result, solve_end
 
+    def _hands_free(self, commands: Commands) -> bool:
+        """The end-effector's velocity rows are dropped this step (`free_ee_without_command`, no command)."""
+        return bool(self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None)
+
     def _relaxed_rows(self, after_push: bool, commands: Commands) -> tuple[str, ...]:
         rows = self.config.push_relaxed_rows if after_push else ()
-        if self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None:
+        if self._hands_free(commands):
             rows = tuple(dict.fromkeys((*rows, "ee_vel")))
         return rows
 

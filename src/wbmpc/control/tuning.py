@@ -127,6 +127,7 @@ class RobotTuning:
     push_cadence_hold_s: float = MpcConfig.push_cadence_hold_s
     support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
     support_lead_s: float = MpcConfig.support_lead_s
+    support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
     free_ee_without_command: bool = MpcConfig.free_ee_without_command
     swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
     note: str = ""
@@ -137,8 +138,8 @@ class RobotTuning:
         return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command,
-                "swing_placement": self.swing_placement}
+                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -150,8 +151,8 @@ class RobotTuning:
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "free_ee_without_command": self.free_ee_without_command,
-                "swing_placement": self.swing_placement}
+                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
@@ -232,6 +233,17 @@ TUNINGS: dict[str, dict] = {
     # accelerating down at 0.7 m/s^2, pitching back), the applied torques sagged it backwards and it fell at 0.9 s;
     # 1e-5: 885 N, 10 s standing with 0 failed steps. Not a biped rule: on g1 (33 kg) 1e-5 took walking forward
     # from 0 to 35 failed steps of 800 (14.5 -> 17.0 iterations)
+    # g1 walking forward at 0.3 m/s (compiled Fatrop, 10 s, delay none): with the biped rules the base velocity's
+    # per-tick error after the start was 0.175 m/s RMS, 0.163 of it across the heading (the sway from one sole to
+    # the other), 0.063 along it, for 0.005 per gait cycle. With the hands free the lean over the next stance foot
+    # is not needed (the placed swing foot does the work) and only adds sway: support_sway_free_hands 0 gives 0.134
+    # m/s (0.110 across, 0.077 along; 0.004 per cycle), 2 failed steps of 800, both recovered (arm-track
+    # while walking, a hand held, keeps it: without it, at a 0.62 s period, it fell at 5.8 s of 10). Quicker steps
+    # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
+    # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
+    # as delay (--delay measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
+    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz
+    "g1": {"support_sway_free_hands": 0.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }

@@ -76,7 +76,7 @@ CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 COLLISION_BLEND_TIME_S = 0.1  # a measured distance below the margin reaches it over this time
 ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "implied_torque", "foot_vel", "foot_ang", "ee_vel",
             "collision", "cone", "wrench_cone") + OBJECT_ROW_TAGS
-IMPLIED_TORQUE_ROWS = ("auto", "all", "legs", "none")  # OcpConfig.implied_torque_rows
+IMPLIED_TORQUE_ROWS = ("auto", "all", "legs", "weak", "none")  # OcpConfig.implied_torque_rows
 WRENCH_CONE_ROWS = 10  # per flat foot: 4 friction pyramid, 4 centre of pressure, 2 yaw moment
 # rows that may get L1 slacks: the state-only velocity rows of nodes 1..N-1 and, as rows tau_j / tau_max
 # in [-1, 1] instead of variable bounds, the torque limits of the torque variables on k < 3
@@ -99,8 +99,8 @@ class OcpConfig:
     collision: CollisionConfig | None = None  # collision avoidance rows (None: off, the paper's OCP)
     # joints whose torques implied by the plan (the RNEA's joint rows with the contact wrenches) are
     # bounded by tau_max on the input nodes without torque variables (k >= n_torque_nodes, eq. 8 on every
-    # node): "all", "legs" (joints on a root-to-foot chain), "none" (the paper's OCP) or "auto" (see
-    # `OcpProblem.implied_torque_joints`)
+    # node): "all", "legs" (joints on a root-to-foot chain), "weak" (the leg joints weaker than the robot's
+    # weight on a sole's edge), "none" (the paper's OCP) or "auto" (see `OcpProblem.implied_torque_joints`)
     implied_torque_rows: str = "auto"
     # the base CoM offset (3, base frame, m), a payload at the hand (kg; the base origin without an arm) and, with
     # an arm, a load at the base origin as NLP parameters "base_com_offset", "payload_kg", "base_payload_kg" of
@@ -288,32 +288,35 @@ class OcpProblem:
         return np.concatenate([x0, np.asarray(object_state, dtype=float).ravel()])
 
     def _implied_torque_joints(self) -> np.ndarray:
-        """Indices of the joints with implied-torque rows. "auto": the leg joints of a robot with flat feet
-        whose weakest leg joint is weaker than its weight on a sole's edge (M g times the horizontal distance
-        from the foot link's origin to the sole's farthest edge): there a sole's wrench can put the CoP where
-        a leg joint's torque runs out (g1: 35 N m ankles, 41 N m at its toe 12.5 cm ahead of the ankle; its
-        plans put the CoP there in single support), elsewhere none (TALOS: 100 N m, 88 N m; with its leg rows
-        its compiled NLP was 26 MB of C that -O1 did not build within 30 minutes on a loaded machine; point
-        feet carry no contact moment). Legs, not every joint: a leg joint's torque depends on its leg's links
-        and its sole's wrench only (RNEA's backward pass over the leg's subtree), every joint's on the whole
-        tree; the arms' torques do not depend on where the CoP is."""
+        """Indices of the joints with implied-torque rows. "auto": "weak" on a robot with flat feet, else none.
+        "weak": the leg joints weaker than the robot's weight on a sole's edge (M g times the horizontal distance
+        from the foot link's origin to the sole's farthest edge): there a sole's wrench can put the CoP where the
+        joint's torque runs out (g1: its 35 N m ankles, 41 N m at the toe 12.5 cm ahead of the ankle; its plans put
+        the CoP there in single support). Its 88-139 N m hips and knees are never the limit there (no implied row
+        of theirs was active in 40 RTI QPs of g1's walk with rows on every leg joint, "legs"), and each row costs
+        the QP and the generated code: 4 rows per node instead of 12, HPIPM 1.00 instead of 1.04 ms per iteration
+        on the same 40 QPs, 17.5 MB of C instead of 18.6 (`solvers/codegen.py`). TALOS (100 N m,
+        88 N m at its sole's edge) has none: with its leg rows its compiled NLP was 26 MB of C that -O1 did not
+        build within 30 minutes on a loaded machine. Point feet carry no contact moment. A leg joint's torque
+        depends on its leg's links and its sole's wrench only (RNEA's backward pass over the leg's subtree), every
+        joint's on the whole tree; the arms' torques do not depend on where the CoP is."""
         choice = self.config.implied_torque_rows
         if choice == "auto":
-            choice = "legs" if self._weak_legs() else "none"
-        mask = {"all": np.ones(self.nj, dtype=bool), "legs": np.asarray(self.robot.leg_joint_mask, dtype=bool),
+            choice = "weak" if self.surface_feet else "none"
+        legs = np.asarray(self.robot.leg_joint_mask, dtype=bool)
+        mask = {"all": np.ones(self.nj, dtype=bool), "legs": legs, "weak": legs & self._weak_joints(),
                 "none": np.zeros(self.nj, dtype=bool)}[choice]
         return np.flatnonzero(mask)
 
-    def _weak_legs(self) -> bool:
-        """Flat feet with a leg joint weaker than the robot's weight on a sole's edge (`_implied_torque_joints`)."""
+    def _weak_joints(self) -> np.ndarray:
+        """Joints weaker than the robot's weight on a sole's edge (all False without flat feet)."""
         if not self.surface_feet:
-            return False
+            return np.zeros(self.nj, dtype=bool)
         robot = self.robot
         # the sole's farthest edge from the foot link's origin (g1's ankle: 3.5 cm behind the sole's centre)
         edge_m = max(max(abs(sole.centre_m[0]) + sole.half_length_m, abs(sole.centre_m[1]) + sole.half_width_m)
                      for sole in robot.soles.values())
-        legs = np.asarray(robot.leg_joint_mask, dtype=bool)
-        return bool(legs.any() and robot.tau_max[legs].min() < robot.mass_kg * GRAVITY_M_S2 * edge_m)
+        return np.asarray(robot.tau_max, dtype=float) < robot.mass_kg * GRAVITY_M_S2 * edge_m
 
     def _has_torque_limit_rows(self, k: int) -> bool:
         return ("torque_limit" in self.config.soft_rows and k < min(self.config.n_torque_nodes, self.N)

@@ -58,7 +58,19 @@ class TrotForward(Scenario):
         means = [velocity[(t >= start + k * period_s) & (t < start + (k + 1) * period_s)].mean(axis=0)
                  for k in range(cycles)]
         rmse = float(np.sqrt(np.mean(np.sum((np.array(means) - command) ** 2, axis=1)))) if cycles else None
-        return {"base_vel_cycle_mean_rmse": rmse}
+        return {"base_vel_cycle_mean_rmse": rmse, **_forward_lateral_rmse(velocity[t >= start], command, _yaw(a["q"][0]))}
+
+
+def _forward_lateral_rmse(velocity: np.ndarray, command: np.ndarray, yaw: float) -> dict:
+    """`base_vel_rmse_settled` split along the start's heading (`_forward`: the speed error) and across it
+    (`_lateral`: a biped's sideways sway from one stance foot to the other), per 500 Hz tick after the start
+    transient; their squares add up to the planar figure's."""
+    heading = heading_rotation(yaw)[:2, :2]
+    error = (velocity - command) @ heading  # columns: along, across the start's heading
+    if not len(error):
+        return {"base_vel_rmse_settled_forward": None, "base_vel_rmse_settled_lateral": None}
+    forward, lateral = np.sqrt(np.mean(error**2, axis=0))
+    return {"base_vel_rmse_settled_forward": float(forward), "base_vel_rmse_settled_lateral": float(lateral)}
 
 
 class WalkInPlace(Scenario):

@@ -5,6 +5,8 @@ Every plant implements `Plant`: `reset(q, v)`, `step(tau_joints)`, `state() -> (
 states in pinocchio layout (see `wbmpc.sim.base`).
 """
 
+import numpy as np
+
 from wbmpc.sim.base import (
     Plant,
     PlantConfig,
@@ -48,7 +50,13 @@ def __getattr__(name: str):
 
 
 def make_plant(kind: str, robot, config: PlantConfig | None = None) -> Plant:
-    """A plant by name: 'mujoco' (default simulator) or 'pinocchio' (contact dynamics without MuJoCo)."""
+    """A plant by name: 'mujoco' (default simulator) or 'pinocchio' (contact dynamics without MuJoCo).
+
+    Without a config, the plant's joints get the robot's own rotor inertias (`RobotSpec.armature_kg_m2`, g1's), as
+    the scenario runner gives them: without them `bench mpc`'s pinocchio plant drove g1's lifted ankle roll to
+    110 rad/s (an explicit damper unstable at the 1 ms tick) and half of its walk's QPs failed."""
+    if config is None and np.any(robot.armature_kg_m2):
+        config = PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
     if kind == "mujoco":
         from wbmpc.sim.mujoco_plant import MujocoPlant
 

@@ -21,7 +21,7 @@ import shutil
 import subprocess
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import casadi as ca
@@ -43,6 +43,13 @@ class CodegenConfig:
     timeout_s: float = 1800.0  # a loaded machine can take 15 min for what a quiet one compiles in 2
     memory_limit_mb: float | None = 8000.0  # address-space limit of the compiler process
     cache_dir: Path | None = None  # None: default_cache_dir()
+    # generated C larger than this (MB) compiles at `large_source_optimization` instead of the flags' -O level:
+    # gcc's -O1 passes grow faster than linearly with a function's length and the stage Hessians of a large robot
+    # are single functions of ~200k lines. TALOS (1936 variables, 23.6 MB of C): -O1 did not finish in 30 min on
+    # a loaded machine, -O0 took 64 s, and its Jacobian / Lagrangian Hessian then evaluate in 1.2 / 3.2 ms against
+    # 4.5 / 11.0 ms in CasADi's virtual machine (the uncompiled solvers). g1 (17.5 MB) and smaller keep -O1
+    large_source_mb: float | None = 20.0
+    large_source_optimization: str = "-O0"
 
 
 @dataclass
@@ -74,6 +81,15 @@ def cache_key(code: str, config: CodegenConfig) -> str:
     native = any(flag.startswith(("-march=native", "-mtune=native", "-mcpu=native")) for flag in config.flags)
     parts = [ca.__version__, config.compiler, *config.flags, *([cpu_identity()] if native else []), code]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
+def for_source(config: CodegenConfig, source_mb: float) -> CodegenConfig:
+    """The settings a generated source of this size compiles with: above `large_source_mb` the flags' -O level
+    is replaced by `large_source_optimization` (the cache key follows the flags used)."""
+    if config.large_source_mb is None or source_mb <= config.large_source_mb:
+        return config
+    flags = (*[flag for flag in config.flags if not flag.startswith("-O")], config.large_source_optimization)
+    return replace(config, flags=flags)
 
 
 def cpu_identity() -> str:
@@ -223,6 +239,8 @@ def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConf
         generator.add(function)
     code = generator.dump()
     generate_s = time.perf_counter() - start
+    source_mb = len(code) / 1e6
+    config = for_source(config, source_mb)
     key = cache_key(code, config)
     cache = Path(config.cache_dir or default_cache_dir())
     try:
@@ -231,7 +249,6 @@ def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConf
         raise CompileError(f"cannot create the cache directory {cache}: {exc.strerror}; set WBMPC_CACHE_DIR") from exc
     stem = f"{problem.config.formulation}_{solver}_{key}"
     library = cache / f"{stem}.so"
-    source_mb = len(code) / 1e6
     if library.exists():
         return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s)
     source = cache / f"{stem}.{os.getpid()}.c"  # per process: parallel builds of one key never share a file

@@ -33,7 +33,15 @@ import numpy as np
 
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, default_cache_dir
+from wbmpc.solvers.codegen import (
+    CodegenConfig,
+    CompileError,
+    CompileReport,
+    _compile,
+    cache_key,
+    default_cache_dir,
+    for_source,
+)
 from wbmpc.solvers.fatrop_kernels import KERNELS_SOURCE
 
 
@@ -139,6 +147,7 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
     start = time.perf_counter()
     code, p_index = generate_source(problem)
     generate_s = time.perf_counter() - start
+    config = for_source(config, len(code) / 1e6)  # TALOS-sized sources at -O0 (CodegenConfig.large_source_mb)
     # libraries after the source and not --as-needed: the shim must record libfatrop as a dependency
     cache = Path(config.cache_dir or default_cache_dir())
     # CodegenConfig's default -O1 (chosen for the whole-NLP library's compile time) becomes -O2 for shims up to

@@ -46,6 +46,15 @@ from wbmpc.solvers.nlp import (
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
 
 DIRECT_QP_BARRIER_INIT = 1e3  # HPIPM's mu0 on our binding (RtiConfig.qp_barrier_init)
+# ... where the OCP has flat feet (6D wrenches, hard wrench cone): g1's walk keeps 10-50 of its wrench cone rows
+# active (the CoP at a sole's edge) and HPIPM took 8.3 iterations from 1e3, 7.3 from 100, 7.0 from 10 on the same
+# 40 RTI QPs (b1_z1's trot: 3.3 from 1e3, 6.7 from 10)
+FLAT_FOOT_QP_BARRIER_INIT = 10.0
+QP_TOLERANCE = 1e-4  # RtiConfig.qp_tolerance
+# ... of one real-time iteration on flat feet: g1 walking in place (RTI, 4 s, MuJoCo, delay none) took 6.75 HPIPM
+# iterations per step with mu0 10 and 1e-3, 7.0 with mu0 100 and 1e-3, 7.8 with 100 and 1e-4, 10.0 with 1e3 and 1e-4,
+# all with the same drift (0.72 cm/s) and velocity RMSE (0.174 m/s)
+FLAT_FOOT_RTI_QP_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -69,12 +78,13 @@ class RtiConfig:
     step_tolerance: float = 1e-8  # sqp_iterations > 1 stop once max |step| is below this
     # HPIPM's residual tolerances (the NLP tolerance of SolverConfig is not the QP's): one inexact SQP step
     # per MPC step needs no tighter QP; 1e-4 against 1e-6: same closed loop (trot, arm-track), ~10 % fewer
-    # QP iterations; iterate to Fatrop's KKT point (sqp_iterations > 1) with a tighter one
-    qp_tolerance: float = 1e-4
+    # QP iterations; iterate to Fatrop's KKT point (sqp_iterations > 1) with a tighter one. None: QP_TOLERANCE,
+    # FLAT_FOOT_RTI_QP_TOLERANCE for one iteration per step (sqp_iterations 1) on an OCP with flat feet
+    qp_tolerance: float | None = None
     # HPIPM's mu0 (QpConfig.barrier_init is casadi conic's best, 100): on our own HPIPM binding, b1_z1's compiled closed-loop
     # trot takes 3.17 QP iterations per RTI step with 1e3 against 4.36 with 100 (2.73 / 3.29 ms of CPU per step, same run)
-    # None: 1e3 on our binding (DIRECT_QP_BARRIER_INIT), casadi conic's 100 on the conic (1e3 there: the anytime SQP's
-    # QPs stall at HPIPM's minimum step length on go2)
+    # None: 1e3 on our binding (DIRECT_QP_BARRIER_INIT; FLAT_FOOT_QP_BARRIER_INIT on an OCP with flat feet), casadi
+    # conic's 100 on the conic (1e3 there: the anytime SQP's QPs stall at HPIPM's minimum step length on go2)
     qp_barrier_init: float | None = None
     # a step whose QP fails is replaced by a converged Fatrop solve from the same guess with this initial
     # barrier (compiled when the RTI is); None: the failure is returned (the MPC's own fallback follows)
@@ -95,6 +105,8 @@ class RtiConfig:
             raise ConfigError(f"fallback_first_calls must be >= 0, got {self.fallback_first_calls}")
         if self.recovery_max_iterations < 1:
             raise ConfigError(f"recovery_max_iterations must be >= 1, got {self.recovery_max_iterations}")
+        if self.qp_tolerance is not None and not self.qp_tolerance > 0:
+            raise ConfigError(f"qp_tolerance must be positive or None, got {self.qp_tolerance}")
         if not self.hessian_regularization >= 0:
             raise ConfigError(f"hessian_regularization must be >= 0, got {self.hessian_regularization}")
 
@@ -107,6 +119,14 @@ class RtiConfig:
             raise ConfigError(f"unknown {kind} option(s) {', '.join(unknown)} (--solver-option); available: "
                               f"{', '.join(sorted(known))}")
         return cls(**options)
+
+
+def qp_defaults(rti: RtiConfig, flat_feet: bool) -> tuple[float, float]:
+    """HPIPM's (tolerance, mu0) on our binding: RtiConfig's where given, else by the kind of contacts (flat feet:
+    an OCP with surface contacts) and, for the tolerance, one iteration per step or more."""
+    tolerance = rti.qp_tolerance or (FLAT_FOOT_RTI_QP_TOLERANCE if flat_feet and rti.sqp_iterations == 1
+                                     else QP_TOLERANCE)
+    return tolerance, rti.qp_barrier_init or (FLAT_FOOT_QP_BARRIER_INIT if flat_feet else DIRECT_QP_BARRIER_INIT)
 
 
 class RtiSolver:
@@ -145,8 +165,9 @@ class RtiSolver:
         self._hessian_cache: tuple[np.ndarray, object] | None = None
         sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
         self.jacobian_sparsity = sparsity[1]
-        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=self.rti.qp_tolerance, max_iterations=config.max_iterations,
-                             barrier_init=self.rti.qp_barrier_init or DIRECT_QP_BARRIER_INIT, hpipm_options=dict(self.rti.qp_options))
+        tolerance, barrier_init = qp_defaults(self.rti, bool(problem.surface_feet))
+        qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=tolerance, max_iterations=config.max_iterations,
+                             barrier_init=barrier_init, hpipm_options=dict(self.rti.qp_options))
         # HPIPM through our shim (solvers/hpipm_direct.py) where it builds: H, J and the gradient as NumPy nonzeros
         # from buffered calls (b1_z1: Jacobian 0.20 ms against 0.48 ms for a DM, whose nonzeros cost 0.6 ms more);
         # otherwise casadi's conic on DMs
