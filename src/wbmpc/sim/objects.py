@@ -168,6 +168,22 @@ class CableLoad:
                 {"name": f"{self.name} cable", "kind": "line", "color": "#1a1a1a", "t": t, "points_m": cable}]
 
 
+def _check_box(mass_kg: float, friction_mu: float, size_m) -> None:
+    _positive("box mass (kg)", mass_kg)
+    _positive("box friction coefficient", friction_mu, allow_zero=True)
+    for s in size_m:
+        _positive("box size (m)", s)
+
+
+def _free_box_mjcf(name: str, centre_xy_m, size_m, mass_kg: float, friction_mu: float) -> str:
+    """A box on the floor with a free joint (priority 2: its friction is the contact's, with floor and hand)."""
+    sx, sy, sz = size_m
+    return (f'<body name="{name}" pos="{_vec([centre_xy_m[0], centre_xy_m[1], sz / 2 + 1e-3])}">'
+            f'<freejoint name="{name}_joint"/>'
+            f'<geom name="{name}" type="box" size="{_vec([sx / 2, sy / 2, sz / 2])}" mass="{mass_kg!r}" '
+            f'friction="{_friction(friction_mu)}" priority="2" rgba=".6 .45 .3 1"/></body>')
+
+
 @dataclass(frozen=True)
 class BoxAtWall:
     """A free box of `mass_kg` on the floor whose far face (+x) touches a fixed wall.
@@ -184,19 +200,14 @@ class BoxAtWall:
     name: str = "box"
 
     def __post_init__(self):
-        _positive("box mass (kg)", self.mass_kg)
-        _positive("box friction coefficient", self.friction_mu, allow_zero=True)
-        for s in self.size_m:
-            _positive("box size (m)", s)
+        _check_box(self.mass_kg, self.friction_mu, self.size_m)
 
     def bodies_mjcf(self, robot):
-        sx, sy, sz = self.size_m
+        sx = self.size_m[0]
         cx = self.near_face_x_m + sx / 2
         wall_x = self.near_face_x_m + sx + self.wall_thickness_m / 2 + 1e-3
         return [
-            f'<body name="{self.name}" pos="{_vec([cx, 0.0, sz / 2 + 1e-3])}"><freejoint name="{self.name}_joint"/>'
-            f'<geom name="{self.name}" type="box" size="{_vec([sx / 2, sy / 2, sz / 2])}" mass="{self.mass_kg!r}" '
-            f'friction="{_friction(self.friction_mu)}" priority="2" rgba=".6 .45 .3 1"/></body>',
+            _free_box_mjcf(self.name, (cx, 0.0), self.size_m, self.mass_kg, self.friction_mu),
             f'<body name="{self.name}_wall" pos="{_vec([wall_x, 0.0, 1.0])}">'
             f'<geom name="{self.name}_wall" type="box" size="{_vec([self.wall_thickness_m / 2, 1.5, 1.0])}" '
             'rgba=".75 .75 .7 1"/></body>',
@@ -241,23 +252,14 @@ class FreeBox:
     name: str = "box"
 
     def __post_init__(self):
-        _positive("box mass (kg)", self.mass_kg)
-        _positive("box friction coefficient", self.friction_mu, allow_zero=True)
-        for s in self.size_m:
-            _positive("box size (m)", s)
+        _check_box(self.mass_kg, self.friction_mu, self.size_m)
 
     @property
     def centre_xy_m(self) -> np.ndarray:
         return np.array([self.near_face_x_m + self.size_m[0] / 2, 0.0])
 
     def bodies_mjcf(self, robot):
-        sx, sy, sz = self.size_m
-        cx, cy = self.centre_xy_m
-        return [
-            f'<body name="{self.name}" pos="{_vec([cx, cy, sz / 2 + 1e-3])}"><freejoint name="{self.name}_joint"/>'
-            f'<geom name="{self.name}" type="box" size="{_vec([sx / 2, sy / 2, sz / 2])}" mass="{self.mass_kg!r}" '
-            f'friction="{_friction(self.friction_mu)}" priority="2" rgba=".6 .45 .3 1"/></body>',
-        ]
+        return [_free_box_mjcf(self.name, self.centre_xy_m, self.size_m, self.mass_kg, self.friction_mu)]
 
     def edit_spec(self, spec, robot):
         pass
