@@ -97,9 +97,16 @@ class ObjectModel:
     def n_inputs(self) -> int:
         raise NotImplementedError
 
+    tracking_weights: tuple[float, ...] = ()  # per state, cost per unit^2
+    mass_kg: float = 1.0
+
     def weights(self) -> np.ndarray:
         """Tracking weights of the object's states (cost per unit^2)."""
-        raise NotImplementedError
+        return np.asarray(self.tracking_weights, dtype=float)
+
+    @property
+    def weight_n(self) -> float:
+        return self.mass_kg * GRAVITY_M_S2
 
     def transition(self, x, u, dt) -> ca.SX:
         raise NotImplementedError
@@ -144,6 +151,11 @@ def _smooth_friction(velocity, normal_n, mu, eps):
     return -mu * normal_n * velocity / ca.sqrt(ca.sumsqr(velocity) + eps**2)
 
 
+def _blended(measured: float, times: np.ndarray) -> np.ndarray:
+    """A measured contact gap (or slack) at the node times, closed linearly over CONTACT_BLEND_TIME_S."""
+    return np.clip(1.0 - times / CONTACT_BLEND_TIME_S, 0.0, 1.0) * measured
+
+
 def _rot2(yaw):
     c, s = ca.cos(yaw), ca.sin(yaw)
     return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
@@ -169,7 +181,6 @@ class SlidingBox(ObjectModel):
     # the turn's end by 66 cm, against 22.9 cm with even loads
     push_shifts_loads: bool = False
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
-    # tracking weights of [x, y, yaw, vx, vy, wz]
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at
     # mu 0.3) of the face normal, so the box only goes where its face points
     tracking_weights: tuple[float, ...] = (1e5, 1e5, 3e4, 3000.0, 3000.0, 10.0)
@@ -188,13 +199,6 @@ class SlidingBox(ObjectModel):
     def inertia_kg_m2(self) -> float:
         sx, sy, _ = self.size_m
         return self.mass_kg * (sx**2 + sy**2) / 12.0
-
-    @property
-    def weight_n(self) -> float:
-        return self.mass_kg * GRAVITY_M_S2
-
-    def weights(self):
-        return np.asarray(self.tracking_weights, dtype=float)
 
     def corners_m(self) -> np.ndarray:
         """(4, 2) bottom corners in the box frame."""
@@ -252,9 +256,7 @@ class SlidingBox(ObjectModel):
         return ca.vertcat(local[0] + self.size_m[0] / 2 + self.hand_radius_m, local[1])
 
     def contact_bounds(self, measured, times):
-        gap = float(measured[0])
-        decay = np.clip(1.0 - times / CONTACT_BLEND_TIME_S, 0.0, 1.0)
-        target = decay * gap
+        target = _blended(float(measured[0]), times)
         half = self.size_m[1] / 2 - self.face_margin_m
         side = max(half, abs(float(measured[1])) + 1e-3)  # a hand measured beyond the margin is not infeasible
         lower = np.column_stack([np.minimum(target, 0.0) - CONTACT_TOLERANCE_M, np.full(len(times), -side)])
@@ -271,7 +273,6 @@ class SlidingBox(ObjectModel):
 
     def input_guess(self, state):
         return np.asarray(state, dtype=float)[3:6]
-
 
 
 @dataclass(frozen=True)
@@ -304,13 +305,6 @@ class CableLoad1D(ObjectModel):
     def n_inputs(self) -> int:
         return 2
 
-    @property
-    def weight_n(self) -> float:
-        return self.mass_kg * GRAVITY_M_S2
-
-    def weights(self):
-        return np.asarray(self.tracking_weights, dtype=float)
-
     def hook(self, x):
         return ca.vertcat(x[0] - self.size_m[0] / 2, self.hook_y_m, self.hook_height_m)
 
@@ -323,7 +317,7 @@ class CableLoad1D(ObjectModel):
         tension = u[1]
         on_load = -force_on_robot
         normal = self.weight_n - on_load[2]
-        friction = -self.friction_mu * normal * u[0] / ca.sqrt(u[0] ** 2 + self.smoothing_m_s**2)
+        friction = _smooth_friction(u[0], normal, self.friction_mu, self.smoothing_m_s)
         dynamics = ca.vertcat((self.mass_kg * (u[0] - x[1]) / dt - on_load[0] - friction) / self.weight_n,
                               (force_on_robot - tension * along) / self.weight_n)
         return [("obj_dyn", dynamics), ("obj_cone", tension / self.weight_n)]
@@ -333,9 +327,7 @@ class CableLoad1D(ObjectModel):
         return ca.norm_2(self.hook(x) - hand) - self.cable_length_m
 
     def contact_bounds(self, measured, times):
-        stretch = float(measured[0])
-        decay = np.clip(1.0 - times / CONTACT_BLEND_TIME_S, 0.0, 1.0)
-        target = decay * stretch
+        target = _blended(float(measured[0]), times)
         lower = (np.minimum(target, 0.0) - CONTACT_TOLERANCE_M)[:, None]
         upper = (np.maximum(target, 0.0) + CONTACT_TOLERANCE_M)[:, None]
         return lower, upper, target >= -CONTACT_FORCE_GAP_M

@@ -730,9 +730,8 @@ class OcpProblem:
         cone_nodes = self.row_nodes["obj_cone"]
         lbg[self.rows["obj_cone"]] = 0.0
         ubg[self.rows["obj_cone"]] = self.object.cone_upper(may_push[cone_nodes + 1])
-        if self.has_arm:
-            lbg[self.rows["ee_vel"]] = -INF
-            ubg[self.rows["ee_vel"]] = INF
+        lbg[self.rows["ee_vel"]] = -INF  # an object model needs an arm (__init__)
+        ubg[self.rows["ee_vel"]] = INF
 
     def collision_rows_at(self, q: np.ndarray) -> np.ndarray:
         """The collision rows (smooth minimum distance per pair group, m) at configuration q."""

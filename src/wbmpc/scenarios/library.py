@@ -20,7 +20,7 @@ from wbmpc.gait import gaits_for, natural_gait
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.manipulation import Compliant, Pull, PushBox, Wipe
-from wbmpc.scenarios.metrics import SETTLE_S, _yaw, base_world_velocity, heading_rotation
+from wbmpc.scenarios.metrics import SETTLE_S, base_world_velocity, base_yaw, heading_rotation
 
 
 class Stand(Scenario):
@@ -52,13 +52,13 @@ class TrotForward(Scenario):
         a = log.arrays(("t", "q", "v"))
         t = a["t"]
         velocity = base_world_velocity(a["q"], a["v"])[:, :2]
-        command = heading_rotation(_yaw(a["q"][0]))[:2, :2] @ np.array([self.options.speed_m_s, 0.0])
+        command = heading_rotation(base_yaw(a["q"][0]))[:2, :2] @ np.array([self.options.speed_m_s, 0.0])
         start = t[0] + min(SETTLE_S, 0.5 * (t[-1] - t[0]))
         cycles = int((t[-1] - start) // period_s)
         means = [velocity[(t >= start + k * period_s) & (t < start + (k + 1) * period_s)].mean(axis=0)
                  for k in range(cycles)]
         rmse = float(np.sqrt(np.mean(np.sum((np.array(means) - command) ** 2, axis=1)))) if cycles else None
-        return {"base_vel_cycle_mean_rmse": rmse, **_forward_lateral_rmse(velocity[t >= start], command, _yaw(a["q"][0]))}
+        return {"base_vel_cycle_mean_rmse": rmse, **_forward_lateral_rmse(velocity[t >= start], command, base_yaw(a["q"][0]))}
 
 
 def _forward_lateral_rmse(velocity: np.ndarray, command: np.ndarray, yaw: float) -> dict:

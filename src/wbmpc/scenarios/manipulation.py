@@ -483,12 +483,11 @@ class PushBox(_ForceTask):
         super().__init__("push-box", "press a box against the wall while trotting in place (or push it along a "
                          "path: --box-path turn, --object-model)", "trot", 6.0, needs_arm=True, options=options)
         self.force_window_start_s = self.RAMP_S[1] + 0.2
-        self._path = None
         if self.follows_path:
             from wbmpc.scenarios.object_paths import BoxPath
 
-            self._path = BoxPath()
-            self.default_duration_s = round(self._path.start_s + self._path.moving_s + self.PATH_DURATION_AFTER_S)
+            path = BoxPath()
+            self.default_duration_s = round(path.start_s + path.moving_s + self.PATH_DURATION_AFTER_S)
 
     @property
     def follows_path(self) -> bool:
@@ -501,7 +500,7 @@ class PushBox(_ForceTask):
         """The commanded path of the free box's centre, from where the box starts."""
         from wbmpc.scenarios.object_paths import BoxPath
 
-        return replace(self._path or BoxPath(), start_xy_m=tuple(self.free_box(robot).centre_xy_m))
+        return BoxPath(start_xy_m=tuple(self.free_box(robot).centre_xy_m))
 
     def object_model(self, robot):
         """The OCP's model of the scene's box (`--object-model`)."""

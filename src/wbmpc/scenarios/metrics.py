@@ -29,7 +29,7 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
     t0, t_end = float(log.first_tick("t")), float(log.last_tick("t"))
     duration = t_end - t0 if log.n_ticks > 1 else 0.0
     # commanded base velocity (heading frame of the start) integrated over the run
-    yaw0 = _yaw(log.first_tick("q"))
+    yaw0 = base_yaw(log.first_tick("q"))
     steps = log.arrays(("mpc_t", "solve_ms", "iterations"))
     cmd_t = steps["mpc_t"]
     cmd_world = log.command_array()[:, 0:3] @ heading_rotation(yaw0).T
@@ -182,6 +182,7 @@ class _TickStatistics:
         self.max_abs_tau_ff = np.maximum(self.max_abs_tau_ff, np.max(np.abs(chunk["tau_ff"]), axis=0))
 
 
-def _yaw(q: np.ndarray) -> float:
+def base_yaw(q: np.ndarray) -> float:
+    """Yaw of the base orientation of a pinocchio-layout configuration (rad)."""
     rot = pin.Quaternion(q[3:7]).toRotationMatrix()
     return float(np.arctan2(rot[1, 0], rot[0, 0]))

@@ -19,10 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from wbmpc.ocp.objects import ObjectCommand
 from wbmpc.robots import GRAVITY_M_S2
+from wbmpc.scenarios.metrics import base_yaw
 
 BASE_GAIN_1_S = 1.0  # base position / yaw feedback of the path-following commands
 MAX_BASE_SPEED_M_S = 0.5
@@ -81,11 +81,6 @@ class BoxPath:
         return self.ramp_s + (length - 0.5 * self.speed_m_s * self.ramp_s) / self.speed_m_s
 
 
-def _base_yaw(q: np.ndarray) -> float:
-    rot = pin.Quaternion(q[3:7]).toRotationMatrix()
-    return float(np.arctan2(rot[1, 0], rot[0, 0]))
-
-
 class PathFollower:
     """Base commands that keep the robot at its starting offset from the box's measured pose (moving at the path's
     velocity): behind the box as it actually stands. Behind its reference pose instead, a box lagging the turn put
@@ -107,9 +102,9 @@ class PathFollower:
         speed = np.linalg.norm(world)
         if speed > MAX_BASE_SPEED_M_S:
             world *= MAX_BASE_SPEED_M_S / speed
-        base_yaw = _base_yaw(q)
-        local = _rot(base_yaw).T @ world
-        yaw_rate = float(np.clip(wz + BASE_GAIN_1_S * float(_wrap(yaw - base_yaw)), -MAX_YAW_RATE_RAD_S, MAX_YAW_RATE_RAD_S))
+        heading = base_yaw(q)
+        local = _rot(heading).T @ world
+        yaw_rate = float(np.clip(wz + BASE_GAIN_1_S * float(_wrap(yaw - heading)), -MAX_YAW_RATE_RAD_S, MAX_YAW_RATE_RAD_S))
         return {"base_velocity_m_s": np.array([local[0], local[1], 0.0]), "base_yaw_rate_rad_s": yaw_rate}
 
 

@@ -25,7 +25,7 @@ from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.scenarios.outputs import write_output_files
-from wbmpc.sim import PLANTS, PlantConfig, make_plant
+from wbmpc.sim import PLANTS, PlantConfig, make_plant, robot_plant_config
 from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
 from wbmpc.sim.model_errors import ModelErrors
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
@@ -359,8 +359,8 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
     plant_config = config.plant_config
-    if plant_config is None and np.any(robot.armature_kg_m2):  # a preset's rotors (g1) are the plant's too
-        plant_config = PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
+    if plant_config is None:  # a preset's rotors (g1) are the plant's too
+        plant_config = robot_plant_config(robot)
     if scene is not None:
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 

@@ -29,6 +29,7 @@ __all__ = [
     "PlantInputError",
     "Recording",
     "make_plant",
+    "robot_plant_config",
 ]
 
 
@@ -49,14 +50,21 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'wbmpc.sim' has no attribute '{name}'")
 
 
+def robot_plant_config(robot) -> PlantConfig | None:
+    """The plant settings a robot brings itself: its rotor inertias on the plant's joints (`RobotSpec.armature_kg_m2`,
+    g1's); None where it has none (the plant's defaults)."""
+    if not np.any(robot.armature_kg_m2):
+        return None
+    return PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
+
+
 def make_plant(kind: str, robot, config: PlantConfig | None = None) -> Plant:
     """A plant by name: 'mujoco' (default simulator) or 'pinocchio' (contact dynamics without MuJoCo).
 
-    Without a config, the plant's joints get the robot's own rotor inertias (`RobotSpec.armature_kg_m2`, g1's), as
-    the scenario runner gives them: without them `bench mpc`'s pinocchio plant drove g1's lifted ankle roll to
+    Without a config, the plant's joints get the robot's own rotor inertias (`robot_plant_config`), as the scenario
+    runner gives them: without them `bench mpc`'s pinocchio plant drove g1's lifted ankle roll to
     110 rad/s (an explicit damper unstable at the 1 ms tick) and half of its walk's QPs failed."""
-    if config is None and np.any(robot.armature_kg_m2):
-        config = PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
+    config = config if config is not None else robot_plant_config(robot)
     if kind == "mujoco":
         from wbmpc.sim.mujoco_plant import MujocoPlant
 
