@@ -131,11 +131,25 @@ def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
         assert abs(local[1]) <= model.size_m[1] / 2 - model.face_margin_m + 1e-4
 
 
+def test_python_api_picks_the_clis_solver_with_an_object_model(b1z1):
+    """RunConfig's default solver (None) and --solver auto decide in one place (`runner.default_solver`): the anytime
+    SQP with an object model (Fatrop's line search fails on the contact rows), casadi's Fatrop otherwise; a solver
+    named is kept."""
+    options = ScenarioOptions(object_model=True)
+    config = RunConfig(scenario="push-box", options=options)
+    assert config.solver == "sqp" and config.for_robot(b1z1).solver == "sqp"
+    assert RunConfig(scenario="push-box", options=options, solver="auto", compiled=True).solver == "sqp"
+    assert RunConfig(scenario="pull", options=ScenarioOptions(object_model=True)).solver == "sqp"
+    assert RunConfig(scenario="push-box").solver == "fatrop"
+    assert RunConfig(scenario="push-box", compiled=True, solver="auto").solver == "fatrop-direct"
+    named = RunConfig(scenario="push-box", options=options, solver="ipopt")
+    assert named.solver == "ipopt" and named.for_robot(b1z1).solver == "ipopt"
+
+
 def test_push_box_object_model_stays_up_and_moves_the_box(b1z1):
-    # the anytime SQP, as `wbmpc run --object-model` picks by default (RunConfig's own default is Fatrop, whose line
-    # search fails on the contact rows)
-    result = run_scenario(b1z1, RunConfig(scenario="push-box", duration_s=1.6, solver="sqp",
-                                          options=ScenarioOptions(object_model=True)))
+    # RunConfig's default solver: the anytime SQP with an object model, as `wbmpc run --object-model` picks
+    result = run_scenario(b1z1, RunConfig(scenario="push-box", duration_s=1.6, options=ScenarioOptions(object_model=True)))
+    assert result.metrics["solver"] == "sqp"
     m = result.metrics
     assert not m["fell"] and m["object_model"]
     assert m["box_pos_rmse_m"] is not None and m["box_pos_rmse_m"] < 0.03
