@@ -195,3 +195,23 @@ def test_pull_object_model_drags_the_load_at_the_commanded_speed(b1z1):
     m = result.metrics
     assert not m["fell"] and m["pulled"]
     assert m["load_speed_rmse_m_s"] < 0.05
+
+
+def test_sideslip_lead_puts_the_pivot_on_a_circle_tangent_to_the_heading():
+    """The yaw lead of the box's reference (`object_paths.sideslip_lead`): none on the straights; on the arc the
+    point `pivot_m` ahead of the centre, about which the pushed box turns without sliding sideways, moves along the
+    box's heading (its velocity, from finite differences of the path, parallel to the led heading)."""
+    from wbmpc.scenarios.object_paths import BoxPath, sideslip_lead
+
+    path, pivot_m = BoxPath(), 0.26
+    t = np.array([0.5, 1.5, path.start_s + path.moving_s + 1.0])
+    assert np.allclose(sideslip_lead(path, t, pivot_m), 0.0)
+    t = np.linspace(5.0, 8.0, 301)
+    states = path.states(t)
+    yaw = states[:, 2] + sideslip_lead(path, t, pivot_m)
+    assert np.allclose(sideslip_lead(path, t, pivot_m), np.arcsin(pivot_m / path.radius_m))
+    pivot = states[:, :2] + pivot_m * np.column_stack([np.cos(yaw), np.sin(yaw)])
+    velocity = np.gradient(pivot, t, axis=0)[1:-1]
+    heading = np.column_stack([np.cos(yaw), np.sin(yaw)])[1:-1]
+    sideways = velocity[:, 0] * heading[:, 1] - velocity[:, 1] * heading[:, 0]
+    assert np.max(np.abs(sideways)) < 1e-4 * path.speed_m_s and np.all(np.sum(velocity * heading, axis=1) > 0)

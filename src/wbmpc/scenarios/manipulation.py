@@ -551,9 +551,10 @@ class PushBox(_ForceTask):
         path, box, ee = self.box_path(robot), self.free_box(robot), _EeState(robot)
         follower = PathFollower(path, robot.q_nominal[:2])
         height = float(nominal_ee_position(robot)[2])
+        pivot = box.friction_mu * height  # the floor load's centre under the sliding push (object_paths.sideslip_lead)
 
         def command(t, q, v):
-            measured = object_command(path, self._scene, self.object_name, t)
+            measured = object_command(path, self._scene, self.object_name, t, pivot)
             base = follower.base_command(t, q, measured.state)
             if self.options.object_model:
                 return Commands(**base, object_command=measured)
