@@ -215,3 +215,32 @@ def test_sideslip_lead_puts_the_pivot_on_a_circle_tangent_to_the_heading():
     heading = np.column_stack([np.cos(yaw), np.sin(yaw)])[1:-1]
     sideways = velocity[:, 0] * heading[:, 1] - velocity[:, 1] * heading[:, 0]
     assert np.max(np.abs(sideways)) < 1e-4 * path.speed_m_s and np.all(np.sum(velocity * heading, axis=1) > 0)
+
+
+def test_a_mujoco_box_pushed_high_turns_about_the_pivot_of_the_lead():
+    """The premise of `sideslip_lead`, in MuJoCo: a box pushed at the hand's height h (b1_z1's 0.87 m) off the centre
+    of its near face, sliding at ~0.1 m/s and turning, slides sideways at its centre at w mu h (its floor load's
+    centre mu h ahead of its centre does not slip sideways), where even corner loads would not slide it at all."""
+    model = SlidingBox()
+    m, d = _mujoco_box(model)
+    mujoco.mj_resetData(m, d)
+    d.qpos[:3] = [0.0, 0.0, model.size_m[2] / 2]
+    height, weight = 0.87, model.weight_n
+    body = m.body("box").id
+    lateral, rate = [], []
+    for k in range(6000):  # 6 s at 1 ms
+        rot = d.xmat[body].reshape(3, 3)
+        forward = rot[:, 0]
+        speed = float(forward @ d.qvel[:3])
+        push = (model.friction_mu * weight + 60.0 * (0.1 - speed)) * forward  # sliding at ~0.1 m/s
+        point = d.xpos[body] + rot @ np.array([-model.size_m[0] / 2, -0.15, height - model.size_m[2] / 2])
+        d.xfrc_applied[body, :3] = push
+        d.xfrc_applied[body, 3:] = np.cross(point - d.xipos[body], push)
+        mujoco.mj_step(m, d)
+        if k >= 3000:
+            lateral.append(float(rot[:, 1] @ d.qvel[:3]))
+            rate.append(float(rot @ d.qvel[3:6] @ np.array([0.0, 0.0, 1.0])))
+    w, v_lateral = float(np.mean(rate)), float(np.mean(lateral))
+    assert w > 0.05  # it turns left (pushed right of the centre)
+    expected = -w * model.friction_mu * height
+    assert abs(v_lateral - expected) < 0.25 * abs(expected), (v_lateral, expected)
