@@ -173,8 +173,10 @@ def force_command(path: BoxPath, t: float, box, hand_radius_m: float, hand_heigh
     return velocity, share * box.friction_mu * box.mass_kg * GRAVITY_M_S2 * normal
 
 
-def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str = "box") -> dict:
-    """`box_pos_rmse_m` (the box centre against its commanded path while the path moves) and friends."""
+def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str = "box", pivot_m: float = 0.0) -> dict:
+    """`box_pos_rmse_m` (the box centre against its commanded path while the path moves) and friends: the same on
+    the straight before the turn and from the turn's start on (`_before_turn_`, `_turn_`), the yaw against the
+    path's tangent and (`pivot_m` > 0, the object model's reference) against the tangent led by `sideslip_lead`."""
     reference = path.states(t)
     use = t >= path.start_s
     if not use.any():
@@ -182,8 +184,11 @@ def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str =
     error = np.linalg.norm(states[use, :2] - reference[use, :2], axis=1)
     yaw_error = np.degrees(_wrap(states[use, 2] - reference[use, 2]))
     straight = path.distance(t[use])[0] <= path.straight_m  # before the turn
+    led = _wrap(states[use, 2] - reference[use, 2] - sideslip_lead(path, t[use], pivot_m)) if pivot_m else None
     return {f"{prefix}_pos_rmse_m": float(np.sqrt(np.mean(error**2))),
             f"{prefix}_pos_rmse_before_turn_m": float(np.sqrt(np.mean(error[straight] ** 2))) if straight.any() else None,
+            f"{prefix}_pos_rmse_turn_m": float(np.sqrt(np.mean(error[~straight] ** 2))) if (~straight).any() else None,
+            f"{prefix}_yaw_rmse_led_deg": float(np.degrees(np.sqrt(np.mean(led**2)))) if led is not None else None,
             f"{prefix}_pos_max_err_m": float(error.max()),
             f"{prefix}_pos_final_err_m": float(error[-1]),
             f"{prefix}_yaw_rmse_deg": float(np.sqrt(np.mean(yaw_error**2))),
