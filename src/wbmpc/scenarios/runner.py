@@ -62,10 +62,10 @@ class RunConfig:
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
     # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object
     solver: str | None = option(None, flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled "
-                                "runs without --delay, else sqp; sqp with --object-model), fatrop (converged), "
-                                "fatrop-direct (the same Fatrop through its C interface, always compiled), ipopt, rti "
-                                "(one SQP iteration per step on HPIPM's QP) or sqp (anytime SQP: iterations with a "
-                                "line search until converged or the step's deadline)")
+                                "runs without --delay, else sqp), fatrop (converged), fatrop-direct (the same Fatrop "
+                                "through its C interface, always compiled), ipopt, rti (one SQP iteration per step on "
+                                "HPIPM's QP) or sqp (anytime SQP: iterations with a line search until converged or the "
+                                "step's deadline)")
     formulation: str = option("wb_inverse", flag="--formulation", help="OCP formulation of Table I (see bench table1)")
     # generated C, compiled once and cached (solvers/codegen.py)
     compiled: bool = option(False, flag="--compiled", help="generate C for the NLP, compile it once (cached in "
