@@ -138,12 +138,18 @@ def sideslip_lead(path: BoxPath, t, pivot_m: float) -> np.ndarray:
 
 def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0.0) -> ObjectCommand:
     """The box's measured state and its path (the MPC's reference over the horizon), its yaw leading the path's
-    tangent by `sideslip_lead` about the push's `pivot_m` (0: on the tangent). b1_z1, 16 s, compiled SQP: 5.3 cm
-    RMSE with the lead, 22.9 cm without. Tried without gain: a yaw reference turned towards the path by the lateral
-    error, without the lead (pure pursuit, lookahead 0.3 m / 1.0 m: 23.6 / 16.8 cm RMSE over 10 s against 13.8 cm
-    without); with it, by 1.5 rad/m of the centre's lateral error (7.9 cm: the steady offset gone, but rotating about
-    the pivot first swings the centre outwards, -12 cm at the turn's start) or of the pivot's (11.0 cm); the lead's
-    yaw weighted 1e5 instead of 3e4 (5.8 cm)."""
+    tangent by `sideslip_lead` about the push's `pivot_m` (0: on the tangent). b1_z1, 16 s, compiled SQP: 5.6 cm
+    RMSE with the lead, 22.9 cm without. Most of what is left is the turn's start: building the lead turns the box
+    about its pivot, which swings its centre out by about pivot x lead (8 cm at its peak). Even the best trajectory
+    of a box that turns about a pivot 0.26 m ahead (least squares to the path, at rest before it starts, yaw rate
+    <= 0.5 rad/s) misses the path by 2.7 cm RMSE, 10 cm at the turn's start (1.5 cm at 0.2 m, 0.5 cm at 0.13 m:
+    pushed at 0.67 / 0.43 m). Tried without gain: a yaw reference turned towards the path by the lateral error,
+    without the lead (pure pursuit, lookahead 0.3 m / 1.0 m: 23.6 / 16.8 cm RMSE over 10 s against 13.8 cm
+    without); with it, by 1.5 rad/m of the centre's lateral error (7.9 cm: the steady offset gone, but the centre
+    swung further out at the turn's start, -12 cm), of its low-passed error (5.6-6.5 cm), of its integral (9.9-11.6
+    cm) or of the pivot's (11.0 cm); that best trajectory as the reference (4.9-5.2 cm); the lead's yaw weighted 1e5
+    instead of 3e4 (5.8 cm); a sprung hand (`CompliantPad`, 8000 / 4000 N/m: 4.7 / 6.7 cm, the hand on the box 94 %
+    of the time instead of 60 %)."""
     reference = path.states(t)[0]
     state = measured_box_state(scene, name, np.concatenate([path.start_xy_m, np.zeros(4)]), reference[2])
     if not pivot_m:
