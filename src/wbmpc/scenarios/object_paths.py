@@ -149,7 +149,9 @@ def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0
     swung further out at the turn's start, -12 cm), of its low-passed error (5.6-6.5 cm), of its integral (9.9-11.6
     cm) or of the pivot's (11.0 cm); that best trajectory as the reference (4.9-5.2 cm); the lead's yaw weighted 1e5
     instead of 3e4 (5.8 cm); a sprung hand (`CompliantPad`, 8000 / 4000 N/m: 4.7 / 6.7 cm, the hand on the box 94 %
-    of the time instead of 60 %)."""
+    of the time instead of 60 %); the hand held lower by a height row in the OCP (0.78 / 0.72 m, the pivot and the
+    lead with it: 6.8 / 14.6 cm, the box's yaw lagging the smaller lead; bands at 0.6 / 0.5 m: the hand stopped at
+    0.71 m or knocked the box away while descending, the robot fell)."""
     reference = path.states(t)[0]
     state = measured_box_state(scene, name, np.concatenate([path.start_xy_m, np.zeros(4)]), reference[2])
     if not pivot_m:
