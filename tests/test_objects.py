@@ -131,11 +131,25 @@ def test_box_plan_rows_hold_recomputed_in_numpy(box_plan):
         assert abs(local[1]) <= model.size_m[1] / 2 - model.face_margin_m + 1e-4
 
 
+def test_python_api_picks_the_clis_solver_with_an_object_model(b1z1):
+    """RunConfig's default solver (None) and --solver auto decide in one place (`runner.default_solver`): the anytime
+    SQP with an object model (Fatrop's line search fails on the contact rows), casadi's Fatrop otherwise; a solver
+    named is kept."""
+    options = ScenarioOptions(object_model=True)
+    config = RunConfig(scenario="push-box", options=options)
+    assert config.solver == "sqp" and config.for_robot(b1z1).solver == "sqp"
+    assert RunConfig(scenario="push-box", options=options, solver="auto", compiled=True).solver == "sqp"
+    assert RunConfig(scenario="pull", options=ScenarioOptions(object_model=True)).solver == "sqp"
+    assert RunConfig(scenario="push-box").solver == "fatrop"
+    assert RunConfig(scenario="push-box", compiled=True, solver="auto").solver == "fatrop-direct"
+    named = RunConfig(scenario="push-box", options=options, solver="ipopt")
+    assert named.solver == "ipopt" and named.for_robot(b1z1).solver == "ipopt"
+
+
 def test_push_box_object_model_stays_up_and_moves_the_box(b1z1):
-    # the anytime SQP, as `wbmpc run --object-model` picks by default (RunConfig's own default is Fatrop, whose line
-    # search fails on the contact rows)
-    result = run_scenario(b1z1, RunConfig(scenario="push-box", duration_s=1.6, solver="sqp",
-                                          options=ScenarioOptions(object_model=True)))
+    # RunConfig's default solver: the anytime SQP with an object model, as `wbmpc run --object-model` picks
+    result = run_scenario(b1z1, RunConfig(scenario="push-box", duration_s=1.6, options=ScenarioOptions(object_model=True)))
+    assert result.metrics["solver"] == "sqp"
     m = result.metrics
     assert not m["fell"] and m["object_model"]
     assert m["box_pos_rmse_m"] is not None and m["box_pos_rmse_m"] < 0.03
@@ -181,3 +195,52 @@ def test_pull_object_model_drags_the_load_at_the_commanded_speed(b1z1):
     m = result.metrics
     assert not m["fell"] and m["pulled"]
     assert m["load_speed_rmse_m_s"] < 0.05
+
+
+def test_sideslip_lead_puts_the_pivot_on_a_circle_tangent_to_the_heading():
+    """The yaw lead of the box's reference (`object_paths.sideslip_lead`): none on the straights; on the arc the
+    point `pivot_m` ahead of the centre, about which the pushed box turns without sliding sideways, moves along the
+    box's heading (its velocity, from finite differences of the path, parallel to the led heading)."""
+    from wbmpc.scenarios.object_paths import BoxPath, sideslip_lead
+
+    path, pivot_m = BoxPath(), 0.26
+    t = np.array([0.5, 1.5, path.start_s + path.moving_s + 1.0])
+    assert np.allclose(sideslip_lead(path, t, pivot_m), 0.0)
+    t = np.linspace(5.0, 8.0, 301)
+    states = path.states(t)
+    yaw = states[:, 2] + sideslip_lead(path, t, pivot_m)
+    assert np.allclose(sideslip_lead(path, t, pivot_m), np.arcsin(pivot_m / path.radius_m))
+    pivot = states[:, :2] + pivot_m * np.column_stack([np.cos(yaw), np.sin(yaw)])
+    velocity = np.gradient(pivot, t, axis=0)[1:-1]
+    heading = np.column_stack([np.cos(yaw), np.sin(yaw)])[1:-1]
+    sideways = velocity[:, 0] * heading[:, 1] - velocity[:, 1] * heading[:, 0]
+    assert np.max(np.abs(sideways)) < 1e-4 * path.speed_m_s and np.all(np.sum(velocity * heading, axis=1) > 0)
+
+
+def test_a_mujoco_box_pushed_high_turns_about_the_pivot_of_the_lead():
+    """The premise of `sideslip_lead`, in MuJoCo: a box pushed at the hand's height h (b1_z1's 0.87 m) off the centre
+    of its near face, sliding at ~0.1 m/s and turning, slides sideways at its centre at w mu h (its floor load's
+    centre mu h ahead of its centre does not slip sideways), where even corner loads would not slide it at all."""
+    model = SlidingBox()
+    m, d = _mujoco_box(model)
+    mujoco.mj_resetData(m, d)
+    d.qpos[:3] = [0.0, 0.0, model.size_m[2] / 2]
+    height, weight = 0.87, model.weight_n
+    body = m.body("box").id
+    lateral, rate = [], []
+    for k in range(6000):  # 6 s at 1 ms
+        rot = d.xmat[body].reshape(3, 3)
+        forward = rot[:, 0]
+        speed = float(forward @ d.qvel[:3])
+        push = (model.friction_mu * weight + 60.0 * (0.1 - speed)) * forward  # sliding at ~0.1 m/s
+        point = d.xpos[body] + rot @ np.array([-model.size_m[0] / 2, -0.15, height - model.size_m[2] / 2])
+        d.xfrc_applied[body, :3] = push
+        d.xfrc_applied[body, 3:] = np.cross(point - d.xipos[body], push)
+        mujoco.mj_step(m, d)
+        if k >= 3000:
+            lateral.append(float(rot[:, 1] @ d.qvel[:3]))
+            rate.append(float(rot @ d.qvel[3:6] @ np.array([0.0, 0.0, 1.0])))
+    w, v_lateral = float(np.mean(rate)), float(np.mean(lateral))
+    assert w > 0.05  # it turns left (pushed right of the centre)
+    expected = -w * model.friction_mu * height
+    assert abs(v_lateral - expected) < 0.25 * abs(expected), (v_lateral, expected)

@@ -31,8 +31,15 @@ unstable: its stiffness mu N / (m eps) is ~300 1/s, the horizon's steps are 10-1
 the static friction the object creeps at about eps F / (mu N - F), and at speed v the friction is
 v / sqrt(v^2 + eps^2) of Coulomb's: eps = 1 cm/s gives 99.5 % at 0.1 m/s (3 cm/s gave 95.8 %, and a MuJoCo box
 under the planned force lagged the plan by 1.1 cm over 0.48 s). Fatrop's line search still failed on most
-push-box steps with the contact rows (IPOPT solved them in 10-50 iterations): `wbmpc run --object-model`
-uses the anytime SQP by default (`scenarios/runner.default_solver`).
+push-box steps with the contact rows (IPOPT solved them in 10-50 iterations): `wbmpc run --object-model` and
+`RunConfig`'s default use the anytime SQP (`scenarios/runner.default_solver`).
+
+What the box model lacks (push-box, measured in MuJoCo): pushed at the hand's height h, the box rests on its far
+corners (91 % of the weight at 0.87 m) and turns about that edge, its centre sliding out of a turn at w mu h; the
+even corner loads here do not. With the loads shifted by the push (`push_shifts_loads`) or by a fixed share (the
+floor load's centre mu h ahead) the anytime SQP, one iteration per step at its 10 ms budget, pushed in bursts (the
+hand on the box 7 % of the time; 24-31 cm RMSE through the turn); with a 50 ms budget the fixed share tracked at
+10 cm, the even loads at 5.8 cm. The reference's yaw leads instead (`scenarios/object_paths.sideslip_lead`).
 
 - `SlidingBox`: a box pushed by the hand sphere on its near face (-x face in the box frame), states
   [x, y, yaw, vx, vy, wz] (world), ground friction at its four bottom corners with a quarter of the

@@ -544,6 +544,11 @@ class PushBox(_ForceTask):
 
         return command
 
+    def _push_pivot_m(self, robot) -> float:
+        """Where the box's floor load centres under the sliding push at the hand's height h: mu h ahead of its centre
+        (`object_paths.sideslip_lead`)."""
+        return self.free_box(robot).friction_mu * float(nominal_ee_position(robot)[2])
+
     def _path_commands(self, robot):
         """The base follows the box's path; the hand pushes by force command, or (object model) the MPC plans it."""
         from wbmpc.scenarios.object_paths import PathFollower, force_command, object_command
@@ -551,9 +556,10 @@ class PushBox(_ForceTask):
         path, box, ee = self.box_path(robot), self.free_box(robot), _EeState(robot)
         follower = PathFollower(path, robot.q_nominal[:2])
         height = float(nominal_ee_position(robot)[2])
+        pivot = self._push_pivot_m(robot)
 
         def command(t, q, v):
-            measured = object_command(path, self._scene, self.object_name, t)
+            measured = object_command(path, self._scene, self.object_name, t, pivot)
             base = follower.base_command(t, q, measured.state)
             if self.options.object_model:
                 return Commands(**base, object_command=measured)
@@ -569,7 +575,8 @@ class PushBox(_ForceTask):
             from wbmpc.scenarios.object_paths import path_metrics
 
             t, states = self._scene.recording.series(self.object_name, "planar_state")
-            out.update(path_metrics(self.box_path(robot), t, states))
+            pivot = self._push_pivot_m(robot) if self.options.object_model else 0.0
+            out.update(path_metrics(self.box_path(robot), t, states, pivot_m=pivot))
             out["box_kg"] = self.options.box_kg
         return out
 

@@ -10,8 +10,8 @@ the box (rotating with the box), by velocity commands with position feedback.
 - force command (today's MPC, the box only in MuJoCo): the hand's velocity command carries it along the face
   of the box's reference pose (`_feedback`), its force command is the friction that slides the box, mu m g
   along the face normal, scaled with the path's speed;
-- object model: the box's measured state and its path go to the MPC (`Commands.object_command`); hand force
-  and motion are the OCP's.
+- object model: the box's measured state and its path go to the MPC (`Commands.object_command`), the path's yaw
+  led by the box's sideslip about the push's pivot (`sideslip_lead`); hand force and motion are the OCP's.
 """
 
 from __future__ import annotations
@@ -116,13 +116,53 @@ def measured_box_state(scene, name: str, fallback: np.ndarray, reference_yaw: fl
     return state
 
 
-def object_command(path: BoxPath, scene, name: str, t: float) -> ObjectCommand:
-    """The box's measured state and its path (the MPC's reference over the horizon). A yaw reference turned towards
-    the path by the lateral error (pure pursuit, lookahead 0.3 m / 1.0 m) did worse: 23.6 / 16.8 cm RMSE over 10 s
-    against 13.8 cm without (b1_z1)."""
+def sideslip_lead(path: BoxPath, t, pivot_m: float) -> np.ndarray:
+    """The yaw (rad) by which the box must lead its path's tangent at times t so that its centre moves along the path.
+
+    Pushed at the hand's height h, the box's weight rests towards its far edge: the push's tipping moment moves the
+    centre of its floor load mu h ahead of its centre (`pivot_m`; 26 cm on b1_z1, 91 % of the weight on the front
+    corners). Turning at rate w, the box pivots about that point (there its corners' sideways slip, which that
+    friction resists, vanishes): its centre slides outwards at w mu h. Measured in MuJoCo (push-box --object-model,
+    b1_z1): -3.4 cm/s in the box frame at 0.1 m/s and 0.125 rad/s, against w mu h = 3.3 cm/s; with the yaw on the
+    tangent the box drifted 36 cm out of the 0.8 m turn while its yaw stayed within 1 deg. On a circle of radius R the
+    pivot moves along the heading (no sideways slip) when the heading leads the tangent by asin(pivot / R) (19 deg at
+    0.26 m and 0.8 m): then the centre follows the path. The OCP's box (even corner loads) does not slide so: an
+    MPC with the loads shifted by the push (`SlidingBox.push_shifts_loads`) or by a fixed pivot pushed in bursts
+    (the hand in contact 7 % of the time) and missed the path by 24 cm."""
+    s, speed = path.distance(np.asarray(t, dtype=float))
+    arc = path.radius_m * path.turn_rad
+    turning = (s > path.straight_m) & (s < path.straight_m + arc)
+    rate = np.where(turning, speed / path.radius_m, 0.0)
+    return np.arcsin(np.clip(rate * pivot_m / np.maximum(speed, 1e-6), 0.0, 1.0))
+
+
+def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0.0) -> ObjectCommand:
+    """The box's measured state and its path (the MPC's reference over the horizon), its yaw leading the path's
+    tangent by `sideslip_lead` about the push's `pivot_m` (0: on the tangent). b1_z1, 16 s, compiled SQP: 5.6 cm
+    RMSE with the lead, 22.9 cm without. Most of what is left is the turn's start: building the lead turns the box
+    about its pivot, which swings its centre out by about pivot x lead (8 cm at its peak). Even the best trajectory
+    of a box that turns about a pivot 0.26 m ahead (least squares to the path, at rest before it starts, yaw rate
+    <= 0.5 rad/s) misses the path by 2.7 cm RMSE, 10 cm at the turn's start (1.5 cm at 0.2 m, 0.5 cm at 0.13 m:
+    pushed at 0.67 / 0.43 m). Tried without gain: a yaw reference turned towards the path by the lateral error,
+    without the lead (pure pursuit, lookahead 0.3 m / 1.0 m: 23.6 / 16.8 cm RMSE over 10 s against 13.8 cm
+    without); with it, by 1.5 rad/m of the centre's lateral error (7.9 cm: the steady offset gone, but the centre
+    swung further out at the turn's start, -12 cm), of its low-passed error (5.6-6.5 cm), of its integral (9.9-11.6
+    cm) or of the pivot's (11.0 cm); that best trajectory as the reference (4.9-5.2 cm); the lead's yaw weighted 1e5
+    instead of 3e4 (5.8 cm); a sprung hand (`CompliantPad`, 8000 / 4000 N/m: 4.7 / 6.7 cm, the hand on the box 94 %
+    of the time instead of 60 %); the hand held lower by a height row in the OCP (0.78 / 0.72 m, the pivot and the
+    lead with it: 6.8 / 14.6 cm, the box's yaw lagging the smaller lead; bands at 0.6 / 0.5 m: the hand stopped at
+    0.71 m or knocked the box away while descending, the robot fell)."""
     reference = path.states(t)[0]
     state = measured_box_state(scene, name, np.concatenate([path.start_xy_m, np.zeros(4)]), reference[2])
-    return ObjectCommand(state=state, reference=path.states)
+    if not pivot_m:
+        return ObjectCommand(state=state, reference=path.states)
+
+    def reference_with_lead(times):
+        states = path.states(times)
+        states[:, 2] += sideslip_lead(path, times, pivot_m)
+        return states
+
+    return ObjectCommand(state=state, reference=reference_with_lead)
 
 
 def force_command(path: BoxPath, t: float, box, hand_radius_m: float, hand_height_m: float, p_ee: np.ndarray,
@@ -141,8 +181,10 @@ def force_command(path: BoxPath, t: float, box, hand_radius_m: float, hand_heigh
     return velocity, share * box.friction_mu * box.mass_kg * GRAVITY_M_S2 * normal
 
 
-def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str = "box") -> dict:
-    """`box_pos_rmse_m` (the box centre against its commanded path while the path moves) and friends."""
+def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str = "box", pivot_m: float = 0.0) -> dict:
+    """`box_pos_rmse_m` (the box centre against its commanded path while the path moves) and friends: the same on
+    the straight before the turn and from the turn's start on (`_before_turn_`, `_turn_`), the yaw against the
+    path's tangent and (`pivot_m` > 0, the object model's reference) against the tangent led by `sideslip_lead`."""
     reference = path.states(t)
     use = t >= path.start_s
     if not use.any():
@@ -150,8 +192,11 @@ def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str =
     error = np.linalg.norm(states[use, :2] - reference[use, :2], axis=1)
     yaw_error = np.degrees(_wrap(states[use, 2] - reference[use, 2]))
     straight = path.distance(t[use])[0] <= path.straight_m  # before the turn
+    led = _wrap(states[use, 2] - reference[use, 2] - sideslip_lead(path, t[use], pivot_m)) if pivot_m else None
     return {f"{prefix}_pos_rmse_m": float(np.sqrt(np.mean(error**2))),
             f"{prefix}_pos_rmse_before_turn_m": float(np.sqrt(np.mean(error[straight] ** 2))) if straight.any() else None,
+            f"{prefix}_pos_rmse_turn_m": float(np.sqrt(np.mean(error[~straight] ** 2))) if (~straight).any() else None,
+            f"{prefix}_yaw_rmse_led_deg": float(np.degrees(np.sqrt(np.mean(led**2)))) if led is not None else None,
             f"{prefix}_pos_max_err_m": float(error.max()),
             f"{prefix}_pos_final_err_m": float(error[-1]),
             f"{prefix}_yaw_rmse_deg": float(np.sqrt(np.mean(yaw_error**2))),

@@ -60,10 +60,12 @@ class RunConfig:
                                          low_open=True, unit="ms")
     gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
-    solver: str = option("fatrop", flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled runs "
-                         "without --delay, else sqp), fatrop (converged), fatrop-direct (the same Fatrop through its "
-                         "C interface, always compiled), ipopt, rti (one SQP iteration per step on HPIPM's QP) or sqp "
-                         "(anytime SQP: iterations with a line search until converged or the step's deadline)")
+    # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object
+    solver: str | None = option(None, flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled "
+                                "runs without --delay, else sqp), fatrop (converged), fatrop-direct (the same Fatrop "
+                                "through its C interface, always compiled), ipopt, rti (one SQP iteration per step on "
+                                "HPIPM's QP) or sqp (anytime SQP: iterations with a line search until converged or the "
+                                "step's deadline)")
     formulation: str = option("wb_inverse", flag="--formulation", help="OCP formulation of Table I (see bench table1)")
     # generated C, compiled once and cached (solvers/codegen.py)
     compiled: bool = option(False, flag="--compiled", help="generate C for the NLP, compile it once (cached in "
@@ -124,10 +126,10 @@ class RunConfig:
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
         check_fields(self)
         fixed_delay_s(self.delay)
-        if self.solver == "auto":
-            self.auto_solver = True
-            self.solver = default_solver(self.compiled, self.delay,
-                                         bool(self.collision_avoidance) or self.options.object_model)
+        if self.solver in ("auto", None):
+            self.auto_solver = self.solver == "auto"
+            self.solver = default_solver(self.compiled, self.delay, bool(self.collision_avoidance),
+                                         self.options.object_model, api=self.solver is None)
         if self.formulation not in FORMULATIONS:
             raise ConfigError(unknown_name("formulation", self.formulation, FORMULATIONS))
         if self.solver not in SOLVERS:
@@ -275,8 +277,13 @@ def _collision_weights(weights, soft_arm: bool):
                                                                      COLLISION_SOFT_WEIGHT_SQ)) if soft_arm else weights
 
 
-def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False) -> str:
-    """`--solver auto`: converged Fatrop for a compiled run whose plant waits for it (the paper's closed
+def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False, object_model: bool = False,
+                   api: bool = False) -> str:
+    """The one place that picks a run's solver where none was named. `api`: `RunConfig`'s own default (the Python
+    API, `solver=None`): casadi's Fatrop as always, but the anytime SQP with an object model, as for `--solver auto`
+    (Fatrop's line search fails on the object's contact rows, below).
+
+    `--solver auto`: converged Fatrop for a compiled run whose plant waits for it (the paper's closed
     loop), through our direct binding (`fatrop-direct`: the same iterates as casadi's Fatrop without its
     nlpsol copies and per-solve initialisation, ~35 % less time per b1_z1 step; it falls back to casadi's
     Fatrop with a warning where the shim cannot be built); otherwise the anytime SQP, which keeps the MPC
@@ -286,6 +293,10 @@ def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False
     on the arm's soft velocity rows (3-5 with them hard; ~38 with an L1 weight of 1000). With the object inside the
     MPC (--object-model) too: Fatrop's line search failed on most push-box steps (hand-box contact rows with the
     box's smoothed friction), IPOPT rescued them in 10-50 iterations (0.1-0.7 s); the SQP's QPs take them."""
+    if object_model:
+        return "sqp"
+    if api:
+        return "fatrop"
     return "fatrop-direct" if compiled and delay == "none" and not collision_avoidance else "sqp"
 
 
