@@ -242,7 +242,8 @@ TUNINGS: dict[str, dict] = {
     # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
     # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
     # as delay (--delay measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
-    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz
+    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz. (These figures are at the
+    # biped base velocity weight 5; at 1000, control/biped.py, the pelvis carries the command: 0.020 m/s per tick)
     "g1": {"support_sway_free_hands": 0.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
