@@ -312,7 +312,11 @@ def _biped_urdf(with_box: bool) -> str:
 
 
 def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
-    from wbmpc.control.biped import BIPED_BASE_LINEAR_VELOCITY_WEIGHT, BIPED_SOURCE
+    from wbmpc.control.biped import (
+        BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
+        BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD,
+        BIPED_SOURCE,
+    )
     from wbmpc.control.tuning import ANCHOR_WITHOUT_ARM, REFERENCE, RobotScale, derive, tuning_for
 
     scale = RobotScale.of(g1)
@@ -332,6 +336,19 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     # the pelvis carries the commanded velocity (control/biped.py): far above the size-derived weight
     assert tuning.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT
     assert BIPED_BASE_LINEAR_VELOCITY_WEIGHT > 10 * derive(dataclasses.replace(scale, feet=4)).weights.base_linear_velocity
+    # ... unless a hand is held: tasks that command the hand keep the light weight, and their runs say so
+    held = tuning.for_task(holds_hand=True)
+    assert held.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD
+    assert held.report()["weights.base_linear_velocity"]["source"] == BIPED_SOURCE
+    assert dataclasses.replace(held, sources={}) == dataclasses.replace(
+        tuning, weights=dataclasses.replace(tuning.weights, base_linear_velocity=BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD),
+        sources={})
+    from wbmpc.scenarios.runner import RunConfig, mpc_config_for
+
+    for scenario, weight in (("arm-track", BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD),
+                             ("walk-forward", BIPED_BASE_LINEAR_VELOCITY_WEIGHT)):
+        config = RunConfig(scenario=scenario)
+        assert mpc_config_for(make_scenario(scenario, g1, config.options), config, g1).weights.base_linear_velocity == weight
     assert report["gains.kd_leg"]["source"] == "derived"
     # free hands hold no trunk: the anchor of a robot without an arm, scaled by the leg as on quadrupeds
     s = scale.leg_length_m / REFERENCE.leg_length_m
@@ -340,6 +357,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     quadruped = derive(dataclasses.replace(scale, feet=4))
     assert quadruped.support_sway == 0.0 and not quadruped.free_ee_without_command and not quadruped.swing_placement
     assert set(entry["source"] for entry in quadruped.report().values()) == {"derived"}
+    assert quadruped.for_task(holds_hand=True) is quadruped
 
 
 def test_g1_rotor_inertias_reach_the_plant(g1):

@@ -130,6 +130,8 @@ class RobotTuning:
     support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
     free_ee_without_command: bool = MpcConfig.free_ee_without_command
     swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
+    # bipeds: the base's linear velocity weight in tasks that hold a hand (`for_task`); None: weights' own
+    base_linear_velocity_hand_held: float | None = None
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
@@ -140,6 +142,15 @@ class RobotTuning:
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
                 "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+
+    def for_task(self, holds_hand: bool) -> RobotTuning:
+        """The settings of a task that holds a hand (its velocity or force commanded: arm-track, pull, ...) or
+        not: with a hand held a biped's base velocity weight is `base_linear_velocity_hand_held` (control/biped.py)."""
+        if not holds_hand or self.base_linear_velocity_hand_held is None:
+            return self
+        weights = dataclasses.replace(self.weights, base_linear_velocity=self.base_linear_velocity_hand_held)
+        return dataclasses.replace(self, weights=weights, sources={
+            **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_hand_held", "default")})
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -152,7 +163,8 @@ class RobotTuning:
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
-                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
+                "base_linear_velocity_hand_held": self.base_linear_velocity_hand_held}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
