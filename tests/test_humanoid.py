@@ -312,11 +312,7 @@ def _biped_urdf(with_box: bool) -> str:
 
 
 def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
-    from wbmpc.control.biped import (
-        BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
-        BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD,
-        BIPED_SOURCE,
-    )
+    from wbmpc.control.biped import BIPED_BASE_LINEAR_VELOCITY_WEIGHT, BIPED_SOURCE
     from wbmpc.control.tuning import ANCHOR_WITHOUT_ARM, REFERENCE, RobotScale, derive, tuning_for
 
     scale = RobotScale.of(g1)
@@ -330,23 +326,23 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     assert tuning.free_ee_without_command and tuning.support_sway > 0
     assert tuning.swing_placement
     assert tuning_for(load_robot("talos")).report()["weights.joint_torque"] == {"value": 1e-5, "source": "table"}
-    for name in ("gait_period_s", "support_sway", "weights.contact_force", "weights.base_position", "swing_placement",
-                 "weights.base_linear_velocity"):
+    for name in ("gait_period_s", "support_sway", "weights.contact_force", "weights.base_position", "swing_placement"):
         assert report[name]["source"] == BIPED_SOURCE
-    # the pelvis carries the commanded velocity (control/biped.py): far above the size-derived weight
-    assert tuning.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT
-    assert BIPED_BASE_LINEAR_VELOCITY_WEIGHT > 10 * derive(dataclasses.replace(scale, feet=4)).weights.base_linear_velocity
-    # ... unless a hand is held: tasks that command the hand keep the light weight, and their runs say so
+    talos = tuning_for(load_robot("talos"))
+    assert talos.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT and talos.for_task(True) is talos
+    # g1's pelvis carries the commanded velocity while its hands are free (its table, control/tuning.py) ...
+    assert report["weights.base_linear_velocity"] == {"value": 1000.0, "source": "table"}
+    assert tuning.weights.base_linear_velocity > 10 * derive(dataclasses.replace(scale, feet=4)).weights.base_linear_velocity
+    # ... not while a hand is held: tasks that command the hand keep the biped rule's weight, and their runs say so
     held = tuning.for_task(holds_hand=True)
-    assert held.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD
-    assert held.report()["weights.base_linear_velocity"]["source"] == BIPED_SOURCE
+    assert held.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT
+    assert held.report()["weights.base_linear_velocity"]["source"] == "table"
     assert dataclasses.replace(held, sources={}) == dataclasses.replace(
-        tuning, weights=dataclasses.replace(tuning.weights, base_linear_velocity=BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD),
+        tuning, weights=dataclasses.replace(tuning.weights, base_linear_velocity=BIPED_BASE_LINEAR_VELOCITY_WEIGHT),
         sources={})
     from wbmpc.scenarios.runner import RunConfig, mpc_config_for
 
-    for scenario, weight in (("arm-track", BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD),
-                             ("walk-forward", BIPED_BASE_LINEAR_VELOCITY_WEIGHT)):
+    for scenario, weight in (("arm-track", BIPED_BASE_LINEAR_VELOCITY_WEIGHT), ("walk-forward", 1000.0)):
         config = RunConfig(scenario=scenario)
         assert mpc_config_for(make_scenario(scenario, g1, config.options), config, g1).weights.base_linear_velocity == weight
     assert report["gains.kd_leg"]["source"] == "derived"

@@ -17,19 +17,8 @@ pelvis' sway. So on two feet:
 - the force regularisation towards equal shares (eq. 3's F term) 1e-5 instead of 1e-3: at 1e-3 a
   100 N shift costs 10 per node, ten times the base position error it corrects, and g1's plans kept
   both feet equally loaded until lift-off (then fell at 0.6 s); leg posture weight 2 (the soles and the
-  pelvis fix a biped's stance legs; the posture cost held the pelvis centred);
-- the base's linear velocity weight 1000 (the size-derived 44 on g1): the pelvis carries the commanded velocity
-  and the hips and trunk take up the sway from one sole to the other (the CoM still sways, as it must: its
-  velocity is reported next to the base's, `com_vel_rmse_settled`). g1 walking forward at 0.3 m/s (10 s,
-  compiled Fatrop, delay none), per-tick base velocity error after 2 s at weights 5 / 300 / 1000: 0.134 /
-  0.047 / 0.020 m/s (along 0.077 / 0.028 / 0.012, across 0.110 / 0.037 / 0.016; 300 is RTI, 6 s) with 0
-  failed steps, the CoM's 0.14 / 0.095 / 0.088. At 5 the pelvis sped up in single support and slowed in
-  double support (0.20-0.39 m/s at 0.3) and swayed with the CoM. An earlier 50, before the foot placement
-  below and the rotor inertias, kept the CoM between the feet until lift-off (then 5 was taken). With a hand
-  held (tasks that command it) the weight stays 5 (`base_linear_velocity_hand_held`, `RobotTuning.for_task`): the
-  pinned hand and the lean below leave the trunk little room, and arm-track walking in place (10 s, compiled
-  Fatrop) failed 0 / 3 / 25 steps of 800 at 5 / 300 / 1000 (hand RMSE 0.35 / 0.33 / 0.32 cm; 46 at 1000
-  without the lean), pull's 5 kg load moved 0.780 of 0.880 m at 1000 (0.85 at 5);
+  pelvis fix a biped's stance legs; the posture cost held the pelvis centred) and base velocity weight 5
+  (g1's table raises it to 1000 while its hands are free, `control/tuning.py`: TALOS at 1000 fell walking forward);
 - `free_ee_without_command`: a hand with no velocity command swings free (its pinned velocity rows
   drove g1's arm into its limits and stalled Fatrop in single support). Then no hand rows hold the trunk
   in place, so the base xy position weight gets the anchor of a robot without an arm
@@ -51,8 +40,7 @@ from wbmpc.gait import biped_walk_timing
 BIPED_SOURCE = "derived: biped"
 BIPED_SUPPORT_SWAY = 0.3
 BIPED_APEX_PER_LEG = 0.075  # swing apex / leg length: 4.9 cm on g1 (the trot's scaled 10 cm: 28 -> 15 iterations)
-BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 1000.0
-BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD = 5.0
+BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 5.0
 BIPED_LEG_JOINT_WEIGHT = 2.0
 BIPED_CONTACT_FORCE_WEIGHT = 1e-5
 
@@ -64,7 +52,6 @@ def biped_overrides(leg_length_m: float) -> dict:
         "gait_period_s": period_s,
         "swing.apex_height_m": BIPED_APEX_PER_LEG * leg_length_m,
         "weights.base_linear_velocity": BIPED_BASE_LINEAR_VELOCITY_WEIGHT,
-        "base_linear_velocity_hand_held": BIPED_BASE_LINEAR_VELOCITY_WEIGHT_HAND_HELD,
         "weights.leg_joint_position": BIPED_LEG_JOINT_WEIGHT,
         "weights.contact_force": BIPED_CONTACT_FORCE_WEIGHT,
         "support_sway": BIPED_SUPPORT_SWAY,
