@@ -266,7 +266,7 @@ TUNINGS: dict[str, dict] = {
     # the trunk little room, and arm-track walking in place (10 s, compiled Fatrop) failed 0 / 3 / 25 steps of 800
     # at 5 / 300 / 1000 (hand RMSE 0.35 / 0.33 / 0.32 cm; 46 at 1000 without the lean), pull's 5 kg load moved
     # 0.780 of 0.880 m at 1000 (0.854 at 5). Not a biped rule: TALOS walking forward at 0.3 m/s fell at 1.6 s at
-    # 1000 (up over 4 s at 5)
+    # 1000 and 2.1 s at 300 (up over 4 s at 5)
     "g1": {"support_sway_free_hands": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_hand_held": 5.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
