@@ -312,7 +312,7 @@ def _biped_urdf(with_box: bool) -> str:
 
 
 def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
-    from wbmpc.control.biped import BIPED_SOURCE
+    from wbmpc.control.biped import BIPED_BASE_LINEAR_VELOCITY_WEIGHT, BIPED_SOURCE
     from wbmpc.control.tuning import ANCHOR_WITHOUT_ARM, REFERENCE, RobotScale, derive, tuning_for
 
     scale = RobotScale.of(g1)
@@ -328,6 +328,23 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     assert tuning_for(load_robot("talos")).report()["weights.joint_torque"] == {"value": 1e-5, "source": "table"}
     for name in ("gait_period_s", "support_sway", "weights.contact_force", "weights.base_position", "swing_placement"):
         assert report[name]["source"] == BIPED_SOURCE
+    talos = tuning_for(load_robot("talos"))
+    assert talos.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT and talos.for_task(True) is talos
+    # g1's pelvis carries the commanded velocity while its hands are free (its table, control/tuning.py) ...
+    assert report["weights.base_linear_velocity"] == {"value": 1000.0, "source": "table"}
+    assert tuning.weights.base_linear_velocity > 10 * derive(dataclasses.replace(scale, feet=4)).weights.base_linear_velocity
+    # ... not while a hand is held: tasks that command the hand keep the biped rule's weight, and their runs say so
+    held = tuning.for_task(holds_hand=True)
+    assert held.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT
+    assert held.report()["weights.base_linear_velocity"]["source"] == "table"
+    assert dataclasses.replace(held, sources={}) == dataclasses.replace(
+        tuning, weights=dataclasses.replace(tuning.weights, base_linear_velocity=BIPED_BASE_LINEAR_VELOCITY_WEIGHT),
+        sources={})
+    from wbmpc.scenarios.runner import RunConfig, mpc_config_for
+
+    for scenario, weight in (("arm-track", BIPED_BASE_LINEAR_VELOCITY_WEIGHT), ("walk-forward", 1000.0)):
+        config = RunConfig(scenario=scenario)
+        assert mpc_config_for(make_scenario(scenario, g1, config.options), config, g1).weights.base_linear_velocity == weight
     assert report["gains.kd_leg"]["source"] == "derived"
     # free hands hold no trunk: the anchor of a robot without an arm, scaled by the leg as on quadrupeds
     s = scale.leg_length_m / REFERENCE.leg_length_m
@@ -336,6 +353,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     quadruped = derive(dataclasses.replace(scale, feet=4))
     assert quadruped.support_sway == 0.0 and not quadruped.free_ee_without_command and not quadruped.swing_placement
     assert set(entry["source"] for entry in quadruped.report().values()) == {"derived"}
+    assert quadruped.for_task(holds_hand=True) is quadruped
 
 
 def test_g1_rotor_inertias_reach_the_plant(g1):
@@ -379,6 +397,42 @@ def test_walk_velocity_error_splits_into_forward_and_lateral():
     assert out["base_vel_rmse_settled_lateral"] == pytest.approx(0.1 / np.sqrt(2), rel=1e-3)
     planar = np.sqrt(np.mean(np.sum((velocity - command) ** 2, axis=1)))
     assert np.hypot(out["base_vel_rmse_settled_forward"], out["base_vel_rmse_settled_lateral"]) == pytest.approx(planar)
+
+
+def test_walk_com_velocity_error_follows_the_whole_bodys_centre_of_mass(g1, rng):
+    """The CoM's per-tick velocity error: with the joints still the CoM moves with the base (a translation);
+    a joint motion alone moves it by pinocchio's CoM Jacobian, the base frame standing still."""
+    from wbmpc.scenarios.library import _com_forward_lateral_rmse
+
+    n, yaw = 200, 0.3
+    q = np.tile(g1.q_nominal, (n, 1))
+    q[:, 3:7] = (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    heading = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    v = np.zeros((n, g1.nv))
+    along, across = 0.3 + 0.05 * rng.standard_normal(n), 0.1 * rng.standard_normal(n)
+    v[:, :2] = np.column_stack([along, across])  # base frame = the start's heading frame
+    command = heading @ np.array([0.3, 0.0])
+    out = _com_forward_lateral_rmse(g1, q, v, command, yaw)
+    assert out["com_vel_rmse_settled_forward"] == pytest.approx(np.sqrt(np.mean((along - 0.3) ** 2)))
+    assert out["com_vel_rmse_settled_lateral"] == pytest.approx(np.sqrt(np.mean(across**2)))
+    joint = np.zeros((1, g1.nv))
+    joint[0, 6:] = rng.standard_normal(g1.nv - 6)
+    expected = (pin.jacobianCenterOfMass(g1.model, g1.model.createData(), q[0]) @ joint[0])[:2] @ heading
+    out = _com_forward_lateral_rmse(g1, q[:1], joint, np.zeros(2), yaw)
+    assert out["com_vel_rmse_settled_forward"] == pytest.approx(abs(expected[0]))
+    assert out["com_vel_rmse_settled_lateral"] == pytest.approx(abs(expected[1]))
+
+
+@pytest.mark.slow
+def test_g1_walks_forward_at_the_commanded_speed_per_tick():
+    """Issue 19's walk-forward: the base's per-tick velocity error after 2 s within 0.05 m/s (6 s of the 10 s run,
+    compiled Fatrop; 10 s measured 0.020 m/s), the CoP inside the soles."""
+    from wbmpc.scenarios.runner import RunConfig, run_scenario
+
+    metrics = run_scenario(load_robot("g1"), RunConfig(scenario="walk-forward", duration_s=6.0, compiled=True)).metrics
+    assert not metrics["fell"] and metrics["cop_outside_sole_ticks"] == 0
+    assert metrics["base_vel_rmse_settled"] <= 0.05
+    assert metrics["com_vel_rmse_settled"] > metrics["base_vel_rmse_settled"]  # the CoM still sways over the soles
 
 
 @pytest.mark.slow

@@ -17,7 +17,8 @@ pelvis' sway. So on two feet:
 - the force regularisation towards equal shares (eq. 3's F term) 1e-5 instead of 1e-3: at 1e-3 a
   100 N shift costs 10 per node, ten times the base position error it corrects, and g1's plans kept
   both feet equally loaded until lift-off (then fell at 0.6 s); leg posture weight 2 (the soles and the
-  pelvis fix a biped's stance legs; the posture cost held the pelvis centred) and base velocity weight 5;
+  pelvis fix a biped's stance legs; the posture cost held the pelvis centred) and base velocity weight 5
+  (g1's table raises it to 1000 while its hands are free, `control/tuning.py`: TALOS at 1000 fell walking forward);
 - `free_ee_without_command`: a hand with no velocity command swings free (its pinned velocity rows
   drove g1's arm into its limits and stalled Fatrop in single support). Then no hand rows hold the trunk
   in place, so the base xy position weight gets the anchor of a robot without an arm

@@ -130,6 +130,8 @@ class RobotTuning:
     support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
     free_ee_without_command: bool = MpcConfig.free_ee_without_command
     swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
+    # the base's linear velocity weight in tasks that hold a hand (`for_task`; g1's table); None: weights' own
+    base_linear_velocity_hand_held: float | None = None
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
@@ -140,6 +142,15 @@ class RobotTuning:
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
                 "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+
+    def for_task(self, holds_hand: bool) -> RobotTuning:
+        """The settings of a task that holds a hand (its velocity or force commanded: arm-track, pull, ...) or
+        not: with a hand held the base velocity weight is `base_linear_velocity_hand_held` if set (g1's table)."""
+        if not holds_hand or self.base_linear_velocity_hand_held is None:
+            return self
+        weights = dataclasses.replace(self.weights, base_linear_velocity=self.base_linear_velocity_hand_held)
+        return dataclasses.replace(self, weights=weights, sources={
+            **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_hand_held", "default")})
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -152,7 +163,8 @@ class RobotTuning:
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
-                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
+                "base_linear_velocity_hand_held": self.base_linear_velocity_hand_held}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
@@ -242,8 +254,20 @@ TUNINGS: dict[str, dict] = {
     # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
     # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
     # as delay (--delay measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
-    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz
-    "g1": {"support_sway_free_hands": 0.0},
+    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz.
+    # Then the base's linear velocity weight 1000 (the biped rule's 5, the size-derived 44): the pelvis carries the
+    # commanded velocity and the hips and trunk take up the sway from one sole to the other (the CoM still sways, as
+    # it must: its velocity is reported next to the base's, `com_vel_rmse_settled`). Walking forward at 0.3 m/s
+    # (10 s, compiled Fatrop, delay none), per-tick base velocity error after 2 s at weights 5 / 300 / 1000: 0.134 /
+    # 0.047 / 0.020 m/s (along 0.077 / 0.028 / 0.012, across 0.110 / 0.037 / 0.016; 300 is RTI, 6 s), 0 failed
+    # steps at 1000, the CoM's 0.14 / 0.095 / 0.088. At 5 the pelvis sped up in single support and slowed in double
+    # support (0.20-0.39 m/s at 0.3) and swayed with the CoM. Walking in place at 1000: drift 0.019 cm/s (0.65 at 5).
+    # With a hand held (tasks that command it, `RobotTuning.for_task`) it stays 5: the pinned hand and the lean leave
+    # the trunk little room, and arm-track walking in place (10 s, compiled Fatrop) failed 0 / 3 / 25 steps of 800
+    # at 5 / 300 / 1000 (hand RMSE 0.35 / 0.33 / 0.32 cm; 46 at 1000 without the lean), pull's 5 kg load moved
+    # 0.780 of 0.880 m at 1000 (0.854 at 5). Not a biped rule: TALOS walking forward at 0.3 m/s fell at 1.6 s at
+    # 1000 and 2.1 s at 300 (up over 4 s at 5)
+    "g1": {"support_sway_free_hands": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_hand_held": 5.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }

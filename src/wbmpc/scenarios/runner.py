@@ -218,7 +218,7 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
         config = config.for_robot(robot)
     n = config.nodes - 1
     grid = TimeGrid.uniform_steps(n, config.uniform_dt_ms / 1e3) if config.uniform_dt_ms is not None else TimeGrid(n_intervals=n)
-    tuning = tuning_for(robot) if robot is not None else RobotTuning()  # without a robot: the paper robot's
+    tuning = (tuning_for(robot) if robot is not None else RobotTuning()).for_task(scenario.needs_arm)  # no robot: B1 + Z1's
     collision = (CollisionConfig(margin_m=config.collision_margin_m,
                                  obstacles=tuple(scenario.obstacles(robot)) if robot is not None else ())
                  if config.collision_avoidance else None)
@@ -418,7 +418,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
-    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains)
+    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
     if state_source is not None:
@@ -458,10 +458,10 @@ def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
     return out
 
 
-def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains) -> dict:
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, holds_hand: bool = False) -> dict:
     """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
     says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
-    tuning = tuning_for(robot)
+    tuning = tuning_for(robot).for_task(holds_hand)
     used = dataclasses.replace(tuning, gains=gains, **{key: getattr(mpc.config, key) for key in tuning.mpc_fields()})
     report = tuning.report()
     used_report = used.report()
