@@ -447,18 +447,3 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     assert held.stats.status.startswith("QP_Maximum_Iterations_Exceeded; holding the last good plan")
     assert all(np.all(np.isfinite(part)) for part in (held.q, held.v, held.a, held.forces, held.tau))
     assert mpc.solver._recovery is None and mpc._fallback is None  # nothing was built or run to rescue it
-
-
-def test_g1_arm_damper_is_raised_within_the_sampled_damper_bound(g1):
-    """g1's arm Kd comes from its table (6, above the derived 3.19 that let its elbows oscillate with late
-    plans) and stays a stable sampled damper on its lightest arm joint: Kd dt / I below DAMPER_STABILITY with I
-    the joint's own inertia (pinocchio's CRBA, the rotor's armature included) at the nominal pose."""
-    from wbmpc.control.tuning import CONTROL_PERIOD_S, DAMPER_STABILITY, RobotScale, derive, tuning_for
-
-    tuning = tuning_for(g1)
-    assert tuning.report()["gains.kd_arm"] == {"value": 6.0, "source": "table"}
-    assert derive(RobotScale.of(g1)).gains.kd_arm < 4.0
-    model = g1.model.copy()
-    model.armature[6:] = g1.armature_kg_m2
-    inertia = np.diag(pin.crba(model, model.createData(), g1.q_nominal))[6:][~g1.leg_joint_mask]
-    assert 6.0 * CONTROL_PERIOD_S / inertia.min() < DAMPER_STABILITY
