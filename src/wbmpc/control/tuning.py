@@ -243,13 +243,7 @@ TUNINGS: dict[str, dict] = {
     # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
     # as delay (--delay measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
     # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz
-    # g1's arms in real time: with the derived Kd 3.19 (kp 63.8, scaled from the Z1 by arm mass) a plan that comes
-    # 12 ms after its measurement sets the elbows oscillating at the MPC's own period (two steps; 8 -> 30 rad/s in
-    # 1 s) until the QPs fail and it falls (RTI walking in place, --delay 12: fell at 7.8 s, 58 failed steps; at
-    # 10 ms it stays up, the elbows below 1 rad/s). Kd 6 damps them: --delay 12 0 failed steps of 480, 6.5 QP
-    # iterations; up at --delay 16 and 20 too (62 / 50 Hz); Kd 4.5 at 12 ms: 6 failed. Kd dt / I 0.39 on the
-    # lightest arm joint (shoulder yaw, 0.031 kg m^2 with its rotor), within DAMPER_STABILITY
-    "g1": {"support_sway_free_hands": 0.0, "gains.kd_arm": 6.0},
+    "g1": {"support_sway_free_hands": 0.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }
