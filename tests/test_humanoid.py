@@ -447,3 +447,19 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     assert held.stats.status.startswith("QP_Maximum_Iterations_Exceeded; holding the last good plan")
     assert all(np.all(np.isfinite(part)) for part in (held.q, held.v, held.a, held.forces, held.tau))
     assert mpc.solver._recovery is None and mpc._fallback is None  # nothing was built or run to rescue it
+
+
+def test_delay_compensation_is_off_by_default_on_flat_feet(g1):
+    """Plans from the state rolled forward over the delay set g1's free arms oscillating once they came 12 ms late:
+    flat feet plan from the measurement unless asked; point feet compensate any delay; an explicit choice wins."""
+    from wbmpc.scenarios.runner import RunConfig, mpc_config_for
+
+    def compensation(robot, **fields):
+        config = RunConfig(scenario="walk-in-place", solver="rti", **fields)
+        return mpc_config_for(make_scenario("walk-in-place", robot), config, robot).delay_compensation
+
+    b1_z1 = load_robot("b1_z1")
+    assert not compensation(g1, delay="realtime") and not compensation(g1, delay="12")
+    assert compensation(g1, delay="realtime", delay_compensation=True)
+    assert compensation(b1_z1, delay="realtime") and compensation(b1_z1, delay="measured")
+    assert not compensation(b1_z1, delay="none") and not compensation(g1, delay="none")
