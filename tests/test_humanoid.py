@@ -463,3 +463,57 @@ def test_pull_tipping_check_counts_the_soles(g1):
     make_scenario("pull", g1, ScenarioOptions(load_kg=5.0))
     with pytest.raises(ConfigError, match="tip the robot over"):
         make_scenario("pull", g1, ScenarioOptions(load_kg=5.0, force_n=60.0))
+
+
+def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
+    """With a plant that does not wait, a failed RTI/SQP step on flat feet holds the last good plan at once: no
+    Fatrop re-solve (~200 ms on g1), no IPOPT fallback, no HPIPM balance-mode re-solve; point feet and runs whose
+    plant waits keep them."""
+    from wbmpc.scenarios.runner import RunConfig, mpc_config_for
+    from wbmpc.solvers.qp import QpResult
+
+    scenario = make_scenario("walk-in-place", g1)
+    realtime = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="rti", delay="realtime"), g1)
+    options = realtime.solver.extra_options
+    assert options["recovery_barrier_init"] is None and options["fallback_qp_mode"] is None
+    assert realtime.fallback_solver is None
+    for name, delay in (("g1", "none"), ("b1_z1", "realtime")):
+        robot = g1 if name == "g1" else load_robot(name)
+        other = mpc_config_for(make_scenario("walk-in-place", robot), RunConfig(scenario="walk-in-place", solver="rti",
+                                                                                 delay=delay), robot)
+        assert "recovery_barrier_init" not in other.solver.extra_options and "fallback_qp_mode" not in \
+            other.solver.extra_options
+        assert other.fallback_solver == MpcConfig.fallback_solver
+    sqp = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="sqp", delay="measured"), g1)
+    assert sqp.solver.extra_options["recovery_barrier_init"] is None and sqp.fallback_solver is None
+    # the plan: solved once, then a QP that fails (its iteration cap) leaves the last plan shifted, finite
+    mpc = MPC(g1, realtime)
+    mpc.prepare_fallback()
+    assert mpc.solver._recovery is None and mpc.solver.fallback_qp is None and mpc._fallback is None
+    first = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t=0.0)
+    assert first.success, first.stats.status
+    n = mpc.problem.n_variables
+    mpc.solver.qp.solve = lambda *data: QpResult(step=np.full(n, np.nan), lam_g=np.zeros(mpc.problem.n_constraints),
+                                                lam_x=np.zeros(n), status="QP_Maximum_Iterations_Exceeded",
+                                                success=False, iterations=30, solve_time_s=0.03)
+    held = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t=0.0125)
+    assert not held.success and held.held_previous
+    assert held.stats.status.startswith("QP_Maximum_Iterations_Exceeded; holding the last good plan")
+    assert all(np.all(np.isfinite(part)) for part in (held.q, held.v, held.a, held.forces, held.tau))
+    assert mpc.solver._recovery is None and mpc._fallback is None  # nothing was built or run to rescue it
+
+
+def test_delay_compensation_is_off_by_default_on_flat_feet(g1):
+    """Plans from the state rolled forward over the delay set g1's free arms oscillating once they came 12 ms late:
+    flat feet plan from the measurement unless asked; point feet compensate any delay; an explicit choice wins."""
+    from wbmpc.scenarios.runner import RunConfig, mpc_config_for
+
+    def compensation(robot, **fields):
+        config = RunConfig(scenario="walk-in-place", solver="rti", **fields)
+        return mpc_config_for(make_scenario("walk-in-place", robot), config, robot).delay_compensation
+
+    b1_z1 = load_robot("b1_z1")
+    assert not compensation(g1, delay="realtime") and not compensation(g1, delay="12")
+    assert compensation(g1, delay="realtime", delay_compensation=True)
+    assert compensation(b1_z1, delay="realtime") and compensation(b1_z1, delay="measured")
+    assert not compensation(b1_z1, delay="none") and not compensation(g1, delay="none")

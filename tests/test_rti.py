@@ -15,11 +15,14 @@ from wbmpc.solvers import make_solver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 from wbmpc.solvers.rti import (
     DIRECT_QP_BARRIER_INIT,
+    FALLBACK_FIRST_CALLS,
+    FLAT_FOOT_FALLBACK_FIRST_CALLS,
     FLAT_FOOT_QP_BARRIER_INIT,
     FLAT_FOOT_RTI_QP_TOLERANCE,
     QP_TOLERANCE,
     RtiConfig,
     RtiSolver,
+    fallback_first_calls,
     qp_defaults,
 )
 
@@ -132,6 +135,19 @@ def test_hpipm_settings_follow_the_contacts():
     assert qp_defaults(RtiConfig(), flat_feet=True) == (FLAT_FOOT_RTI_QP_TOLERANCE, FLAT_FOOT_QP_BARRIER_INIT)
     assert qp_defaults(RtiConfig(sqp_iterations=5), flat_feet=True) == (QP_TOLERANCE, FLAT_FOOT_QP_BARRIER_INIT)
     assert qp_defaults(RtiConfig(qp_tolerance=1e-6, qp_barrier_init=100.0), flat_feet=True) == (1e-6, 100.0)
+
+
+def test_qp_fallback_mode_goes_first_after_a_failure_on_point_feet_only(fixed_state):
+    """Point feet: after a failed QP the fallback mode goes first for 20 calls (post-push QPs where speed stalls);
+    flat feet: never (g1's failed QPs fail in both modes, and balance costs more a QP); a given count wins."""
+    assert fallback_first_calls(RtiConfig(), flat_feet=False) == FALLBACK_FIRST_CALLS == 20
+    assert fallback_first_calls(RtiConfig(), flat_feet=True) == FLAT_FOOT_FALLBACK_FIRST_CALLS == 0
+    assert fallback_first_calls(RtiConfig(fallback_first_calls=3), flat_feet=True) == 3
+    assert fallback_first_calls(RtiConfig(fallback_first_calls=0), flat_feet=False) == 0
+    with pytest.raises(ConfigError, match="fallback_first_calls must be >= 0"):
+        RtiConfig(fallback_first_calls=-1)
+    problem = fixed_state[0]  # go2: point feet
+    assert RtiSolver(problem, SolverConfig(name="rti")).fallback_first_calls == FALLBACK_FIRST_CALLS
 
 
 def test_rti_trot_stays_up_in_mujoco(b1z1):

@@ -104,11 +104,12 @@ class RunConfig:
                                   parse=lambda items: parse_solver_options(items),
                                   help="a setting of the rti/sqp solvers (RtiConfig/AnytimeConfig), repeatable: e.g. "
                                   "sqp_iterations=2, budget_ms=5, clock=cpu")
-    # MpcConfig.delay_compensation; None: on whenever the plan applies late (any --delay but none)
+    # MpcConfig.delay_compensation; None: on whenever the plan applies late (any --delay but none) on point feet,
+    # off on flat feet (`_delay_compensation_default`)
     delay_compensation: bool | None = option(
         None, flag="--delay-compensation", choices=("on", "off"), parse=lambda text: text == "on",
         help="plan from the state predicted for when the plan applies (the measurement rolled forward over the "
-        "expected delay with the last plan)", default_text="on with any --delay but none")
+        "expected delay with the last plan)", default_text="on with any --delay but none; off on flat feet")
     # MpcConfig.step_budget_s of the anytime solver; None: see _step_budget_s
     step_budget_ms: float | None = option(
         None, flag="--step-budget", metavar="MS", low=0.0, high=1e4, low_open=True, unit="ms",
@@ -223,6 +224,7 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                                  obstacles=tuple(scenario.obstacles(robot)) if robot is not None else ())
                  if config.collision_avoidance else None)
     soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
+    flat_feet = robot is not None and bool(robot.soles)
     return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
                                    soft_rows=("ee_vel",) if soft_arm else (),
                                    inertial_parameters=config.identify_mass,
@@ -232,9 +234,9 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # a warm-started step converges in ~4 iterations; one still unsolved after 30 has
                      # stalled (pushes) and goes to the bounded recovery instead of burning 100
                      solver=SolverConfig(name=config.solver, compiled=config.compiled, max_iterations=30,
-                                         extra_options=_solver_options(config)),
-                     delay_compensation=(config.delay != "none" if config.delay_compensation is None
-                                         else config.delay_compensation),
+                                         extra_options=_solver_options(config, flat_feet)),
+                     delay_compensation=(_delay_compensation_default(config, flat_feet)
+                                         if config.delay_compensation is None else config.delay_compensation),
                      step_budget_s=_step_budget_s(config),
                      **{**tuning.mpc_fields(), "weights": _collision_weights(scenario.cost_weights(tuning.weights),
                                                                          soft_arm)},
@@ -245,6 +247,7 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                      # the anytime SQP continues from its own best iterate: no converged solver first after a rescue
                      # (an uncompiled IPOPT step takes 100+ ms: real-time push cases fell to 5 Hz with it)
                      fallback_first_s=0.0 if config.solver == "sqp" else MpcConfig.fallback_first_s,
+                     fallback_solver=None if _hold_on_failure(config, flat_feet) else MpcConfig.fallback_solver,
                      recovery_time_limit_s=MpcConfig.recovery_time_limit_s if config.delay == "none"
                      else DELAYED_RECOVERY_LIMIT_S,
                      # the estimator reads the MPC's gait clock for its stance feet; in real time the clock
@@ -300,12 +303,43 @@ def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False
     return "fatrop-direct" if compiled and delay == "none" and not collision_avoidance else "sqp"
 
 
-def _solver_options(config: RunConfig) -> dict:
+def _delay_compensation_default(config: RunConfig, flat_feet: bool) -> bool:
+    """Delay compensation where the user left it open: with any --delay but none, on point feet only.
+
+    On g1 (flat feet, free hands) the plan started from the state rolled forward with the last plan's accelerations
+    set the arms oscillating at the MPC's own period (elbows and shoulders 10-30 rad/s, every other step the other
+    way) once the plans came 12 ms or more after their measurement; the QPs then failed and the robot fell. RTI
+    walking in place, 10 s, no recovery re-solves, fixed delays of 12 / 14 / 16 ms: with compensation it fell at
+    7.8 / 5.4 / 2.3 s (58 / 66 / 22 failed steps); without it up at 12, 13, 16 and 20 ms (50 Hz) with 0 failed
+    steps, and with each step's CPU time as delay (--delay measured) 0 failed either way, base velocity RMSE
+    0.073 m/s against 0.085 with it. Raising the arms' Kd (3.2 -> 6) only moved the cliff (12 ms up, 13 fell).
+    Quadrupeds keep it (their resolved real-time figures)."""
+    return config.delay != "none" and not flat_feet
+
+
+def _hold_on_failure(config: RunConfig, flat_feet: bool) -> bool:
+    """A failed QP step holds the last good plan at once (no Fatrop re-solve, no IPOPT fallback): the SQP solvers
+    on flat feet with a plant that does not wait. g1 walking in place with RTI in real time: a failed QP's capped
+    Fatrop re-solve took ~200 ms (1555 variables, ~8 ms an iteration) and the MPC's IPOPT fallback after it up to
+    the delayed recovery budget, while the plan went stale: it fell at 1.24 s, 47 Hz (i19g). Its QPs failed where
+    the state had left the plan (the arms oscillating, see `_delay_compensation_default`; infeasible from there:
+    hard swing-foot velocity rows on node 1 against the torque limits of nodes 0-2), not on a degenerate QP that a
+    converged solver from a larger barrier would get through."""
+    return flat_feet and config.solver in ("rti", "sqp") and config.delay != "none"
+
+
+def _solver_options(config: RunConfig, flat_feet: bool = False) -> dict:
     """SolverConfig.extra_options of a run: --solver-option, and for rti/sqp with a delay a capped Fatrop
-    re-solve of a failed QP; the anytime SQP measures its budget on CPU time where the plant waits for it."""
+    re-solve of a failed QP (none on flat feet: `_hold_on_failure`); the anytime SQP measures its budget on CPU
+    time where the plant waits for it."""
     options = {}
     if config.solver in ("rti", "sqp") and config.delay != "none":
         options["recovery_max_iterations"] = RECOVERY_ITERATIONS_DELAYED
+    if _hold_on_failure(config, flat_feet):
+        # nor a re-solve in HPIPM's balance mode: g1 at --delay 16 (RTI, 10 s), 27 QPs failed in speed_abs, 26 of
+        # them failed in balance too (both at the iteration cap: 60 ms a failed step); without it the same run
+        # (same 27 failed steps, up) at 30 ms a failed step
+        options.update(recovery_barrier_init=None, fallback_qp_mode=None)
     if config.solver == "sqp" and config.delay not in ("realtime", "none", "measured-wall"):
         options["clock"] = "cpu"  # what the step would take on a core of its own, whatever else the machine runs
     return {**options, **config.solver_options}

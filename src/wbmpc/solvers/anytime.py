@@ -307,7 +307,7 @@ class AnytimeSqpSolver(RtiSolver):
                 if result.success:
                     self._record_qp(self.clock() - tic, result.iterations)
                 if qps[0][0] is not self.fallback_qp:
-                    self._fallback_first = self.rti.fallback_first_calls
+                    self._fallback_first = self.fallback_first_calls
             else:
                 result.status = f"{result.status} ({qps[0][1]}; no time for {qps[1][1]} before the deadline)"
         return result, spent_s, iterations

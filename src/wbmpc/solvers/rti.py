@@ -53,8 +53,14 @@ FLAT_FOOT_QP_BARRIER_INIT = 10.0
 QP_TOLERANCE = 1e-4  # RtiConfig.qp_tolerance
 # ... of one real-time iteration on flat feet: g1 walking in place (RTI, 4 s, MuJoCo, delay none) took 6.75 HPIPM
 # iterations per step with mu0 10 and 1e-3, 7.0 with mu0 100 and 1e-3, 7.8 with 100 and 1e-4, 10.0 with 1e3 and 1e-4,
-# all with the same drift (0.72 cm/s) and velocity RMSE (0.174 m/s)
-FLAT_FOOT_RTI_QP_TOLERANCE = 1e-3
+# all with the same drift (0.72 cm/s) and velocity RMSE (0.174 m/s). 1e-2: 5.67 iterations against 6.64 with 1e-3
+# (10 s, each step's CPU time as delay: 8.7 against 8.9-9.5 ms, 0 failed steps either way, base velocity RMSE 0.073
+# both; at a fixed 16 ms delay 0 failed steps, RMSE 0.070): the real-time step is the CPU budget that matters
+FLAT_FOOT_RTI_QP_TOLERANCE = 1e-2
+FALLBACK_FIRST_CALLS = 20  # RtiConfig.fallback_first_calls on point feet
+# ... on flat feet: g1's failed QPs fail in "balance" too (the state, not the mode: iteration cap in both), and its
+# 20 balance-first QPs after each took 13.7 ms a step in real time against 8.2 with speed_abs first (i19g)
+FLAT_FOOT_FALLBACK_FIRST_CALLS = 0
 
 
 @dataclass(frozen=True)
@@ -69,8 +75,9 @@ class RtiConfig:
     qp_mode: str = "speed_abs"
     fallback_qp_mode: str | None = "balance"  # re-solves a QP the first mode failed (speed stalls on a few go2 QPs)
     # after a QP the first mode failed, the fallback mode goes first for this many calls: after a push
-    # `speed` fails (minimum step length) on most QPs for a while, each failure a wasted ~20 iterations
-    fallback_first_calls: int = 20
+    # `speed` fails (minimum step length) on most QPs for a while, each failure a wasted ~20 iterations.
+    # None: FALLBACK_FIRST_CALLS, 0 on an OCP with flat feet (FLAT_FOOT_FALLBACK_FIRST_CALLS)
+    fallback_first_calls: int | None = None
     qp_options: dict = field(default_factory=dict)  # further HPIPM arguments (solvers/qp.py QpConfig.hpipm_options)
     # "direct": our HPIPM binding (solvers/hpipm_direct.py, compiled once into the cache), casadi's hpipm conic where it
     # cannot be built (a warning, the reason in `direct_error`); "casadi": the conic (qp_options are its options)
@@ -101,7 +108,7 @@ class RtiConfig:
                 raise ConfigError(f"unknown HPIPM mode '{mode}'; available modes: {', '.join(HPIPM_MODES)}")
         if self.hpipm_binding not in HPIPM_BINDINGS:
             raise ConfigError(f"unknown hpipm_binding '{self.hpipm_binding}'; available: {', '.join(HPIPM_BINDINGS)}")
-        if self.fallback_first_calls < 0:
+        if self.fallback_first_calls is not None and self.fallback_first_calls < 0:
             raise ConfigError(f"fallback_first_calls must be >= 0, got {self.fallback_first_calls}")
         if self.recovery_max_iterations < 1:
             raise ConfigError(f"recovery_max_iterations must be >= 1, got {self.recovery_max_iterations}")
@@ -127,6 +134,14 @@ def qp_defaults(rti: RtiConfig, flat_feet: bool) -> tuple[float, float]:
     tolerance = rti.qp_tolerance or (FLAT_FOOT_RTI_QP_TOLERANCE if flat_feet and rti.sqp_iterations == 1
                                      else QP_TOLERANCE)
     return tolerance, rti.qp_barrier_init or (FLAT_FOOT_QP_BARRIER_INIT if flat_feet else DIRECT_QP_BARRIER_INIT)
+
+
+def fallback_first_calls(rti: RtiConfig, flat_feet: bool) -> int:
+    """How many calls after a QP the first mode failed start in the fallback mode: RtiConfig's where given,
+    else by the kind of contacts."""
+    if rti.fallback_first_calls is not None:
+        return rti.fallback_first_calls
+    return FLAT_FOOT_FALLBACK_FIRST_CALLS if flat_feet else FALLBACK_FIRST_CALLS
 
 
 class RtiSolver:
@@ -166,6 +181,7 @@ class RtiSolver:
         sparsity = (hessian_function.sparsity_out(0), functions["nlp_jac_g"].sparsity_out(1))
         self.jacobian_sparsity = sparsity[1]
         tolerance, barrier_init = qp_defaults(self.rti, bool(problem.surface_feet))
+        self.fallback_first_calls = fallback_first_calls(self.rti, bool(problem.surface_feet))
         qp_config = QpConfig(mode=self.rti.qp_mode, tolerance=tolerance, max_iterations=config.max_iterations,
                              barrier_init=barrier_init, hpipm_options=dict(self.rti.qp_options))
         # HPIPM through our shim (solvers/hpipm_direct.py) where it builds: H, J and the gradient as NumPy nonzeros
@@ -281,7 +297,7 @@ class RtiSolver:
             spent_s, iterations = spent_s + result.solve_time_s, iterations + max(result.iterations, 0)
             result.status = f"{result.status} ({qps[1][1]} after {qps[0][1]}: {first})"
             if qps[0][0] is self.qp:
-                self._fallback_first = self.rti.fallback_first_calls
+                self._fallback_first = self.fallback_first_calls
         return result, spent_s, iterations
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
