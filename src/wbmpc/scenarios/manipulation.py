@@ -478,6 +478,8 @@ class PushBox(_ForceTask):
     GAP_M = 0.02
     DEFAULT_FORCE_N = 20.0
     PATH_DURATION_AFTER_S = 1.0  # the run continues this long after the path's turn
+    PUSH_HEIGHT_M: float | None = 0.55  # scratch: the object model's push height (None: the nominal hand's)
+    CROUCH = 0.85  # scratch: base height share of the nominal with the object model
 
     def __init__(self, options: ScenarioOptions):
         super().__init__("push-box", "press a box against the wall while trotting in place (or push it along a "
@@ -506,7 +508,14 @@ class PushBox(_ForceTask):
         """The OCP's model of the scene's box (`--object-model`)."""
         from wbmpc.ocp.objects import SlidingBox
 
-        return SlidingBox.from_scene(self.free_box(robot), EE_SPHERE_RADIUS_M)
+        return SlidingBox.from_scene(self.free_box(robot), EE_SPHERE_RADIUS_M, push_height_m=self.push_height_m(robot))
+
+    def push_height_m(self, robot) -> float | None:
+        """The hand's height on the box's face with the object model (None: where the nominal posture holds it)."""
+        return self.PUSH_HEIGHT_M
+
+    def _base_height_m(self, robot) -> float | None:
+        return self.CROUCH * float(robot.q_nominal[2]) if self.PUSH_HEIGHT_M is not None else None
 
     @property
     def force_magnitude_n(self) -> float:
@@ -547,7 +556,8 @@ class PushBox(_ForceTask):
     def _push_pivot_m(self, robot) -> float:
         """Where the box's floor load centres under the sliding push at the hand's height h: mu h ahead of its centre
         (`object_paths.sideslip_lead`)."""
-        return self.free_box(robot).friction_mu * float(nominal_ee_position(robot)[2])
+        height = self.push_height_m(robot) if self.options.object_model else None
+        return self.free_box(robot).friction_mu * float(nominal_ee_position(robot)[2] if height is None else height)
 
     def _path_commands(self, robot):
         """The base follows the box's path; the hand pushes by force command, or (object model) the MPC plans it."""
@@ -562,7 +572,7 @@ class PushBox(_ForceTask):
             measured = object_command(path, self._scene, self.object_name, t, pivot)
             base = follower.base_command(t, q, measured.state)
             if self.options.object_model:
-                return Commands(**base, object_command=measured)
+                return Commands(**base, object_command=measured, base_height_m=self._base_height_m(robot))
             velocity, force = force_command(path, t, box, EE_SPHERE_RADIUS_M, height, ee.position(q), _feedback)
             return Commands(**base, ee_velocity_m_s=velocity, ee_force_n=force)
 
