@@ -244,3 +244,29 @@ def test_a_mujoco_box_pushed_high_turns_about_the_pivot_of_the_lead():
     assert w > 0.05  # it turns left (pushed right of the centre)
     expected = -w * model.friction_mu * height
     assert abs(v_lateral - expected) < 0.25 * abs(expected), (v_lateral, expected)
+
+
+def test_push_height_rows_bring_the_hand_down_before_it_touches_the_face():
+    """`SlidingBox.push_height_m`: the third contact row is the hand's height above it (numeric, at a hand placed by
+    hand); a hand 30 cm above it must descend on a line that reaches the band by PUSH_HEIGHT_BLEND_TIME_S (the first
+    node already below the measurement: a band left free would never move it) and keeps off the face with no force
+    meanwhile; within PUSH_HEIGHT_APPROACH_M it closes the gap as without a push height."""
+    from wbmpc.ocp.objects import PUSH_HEIGHT_APPROACH_M, PUSH_HEIGHT_BLEND_TIME_S, PUSH_HEIGHT_TOLERANCE_M
+
+    model = SlidingBox(push_height_m=0.55)
+    state = np.array([1.0, 0.2, np.pi / 2, 0.0, 0.0, 0.0])  # the near face at y = -0.1, facing -y
+    hand = np.array([1.0, 0.2 - 0.3 - model.hand_radius_m - 0.05, 0.85])  # 5 cm off the face, 30 cm high
+    rows = model.contact_values(state, hand)
+    assert np.allclose(rows, [-0.05, 0.0, 0.30], atol=1e-12)
+    times = np.array([0.0, 0.01, 0.1, PUSH_HEIGHT_BLEND_TIME_S, 0.8])
+    lower, upper, may_push = model.contact_bounds(rows, times)
+    assert not may_push.any()
+    assert np.all(upper[:, 0] <= -0.01 + 2e-3 + 1e-12) and np.all(np.isinf(lower[:, 0]))
+    assert upper[1, 2] < rows[2] and np.all(np.diff(upper[:, 2]) <= 0)
+    assert np.allclose(upper[3:, 2], PUSH_HEIGHT_TOLERANCE_M) and np.allclose(lower[:, 2], -PUSH_HEIGHT_TOLERANCE_M)
+    near = rows.copy()
+    near[2] = 0.5 * PUSH_HEIGHT_APPROACH_M
+    lower_near, upper_near, may_push_near = model.contact_bounds(near, times)
+    reference_lower, reference_upper, reference_push = SlidingBox().contact_bounds(near[:2], times)
+    assert np.allclose(lower_near[:, :2], reference_lower) and np.allclose(upper_near[:, :2], reference_upper)
+    assert np.array_equal(may_push_near, reference_push)
