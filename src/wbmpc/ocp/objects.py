@@ -194,7 +194,8 @@ class SlidingBox(ObjectModel):
     push_shifts_loads: bool = False
     # the hand's height on the face (m, world; None: free, the robot's posture decides): a low push keeps the box's
     # floor load near its centre (the tipping moment mu m g h), so the box turns about a pivot mu h ahead of it instead
-    # of about its far edge (`scenarios/object_paths.sideslip_lead`); a third contact row, within PUSH_HEIGHT_TOLERANCE_M
+    # of about its far edge (`scenarios/object_paths.sideslip_lead`); a third contact row, within PUSH_HEIGHT_TOLERANCE_M.
+    # Measured, it did not track push-box's turn better: the low-pushed box resisted turning (`object_paths.object_command`)
     push_height_m: float | None = None
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at

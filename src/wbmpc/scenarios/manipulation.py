@@ -480,8 +480,8 @@ class PushBox(_ForceTask):
     PATH_DURATION_AFTER_S = 1.0  # the run continues this long after the path's turn
     # --object-model: the hand's height on the box's face (SlidingBox.push_height_m; None: where the nominal posture
     # holds it, 0.87 m on b1_z1), with the base crouched to CROUCH of its nominal height and the arm's posture weight
-    # ARM_WEIGHT. Off by default: on b1_z1 the MPC brought the hand no lower than ~0.67-0.71 m (its arm at joint3's
-    # limit; the IK's 0.55 m needs the base at 0.45 m, the legs' posture weight held it at 0.49 m), see the report of i22u
+    # ARM_WEIGHT. Off by default: lower pushes tracked the turn worse (b1_z1, 16 s: 0.82 / 0.74 m, 6.2 / 13.1 cm RMSE
+    # against 5.6 cm at 0.87 m, `object_paths.object_command`), and the MPC brought the hand no lower than ~0.67-0.71 m
     PUSH_HEIGHT_M: float | None = None
     CROUCH = 0.85
     ARM_WEIGHT = 100.0

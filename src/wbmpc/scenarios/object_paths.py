@@ -151,7 +151,14 @@ def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0
     instead of 3e4 (5.8 cm); a sprung hand (`CompliantPad`, 8000 / 4000 N/m: 4.7 / 6.7 cm, the hand on the box 94 %
     of the time instead of 60 %); the hand held lower by a height row in the OCP (0.78 / 0.72 m, the pivot and the
     lead with it: 6.8 / 14.6 cm, the box's yaw lagging the smaller lead; bands at 0.6 / 0.5 m: the hand stopped at
-    0.71 m or knocked the box away while descending, the robot fell)."""
+    0.71 m or knocked the box away while descending, the robot fell). The push height as an OCP row
+    (`SlidingBox.push_height_m`, the hand at its height before it closes the gap, the base crouched, the box placed
+    clear of the front hips, the lead from that height) confirmed it: the hand at 0.82 / 0.74 m gave 6.2 / 13.1 cm
+    (0.74 m with a 3 cm face margin: 20.0 cm; with the hand's full or 60 % friction cone: 23.0 / 24.0 cm), the straight
+    better (0.7 cm) but the box's yaw lagging the lead, the hand at the face's side limit: pushed high the box rests on
+    its far corners and turns about them cheaply; pushed low its floor load spreads and its friction moment is more
+    than the hand's lever on the face can apply. Targets of 0.55-0.65 m were out of the MPC's reach (the hand stalled at
+    0.67-0.71 m; a static IK puts 0.55 m at the base 8 cm lower, the arm at its joint limits)."""
     reference = path.states(t)[0]
     state = measured_box_state(scene, name, np.concatenate([path.start_xy_m, np.zeros(4)]), reference[2])
     if not pivot_m:
