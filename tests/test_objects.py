@@ -154,6 +154,10 @@ def test_push_box_object_model_stays_up_and_moves_the_box(b1z1):
     assert not m["fell"] and m["object_model"]
     assert m["box_pos_rmse_m"] is not None and m["box_pos_rmse_m"] < 0.03
     assert m["box_travel_m"] > 0.01  # the path started at 1 s: the box moved with it
+    # the hand's sprung pad keeps the contact closed: on the box most of the time once it pushes (the rigid sphere: 60 %)
+    t, force = result.scene.recording.series("box", "force_n")
+    pushing = t > 1.2
+    assert np.mean(np.linalg.norm(force[pushing], axis=1) > 0.5) > 0.8
 
 
 def test_object_model_is_read_from_the_scene(b1z1):
@@ -162,6 +166,13 @@ def test_object_model_is_read_from_the_scene(b1z1):
     box = scenario.free_box(b1z1)
     model = scenario.object_model(b1z1)
     assert (model.mass_kg, model.friction_mu, model.size_m) == (7.0, box.friction_mu, tuple(box.size_m))
+    # the hand's pad: the push that slides the box compresses it by half the OCP's contact tolerance
+    from wbmpc.ocp.objects import CONTACT_TOLERANCE_M
+
+    pad = scenario.push_pad(b1z1)
+    push_n = box.friction_mu * 7.0 * GRAVITY_M_S2
+    assert abs(push_n / pad.stiffness_n_m - 0.5 * CONTACT_TOLERANCE_M) < 1e-12
+    assert any(obj is not box and type(obj).__name__ == "CompliantPad" for obj in scenario.scene(b1z1).objects)
     pull = make_scenario("pull", b1z1, ScenarioOptions(object_model=True, load_kg=14.0))
     load = pull.object_model(b1z1)
     assert load.mass_kg == 14.0 and load.cable_length_m == pull.options.cable_length_m
