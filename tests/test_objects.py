@@ -154,6 +154,10 @@ def test_push_box_object_model_stays_up_and_moves_the_box(b1z1):
     assert not m["fell"] and m["object_model"]
     assert m["box_pos_rmse_m"] is not None and m["box_pos_rmse_m"] < 0.03
     assert m["box_travel_m"] > 0.01  # the path started at 1 s: the box moved with it
+    # the hand's sprung pad keeps the contact closed: on the box most of the time once it pushes (the rigid sphere: 60 %)
+    t, force = result.scene.recording.series("box", "force_n")
+    pushing = t > 1.2
+    assert np.mean(np.linalg.norm(force[pushing], axis=1) > 0.5) > 0.8
 
 
 def test_object_model_is_read_from_the_scene(b1z1):
@@ -162,6 +166,13 @@ def test_object_model_is_read_from_the_scene(b1z1):
     box = scenario.free_box(b1z1)
     model = scenario.object_model(b1z1)
     assert (model.mass_kg, model.friction_mu, model.size_m) == (7.0, box.friction_mu, tuple(box.size_m))
+    # the hand's pad: the push that slides the box compresses it by half the OCP's contact tolerance
+    from wbmpc.ocp.objects import CONTACT_TOLERANCE_M
+
+    pad = scenario.push_pad(b1z1)
+    push_n = box.friction_mu * 7.0 * GRAVITY_M_S2
+    assert abs(push_n / pad.stiffness_n_m - 0.5 * CONTACT_TOLERANCE_M) < 1e-12
+    assert any(obj is not box and type(obj).__name__ == "CompliantPad" for obj in scenario.scene(b1z1).objects)
     pull = make_scenario("pull", b1z1, ScenarioOptions(object_model=True, load_kg=14.0))
     load = pull.object_model(b1z1)
     assert load.mass_kg == 14.0 and load.cable_length_m == pull.options.cable_length_m
@@ -244,3 +255,29 @@ def test_a_mujoco_box_pushed_high_turns_about_the_pivot_of_the_lead():
     assert w > 0.05  # it turns left (pushed right of the centre)
     expected = -w * model.friction_mu * height
     assert abs(v_lateral - expected) < 0.25 * abs(expected), (v_lateral, expected)
+
+
+def test_push_height_rows_bring_the_hand_down_before_it_touches_the_face():
+    """`SlidingBox.push_height_m`: the third contact row is the hand's height above it (numeric, at a hand placed by
+    hand); a hand 30 cm above it must descend on a line that reaches the band by PUSH_HEIGHT_BLEND_TIME_S (the first
+    node already below the measurement: a band left free would never move it) and keeps off the face with no force
+    meanwhile; within PUSH_HEIGHT_APPROACH_M it closes the gap as without a push height."""
+    from wbmpc.ocp.objects import PUSH_HEIGHT_APPROACH_M, PUSH_HEIGHT_BLEND_TIME_S, PUSH_HEIGHT_TOLERANCE_M
+
+    model = SlidingBox(push_height_m=0.55)
+    state = np.array([1.0, 0.2, np.pi / 2, 0.0, 0.0, 0.0])  # the near face at y = -0.1, facing -y
+    hand = np.array([1.0, 0.2 - 0.3 - model.hand_radius_m - 0.05, 0.85])  # 5 cm off the face, 30 cm high
+    rows = model.contact_values(state, hand)
+    assert np.allclose(rows, [-0.05, 0.0, 0.30], atol=1e-12)
+    times = np.array([0.0, 0.01, 0.1, PUSH_HEIGHT_BLEND_TIME_S, 0.8])
+    lower, upper, may_push = model.contact_bounds(rows, times)
+    assert not may_push.any()
+    assert np.all(upper[:, 0] <= -0.01 + 2e-3 + 1e-12) and np.all(np.isinf(lower[:, 0]))
+    assert upper[1, 2] < rows[2] and np.all(np.diff(upper[:, 2]) <= 0)
+    assert np.allclose(upper[3:, 2], PUSH_HEIGHT_TOLERANCE_M) and np.allclose(lower[:, 2], -PUSH_HEIGHT_TOLERANCE_M)
+    near = rows.copy()
+    near[2] = 0.5 * PUSH_HEIGHT_APPROACH_M
+    lower_near, upper_near, may_push_near = model.contact_bounds(near, times)
+    reference_lower, reference_upper, reference_push = SlidingBox().contact_bounds(near[:2], times)
+    assert np.allclose(lower_near[:, :2], reference_lower) and np.allclose(upper_near[:, :2], reference_upper)
+    assert np.array_equal(may_push_near, reference_push)

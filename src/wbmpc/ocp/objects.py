@@ -72,6 +72,11 @@ CONTACT_FORCE_GAP_M = 2e-3  # no force planned on nodes whose gap target is beyo
 # the hand's gap to the object within this of its target, not exactly on it: with an equality Fatrop's line search
 # failed on most steps (the hand pinned to a box that only friction holds); 2 mm is within MuJoCo's contact softness
 CONTACT_TOLERANCE_M = 2e-3
+PUSH_HEIGHT_TOLERANCE_M = 0.02  # SlidingBox.push_height_m: the hand within this of its height on the face
+PUSH_HEIGHT_BLEND_TIME_S = 0.4  # a measured hand height off the push height reaches it over this time
+# ... and the hand stays off the face (no force) while its measured height is further than this from the push height:
+# it moves to its height first and only then closes the gap, so it never slides down the face in contact
+PUSH_HEIGHT_APPROACH_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -187,6 +192,11 @@ class SlidingBox(ObjectModel):
     # MuJoCo's box, yet push-box --object-model (16 s, b1_z1, SQP) did worse with it: 31.5 cm RMSE, the box overshooting
     # the turn's end by 66 cm, against 22.9 cm with even loads
     push_shifts_loads: bool = False
+    # the hand's height on the face (m, world; None: free, the robot's posture decides): a low push keeps the box's
+    # floor load near its centre (the tipping moment mu m g h), so the box turns about a pivot mu h ahead of it instead
+    # of about its far edge (`scenarios/object_paths.sideslip_lead`); a third contact row, within PUSH_HEIGHT_TOLERANCE_M.
+    # Measured, it did not track push-box's turn better: the low-pushed box resisted turning (`object_paths.object_command`)
+    push_height_m: float | None = None
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at
     # mu 0.3) of the face normal, so the box only goes where its face points
@@ -258,17 +268,34 @@ class SlidingBox(ObjectModel):
         return [("obj_dyn", dynamics), ("obj_cone", cone)]
 
     def contact_rows(self, x, hand):
-        """[gap of the hand sphere to the near face (m), the hand's offset along the face (m)]."""
+        """[gap of the hand sphere to the near face (m), the hand's offset along the face (m)] and, with a
+        `push_height_m`, the hand's height above it (m)."""
         local = ca.mtimes(_rot2(x[2]).T, hand[:2] - x[:2])
-        return ca.vertcat(local[0] + self.size_m[0] / 2 + self.hand_radius_m, local[1])
+        rows = [local[0] + self.size_m[0] / 2 + self.hand_radius_m, local[1]]
+        if self.push_height_m is not None:
+            rows.append(hand[2] - self.push_height_m)
+        return ca.vertcat(*rows)
 
     def contact_bounds(self, measured, times):
         target = _blended(float(measured[0]), times)
         half = self.size_m[1] / 2 - self.face_margin_m
         side = max(half, abs(float(measured[1])) + 1e-3)  # a hand measured beyond the margin is not infeasible
-        lower = np.column_stack([np.minimum(target, 0.0) - CONTACT_TOLERANCE_M, np.full(len(times), -side)])
-        upper = np.column_stack([np.maximum(target, 0.0) + CONTACT_TOLERANCE_M, np.full(len(times), side)])
-        return lower, upper, target <= CONTACT_FORCE_GAP_M
+        lower = [np.minimum(target, 0.0) - CONTACT_TOLERANCE_M, np.full(len(times), -side)]
+        upper = [np.maximum(target, 0.0) + CONTACT_TOLERANCE_M, np.full(len(times), side)]
+        if self.push_height_m is not None:
+            # a straight line from the measured height to the band's near edge: the band's tolerance does not leave the
+            # first nodes free (re-blended every step, a proportional blend within a band never moved the hand)
+            height, tol = float(measured[2]), PUSH_HEIGHT_TOLERANCE_M
+            edge = float(np.clip(height, -tol, tol))
+            line = height + np.clip(times / PUSH_HEIGHT_BLEND_TIME_S, 0.0, 1.0) * (edge - height)
+            lower.append(line if height < -tol else np.full(len(times), -tol))
+            upper.append(line if height > tol else np.full(len(times), tol))
+            if abs(height) > PUSH_HEIGHT_APPROACH_M:  # off its height: the hand keeps 1 cm off the face (the row < 0)
+                gap = float(measured[0])
+                target = np.full(len(times), np.inf)  # no force
+                lower[0] = np.full(len(times), -np.inf)
+                upper[0] = np.full(len(times), max(gap, -0.01) + CONTACT_TOLERANCE_M)
+        return np.column_stack(lower), np.column_stack(upper), target <= CONTACT_FORCE_GAP_M
 
     def arm_force_bounds(self):
         return np.array([-np.inf, -np.inf, 0.0]), np.array([np.inf, np.inf, 0.0])
