@@ -281,3 +281,19 @@ def test_push_height_rows_bring_the_hand_down_before_it_touches_the_face():
     reference_lower, reference_upper, reference_push = SlidingBox().contact_bounds(near[:2], times)
     assert np.allclose(lower_near[:, :2], reference_lower) and np.allclose(upper_near[:, :2], reference_upper)
     assert np.array_equal(may_push_near, reference_push)
+
+
+def test_no_hand_force_is_planned_while_the_hand_is_still_off_the_face():
+    """`contact_bounds`' may_push: a hand measured 5 cm off the box's face (gap row -0.05) closes the gap over
+    CONTACT_BLEND_TIME_S; force only from the nodes whose gap target is within `force_gap_m` of contact (the
+    first nodes none: a force there would push the box through air). A hand on the face may push on every node."""
+    from wbmpc.ocp.objects import CONTACT_BLEND_TIME_S
+
+    model = SlidingBox()
+    times = np.linspace(0.0, 2.0 * CONTACT_BLEND_TIME_S, 9)
+    _, _, may_push = model.contact_bounds(np.array([-0.05, 0.0]), times)
+    target = np.clip(1.0 - times / CONTACT_BLEND_TIME_S, 0.0, 1.0) * -0.05
+    assert not may_push[0] and may_push[-1]
+    assert np.array_equal(may_push, target >= -model.force_gap_m)
+    assert model.contact_bounds(np.array([0.0, 0.0]), times)[2].all()
+    assert not model.cone_upper(may_push)[0].any() and np.isinf(model.cone_upper(may_push)[-1]).all()
