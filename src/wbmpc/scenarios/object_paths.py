@@ -138,28 +138,11 @@ def sideslip_lead(path: BoxPath, t, pivot_m: float) -> np.ndarray:
 
 def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0.0) -> ObjectCommand:
     """The box's measured state and its path (the MPC's reference over the horizon), its yaw leading the path's
-    tangent by `sideslip_lead` about the push's `pivot_m` (0: on the tangent). b1_z1, 16 s, compiled SQP: 5.6 cm
-    RMSE with the lead, 22.9 cm without; 4.4 cm with the hand's sprung pad (`PushBox.push_pad`). Most of what is left is the turn's start: building the lead turns the box
-    about its pivot, which swings its centre out by about pivot x lead (8 cm at its peak). Even the best trajectory
-    of a box that turns about a pivot 0.26 m ahead (least squares to the path, at rest before it starts, yaw rate
-    <= 0.5 rad/s) misses the path by 2.7 cm RMSE, 10 cm at the turn's start (1.5 cm at 0.2 m, 0.5 cm at 0.13 m:
-    pushed at 0.67 / 0.43 m). Tried without gain: a yaw reference turned towards the path by the lateral error,
-    without the lead (pure pursuit, lookahead 0.3 m / 1.0 m: 23.6 / 16.8 cm RMSE over 10 s against 13.8 cm
-    without); with it, by 1.5 rad/m of the centre's lateral error (7.9 cm: the steady offset gone, but the centre
-    swung further out at the turn's start, -12 cm), of its low-passed error (5.6-6.5 cm), of its integral (9.9-11.6
-    cm) or of the pivot's (11.0 cm); that best trajectory as the reference (4.9-5.2 cm); the lead's yaw weighted 1e5
-    instead of 3e4 (5.8 cm); (with the pad, now the default:) a face margin of 5 cm instead of 8 (4.4 cm), the hand's cone
-    share 0.5 instead of 0.3 (4.5 cm); the hand held lower by a height row in the OCP (0.78 / 0.72 m, the pivot and the
-    lead with it: 6.8 / 14.6 cm, the box's yaw lagging the smaller lead; bands at 0.6 / 0.5 m: the hand stopped at
-    0.71 m or knocked the box away while descending, the robot fell). The push height as an OCP row
-    (`SlidingBox.push_height_m`, the hand at its height before it closes the gap, the base crouched to 85 %, the lead
-    from that height; the box 9 cm further out where the hand went below 0.7 m, or the front hips and swing feet hit
-    it) confirmed it: the hand at 0.82 / 0.74 m gave 6.2 / 13.1 cm
-    (0.74 m with a 3 cm face margin: 20.0 cm; with the hand's full or 60 % friction cone: 23.0 / 24.0 cm), the straight
-    better (0.7 cm) but the box's yaw lagging the lead, the hand at the face's side limit: pushed high the box rests on
-    its far corners and turns about them cheaply; pushed low its floor load spreads and its friction moment is more
-    than the hand's lever on the face can apply. Targets of 0.55-0.65 m were out of the MPC's reach (the hand stalled at
-    0.67-0.71 m; a static IK puts 0.55 m at the base 8 cm lower, the arm at its joint limits)."""
+    tangent by `sideslip_lead` about the push's `pivot_m` (0: on the tangent). b1_z1, 16 s, compiled SQP: 5.0 cm
+    RMSE with the lead and the hand's pad, 22.9 cm without either. What is left sits at the turn's start and end:
+    building the lead turns the box about its pivot, which swings its centre out (even the best trajectory of a box
+    turning about a pivot 0.26 m ahead misses the path by 2.7 cm RMSE). What was tried and measured, and why a
+    lower push did worse: docs/design/object-model.md."""
     reference = path.states(t)[0]
     state = measured_box_state(scene, name, np.concatenate([path.start_xy_m, np.zeros(4)]), reference[2])
     if not pivot_m:
