@@ -141,6 +141,7 @@ def test_python_api_picks_the_clis_solver_with_an_object_model(b1z1):
     assert RunConfig(scenario="push-box", options=options, solver="auto", compiled=True).solver == "sqp"
     assert RunConfig(scenario="pull", options=ScenarioOptions(object_model=True)).solver == "sqp"
     assert RunConfig(scenario="push-box").solver == "fatrop"
+    assert RunConfig(scenario="arm-track", collision_avoidance=True).solver == "sqp"  # as --collision-avoidance
     assert RunConfig(scenario="push-box", compiled=True, solver="auto").solver == "fatrop-direct"
     named = RunConfig(scenario="push-box", options=options, solver="ipopt")
     assert named.solver == "ipopt" and named.for_robot(b1z1).solver == "ipopt"

@@ -60,7 +60,8 @@ class RunConfig:
                                          low_open=True, unit="ms")
     gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
-    # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object
+    # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object or
+    # collision avoidance is asked for
     solver: str | None = option(None, flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled "
                                 "runs without --delay, else sqp), fatrop (converged), fatrop-direct (the same Fatrop "
                                 "through its C interface, always compiled), ipopt, rti (one SQP iteration per step on "
@@ -283,8 +284,8 @@ def _collision_weights(weights, soft_arm: bool):
 def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False, object_model: bool = False,
                    api: bool = False) -> str:
     """The one place that picks a run's solver where none was named. `api`: `RunConfig`'s own default (the Python
-    API, `solver=None`): casadi's Fatrop as always, but the anytime SQP with an object model, as for `--solver auto`
-    (Fatrop's line search fails on the object's contact rows, below).
+    API, `solver=None`): casadi's Fatrop as always, but the anytime SQP with an object model or collision avoidance
+    asked for, as for `--solver auto` (below).
 
     `--solver auto`: converged Fatrop for a compiled run whose plant waits for it (the paper's closed
     loop), through our direct binding (`fatrop-direct`: the same iterates as casadi's Fatrop without its
@@ -299,7 +300,7 @@ def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False
     if object_model:
         return "sqp"
     if api:
-        return "fatrop"
+        return "sqp" if collision_avoidance else "fatrop"
     return "fatrop-direct" if compiled and delay == "none" and not collision_avoidance else "sqp"
 
 
