@@ -174,6 +174,12 @@ def test_object_model_is_read_from_the_scene(b1z1):
     push_n = box.friction_mu * 7.0 * GRAVITY_M_S2
     assert abs(push_n / pad.stiffness_n_m - 0.5 * CONTACT_TOLERANCE_M) < 1e-12
     assert any(obj is not box and type(obj).__name__ == "CompliantPad" for obj in scenario.scene(b1z1).objects)
+    assert model.push_height_m is None
+    # --push-height: the OCP's contact row, the crouch and the sideslip lead's pivot (mu h) follow it
+    low = make_scenario("push-box", b1z1, ScenarioOptions(object_model=True, push_height_m=0.8))
+    assert low.object_model(b1z1).push_height_m == 0.8 and low._base_height_m(b1z1) < b1z1.q_nominal[2]
+    assert abs(low._push_pivot_m(b1z1) - box.friction_mu * 0.8) < 1e-12
+    assert make_scenario("push-box", b1z1, ScenarioOptions(push_height_m=0.8)).push_height_m is None  # object model only
     pull = make_scenario("pull", b1z1, ScenarioOptions(object_model=True, load_kg=14.0))
     load = pull.object_model(b1z1)
     assert load.mass_kg == 14.0 and load.cable_length_m == pull.options.cable_length_m

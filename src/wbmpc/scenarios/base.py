@@ -71,6 +71,10 @@ class ScenarioOptions:
                                 "MPC: its state and dynamics in the OCP, the hand force a variable, the object's "
                                 "motion the command (push-box: the box's path; pull: the load's speed)",
                                 scenarios=("push-box", "pull"))
+    push_height_m: float | None = option(None, flag="--push-height", help="with --object-model: the hand's height on "
+                                         "the box's face (a contact row of the OCP; the base crouches to 85 percent)",
+                                         low=0.0, high=3.0, low_open=True, unit="m", scenarios=("push-box",),
+                                         default_text="where the robot's nominal posture holds the hand")
     board: str = option("vertical", flag="--board", choices=("vertical", "horizontal"),
                         help="vertical (whiteboard) or horizontal (table)", scenarios=WIPE)
     board_friction_mu: float = option(0.3, flag="--board-friction", help="board friction coefficient", low=0.0,

@@ -478,11 +478,10 @@ class PushBox(_ForceTask):
     GAP_M = 0.02
     DEFAULT_FORCE_N = 20.0
     PATH_DURATION_AFTER_S = 1.0  # the run continues this long after the path's turn
-    # --object-model: the hand's height on the box's face (SlidingBox.push_height_m; None: where the nominal posture
-    # holds it, 0.87 m on b1_z1), with the base crouched to CROUCH of its nominal height and the arm's posture weight
-    # ARM_WEIGHT. Off by default: lower pushes tracked the turn worse (b1_z1, 16 s: 0.82 / 0.74 m, 6.2 / 13.1 cm RMSE
-    # against 5.6 cm at 0.87 m, `object_paths.object_command`), and the MPC brought the hand no lower than ~0.67-0.71 m
-    PUSH_HEIGHT_M: float | None = None
+    # --push-height with --object-model (SlidingBox.push_height_m): the base crouched to CROUCH of its nominal height
+    # and the arm's posture weight ARM_WEIGHT. Lower pushes tracked the turn worse (b1_z1, 16 s: 0.82 / 0.74 m, 6.2 /
+    # 13.1 cm RMSE against 5.6 cm at 0.87 m, docs/design/object-model.md), and the MPC brought the hand no lower than
+    # ~0.67-0.71 m
     CROUCH = 0.85
     ARM_WEIGHT = 100.0
 
@@ -513,20 +512,21 @@ class PushBox(_ForceTask):
         """The OCP's model of the scene's box (`--object-model`)."""
         from wbmpc.ocp.objects import SlidingBox
 
-        return SlidingBox.from_scene(self.free_box(robot), EE_SPHERE_RADIUS_M, push_height_m=self.push_height_m(robot))
+        return SlidingBox.from_scene(self.free_box(robot), EE_SPHERE_RADIUS_M, push_height_m=self.push_height_m)
 
     def cost_weights(self, weights: CostWeights) -> CostWeights:
         """With a push height: the arm's posture weight ARM_WEIGHT (lower: the arm, not only the crouch, reaches it)."""
-        if self.options.object_model and self.PUSH_HEIGHT_M is not None:
+        if self.push_height_m is not None:
             return replace(weights, arm_joint_position=self.ARM_WEIGHT)
         return weights
 
-    def push_height_m(self, robot) -> float | None:
+    @property
+    def push_height_m(self) -> float | None:
         """The hand's height on the box's face with the object model (None: where the nominal posture holds it)."""
-        return self.PUSH_HEIGHT_M
+        return self.options.push_height_m if self.options.object_model else None
 
     def _base_height_m(self, robot) -> float | None:
-        return self.CROUCH * float(robot.q_nominal[2]) if self.PUSH_HEIGHT_M is not None else None
+        return self.CROUCH * float(robot.q_nominal[2]) if self.push_height_m is not None else None
 
     @property
     def force_magnitude_n(self) -> float:
@@ -581,7 +581,7 @@ class PushBox(_ForceTask):
     def _push_pivot_m(self, robot) -> float:
         """Where the box's floor load centres under the sliding push at the hand's height h: mu h ahead of its centre
         (`object_paths.sideslip_lead`)."""
-        height = self.push_height_m(robot) if self.options.object_model else None
+        height = self.push_height_m
         return self.free_box(robot).friction_mu * float(nominal_ee_position(robot)[2] if height is None else height)
 
     def _path_commands(self, robot):
