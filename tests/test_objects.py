@@ -180,6 +180,11 @@ def test_object_model_is_read_from_the_scene(b1z1):
     assert low.object_model(b1z1).push_height_m == 0.8 and low._base_height_m(b1z1) < b1z1.q_nominal[2]
     assert abs(low._push_pivot_m(b1z1) - box.friction_mu * 0.8) < 1e-12
     assert make_scenario("push-box", b1z1, ScenarioOptions(push_height_m=0.8)).push_height_m is None  # object model only
+    # --box-turn-radius: the commanded path's turn, and the run long enough to finish it
+    wide = make_scenario("push-box", b1z1, ScenarioOptions(object_model=True, box_turn_radius_m=1.5))
+    assert wide.box_path(b1z1).radius_m == 1.5 and scenario.box_path(b1z1).radius_m == 0.8
+    path = wide.box_path(b1z1)
+    assert wide.default_duration_s >= path.start_s + path.moving_s > scenario.default_duration_s
     pull = make_scenario("pull", b1z1, ScenarioOptions(object_model=True, load_kg=14.0))
     load = pull.object_model(b1z1)
     assert load.mass_kg == 14.0 and load.cable_length_m == pull.options.cable_length_m

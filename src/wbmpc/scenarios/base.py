@@ -64,13 +64,16 @@ class ScenarioOptions:
                            unit="kg", scenarios=("push-box",))
     box_path: str = option("wall", flag="--box-path", choices=("wall", "turn"), help="wall: press the box against a "
                            "wall trotting in place; turn: push a free box along a path at 0.1 m/s with a 90 degree "
-                           "turn of 0.8 m radius (implied by --object-model), a force command without --object-model",
+                           "turn (--box-turn-radius; implied by --object-model), a force command without --object-model",
                            scenarios=("push-box",))
     # issue 22 part 2: the manipulated object inside the MPC (wbmpc.ocp.objects)
     object_model: bool = option(False, flag="--object-model", help="plan with the manipulated object inside the "
                                 "MPC: its state and dynamics in the OCP, the hand force a variable, the object's "
                                 "motion the command (push-box: the box's path; pull: the load's speed)",
                                 scenarios=("push-box", "pull"))
+    box_turn_radius_m: float = option(0.8, flag="--box-turn-radius", help="the radius of push-box's 90 degree turn "
+                                      "(--box-path turn, --object-model)", low=0.0, high=100.0, low_open=True,
+                                      unit="m", scenarios=("push-box",))
     push_height_m: float | None = option(None, flag="--push-height", help="with --object-model: the hand's height on "
                                          "the box's face (a contact row of the OCP; the base crouches to 85 percent)",
                                          low=0.0, high=3.0, low_open=True, unit="m", scenarios=("push-box",),

@@ -492,7 +492,7 @@ class PushBox(_ForceTask):
         if self.follows_path:
             from wbmpc.scenarios.object_paths import BoxPath
 
-            path = BoxPath()
+            path = BoxPath(radius_m=self.options.box_turn_radius_m)
             self.default_duration_s = round(path.start_s + path.moving_s + self.PATH_DURATION_AFTER_S)
 
     @property
@@ -506,7 +506,7 @@ class PushBox(_ForceTask):
         """The commanded path of the free box's centre, from where the box starts."""
         from wbmpc.scenarios.object_paths import BoxPath
 
-        return BoxPath(start_xy_m=tuple(self.free_box(robot).centre_xy_m))
+        return BoxPath(start_xy_m=tuple(self.free_box(robot).centre_xy_m), radius_m=self.options.box_turn_radius_m)
 
     def object_model(self, robot):
         """The OCP's model of the scene's box (`--object-model`)."""
