@@ -297,11 +297,11 @@ def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False
     on the arm's soft velocity rows (3-5 with them hard; ~38 with an L1 weight of 1000). With the object inside the
     MPC (--object-model) too: Fatrop's line search failed on most push-box steps (hand-box contact rows with the
     box's smoothed friction), IPOPT rescued them in 10-50 iterations (0.1-0.7 s); the SQP's QPs take them."""
-    if object_model:
+    if object_model or collision_avoidance:
         return "sqp"
     if api:
-        return "sqp" if collision_avoidance else "fatrop"
-    return "fatrop-direct" if compiled and delay == "none" and not collision_avoidance else "sqp"
+        return "fatrop"
+    return "fatrop-direct" if compiled and delay == "none" else "sqp"
 
 
 def _delay_compensation_default(config: RunConfig, flat_feet: bool) -> bool:
