@@ -213,6 +213,9 @@ class Commands:
     # with an object model in the OCP (OcpConfig.object_model): the object's measured state and its path; the
     # arm force is then the OCP's (ee_force_n and ee_velocity_m_s are not used)
     object_command: ObjectCommand | None = None
+    # walk in the MPC's gait (True) or stand on every foot (False), switched where the feet allow it
+    # (`GaitClock.follow`); None: the gait as scheduled
+    walking: bool | None = None
 
     def __post_init__(self):
         """Refuse NaN/inf and wrong shapes here: a NaN command would give NaN torques."""
@@ -493,6 +496,7 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
             t = t + delay_s
+        self.gait.follow(t, commands.walking)  # stand <-> walk on command
         problem = self.problem
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         dq_des, v_des, base_velocity_world = self._targets(q, rot, commands, t, problem.config.grid.node_times_s)
