@@ -334,8 +334,11 @@ def _run_config(args: argparse.Namespace):
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
+    from wbmpc.operator.config import OperatorConfig
+
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
-                     gains=PdGains(**values_from_args(PdGains, args)), **values_from_args(RunConfig, args))
+                     gains=PdGains(**values_from_args(PdGains, args)),
+                     operator=OperatorConfig(**values_from_args(OperatorConfig, args)), **values_from_args(RunConfig, args))
 
 
 def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
@@ -557,6 +560,10 @@ def _add_run_parser(sub, formatter) -> None:
     loop = run.add_argument_group("closed loop, solver and state (every scenario)")
     add_arguments(loop, RunConfig)
     add_arguments(loop, PdGains)
+    from wbmpc.operator.config import OperatorConfig
+
+    operator = run.add_argument_group("an operator in the loop: live commands and the viewer (docs/operator.md)")
+    add_arguments(operator, OperatorConfig)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
     plant_drive.add_argument("--plant-armature", metavar="KG_M2", help="rotor inertia (MuJoCo joint armature), kg m^2")
@@ -705,9 +712,10 @@ def _field_flags() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import field_flags
+    from wbmpc.operator.config import OperatorConfig
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
-    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains)}
+    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains, OperatorConfig)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -311,6 +311,8 @@ class ClosedLoop:
         self._rng = np.random.default_rng(config.seed)
         self._filtered_v: np.ndarray | None = None
         self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
+        # callables(t, solution) told of every plan as it is logged (a live viewer draws it)
+        self.solution_listeners: list[Callable] = []
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -379,8 +381,9 @@ class ClosedLoop:
         self._log_solution(log, t, command, solution)
         return solution
 
-    @staticmethod
-    def _log_solution(log: RunLog, t: float, command: Commands, solution: Solution) -> None:
+    def _log_solution(self, log: RunLog, t: float, command: Commands, solution: Solution) -> None:
+        for listener in self.solution_listeners:
+            listener(t, solution)
         solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
         log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
                         solution.contact[0])

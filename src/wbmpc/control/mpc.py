@@ -419,6 +419,16 @@ class MPC:
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
         return self._swing_placement.velocities(self.gait, t, node_times, q, rot @ v[:3], command_world, yaw, feet)
 
+    def _carried_ee_velocity(self, q: np.ndarray, base_velocity_world: np.ndarray, yaw_rate_rad_s: float) -> np.ndarray:
+        """The hand's velocity when carried with the commanded base motion (no end-effector command): the base's
+        velocity plus, turning, the yaw rate about the base. Held still in the world instead, the hand pinned the
+        turn about itself: b1_z1 turning in place at 0.6 rad/s swung its base sideways at 0.25 m/s."""
+        if not yaw_rate_rad_s or self._ee_id is None:
+            return base_velocity_world
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        lever = self._data.oMf[self._ee_id].translation - q[:3]
+        return base_velocity_world + np.cross([0.0, 0.0, yaw_rate_rad_s], lever)
+
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
         model, data = self.robot.model, self._data
@@ -527,8 +537,8 @@ class MPC:
         p = problem.params.pack(values)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
-            ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
-                             else np.asarray(commands.ee_velocity_m_s, dtype=float)),
+            ee_velocity_m_s=(self._carried_ee_velocity(q, base_velocity_world, commands.base_yaw_rate_rad_s)
+                             if commands.ee_velocity_m_s is None else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),

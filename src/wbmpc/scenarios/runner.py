@@ -18,6 +18,7 @@ from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 from wbmpc.ocp.problem import OcpConfig
+from wbmpc.operator.config import OperatorConfig
 from wbmpc.options import check_fields, declared, option
 from wbmpc.robots import RobotModel
 from wbmpc.robots.collision_model import CollisionConfig
@@ -60,6 +61,7 @@ class RunConfig:
                                          low_open=True, unit="ms")
     gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
+    operator: OperatorConfig = field(default_factory=OperatorConfig)  # live commands, the viewer (wbmpc.operator)
     # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object or
     # collision avoidance is asked for
     solver: str | None = option(None, flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled "
@@ -385,7 +387,13 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     result keeps what was measured, with `metrics["interrupted"]`; `stop` replaces that flag."""
     config = config.for_robot(robot)
     scenario = make_scenario(config.scenario, robot, config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    if config.operator.viewer and config.plant != "mujoco":
+        raise ConfigError("--viewer shows MuJoCo's own viewer: use --plant mujoco (or leave --viewer out and open the "
+                          "replay afterwards)")
+    from wbmpc.operator.run import prepare
+
+    operator = prepare(robot, config.operator, scenario)  # script, terminal, gamepad, display: checked first
+    duration = config.duration_s or operator.duration_s or scenario.default_duration_s
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
@@ -399,10 +407,10 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     with stop_flag(stop) as stop:
         if stop():  # Ctrl-C while building (CasADi's C++ build does not raise): stop before running
             raise KeyboardInterrupt
-        return _run(robot, config, scenario, scene, mpc, duration, progress, stop)
+        return _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator)
 
 
-def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
+def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator=None) -> ScenarioResult:
     mpc.reset()
     plant_config = config.plant_config
     if plant_config is None:  # a preset's rotors (g1) are the plant's too
@@ -418,6 +426,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
     # here and would grow by ~0.3 MB per simulated second
     plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    if operator is not None:
+        plant_config = operator.plant_config(plant_config)  # the viewer's draggable hand target
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
@@ -444,11 +454,20 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
-    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
+    if operator is None:
+        from wbmpc.operator.run import prepare
+
+        operator = prepare(robot, config.operator, scenario)
+    with operator:
+        commands, until = operator.attach(mpc, plant, loop, stop)
+        operator.start()
+        log = loop.run(duration, commands, scenario.events(robot), progress, until)
     if not log.n_ticks:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
+    operator_metrics = operator.finish(log, mpc)
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
+    metrics.update(operator_metrics)
     metrics["state"] = config.state
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
