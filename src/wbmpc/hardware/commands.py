@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 
 from wbmpc.errors import ConfigError
@@ -46,6 +47,12 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     sim.add_argument("--corrupt-every", type=int, metavar="N", help="fault: every N-th LowState with a bad CRC and "
                      "Z1 state with a NaN")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    remote = sim.add_mutually_exclusive_group()
+    remote.add_argument("--remote-script", metavar="FILE.yaml", help="an operator's remote, scripted (sticks and keys "
+                        "at times after the first LowCmd; see docs/operator.md): published in LowState's "
+                        "wireless_remote and on rt/wirelesscontroller")
+    remote.add_argument("--remote-gamepad", metavar="DEVICE", nargs="?", const="auto", help="a gamepad on this machine "
+                        "as the robot's remote (evdev; without DEVICE the first gamepad found)")
     _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
 
@@ -54,8 +61,8 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     add_robot_options(dep)
     _add_network_options(dep)
     dep.add_argument("--scenario", default="trot-in-place", help=f"one of: {', '.join(DEPLOY_SCENARIOS)}")
-    add_declared(dep, RunConfig, "duration_s", cli_default=10.0, default_text=None,
-                 help="seconds of MPC control (robot time)")
+    add_declared(dep, RunConfig, "duration_s", default_text="10 s; a command script's own duration; until the "
+                 "lie-down command with --remote, --keyboard or --gamepad", help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
     for name in ("compiled", "nodes"):
@@ -74,6 +81,16 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    from wbmpc.operator.config import OperatorConfig
+
+    operator = dep.add_argument_group("an operator in the loop (docs/operator.md)")
+    operator.add_argument("--remote", action="store_true", help="drive the MPC phase from the robot's own remote "
+                          "(LowState wireless_remote and rt/wirelesscontroller): left stick moves, right stick turns, "
+                          "start walk/stand, B stop, L2+A lie down")
+    for name in ("commands_file", "keyboard", "gamepad", "max_accel_m_s2", "max_yaw_accel_rad_s2"):
+        add_declared(operator, OperatorConfig, name)
+    operator.add_argument("--meshcat", action="store_true", help="serve a live page (meshcat, localhost) with the "
+                          "estimated state and the MPC's plan at 25 Hz")
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
 
 
@@ -125,6 +142,44 @@ def _arm_settings(args) -> dict:
     return {"arm": arm, "z1_ports": ports}
 
 
+def _operator_lines(operator: dict | None) -> list[str]:
+    """The deploy summary's operator lines: commands, latency, segments, remote and live page."""
+    if not operator:
+        return []
+    lines = []
+    latency = operator.get("command_latency_ms") or {}
+    if latency.get("commands"):
+        lines.append(f"  operator: {latency['commands']} commands, latency max {latency['max']:.1f} ms (MPC period "
+                     f"{latency['mpc_period_ms']:.1f} ms); gait switches {len(operator.get('gait_transitions', []))}")
+    for segment in operator.get("segments", []):
+        if segment.get("base_vel_rmse") is not None:
+            lines.append(f"    {segment['start_s']:6.2f}-{segment['end_s']:6.2f} s {segment['label']}: base velocity RMSE "
+                         f"{segment['base_vel_rmse']:.3f} m/s, yaw rate {segment['yaw_rate_rmse']:.3f} rad/s (estimated)")
+    if operator.get("remote"):
+        lines.append(f"  remote: {operator['remote']['received']} changes received, {operator['remote']['rejected']} "
+                     "rejected")
+    if operator.get("meshcat"):
+        page = operator["meshcat"]
+        lines.append(f"  live page {page['url']}: {page['frames']} frames, {page['rate_hz'] or 0:.1f} Hz")
+    return lines
+
+
+def _deploy_operator(args, robot, scenario):
+    """The deploy's operator sources (`--remote`, `--commands`, `--keyboard`, `--gamepad`) and live page; a standing
+    scenario moves onto the robot's walking gait when a source may start it walking."""
+    from wbmpc.gait import natural_gait
+    from wbmpc.operator.config import OperatorConfig
+    from wbmpc.operator.deploy import DeployOperator
+    from wbmpc.options import declared
+
+    config = OperatorConfig(**{f.name: getattr(args, opt.dest) for f, opt in declared(OperatorConfig)
+                               if opt.flag and getattr(args, opt.dest, None) is not None})
+    operator = DeployOperator(robot, config, scenario, remote=args.remote, meshcat=args.meshcat)
+    if operator.active and scenario.gait == "stand":
+        scenario.gait = natural_gait(len(robot.feet))
+    return operator
+
+
 def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool):
     """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and scenario
     with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
@@ -165,7 +220,14 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                             push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
                             refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
                             corrupt_every=args.corrupt_every, **_arm_settings(args))
+    remote = None
+    if args.remote_script or args.remote_gamepad:
+        from wbmpc.operator.remote_script import GamepadRemote, RemotePublisher, ScriptedRemote, read_remote_script
+
+        remote = RemotePublisher(ScriptedRemote(read_remote_script(args.remote_script)) if args.remote_script
+                                 else GamepadRemote(None if args.remote_gamepad == "auto" else args.remote_gamepad))
     sim = RobotSimulator(robot, config)
+    sim.remote = remote
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     print(f"wbmpc robot-sim: {robot.name} on {args.network} (DDS domain {args.domain}), {args.mode}, motors "
           f"{sim.motors.describe()}{arm}; sport mode '{config.sport_mode}'; waiting for LowCmd (Ctrl-C stops)",
@@ -230,6 +292,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
+    operator = _deploy_operator(args, robot, scenario)  # sources checked before anything is built
+    if args.duration is None:  # a script's own length; live sources: until the operator lies the robot down
+        args.duration = operator.duration_s or (float("inf") if operator.active and operator.script is None else 10.0)
     mpc_config = deploy_mpc_config(robot, scenario, scenario_name=args.scenario, nodes=args.nodes,
                                    compiled=args.compiled, solver=args.solver, lockstep=args.lockstep)
     gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
@@ -245,15 +310,22 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
           file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
     failure = None
+    operator.attach(controller)
     try:
-        commands = scenario.commands(robot)
+        operator.start()
         ee_reference = scenario.ee_reference(robot) if args.scenario == "arm-track" else None
-        with ProgressBar(args.duration, f"deploy {args.scenario} ", unit="s") as bar:  # silent off a terminal
-            report = controller.run(commands, progress=lambda share: bar.update(share * args.duration),
-                                    ee_reference=ee_reference).summary()
+        bar_length = args.duration if math.isfinite(args.duration) else None
+        with ProgressBar(bar_length or 1.0, f"deploy {args.scenario} ", unit="s",  # silent off a terminal
+                         enabled=None if bar_length else False) as bar:
+            report = controller.run(operator.commands, ee_reference=ee_reference, stop=operator.stop,
+                                    progress=(lambda share: bar.update(share * args.duration)) if bar_length else None
+                                    ).summary()
     except DeployFailure as exc:
         failure = exc
         report = controller.report.summary()
+    finally:
+        operator.close()
+    report.update(operator.metrics(controller))
     _write(args.out, report)
     arm = report["arm"]
     lines = [
@@ -272,6 +344,7 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
                      f"{arm['commands_sent']}")
     if report["sport_mode"] is not None:
         lines.append(f"  sport mode '{report['sport_mode']['released']}' released, restored {report['sport_mode']['restored']}")
+    lines += _operator_lines(report.get("operator"))
     emit(args, report, "\n".join(lines))
     if failure is not None:
         print(f"wbmpc: error: {failure}", file=sys.stderr)

@@ -37,7 +37,7 @@ from wbmpc.control.interpolator import PdGains, interpolate
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError, RunError, WbmpcError
 from wbmpc.estimation.estimator import EstimatorConfig, StateEstimator
-from wbmpc.gait import make_gait
+from wbmpc.gait import GaitClock, make_gait
 from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
 from wbmpc.hardware.messages import (
     MessageError,
@@ -68,6 +68,20 @@ from wbmpc.hardware.z1_messages import (
     Z1Command,
 )
 from wbmpc.robots import RobotModel
+
+
+@dataclass(frozen=True)
+class DeployTick:
+    """What a tick listener sees: robot time, MPC time (None before the MPC phase), the LowState, the estimate,
+    the plan in use and the phase."""
+
+    t_s: float
+    t_mpc_s: float | None
+    msg: object
+    q: np.ndarray
+    v: np.ndarray
+    plan: object
+    phase: str
 
 
 class NoRobotStateError(ConfigError, RuntimeError):
@@ -201,7 +215,10 @@ class Controller:
                               f"{self.motors.describe()}; Z1 over UDP {'on' if self.arm_map else 'off'}); pass --arm z1 "
                               "for a Z1 arm")
         self.mpc = mpc  # lock-step: built once the robot answers (a missing robot is reported in 2 s, not after a build)
-        self.gait = make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s)
+        # the estimator's gait in real time (the MPC's own in lock-step); stand <-> walk commands switch it too
+        self.gait = GaitClock(make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s,
+                                        leg_length_m=float(robot.q_nominal[2])))
+        self.tick_listeners: list = []  # callables(DeployTick) after each valid LowState (remote, live view)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
         self.report = DeployReport()
@@ -268,8 +285,9 @@ class Controller:
             pass
 
     # ------------------------------------------------------------------ loop
-    def run(self, commands=None, progress=None, ee_reference=None) -> DeployReport:
-        """`ee_reference(t)`: the end effector's target (world, MPC time) whose error is reported, if given."""
+    def run(self, commands=None, progress=None, ee_reference=None, stop=None) -> DeployReport:
+        """`ee_reference(t)`: the end effector's target (world, MPC time) whose error is reported, if given;
+        `stop()`: true when the operator asks to lie down (checked every tick while standing or in the MPC)."""
         from wbmpc.hardware.z1_udp import ArmNotAnsweringError, Z1Client
 
         sdk = load_sdk()
@@ -313,7 +331,7 @@ class Controller:
                 raise NoRobotStateError("the robot stopped publishing LowState while the MPC was built; nothing "
                                         "was commanded")
             self._publisher, self._z1 = publisher, z1  # from here on, every exit goes through damping
-            self._loop(latest, commands, worker, progress, ee_reference)
+            self._loop(latest, commands, worker, progress, ee_reference, stop)
         except BaseException as exc:
             if self._publisher is not None:
                 self._damp()
@@ -381,7 +399,7 @@ class Controller:
         self._damp()
         raise DeployFailure(message + "; legs and arm were sent damping")
 
-    def _loop(self, msg, commands, worker, progress, ee_reference=None) -> None:
+    def _loop(self, msg, commands, worker, progress, ee_reference=None, stop=None) -> None:
         cfg, robot, report, safety = self.config, self.robot, self.report, self.config.safety
         phase, phase_t0 = None, 0.0
         pose_start = None
@@ -431,6 +449,11 @@ class Controller:
                 q, v = self.estimator.update(reading)
                 if phase is None:
                     enter("stand-up", t, reading.joint_position_rad)
+                for listener in self.tick_listeners:
+                    listener(DeployTick(t, None if mpc_t0 is None else t - mpc_t0, msg, q, v, active, phase))
+                if stop is not None and phase in ("hold", "mpc") and stop():
+                    report.stopped_by = "operator"
+                    enter("lie-down" if cfg.lie_down else "damping", t, reading.joint_position_rad)
                 standing = phase in ("hold", "mpc")  # low on purpose while standing up or lying down: tilt only
                 if phase in ("stand-up", "hold", "mpc", "lie-down") and fallen(robot, q, safety, check_height=standing):
                     report.fell, report.stopped_by = True, "fall"

@@ -181,6 +181,7 @@ class RobotSimulator:
         self._stop = threading.Event()
         self._switcher = None
         self._z1 = None
+        self.remote = None  # wbmpc.operator.remote_script.RemotePublisher: an operator's remote (scripted or a gamepad)
 
     def stop(self) -> None:
         self._stop.set()
@@ -275,6 +276,8 @@ class RobotSimulator:
                     self._send_wall[tick_ms] = time.perf_counter()
                     if len(self._send_wall) > 2000:
                         self._send_wall.pop(next(iter(self._send_wall)))
+                if self.remote is not None:  # the operator's remote: LowState's bytes and rt/wirelesscontroller
+                    self.remote.write(message, None if started_at is None else t - started_at)
                 if corrupt:
                     message.crc ^= 1  # corrupted in transit
                 publisher.Write(message)
@@ -337,6 +340,8 @@ class RobotSimulator:
         finally:
             subscriber.Close()
             publisher.Close()
+            if self.remote is not None:
+                self.remote.close()
             if self._z1 is not None:
                 self._z1.close()
         if self._z1 is not None:

@@ -85,7 +85,8 @@ class OperatorSession:
         self.steps.append((float(t), posted.seq))
         if posted.seq > self._reached:
             for entry in self.board.history[self._reached + 1 : posted.seq + 1]:
-                self.latencies.append((entry.seq, float(t) - entry.stamp_s))
+                if entry.stamp_s >= 0:  # deploy: posts before the MPC phase (stamped -1) waited for it to start
+                    self.latencies.append((entry.seq, float(t) - entry.stamp_s))
             self._reached = posted.seq
         if posted.command.hand_offset_m is not None:
             target = self.shaper.hand_target_world(q)
