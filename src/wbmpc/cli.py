@@ -331,10 +331,9 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
 def _run_config(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.operator.config import OperatorConfig
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
-
-    from wbmpc.operator.config import OperatorConfig
 
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
                      gains=PdGains(**values_from_args(PdGains, args)),
@@ -711,8 +710,8 @@ def _dispatch(args: argparse.Namespace) -> int:
 def _field_flags() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
-    from wbmpc.options import field_flags
     from wbmpc.operator.config import OperatorConfig
+    from wbmpc.options import field_flags
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
     return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains, OperatorConfig)}

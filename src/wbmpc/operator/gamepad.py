@@ -173,11 +173,9 @@ class GamepadSource:
                 board.notice(f"the gamepad {self.description} disconnected at {board.now_s:.2f} s: the robot holds "
                              "a stand (zero velocity) until the run ends")
                 return
-            changed = False
-            for event in events:
-                changed |= self.reader.apply(event)
-            if changed:
-                self.mapping.update(self.reader.state, board.now_s, board, channel="gamepad")
+            for event in events:  # each change on its own: a press and its release may come in one read
+                if self.reader.apply(event):
+                    self.mapping.update(self.reader.state, board.now_s, board, channel="gamepad")
 
     def close(self) -> None:
         self._stop.set()

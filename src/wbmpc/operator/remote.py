@@ -121,6 +121,7 @@ class RemoteMapping:
         self._previous_keys: dict[str, int] = {}  # per channel
         self._last_press: dict[str, float] = {}
         self._sticks: tuple[float, float, float] | None = None
+        self._arm_sticks: np.ndarray | None = None
         self._last_stamp: float | None = None
 
     def update(self, state: RemoteState, stamp_s: float, board: CommandBoard, channel: str = "lowstate") -> None:
@@ -136,9 +137,11 @@ class RemoteMapping:
             self._key(name, state, stamp_s, board)
         lx, ly, rx, ry = (_shaped(getattr(state, s)) for s in ("lx", "ly", "rx", "ry"))
         latest = board.latest().command
+        arm = self._arm_sticks  # the hand moves as the sticks were held since the last update
+        self._arm_sticks = np.array([ly, -lx, ry]) if state.pressed("R1") else None
         if state.pressed("R1"):  # arm mode: the sticks move the hand's target, the base holds still
-            if self.limits.has_arm and (lx or ly or ry) and dt > 0:
-                hand = np.asarray(latest.hand_offset_m or (0.0, 0.0, 0.0)) + HAND_RATE_M_S * dt * np.array([ly, -lx, ry])
+            if self.limits.has_arm and arm is not None and np.any(arm) and dt > 0:
+                hand = np.asarray(latest.hand_offset_m or (0.0, 0.0, 0.0)) + HAND_RATE_M_S * dt * arm
                 board.post(self.source, {"hand": hand}, stamp_s=stamp_s, note=f"{self.source}: R1 + sticks, hand")
             sticks = (0.0, 0.0, 0.0)
         else:
