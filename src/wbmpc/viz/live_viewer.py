@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 
 import mujoco
@@ -97,10 +98,15 @@ class LiveViewer:
         return self.handle is None or self.handle.is_running()
 
     def close(self) -> None:
+        """Close the window and wait for the viewer's thread to end: if the process exits while it still renders,
+        GLFW's exit handler destroys the window under it (GLXBadDrawable) and Xlib's error exit hangs the process."""
         if self.handle is not None and not self._closed:
             self._end_push(self.data.time)
             self._closed = True
             self.handle.close()
+            for thread in threading.enumerate():
+                if thread.name.endswith("(_launch_internal)"):
+                    thread.join(timeout=10.0)
 
     # ------------------------------------------------------------------ hooks
     def on_plan(self, t: float, solution) -> None:
