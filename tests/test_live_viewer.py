@@ -91,13 +91,15 @@ def test_viewer_opens_draws_the_plan_logs_a_push_and_closes(display, tmp_path):
             bright = pixels.sum(axis=-1) > 450  # the trunk's lit top (the floor's tiles stay below)
             assert red.sum() > 30 and blue.sum() > 30 and bright.sum() > 500  # the forces, the base path, the robot
         # the mouse's perturbation as the GUI sets it (Ctrl + right drag on the trunk): a force on the next steps
-        trunk = mujoco.mj_name2id(plant.model, mujoco.mjtObj.mjOBJ_BODY, "trunk")
-        assert trunk > 0
+        trunk = 1  # the floating base
+        base_name = mujoco.mj_id2name(plant.model, mujoco.mjtObj.mjOBJ_BODY, trunk)
         with viewer.handle.lock():
             pert = viewer.handle.perturb
             pert.select = trunk
-            mujoco.mjv_initPerturb(plant.model, plant.data, mujoco.MjvScene(plant.model, 10), pert)
-            pert.refpos = plant.data.xpos[trunk] + np.array([0.0, 0.3, 0.0])
+            pert.localpos = np.zeros(3)  # as mjv_initPerturb leaves it for a click on the body's origin
+            pert.localmass = float(plant.model.body_subtreemass[trunk])
+            pert.scale = 1.0
+            pert.refselpos = plant.data.xpos[trunk] + np.array([0.0, 0.3, 0.0])  # dragged 30 cm to the left
             pert.active = int(mujoco.mjtPertBit.mjPERT_TRANSLATE)
         for _ in range(10):
             plant.step(np.zeros(robot.n_joints))
@@ -106,7 +108,7 @@ def test_viewer_opens_draws_the_plan_logs_a_push_and_closes(display, tmp_path):
             viewer.handle.perturb.active = 0
         for _ in range(5):
             plant.step(np.zeros(robot.n_joints))
-        assert len(viewer.events) == 1 and viewer.events[0][1].startswith("mouse push on trunk")
+        assert len(viewer.events) == 1 and viewer.events[0][1].startswith(f"mouse push on {base_name}")
     finally:
         viewer.close()
     deadline = time.monotonic() + 10
