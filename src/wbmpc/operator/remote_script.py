@@ -119,8 +119,10 @@ class RemotePublisher:
     """Writes the remote's state into robot-sim's LowState (`write`, before it is sent) and on
     `rt/wirelesscontroller` every TOPIC_PERIOD_S."""
 
-    def __init__(self, remote):
+    def __init__(self, remote, topic: bool = True):
+        """`topic`: also publish `rt/wirelesscontroller` (needs DDS opened); False: the LowState bytes only."""
         self.remote = remote
+        self.topic = topic
         self._publisher = None
         self._message = None
         self._last_topic_t = -math.inf
@@ -133,7 +135,7 @@ class RemotePublisher:
         low_state.wireless_remote = encode_remote(state)
         low_state.crc = low_state_crc(low_state)
         now = t_s if t_s is not None else 0.0
-        if now - self._last_topic_t >= TOPIC_PERIOD_S - 1e-9:
+        if self.topic and now - self._last_topic_t >= TOPIC_PERIOD_S - 1e-9:
             self._publish(state)
             self._last_topic_t = now
         return state
