@@ -83,7 +83,7 @@ def test_messages_round_trip_and_bad_input_is_rejected(go2):
 
     front_legs = MotorMap(motors.joint_names[:6], motors.slots[:6])  # a model without hind legs
     with pytest.raises(MessageError, match="missing on the robot: none; extra on the robot: RR_hip_joint"):
-        decode_low_state(encode_low_state(reading, motors, 0), front_legs)
+        decode_low_state(encode_low_state(reading, motors, 1), front_legs)
 
 
 def test_clamps_keep_targets_and_torques_in_limits(go2):

@@ -84,13 +84,25 @@ def fallen(robot: RobotModel, q: np.ndarray, config: SafetyConfig, check_height:
     return bool(tilted or (check_height and q[2] < config.min_height_ratio * robot.q_nominal[2]))
 
 
+CROUCH_KNEE_RAD = 1.2  # a biped's resting crouch: knees bent this much more than standing
+
+
 def lying_joint_positions(robot: RobotModel) -> np.ndarray:
-    """Folded legs (calf near its folding limit, thigh raised), a Z1 arm folded (its rest pose, z1_controller's
-    "startFlat"), another arm at its nominal pose: a resting pose."""
+    """The resting pose of the lie-down. Quadrupeds: folded legs (calf near its folding limit, thigh raised), a
+    Z1 arm folded (its rest pose, z1_controller's "startFlat"), another arm at its nominal pose. Bipeds (two feet):
+    a crouch, knees bent `CROUCH_KNEE_RAD` more than standing and hip and ankle pitch each taking half of it back,
+    so the soles stay flat and the torso upright over them (G1's and TALOS's pitch joints share one sign
+    convention); a humanoid does not lie down by joint PD, it crouches onto its gantry before damping."""
     from wbmpc.hardware.z1_messages import Z1_REST_POSE_RAD
 
     q = robot.q_nominal[7:].copy()
     lower, upper = robot.model.lowerPositionLimit[7:], robot.model.upperPositionLimit[7:]
+    if len(robot.feet) == 2:
+        for j, name in enumerate(robot.joint_names):
+            bend = CROUCH_KNEE_RAD if "knee" in name else -0.5 * CROUCH_KNEE_RAD if any(
+                part in name for part in ("hip_pitch", "ankle_pitch")) else 0.0
+            q[j] = np.clip(q[j] + bend, lower[j] + 0.05, upper[j] - 0.05) if bend else q[j]
+        return q
     for j, name in enumerate(robot.joint_names):
         if not robot.leg_joint_mask[j]:
             if name in Z1_REST_POSE_RAD:
