@@ -53,6 +53,7 @@ from wbmpc.hardware.messages import (
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.robot_sim import LOW_CMD_TOPIC, LOW_STATE_TOPIC
 from wbmpc.hardware.safety import (
+    Posture,
     SafetyConfig,
     clamp_command,
     fallen,
@@ -422,6 +423,7 @@ class Controller:
         active = None
         next_mpc = 0.0
         lying = lying_joint_positions(robot)
+        posture = Posture(robot, safety)
         mpc_period = 1.0 / 80.0
         busy = False
         delay_s, requested_at = 0.0, 0.0  # measured delay of the plans (delay compensation, MpcConfig)
@@ -476,11 +478,11 @@ class Controller:
                 elapsed = t - phase_t0
                 solve_ms = 0.0
                 if phase == "stand-up":
-                    command = posture_command(pose_start, robot.q_nominal[7:], elapsed, safety.stand_up_s, safety, robot.tau_max)
+                    command = posture.command(pose_start, robot.q_nominal[7:], elapsed, safety.stand_up_s)
                     if elapsed >= safety.stand_up_s:
                         enter("hold", t, robot.q_nominal[7:])
                 elif phase == "hold":
-                    command = posture_command(pose_start, robot.q_nominal[7:], 1.0, 0.0, safety, robot.tau_max)
+                    command = posture.command(pose_start, robot.q_nominal[7:], 1.0, 0.0)
                     ready = elapsed >= cfg.hold_s
                     if ready and active is None and worker is None:  # lock-step: the first plan while holding
                         tic = time.perf_counter()
@@ -545,7 +547,7 @@ class Controller:
                         progress(min(t_mpc / cfg.duration_s, 1.0))
                 if phase == "lie-down":
                     elapsed = t - phase_t0  # the phase may have started in this tick
-                    command = posture_command(pose_start, lying, elapsed, safety.lie_down_s, safety, robot.tau_max)
+                    command = posture.command(pose_start, lying, elapsed, safety.lie_down_s)
                     if elapsed >= safety.lie_down_s + 0.3:
                         enter("damping", t, reading.joint_position_rad)
                 if phase == "damping":
