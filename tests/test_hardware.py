@@ -207,6 +207,37 @@ def test_g1_messages_on_unitree_hg_follow_unitree_motor_order(g1):
         decode_low_cmd(low_cmd, motors)
 
 
+def test_g1_crouches_on_joint_pd_and_its_gantry_catches_it_in_damping(g1):
+    """Posture: G1 holds its stance and crouches on joint PD (no MPC); damped, it sinks into robot-sim's gantry
+    strap, which stayed slack until then; without the strap, damping lays it on its back."""
+    from wbmpc.hardware.gantry import Gantry
+    from wbmpc.hardware.safety import Posture, fallen, lying_joint_positions
+
+    def run(gantry: bool):
+        plant = make_plant("mujoco", g1)
+        plant.reset()
+        strap = Gantry(plant, g1) if gantry else None
+        if strap is not None:
+            plant.add_step_hook(strap)
+        posture, crouch, nominal = Posture(g1, SafetyConfig()), lying_joint_positions(g1), g1.q_nominal[7:]
+        heights = []
+        for k in range(4000):  # 1 ms steps: hold 0.5 s, crouch 1.5 s, damping 2 s
+            q, v = plant.state()
+            t = k * plant.dt_s
+            command = (posture.command(nominal, nominal, 1.0, 0.0) if t < 0.5 else
+                       posture.command(nominal, crouch, t - 0.5, 1.5) if t < 2.0 else None)
+            plant.step(command.torque(q[7:], v[6:]) if command else -5.0 * v[6:])
+            heights.append(q[2])
+            if t < 2.0:
+                assert not fallen(g1, q, SafetyConfig()), t
+        return strap, heights, fallen(g1, plant.state()[0], SafetyConfig())
+
+    strap, heights, fell = run(gantry=True)
+    assert heights[1999] < 0.85 * g1.q_nominal[2] and not fell  # crouched, then hanging in the strap
+    assert strap.taut_since_s is not None and strap.taut_since_s > 2.0 and strap.max_force_n > 200
+    assert run(gantry=False)[2]
+
+
 # ---------------------------------------------------------------------------- robot link
 @pytest.mark.parametrize("name", ["go2", "g1"])
 def test_unset_low_states_are_refused_on_the_robot_link_and_accepted_on_sim(name, go2, g1):
@@ -527,7 +558,7 @@ def test_g1_stands_crouches_and_damps_over_unitree_hg(dds):
     """G1 over unitree_hg in lock-step: stand-up on joint PD, MPC, the crouch, damping; its mode_machine echoed,
     no LowCmd rejected, the wrists held, no fall."""
     sim = _cli("robot-sim", "--robot", "g1", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "6",
-               "--idle-exit", "120", "--json")
+               "--idle-exit", "120", "--gantry", "--json")
     controller = _cli("deploy", "--robot", "g1", "--domain", str(DOMAIN), "--scenario", "stand", "--lockstep",
                       "--nodes", "4", "--duration", "0.5", "--json")
     try:
@@ -544,3 +575,5 @@ def test_g1_stands_crouches_and_damps_over_unitree_hg(dds):
     assert robot["commands_received"] > 2000 and robot["commands_rejected"] == {} and not robot["fell"]
     crouch = [row for row in robot["trajectory"] if 4.9 <= row[0] <= 5.2]  # the lie-down's end, robot time
     assert max(row[4] for row in robot["trajectory"]) < 15 and max(row[3] for row in crouch) < 0.7
+    damping = deploy["phases"][-1][0] - deploy["phases"][0][0]  # robot time from the first LowCmd
+    assert robot["gantry"]["taut_since_s"] is None or robot["gantry"]["taut_since_s"] > damping  # slack until then

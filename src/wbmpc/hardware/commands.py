@@ -45,6 +45,9 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "simulated seconds after the first LowCmd")
     sim.add_argument("--corrupt-every", type=int, metavar="N", help="fault: every N-th LowState with a bad CRC and "
                      "Z1 state with a NaN")
+    sim.add_argument("--gantry", action="store_true", help="a safety strap above the base, slack while the robot "
+                     "stands, carrying it once it sinks 30 %% below its standing height (humanoids: deploy's crouch and "
+                     "damping end in it, as under a gantry on hardware)")
     sim.add_argument("--state-rate", type=float, metavar="HZ", help="LowState rate (default 500 Hz as a Unitree robot; "
                      "200 Hz with --robot-link sim, unitree_mujoco's 5 ms step)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
@@ -176,7 +179,7 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                             idle_exit_s=args.idle_exit, push_time_s=args.push_time,
                             push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
                             refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
-                            corrupt_every=args.corrupt_every, robot_link=args.robot_link,
+                            corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
                             state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
                                                               else 500.0),
                             **_arm_settings(args))
@@ -212,6 +215,10 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"watchdog (damping) at {report['watchdog_events_s']} s, "
         f"{', '.join(f'{x:.0f}' for x in report['watchdog_latency_ms']) or 'no'} ms after the last valid LowCmd",
     ]
+    if report["gantry"] is not None:
+        gantry = report["gantry"]
+        lines.append("  gantry: " + ("slack throughout" if gantry["taut_since_s"] is None else
+                                     f"taut from {gantry['taut_since_s']:.2f} s, largest pull {gantry['max_force_n']:.0f} N"))
     if "window_drift_cm_s" in report:
         lines.append(f"  true drift between {args.drift_window} s: {report['window_drift_cm_s']:.2f} cm/s")
     if report["rtt_ms_p50"] is not None:

@@ -29,6 +29,10 @@ arrives, with the joint readings of that moment, and that torque held until the 
 the command rate, not at every physics step); LowCmds applied unchecked (no CRC, header or motor-set
 check: only non-finite values are refused); no command watchdog, no sport mode service, no lock-step.
 
+Gantry (`gantry`, for humanoids): a strap that is slack while the robot stands and walks and carries it once
+it sinks well below its standing height, as on hardware (`wbmpc.hardware.gantry`); after deploy's crouch and
+damping the humanoid hangs in it instead of collapsing.
+
 Arm: a Z1 arm of the model (`arm="z1"`, the default for a model with Z1 joints) is not on LowCmd but
 behind the Z1's UDP interface (`wbmpc.hardware.z1_udp.Z1Server`, z1_controller's ports): its state goes
 out every tick beside LowState, its latest LOWCMD command drives the modelled Z1 joints (joints the
@@ -90,6 +94,7 @@ class RobotSimConfig:
     corrupt_every: int | None = None  # every n-th LowState with a bad CRC and Z1 state with NaN (fault injection)
     robot_link: str = "robot"  # robot | sim: imitate Unitree's simulator (see the module's docstring)
     mode_machine: int = G1_MODE_MACHINE  # unitree_hg robots report it in LowState and expect it back in LowCmd
+    gantry: bool = False  # a safety strap above the base (humanoids), slack while standing
 
     def __post_init__(self):
         check_link(self.robot_link)
@@ -132,6 +137,7 @@ class RobotSimReport:
     sport_calls: list = field(default_factory=list)  # motion switcher calls served, in order
     tick_cpu_ms: list = field(default_factory=list)  # CPU time of the tick loop's own thread per tick
     trajectory: list = field(default_factory=list)  # [t s, x, y, z, tilt deg] every 25 ticks (20 Hz), true base
+    gantry: dict | None = None  # when the strap first carried the robot, its largest pull
 
     def summary(self) -> dict:
         rtt = np.array(self.rtt_ms)
@@ -159,6 +165,7 @@ class RobotSimReport:
             "sport_calls": self.sport_calls,
             "tick_cpu_ms_p50": float(np.percentile(self.tick_cpu_ms, 50)) if self.tick_cpu_ms else None,
             "tick_cpu_ms_p99": float(np.percentile(self.tick_cpu_ms, 99)) if self.tick_cpu_ms else None,
+            "gantry": self.gantry,
             "trajectory": self.trajectory,
         }
 
@@ -196,6 +203,12 @@ class RobotSimulator:
             for _ in range(1500):
                 q, v = self.plant.state()
                 self.plant.step(-config.safety.damping_kd * v[6:])
+        self.gantry = None
+        if config.gantry:
+            from wbmpc.hardware.gantry import Gantry
+
+            self.gantry = Gantry(self.plant, robot)
+            self.plant.add_step_hook(self.gantry)
         self.sensors = Sensors(self.plant, config.sensors)
         self._steps_per_tick = max(1, int(round(1.0 / (config.state_rate_hz * self.plant.dt_s))))
         self._lock = threading.Condition()
@@ -395,4 +408,6 @@ class RobotSimulator:
         report.end_xy_m = plant.state()[0][:2].tolist()
         report.commands_rejected = dict(self._rejected)
         report.damping_at_end = in_damping
+        if self.gantry is not None:
+            report.gantry = self.gantry.summary(started_at if started_at is not None else 0.0)
         return report
