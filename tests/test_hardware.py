@@ -279,6 +279,29 @@ def test_unset_low_states_are_refused_on_the_robot_link_and_accepted_on_sim(name
         strict.reading(good, 52.002)  # the same tick again
 
 
+def test_robot_sim_imitating_unitree_simulator_holds_each_low_cmd_torque(go2):
+    """robot-sim --robot-link sim: a LowCmd's motor law is evaluated once, with the joints of that moment, and that
+    torque is held while the robot moves; no CRC or header check (a forged CRC is applied, as unitree_mujoco does)."""
+    from wbmpc.hardware.robot_sim import RobotSimConfig, RobotSimulator
+
+    sim = RobotSimulator(go2, RobotSimConfig(robot_link="sim"))
+    motors = sim.motors
+    n = go2.n_joints
+    target = go2.q_nominal[7:] + 0.1
+    msg = encode_low_cmd(MotorCommand(target, np.zeros(n), np.full(n, 20.0), np.full(n, 0.5), np.full(n, 1.0)), motors)
+    msg.crc ^= 1  # unchecked on this link
+    q_now, dq_now = go2.q_nominal[7:].copy(), np.full(n, 0.2)
+    sim._joints_now = (q_now, dq_now)
+    sim._on_command(msg)
+    held = sim._command
+    expected = 1.0 + 20.0 * (target - q_now) + 0.5 * (0.0 - dq_now)
+    np.testing.assert_allclose(held.torque(q_now + 0.3, dq_now - 1.0), expected, atol=1e-5)  # held as the robot moves
+    assert sim.report.commands_received == 1 and sim._rejected == {}
+    strict = RobotSimulator(go2, RobotSimConfig())
+    strict._on_command(msg)
+    assert strict._command is None and dict(strict._rejected) == {"crc": 1}
+
+
 def test_clamps_keep_targets_and_torques_in_limits(go2):
     n = go2.n_joints
     q = go2.q_nominal[7:]

@@ -110,9 +110,11 @@ def encode_low_state(reading: SensorReadings, motors: MotorMap, tick_ms: int, fo
 
 def leave_unset(msg) -> None:
     """Blank what Unitree's simulator (unitree_mujoco) leaves at 0: header, level flag, tick, motor modes and
-    temperatures, foot forces, CRC (robot-sim --robot-link sim)."""
+    temperatures, foot forces, mode_pr and mode_machine, CRC (robot-sim --robot-link sim)."""
     hg = is_hg(msg)
-    if not hg:
+    if hg:
+        msg.mode_pr, msg.mode_machine = 0, 0
+    else:
         msg.head, msg.level_flag, msg.foot_force = [0, 0], 0, [0, 0, 0, 0]
     for m in msg.motor_state:
         m.mode = 0
