@@ -279,6 +279,19 @@ def test_unset_low_states_are_refused_on_the_robot_link_and_accepted_on_sim(name
         strict.reading(good, 52.002)  # the same tick again
 
 
+def test_unitree_simulator_link_has_no_lock_step():
+    from wbmpc.errors import ConfigError
+    from wbmpc.hardware.deploy import DeployConfig
+    from wbmpc.hardware.robot_sim import RobotSimConfig
+
+    with pytest.raises(ConfigError, match="drop --lockstep"):
+        DeployConfig(robot_link="sim", lockstep=True)
+    with pytest.raises(ConfigError, match="--mode realtime"):
+        RobotSimConfig(robot_link="sim", mode="lockstep")
+    with pytest.raises(ConfigError, match="--robot-link must be robot"):
+        DeployConfig(robot_link="mujoco")
+
+
 def test_robot_sim_imitating_unitree_simulator_holds_each_low_cmd_torque(go2):
     """robot-sim --robot-link sim: a LowCmd's motor law is evaluated once, with the joints of that moment, and that
     torque is held while the robot moves; no CRC or header check (a forged CRC is applied, as unitree_mujoco does)."""
