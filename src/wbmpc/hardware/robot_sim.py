@@ -95,6 +95,7 @@ class RobotSimConfig:
     robot_link: str = "robot"  # robot | sim: imitate Unitree's simulator (see the module's docstring)
     mode_machine: int = G1_MODE_MACHINE  # unitree_hg robots report it in LowState and expect it back in LowCmd
     gantry: bool = False  # a safety strap above the base (humanoids), slack while standing
+    plant_model: str | None = None  # MuJoCo simulates this file of the robot (wbmpc.sim.plant_model); None: the model
 
     def __post_init__(self):
         check_link(self.robot_link)
@@ -193,7 +194,10 @@ class RobotSimulator:
             raise ConfigError(f"{robot.name} is a biped: it does not stand up from lying by joint PD; --start standing "
                               "(on a robot: from its gantry)")
         self.arm_map = z1_arm_map(robot) if z1 else None
-        self.plant = make_plant("mujoco", robot)
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        self.plant = make_plant("mujoco", robot, MujocoPlantConfig(plant_model=config.plant_model)
+                                if config.plant_model else None)
         q0 = robot.q_nominal.copy()
         if config.start == "lying":
             q0[7:] = lying_joint_positions(robot)
