@@ -432,3 +432,30 @@ def test_keyboard_drives_a_run_through_a_pseudo_terminal(tmp_path):
     assert "lie-down command" in operator["ended_by"] and not metrics["interrupted"]
     commands = [s["command"] for s in operator["segments"] if s["source"] == "keyboard"]
     assert commands[0]["walking"] and commands[1]["forward_m_s"] == pytest.approx(0.1) and commands[-1]["lie_down"]
+
+
+def test_live_meshcat_page_draws_states_and_plans(tmp_path):
+    """deploy --meshcat's drawing process: it starts a meshcat server, draws what the loop hands over, and reports
+    its frames (the rate is a measurement, reported by deploy, not asserted here)."""
+    from types import SimpleNamespace
+
+    from test_live_viewer import _plan
+
+    from wbmpc.viz.live_meshcat import LiveMeshcat
+
+    robot = load_robot("go2")
+    live = LiveMeshcat(robot)
+    url = live.open()
+    try:
+        assert url.startswith("http://127.0.0.1:")
+        plan = _plan(robot)
+        start = time.perf_counter()
+        while time.perf_counter() - start < 1.5:
+            q = robot.q_nominal.copy()
+            q[0] = time.perf_counter() - start
+            live.on_tick(SimpleNamespace(q=q, plan=plan))
+            time.sleep(0.002)
+    finally:
+        live.close()
+    summary = live.summary()
+    assert summary["frames"] >= 5 and summary["plan_frames"] >= 5 and summary["rate_hz"] > 0

@@ -50,9 +50,7 @@ def _layout():
 
 def find_gamepad(path: str | None = None):
     """The evdev device at `path`, or the first one that looks like a gamepad (sticks and a south button)."""
-    import evdev  # noqa: F401  (raises with the install hint below)
-
-    e = _ecodes()
+    e = _ecodes()  # a ConfigError with the install hint without python-evdev
     from evdev import InputDevice, list_devices
 
     if path:
