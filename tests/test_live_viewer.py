@@ -134,3 +134,48 @@ def test_run_with_the_viewer_opens_draws_and_closes(display, tmp_path):
 
     viewer = json.loads(result.stdout)["operator"]["viewer"]
     assert viewer["syncs"] > 1 and viewer["plans_drawn"] > 1 and viewer["geoms_last_sync"] > 0
+
+
+def test_dragging_the_hand_target_in_the_viewer_sets_the_hand_command(display):
+    """b1_z1 in the viewer: the green target sphere dragged 10 cm forward (the GUI's perturbation of a mocap body)
+    becomes a hand offset of 10 cm posted by the "viewer" source."""
+    import mujoco
+
+    from wbmpc.operator.command import OperatorCommand, OperatorLimits
+    from wbmpc.operator.config import OperatorConfig
+    from wbmpc.operator.run import OperatorRun
+    from wbmpc.operator.session import OperatorSession
+    from wbmpc.robots import load_robot
+    from wbmpc.scenarios import ScenarioOptions, make_scenario
+    from wbmpc.sim import make_plant
+    from wbmpc.viz.live_viewer import HAND_TARGET_BODY, LiveViewer
+
+    robot = load_robot("b1_z1")
+    scenario = make_scenario("stand", robot, ScenarioOptions())
+    run = OperatorRun(robot, OperatorConfig(viewer=True), scenario, [])
+    plant = make_plant("mujoco", robot, run.plant_config(None))
+    plant.reset(robot.q_nominal)
+    session = OperatorSession(robot, OperatorLimits.for_robot(robot), [], OperatorCommand())
+    viewer = LiveViewer(robot, plant, session, sync_period_s=0.0)
+    plant.add_step_hook(viewer)
+    viewer.open()
+    try:
+        target = mujoco.mj_name2id(plant.model, mujoco.mjtObj.mjOBJ_BODY, HAND_TARGET_BODY)
+        for _ in range(3):
+            plant.step(np.zeros(robot.n_joints))
+        home = np.array(plant.data.mocap_pos[plant.model.body_mocapid[target]])
+        hand = robot.frame_trajectories(robot.q_nominal[None, :], [robot.arm_ee])[robot.arm_ee][0]
+        assert np.linalg.norm(home - hand) < 0.02  # the sphere sits on the hand's standing place
+        with viewer.handle.lock():
+            pert = viewer.handle.perturb
+            pert.select = target
+            pert.refpos = home + np.array([0.1, 0.0, 0.0])
+            pert.refquat = np.array([1.0, 0.0, 0.0, 0.0])
+            pert.active = int(mujoco.mjtPertBit.mjPERT_TRANSLATE)
+        for _ in range(3):
+            plant.step(np.zeros(robot.n_joints))
+        posted = session.board.latest()
+        assert posted.source == "viewer" and posted.command.hand_offset_m[0] == pytest.approx(0.1, abs=0.02)
+        assert viewer.events == []  # dragging the target is not a push on the robot
+    finally:
+        viewer.close()
