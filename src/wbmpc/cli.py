@@ -413,8 +413,10 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
                                  plant_config=plant_config_from_args(args, robot)).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
+    from wbmpc.operator.script import script_duration
+
     scenario = SCENARIOS[args.scenario](config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    duration = config.duration_s or script_duration(config.operator.commands_file) or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
           f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}"
           f"{f' simulating {config.plant_model}' if config.plant_model else ''}, state {args.state}",

@@ -149,6 +149,18 @@ def read_script(path: str | Path, limits: OperatorLimits, initial: OperatorComma
     return CommandScript(str(path), tuple(entries), None if duration is None else float(duration), tuple(sorted(ignored)))
 
 
+def script_duration(path: str | Path | None) -> float | None:
+    """A script's own `duration` (None without one or without a script), read without checking the rest."""
+    if not path:
+        return None
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return None
+    value = data.get("duration") if isinstance(data, dict) else None
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
 def _ranges_text(limits: OperatorLimits) -> str:
     low, high = limits.height_range_m
     return (f"forward +-{limits.max_forward_m_s:g} m/s, lateral +-{limits.max_lateral_m_s:g} m/s, yaw rate "
