@@ -402,6 +402,7 @@ def test_a_gamepad_that_vanishes_mid_run_leaves_the_robot_standing(a1, monkeypat
     assert walking[steps < lost_at].max() == 1 and walking[steps > lost_at + 0.05].max() == 0
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals of Linux")
 def test_keyboard_drives_a_run_through_a_pseudo_terminal(tmp_path):
     """`wbmpc run --keyboard` in a pty: g (walk), w (forward 0.1), x (lie down: the run ends, complete)."""
