@@ -27,8 +27,8 @@ def _check(metrics: dict) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("robot", ["b1_z1", "go2", pytest.param("g1", marks=pytest.mark.xfail(
-    reason="g1 falls 1.4 s into the 0.2 m/s strafe that follows the 0.6 rad/s turn (failed steps from 6.4 s of "
-    "tests/g1ts-like runs; the strafe alone from standing tracks at 0.020 m/s): docs/operator.md", strict=False))])
+    reason="g1 falls 1.4 s into the 0.2 m/s strafe that follows the 0.6 rad/s turn (failed MPC steps first; the "
+    "strafe alone from standing tracks at 0.020 m/s): docs/operator.md", strict=False))])
 def test_the_sixty_second_session(robot):
     result = run_scenario(load_robot(robot), RunConfig(scenario="stand", compiled=True,
                                                        operator=OperatorConfig(commands_file=SESSION)))
