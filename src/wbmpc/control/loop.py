@@ -379,11 +379,12 @@ class ClosedLoop:
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
         self._log_solution(log, t, command, solution)
-        return solution
-
-    def _log_solution(self, log: RunLog, t: float, command: Commands, solution: Solution) -> None:
         for listener in self.solution_listeners:
             listener(t, solution)
+        return solution
+
+    @staticmethod
+    def _log_solution(log: RunLog, t: float, command: Commands, solution: Solution) -> None:
         solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
         log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
                         solution.contact[0])
@@ -555,6 +556,8 @@ class ClosedLoop:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
         plan's first tick, transport included); returns the updated transport estimate."""
         self._log_solution(log, request[0], request[1], solution)
+        for listener in self.solution_listeners:
+            listener(request[0], solution)
         delay = max(t - request[0], now - request[2])
         log.record_delay(delay * 1e3)
         self._note_delay(delay)
