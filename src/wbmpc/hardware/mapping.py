@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.crc import N_MOTOR_SLOTS
@@ -130,11 +129,4 @@ def _locked_reference(robot: RobotModel) -> list[float]:
     """Positions of the locked joints in the model's reference pose (where the reduced model froze them)."""
     if not robot.spec.locked_joints:
         return []
-    full = pin.buildModelFromUrdf(str(robot.spec.urdf), pin.JointModelFreeFlyer())
-    q_ref = RobotModel._reference_configuration(full, robot.spec)
-    out = []
-    for name in robot.spec.locked_joints:
-        jid = full.getJointId(name)
-        start, nq = full.idx_qs[jid], full.nqs[jid]
-        out.append(float(np.arctan2(q_ref[start + 1], q_ref[start])) if nq == 2 else float(q_ref[start]))
-    return out
+    return [robot.locked_positions[name] for name in robot.spec.locked_joints]
