@@ -294,3 +294,28 @@ def compose_on_mjcf(base_mjcf: Path, arm: ArmMount, cache_dir: Path | None = Non
         tmp.replace(path)
     placement = (*map(float, mount.translation), *map(float, pin.rpy.matrixToRpy(mount.rotation)))
     return Composition(urdf=path, renamed=renamed, arm_ee=ee, arm_joints=moving), placement
+
+
+def append_model(base: pin.Model, arm: pin.Model, frame_id: int, placement: pin.SE3) -> pin.Model:
+    """`arm` (a fixed-base model) attached to frame `frame_id` of `base` at `placement` in that frame: its joints,
+    limits, inertias (the root link's on the mount's joint) and frames. `pin.appendModel` does the same but looks
+    frames up by name alone and stops at a link and a joint of the same name (Z1's gripperStator)."""
+    model = pin.Model(base)
+    mount = base.frames[frame_id]
+    offset = mount.placement * placement  # the arm's universe in the mount's joint frame
+    joints = {0: mount.parentJoint}
+    for j in range(1, arm.njoints):
+        iq, nq, iv, nv = arm.idx_qs[j], arm.nqs[j], arm.idx_vs[j], arm.nvs[j]
+        joint_placement = offset * arm.jointPlacements[j] if arm.parents[j] == 0 else arm.jointPlacements[j]
+        joints[j] = model.addJoint(joints[arm.parents[j]], arm.joints[j], joint_placement, arm.names[j],
+                                   arm.effortLimit[iv:iv + nv], arm.velocityLimit[iv:iv + nv],
+                                   arm.lowerPositionLimit[iq:iq + nq], arm.upperPositionLimit[iq:iq + nq])
+        model.appendBodyToJoint(joints[j], arm.inertias[j], pin.SE3.Identity())
+    model.appendBodyToJoint(mount.parentJoint, offset.act(arm.inertias[0]), pin.SE3.Identity())
+    frames = {0: frame_id}
+    for k in range(1, len(arm.frames)):
+        f = arm.frames[k]
+        frame_placement = offset * f.placement if f.parentJoint == 0 else f.placement
+        frames[k] = model.addFrame(pin.Frame(f.name, joints[f.parentJoint], frames.get(f.parentFrame, frame_id),
+                                             frame_placement, f.type, f.inertia), False)  # inertias are in the joints
+    return model
