@@ -5,7 +5,7 @@ than one iteration, and never hands the loop NaN."""
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
@@ -31,7 +31,7 @@ class FakeClock:
 def fixed_state():
     """go2's trot OCP from a moving state and Fatrop's solution of it (tolerance 1e-10)."""
     robot = load_robot("go2")
-    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None,
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
                                solver=SolverConfig(tolerance=1e-10, max_iterations=300)))
     calls = []
     solve = mpc.solver.solve
@@ -199,8 +199,9 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     assert summary["solver"] == "sqp" and summary["compiled_requested"] and not summary["solver_compiled"]
     assert "gcc not found" in summary["compile_error"]
     # the run's defaults: anytime SQP with a budget on CPU time and delay compensation with a simulated delay
+    from wbmpc.control.policy import default_solver
     from wbmpc.scenarios import make_scenario
-    from wbmpc.scenarios.runner import default_solver, mpc_config_for
+    from wbmpc.scenarios.runner import mpc_config_for
 
     assert default_solver(compiled=False, delay="none") == "sqp" and default_solver(True, "none") == "fatrop-direct"
     assert default_solver(True, "realtime") == "sqp"
@@ -209,9 +210,9 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     assert mpc_config.solver.name == "sqp" and mpc_config.delay_compensation
     assert mpc_config.solver.extra_options["clock"] == "cpu" and mpc_config.step_budget_s == pytest.approx(0.01)
     # a solver with a deadline drops the arm's velocity rows in push recovery mode (post-push QPs stay feasible)
-    assert mpc_config.push_relaxed_rows == ("ee_vel",)
+    assert mpc_config.push.relaxed_rows == ("ee_vel",)
     converged = mpc_config_for(make_scenario("push", robot, config.options), RunConfig(solver="auto", compiled=True), robot)
-    assert converged.step_budget_s is None and converged.push_relaxed_rows == ()
+    assert converged.step_budget_s is None and converged.push.relaxed_rows == ()
 
 
 class FailingQp:

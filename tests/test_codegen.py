@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
@@ -60,8 +60,8 @@ def compiled_solver(problem, cache_dir):
 def test_compiled_solver_gives_the_same_solution(robot, problem, compiled_solver):
     assert compiled_solver.is_compiled and not compiled_solver.compile_report.cached
     assert compiled_solver.compile_report.library.exists()
-    reference = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None), problem=problem)
-    compiled = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None), problem=problem, solver=compiled_solver)
+    reference = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
+    compiled = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem, solver=compiled_solver)
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.1, 0.05]
     for t in (0.1, 0.1125):

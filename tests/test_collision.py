@@ -326,8 +326,8 @@ def test_quadratic_slack_slides_the_hand_along_an_obstacle(robot):
     under the L1 weight alone the plan stops the hand at the margin; with the quadratic weight of collision
     runs it slides along the post (towards the robot); both keep the margin (pinocchio FK on the planned q)."""
     from wbmpc.bench.mpc import mpc_config
+    from wbmpc.control.policy import COLLISION_SOFT_WEIGHT_SQ
     from wbmpc.ocp.grid import TimeGrid
-    from wbmpc.scenarios.runner import COLLISION_SOFT_WEIGHT_SQ
 
     q = robot.q_nominal.copy()
     hand = robot.frame_trajectories(q, [robot.arm_ee])[robot.arm_ee][0]

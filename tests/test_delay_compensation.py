@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.control.delay import roll_forward
 from wbmpc.control.loop import ClosedLoop, LoopConfig
 from wbmpc.control.solution import Solution
@@ -73,7 +73,7 @@ def test_roll_forward_predicts_the_model_plant_exactly(go2, motion):
 def test_mpc_plans_from_the_predicted_state(go2):
     """With compensation the plan starts at t + delay from the rolled-forward state (node 0 of the OCP is
     pinned to it); without, at the measurement."""
-    config = MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None, delay_compensation=True)
+    config = MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None), delay_compensation=True)
     mpc = MPC(go2, config)
     v = np.zeros(go2.nv)
     v[:3] = [0.2, 0.0, 0.0]
@@ -87,7 +87,7 @@ def test_mpc_plans_from_the_predicted_state(go2):
     assert second.t_s == pytest.approx(0.01 + delay)
     np.testing.assert_allclose(second.q[0], predicted[0], atol=1e-9)
     np.testing.assert_allclose(second.v[0], predicted[1], atol=1e-9)
-    off = MPC(go2, MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None), problem=mpc.problem)
+    off = MPC(go2, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None)), problem=mpc.problem)
     plain = off.solve(q1, v1, t=0.01, delay_s=delay)
     assert plain.t_s == 0.01
     np.testing.assert_allclose(plain.q[0], q1, atol=1e-9)

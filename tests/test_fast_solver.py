@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, StageBounds
 from wbmpc.robots import load_robot
@@ -61,8 +61,8 @@ def switching():
     """go2 switching between four feet in stance and a trot pair in swing: the per-stage row counts
     change (trot and walk keep them constant, a stop or a start of the gait does not)."""
     robot = load_robot("go2")
-    config = MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(max_iterations=2), recovery_barrier_init=None,
-                       fallback_solver=None)
+    config = MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(max_iterations=2),
+                       recovery=RecoveryConfig(barrier_init=None, fallback_solver=None))
     mpc = MPC(robot, config)
     node_times = mpc.problem.config.grid.node_times_s
     stance = np.ones((len(node_times), 4), dtype=bool)

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
@@ -44,7 +44,7 @@ def direct(problem, codegen):
 @pytest.fixture(scope="module")
 def step_data(robot, problem):
     """p, bounds and initial guess of one MPC step (trot, moving base), as the MPC hands them to its solver."""
-    mpc = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None), problem=problem)
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
     captured = {}
     solve = mpc.solver.solve
 
@@ -114,7 +114,7 @@ def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
 
 
 def _trot_steps(robot, problem, solver_config, times=(0.1, 0.1125, 0.125, 0.2)):
-    mpc = MPC(robot, MpcConfig(ocp=TINY, fallback_solver=None, solver=solver_config), problem=problem)
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None), solver=solver_config), problem=problem)
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.1, 0.05]
     return mpc, [mpc.solve(robot.q_nominal, v0, t=t) for t in times]

@@ -5,7 +5,7 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.bench.dynamics import world_forces_to_pinocchio
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.formulations import FORMULATIONS
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
@@ -35,7 +35,7 @@ def planned(request, robot):
     """One trot OCP (t = 0.1 s: a diagonal pair in swing) solved from a moving state."""
     config = MpcConfig(ocp=OcpConfig(formulation=request.param, grid=TimeGrid(n_intervals=8, dt_first_s=0.01,
                                                                               dt_last_s=0.06)),
-                       gait="trot", fallback_solver=None)
+                       gait="trot", recovery=RecoveryConfig(fallback_solver=None))
     mpc = MPC(robot, config)
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.1, -0.05, 0.0]

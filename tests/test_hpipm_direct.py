@@ -6,7 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
@@ -22,7 +22,7 @@ SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
 def qp_data():
     """The QP of the first SQP iteration of go2's trot OCP from a moving state (with active bounds)."""
     robot = load_robot("go2")
-    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None, solver=SolverConfig(name="rti")))
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None), solver=SolverConfig(name="rti")))
     calls = []
     solve = mpc.solver.solve
 

@@ -7,6 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from wbmpc.control import RecoveryConfig
 from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError, ModelError
 from wbmpc.gait import SwingProfile, biped_walk_timing, make_gait
@@ -113,7 +114,7 @@ def test_single_support_plan_keeps_the_leg_torques_in_their_limits_on_every_node
     k < 3 (without the implied-torque rows this plan asks 1.74 times the right ankle pitch's 35 N m on 4 nodes)."""
     from wbmpc.control.tuning import tuning_for
 
-    mpc = MPC(g1, MpcConfig(gait="walk", **tuning_for(g1).mpc_fields()))
+    mpc = MPC(g1, tuning_for(g1).apply_to(MpcConfig(gait="walk")))
     t = 0.3  # the left foot in swing (0.21-0.51 s), the right one carrying the robot
     assert list(mpc.schedule(t)[1][0]) == [0.0, 1.0]
     v0 = np.zeros(g1.nv)
@@ -321,7 +322,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     report = tuning.report()
     period, share = biped_walk_timing(scale.leg_length_m)
     assert tuning.gait_period_s == pytest.approx(period) and 0.9 < period < 1.2  # g1: 1.03 s
-    assert tuning_for(g1).mpc_fields()["support_sway_free_hands"] == 0.0  # g1 leans only while a hand is held
+    assert tuning_for(g1).support_sway_free_hands == 0.0  # g1 leans only while a hand is held
     assert tuning.support_lead_s == pytest.approx(0.5 * period * share)
     assert tuning.free_ee_without_command and tuning.support_sway > 0
     assert tuning.swing_placement
@@ -476,20 +477,20 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     realtime = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="rti", delay="realtime"), g1)
     options = realtime.solver.extra_options
     assert options["recovery_barrier_init"] is None and options["fallback_qp_mode"] is None
-    assert realtime.fallback_solver is None
+    assert realtime.recovery.fallback_solver is None
     for name, delay in (("g1", "none"), ("b1_z1", "realtime")):
         robot = g1 if name == "g1" else load_robot(name)
         other = mpc_config_for(make_scenario("walk-in-place", robot), RunConfig(scenario="walk-in-place", solver="rti",
                                                                                  delay=delay), robot)
         assert "recovery_barrier_init" not in other.solver.extra_options and "fallback_qp_mode" not in \
             other.solver.extra_options
-        assert other.fallback_solver == MpcConfig.fallback_solver
+        assert other.recovery.fallback_solver == RecoveryConfig().fallback_solver
     sqp = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="sqp", delay="measured"), g1)
-    assert sqp.solver.extra_options["recovery_barrier_init"] is None and sqp.fallback_solver is None
+    assert sqp.solver.extra_options["recovery_barrier_init"] is None and sqp.recovery.fallback_solver is None
     # the plan: solved once, then a QP that fails (its iteration cap) leaves the last plan shifted, finite
     mpc = MPC(g1, realtime)
     mpc.prepare_fallback()
-    assert mpc.solver._recovery is None and mpc.solver.fallback_qp is None and mpc._fallback is None
+    assert mpc.solver._recovery is None and mpc.solver.fallback_qp is None and not mpc.recovery.built()
     first = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t=0.0)
     assert first.success, first.stats.status
     n = mpc.problem.n_variables

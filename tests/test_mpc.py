@@ -1,11 +1,13 @@
 """The whole-body inverse-dynamics MPC: sizes, dynamic consistency of its solutions, warm start."""
 
+import dataclasses
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from wbmpc.bench.dynamics import world_forces_to_pinocchio
-from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control import MPC, Commands, MpcConfig, PushConfig, RecoveryConfig, ReferenceConfig
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import BLEND_TIME_S, OcpConfig, OcpProblem
@@ -131,8 +133,8 @@ def test_warm_start_needs_fewer_iterations(b1z1, trot_mpc):
     (dict(q=np.full(23, np.nan)), "NaN"),
     (dict(q=np.zeros(7)), "needs nq = 23"),
     (dict(v=np.zeros(3)), "needs nv = 22"),
-    (dict(commands=Commands(base_velocity_m_s=np.array([5.0, 0, 0]))), "exceeds max_base_speed"),
-    (dict(commands=Commands(ee_velocity_m_s=np.array([0, 0, 3.0]))), "exceeds max_ee_speed"),
+    (dict(commands=Commands(base_velocity_m_s=np.array([5.0, 0, 0]))), "exceeds limits.base_speed"),
+    (dict(commands=Commands(ee_velocity_m_s=np.array([0, 0, 3.0]))), "exceeds limits.ee_speed"),
 ])
 def test_bad_input_is_rejected_before_solving(trot_mpc, b1z1, bad, message):
     args = dict(q=b1z1.q_nominal, v=np.zeros(b1z1.nv), commands=Commands())
@@ -216,14 +218,30 @@ def test_velocity_only_base_tracking_does_not_pull_drift_back(trot_mpc, b1z1):
     drifted[0] += 0.05
     planned_vx = {}
     for mode in ("position", "velocity"):
-        mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="stand", base_tracking=mode), problem=trot_mpc.problem,
+        mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="stand", references=ReferenceConfig(base_tracking=mode)), problem=trot_mpc.problem,
                   solver=trot_mpc.solver)
         assert mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(), t=0.0).success  # the run starts here
         solution = mpc.solve(drifted, np.zeros(b1z1.nv), Commands(), t=0.1)
         assert solution.success, solution.stats
         start = drifted if mode == "velocity" else b1z1.q_nominal
-        np.testing.assert_allclose(mpc._xy_reference, start[:2], atol=1e-12)
+        np.testing.assert_allclose(mpc.references.anchor_xy_m, start[:2], atol=1e-12)
         planned_vx[mode] = float(np.mean(solution.v[1:, 0]))
     assert planned_vx["position"] < planned_vx["velocity"] - 5e-4  # the anchor pulls back, velocity-only does not
     with pytest.raises(ConfigError, match="--base-tracking"):
-        MpcConfig(base_tracking="anchor")
+        ReferenceConfig(base_tracking="anchor")
+
+
+def test_flat_settings_of_before_the_groups_still_work_for_one_release_with_a_warning():
+    """`MpcConfig(push_hold_s=...)` and `config.fallback_solver` (the flat names of 0.x) map onto the groups."""
+    with pytest.warns(DeprecationWarning, match="push_hold_s -> push.hold_s"):
+        config = MpcConfig(gait="stand", push_hold_s=0.2, fallback_solver=None, max_ee_force_n=50.0)
+    assert config.push.hold_s == 0.2 and config.recovery.fallback_solver is None and config.limits.ee_force_n == 50.0
+    assert config.push == PushConfig(hold_s=0.2) and config.gait == "stand"
+    with pytest.warns(DeprecationWarning, match="recovery_time_limit_s -> recovery.time_limit_s"):
+        assert config.recovery_time_limit_s == RecoveryConfig().time_limit_s
+    with pytest.warns(DeprecationWarning):
+        assert dataclasses.replace(config, support_sway=0.3).references.support_sway == 0.3
+    with pytest.raises(ConfigError, match="push.hold_s"), pytest.warns(DeprecationWarning):
+        MpcConfig(push_hold_s=-1.0)
+    with pytest.raises(AttributeError):
+        config.no_such_setting  # noqa: B018

@@ -1,11 +1,11 @@
-"""Faster steps after a push (MpcConfig.push_gait_period_scale, control/mpc.py): when the cadence changes,
+"""Faster steps after a push (PushConfig.gait_period_scale, control/push.py): when the cadence changes,
 what the OCP receives, and that the paper's fixed schedule stays available."""
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control import MPC, Commands, MpcConfig, PushConfig, RecoveryConfig
 from wbmpc.errors import ConfigError
 from wbmpc.gait import GaitClock, make_gait
 from wbmpc.ocp.grid import TimeGrid
@@ -21,15 +21,15 @@ def a1():
 
 
 def make_mpc(robot, **options):
-    config = MpcConfig(ocp=OcpConfig(grid=GRID), gait="trot", gait_period_s=0.6, fallback_solver=None,
-                       push_hold_s=0.1, push_cadence_hold_s=0.2,
+    config = MpcConfig(ocp=OcpConfig(grid=GRID), gait="trot", gait_period_s=0.6,
+                       recovery=RecoveryConfig(fallback_solver=None),
                        # steps re-solved from the nominal pose (no plant) plan up to ~0.35 m/s: not a push
-                       push_velocity_error_m_s=0.6, **options)
+                       push=PushConfig(hold_s=0.1, cadence_hold_s=0.2, velocity_error_m_s=0.6, **options))
     return MPC(robot, config)
 
 
 def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a1):
-    mpc = make_mpc(a1, push_gait_period_scale=0.5)  # 0.3 s steps
+    mpc = make_mpc(a1, gait_period_scale=0.5)  # 0.3 s steps
     v = np.zeros(a1.nv)
     expected = GaitClock(make_gait("trot", 4, 0.6))
     mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
@@ -50,7 +50,7 @@ def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a
         if mpc.gait.period_s == 0.6:
             t_back = t
             break
-        last_push_end = mpc._push_until_t
+        last_push_end = mpc.push_mode.until_t
     assert t_back is not None and last_push_end + 0.2 <= t_back < last_push_end + 0.2 + 0.0125
     expected.retime(t_back, 0.6)
     np.testing.assert_allclose(mpc.gait.phase(np.array([t_back + 0.1])), expected.phase(np.array([t_back + 0.1])))
@@ -59,20 +59,20 @@ def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a
 
 
 def test_the_fixed_schedule_of_the_paper_keeps_its_period_after_a_push(a1):
-    mpc = make_mpc(a1, push_gait_period_scale=None)
+    mpc = make_mpc(a1, gait_period_scale=None)
     kicked = np.zeros(a1.nv)
     kicked[1] = 1.0
     mpc.solve(a1.q_nominal, kicked, Commands(), t=0.0)
-    assert mpc._push_until_t is not None and mpc.gait.period_s == 0.6
+    assert mpc.push_mode.until_t is not None and mpc.gait.period_s == 0.6
 
 
 def test_bad_cadence_options_are_refused_before_anything_is_built():
-    with pytest.raises(ConfigError, match="push_gait_period_scale"):
-        MpcConfig(push_gait_period_scale=0.0)
-    with pytest.raises(ConfigError, match="push_gait_period_scale"):
-        MpcConfig(push_gait_period_scale=1.5)
-    with pytest.raises(ConfigError, match="push_cadence_hold_s"):
-        MpcConfig(push_cadence_hold_s=-1.0)
+    with pytest.raises(ConfigError, match="push.gait_period_scale"):
+        PushConfig(gait_period_scale=0.0)
+    with pytest.raises(ConfigError, match="push.gait_period_scale"):
+        PushConfig(gait_period_scale=1.5)
+    with pytest.raises(ConfigError, match="push.cadence_hold_s"):
+        PushConfig(cadence_hold_s=-1.0)
 
 
 def _swings(result, robot, after_s):
@@ -117,9 +117,9 @@ def test_each_solver_gets_its_default_cadence_and_an_estimator_that_cannot_see_t
     scenario = make_scenario("push", None)
 
     def scale(**run):
-        return mpc_config_for(scenario, RunConfig(scenario="push", **run)).push_gait_period_scale
+        return mpc_config_for(scenario, RunConfig(scenario="push", **run)).push.gait_period_scale
 
-    assert scale() == MpcConfig.push_gait_period_scale == 0.5625
+    assert scale() == PushConfig.gait_period_scale == 0.5625
     assert scale(solver="rti") is None  # RTI keeps the fixed schedule unless asked
     assert scale(solver="rti", push_gait_period_scale=0.5) == 0.5
     assert scale(push_gait_period_scale=1.0) is None

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control import MPC, Commands, MpcConfig, RecoveryConfig
 from wbmpc.control.interpolator import interpolate
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
@@ -18,7 +18,7 @@ SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
 @pytest.fixture(scope="module")
 def a1_mpc():
     robot = load_robot("a1")
-    return robot, MPC(robot, MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None))
+    return robot, MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None)))
 
 
 def test_failed_step_is_bounded_and_holds_the_last_plan_shifted(a1_mpc):
@@ -27,8 +27,7 @@ def test_failed_step_is_bounded_and_holds_the_last_plan_shifted(a1_mpc):
     good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
     assert good.success, good.stats
     # the same MPC with every attempt capped at 2 iterations: a strongly pushed state cannot converge
-    capped = MPC(robot, replace(mpc.config, fallback_solver="ipopt", recovery_barrier_init=None,
-                                fallback_max_iterations=2), problem=mpc.problem,
+    capped = MPC(robot, replace(mpc.config, recovery=RecoveryConfig(barrier_init=None, fallback_max_iterations=2)), problem=mpc.problem,
                  solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
     capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)  # sets references, fails (2 iterations)
     capped.continue_from(good)  # the last good plan, as after a successful step
@@ -58,9 +57,8 @@ def test_no_recovery_attempt_starts_once_the_step_has_spent_its_cpu_budget(a1_mp
     v = np.zeros(robot.nv)
     v[1], v[3] = 1.5, 2.0
     for budget_s in (1e-9, None):
-        capped = MPC(robot, replace(mpc.config, fallback_solver="ipopt", recovery_time_limit_s=budget_s,
-                                    fallback_max_iterations=2, recovery_fatrop_max_iterations=2,
-                                    fallback_first_s=0.0),  # Fatrop first, also after a rescue
+        capped = MPC(robot, replace(mpc.config, recovery=RecoveryConfig(time_limit_s=budget_s, fallback_max_iterations=2,
+                                                                fatrop_max_iterations=2, fallback_first_s=0.0)),  # Fatrop first, also after a rescue
                      problem=mpc.problem, solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
         capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
         capped.continue_from(good)  # the last good plan

@@ -4,7 +4,7 @@ one step per MPC period keeps the robot up in MuJoCo; bad settings are rejected.
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.control.loop import ClosedLoop, LoopConfig
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
@@ -33,7 +33,7 @@ SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
 def fixed_state():
     """go2's trot OCP from a moving state, solved by Fatrop to 1e-10, with the NLP data of that solve."""
     robot = load_robot("go2")
-    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", fallback_solver=None,
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
                                solver=SolverConfig(tolerance=1e-10, max_iterations=300)))
     calls = []
     solve = mpc.solver.solve
@@ -177,10 +177,10 @@ def test_iterated_rti_converges_on_every_formulation(formulation):
     ocp = OcpConfig(formulation=formulation, grid=SMALL.grid)
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.1, -0.05, 0.0]
-    fatrop = MPC(robot, MpcConfig(ocp=ocp, fallback_solver=None, solver=SolverConfig(tolerance=1e-9, max_iterations=300)))
+    fatrop = MPC(robot, MpcConfig(ocp=ocp, recovery=RecoveryConfig(fallback_solver=None), solver=SolverConfig(tolerance=1e-9, max_iterations=300)))
     reference = fatrop.solve(robot.q_nominal, v0, t=0.0)
     assert reference.success, reference.stats.status
-    rti = MPC(robot, MpcConfig(ocp=ocp, fallback_solver=None, solver=SolverConfig(
+    rti = MPC(robot, MpcConfig(ocp=ocp, recovery=RecoveryConfig(fallback_solver=None), solver=SolverConfig(
         name="rti", extra_options={"sqp_iterations": 15, "step_tolerance": 0.0, "qp_tolerance": 1e-6})), problem=fatrop.problem)
     solution = rti.solve(robot.q_nominal, v0, t=0.0)
     assert solution.success, solution.stats.status

@@ -6,8 +6,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from wbmpc.chunked_table import ChunkedTable
 from wbmpc.control import MPC, MpcConfig
-from wbmpc.control.chunked_table import ChunkedTable
 from wbmpc.control.loop import (
     COMMAND_WIDTH,
     ClosedLoop,

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control import MPC, Commands, MpcConfig, PushConfig, RecoveryConfig
 from wbmpc.control.mpc import CostWeights
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
@@ -49,8 +49,8 @@ def test_slacks_sit_on_input_nodes_1_to_n_minus_1_and_unknown_tags_are_refused(a
 def _trot_step(a1, ocp: OcpConfig, weight: float, q, v):
     """One trot step (t = 0.11 s: a diagonal pair in swing) with the slacks forced free."""
     # the gait's own period in push recovery mode too: the hard and soft steps plan the same schedule
-    mpc = MPC(a1, MpcConfig(ocp=ocp, gait="trot", fallback_solver=None, weights=CostWeights(soft_constraint=weight),
-                            push_gait_period_scale=None))
+    mpc = MPC(a1, MpcConfig(ocp=ocp, gait="trot", recovery=RecoveryConfig(fallback_solver=None), weights=CostWeights(soft_constraint=weight),
+                            push=PushConfig(gait_period_scale=None)))
     capture = Capture(mpc.solver)
     mpc.enter_push_recovery()  # as after a push
     solution = mpc.solve(q, v, Commands(), t=0.11)
@@ -60,7 +60,7 @@ def _trot_step(a1, ocp: OcpConfig, weight: float, q, v):
 def test_free_slacks_stay_zero_and_leave_a_feasible_plan_unchanged(a1):
     """Exact penalty: a weight above the rows' multipliers gives the hard OCP's solution. The state is
     node 1 of a plan (a nominal MPC step); from rest the swing feet's first 10 ms ask for more."""
-    first = MPC(a1, MpcConfig(ocp=replace(SOFT_FEET, soft_rows=()), gait="trot", fallback_solver=None))
+    first = MPC(a1, MpcConfig(ocp=replace(SOFT_FEET, soft_rows=()), gait="trot", recovery=RecoveryConfig(fallback_solver=None)))
     plan = first.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.1)
     assert plan.success
     q, v = plan.q[1], plan.v[1]
@@ -76,7 +76,7 @@ def test_free_slacks_stay_zero_and_leave_a_feasible_plan_unchanged(a1):
 def test_slacks_make_an_infeasible_ocp_solvable_with_the_least_l1_violation(a1):
     """Joints locked (a rigid body) but FL and RL, on the same side, asked to move at +1 and -1 m/s along x
     on node 2: no motion does both (rigid rotations give them the same v_x), the least L1 violation is 2."""
-    mpc = MPC(a1, MpcConfig(ocp=SOFT_FEET, gait="stand", fallback_solver=None))
+    mpc = MPC(a1, MpcConfig(ocp=SOFT_FEET, gait="stand", recovery=RecoveryConfig(fallback_solver=None)))
     capture = Capture(mpc.solver)
     mpc.enter_push_recovery()
     mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.0)
@@ -102,8 +102,8 @@ def test_slacks_make_an_infeasible_ocp_solvable_with_the_least_l1_violation(a1):
 
 
 def test_a_push_frees_the_slacks_and_relaxes_rows_and_nominal_steps_do_neither(a1):
-    config = MpcConfig(ocp=SOFT_FEET, gait="trot", fallback_solver=None, push_hold_s=0.2,
-                       push_relaxed_rows=("foot_vel",))
+    config = MpcConfig(ocp=SOFT_FEET, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
+                       push=PushConfig(hold_s=0.2, relaxed_rows=("foot_vel",)))
     mpc = MPC(a1, config)
     capture = Capture(mpc.solver)
     slack = mpc.problem.idx["slack"]
@@ -116,20 +116,21 @@ def test_a_push_frees_the_slacks_and_relaxes_rows_and_nominal_steps_do_neither(a
     mpc.solve(a1.q_nominal, v, Commands(), t=0.0125)
     call = capture.calls[-1]
     assert np.isinf(call["ubx"][slack]).all() and np.isinf(call["ubg"][rows]).all()
-    assert mpc._push_until_t == pytest.approx(0.2125)
+    assert mpc.push_mode.until_t == pytest.approx(0.2125)
     mpc.reset()
-    assert mpc._push_until_t is None
+    assert mpc.push_mode.until_t is None
 
 
 def test_a_base_velocity_far_from_the_command_keeps_the_push_mode(a1):
-    mpc = MPC(a1, MpcConfig(ocp=OcpConfig(grid=GRID), gait="stand", fallback_solver=None, push_hold_s=0.2))
+    mpc = MPC(a1, MpcConfig(ocp=OcpConfig(grid=GRID), gait="stand", recovery=RecoveryConfig(fallback_solver=None),
+                            push=PushConfig(hold_s=0.2)))
     v = np.zeros(a1.nv)
     v[0] = 0.5  # moving at 0.5 m/s while commanded to stand: still drifting away after a push
     mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
-    assert mpc._push_until_t == pytest.approx(0.2)
+    assert mpc.push_mode.until_t == pytest.approx(0.2)
     mpc.reset()
     mpc.solve(a1.q_nominal, v, Commands(base_velocity_m_s=np.array([0.5, 0.0, 0.0])), t=0.0)
-    assert mpc._push_until_t is None  # the commanded motion
+    assert mpc.push_mode.until_t is None  # the commanded motion
 
 
 def test_soft_torque_limits_are_rows_in_place_of_the_bounds(a1):
@@ -137,7 +138,7 @@ def test_soft_torque_limits_are_rows_in_place_of_the_bounds(a1):
     n_tau = problem.config.n_torque_nodes
     assert problem.rows["torque_limit"].shape == (n_tau, a1.n_joints)
     assert problem.idx["slack_tau"].shape == (n_tau, 2 * a1.n_joints)
-    mpc = MPC(a1, MpcConfig(ocp=problem.config, gait="trot", fallback_solver=None), problem=problem)
+    mpc = MPC(a1, MpcConfig(ocp=problem.config, gait="trot", recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
     capture = Capture(mpc.solver)
     solution = mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.1)
     call = capture.calls[-1]

@@ -9,8 +9,9 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from wbmpc.cli import _gains, build_parser, main
+from wbmpc.control import PushConfig
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import CostWeights, MpcConfig
+from wbmpc.control.mpc import CostWeights
 from wbmpc.control.tuning import (
     ACCELERATION,
     LEG_POSTURE,
@@ -42,8 +43,9 @@ def test_the_paper_robot_is_the_reference_and_keeps_todays_settings(b1z1):
     assert tuning.gait_period_s == 0.8
     config = _config(b1z1)
     assert config.weights == paper and config.gait_period_s == 0.8
-    assert (config.push_velocity_error_m_s, config.push_hold_s, config.push_cadence_hold_s) == (
-        MpcConfig.push_velocity_error_m_s, MpcConfig.push_hold_s, MpcConfig.push_cadence_hold_s)
+    default = PushConfig()
+    assert (config.push.velocity_error_m_s, config.push.hold_s, config.push.cadence_hold_s) == (
+        default.velocity_error_m_s, default.hold_s, default.cadence_hold_s)
     assert set(entry["source"] for entry in tuning.report().values()) == {"derived"}
 
 
@@ -145,7 +147,7 @@ def test_derived_settings_reach_the_mpc_config_and_gains():
     robot = load_robot("a1")
     tuning, config = tuning_for(robot), _config(robot)
     assert (config.weights, config.swing, config.gait_period_s) == (tuning.weights, tuning.swing, tuning.gait_period_s)
-    assert config.push_velocity_error_m_s == tuning.push_velocity_error_m_s
+    assert config.push.velocity_error_m_s == tuning.push_velocity_error_m_s
     assert _gains(build_parser().parse_args(["run", "trot-in-place", "--robot", "a1"]), robot) == tuning.gains
 
 

@@ -148,13 +148,13 @@ def test_deploy_builds_the_mpc_configuration_run_builds(robot_name):
     from wbmpc.scenarios.runner import mpc_config_for
 
     robot = load_robot(robot_name)
-    for name in ("trot-in-place", "stand"):
+    for name in ("trot-in-place", "stand", "arm-track")[: 3 if robot.arm_ee else 2]:
         scenario = make_scenario(name, robot)
         run = mpc_config_for(scenario, RunConfig(scenario=name, delay="realtime", state="estimated"), robot)
-        deploy = deploy_mpc_config(robot, scenario, scenario_name=name, nodes=15, compiled=False, solver="fatrop",
+        deploy = deploy_mpc_config(robot, scenario.needs(robot), nodes=15, compiled=False, solver="fatrop",
                                    lockstep=False)
         assert deploy == run
-        lockstep = deploy_mpc_config(robot, scenario, scenario_name=name, nodes=15, compiled=False, solver="fatrop",
+        lockstep = deploy_mpc_config(robot, scenario.needs(robot), nodes=15, compiled=False, solver="fatrop",
                                      lockstep=True)
         assert lockstep == mpc_config_for(scenario, RunConfig(scenario=name, state="estimated"), robot)
 

@@ -3,7 +3,8 @@
 With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
 text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
 fell, the load was not pulled, the solve did not converge, the simulation diverged) or failed
-while running (`RunError`: the first MPC solve failed, a solver process did not start), 2 bad
+while running (`RunError`: the first MPC solve failed, the step budget is shorter than one QP, a solver
+process did not start, the robot or its arm did not answer), 2 bad
 input (`ConfigError`, `ModelError`: the message names the option and the fix; nothing is built or
 written), 130 interrupted by Ctrl-C (a run keeps and writes what it measured so far).
 """
@@ -23,7 +24,8 @@ from wbmpc.strict_json import to_json
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
               "the solve did not converge or the simulation diverged; or it failed while running: the first MPC "
-              "solve failed, a solver process did not start", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              "solve failed, the step budget is shorter than one QP, a solver process did not start, the robot "
+              "or its arm did not answer", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
                                        for code, text in EXIT_CODES.items())
@@ -671,12 +673,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
 
-    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
+    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit, _task_library())  # robot-sim, deploy (DDS)
     add_bench_dds(bench_sub, _add_robot_options, robot_from_args, _emit)
     from wbmpc.campaign.command import add_parser as add_campaign_parser
 
     add_campaign_parser(sub)
     return parser
+
+
+def _task_library():
+    """The scenarios' tasks and run options for robot-sim and deploy (`hardware.commands.TaskLibrary`)."""
+    from wbmpc.hardware.commands import TaskLibrary
+    from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario
+
+    return TaskLibrary(run_options=RunConfig, task_options=ScenarioOptions, make_task=make_scenario)
 
 
 def _bench_module(name: str):

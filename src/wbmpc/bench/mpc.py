@@ -80,11 +80,11 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
                        solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
-    config = replace(config, fallback_solver=None, recovery_barrier_init=None)
+    config = replace(config, recovery=replace(config.recovery, fallback_solver=None, barrier_init=None))
     if robot is not None:
         from wbmpc.control.tuning import tuning_for
 
-        config = replace(config, **tuning_for(robot).mpc_fields())
+        config = tuning_for(robot).apply_to(config)
     return config
 
 

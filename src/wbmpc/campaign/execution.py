@@ -63,18 +63,18 @@ def _cached(key: tuple, build: Callable):
 
 def run_case(case: Case) -> dict:
     """One closed-loop run -> one row (errors are recorded in the row, never raised)."""
+    from wbmpc.control.policy import mpc_config
     from wbmpc.robots import load_robot
     from wbmpc.scenarios import make_scenario, run_scenario
-    from wbmpc.scenarios.runner import mpc_config_for
 
     row = _base_row(case)
     try:
         config = case.run_config()
         robot = _cached(("robot", case.robot), lambda: load_robot(case.robot))
         scenario = make_scenario(config.scenario, robot, config.options)
-        mpc_config = mpc_config_for(scenario, config, robot)
+        settings = mpc_config(robot, scenario.needs(robot), config.mpc_choices())
         # one MPC per distinct configuration (gait, grid, solver, tuning, delay's recovery budget, cadence)
-        mpc = _cached(("mpc", case.robot, repr(mpc_config)), lambda: _built_mpc(robot, mpc_config))
+        mpc = _cached(("mpc", case.robot, repr(settings)), lambda: _built_mpc(robot, settings))
         result = run_scenario(robot, config, mpc=mpc)
         m = result.metrics
         row.update(

@@ -18,9 +18,10 @@ from typing import Callable, Protocol
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
+from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
+from wbmpc.control.commands import Commands
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
-from wbmpc.control.mpc import MPC, Commands
+from wbmpc.control.mpc import MPC
 from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import SolverProcess, cpu_split, raise_priority

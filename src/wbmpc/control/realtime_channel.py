@@ -16,7 +16,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from wbmpc.control.mpc import Commands
+from wbmpc.control.commands import Commands
 from wbmpc.control.solution import Solution
 from wbmpc.solvers.nlp import SolverStats
 

@@ -13,7 +13,9 @@ from __future__ import annotations
 import os
 import time
 
-from wbmpc.control.mpc import MPC, Commands, MpcConfig
+from wbmpc.control.commands import Commands
+from wbmpc.control.config import MpcConfig
+from wbmpc.control.mpc import MPC
 from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
 from wbmpc.control.solution import Solution
 from wbmpc.errors import RunError, WbmpcError

@@ -20,7 +20,7 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints), capped by the
   stability of an explicit damper at the 500 Hz joint PD (`DAMPER_STABILITY`: a 2.5 kg Solo12 fell at
   0.03 s on sqrt(M)'s Kd 1.0); the arm's gains with the mass it carries (the same Z1 gets the same gains on any base);
-- the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
+- the base's horizontal position weight (the anchor of `ReferenceConfig.base_tracking = "position"`) 10x on a
   robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
   hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
   cm/s (10 s) with 10x;
@@ -51,8 +51,9 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.biped import BIPED_SOURCE, biped_overrides
+from wbmpc.control.config import MpcConfig, PushConfig, ReferenceConfig
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import CostWeights, MpcConfig
+from wbmpc.control.weights import CostWeights
 from wbmpc.gait import SwingProfile
 from wbmpc.robots import RobotModel
 
@@ -110,6 +111,11 @@ REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
 ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
 LEG_POSTURE = 20.0  # leg joint posture weight factor over the paper's 50 (module docstring)
 ACCELERATION = 0.1  # acceleration regularisation factor over the paper's 1e-2 (module docstring)
+# RobotTuning's settings of push recovery mode (PushConfig field by tuning name) and of the targets (ReferenceConfig)
+TUNED_PUSH = {"push_velocity_error_m_s": "velocity_error_m_s", "push_hold_s": "hold_s",
+              "push_cadence_hold_s": "cadence_hold_s"}
+TUNED_REFERENCES = ("support_sway", "support_lead_s", "support_sway_free_hands", "free_ee_without_command",
+                    "swing_placement")
 CONTROL_PERIOD_S = 1 / 500  # the joint PD's tick (`LoopConfig.control_rate_hz`, section V-B)
 DAMPER_STABILITY = 1.5  # largest Kd dt / I of the leg damper: |1 - Kd dt / I| <= 0.5 (`_leg_damping`)
 
@@ -122,26 +128,40 @@ class RobotTuning:
     gains: PdGains = field(default_factory=PdGains)
     swing: SwingProfile = field(default_factory=SwingProfile)
     gait_period_s: float | None = None  # None: the gait's default
-    push_velocity_error_m_s: float = MpcConfig.push_velocity_error_m_s
-    push_hold_s: float = MpcConfig.push_hold_s
-    push_cadence_hold_s: float = MpcConfig.push_cadence_hold_s
-    support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
-    support_lead_s: float = MpcConfig.support_lead_s
-    support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
-    free_ee_without_command: bool = MpcConfig.free_ee_without_command
-    swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
+    push_velocity_error_m_s: float = PushConfig.velocity_error_m_s
+    push_hold_s: float = PushConfig.hold_s
+    push_cadence_hold_s: float = PushConfig.cadence_hold_s
+    support_sway: float = ReferenceConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
+    support_lead_s: float = ReferenceConfig.support_lead_s
+    support_sway_free_hands: float | None = ReferenceConfig.support_sway_free_hands
+    free_ee_without_command: bool = ReferenceConfig.free_ee_without_command
+    swing_placement: bool = ReferenceConfig.swing_placement  # bipeds: swing feet carried to a landing point
     # the base's linear velocity weight in tasks that hold a hand (`for_task`; g1's table); None: weights' own
     base_linear_velocity_hand_held: float | None = None
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
-    def mpc_fields(self) -> dict:
-        """The MpcConfig fields these settings set."""
-        return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
-                "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
-                "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
-                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+    def push_config(self, **settings) -> PushConfig:
+        """Push recovery mode with these settings' detection and hold times (`settings`: the other fields)."""
+        return PushConfig(**{key: getattr(self, name) for name, key in TUNED_PUSH.items()}, **settings)
+
+    def reference_config(self, **settings) -> ReferenceConfig:
+        """How the targets are formed with these settings' biped rules (`settings`: the other fields)."""
+        return ReferenceConfig(**{name: getattr(self, name) for name in TUNED_REFERENCES}, **settings)
+
+    def apply_to(self, config: MpcConfig) -> MpcConfig:
+        """`config` with these settings (weights, swing, gait period, push detection, biped rules)."""
+        return dataclasses.replace(
+            config, weights=self.weights, swing=self.swing, gait_period_s=self.gait_period_s,
+            push=dataclasses.replace(config.push, **{key: getattr(self, name) for name, key in TUNED_PUSH.items()}),
+            references=dataclasses.replace(config.references, **{name: getattr(self, name) for name in TUNED_REFERENCES}))
+
+    def as_used_in(self, config: MpcConfig) -> RobotTuning:
+        """These settings as `config` holds them (a run's options or its task may have changed some)."""
+        return dataclasses.replace(
+            self, weights=config.weights, swing=config.swing, gait_period_s=config.gait_period_s,
+            **{name: getattr(config.push, key) for name, key in TUNED_PUSH.items()},
+            **{name: getattr(config.references, name) for name in TUNED_REFERENCES})
 
     def for_task(self, holds_hand: bool) -> RobotTuning:
         """The settings of a task that holds a hand (its velocity or force commanded: arm-track, pull, ...) or
@@ -215,10 +235,10 @@ def derive(scale: RobotScale) -> RobotTuning:
     sw = SwingProfile()
     swing = SwingProfile(apex_height_m=sw.apex_height_m * s, liftoff_velocity_m_s=sw.liftoff_velocity_m_s * speed,
                          touchdown_velocity_m_s=sw.touchdown_velocity_m_s * speed)
-    m = MpcConfig
+    push = PushConfig
     tuning = RobotTuning(weights=weights, gains=gains, swing=swing, gait_period_s=REFERENCE_GAIT_PERIOD_S * time,
-                         push_velocity_error_m_s=m.push_velocity_error_m_s * speed, push_hold_s=m.push_hold_s * time,
-                         push_cadence_hold_s=m.push_cadence_hold_s * time, note="derived from the robot's size")
+                         push_velocity_error_m_s=push.velocity_error_m_s * speed, push_hold_s=push.hold_s * time,
+                         push_cadence_hold_s=push.cadence_hold_s * time, note="derived from the robot's size")
     tuning = dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
     if scale.feet == 2:
         tuning = with_overrides(tuning, {**biped_overrides(scale.leg_length_m),

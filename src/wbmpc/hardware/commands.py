@@ -6,6 +6,8 @@ import argparse
 import dataclasses
 import json
 import sys
+from dataclasses import dataclass
+from typing import Callable
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.network import check_interface
@@ -14,11 +16,26 @@ from wbmpc.progress import ProgressBar
 DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "arm-track")
 
 
-def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None:
+@dataclass(frozen=True)
+class TaskLibrary:
+    """The tasks `wbmpc deploy` runs and the declarations of the `wbmpc run` options robot-sim and deploy share,
+    passed in by the front end (`wbmpc.cli` gives the scenarios'): the robot interface itself does not depend on
+    the simulated scenarios or their runner. The MPC's options come from `wbmpc.control.policy.MpcChoices`."""
+
+    run_options: type  # declares duration_s and seed (`wbmpc.scenarios.RunConfig`)
+    task_options: type  # declares and checks speed_m_s, push_speed_m_s, push_time_s (`ScenarioOptions`)
+    # (name, robot, task options) -> a task: needs(robot) (`TaskNeeds`), commands(robot), ee_reference(robot),
+    # pd_gains(gains) (`wbmpc.scenarios.make_scenario`)
+    make_task: Callable
+
+
+def add_hardware_commands(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
     """robot-sim and deploy; options they share with `wbmpc run` come from its declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.policy import MpcChoices
     from wbmpc.options import add_declared, declared_help
-    from wbmpc.scenarios import RunConfig, ScenarioOptions
+
+    RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
 
     sim = sub.add_parser("robot-sim", help="MuJoCo standing in for the robot behind Unitree LowState/LowCmd (DDS)")
     add_robot_options(sim)
@@ -47,7 +64,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "Z1 state with a NaN")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     _add_arm_options(sim)
-    sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
+    sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit, tasks))
 
     dep = sub.add_parser("deploy", help="run the MPC on a robot (or robot-sim) over LowState/LowCmd: stand up, "
                                         "MPC, lie down")
@@ -59,9 +76,9 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
     for name in ("compiled", "nodes"):
-        add_declared(dep, RunConfig, name)
+        add_declared(dep, MpcChoices, name)
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
-    add_declared(dep, RunConfig, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
+    add_declared(dep, MpcChoices, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
                  "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
     for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
         add_declared(dep, PdGains, name, help=f"{declared_help(PdGains, name)}, sent in LowCmd")
@@ -74,7 +91,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
-    dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
+    dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit, tasks))
 
 
 def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
@@ -125,15 +142,14 @@ def _arm_settings(args) -> dict:
     return {"arm": arm, "z1_ports": ports}
 
 
-def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool):
-    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and scenario
-    with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
-    from wbmpc.scenarios import RunConfig
-    from wbmpc.scenarios.runner import mpc_config_for
+def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool):
+    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
+    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
+    from wbmpc.control.policy import MpcChoices, mpc_config
 
-    run_config = RunConfig(scenario=scenario_name, nodes=nodes, compiled=compiled, solver=solver, state="estimated",
-                           delay="none" if lockstep else "realtime")
-    return mpc_config_for(scenario, run_config, robot)
+    choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
+                         delay="none" if lockstep else "realtime")
+    return mpc_config(robot, task_needs, choices)
 
 
 def _add_network_options(parser) -> None:
@@ -147,15 +163,14 @@ def _write(path, payload) -> None:
             json.dump(payload, fh, indent=2)
 
 
-def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
+def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
     from wbmpc.estimation import SensorConfig
     from wbmpc.hardware.robot_sim import RobotSimConfig, RobotSimulator
     from wbmpc.hardware.safety import SafetyConfig
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import ScenarioOptions
 
     load_sdk()
-    ScenarioOptions(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
+    tasks.task_options(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
     sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
@@ -212,13 +227,12 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
     return 0
 
 
-def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
+def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
 
     from wbmpc.control.tuning import tuning_for
     from wbmpc.hardware.deploy import Controller, DeployConfig, DeployFailure
     from wbmpc.hardware.safety import SafetyConfig
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import ScenarioOptions, make_scenario
     from wbmpc.solvers.nlp import SOLVERS
 
     load_sdk()
@@ -229,9 +243,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         raise ConfigError(f"unknown solver '{args.solver}'; available: auto, {', '.join(SOLVERS)}")
     check_interface(args.network)
     robot = robot_from_args(args)
-    scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
-    mpc_config = deploy_mpc_config(robot, scenario, scenario_name=args.scenario, nodes=args.nodes,
-                                   compiled=args.compiled, solver=args.solver, lockstep=args.lockstep)
+    scenario = tasks.make_task(args.scenario, robot, tasks.task_options(speed_m_s=args.speed))
+    mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
+                                   solver=args.solver, lockstep=args.lockstep)
     gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
                                                             if v is not None})
     config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,

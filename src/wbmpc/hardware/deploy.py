@@ -9,7 +9,7 @@ Z1 command of a tick go out together, the Z1 joints the model locks held by PD a
 
 Start: a valid LowState within `first_state_timeout_s` (2 s), a Z1 state within the same time (before
 any leg command), the MPC built, the robot's sport mode released (`wbmpc.hardware.motion_switcher`),
-the Z1 switched to LOWCMD. Nothing is commanded when any of these fails (exit code 2).
+the Z1 switched to LOWCMD. Nothing is commanded when any of these fails (exit code 1).
 
 Fail safe: a fall (estimated tilt or height) -> damping; Ctrl-C -> lie down, then damping (a second
 Ctrl-C -> damping); a plan older than `max_plan_age_s` (stale), a lost LowState (`state_timeout_ms`) or
@@ -70,9 +70,8 @@ from wbmpc.hardware.z1_messages import (
 from wbmpc.robots import RobotModel
 
 
-class NoRobotStateError(ConfigError, RuntimeError):
-    """No (valid) LowState arrived in time; nothing was commanded. A set-up problem (robot off, wrong
-    interface or domain): exit code 2, like other bad input."""
+class NoRobotStateError(RunError):
+    """No (valid) LowState arrived in time; nothing was commanded (robot off, wrong interface or domain)."""
 
 
 class DeployFailure(RunError):

@@ -20,7 +20,7 @@ from collections import Counter
 
 import numpy as np
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.hardware.messages import MessageError
 from wbmpc.hardware.safety import Watchdog
 from wbmpc.hardware.z1_messages import (
@@ -40,7 +40,7 @@ from wbmpc.hardware.z1_messages import (
 _MAX_DATAGRAM = 2048
 
 
-class ArmNotAnsweringError(ConfigError, RuntimeError):
+class ArmNotAnsweringError(RunError):
     """The Z1 arm sent no valid state in time, or refused LOWCMD; nothing was commanded to the legs."""
 
 

@@ -32,7 +32,7 @@ the static friction the object creeps at about eps F / (mu N - F), and at speed 
 v / sqrt(v^2 + eps^2) of Coulomb's: eps = 1 cm/s gives 99.5 % at 0.1 m/s (3 cm/s gave 95.8 %, and a MuJoCo box
 under the planned force lagged the plan by 1.1 cm over 0.48 s). Fatrop's line search still failed on most
 push-box steps with the contact rows (IPOPT solved them in 10-50 iterations): `wbmpc run --object-model` and
-`RunConfig`'s default use the anytime SQP (`scenarios/runner.default_solver`).
+`RunConfig`'s default use the anytime SQP (`control/policy.default_solver`).
 
 What the box model lacks (push-box, measured in MuJoCo): pushed at the hand's height h, the box rests on its far
 corners (91 % of the weight at 0.87 m) and turns about that edge, its centre sliding out of a turn at w mu h; the

@@ -175,7 +175,7 @@ def compose(base_urdf: Path, arm: ArmMount, cache_dir: Path | None = None) -> Co
     text = ET.tostring(base, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     if cache_dir is None:
-        from wbmpc.solvers.codegen import default_cache_dir
+        from wbmpc.cache import default_cache_dir
 
         cache_dir = default_cache_dir()
     folder = Path(cache_dir) / "composed"

@@ -6,9 +6,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wbmpc.control.commands import Commands
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import Event, RunLog
-from wbmpc.control.mpc import Commands, CostWeights
+from wbmpc.control.policy import TaskNeeds
+from wbmpc.control.weights import CostWeights
 from wbmpc.gait import GAIT_NAMES
 from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
@@ -120,10 +122,18 @@ class Scenario:
     default_duration_s: float
     needs_arm: bool = False
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
+    sweeps_hand = False  # the hand sweeps the workspace: collision avoidance on by default (control/policy.py)
 
     def __post_init__(self):
         if self.options.gait is not None:
             self.gait = self.options.gait
+
+    def needs(self, robot: RobotModel | None) -> TaskNeeds:
+        """What this task asks of the MPC on `robot` (None: the task as declared, no obstacles nor object)."""
+        return TaskNeeds(gait=self.gait, holds_hand=self.needs_arm, sweeps_hand=self.sweeps_hand,
+                         obstacles=tuple(self.obstacles(robot)) if robot is not None else (),
+                         object_model=self.object_model(robot) if self.options.object_model and robot is not None
+                         else None, adjust_weights=self.cost_weights)
 
     def commands(self, robot: RobotModel):
         return lambda t, q, v: Commands()

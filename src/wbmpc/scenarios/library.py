@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.commands import Commands
 from wbmpc.control.loop import Event
-from wbmpc.control.mpc import Commands
 from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.gait import gaits_for, natural_gait
 from wbmpc.robots import RobotModel
@@ -156,6 +156,8 @@ AROUND_ARM_POSTURE_SCALE = 0.05
 
 
 class ArmTrack(Scenario):
+    sweeps_hand = True  # its paths bring the hand near the body (collision avoidance on with an arm)
+
     def __init__(self, options: ScenarioOptions):
         super().__init__("arm-track", "trot forward while the end-effector tracks a low/high reference (Fig. 3)",
                          "trot", 8.0, needs_arm=True, options=options)

@@ -43,9 +43,10 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.commands import Commands
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import Event, RunLog
-from wbmpc.control.mpc import Commands, CostWeights
+from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions

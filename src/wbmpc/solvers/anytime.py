@@ -41,7 +41,7 @@ from typing import Callable
 
 import numpy as np
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats, bound_violation
 from wbmpc.solvers.qp import QpResult
@@ -54,7 +54,7 @@ QP_ITERATION_CAPS = (4, 6, 9, 12, 16, 20)
 COLD_QP_SHARE = 0.5  # a warm QP's share of the shortest cold one, at least (the budget floor, see `solve`)
 
 
-class DeadlineError(ConfigError):
+class DeadlineError(RunError):
     """The step's time budget is shorter than one SQP iteration."""
 
 
