@@ -22,8 +22,8 @@ import pytest
 
 import wbmpc
 from wbmpc.cli import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, build_parser, main
+from wbmpc.control import Commands, CostWeights, MpcConfig
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import Commands, CostWeights, MpcConfig
 from wbmpc.errors import ConfigError, ModelError
 from wbmpc.progress import ProgressBar
 from wbmpc.robots import custom_spec

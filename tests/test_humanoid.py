@@ -7,8 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control import RecoveryConfig
-from wbmpc.control.mpc import MPC, Commands, MpcConfig
+from wbmpc.control import MPC, Commands, MpcConfig, RecoveryConfig
 from wbmpc.errors import ConfigError, ModelError
 from wbmpc.gait import SwingProfile, biped_walk_timing, make_gait
 from wbmpc.ocp.problem import WRENCH_CONE_ROWS, OcpConfig, OcpProblem, StageBounds
@@ -386,14 +385,14 @@ def test_plants_made_without_a_config_get_the_robots_rotor_inertias(g1):
 
 def test_walk_velocity_error_splits_into_forward_and_lateral():
     """The walk's per-tick velocity error along and across the start's heading; squares add up to the planar one."""
-    from wbmpc.scenarios.library import _forward_lateral_rmse
+    from wbmpc.scenarios.locomotion import forward_lateral_rmse
 
     t = np.linspace(0.0, 4.0, 2001)
     heading = np.array([np.cos(0.5), np.sin(0.5)])  # started facing 0.5 rad
     across = np.array([-heading[1], heading[0]])
     command = 0.3 * heading
     velocity = command + np.outer(0.02 * np.ones_like(t), heading) + np.outer(0.1 * np.sin(2 * np.pi * t), across)
-    out = _forward_lateral_rmse(velocity, command, yaw=0.5)
+    out = forward_lateral_rmse(velocity, command, yaw=0.5)
     assert out["base_vel_rmse_settled_forward"] == pytest.approx(0.02)
     assert out["base_vel_rmse_settled_lateral"] == pytest.approx(0.1 / np.sqrt(2), rel=1e-3)
     planar = np.sqrt(np.mean(np.sum((velocity - command) ** 2, axis=1)))
@@ -403,7 +402,7 @@ def test_walk_velocity_error_splits_into_forward_and_lateral():
 def test_walk_com_velocity_error_follows_the_whole_bodys_centre_of_mass(g1, rng):
     """The CoM's per-tick velocity error: with the joints still the CoM moves with the base (a translation);
     a joint motion alone moves it by pinocchio's CoM Jacobian, the base frame standing still."""
-    from wbmpc.scenarios.library import _com_forward_lateral_rmse
+    from wbmpc.scenarios.locomotion import com_forward_lateral_rmse
 
     n, yaw = 200, 0.3
     q = np.tile(g1.q_nominal, (n, 1))
@@ -413,13 +412,13 @@ def test_walk_com_velocity_error_follows_the_whole_bodys_centre_of_mass(g1, rng)
     along, across = 0.3 + 0.05 * rng.standard_normal(n), 0.1 * rng.standard_normal(n)
     v[:, :2] = np.column_stack([along, across])  # base frame = the start's heading frame
     command = heading @ np.array([0.3, 0.0])
-    out = _com_forward_lateral_rmse(g1, q, v, command, yaw)
+    out = com_forward_lateral_rmse(g1, q, v, command, yaw)
     assert out["com_vel_rmse_settled_forward"] == pytest.approx(np.sqrt(np.mean((along - 0.3) ** 2)))
     assert out["com_vel_rmse_settled_lateral"] == pytest.approx(np.sqrt(np.mean(across**2)))
     joint = np.zeros((1, g1.nv))
     joint[0, 6:] = rng.standard_normal(g1.nv - 6)
     expected = (pin.jacobianCenterOfMass(g1.model, g1.model.createData(), q[0]) @ joint[0])[:2] @ heading
-    out = _com_forward_lateral_rmse(g1, q[:1], joint, np.zeros(2), yaw)
+    out = com_forward_lateral_rmse(g1, q[:1], joint, np.zeros(2), yaw)
     assert out["com_vel_rmse_settled_forward"] == pytest.approx(abs(expected[0]))
     assert out["com_vel_rmse_settled_lateral"] == pytest.approx(abs(expected[1]))
 
@@ -457,9 +456,9 @@ def test_humanoids_stay_up_with_the_cop_inside_their_soles(robot_name, scenario)
 def test_pull_tipping_check_counts_the_soles(g1):
     """g1's 5 kg pull needs the CoP 5 cm ahead of its ankles: inside its soles (toes 10 cm ahead), so the
     scenario is accepted; a pull far beyond the soles is still refused with the CoP it would need."""
-    from wbmpc.scenarios.manipulation import _support_points
+    from wbmpc.scenarios.arm_statics import support_points
 
-    points = _support_points(g1)
+    points = support_points(g1)
     assert points.shape == (8, 2) and points[:, 0].max() > 0.09  # two soles' corners
     make_scenario("pull", g1, ScenarioOptions(load_kg=5.0))
     with pytest.raises(ConfigError, match="tip the robot over"):

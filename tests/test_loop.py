@@ -125,8 +125,8 @@ def test_run_command_bad_input_exits_2(argv, message, capsys):
 def test_settled_drift_leaves_out_the_start_transient():
     """`base_drift_settled_cm_s` measures from SETTLE_S on: a 3 cm shift in the first 0.5 s followed by
     1 cm/s from 2 s on reads 1.0 cm/s there, 1.17 cm/s over the whole run."""
-    from wbmpc.control.loop import RunLog
-    from wbmpc.control.mpc import Commands
+    from wbmpc.control import Commands
+    from wbmpc.control.run_log import RunLog
     from wbmpc.robots import load_robot
     from wbmpc.scenarios.metrics import common_metrics
 
@@ -172,8 +172,8 @@ def test_measured_delay_counts_cpu_time_not_waiting(delay, waits_count):
 def test_recovered_and_failed_steps_are_counted_apart():
     from dataclasses import replace
 
-    from wbmpc.control.loop import RunLog
-    from wbmpc.control.mpc import Commands
+    from wbmpc.control import Commands
+    from wbmpc.control.run_log import RunLog
 
     log = RunLog()
     for status, ok in [("Solve_Succeeded", True),

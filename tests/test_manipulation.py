@@ -15,7 +15,8 @@ import pytest
 from wbmpc.errors import ConfigError
 from wbmpc.robots import load_robot
 from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario, run_scenario
-from wbmpc.scenarios.manipulation import low_pass, static_arm_torques
+from wbmpc.scenarios.arm_statics import static_arm_torques
+from wbmpc.scenarios.signals import low_pass
 from wbmpc.scenarios.sweep import parse_loads
 from wbmpc.sim.objects import (
     Board,

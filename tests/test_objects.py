@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from wbmpc.control.mpc import MPC, Commands
+from wbmpc.control import MPC, Commands
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.objects import ObjectCommand, SlidingBox

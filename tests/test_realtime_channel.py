@@ -5,9 +5,8 @@ import multiprocessing
 
 import numpy as np
 
-from wbmpc.control.loop import command_from_row, command_row
-from wbmpc.control.mpc import Commands
-from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel
+from wbmpc.control import Commands
+from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
 from wbmpc.control.solution import Solution
 from wbmpc.solvers.nlp import SolverStats
 

@@ -8,15 +8,10 @@ import pytest
 
 from wbmpc.chunked_table import ChunkedTable
 from wbmpc.control import MPC, MpcConfig
-from wbmpc.control.loop import (
-    COMMAND_WIDTH,
-    ClosedLoop,
-    LoopConfig,
-    RunLog,
-    command_from_row,
-    command_row,
-)
-from wbmpc.control.mpc import Commands
+from wbmpc.control.commands import Commands
+from wbmpc.control.loop import ClosedLoop, LoopConfig
+from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
+from wbmpc.control.run_log import RunLog
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig

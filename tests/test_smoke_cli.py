@@ -122,7 +122,7 @@ def test_a_failed_first_solve_is_a_run_error_exit_1(capsys, tmp_path, monkeypatc
     """Runtime failures exit 1 (the run failed), not 2 (bad input): nothing is written."""
     import dataclasses
 
-    from wbmpc.control.mpc import MPC
+    from wbmpc.control import MPC
 
     solve = MPC.solve
 

@@ -5,8 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, Commands, MpcConfig, PushConfig, RecoveryConfig
-from wbmpc.control.mpc import CostWeights
+from wbmpc.control import MPC, Commands, CostWeights, MpcConfig, PushConfig, RecoveryConfig
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem

@@ -9,9 +9,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from wbmpc.cli import _gains, build_parser, main
-from wbmpc.control import PushConfig
+from wbmpc.control import CostWeights, PushConfig
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import CostWeights
 from wbmpc.control.tuning import (
     ACCELERATION,
     LEG_POSTURE,

@@ -8,8 +8,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control.loop import RunLog
-from wbmpc.control.mpc import Commands
+from wbmpc.control import Commands
+from wbmpc.control.run_log import RunLog
 from wbmpc.errors import ConfigError
 from wbmpc.robots import load_robot
 from wbmpc.robots.model import RobotModel
@@ -247,7 +247,7 @@ def test_the_highlighted_panel_shows_the_joints_nearest_their_limits(b1z1, tmp_p
 
 def test_wipe_plot_rmse_is_the_metric(b1z1):
     from wbmpc.scenarios.base import ScenarioOptions
-    from wbmpc.scenarios.manipulation import Wipe
+    from wbmpc.scenarios.wipe import Wipe
 
     wipe = Wipe(ScenarioOptions())
     t = np.arange(0.0, 3.0, 0.01)

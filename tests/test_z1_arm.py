@@ -276,7 +276,7 @@ class _FakeMpc:
 
 
 def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None, corrupt_every=None, **fake_mpc):
-    from wbmpc.control.mpc import MpcConfig
+    from wbmpc.control import MpcConfig
     from wbmpc.hardware import deploy as deploy_mod
     from wbmpc.hardware.deploy import Controller, DeployConfig
     from wbmpc.hardware.safety import SafetyConfig

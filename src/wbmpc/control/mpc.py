@@ -10,7 +10,7 @@ from `Recovery`; the settings from `MpcConfig` (control/config.py).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -34,6 +34,18 @@ from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.nlp import NlpSolver
 
 __all__ = ["MPC", "BASE_TRACKING_MODES", "Commands", "CostWeights", "MpcConfig"]
+
+
+@dataclass
+class _StepData:
+    """One step's NLP data (`MPC._step_data`)."""
+
+    p: np.ndarray
+    bounds: tuple
+    soft_bounds: tuple | None
+    x0: np.ndarray
+    node_times: np.ndarray
+    contact: np.ndarray
 
 
 class MPC:
@@ -233,9 +245,25 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
             t = t + delay_s
-        problem = self.problem
+        step = self._step_data(q, v, commands, t)
+        result, solve_end = self._solve_step(step.p, step.bounds, step.soft_bounds, step.x0, t, budget_s, clock,
+                                             clock_start)
+        solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
+        if solution.success:
+            self._previous = solution
+        elif self.config.recovery.hold_previous and self._previous is not None:
+            solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
+        if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
+            self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
+        # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
+        result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
+        return solution
+
+    def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> _StepData:
+        """This step's NLP data: parameters (targets, weights, schedule), bounds (hard, and with the soft rows free
+        where a failed hard step retries them) and the initial guess."""
+        problem, references = self.problem, self.references
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
-        references = self.references
         dq_des, v_des, base_velocity_world = references.targets(q, rot, commands, t, problem.config.grid.node_times_s)
         after_push = self.push_mode.update(v, rot, base_velocity_world, t, self._previous)
         self.push_mode.adapt_cadence(t)
@@ -244,23 +272,13 @@ class MPC:
         if sway:  # lean over the feet that will stand support_lead_s later
             dq_des = references.sway_towards_support(q, rot, dq_des, t, node_times, sway)
         forces = self._force_guess(contact, commands)
-        swing_vxy = references.swing_velocities(q, v, rot, t, node_times, base_velocity_world)
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
-        values = {
-            "q_ref": q,
-            "rot_ref": rot,
-            "dt": problem.config.grid.dt_s,
-            "dq_des": dq_des,
-            "v_des": v_des,
-            "F_des": forces.T,
-            "mu": [self.config.friction_coefficient],
-            **self._weights,
-            **self._inertial,
-            **object_values,
-        }
-        p = problem.params.pack(values)
+        p = problem.params.pack({"q_ref": q, "rot_ref": rot, "dt": problem.config.grid.dt_s, "dq_des": dq_des,
+                                 "v_des": v_des, "F_des": forces.T, "mu": [self.config.friction_coefficient],
+                                 **self._weights, **self._inertial, **object_values})
         stage_bounds = StageBounds(
-            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
+            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
+            swing_vxy_m_s=references.swing_velocities(q, v, rot, t, node_times, base_velocity_world),
             ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
                              else np.asarray(commands.ee_velocity_m_s, dtype=float)),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
@@ -276,20 +294,9 @@ class MPC:
             x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
         # with soft rows, a hard step that fails is re-solved with the slacks free first (it may be infeasible)
-        soft_bounds = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else problem.bounds(
-            replace(stage_bounds, soft=True, relaxed_rows=self.config.push.relaxed_rows))
-        cfg = self.config
-        result, solve_end = self._solve_step(p, bounds, soft_bounds, x0, t, budget_s, clock, clock_start)
-        solution = self._unpack(result.x, p, q, t, node_times, contact, result.stats)
-        if solution.success:
-            self._previous = solution
-        elif cfg.recovery.hold_previous and self._previous is not None:
-            solution = self._shifted_previous(t, node_times, contact, result.stats)
-        if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
-            self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
-        # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
-        result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
-        return solution
+        soft_bounds = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else \
+            problem.bounds(replace(stage_bounds, soft=True, relaxed_rows=self.config.push.relaxed_rows))
+        return _StepData(p, bounds, soft_bounds, x0, node_times, contact)
 
     def _solve_step(self, p, bounds, soft_bounds, x0, t: float, budget_s: float | None, clock, clock_start):
         """One step's solve: the push fallback solver first in the wake of a push, else the solver on this

@@ -8,8 +8,9 @@ import numpy as np
 
 from wbmpc.control.commands import Commands
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.loop import Event, RunLog
+from wbmpc.control.loop import Event
 from wbmpc.control.policy import TaskNeeds
+from wbmpc.control.run_log import RunLog
 from wbmpc.control.weights import CostWeights
 from wbmpc.gait import GAIT_NAMES
 from wbmpc.options import check_fields, option

@@ -8,7 +8,7 @@ would need a lever of 0.47 m from the face's centre (4-corner Coulomb friction),
 the box (rotating with the box), by velocity commands with position feedback.
 
 - force command (today's MPC, the box only in MuJoCo): the hand's velocity command carries it along the face
-  of the box's reference pose (`_feedback`), its force command is the friction that slides the box, mu m g
+  of the box's reference pose (`feedback.ee_velocity_feedback`), its force command is the friction that slides the box, mu m g
   along the face normal, scaled with the path's speed;
 - object model: the box's measured state and its path go to the MPC (`Commands.object_command`), the path's yaw
   led by the box's sideslip about the push's pivot (`sideslip_lead`); hand force and motion are the OCP's.

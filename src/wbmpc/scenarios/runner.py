@@ -150,38 +150,14 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
-    plant_config = config.plant_config
-    if plant_config is None:  # a preset's rotors (g1) are the plant's too
-        plant_config = robot_plant_config(robot)
-    if scene is not None:
-        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
-
-        plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
-    if config.model_errors is not None and not config.model_errors.is_nominal:
-        if config.plant != "mujoco":
-            raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
-        plant_config = config.model_errors.plant_config(robot, plant_config)
-    # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
-    # here and would grow by ~0.3 MB per simulated second
-    plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
-    plant = make_plant(config.plant, robot, plant_config)
-    if scene is not None:
-        scene.attach(plant)
-    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    plant = _plant(robot, config, scene)
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
 
         sole_monitor = SolePressureMonitor.for_robot(robot)
         plant.add_step_hook(sole_monitor)
-    identification = None
-    if config.identify_mass:
-        from wbmpc.estimation.inertial import ESTIMATED_STATE_CONFIG, InertialEstimator, InertialIdentification
-
-        from_estimate = config.state == "estimated"
-        estimator = InertialEstimator(robot, ESTIMATED_STATE_CONFIG) if from_estimate else InertialEstimator(robot)
-        identification = InertialIdentification(estimator, mpc, from_estimate=from_estimate)
-        plant.add_step_hook(identification)
+    identification = _mass_identification(robot, config, mpc, plant) if config.identify_mass else None
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
@@ -206,15 +182,55 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         from wbmpc.estimation.metrics import estimation_metrics
 
         metrics.update(estimation_metrics(state_source.log))
-    metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
-                    "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
-                    "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.references.base_tracking,
-                    "push_gait_period_scale": mpc.config.push.gait_period_scale,
-                    **solver_summary(mpc, config),
-                    "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
-                    "drive_train": _drive_train_summary(robot, plant.config)})
+    metrics.update(_run_summary(robot, config, mpc, plant, duration, log))
     return ScenarioResult(scenario, metrics, log, scene, plant=plant,
                           estimation=state_source.log if state_source is not None else None)
+
+
+def _plant(robot: RobotModel, config: RunConfig, scene):
+    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors;
+    reset to the nominal pose."""
+    plant_config = config.plant_config
+    if plant_config is None:  # a preset's rotors (g1) are the plant's too
+        plant_config = robot_plant_config(robot)
+    if scene is not None:
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
+    if config.model_errors is not None and not config.model_errors.is_nominal:
+        if config.plant != "mujoco":
+            raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
+        plant_config = config.model_errors.plant_config(robot, plant_config)
+    # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
+    # here and would grow by ~0.3 MB per simulated second
+    plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    plant = make_plant(config.plant, robot, plant_config)
+    if scene is not None:
+        scene.attach(plant)
+    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    return plant
+
+
+def _mass_identification(robot: RobotModel, config: RunConfig, mpc: MPC, plant):
+    """--identify-mass: the inertial estimator on the plant's steps, feeding the MPC's inertial parameters."""
+    from wbmpc.estimation.inertial import ESTIMATED_STATE_CONFIG, InertialEstimator, InertialIdentification
+
+    from_estimate = config.state == "estimated"
+    estimator = InertialEstimator(robot, ESTIMATED_STATE_CONFIG) if from_estimate else InertialEstimator(robot)
+    identification = InertialIdentification(estimator, mpc, from_estimate=from_estimate)
+    plant.add_step_hook(identification)
+    return identification
+
+
+def _run_summary(robot: RobotModel, config: RunConfig, mpc: MPC, plant, duration: float, log: RunLog) -> dict:
+    """The run's settings in its metrics: delay, plant, grid, base tracking, push cadence, solver, drive train."""
+    return {"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
+            "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
+            "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.references.base_tracking,
+            "push_gait_period_scale": mpc.config.push.gait_period_scale,
+            **solver_summary(mpc, config),
+            "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
+            "drive_train": _drive_train_summary(robot, plant.config)}
 
 
 def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
