@@ -44,7 +44,7 @@ def fixed_state():
     mpc.solver.solve = recording
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.1, -0.05, 0.0]
-    assert mpc.solve(robot.q_nominal, v0, t=0.0).success
+    assert mpc.solve(robot.q_nominal, v0, t_s=0.0).success
     (data, reference), = calls
     return mpc.problem, data, reference
 
@@ -126,9 +126,9 @@ def test_mpc_step_past_its_budget_still_makes_one_iteration_and_never_nan():
     before the solver starts still makes one iteration (a plan comes out of every step), finite."""
     robot = load_robot("go2")
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp")))
-    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)  # cold: converged
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)  # cold: converged
     assert first.success and first.stats.details["sqp_iterations"] >= 1
-    second = mpc.solve(first.q[1], first.v[1], t=0.0125, budget_s=1e-6)
+    second = mpc.solve(first.q[1], first.v[1], t_s=0.0125, budget_s=1e-6)
     assert second.success, second.stats.status
     assert second.stats.details["sqp_iterations"] == 1 and second.stats.details["late"]
     assert np.all(np.isfinite(second.tau)) and np.all(np.isfinite(second.q))
@@ -140,7 +140,7 @@ def test_mpc_refuses_a_budget_below_one_iteration_on_the_first_step():
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=1e-4))
     mpc.solver.clock = clock
     with pytest.raises(DeadlineError):
-        mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0, budget_s=1e-4)
+        mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0, budget_s=1e-4)
 
 
 def test_a_slow_first_step_before_the_solver_is_not_taken_for_a_short_budget(monkeypatch):
@@ -157,11 +157,11 @@ def test_a_slow_first_step_before_the_solver_is_not_taken_for_a_short_budget(mon
         return guess(*args, **kwargs)
 
     monkeypatch.setattr(mpc, "_initial_guess", slow_guess)
-    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0).success
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0).success
 
 
 def test_realtime_loop_with_the_anytime_solver_and_delay_compensation_stays_up():
-    """`--delay realtime` with the anytime SQP and delay compensation on the small robot: it stays up, every
+    """`--delay-mode realtime` with the anytime SQP and delay compensation on the small robot: it stays up, every
     answer's delay is measured by the simulation (transport included: never below the solver's time) and the
     solver reports its iterations per step. No timing assertions."""
     from wbmpc.control.loop import ClosedLoop, LoopConfig
@@ -173,7 +173,7 @@ def test_realtime_loop_with_the_anytime_solver_and_delay_compensation_stays_up()
                                delay_compensation=True))
     plant = make_plant("pinocchio", robot)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="realtime")).run(0.5)
+    log = ClosedLoop(mpc, plant, LoopConfig(delay_mode="realtime")).run(0.5)
     assert not log.fell and log.mpc_failures == 0
     assert len(log.delay_ms) == len(log.solve_ms) - 1 >= 5
     assert all(d >= s for d, s in zip(log.delay_ms, log.solve_ms[1:]))
@@ -195,7 +195,7 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     robot = load_robot("go2")
     with pytest.warns(RuntimeWarning, match="compiled RTI unavailable"):
         mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp", compiled=True)))
-    summary = solver_summary(mpc, RunConfig(solver="sqp", compiled=True, delay="6"))
+    summary = solver_summary(mpc, RunConfig(solver="sqp", compiled=True, delay_ms=6.0))
     assert summary["solver"] == "sqp" and summary["compiled_requested"] and not summary["solver_compiled"]
     assert "gcc not found" in summary["compile_error"]
     # the run's defaults: anytime SQP with a budget on CPU time and delay compensation with a simulated delay
@@ -203,9 +203,9 @@ def test_a_solver_asked_to_be_compiled_that_was_not_says_so(monkeypatch):
     from wbmpc.scenarios import make_scenario
     from wbmpc.scenarios.runner import mpc_config_for
 
-    assert default_solver(compiled=False, delay="none") == "sqp" and default_solver(True, "none") == "fatrop-direct"
+    assert default_solver(compiled=False, delay_mode="none") == "sqp" and default_solver(True, "none") == "fatrop-direct"
     assert default_solver(True, "realtime") == "sqp"
-    config = RunConfig(solver="auto", compiled=True, delay="6")
+    config = RunConfig(solver="auto", compiled=True, delay_ms=6.0)
     mpc_config = mpc_config_for(make_scenario("push", robot, config.options), config, robot)
     assert mpc_config.solver.name == "sqp" and mpc_config.delay_compensation
     assert mpc_config.solver.extra_options["clock"] == "cpu" and mpc_config.step_budget_s == pytest.approx(0.01)
@@ -304,12 +304,12 @@ def test_mpc_holds_the_last_good_plan_at_once_when_a_step_with_a_deadline_fails(
     the last good plan shifted in time, counted as failed, finite torques."""
     robot = load_robot("go2")
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.01))
-    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
     assert first.success
     failing = FailingQp(mpc.solver.qp, FakeClock(), np.nan, cost_s=0.0)
     mpc.solver.qp, mpc.solver._capped = failing, {}
     monkeypatch.setattr(mpc, "_recover", lambda *a, **k: pytest.fail("no recovery ladder within a deadline"))
-    second = mpc.solve(first.q[1], first.v[1], t=0.0125)
+    second = mpc.solve(first.q[1], first.v[1], t_s=0.0125)
     assert not second.success and second.held_previous
     assert "no recovery re-solve past the step's deadline" in second.stats.status
     assert second.stats.details["qp_failures"] == 1

@@ -64,7 +64,12 @@ def go2_files():
     (["solve", "--uniform-dt", "1e9"], "--uniform-dt must be <= 500 ms"),  # hung inside Fatrop
     (["run", "stand", "--nodes", "100000"], "--nodes must be <= 100"),
     (["solve", "--nodes", "100000"], "--nodes must be <= 100"),
-    (["run", "stand", "--delay", "inf"], "--delay must be a finite number"),
+    (["run", "stand", "--delay-ms", "inf"], "--delay-ms must be a finite number"),
+    (["run", "stand", "--delay-ms", "2000"], "--delay-ms must be <= 1000 ms"),
+    (["run", "stand", "--delay-mode", "fixed"], "a fixed delay needs its length: --delay-ms MS"),
+    (["run", "stand", "--delay-mode", "realtime", "--delay-ms", "5"], "does not go with --delay-mode realtime"),
+    (["run", "stand", "--delay", "5", "--delay-mode", "measured"], "--delay is the old form"),
+    (["run", "stand", "--delay", "inf"], "--delay must be a finite number"),  # the old form, one release
     (["run", "stand", "--delay", "later"], "--delay must be none, measured, measured-wall, realtime or a number of ms"),
     (["run", "pull", "--pull-speed", "nan"], "--pull-speed must be a finite number"),
     (["run", "stand", "--kp", "-1"], "--kp must be >= 0"),
@@ -349,7 +354,7 @@ def test_output_dir_replaces_only_what_wbmpc_wrote(tmp_path):
 
 def test_a_fall_exits_1(tmp_path, capsys):
     # a 1 s solver delay leaves the trot without new plans: go2 falls within a second
-    code = main(["run", "trot-in-place", "--robot", "go2", "--plant", "pinocchio", "--delay", "1000",
+    code = main(["run", "trot-in-place", "--robot", "go2", "--plant", "pinocchio", "--delay-ms", "1000",
                  "--duration", "1.5", "--nodes", "6", "--no-outputs", "--json"])
     captured = capsys.readouterr()
     metrics = json.loads(captured.out)

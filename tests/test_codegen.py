@@ -65,8 +65,8 @@ def test_compiled_solver_gives_the_same_solution(robot, problem, compiled_solver
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.1, 0.05]
     for t in (0.1, 0.1125):
-        expected = reference.solve(robot.q_nominal, v0, t=t)
-        got = compiled.solve(robot.q_nominal, v0, t=t)
+        expected = reference.solve(robot.q_nominal, v0, t_s=t)
+        got = compiled.solve(robot.q_nominal, v0, t_s=t)
         assert expected.success and got.success, (expected.stats, got.stats)
         assert got.stats.iterations == expected.stats.iterations
         np.testing.assert_allclose(got.x, expected.x, atol=1e-8)

@@ -77,18 +77,18 @@ def test_mpc_plans_from_the_predicted_state(go2):
     mpc = MPC(go2, config)
     v = np.zeros(go2.nv)
     v[:3] = [0.2, 0.0, 0.0]
-    first = mpc.solve(go2.q_nominal, v, t=0.0)
+    first = mpc.solve(go2.q_nominal, v, t_s=0.0)
     assert first.success and first.t_s == 0.0
     q1, v1 = first.q[1], first.v[1]
     delay = 0.006
     predicted = roll_forward(go2.model, q1, v1, first, 0.01, delay)
-    second = mpc.solve(q1, v1, t=0.01, delay_s=delay)
+    second = mpc.solve(q1, v1, t_s=0.01, delay_s=delay)
     assert second.success, second.stats.status
     assert second.t_s == pytest.approx(0.01 + delay)
     np.testing.assert_allclose(second.q[0], predicted[0], atol=1e-9)
     np.testing.assert_allclose(second.v[0], predicted[1], atol=1e-9)
     off = MPC(go2, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None)), problem=mpc.problem)
-    plain = off.solve(q1, v1, t=0.01, delay_s=delay)
+    plain = off.solve(q1, v1, t_s=0.01, delay_s=delay)
     assert plain.t_s == 0.01
     np.testing.assert_allclose(plain.q[0], q1, atol=1e-9)
 
@@ -100,7 +100,7 @@ def test_fixed_delay_run_with_compensation_stays_up(go2):
     mpc = MPC(go2, config)
     plant = make_plant("mujoco", go2)
     plant.reset(go2.q_nominal, np.zeros(go2.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="6")).run(0.3)
+    log = ClosedLoop(mpc, plant, LoopConfig(delay_ms=6.0)).run(0.3)
     assert not log.fell
     np.testing.assert_allclose(log.delay_ms, 6.0)
     # every plan starts where it applies: 6 ms after the step's measurement

@@ -94,7 +94,7 @@ def test_options_hold_after_contact_switches(switching):
     for pattern in ("stand", "trot", "stand", "trot"):
         mpc.pattern = pattern
         mpc.reset()
-        mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
+        mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
         assert mpc.solver.solver.stats()["iter_count"] <= 3, pattern
     assert set(mpc.solver._by_structure) == set(keys.values())
 
@@ -142,7 +142,7 @@ def trot_steps(b1z1):
     mpc.solver.solve = recording
     plant = make_plant("pinocchio", robot)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    ClosedLoop(mpc, plant, LoopConfig(delay="none")).run(13 / 80)
+    ClosedLoop(mpc, plant, LoopConfig(delay_mode="none")).run(13 / 80)
     assert len(calls) >= 8
     return mpc.problem, calls
 

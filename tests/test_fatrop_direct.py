@@ -55,7 +55,7 @@ def step_data(robot, problem):
     mpc.solver.solve = spy
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.1, 0.05]
-    assert mpc.solve(robot.q_nominal, v0, t=0.1).success
+    assert mpc.solve(robot.q_nominal, v0, t_s=0.1).success
     return captured
 
 
@@ -117,7 +117,7 @@ def _trot_steps(robot, problem, solver_config, times=(0.1, 0.1125, 0.125, 0.2)):
     mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None), solver=solver_config), problem=problem)
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.1, 0.05]
-    return mpc, [mpc.solve(robot.q_nominal, v0, t=t) for t in times]
+    return mpc, [mpc.solve(robot.q_nominal, v0, t_s=t) for t in times]
 
 
 def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):

@@ -39,7 +39,7 @@ def planned(request, robot):
     mpc = MPC(robot, config)
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.1, -0.05, 0.0]
-    solution = mpc.solve(robot.q_nominal, v0, t=0.1)
+    solution = mpc.solve(robot.q_nominal, v0, t_s=0.1)
     return request.param, mpc, solution
 
 

@@ -33,7 +33,7 @@ def qp_data():
     mpc.solver.solve = recording
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.4, -0.2, 0.0]
-    mpc.solve(robot.q_nominal, v0, t=0.0)
+    mpc.solve(robot.q_nominal, v0, t_s=0.0)
     (p, lbx, ubx, lbg, ubg, x0), = calls
     problem, nlp = mpc.problem, mpc.problem.nlp
     x, pp = nlp["x"], nlp["p"]
@@ -114,13 +114,13 @@ def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypa
     with pytest.warns(RuntimeWarning, match="direct binding is unavailable"):
         mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.05))
     assert all(isinstance(q, StructuredQp) for q in (mpc.solver.qp, *mpc.solver._capped.values()))
-    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
-    second = mpc.solve(first.q[1], first.v[1], t=0.0125)
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
+    second = mpc.solve(first.q[1], first.v[1], t_s=0.0125)
     assert first.success and second.success, second.stats.status
     from wbmpc.scenarios import RunConfig
     from wbmpc.scenarios.runner import solver_summary
 
-    assert "no compiler" in solver_summary(mpc, RunConfig(solver="sqp", delay="6"))["direct_fallback"]
+    assert "no compiler" in solver_summary(mpc, RunConfig(solver="sqp", delay_ms=6.0))["direct_fallback"]
 
 
 def test_casadis_conic_on_request_and_bad_binding_names_the_fix(qp_data):

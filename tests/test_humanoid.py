@@ -321,7 +321,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     report = tuning.report()
     period, share = biped_walk_timing(scale.leg_length_m)
     assert tuning.gait_period_s == pytest.approx(period) and 0.9 < period < 1.2  # g1: 1.03 s
-    assert tuning_for(g1).support_sway_free_hands == 0.0  # g1 leans only while a hand is held
+    assert tuning_for(g1).support_sway_free_ee == 0.0  # g1 leans only while a hand is held
     assert tuning.support_lead_s == pytest.approx(0.5 * period * share)
     assert tuning.free_ee_without_command and tuning.support_sway > 0
     assert tuning.swing_placement
@@ -334,7 +334,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     assert report["weights.base_linear_velocity"] == {"value": 1000.0, "source": "table"}
     assert tuning.weights.base_linear_velocity > 10 * derive(dataclasses.replace(scale, feet=4)).weights.base_linear_velocity
     # ... not while a hand is held: tasks that command the hand keep the biped rule's weight, and their runs say so
-    held = tuning.for_task(holds_hand=True)
+    held = tuning.for_task(commands_ee=True)
     assert held.weights.base_linear_velocity == BIPED_BASE_LINEAR_VELOCITY_WEIGHT
     assert held.report()["weights.base_linear_velocity"]["source"] == "table"
     assert dataclasses.replace(held, sources={}) == dataclasses.replace(
@@ -353,7 +353,7 @@ def test_biped_settings_are_derived_with_the_biped_rules_and_say_so(g1):
     quadruped = derive(dataclasses.replace(scale, feet=4))
     assert quadruped.support_sway == 0.0 and not quadruped.free_ee_without_command and not quadruped.swing_placement
     assert set(entry["source"] for entry in quadruped.report().values()) == {"derived"}
-    assert quadruped.for_task(holds_hand=True) is quadruped
+    assert quadruped.for_task(commands_ee=True) is quadruped
 
 
 def test_g1_rotor_inertias_reach_the_plant(g1):
@@ -473,34 +473,34 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     from wbmpc.solvers.qp import QpResult
 
     scenario = make_scenario("walk-in-place", g1)
-    realtime = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="rti", delay="realtime"), g1)
+    realtime = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="rti", delay_mode="realtime"), g1)
     options = realtime.solver.extra_options
     assert options["recovery_barrier_init"] is None and options["fallback_qp_mode"] is None
     assert realtime.recovery.fallback_solver is None
     for name, delay in (("g1", "none"), ("b1_z1", "realtime")):
         robot = g1 if name == "g1" else load_robot(name)
         other = mpc_config_for(make_scenario("walk-in-place", robot), RunConfig(scenario="walk-in-place", solver="rti",
-                                                                                 delay=delay), robot)
+                                                                                 delay_mode=delay), robot)
         assert "recovery_barrier_init" not in other.solver.extra_options and "fallback_qp_mode" not in \
             other.solver.extra_options
         assert other.recovery.fallback_solver == RecoveryConfig().fallback_solver
-    sqp = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="sqp", delay="measured"), g1)
+    sqp = mpc_config_for(scenario, RunConfig(scenario="walk-in-place", solver="sqp", delay_mode="measured"), g1)
     assert sqp.solver.extra_options["recovery_barrier_init"] is None and sqp.recovery.fallback_solver is None
     # the plan: solved once, then a QP that fails (its iteration cap) leaves the last plan shifted, finite
     mpc = MPC(g1, realtime)
     mpc.prepare_fallback()
     assert mpc.solver._recovery is None and mpc.solver.fallback_qp is None and not mpc.recovery.built()
-    first = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t=0.0)
+    first = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t_s=0.0)
     assert first.success, first.stats.status
     n = mpc.problem.n_variables
     mpc.solver.qp.solve = lambda *data: QpResult(step=np.full(n, np.nan), lam_g=np.zeros(mpc.problem.n_constraints),
                                                 lam_x=np.zeros(n), status="QP_Maximum_Iterations_Exceeded",
                                                 success=False, iterations=30, solve_time_s=0.03)
-    held = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t=0.0125)
+    held = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t_s=0.0125)
     assert not held.success and held.held_previous
     assert held.stats.status.startswith("QP_Maximum_Iterations_Exceeded; holding the last good plan")
     assert all(np.all(np.isfinite(part)) for part in (held.q, held.v, held.a, held.forces, held.tau))
-    assert mpc.solver._recovery is None and mpc._fallback is None  # nothing was built or run to rescue it
+    assert mpc.solver._recovery is None and not mpc.recovery.built()  # nothing was built or run to rescue it
 
 
 def test_delay_compensation_is_off_by_default_on_flat_feet(g1):
@@ -513,7 +513,7 @@ def test_delay_compensation_is_off_by_default_on_flat_feet(g1):
         return mpc_config_for(make_scenario("walk-in-place", robot), config, robot).delay_compensation
 
     b1_z1 = load_robot("b1_z1")
-    assert not compensation(g1, delay="realtime") and not compensation(g1, delay="12")
-    assert compensation(g1, delay="realtime", delay_compensation=True)
-    assert compensation(b1_z1, delay="realtime") and compensation(b1_z1, delay="measured")
-    assert not compensation(b1_z1, delay="none") and not compensation(g1, delay="none")
+    assert not compensation(g1, delay_mode="realtime") and not compensation(g1, delay_ms=12.0)
+    assert compensation(g1, delay_mode="realtime", delay_compensation=True)
+    assert compensation(b1_z1, delay_mode="realtime") and compensation(b1_z1, delay_mode="measured")
+    assert not compensation(b1_z1, delay_mode="none") and not compensation(g1, delay_mode="none")

@@ -136,7 +136,7 @@ def test_identify_mass_refuses_what_it_cannot_observe_or_feed():
     with pytest.raises(ConfigError, match="--plant mujoco"):
         RunConfig(identify_mass=True, plant="pinocchio")
     with pytest.raises(ConfigError, match="realtime"):
-        RunConfig(identify_mass=True, delay="realtime")
+        RunConfig(identify_mass=True, delay_mode="realtime")
     with pytest.raises(ConfigError, match="wb_inverse"):
         OcpConfig(formulation="centroidal_velocity", inertial_parameters=True)
 

@@ -138,7 +138,7 @@ def test_mpc_solves_on_the_mixed_robot(mixed):
 
     mpc = MPC(mixed, MpcConfig(gait="stand", ocp=OcpConfig(grid=TimeGrid(n_intervals=6))))
     q = mixed.q_nominal.copy()
-    solution = mpc.solve(q, np.zeros(mixed.nv), Commands(), t=0.0)
+    solution = mpc.solve(q, np.zeros(mixed.nv), Commands(), t_s=0.0)
     assert solution.success, solution.stats.status
     assert solution.q.shape == (7, mixed.nq) and solution.q_joints.shape == (7, mixed.n_joints)
     np.testing.assert_allclose(solution.q_joints[0], mixed.joint_positions(q), atol=1e-9)

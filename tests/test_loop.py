@@ -60,7 +60,7 @@ def test_short_trot_stays_up_in_mujoco(b1z1):
     mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="trot"))
     plant = make_plant("mujoco", b1z1)
     plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="none")).run(0.8, events=[Event(0.4, lambda p: None, name="tap")])
+    log = ClosedLoop(mpc, plant, LoopConfig(delay_mode="none")).run(0.8, events=[Event(0.4, lambda p: None, name="tap")])
     a = log.arrays()
     assert not log.fell
     assert [name for _, name in log.events] == ["tap"] and abs(log.events[0][0] - 0.4) <= 1e-3  # logged for the plots
@@ -75,20 +75,25 @@ def test_fixed_delay_applies_solutions_late(b1z1):
     mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="stand"))
     plant = make_plant("pinocchio", b1z1)
     plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="20")).run(0.1)
+    log = ClosedLoop(mpc, plant, LoopConfig(delay_ms=20.0)).run(0.1)
     assert all(d == pytest.approx(20.0) for d in log.delay_ms)
     assert log.late_solutions > 0  # 20 ms > the 12.5 ms period: the single solver skips ticks
     assert not log.fell
 
 
 def test_bad_loop_inputs():
-    with pytest.raises(ConfigError, match="delay must be none, measured, measured-wall, realtime or a number of ms; got 'soon'"):
-        LoopConfig(delay="soon")
+    with pytest.raises(ConfigError, match="delay_mode must be one of none, measured, measured-wall, fixed, realtime; got 'soon'"):
+        LoopConfig(delay_mode="soon")
     with pytest.raises(ConfigError, match=">= 0 ms"):
-        LoopConfig(delay="-5")
-    for delay in ("inf", "nan", "1e9"):
-        with pytest.raises(ConfigError, match="delay must be"):
-            LoopConfig(delay=delay)
+        LoopConfig(delay_ms=-5.0)
+    for delay_ms in (float("inf"), float("nan"), 1e9):
+        with pytest.raises(ConfigError, match="delay_ms must be"):
+            LoopConfig(delay_ms=delay_ms)
+    with pytest.raises(ConfigError, match="needs its length"):
+        LoopConfig(delay_mode="fixed")
+    with pytest.raises(ConfigError, match="does not go with --delay-mode realtime"):
+        LoopConfig(delay_mode="realtime", delay_ms=5.0)
+    assert LoopConfig(delay_ms=5.0).delay_mode == "fixed" and LoopConfig(delay_ms=5.0).fixed_delay_s == 0.005
 
 
 def _refuse_non_json(token):
@@ -164,7 +169,7 @@ def test_measured_delay_counts_cpu_time_not_waiting(delay, waits_count):
                                gait="stand"))
     plant = make_plant("pinocchio", robot)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    log = ClosedLoop(_SleepyMpc(mpc), plant, LoopConfig(delay=delay)).run(0.05)
+    log = ClosedLoop(_SleepyMpc(mpc), plant, LoopConfig(delay_mode=delay)).run(0.05)
     assert log.delay_ms, "no solution applied"
     assert (min(log.delay_ms) >= 40.0) == waits_count, log.delay_ms
 
@@ -209,7 +214,7 @@ def test_realtime_processes_ask_for_a_higher_priority_and_report_what_they_got()
 
 
 def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
-    """`--delay realtime` on a small problem: the solver process answers, every answer is logged with its
+    """`--delay-mode realtime` on a small problem: the solver process answers, every answer is logged with its
     wall time as the delay, late ones are counted, the two processes' CPU shares are measured; the robot
     (go2, 6 nodes, standing: fast enough for any machine) stays up."""
     from wbmpc.robots import load_robot
@@ -219,7 +224,7 @@ def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
                                gait="stand"))
     plant = make_plant("pinocchio", robot)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="realtime")).run(0.5)
+    log = ClosedLoop(mpc, plant, LoopConfig(delay_mode="realtime")).run(0.5)
     assert not log.fell and not log.interrupted
     assert len(log.solve_ms) >= 5  # some solves came back within 0.5 s of wall-clock time
     assert len(log.delay_ms) == len(log.solve_ms) - 1  # all but the first (solved before the clock starts)

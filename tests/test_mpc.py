@@ -30,7 +30,7 @@ def trot_solution(trot_mpc, b1z1):
     commands = Commands(base_velocity_m_s=np.array([0.2, 0, 0]), ee_velocity_m_s=np.array([0.05, 0, 0]),
                         ee_force_n=np.array([10.0, 0, 0]))
     # t = 0.3 s: FL/RR in stance, FR/RL in swing with the apex inside the horizon
-    return trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), commands, t=0.3), commands
+    return trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), commands, t_s=0.3), commands
 
 
 def _kinematics(robot, q, v):
@@ -108,7 +108,7 @@ def test_limits_hold(trot_solution, b1z1):
 def test_ipopt_finds_the_same_solution(trot_mpc, trot_solution, b1z1):
     solution, commands = trot_solution
     ipopt = MPC(b1z1, MpcConfig(ocp=SMALL, solver=SolverConfig(name="ipopt")), problem=trot_mpc.problem)
-    other = ipopt.solve(b1z1.q_nominal, np.zeros(b1z1.nv), commands, t=0.3)
+    other = ipopt.solve(b1z1.q_nominal, np.zeros(b1z1.nv), commands, t_s=0.3)
     assert other.success
     np.testing.assert_allclose(other.tau, solution.tau, atol=1e-2)
 
@@ -120,7 +120,7 @@ def test_warm_start_needs_fewer_iterations(b1z1, trot_mpc):
     for name, mpc in (("cold", cold), ("warm", warm)):
         q, v, total = b1z1.q_nominal.copy(), np.zeros(b1z1.nv), 0
         for step in range(6):
-            solution = mpc.solve(q, v, Commands(), t=step / 80)
+            solution = mpc.solve(q, v, Commands(), t_s=step / 80)
             assert solution.success
             total += solution.stats.iterations
             q = pin.integrate(b1z1.model, solution.q[0], solution.v[0] / 80)
@@ -140,7 +140,7 @@ def test_bad_input_is_rejected_before_solving(trot_mpc, b1z1, bad, message):
     args = dict(q=b1z1.q_nominal, v=np.zeros(b1z1.nv), commands=Commands())
     args.update(bad)
     with pytest.raises(ConfigError, match=message):
-        trot_mpc.solve(args["q"], args["v"], args["commands"], t=0.0)
+        trot_mpc.solve(args["q"], args["v"], args["commands"], t_s=0.0)
 
 
 def test_unknown_gait_and_negative_dt(b1z1):
@@ -152,7 +152,7 @@ def test_unknown_gait_and_negative_dt(b1z1):
 
 def test_arm_is_carried_along_by_default(trot_mpc, b1z1):
     """Without an arm velocity command the end-effector moves with the commanded base velocity."""
-    solution = trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(base_velocity_m_s=np.array([0.2, 0, 0])), t=0.3)
+    solution = trot_mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(base_velocity_m_s=np.array([0.2, 0, 0])), t_s=0.3)
     assert solution.success
     k = int(np.argmax(solution.node_times_s >= BLEND_TIME_S))  # past the blend from the measured velocity
     data = _kinematics(b1z1, solution.q[k], solution.v[k])
@@ -168,7 +168,7 @@ def test_other_robots_and_gaits_solve_consistently(robot_name, gait):
 
     robot = load_robot(robot_name)
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait=gait))
-    solution = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.1)
+    solution = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t_s=0.1)
     assert solution.success, solution.stats
     weight = robot.mass_kg * 9.81
     for k in range(len(solution.a)):
@@ -186,7 +186,7 @@ def test_state_past_its_limits_stays_solvable(trot_mpc, b1z1):
     j = b1z1.joint_index("joint1")
     q[7 + j] = b1z1.q_max[j] + 0.02  # past the position limit ...
     v[6 + j] = 1.2 * b1z1.v_max[j]  # ... and still moving outwards faster than allowed
-    solution = trot_mpc.solve(q, v, Commands(), t=0.0)
+    solution = trot_mpc.solve(q, v, Commands(), t_s=0.0)
     assert solution.success, solution.stats
     assert solution.v[-1, 6 + j] <= b1z1.v_max[j] + 1e-6  # brought back within the limits later on
 
@@ -196,7 +196,7 @@ def test_state_right_after_a_push_is_solvable(trot_mpc, b1z1):
     brought to rest over BLEND_TIME_S (a fresh Fatrop recovers if the warm one stalls)."""
     v = np.zeros(b1z1.nv)
     v[1] = 0.8
-    solution = trot_mpc.solve(b1z1.q_nominal, v, Commands(), t=0.5)
+    solution = trot_mpc.solve(b1z1.q_nominal, v, Commands(), t_s=0.5)
     assert solution.success, solution.stats
     _, contact, _ = trot_mpc.schedule(0.5)
     for k in np.flatnonzero(solution.node_times_s >= BLEND_TIME_S):
@@ -220,8 +220,8 @@ def test_velocity_only_base_tracking_does_not_pull_drift_back(trot_mpc, b1z1):
     for mode in ("position", "velocity"):
         mpc = MPC(b1z1, MpcConfig(ocp=SMALL, gait="stand", references=ReferenceConfig(base_tracking=mode)), problem=trot_mpc.problem,
                   solver=trot_mpc.solver)
-        assert mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(), t=0.0).success  # the run starts here
-        solution = mpc.solve(drifted, np.zeros(b1z1.nv), Commands(), t=0.1)
+        assert mpc.solve(b1z1.q_nominal, np.zeros(b1z1.nv), Commands(), t_s=0.0).success  # the run starts here
+        solution = mpc.solve(drifted, np.zeros(b1z1.nv), Commands(), t_s=0.1)
         assert solution.success, solution.stats
         start = drifted if mode == "velocity" else b1z1.q_nominal
         np.testing.assert_allclose(mpc.references.anchor_xy_m, start[:2], atol=1e-12)
@@ -237,8 +237,8 @@ def test_flat_settings_of_before_the_groups_still_work_for_one_release_with_a_wa
         config = MpcConfig(gait="stand", push_hold_s=0.2, fallback_solver=None, max_ee_force_n=50.0)
     assert config.push.hold_s == 0.2 and config.recovery.fallback_solver is None and config.limits.ee_force_n == 50.0
     assert config.push == PushConfig(hold_s=0.2) and config.gait == "stand"
-    with pytest.warns(DeprecationWarning, match="recovery_time_limit_s -> recovery.time_limit_s"):
-        assert config.recovery_time_limit_s == RecoveryConfig().time_limit_s
+    with pytest.warns(DeprecationWarning, match="recovery_time_limit_s -> recovery.budget_s"):
+        assert config.recovery_time_limit_s == RecoveryConfig().budget_s
     with pytest.warns(DeprecationWarning):
         assert dataclasses.replace(config, support_sway=0.3).references.support_sway == 0.3
     with pytest.raises(ConfigError, match="push.hold_s"), pytest.warns(DeprecationWarning):

@@ -32,12 +32,12 @@ def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a
     mpc = make_mpc(a1, gait_period_scale=0.5)  # 0.3 s steps
     v = np.zeros(a1.nv)
     expected = GaitClock(make_gait("trot", 4, 0.6))
-    mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
+    mpc.solve(a1.q_nominal, v, Commands(), t_s=0.0)
     assert mpc.gait.period_s == 0.6
     kicked = v.copy()
     kicked[1] = 1.0  # lateral kick: 1 m/s off the plan and the command
     t_kick = 0.0125
-    solution = mpc.solve(a1.q_nominal, kicked, Commands(), t=t_kick)
+    solution = mpc.solve(a1.q_nominal, kicked, Commands(), t_s=t_kick)
     assert mpc.gait.period_s == 0.3
     expected.retime(t_kick, 0.3)
     # the OCP of the kicked step already plans with the faster schedule (the same phases at t_kick)
@@ -46,11 +46,11 @@ def test_a_push_speeds_up_the_steps_and_the_gait_period_returns_after_the_hold(a
     # (the plan of the kicked step expects the robot to keep moving for a while), the fast cadence 0.2 s later
     last_push_end, t_back = None, None
     for t in t_kick + 0.0125 * np.arange(1, 60):
-        mpc.solve(a1.q_nominal, v, Commands(), t=t)
+        mpc.solve(a1.q_nominal, v, Commands(), t_s=t)
         if mpc.gait.period_s == 0.6:
             t_back = t
             break
-        last_push_end = mpc.push_mode.until_t
+        last_push_end = mpc.push_mode.until_t_s
     assert t_back is not None and last_push_end + 0.2 <= t_back < last_push_end + 0.2 + 0.0125
     expected.retime(t_back, 0.6)
     np.testing.assert_allclose(mpc.gait.phase(np.array([t_back + 0.1])), expected.phase(np.array([t_back + 0.1])))
@@ -62,8 +62,8 @@ def test_the_fixed_schedule_of_the_paper_keeps_its_period_after_a_push(a1):
     mpc = make_mpc(a1, gait_period_scale=None)
     kicked = np.zeros(a1.nv)
     kicked[1] = 1.0
-    mpc.solve(a1.q_nominal, kicked, Commands(), t=0.0)
-    assert mpc.push_mode.until_t is not None and mpc.gait.period_s == 0.6
+    mpc.solve(a1.q_nominal, kicked, Commands(), t_s=0.0)
+    assert mpc.push_mode.until_t_s is not None and mpc.gait.period_s == 0.6
 
 
 def test_bad_cadence_options_are_refused_before_anything_is_built():
@@ -123,6 +123,6 @@ def test_each_solver_gets_its_default_cadence_and_an_estimator_that_cannot_see_t
     assert scale(solver="rti") is None  # RTI keeps the fixed schedule unless asked
     assert scale(solver="rti", push_gait_period_scale=0.5) == 0.5
     assert scale(push_gait_period_scale=1.0) is None
-    assert scale(state="estimated", delay="realtime") is None
+    assert scale(state="estimated", delay_mode="realtime") is None
     with pytest.raises(ConfigError, match="--push-cadence"):
-        RunConfig(state="estimated", delay="realtime", push_gait_period_scale=0.5)
+        RunConfig(state="estimated", delay_mode="realtime", push_gait_period_scale=0.5)

@@ -24,17 +24,17 @@ def a1_mpc():
 def test_failed_step_is_bounded_and_holds_the_last_plan_shifted(a1_mpc):
     robot, mpc = a1_mpc
     mpc.reset()
-    good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
+    good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t_s=0.0)
     assert good.success, good.stats
     # the same MPC with every attempt capped at 2 iterations: a strongly pushed state cannot converge
     capped = MPC(robot, replace(mpc.config, recovery=RecoveryConfig(barrier_init=None, fallback_max_iterations=2)), problem=mpc.problem,
                  solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
-    capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)  # sets references, fails (2 iterations)
+    capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t_s=0.0)  # sets references, fails (2 iterations)
     capped.continue_from(good)  # the last good plan, as after a successful step
     v = np.zeros(robot.nv)
     v[1], v[3] = 1.5, 2.0  # lateral kick and roll rate
     t = 0.03
-    held = capped.solve(robot.q_nominal, v, Commands(), t=t)
+    held = capped.solve(robot.q_nominal, v, Commands(), t_s=t)
     assert not held.success and held.held_previous
     assert held.stats.iterations <= 3 + 3  # main Fatrop + IPOPT, each capped at 2 (counted from 0 or 1)
     assert "holding the last good plan" in held.stats.status and "ipopt" in held.stats.status
@@ -53,16 +53,16 @@ def test_no_recovery_attempt_starts_once_the_step_has_spent_its_cpu_budget(a1_mp
     held plan (no fresh Fatrop, no fallback); without one, both attempts run."""
     robot, mpc = a1_mpc
     mpc.reset()
-    good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
+    good = mpc.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t_s=0.0)
     v = np.zeros(robot.nv)
     v[1], v[3] = 1.5, 2.0
     for budget_s in (1e-9, None):
-        capped = MPC(robot, replace(mpc.config, recovery=RecoveryConfig(time_limit_s=budget_s, fallback_max_iterations=2,
+        capped = MPC(robot, replace(mpc.config, recovery=RecoveryConfig(budget_s=budget_s, fallback_max_iterations=2,
                                                                 fatrop_max_iterations=2, fallback_first_s=0.0)),  # Fatrop first, also after a rescue
                      problem=mpc.problem, solver=NlpSolver(mpc.problem, SolverConfig(max_iterations=2)))
-        capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t=0.0)
+        capped.solve(robot.q_nominal, np.zeros(robot.nv), Commands(), t_s=0.0)
         capped.continue_from(good)  # the last good plan
-        held = capped.solve(robot.q_nominal, v, Commands(), t=0.03)
+        held = capped.solve(robot.q_nominal, v, Commands(), t_s=0.03)
         assert not held.success and held.held_previous
         recovered = "recovery after" in held.stats.status
         assert recovered == (budget_s is None), held.stats.status

@@ -46,7 +46,7 @@ def fixed_state():
     mpc.solver.solve = recording
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.1, -0.05, 0.0]
-    solution = mpc.solve(robot.q_nominal, v0, t=0.0)
+    solution = mpc.solve(robot.q_nominal, v0, t_s=0.0)
     assert solution.success, solution.stats.status
     (data, reference), = calls
     assert reference.stats.status == "Solve_Succeeded"
@@ -157,7 +157,7 @@ def test_rti_trot_stays_up_in_mujoco(b1z1):
     assert isinstance(mpc.solver, RtiSolver)
     plant = make_plant("mujoco", b1z1)
     plant.reset(b1z1.q_nominal, np.zeros(b1z1.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay="none")).run(0.8)
+    log = ClosedLoop(mpc, plant, LoopConfig(delay_mode="none")).run(0.8)
     a = log.arrays()
     assert not log.fell
     assert log.mpc_failures == 0
@@ -178,10 +178,10 @@ def test_iterated_rti_converges_on_every_formulation(formulation):
     v0 = np.zeros(robot.nv)
     v0[:3] = [0.1, -0.05, 0.0]
     fatrop = MPC(robot, MpcConfig(ocp=ocp, recovery=RecoveryConfig(fallback_solver=None), solver=SolverConfig(tolerance=1e-9, max_iterations=300)))
-    reference = fatrop.solve(robot.q_nominal, v0, t=0.0)
+    reference = fatrop.solve(robot.q_nominal, v0, t_s=0.0)
     assert reference.success, reference.stats.status
     rti = MPC(robot, MpcConfig(ocp=ocp, recovery=RecoveryConfig(fallback_solver=None), solver=SolverConfig(
         name="rti", extra_options={"sqp_iterations": 15, "step_tolerance": 0.0, "qp_tolerance": 1e-6})), problem=fatrop.problem)
-    solution = rti.solve(robot.q_nominal, v0, t=0.0)
+    solution = rti.solve(robot.q_nominal, v0, t_s=0.0)
     assert solution.success, solution.stats.status
     np.testing.assert_allclose(solution.x, reference.x, atol=1e-5)

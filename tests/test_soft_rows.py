@@ -52,7 +52,7 @@ def _trot_step(a1, ocp: OcpConfig, weight: float, q, v):
                             push=PushConfig(gait_period_scale=None)))
     capture = Capture(mpc.solver)
     mpc.enter_push_recovery()  # as after a push
-    solution = mpc.solve(q, v, Commands(), t=0.11)
+    solution = mpc.solve(q, v, Commands(), t_s=0.11)
     return mpc, solution, capture.calls[-1]
 
 
@@ -60,7 +60,7 @@ def test_free_slacks_stay_zero_and_leave_a_feasible_plan_unchanged(a1):
     """Exact penalty: a weight above the rows' multipliers gives the hard OCP's solution. The state is
     node 1 of a plan (a nominal MPC step); from rest the swing feet's first 10 ms ask for more."""
     first = MPC(a1, MpcConfig(ocp=replace(SOFT_FEET, soft_rows=()), gait="trot", recovery=RecoveryConfig(fallback_solver=None)))
-    plan = first.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.1)
+    plan = first.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t_s=0.1)
     assert plan.success
     q, v = plan.q[1], plan.v[1]
     _, hard, _ = _trot_step(a1, replace(SOFT_FEET, soft_rows=()), 100.0, q, v)
@@ -78,7 +78,7 @@ def test_slacks_make_an_infeasible_ocp_solvable_with_the_least_l1_violation(a1):
     mpc = MPC(a1, MpcConfig(ocp=SOFT_FEET, gait="stand", recovery=RecoveryConfig(fallback_solver=None)))
     capture = Capture(mpc.solver)
     mpc.enter_push_recovery()
-    mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.0)
+    mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t_s=0.0)
     problem, call = mpc.problem, capture.calls[-1]
     lbx, ubx, lbg, ubg = (np.array(call[k], dtype=float) for k in ("lbx", "ubx", "lbg", "ubg"))
     locked = problem.idx["v"][1:, 6:]
@@ -108,16 +108,16 @@ def test_a_push_frees_the_slacks_and_relaxes_rows_and_nominal_steps_do_neither(a
     slack = mpc.problem.idx["slack"]
     rows = mpc.problem.rows["foot_vel"].reshape(-1, len(a1.feet), 3)[..., 2]  # v_z: constrained stance or swing
     v = np.zeros(a1.nv)
-    mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
+    mpc.solve(a1.q_nominal, v, Commands(), t_s=0.0)
     call = capture.calls[-1]
     assert (call["ubx"][slack] == 0).all() and np.isfinite(call["ubg"][rows]).all()  # nominal: the hard OCP
     v[1] = 1.0  # a lateral kick: 1 m/s off the plan and the command
-    mpc.solve(a1.q_nominal, v, Commands(), t=0.0125)
+    mpc.solve(a1.q_nominal, v, Commands(), t_s=0.0125)
     call = capture.calls[-1]
     assert np.isinf(call["ubx"][slack]).all() and np.isinf(call["ubg"][rows]).all()
-    assert mpc.push_mode.until_t == pytest.approx(0.2125)
+    assert mpc.push_mode.until_t_s == pytest.approx(0.2125)
     mpc.reset()
-    assert mpc.push_mode.until_t is None
+    assert mpc.push_mode.until_t_s is None
 
 
 def test_a_base_velocity_far_from_the_command_keeps_the_push_mode(a1):
@@ -125,11 +125,11 @@ def test_a_base_velocity_far_from_the_command_keeps_the_push_mode(a1):
                             push=PushConfig(hold_s=0.2)))
     v = np.zeros(a1.nv)
     v[0] = 0.5  # moving at 0.5 m/s while commanded to stand: still drifting away after a push
-    mpc.solve(a1.q_nominal, v, Commands(), t=0.0)
-    assert mpc.push_mode.until_t == pytest.approx(0.2)
+    mpc.solve(a1.q_nominal, v, Commands(), t_s=0.0)
+    assert mpc.push_mode.until_t_s == pytest.approx(0.2)
     mpc.reset()
-    mpc.solve(a1.q_nominal, v, Commands(base_velocity_m_s=np.array([0.5, 0.0, 0.0])), t=0.0)
-    assert mpc.push_mode.until_t is None  # the commanded motion
+    mpc.solve(a1.q_nominal, v, Commands(base_velocity_m_s=np.array([0.5, 0.0, 0.0])), t_s=0.0)
+    assert mpc.push_mode.until_t_s is None  # the commanded motion
 
 
 def test_soft_torque_limits_are_rows_in_place_of_the_bounds(a1):
@@ -139,7 +139,7 @@ def test_soft_torque_limits_are_rows_in_place_of_the_bounds(a1):
     assert problem.idx["slack_tau"].shape == (n_tau, 2 * a1.n_joints)
     mpc = MPC(a1, MpcConfig(ocp=problem.config, gait="trot", recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
     capture = Capture(mpc.solver)
-    solution = mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t=0.1)
+    solution = mpc.solve(a1.q_nominal, np.zeros(a1.nv), Commands(), t_s=0.1)
     call = capture.calls[-1]
     assert solution.success
     assert np.isinf(call["lbx"][problem.idx["tau"]]).all()  # the rows carry the limits

@@ -150,7 +150,7 @@ def test_deploy_builds_the_mpc_configuration_run_builds(robot_name):
     robot = load_robot(robot_name)
     for name in ("trot-in-place", "stand", "arm-track")[: 3 if robot.arm_ee else 2]:
         scenario = make_scenario(name, robot)
-        run = mpc_config_for(scenario, RunConfig(scenario=name, delay="realtime", state="estimated"), robot)
+        run = mpc_config_for(scenario, RunConfig(scenario=name, delay_mode="realtime", state="estimated"), robot)
         deploy = deploy_mpc_config(robot, scenario.needs(robot), nodes=15, compiled=False, solver="fatrop",
                                    lockstep=False)
         assert deploy == run

@@ -32,7 +32,7 @@ EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  
 
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
 # those of `run` come from its config dataclasses (`_field_flags`)
-OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
+OTHER_FIELD_FLAGS = {"delay": "--delay", "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
@@ -242,7 +242,7 @@ def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from wbmpc.control.tuning import RobotScale, tuning_for
+    from wbmpc.control.tuning import RENAMED_SETTINGS, RobotScale, tuning_for
     from wbmpc.solvers import blasfeo
 
     robot = robot_from_args(args)
@@ -256,7 +256,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     lines.append("settings (source: derived from the scale with B1 + Z1 as reference; derived: biped = the two-feet "
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
-              for name, entry in info["settings"].items()]
+              for name, entry in info["settings"].items() if name not in RENAMED_SETTINGS]
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
@@ -336,8 +336,17 @@ def _run_config(args: argparse.Namespace):
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
+    values = values_from_args(RunConfig, args)
+    if args.delay is not None:  # the one-string --delay of before (deprecated): a mode or a fixed delay in ms
+        from wbmpc.control.delay import delay_from_text
+
+        if values.get("delay_mode", "none") != "none" or "delay_ms" in values:
+            raise ConfigError("--delay is the old form of --delay-mode / --delay-ms: give one or the other")
+        values["delay_mode"], values["delay_ms"] = delay_from_text(args.delay)
+        print("wbmpc: warning: --delay is deprecated; use --delay-mode none|measured|measured-wall|realtime or "
+              "--delay-ms MS", file=sys.stderr)
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
-                     gains=PdGains(**values_from_args(PdGains, args)), **values_from_args(RunConfig, args))
+                     gains=PdGains(**values_from_args(PdGains, args)), **values)
 
 
 def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
@@ -391,6 +400,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     import warnings
     from pathlib import Path
 
+    from wbmpc.control.delay import delay_text
     from wbmpc.scenarios import (
         SCENARIOS,
         check_output_dir,
@@ -416,7 +426,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
-          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+          f"{' (compiled)' if config.compiled else ''}, delay {delay_text(config.delay_mode, config.delay_ms)}"
+          f"{' ms' if config.delay_mode == 'fixed' else ''}, plant {args.plant}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
@@ -461,8 +472,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         direct = f", NOT on its direct binding ({m['direct_fallback']})" if m.get("direct_fallback") else ""
         lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
                      f"{', delay compensation on' if m.get('delay_compensation') else ''}{direct}")
-    if m.get("delay") != "none":
-        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
+    if m.get("delay_mode") != "none":
+        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target {m['mpc_rate_target_hz']:g} Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
                      f"mean delay {m['delay_ms_mean']:.1f} ms")
         if m.get("sim_cpu_share") is not None:
@@ -544,12 +555,13 @@ def _add_run_parser(sub, formatter) -> None:
     """`wbmpc run`: its options come from the fields of RunConfig, PdGains and ScenarioOptions (`wbmpc.options`),
     the scenario options grouped by the scenarios that read them."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.loop import MPC_RATE_HZ
     from wbmpc.options import add_arguments, scenario_groups
     from wbmpc.scenarios import SCENARIOS, RunConfig, ScenarioOptions
 
     run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay",
-                         description=textwrap.fill("Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 "
-                         "Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
+                         description=textwrap.fill(f"Run a scenario in closed loop (MPC at {MPC_RATE_HZ:g} Hz "
+                         "by default, joint PD at 500 Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
                          "what was measured and exits 130.", 90), epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
     run.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)} (listed below)")
     _add_robot_options(run)
@@ -558,6 +570,8 @@ def _add_run_parser(sub, formatter) -> None:
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
     loop = run.add_argument_group("closed loop, solver and state (every scenario)")
     add_arguments(loop, RunConfig)
+    loop.add_argument("--delay", metavar="DELAY", help="deprecated, the old form of --delay-mode / --delay-ms: "
+                      "none | measured | measured-wall | realtime | a fixed delay in ms")
     add_arguments(loop, PdGains)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
@@ -578,6 +592,8 @@ def _add_run_parser(sub, formatter) -> None:
 def _add_bench_parsers(sub, formatter):
     """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
     returns the bench subparsers (the hardware module adds `bench dds`)."""
+    from wbmpc.control.loop import MPC_RATE_HZ
+
     bench = sub.add_parser("bench", help="benchmarks", epilog=EPILOG, formatter_class=formatter)
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
@@ -591,14 +607,14 @@ def _add_bench_parsers(sub, formatter):
     robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
     robots.add_argument("--mpc", action="store_true", help="also per quadruped: decision variables and closed-loop "
                         "Fatrop and RTI step times with its own settings (compiles each robot once, cached)")
-    robots.add_argument("--steps", type=int, default=40, help="with --mpc: MPC steps at 80 Hz per solver (default 40)")
+    robots.add_argument("--steps", type=int, default=40, help=f"with --mpc: MPC steps at {MPC_RATE_HZ:g} Hz per solver (default 40)")
     robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
     _add_robot_options(mpc)
-    mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
+    mpc.add_argument("--steps", type=int, default=100, help=f"MPC steps at {MPC_RATE_HZ:g} Hz per run (default 100 = {100 / MPC_RATE_HZ:g} s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
     mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti, sqp (anytime, no deadline: to convergence); the first (fatrop if listed) is the reference")

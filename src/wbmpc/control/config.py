@@ -54,7 +54,7 @@ class ReferenceConfig:
     # target moves (0: fixed targets, the paper's). Bipeds: their CoM must lean over the next stance foot
     support_sway: float = 0.0
     support_lead_s: float = 0.0  # ... of the stance feet this much later (a biped: its double-support phase)
-    support_sway_free_hands: float | None = None  # ... while the hands swing free; None: support_sway
+    support_sway_free_ee: float | None = None  # ... while the hands swing free; None: support_sway
     # swing feet's horizontal velocities carried to a landing point (`foot_placement.SwingPlacement`: Raibert's
     # with capture-point feedback) instead of free; bipeds, whose light posture cost does not make them step
     swing_placement: bool = False
@@ -80,7 +80,7 @@ class RecoveryConfig:
     # CPU seconds a step's solves may spend before no further attempt starts (the step then holds the last good
     # plan); IPOPT also stops itself after this long (wall time). The Fatrop attempts are capped by iterations,
     # so a step ends within about this budget plus one attempt. None: no budget
-    time_limit_s: float | None = 0.5
+    budget_s: float | None = 0.5
     # after a rescue by the fallback solver it is tried first for this long (after a push the warm Fatrop keeps
     # stalling for tens of steps)
     fallback_first_s: float = 0.25
@@ -93,7 +93,7 @@ class RecoveryConfig:
         check_number("recovery.barrier_init", self.barrier_init, low=0.0, low_open=True, allow_none=True)
         for name in ("fatrop_max_iterations", "fallback_max_iterations"):
             check_number(f"recovery.{name}", getattr(self, name), low=1)
-        check_number("recovery.time_limit_s", self.time_limit_s, low=0.0, low_open=True, unit="s", allow_none=True)
+        check_number("recovery.budget_s", self.budget_s, low=0.0, low_open=True, unit="s", allow_none=True)
         check_number("recovery.fallback_first_s", self.fallback_first_s, low=0.0, unit="s")
 
 
@@ -186,14 +186,14 @@ LEGACY_FIELDS: dict[str, tuple[str, str]] = {
     "stance_posture_reference": ("references", "stance_posture"),
     "support_sway": ("references", "support_sway"),
     "support_lead_s": ("references", "support_lead_s"),
-    "support_sway_free_hands": ("references", "support_sway_free_hands"),
+    "support_sway_free_hands": ("references", "support_sway_free_ee"),
     "swing_placement": ("references", "swing_placement"),
     "free_ee_without_command": ("references", "free_ee_without_command"),
     "recovery_barrier_init": ("recovery", "barrier_init"),
     "recovery_fatrop_max_iterations": ("recovery", "fatrop_max_iterations"),
     "fallback_solver": ("recovery", "fallback_solver"),
     "fallback_max_iterations": ("recovery", "fallback_max_iterations"),
-    "recovery_time_limit_s": ("recovery", "time_limit_s"),
+    "recovery_time_limit_s": ("recovery", "budget_s"),
     "fallback_first_s": ("recovery", "fallback_first_s"),
     "hold_previous_on_failure": ("recovery", "hold_previous"),
     "recover_past_deadline": ("recovery", "past_deadline"),

@@ -20,24 +20,28 @@ import pinocchio as pin
 
 from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS
 from wbmpc.control.commands import Commands
+from wbmpc.control.delay import check_delay
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC
 from wbmpc.control.run_log import RSS_SAMPLE_PERIOD_S, RunLog
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import SolverProcess, cpu_split, raise_priority
-from wbmpc.errors import ConfigError, RunError, check_number
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.resident_memory import rss_mb
 
-DELAY_MODES = ("none", "measured", "measured-wall", "realtime")
-
 Progress = Callable[[float, int], None]  # (share of the run done, recovered steps so far)
+MPC_RATE_HZ = 80.0  # the paper's MPC rate (section V-B)
 
 
 @dataclass(frozen=True)
 class LoopConfig:
-    mpc_rate_hz: float = 80.0
+    """The closed loop: MPC and control rates, when plans apply (`delay_mode`, `delay_ms` for a fixed delay),
+    the joint PD, measurement noise, the fall criterion."""
+
+    mpc_rate_hz: float = MPC_RATE_HZ
     control_rate_hz: float = 500.0
-    delay: str = "none"  # "none" | "measured" | "realtime" | a number of milliseconds
+    delay_mode: str = "none"  # control/delay.py: DELAY_MODES
+    delay_ms: float | None = None  # the fixed delay of delay_mode "fixed" (given alone, it implies it)
     gains: PdGains = field(default_factory=PdGains)
     joint_position_noise_rad: float = 0.0
     joint_velocity_noise_rad_s: float = 0.0
@@ -48,26 +52,13 @@ class LoopConfig:
     def __post_init__(self):
         if not (self.mpc_rate_hz > 0 and self.control_rate_hz > 0):
             raise ConfigError("MPC and control rates must be positive")
-        self.fixed_delay_s  # validates the delay
+        if self.delay_ms is not None and self.delay_mode == "none":
+            object.__setattr__(self, "delay_mode", "fixed")
+        check_delay(self.delay_mode, self.delay_ms)
 
     @property
     def fixed_delay_s(self) -> float | None:
-        return fixed_delay_s(self.delay)
-
-
-MAX_FIXED_DELAY_MS = 1000.0
-
-
-def fixed_delay_s(delay: str) -> float | None:
-    """The delay in seconds for a number of ms, None for the named modes; refuses anything else."""
-    if delay in DELAY_MODES:
-        return None
-    try:
-        value = float(delay)
-    except (TypeError, ValueError):
-        raise ConfigError.for_field("delay", f"must be none, measured, measured-wall, realtime or a number of ms; got '{delay}'") from None
-    check_number("delay", value, low=0.0, high=MAX_FIXED_DELAY_MS, unit="ms")
-    return value / 1e3
+        return self.delay_ms / 1e3 if self.delay_mode == "fixed" else None
 
 
 class CommandSource(Protocol):
@@ -144,14 +135,14 @@ class ClosedLoop:
             raise ConfigError(f"duration must be positive, got {duration_s}")
         commands = commands or (lambda t, q, v: Commands())
         events = sorted(events or [], key=lambda e: e.time_s)
-        if self.config.delay == "realtime":
+        if self.config.delay_mode == "realtime":
             return self._run_realtime(duration_s, commands, events, progress, stop)
         return self._run_simulated_time(duration_s, commands, events, progress, stop)
 
     def _expected_delay_s(self, log: RunLog) -> float:
         """The delay the next plan will see (for `MpcConfig.delay_compensation`): the fixed one, else the
         running mean of the measured ones (0 before any)."""
-        if self.config.delay == "none":
+        if self.config.delay_mode == "none":
             return 0.0
         fixed = self.config.fixed_delay_s
         return fixed if fixed is not None else self._delay_mean_s
@@ -181,7 +172,9 @@ class ClosedLoop:
             log.record_solver_details(solution.stats.details)
 
     def _new_log(self) -> RunLog:
-        return RunLog(self.log_dir, self.log_chunk_rows)
+        log = RunLog(self.log_dir, self.log_chunk_rows)
+        log.mpc_rate_hz = self.config.mpc_rate_hz
+        return log
 
     def _control_tick(self, log: RunLog, active: Solution, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The torques of this tick and the plant's true configuration (logged)."""
@@ -236,9 +229,9 @@ class ClosedLoop:
             self._apply_events(events, t, log)
             if t >= next_mpc - 1e-9 and t >= solver_free_at - 1e-9:
                 solution = self._solve(log, t, commands)
-                delay = 0.0 if cfg.delay == "none" else (
-                    solution.cpu_time_s if cfg.delay == "measured" else
-                    solution.wall_time_s if cfg.delay == "measured-wall" else cfg.fixed_delay_s)
+                delay = 0.0 if cfg.delay_mode == "none" else (
+                    solution.cpu_time_s if cfg.delay_mode == "measured" else
+                    solution.wall_time_s if cfg.delay_mode == "measured-wall" else cfg.fixed_delay_s)
                 solver_free_at = t + delay
                 self._note_delay(delay)
                 if delay > mpc_period:

@@ -10,6 +10,7 @@ from `Recovery`; the settings from `MpcConfig` (control/config.py).
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, replace
 
 import casadi as ca
@@ -49,7 +50,7 @@ class _StepData:
 
 
 class MPC:
-    """Whole-body MPC on a robot: `solve(q, v, commands, t)` returns the optimal `Solution`."""
+    """Whole-body MPC on a robot: `solve(q, v, commands, t_s)` returns the optimal `Solution`."""
 
     def __init__(self, robot: RobotModel, config: MpcConfig = MpcConfig(), problem: OcpProblem | None = None,
                  solver: NlpSolver | None = None):
@@ -114,10 +115,10 @@ class MPC:
         from it and, if it fails, holds it shifted in time."""
         self._previous = solution
 
-    def enter_push_recovery(self, until_t: float = np.inf) -> None:
-        """Push recovery mode (soft rows, relaxed rows, the push cadence) until `until_t`, as the push
+    def enter_push_recovery(self, until_t_s: float = np.inf) -> None:
+        """Push recovery mode (soft rows, relaxed rows, the push cadence) until `until_t_s`, as the push
         detector sets it after a kick."""
-        self.push_mode.enter(until_t)
+        self.push_mode.enter(until_t_s)
 
     def prepare_fallback(self) -> None:
         """Build the recovery solvers now (`Recovery.prepare`): before the clock runs, not at the first failed step."""
@@ -220,22 +221,26 @@ class MPC:
             forces[:, 3 * n_feet : 3 * n_feet + 3] = on_robot
         return forces
 
-    def schedule(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Node times, contact flags and swing v_z references of the horizon starting at t."""
+    def schedule(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Node times, contact flags and swing v_z references of the horizon starting at `t_s`."""
         node_times = self.problem.config.grid.node_times_s
-        times = t + node_times
+        times = t_s + node_times
         contact = self.gait.contact(times)
         progress = self.gait.swing_phase(times)
         swing_vz = self.config.swing.vertical_velocity(progress, self.gait.swing_duration_s)
         return node_times, contact, swing_vz
 
     # ------------------------------------------------------------------ solve
-    def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0,
-              delay_s: float = 0.0, budget_s: float | None = None) -> Solution:
-        """The plan from the state (q, v) measured at t. `delay_s`: when the plan will reach the robot, after t;
-        with `MpcConfig.delay_compensation` the plan starts there (state rolled forward, `Solution.t_s` = t +
-        delay_s). `budget_s`: this step's time budget (overrides `MpcConfig.step_budget_s`) for a solver
-        with a deadline."""
+    def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t_s: float = 0.0,
+              delay_s: float = 0.0, budget_s: float | None = None, *, t: float | None = None) -> Solution:
+        """The plan from the state (q, v) measured at `t_s`. `delay_s`: when the plan will reach the robot, after
+        t_s; with `MpcConfig.delay_compensation` the plan starts there (state rolled forward, `Solution.t_s` =
+        t_s + delay_s). `budget_s`: this step's time budget (overrides `MpcConfig.step_budget_s`) for a solver
+        with a deadline. (`t`: the name of `t_s` before, deprecated.)"""
+        if t is not None:
+            warnings.warn("MPC.solve(..., t=...) is deprecated; use t_s", DeprecationWarning, stacklevel=2)
+            t_s = t
+        t = t_s
         start = time.perf_counter()
         clock = getattr(self.solver, "clock", None)
         clock_start = clock() if clock is not None else None
@@ -340,7 +345,7 @@ class MPC:
         """Rows dropped this step: `PushConfig.relaxed_rows` in push recovery mode, the arm's velocity rows
         while the hands are free (`ReferenceConfig.free_ee_without_command`)."""
         rows = self.config.push.relaxed_rows if after_push else ()
-        if self.references.hands_free(commands):
+        if self.references.ee_free(commands):
             rows = tuple(dict.fromkeys((*rows, "ee_vel")))
         return rows
 

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig, PushConfig, RecoveryConfig
-from wbmpc.control.loop import LoopConfig, fixed_delay_s
+from wbmpc.control.delay import DELAY_MODES, MAX_FIXED_DELAY_MS, check_delay
+from wbmpc.control.loop import MPC_RATE_HZ
 from wbmpc.control.tuning import RobotTuning, tuning_for
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, unknown_name
@@ -28,14 +29,14 @@ from wbmpc.robots import RobotModel
 from wbmpc.robots.collision_model import CollisionConfig
 from wbmpc.solvers.nlp import SOLVERS, SolverConfig
 
-DELAYED_RECOVERY_LIMIT_S = 0.05  # four MPC periods at 80 Hz
+DELAYED_RECOVERY_PERIODS = 4  # a failed step's recovery budget with a delay, in MPC periods (0.05 s at 80 Hz)
 RECOVERY_ITERATIONS_DELAYED = 10  # the RTI's Fatrop re-solve of a failed QP, when the plant does not wait (~50 ms)
 # a warm-started step converges in ~4 iterations; one still unsolved after 30 has stalled (pushes) and goes to
 # the bounded recovery instead of burning 100
 MAX_ITERATIONS = 30
 # the anytime SQP's step budget without --step-budget: the MPC period less the transport and the loop's own work
 # in real time, the same budget on CPU time with a simulated delay (the plant waits, the plan still applies
-# --delay ms late), on wall time without delay
+# --delay-ms late), on wall time without delay
 REALTIME_OVERHEAD_S = 2.5e-3
 # rows a solver with a deadline drops in push recovery mode (PushConfig.relaxed_rows): the arm's velocity rows of
 # eq. (7) pin the hand in the world while the base flies off and make the post-push QPs infeasible (HPIPM runs
@@ -50,8 +51,8 @@ class TaskNeeds:
     """What a task asks of the MPC (a scenario's `needs`, a deployment's)."""
 
     gait: str = "trot"
-    holds_hand: bool = False  # the hand's velocity or force is commanded (the robot's hand-held tuning)
-    sweeps_hand: bool = False  # the hand sweeps the workspace (collision avoidance on by default with an arm)
+    commands_ee: bool = False  # the hand's velocity or force is commanded (the robot's hand-held tuning)
+    sweeps_ee: bool = False  # the hand sweeps the workspace (collision avoidance on by default with an arm)
     obstacles: tuple = ()  # boxes fixed in the world that collision avoidance keeps the robot off
     object_model: object | None = None  # the manipulated object inside the OCP (`wbmpc.ocp.objects`), or None
     # the task's cost weights given the robot's (None: the robot's)
@@ -67,16 +68,22 @@ class MpcChoices:
     fields of the same names, `wbmpc deploy`'s, campaign cases'. `solver` "auto" (the CLI's) or None (the Python
     API's) is resolved here (`default_solver`); `collision_avoidance` None by `for_robot`."""
 
-    delay: str = option("none", flag="--delay", help="none (the simulation waits for the solver) | measured (the "
-                        "step's CPU time elapses: its time on a core of its own) | measured-wall (its wall time) | "
-                        "realtime (solver in its own process, wall-clock paced) | a fixed delay of 0-1000 ms")
+    delay_mode: str = option("none", flag="--delay-mode", choices=DELAY_MODES, help="when a plan reaches the plant: "
+                             "none (the simulation waits for the solver) | measured (the step's CPU time elapses: its "
+                             "time on a core of its own) | measured-wall (its wall time) | fixed (--delay-ms) | "
+                             "realtime (solver in its own process, wall-clock paced)")
+    delay_ms: float | None = option(None, flag="--delay-ms", metavar="MS", low=0.0, high=MAX_FIXED_DELAY_MS, unit="ms",
+                                    help="a fixed delay of the plans (implies --delay-mode fixed)")
+    mpc_rate_hz: float = option(MPC_RATE_HZ, flag="--mpc-rate", metavar="HZ", low=0.0, high=1000.0, low_open=True,
+                                unit="Hz", help="MPC steps per second (the anytime SQP's default step budget is its "
+                                "period less the transport)")
     nodes: int = option(15, flag="--nodes", help="horizon nodes", integer=True, low=2, high=MAX_INTERVALS + 1,
                         default_text="15 = the paper's")
     uniform_dt_ms: float | None = option(None, flag="--uniform-dt", metavar="MS", help="uniform time steps of MS ms "
                                          "instead of the geometric 10-100 ms grid", low=0.0, high=1e3 * MAX_STEP_S,
                                          low_open=True, unit="ms")
     solver: str | None = option(None, flag="--solver", cli_default="auto", help="auto (fatrop-direct for --compiled "
-                                "runs without --delay, else sqp), fatrop (converged), fatrop-direct (the same Fatrop "
+                                "runs with --delay-mode none, else sqp), fatrop (converged), fatrop-direct (the same Fatrop "
                                 "through its C interface, always compiled), ipopt, rti (one SQP iteration per step on "
                                 "HPIPM's QP) or sqp (anytime SQP: iterations with a line search until converged or the "
                                 "step's deadline)")
@@ -109,12 +116,12 @@ class MpcChoices:
     delay_compensation: bool | None = option(
         None, flag="--delay-compensation", choices=("on", "off"), parse=lambda text: text == "on",
         help="plan from the state predicted for when the plan applies (the measurement rolled forward over the "
-        "expected delay with the last plan)", default_text="on with any --delay but none; off on flat feet")
+        "expected delay with the last plan)", default_text="on with any delay mode but none; off on flat feet")
     # MpcConfig.step_budget_s of the anytime solver; None: `step_budget_s`
     step_budget_ms: float | None = option(
         None, flag="--step-budget", metavar="MS", low=0.0, high=1e4, low_open=True, unit="ms",
-        help="sqp: the MPC step's time budget", default_text="the 12.5 ms period less 2.5 ms of transport with a "
-        "delay, on CPU time unless --delay realtime; none without delay")
+        help="sqp: the MPC step's time budget", default_text="the MPC period (12.5 ms at 80 Hz) less 2.5 ms of "
+        "transport, on CPU time with a simulated delay")
     identify_mass: bool = option(False, flag="--identify-mass", help="estimate the base CoM offset and a payload at "
                                  "the hand online from the measured motion and torques and plan with them (NLP "
                                  "parameters); reports base_com_offset_estimate_m and payload_estimate_kg")
@@ -128,18 +135,20 @@ class MpcChoices:
     def __post_init__(self):
         """Ranges and the choices' consistency, checked before anything is built (errors name the field)."""
         check_fields(self)
-        fixed_delay_s(self.delay)
+        if self.delay_ms is not None and self.delay_mode == "none":
+            self.delay_mode = "fixed"
+        check_delay(self.delay_mode, self.delay_ms)
         if self.solver in ("auto", None):
             self.auto_solver = self.solver == "auto"
-            self.solver = default_solver(self.compiled, self.delay, bool(self.collision_avoidance), self.object_model,
-                                         api=self.solver is None)
+            self.solver = default_solver(self.compiled, self.delay_mode, bool(self.collision_avoidance),
+                                         self.object_model, api=self.solver is None)
         if self.formulation not in FORMULATIONS:
             raise ConfigError(unknown_name("formulation", self.formulation, FORMULATIONS))
         if self.solver not in SOLVERS:
             raise ConfigError(unknown_name("solver", self.solver, SOLVERS))
-        if self.push_gait_period_scale not in (None, 1.0) and self.estimated_state and self.delay == "realtime":
+        if self.push_gait_period_scale not in (None, 1.0) and self.estimated_state and self.delay_mode == "realtime":
             raise ConfigError("a faster step cadence after a push (--push-cadence) changes the MPC's gait clock in the "
-                              "solver process, which the estimator of --state estimated --delay realtime cannot "
+                              "solver process, which the estimator of --state estimated --delay-mode realtime cannot "
                               "see: leave --push-cadence out (that run keeps the fixed schedule) or set it to 1")
         if self.solver_options and self.solver not in ("rti", "sqp"):
             raise ConfigError(f"--solver-option sets the rti/sqp solvers' settings; the {self.solver} solver has none "
@@ -149,20 +158,20 @@ class MpcChoices:
             from wbmpc.solvers.rti import RtiConfig
 
             (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
-        if self.identify_mass and (self.delay == "realtime" or not self.formulation.startswith("wb_")):
+        if self.identify_mass and (self.delay_mode == "realtime" or not self.formulation.startswith("wb_")):
             raise ConfigError(IDENTIFY_MASS_NEEDS)
 
-    def for_robot(self, robot: RobotModel, sweeps_hand: bool) -> MpcChoices:
+    def for_robot(self, robot: RobotModel, sweeps_ee: bool) -> MpcChoices:
         """These choices on `robot` for a task that sweeps its hand or not: collision avoidance decided where left
         open (`collision_avoidance_default`) and an automatic solver chosen again with it."""
         if self.collision_avoidance is not None:
             return self
-        on = collision_avoidance_default(sweeps_hand, robot)
+        on = collision_avoidance_default(sweeps_ee, robot)
         return dataclasses.replace(self, collision_avoidance=on, solver="auto" if self.auto_solver else self.solver)
 
 
 IDENTIFY_MASS_NEEDS = ("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of the MPC "
-                       "in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
+                       "in this process: use --plant mujoco, a wb_* --formulation and no --delay-mode realtime")
 
 
 def parse_solver_options(items: list[str] | None) -> dict:
@@ -193,11 +202,11 @@ def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -
     """The complete MPC configuration of a task on `robot` (None: the paper robot's tuning, no obstacles nor
     object) with the user's `choices` (module docstring)."""
     if robot is not None:
-        choices = choices.for_robot(robot, task.sweeps_hand)
+        choices = choices.for_robot(robot, task.sweeps_ee)
     n = choices.nodes - 1
     grid = (TimeGrid.uniform_steps(n, choices.uniform_dt_ms / 1e3) if choices.uniform_dt_ms is not None
             else TimeGrid(n_intervals=n))
-    tuning = (tuning_for(robot) if robot is not None else RobotTuning()).for_task(task.holds_hand)
+    tuning = (tuning_for(robot) if robot is not None else RobotTuning()).for_task(task.commands_ee)
     collision = (CollisionConfig(margin_m=choices.collision_margin_m,
                                  obstacles=tuple(task.obstacles) if robot is not None else ())
                  if choices.collision_avoidance else None)
@@ -219,7 +228,7 @@ def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -
         step_budget_s=step_budget_s(choices), soft_rows_always=soft_arm)
 
 
-def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False, object_model: bool = False,
+def default_solver(compiled: bool, delay_mode: str, collision_avoidance: bool = False, object_model: bool = False,
                    api: bool = False) -> str:
     """The one place that picks a solver where none was named. `api`: the Python API's default (`solver=None`):
     casadi's Fatrop, but the anytime SQP with an object model or collision avoidance, as for `--solver auto`.
@@ -236,24 +245,24 @@ def default_solver(compiled: bool, delay: str, collision_avoidance: bool = False
         return "sqp"
     if api:
         return "fatrop"
-    return "fatrop-direct" if compiled and delay == "none" else "sqp"
+    return "fatrop-direct" if compiled and delay_mode == "none" else "sqp"
 
 
-def collision_avoidance_default(sweeps_hand: bool, robot: RobotModel) -> bool:
+def collision_avoidance_default(sweeps_ee: bool, robot: RobotModel) -> bool:
     """Collision avoidance where the user left it open: on for tasks that sweep the hand through the workspace
     on a legged base carrying an arm (the paper's arm-track path brings the Z1's wrist onto its shoulder housing
     in MuJoCo); a humanoid's hand (flat feet) keeps it off (its arm-track measured without contacts)."""
-    return sweeps_hand and robot.arm_ee is not None and not robot.soles
+    return sweeps_ee and robot.arm_ee is not None and not robot.soles
 
 
 def delay_compensation_default(choices: MpcChoices, flat_feet: bool) -> bool:
-    """Delay compensation where the user left it open: with any --delay but none, on point feet only.
+    """Delay compensation where the user left it open: with any delay mode but none, on point feet only.
 
     On g1 (flat feet, free hands) the plan started from the state rolled forward with the last plan's
     accelerations set the arms oscillating at the MPC's own period once the plans came 12 ms or more after their
     measurement; the QPs then failed and the robot fell (RTI walking in place at fixed delays of 12-16 ms). Without
     it the same runs stay up with no failed step. Quadrupeds keep it."""
-    return choices.delay != "none" and not flat_feet
+    return choices.delay_mode != "none" and not flat_feet
 
 
 def hold_on_failure(choices: MpcChoices, flat_feet: bool) -> bool:
@@ -261,7 +270,7 @@ def hold_on_failure(choices: MpcChoices, flat_feet: bool) -> bool:
     on flat feet with a plant that does not wait. g1's failed QPs come where the state has left the plan
     (infeasible from there), not on a degenerate QP a converged solver would get through, and its capped Fatrop
     re-solve takes ~200 ms while the plan goes stale."""
-    return flat_feet and choices.solver in ("rti", "sqp") and choices.delay != "none"
+    return flat_feet and choices.solver in ("rti", "sqp") and choices.delay_mode != "none"
 
 
 def solver_options(choices: MpcChoices, flat_feet: bool = False) -> dict:
@@ -269,25 +278,25 @@ def solver_options(choices: MpcChoices, flat_feet: bool = False) -> dict:
     failed QP (none on flat feet, nor a re-solve in HPIPM's balance mode: `hold_on_failure`); the anytime SQP
     measures its budget on CPU time where the plant waits for it."""
     options = {}
-    if choices.solver in ("rti", "sqp") and choices.delay != "none":
+    if choices.solver in ("rti", "sqp") and choices.delay_mode != "none":
         options["recovery_max_iterations"] = RECOVERY_ITERATIONS_DELAYED
     if hold_on_failure(choices, flat_feet):
         options.update(recovery_barrier_init=None, fallback_qp_mode=None)
-    if choices.solver == "sqp" and choices.delay not in ("realtime", "none", "measured-wall"):
+    if choices.solver == "sqp" and choices.delay_mode not in ("realtime", "none", "measured-wall"):
         options["clock"] = "cpu"  # what the step would take on a core of its own, whatever else the machine runs
     return {**options, **choices.solver_options}
 
 
 def recovery_config(choices: MpcChoices, flat_feet: bool) -> RecoveryConfig:
     """Failed steps: with a delay the plant does not wait, so a long recovery leaves the robot on a stale plan:
-    it is cut shorter (DELAYED_RECOVERY_LIMIT_S) and the last good plan, shifted in time, is held instead. The
+    it is cut shorter (DELAYED_RECOVERY_PERIODS) and the last good plan, shifted in time, is held instead. The
     anytime SQP continues from its own best iterate: no converged solver first after a rescue (an uncompiled
     IPOPT step takes 100+ ms)."""
     default = RecoveryConfig()
     return RecoveryConfig(
         fallback_first_s=0.0 if choices.solver == "sqp" else default.fallback_first_s,
         fallback_solver=None if hold_on_failure(choices, flat_feet) else default.fallback_solver,
-        time_limit_s=default.time_limit_s if choices.delay == "none" else DELAYED_RECOVERY_LIMIT_S)
+        budget_s=default.budget_s if choices.delay_mode == "none" else DELAYED_RECOVERY_PERIODS / choices.mpc_rate_hz)
 
 
 def step_budget_s(choices: MpcChoices) -> float | None:
@@ -296,7 +305,7 @@ def step_budget_s(choices: MpcChoices) -> float | None:
         return choices.step_budget_ms / 1e3
     if choices.solver != "sqp":
         return None
-    return 1.0 / LoopConfig.mpc_rate_hz - REALTIME_OVERHEAD_S
+    return 1.0 / choices.mpc_rate_hz - REALTIME_OVERHEAD_S
 
 
 def push_cadence(choices: MpcChoices) -> float | None:
@@ -304,7 +313,7 @@ def push_cadence(choices: MpcChoices) -> float | None:
     and the anytime SQP, the fixed schedule with RTI (one SQP step per MPC step: b1_z1's 0.8 m/s push falls with
     the faster steps and stays up without), and the fixed schedule where the estimator cannot see the MPC's clock
     (a solver process in real time). None: the fixed schedule."""
-    if choices.estimated_state and choices.delay == "realtime":
+    if choices.estimated_state and choices.delay_mode == "realtime":
         return None
     scale = choices.push_gait_period_scale
     if scale is None:

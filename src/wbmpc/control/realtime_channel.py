@@ -1,4 +1,4 @@
-"""Shared-memory channel between the real-time simulation and its MPC process (`--delay realtime`).
+"""Shared-memory channel between the real-time simulation and its MPC process (`--delay-mode realtime`).
 
 Each MPC step moves a request (measured q, v, the command, t, the expected delay and the step budget)
 one way and a plan (the `Solution` arrays and its solver statistics) the other. Through a pipe that

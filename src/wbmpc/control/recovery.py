@@ -4,7 +4,7 @@ The ladder: for a hard step with soft rows, the same solver with their slacks fr
 from a larger barrier parameter (it copes with degenerate problems right after pushes where the
 warm-started small barrier stalls); then the fallback solver (IPOPT's regularised factorisation). Each
 attempt is capped in iterations and no attempt starts once the step's solves have spent
-`RecoveryConfig.time_limit_s` of CPU time, unless there is no plan to hold yet.
+`RecoveryConfig.budget_s` of CPU time, unless there is no plan to hold yet.
 """
 
 from __future__ import annotations
@@ -39,14 +39,14 @@ class Recovery:
         self._fallback: NlpSolver | None = None
         self._fallback_cold: NlpSolver | None = None
         self._fatrop: NlpSolver | None = None
-        self.fallback_until_t: float | None = None  # the fallback solver is tried first until this time
+        self.fallback_until_t_s: float | None = None  # the fallback solver is tried first until this time
 
     def reset(self) -> None:
-        self.fallback_until_t = None
+        self.fallback_until_t_s = None
 
-    def fallback_first(self, t: float) -> bool:
-        """Whether the step at t goes to the fallback solver first (`fallback_first_s` after its last rescue)."""
-        return self.fallback_until_t is not None and t < self.fallback_until_t and bool(self.config.fallback_solver)
+    def fallback_first(self, t_s: float) -> bool:
+        """Whether the step at `t_s` goes to the fallback solver first (`fallback_first_s` after its last rescue)."""
+        return self.fallback_until_t_s is not None and t_s < self.fallback_until_t_s and bool(self.config.fallback_solver)
 
     def prepare(self) -> None:
         """Build the recovery solvers now (they are otherwise built at the first failed step, which then
@@ -73,7 +73,7 @@ class Recovery:
             solver = NlpSolver(self.problem, SolverConfig(
                 name=cfg.fallback_solver,
                 max_iterations=max(cfg.fallback_max_iterations, COLD_FALLBACK_ITERATIONS) if cold else cfg.fallback_max_iterations,
-                time_limit_s=None if cold else cfg.time_limit_s, compiled=self.solver.is_compiled,
+                time_limit_s=None if cold else cfg.budget_s, compiled=self.solver.is_compiled,
                 codegen=self.solver.config.codegen,
                 extra_options={"ipopt": dict(IPOPT_FALLBACK_OPTIONS)} if cfg.fallback_solver == "ipopt" else {}))
             if cold:
@@ -91,9 +91,9 @@ class Recovery:
                                                  warm_barrier_init=None)
         return self._fatrop
 
-    def recover(self, failed, p, bounds, x0, t: float, has_plan: bool, fallback_tried: bool = False,
+    def recover(self, failed, p, bounds, x0, t_s: float, has_plan: bool, fallback_tried: bool = False,
                 soft_bounds=None) -> Rescue:
-        """Re-solve the failed step at t (module docstring). `has_plan`: a last good plan exists to hold (the
+        """Re-solve the failed step at `t_s` (module docstring). `has_plan`: a last good plan exists to hold (the
         budget applies); `fallback_tried`: the fallback solver already failed this step; `soft_bounds`: the
         step's bounds with the soft rows' slacks free (a hard step with soft rows). A rescue by the fallback
         makes it the first choice for `fallback_first_s`."""
@@ -103,7 +103,7 @@ class Recovery:
         wall_s = failed.stats.solve_time_s
 
         def budget_left() -> bool:
-            return cfg.time_limit_s is None or not has_plan or spent_s < cfg.time_limit_s
+            return cfg.budget_s is None or not has_plan or spent_s < cfg.budget_s
 
         def attempt(solver, bounds_now, label: str):
             nonlocal spent_s, iterations, wall_s
@@ -122,7 +122,7 @@ class Recovery:
         if not result.stats.success and cfg.fallback_solver and not fallback_tried and budget_left():
             result = attempt(self.fallback_solver(cold=not has_plan), bounds, cfg.fallback_solver)
             if result.stats.success and cfg.fallback_first_s > 0:
-                self.fallback_until_t = t + cfg.fallback_first_s
+                self.fallback_until_t_s = t_s + cfg.fallback_first_s
         if len(attempts) > 1:
             result.stats.status = f"{attempts[-1]} (recovery after {'; '.join(attempts[:-1])})"
         result.stats.solve_time_s, result.stats.cpu_time_s, result.stats.iterations = wall_s, spent_s, iterations

@@ -35,24 +35,24 @@ class References:
         # run started; "velocity": the measured base of the last step), world x/y and yaw; None before a step
         self.anchor_xy_m: np.ndarray | None = None
         self.anchor_yaw_rad: float | None = None
-        self.last_t: float | None = None  # time of the last step's targets
+        self.last_t_s: float | None = None  # time of the last step's targets
 
     def reset(self) -> None:
         self.anchor_xy_m = None
         self.anchor_yaw_rad = None
-        self.last_t = None
+        self.last_t_s = None
 
-    def hands_free(self, commands: Commands) -> bool:
+    def ee_free(self, commands: Commands) -> bool:
         """The end-effector's velocity rows are dropped this step (`free_ee_without_command`, no command)."""
         return bool(self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None)
 
-    def targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t: float, node_times: np.ndarray):
+    def targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float, node_times: np.ndarray):
         """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the
         commanded base velocity in world coordinates."""
         robot = self.robot
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
-        dt_since = 0.0 if self.last_t is None else max(0.0, t - self.last_t)
-        self.last_t = t
+        dt_since = 0.0 if self.last_t_s is None else max(0.0, t_s - self.last_t_s)
+        self.last_t_s = t_s
         velocity_only = self.config.base_tracking == "velocity"
         if self.anchor_xy_m is None or velocity_only:
             self.anchor_xy_m, self.anchor_yaw_rad = q[:2].copy(), yaw
@@ -68,7 +68,7 @@ class References:
         targets = np.tile(robot.q_nominal, (len(node_times), 1))
         if self._stance_reference is not None:
             targets[:, 7:] += self._stance_reference.joint_offsets(
-                self.gait, t + node_times, np.asarray(commands.base_velocity_m_s, dtype=float),
+                self.gait, t_s + node_times, np.asarray(commands.base_velocity_m_s, dtype=float),
                 commands.base_yaw_rate_rad_s)
         targets[:, :2] = self.anchor_xy_m + np.outer(node_times, v_world[:2])
         if commands.base_height_m is not None:
@@ -82,17 +82,17 @@ class References:
         return dq_des, v_des, v_world
 
     def sway(self, commands: Commands) -> float:
-        """The share of the lean over the stance feet this step (`support_sway`, `support_sway_free_hands`)."""
-        if self.config.support_sway_free_hands is not None and self.hands_free(commands):
-            return self.config.support_sway_free_hands
+        """The share of the lean over the stance feet this step (`support_sway`, `support_sway_free_ee`)."""
+        if self.config.support_sway_free_ee is not None and self.ee_free(commands):
+            return self.config.support_sway_free_ee
         return self.config.support_sway
 
-    def sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, t: float,
+    def sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, t_s: float,
                              node_times: np.ndarray, sway: float) -> np.ndarray:
         """Base xy targets moved by `sway` x (centre of each node's stance feet `support_lead_s` later - centre
         of all feet): a biped's pelvis leans over the foot it will stand on, so the plan shifts its weight in
         double support instead of lifting a foot with the CoM between the feet (measured foot positions)."""
-        contact = self.gait.contact(t + node_times + self.config.support_lead_s)
+        contact = self.gait.contact(t_s + node_times + self.config.support_lead_s)
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         feet = np.array([self._data.oMf[i].translation[:2] for i in self._foot_ids])
         stance = contact / np.maximum(contact.sum(axis=1, keepdims=True), 1)
@@ -101,11 +101,11 @@ class References:
         dq_des[:3] += rot.T[:, :2] @ shift.T
         return dq_des
 
-    def swing_velocities(self, q, v, rot, t, node_times, command_world) -> np.ndarray | None:
+    def swing_velocities(self, q, v, rot, t_s, node_times, command_world) -> np.ndarray | None:
         """Swing feet's xy velocity references to their landing points (`SwingPlacement`), or None."""
         if self._swing_placement is None:
             return None
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
-        return self._swing_placement.velocities(self.gait, t, node_times, q, rot @ v[:3], command_world, yaw, feet)
+        return self._swing_placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world, yaw, feet)

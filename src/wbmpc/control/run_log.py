@@ -54,6 +54,7 @@ class RunLog:
         self.fell = False
         self.fell_at_s: float | None = None
         self.wall_time_s = 0.0
+        self.mpc_rate_hz: float | None = None  # the loop's configured MPC rate (`LoopConfig.mpc_rate_hz`)
 
     # ------------------------------------------------------------------ writing
     def record_tick(self, t: float, q, v, tau, tau_ff, q_des, contact_forces) -> None:

@@ -1,4 +1,4 @@
-"""The MPC in its own process: what `wbmpc run --delay realtime` and `wbmpc deploy` both solve with.
+"""The MPC in its own process: what `wbmpc run --delay-mode realtime` and `wbmpc deploy` both solve with.
 
 A process, not a thread: the 500 Hz loop beside it is Python and would starve a solver thread of the
 GIL. `SolverProcess` starts `mpc_worker` (spawned, single-threaded BLAS, pinned to its own cores and

@@ -114,8 +114,11 @@ ACCELERATION = 0.1  # acceleration regularisation factor over the paper's 1e-2 (
 # RobotTuning's settings of push recovery mode (PushConfig field by tuning name) and of the targets (ReferenceConfig)
 TUNED_PUSH = {"push_velocity_error_m_s": "velocity_error_m_s", "push_hold_s": "hold_s",
               "push_cadence_hold_s": "cadence_hold_s"}
-TUNED_REFERENCES = ("support_sway", "support_lead_s", "support_sway_free_hands", "free_ee_without_command",
+TUNED_REFERENCES = ("support_sway", "support_lead_s", "support_sway_free_ee", "free_ee_without_command",
                     "swing_placement")
+# settings renamed (old report name -> new): the report carries both for one release
+RENAMED_SETTINGS = {"support_sway_free_hands": "support_sway_free_ee",
+                    "base_linear_velocity_hand_held": "base_linear_velocity_ee_commanded"}
 CONTROL_PERIOD_S = 1 / 500  # the joint PD's tick (`LoopConfig.control_rate_hz`, section V-B)
 DAMPER_STABILITY = 1.5  # largest Kd dt / I of the leg damper: |1 - Kd dt / I| <= 0.5 (`_leg_damping`)
 
@@ -133,11 +136,11 @@ class RobotTuning:
     push_cadence_hold_s: float = PushConfig.cadence_hold_s
     support_sway: float = ReferenceConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
     support_lead_s: float = ReferenceConfig.support_lead_s
-    support_sway_free_hands: float | None = ReferenceConfig.support_sway_free_hands
+    support_sway_free_ee: float | None = ReferenceConfig.support_sway_free_ee
     free_ee_without_command: bool = ReferenceConfig.free_ee_without_command
     swing_placement: bool = ReferenceConfig.swing_placement  # bipeds: swing feet carried to a landing point
     # the base's linear velocity weight in tasks that hold a hand (`for_task`; g1's table); None: weights' own
-    base_linear_velocity_hand_held: float | None = None
+    base_linear_velocity_ee_commanded: float | None = None
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
@@ -163,14 +166,14 @@ class RobotTuning:
             **{name: getattr(config.push, key) for name, key in TUNED_PUSH.items()},
             **{name: getattr(config.references, name) for name in TUNED_REFERENCES})
 
-    def for_task(self, holds_hand: bool) -> RobotTuning:
+    def for_task(self, commands_ee: bool) -> RobotTuning:
         """The settings of a task that holds a hand (its velocity or force commanded: arm-track, pull, ...) or
-        not: with a hand held the base velocity weight is `base_linear_velocity_hand_held` if set (g1's table)."""
-        if not holds_hand or self.base_linear_velocity_hand_held is None:
+        not: with a hand held the base velocity weight is `base_linear_velocity_ee_commanded` if set (g1's table)."""
+        if not commands_ee or self.base_linear_velocity_ee_commanded is None:
             return self
-        weights = dataclasses.replace(self.weights, base_linear_velocity=self.base_linear_velocity_hand_held)
+        weights = dataclasses.replace(self.weights, base_linear_velocity=self.base_linear_velocity_ee_commanded)
         return dataclasses.replace(self, weights=weights, sources={
-            **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_hand_held", "default")})
+            **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_ee_commanded", "default")})
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -182,10 +185,12 @@ class RobotTuning:
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
+                "support_lead_s": self.support_lead_s, "support_sway_free_ee": self.support_sway_free_ee,
                 "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
-                "base_linear_velocity_hand_held": self.base_linear_velocity_hand_held}
+                "base_linear_velocity_ee_commanded": self.base_linear_velocity_ee_commanded}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
+        for old_name, name in RENAMED_SETTINGS.items():  # the names of before, one release (CHANGELOG.md)
+            out[old_name] = out[name]
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
         return out
@@ -268,12 +273,12 @@ TUNINGS: dict[str, dict] = {
     # g1 walking forward at 0.3 m/s (compiled Fatrop, 10 s, delay none): with the biped rules the base velocity's
     # per-tick error after the start was 0.175 m/s RMS, 0.163 of it across the heading (the sway from one sole to
     # the other), 0.063 along it, for 0.005 per gait cycle. With the hands free the lean over the next stance foot
-    # is not needed (the placed swing foot does the work) and only adds sway: support_sway_free_hands 0 gives 0.134
+    # is not needed (the placed swing foot does the work) and only adds sway: support_sway_free_ee 0 gives 0.134
     # m/s (0.110 across, 0.077 along; 0.004 per cycle), 2 failed steps of 800, both recovered (arm-track
     # while walking, a hand held, keeps it: without it, at a 0.62 s period, it fell at 5.8 s of 10). Quicker steps
     # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
     # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
-    # as delay (--delay measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
+    # as delay (--delay-mode measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
     # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz.
     # Then the base's linear velocity weight 1000 (the biped rule's 5, the size-derived 44): the pelvis carries the
     # commanded velocity and the hips and trunk take up the sway from one sole to the other (the CoM still sways, as
@@ -287,7 +292,7 @@ TUNINGS: dict[str, dict] = {
     # at 5 / 300 / 1000 (hand RMSE 0.35 / 0.33 / 0.32 cm; 46 at 1000 without the lean), pull's 5 kg load moved
     # 0.780 of 0.880 m at 1000 (0.854 at 5). Not a biped rule: TALOS walking forward at 0.3 m/s fell at 1.6 s at
     # 1000 and 2.1 s at 300 (up over 4 s at 5)
-    "g1": {"support_sway_free_hands": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_hand_held": 5.0},
+    "g1": {"support_sway_free_ee": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_ee_commanded": 5.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }

@@ -144,11 +144,11 @@ def _arm_settings(args) -> dict:
 
 def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool):
     """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
-    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
+    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`)."""
     from wbmpc.control.policy import MpcChoices, mpc_config
 
     choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
-                         delay="none" if lockstep else "realtime")
+                         delay_mode="none" if lockstep else "realtime")
     return mpc_config(robot, task_needs, choices)
 
 

@@ -179,7 +179,7 @@ class Controller:
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None,
                  solver_process=None):
         """`solver_process(robot, mpc_config)`: the real-time solver process (request/ready/receive/close), by
-        default the one `wbmpc run --delay realtime` solves with (`control/solver_process.py`: pinned to its
+        default the one `wbmpc run --delay-mode realtime` solves with (`control/solver_process.py`: pinned to its
         own core, shared memory); lock-step solves in this process with `mpc` (built here when None)."""
         check_interface(config.network)
         if not config.lockstep and mpc_config.push_gait_period_scale is not None:

@@ -31,7 +31,7 @@ AROUND_ARM_POSTURE_SCALE = 0.05
 
 
 class ArmTrack(Scenario):
-    sweeps_hand = True  # its paths bring the hand near the body (collision avoidance on with an arm)
+    sweeps_ee = True  # its paths bring the hand near the body (collision avoidance on with an arm)
 
     def __init__(self, options: ScenarioOptions):
         super().__init__("arm-track", "trot forward while the end-effector tracks a low/high reference (Fig. 3)",

@@ -123,7 +123,7 @@ class Scenario:
     default_duration_s: float
     needs_arm: bool = False
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
-    sweeps_hand = False  # the hand sweeps the workspace: collision avoidance on by default (control/policy.py)
+    sweeps_ee = False  # the hand sweeps the workspace: collision avoidance on by default (control/policy.py)
 
     def __post_init__(self):
         if self.options.gait is not None:
@@ -131,7 +131,7 @@ class Scenario:
 
     def needs(self, robot: RobotModel | None) -> TaskNeeds:
         """What this task asks of the MPC on `robot` (None: the task as declared, no obstacles nor object)."""
-        return TaskNeeds(gait=self.gait, holds_hand=self.needs_arm, sweeps_hand=self.sweeps_hand,
+        return TaskNeeds(gait=self.gait, commands_ee=self.needs_arm, sweeps_ee=self.sweeps_ee,
                          obstacles=tuple(self.obstacles(robot)) if robot is not None else (),
                          object_model=self.object_model(robot) if self.options.object_model and robot is not None
                          else None, adjust_weights=self.cost_weights)

@@ -44,17 +44,17 @@ class InPlaneIntegral:
     def __init__(self, normal: np.ndarray, gain_1_s2: float):
         self.normal, self.gain = np.asarray(normal, dtype=float), gain_1_s2
         self.value = np.zeros(3)
-        self.last_t: float | None = None
+        self.last_t_s: float | None = None
 
-    def update(self, t: float, error_m: np.ndarray) -> np.ndarray:
-        """Integrate the in-plane part of `error_m` up to time t; the velocity term (m/s)."""
+    def update(self, t_s: float, error_m: np.ndarray) -> np.ndarray:
+        """Integrate the in-plane part of `error_m` up to time `t_s`; the velocity term (m/s)."""
         error = error_m - self.normal * (error_m @ self.normal)
-        if self.last_t is not None and self.gain > 0:
-            self.value = self.value + error * max(t - self.last_t, 0.0)
+        if self.last_t_s is not None and self.gain > 0:
+            self.value = self.value + error * max(t_s - self.last_t_s, 0.0)
             speed = self.gain * np.linalg.norm(self.value)
             if speed > self.MAX_INTEGRAL_SPEED_M_S:
                 self.value *= self.MAX_INTEGRAL_SPEED_M_S / speed
-        self.last_t = t
+        self.last_t_s = t_s
         return self.gain * self.value
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -10,6 +12,7 @@ from typing import Callable
 import numpy as np
 
 from wbmpc.control.config import MpcConfig
+from wbmpc.control.delay import delay_from_text, delay_text
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog
 from wbmpc.control.mpc import MPC
@@ -48,7 +51,9 @@ class RunConfig:
     duration_s: float | None = option(None, flag="--duration", metavar="S", help="simulated seconds", low=0.0,
                                       high=MAX_DURATION_S, low_open=True, unit="s",
                                       default_text="the scenario's, listed below")
-    delay: str = _mpc("delay")
+    delay_mode: str = _mpc("delay_mode")
+    delay_ms: float | None = _mpc("delay_ms")
+    mpc_rate_hz: float = _mpc("mpc_rate_hz")
     plant: str = option("mujoco", flag="--plant", choices=PLANTS,
                         help="simulator: mujoco or pinocchio (rigid contacts, no scene objects)")
     nodes: int = _mpc("nodes")
@@ -84,7 +89,7 @@ class RunConfig:
         """Every range is checked here, before anything is built (errors name the field; the CLI its flag)."""
         check_fields(self)
         choices = self.mpc_choices()  # the MPC options' own checks; an automatic solver chosen
-        self.solver, self.auto_solver = choices.solver, choices.auto_solver
+        self.solver, self.auto_solver, self.delay_mode = choices.solver, choices.auto_solver, choices.delay_mode
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
         if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
@@ -105,8 +110,26 @@ class RunConfig:
         if self.collision_avoidance is not None:
             return self
         scenario = SCENARIOS.get(self.scenario)
-        choices = self.mpc_choices().for_robot(robot, scenario is not None and scenario.sweeps_hand)
+        choices = self.mpc_choices().for_robot(robot, scenario is not None and scenario.sweeps_ee)
         return dataclasses.replace(self, collision_avoidance=choices.collision_avoidance, solver=choices.solver)
+
+
+def _accepting_one_string_delay(init):
+    """RunConfig(delay="6") (the one-string delay of before, deprecated for one release) as RunConfig(delay_mode=
+    "fixed", delay_ms=6.0); "none", "measured", "measured-wall", "realtime" as the mode."""
+
+    @functools.wraps(init)
+    def __init__(self, *args, delay: str | None = None, **kwargs):
+        if delay is not None:
+            warnings.warn("RunConfig(delay=...) is deprecated; use delay_mode (none, measured, measured-wall, fixed, "
+                          "realtime) and delay_ms", DeprecationWarning, stacklevel=2)
+            kwargs["delay_mode"], kwargs["delay_ms"] = delay_from_text(delay)
+        init(self, *args, **kwargs)
+
+    return __init__
+
+
+RunConfig.__init__ = _accepting_one_string_delay(RunConfig.__init__)
 
 
 @dataclass
@@ -138,7 +161,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     # the plant does not wait: recovery solvers must not be built mid-run (in real time the solver process
     # builds its own MPC and prepares it; this one only solves the first step, before the clock runs)
-    if config.delay not in ("none", "realtime"):
+    if config.delay_mode not in ("none", "realtime"):
         mpc.prepare_fallback()
     if mpc.config.gait != scenario.gait:
         raise ConfigError(f"the MPC passed in runs the {mpc.config.gait} gait; scenario '{scenario.name}' needs {scenario.gait}")
@@ -162,7 +185,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
         state_source.listeners.append(identification.on_estimate)
-    loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
+    loop_config = LoopConfig(mpc_rate_hz=config.mpc_rate_hz, delay_mode=config.delay_mode, delay_ms=config.delay_ms,
+                             gains=gains, seed=config.seed,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
@@ -224,7 +248,9 @@ def _mass_identification(robot: RobotModel, config: RunConfig, mpc: MPC, plant):
 
 def _run_summary(robot: RobotModel, config: RunConfig, mpc: MPC, plant, duration: float, log: RunLog) -> dict:
     """The run's settings in its metrics: delay, plant, grid, base tracking, push cadence, solver, drive train."""
-    return {"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
+    return {"delay_mode": config.delay_mode, "delay_ms": config.delay_ms, "mpc_rate_target_hz": config.mpc_rate_hz,
+            "delay": delay_text(config.delay_mode, config.delay_ms),  # the one-string form of before (one release)
+            "plant": config.plant, "nodes": config.nodes,
             "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
             "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.references.base_tracking,
             "push_gait_period_scale": mpc.config.push.gait_period_scale,
@@ -255,10 +281,10 @@ def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
     return out
 
 
-def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, holds_hand: bool = False) -> dict:
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, commands_ee: bool = False) -> dict:
     """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
     says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
-    tuning = tuning_for(robot).for_task(holds_hand)
+    tuning = tuning_for(robot).for_task(commands_ee)
     used = dataclasses.replace(tuning.as_used_in(mpc.config), gains=gains)
     report = tuning.report()
     used_report = used.report()
