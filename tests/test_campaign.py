@@ -31,10 +31,10 @@ def client():
 
     from distributed import Client, LocalCluster
 
-    from wbmpc.campaign.execution import _worker_env
+    from wbmpc.campaign.execution import worker_env
 
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR, env=_worker_env())
+                           silence_logs=logging.ERROR, env=worker_env())
     with Client(cluster) as c:
         yield c
     cluster.close()
@@ -179,10 +179,10 @@ def test_campaign_without_workers_stops_instead_of_hanging(tmp_path):
 
     from distributed import Client, LocalCluster
 
-    from wbmpc.campaign.execution import _worker_env
+    from wbmpc.campaign.execution import worker_env
 
     cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR, env=_worker_env())
+                           silence_logs=logging.ERROR, env=worker_env())
     with Client(cluster) as lonely:
         spec = _tiny_spec(push_direction_deg=[0, 90], push_speed_m_s=[0.2])
         cluster.scale(0)  # the only worker leaves before the cases start

@@ -254,10 +254,10 @@ def test_arm_track_avoids_collisions_unless_told_otherwise(robot):
 
 
 def test_collision_avoidance_flag():
-    from wbmpc.cli import _run_config, build_parser
+    from wbmpc.cli import build_parser, run_config_from_args
 
     parser = build_parser()
-    values = [_run_config(parser.parse_args(["run", "arm-track", *extra])).collision_avoidance
+    values = [run_config_from_args(parser.parse_args(["run", "arm-track", *extra])).collision_avoidance
               for extra in ([], ["--collision-avoidance"], ["--collision-avoidance", "on"], ["--collision-avoidance", "off"])]
     assert values == [None, True, True, False]
 

@@ -104,4 +104,4 @@ def test_fixed_delay_run_with_compensation_stays_up(go2):
     assert not log.fell
     np.testing.assert_allclose(log.delay_ms, 6.0)
     # every plan starts where it applies: 6 ms after the step's measurement
-    assert mpc._previous.t_s == pytest.approx(log.mpc_t[-1] + 0.006) or not log.success[-1]
+    assert mpc.last_plan.t_s == pytest.approx(log.mpc_t[-1] + 0.006) or not log.success[-1]

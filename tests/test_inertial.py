@@ -70,9 +70,9 @@ def test_ocp_with_zero_inertial_parameters_is_todays(b1z1):
     rng = np.random.default_rng(3)
     x = rng.normal(size=today.n_variables) * 0.1
     p = rng.normal(size=today.params.size) * 0.1
-    p[today.params._slices["q_ref"]] = b1z1.q_nominal
-    p[today.params._slices["rot_ref"]] = np.eye(3).ravel()
-    p[today.params._slices["dt"]] = 0.02
+    today.params.select(p, "q_ref")[:] = b1z1.q_nominal  # views into p
+    today.params.select(p, "rot_ref")[:] = np.eye(3).ravel()
+    today.params.select(p, "dt")[:] = 0.02
     functions = [ca.Function(name, [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
                  for name, nlp in (("today", today.nlp), ("edited", edited.nlp))]
     f0, g0 = (np.array(v).ravel() for v in functions[0](x, p))

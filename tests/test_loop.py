@@ -185,7 +185,7 @@ def test_recovered_and_failed_steps_are_counted_apart():
                        ("Solve_Succeeded (recovery after Line_Search_Failed; fatrop mu_init 0.1: Line_Search_Failed)", True),
                        ("Maximum_Iterations_Exceeded (recovery after Line_Search_Failed)", False)]:
         solution = replace(_synthetic_solution(), stats=SolverStats(status, ok, 5, 0.01, 0.0, 0.0), success=ok)
-        ClosedLoop._log_solution(log, 0.0, Commands(), solution)
+        log.record_solution(0.0, Commands(), solution)
     assert (log.mpc_recoveries, log.mpc_failures) == (1, 1)
 
 

@@ -177,8 +177,8 @@ def test_object_model_is_read_from_the_scene(b1z1):
     assert model.push_height_m is None
     # --push-height: the OCP's contact row, the crouch and the sideslip lead's pivot (mu h) follow it
     low = make_scenario("push-box", b1z1, ScenarioOptions(object_model=True, push_height_m=0.8))
-    assert low.object_model(b1z1).push_height_m == 0.8 and low._base_height_m(b1z1) < b1z1.q_nominal[2]
-    assert abs(low._push_pivot_m(b1z1) - box.friction_mu * 0.8) < 1e-12
+    assert low.object_model(b1z1).push_height_m == 0.8 and low.base_height_m(b1z1) < b1z1.q_nominal[2]
+    assert abs(low.push_pivot_m(b1z1) - box.friction_mu * 0.8) < 1e-12
     assert make_scenario("push-box", b1z1, ScenarioOptions(push_height_m=0.8)).push_height_m is None  # object model only
     # --box-turn-radius: the commanded path's turn, and the run long enough to finish it
     wide = make_scenario("push-box", b1z1, ScenarioOptions(object_model=True, box_turn_radius_m=1.5))
@@ -205,10 +205,10 @@ def test_cli_refuses_object_model_without_an_object():
 
 
 def test_mpc_with_an_object_model_needs_the_object_command(box_plan, b1z1):
-    mpc = MPC.__new__(MPC)  # the check runs before any solve: only the problem is needed
-    mpc.problem = box_plan["problem"]
+    from wbmpc.control.commands import object_reference
+
     with pytest.raises(ConfigError, match="object_command"):
-        mpc._object_data(b1z1.q_nominal, 0.0, np.zeros(3), Commands())
+        object_reference(box_plan["problem"].object, Commands().object_command, np.zeros(3))
 
 
 @pytest.mark.slow

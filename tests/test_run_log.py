@@ -162,7 +162,7 @@ def test_streamed_metrics_equal_the_in_memory_ones_on_a_turning_walk():
     log = RunLog.from_columns(t, q, v, tau, 0.5 * tau, mpc_t=mpc_t, commands=commands,
                               solve_ms=rng.uniform(1, 9, mpc_t.size), iterations=rng.integers(1, 9, mpc_t.size),
                               chunk_rows=37)
-    assert log._ticks.spilled_chunks > 60
+    assert log.spilled_chunks > 60
     m = assert_same_metrics(robot, log)
     assert m["base_drift_cm_s"] > 1.0  # not a trivially zero figure
 
@@ -176,7 +176,7 @@ def test_a_short_closed_loop_run_gives_the_in_memory_metrics(tmp_path):
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     loop = ClosedLoop(mpc, plant, LoopConfig(), log_dir=tmp_path, log_chunk_rows=32)
     log = loop.run(0.3, commands=lambda t, q, v: Commands(base_velocity_m_s=np.array([0.2 * t, 0.0, 0.0])))
-    assert not log.fell and log.n_ticks == 150 and log._ticks.spilled_chunks == 4
+    assert not log.fell and log.n_ticks == 150 and log.spilled_chunks == 4
     assert any(tmp_path.iterdir())  # spilled where asked
     assert_same_metrics(robot, log)
     assert log.rss_samples[0][0] == 0.0 and log.rss_samples[-1][1] > 10.0  # sampled at the start and the end

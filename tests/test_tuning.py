@@ -8,7 +8,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from wbmpc.cli import _gains, build_parser, main
+from wbmpc.cli import build_parser, gains_from_args, main
 from wbmpc.control import CostWeights, PushConfig
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.tuning import (
@@ -138,7 +138,7 @@ def test_table_overrides_and_options_win_and_say_so(monkeypatch):
     config = _config(load_robot("go2"))
     assert config.gait_period_s == 0.5
     args = build_parser().parse_args(["run", "trot-in-place", "--robot", "go2", "--kd", "7.5"])
-    assert _gains(args, load_robot("go2")) == dataclasses.replace(tuning.gains, kd_leg=7.5)
+    assert gains_from_args(args, load_robot("go2")) == dataclasses.replace(tuning.gains, kd_leg=7.5)
     assert with_overrides(tuning, {"weights.base_position": [1, 2, 3]}).weights.base_position == (1, 2, 3)
 
 
@@ -147,7 +147,7 @@ def test_derived_settings_reach_the_mpc_config_and_gains():
     tuning, config = tuning_for(robot), _config(robot)
     assert (config.weights, config.swing, config.gait_period_s) == (tuning.weights, tuning.swing, tuning.gait_period_s)
     assert config.push.velocity_error_m_s == tuning.push_velocity_error_m_s
-    assert _gains(build_parser().parse_args(["run", "trot-in-place", "--robot", "a1"]), robot) == tuning.gains
+    assert gains_from_args(build_parser().parse_args(["run", "trot-in-place", "--robot", "a1"]), robot) == tuning.gains
 
 
 def test_info_prints_every_setting_and_its_source(capsys):

@@ -27,7 +27,6 @@ from wbmpc.viz.plots import (
     HIGHLIGHT_COLOR,
     RECOVERY_COLOR,
     RunMarks,
-    _save,
     base_velocity_figure,
     contact_forces_figure,
     ee_position_figure,
@@ -35,6 +34,7 @@ from wbmpc.viz.plots import (
     foot_heights_figure,
     joint_torques_figure,
     most_loaded_joints,
+    save_figure,
     solver_figure,
 )
 
@@ -185,7 +185,7 @@ def marked_log(robot):
 
 
 def saved_image(fig, path):
-    _save(fig, path)
+    save_figure(fig, path)
     return mpimg.imread(path)
 
 
@@ -265,7 +265,7 @@ def test_wipe_plot_rmse_is_the_metric(b1z1):
                              ee_error=lambda tt, e: wipe.ee_tracking_error(b1z1, tt, e), error_label=wipe.ee_error_label)
     measured = b1z1.frame_trajectories(q, [b1z1.arm_ee])[b1z1.arm_ee]
     rmse = ee_rmse_m(*wipe.ee_tracking_error(b1z1, t, measured))
-    assert f"RMSE {1e3 * rmse:.1f} mm" in fig._suptitle.get_text()
+    assert f"RMSE {1e3 * rmse:.1f} mm" in fig.get_suptitle()
 
 
 # ----------------------------------------------------------------------------- replay

@@ -31,7 +31,7 @@ EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  
                                        for code, text in EXIT_CODES.items())
 
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
-# those of `run` come from its config dataclasses (`_field_flags`)
+# those of `run` come from its config dataclasses (`field_flags_of_commands`)
 OTHER_FIELD_FLAGS = {"delay": "--delay", "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
@@ -330,7 +330,7 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_config(args: argparse.Namespace):
+def run_config_from_args(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import values_from_args
@@ -349,7 +349,7 @@ def _run_config(args: argparse.Namespace):
                      gains=PdGains(**values_from_args(PdGains, args)), **values)
 
 
-def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
+def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
     """(flag, scenarios that read it) of the scenario options given that this run's scenario does not read."""
     from wbmpc.options import declared, flag_default
     from wbmpc.scenarios import ScenarioOptions
@@ -359,7 +359,7 @@ def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def _gains(args: argparse.Namespace, robot):
+def gains_from_args(args: argparse.Namespace, robot):
     """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
     import dataclasses
 
@@ -382,11 +382,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
     if args.object_model:  # on a scenario without an object: its own error, not a warning that the scenario ignores it
-        _run_config(args)
-    for flag, scenarios in _ignored_scenario_options(args):
+        run_config_from_args(args)
+    for flag, scenarios in ignored_scenario_options(args):
         readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
         print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)
-    config = _run_config(args)
+    config = run_config_from_args(args)
     loads = None
     if args.sweep is not None:
         from wbmpc.scenarios.sweep import parse_loads
@@ -419,7 +419,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=_gains(args, robot),
+    config = dataclasses.replace(config, gains=gains_from_args(args, robot),
                                  plant_config=plant_config_from_args(args, robot)).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
@@ -727,7 +727,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         raise
 
 
-def _field_flags() -> dict[str, str]:
+def field_flags_of_commands() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import field_flags
@@ -743,7 +743,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _dispatch(args)
     except ConfigError as exc:
-        print(f"wbmpc: error: {exc.worded(_field_flags()) if exc.field else exc}", file=sys.stderr)
+        print(f"wbmpc: error: {exc.worded(field_flags_of_commands()) if exc.field else exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)

@@ -41,3 +41,20 @@ class Commands:
             setattr(self, name, array)
         check_number("base_yaw_rate_rad_s", self.base_yaw_rate_rad_s, unit="rad/s")
         check_number("base_height_m", self.base_height_m, low=0.0, low_open=True, unit="m", allow_none=True)
+
+
+def object_reference(model, command: ObjectCommand | None, times_s: np.ndarray) -> np.ndarray:
+    """The object's commanded path at `times_s` ((n, n_states)) for an MPC that plans with `model` (an
+    `wbmpc.ocp.objects.ObjectModel`) inside its OCP; refuses a missing command, a state or a path of the wrong
+    size, a non-finite path."""
+    if command is None:
+        raise ConfigError(f"this MPC plans with the {model.name} inside the OCP: each step's commands need its "
+                          "measured state and path (Commands.object_command)")
+    if command.state.size != model.n_states:
+        raise ConfigError(f"the {model.name}'s state has {model.n_states} values ({', '.join(model.state_names)}), "
+                          f"got {command.state.size}")
+    reference = np.asarray(command.reference(times_s), dtype=float)
+    if reference.shape != (len(times_s), model.n_states) or not np.all(np.isfinite(reference)):
+        raise ConfigError(f"the {model.name}'s path must give {model.n_states} finite values per node time, got "
+                          f"shape {reference.shape}")
+    return reference

@@ -160,16 +160,8 @@ class ClosedLoop:
         solution = self.mpc.solve(q, v, command, t, **({"delay_s": delay_s} if delay_s else {}))
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
-        self._log_solution(log, t, command, solution)
+        log.record_solution(t, command, solution)
         return solution
-
-    @staticmethod
-    def _log_solution(log: RunLog, t: float, command: Commands, solution: Solution) -> None:
-        solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
-        log.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
-                        solution.contact[0])
-        if solution.stats.details or log.has_solver_details:  # one row per step once a solver reports them
-            log.record_solver_details(solution.stats.details)
 
     def _new_log(self) -> RunLog:
         log = RunLog(self.log_dir, self.log_chunk_rows)
@@ -337,7 +329,7 @@ class ClosedLoop:
     def _take_answer(self, log: RunLog, solution: Solution, request, t: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
         plan's first tick, transport included); returns the updated transport estimate."""
-        self._log_solution(log, request[0], request[1], solution)
+        log.record_solution(request[0], request[1], solution)
         delay = max(t - request[0], now - request[2])
         log.record_delay(delay * 1e3)
         self._note_delay(delay)

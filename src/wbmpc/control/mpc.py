@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.commands import Commands
+from wbmpc.control.commands import Commands, object_reference
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import roll_forward
 from wbmpc.control.push import PushMode
@@ -110,6 +110,12 @@ class MPC:
         self.gait.reset()
         self._inertial = self._nominal_inertial()  # until an estimator sets it again
 
+    @property
+    def last_plan(self) -> Solution | None:
+        """The last good plan (None before the first successful step): the next step warm-starts from it and,
+        if it fails, holds it shifted in time."""
+        return self._previous
+
     def continue_from(self, solution: Solution) -> None:
         """Take `solution` as the last good plan, as after a successful step: the next step warm-starts
         from it and, if it fails, holds it shifted in time."""
@@ -191,20 +197,11 @@ class MPC:
         if model is None:
             return {}, {}
         command = commands.object_command
-        if command is None:
-            raise ConfigError(f"this MPC plans with the {model.name} inside the OCP: each step's commands need its "
-                              "measured state and path (Commands.object_command)")
-        if command.state.size != model.n_states:
-            raise ConfigError(f"the {model.name}'s state has {model.n_states} values ({', '.join(model.state_names)}), "
-                              f"got {command.state.size}")
-        reference = np.asarray(command.reference(t + node_times), dtype=float)
-        if reference.shape != (len(node_times), model.n_states) or not np.all(np.isfinite(reference)):
-            raise ConfigError(f"the {model.name}'s path must give {model.n_states} finite values per node time, got "
-                              f"shape {reference.shape}")
+        reference = object_reference(model, command, t + node_times)
         pin.framesForwardKinematics(self.robot.model, self._data, q)
-        hand = self._data.oMf[self._ee_id].translation
+        ee = self._data.oMf[self._ee_id].translation
         return ({"obj_ref": reference.T, "obj_w": model.weights()},
-                {"object_state": command.state, "object_contact_measured": model.contact_values(command.state, hand)})
+                {"object_state": command.state, "object_contact_measured": model.contact_values(command.state, ee)})
 
     def _force_guess(self, contact: np.ndarray, commands: Commands) -> np.ndarray:
         """(N, nf) weight shared over the stance feet, zero on swing feet, arm force = -command."""

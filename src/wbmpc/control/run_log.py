@@ -80,6 +80,21 @@ class RunLog:
         elif RECOVERY_MARK in status:
             self.recovered_solutions += 1
 
+    def record_solution(self, t: float, command: Commands, solution) -> None:
+        """One MPC step from its `Solution`: solve time (the solver's, else the step's wall time), iterations,
+        success, status (recoveries and failures counted from it), the command and the first planned contacts;
+        the solver's details (SQP iterations, residuals) once a solver reports them."""
+        solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
+        self.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
+                         solution.contact[0])
+        if solution.stats.details or self.has_solver_details:  # one row per step once a solver reports them
+            self.record_solver_details(solution.stats.details)
+
+    @property
+    def spilled_chunks(self) -> int:
+        """Chunks of control ticks written to the spill directory so far (the memory held stays one chunk)."""
+        return self._ticks.spilled_chunks if self._ticks is not None else 0
+
     @classmethod
     def from_columns(cls, t, q, v, tau, tau_ff=None, q_des=None, contact_forces=None, *, mpc_t=(), solve_ms=None,
                      iterations=None, success=None, status=None, commands=None, planned_contact=None,

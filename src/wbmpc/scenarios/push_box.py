@@ -78,7 +78,7 @@ class PushBox(ForceTask):
         """The hand's height on the box's face with the object model (None: where the nominal posture holds it)."""
         return self.options.push_height_m if self.options.object_model else None
 
-    def _base_height_m(self, robot) -> float | None:
+    def base_height_m(self, robot) -> float | None:
         return self.CROUCH * float(robot.q_nominal[2]) if self.push_height_m is not None else None
 
     @property
@@ -131,7 +131,7 @@ class PushBox(ForceTask):
 
         return command
 
-    def _push_pivot_m(self, robot) -> float:
+    def push_pivot_m(self, robot) -> float:
         """Where the box's floor load centres under the sliding push at the hand's height h: mu h ahead of its centre
         (`object_paths.sideslip_lead`)."""
         height = self.push_height_m
@@ -144,13 +144,13 @@ class PushBox(ForceTask):
         path, box, ee = self.box_path(robot), self.free_box(robot), EeState(robot)
         follower = PathFollower(path, robot.q_nominal[:2])
         height = float(nominal_ee_position(robot)[2])
-        pivot = self._push_pivot_m(robot)
+        pivot = self.push_pivot_m(robot)
 
         def command(t, q, v):
             measured = object_command(path, self._scene, self.object_name, t, pivot)
             base = follower.base_command(t, q, measured.state)
             if self.options.object_model:
-                return Commands(**base, object_command=measured, base_height_m=self._base_height_m(robot))
+                return Commands(**base, object_command=measured, base_height_m=self.base_height_m(robot))
             velocity, force = force_command(path, t, box, EE_SPHERE_RADIUS_M, height, ee.position(q), ee_velocity_feedback)
             return Commands(**base, ee_velocity_m_s=velocity, ee_force_n=force)
 
@@ -163,7 +163,7 @@ class PushBox(ForceTask):
             from wbmpc.scenarios.object_paths import path_metrics
 
             t, states = self._scene.recording.series(self.object_name, "planar_state")
-            pivot = self._push_pivot_m(robot) if self.options.object_model else 0.0
+            pivot = self.push_pivot_m(robot) if self.options.object_model else 0.0
             out.update(path_metrics(self.box_path(robot), t, states, pivot_m=pivot))
             out["box_kg"] = self.options.box_kg
         return out

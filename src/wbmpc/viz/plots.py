@@ -169,7 +169,7 @@ def _figure(width: float, height: float) -> Figure:
     return fig
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     return path
 
@@ -255,7 +255,7 @@ def base_velocity_figure(robot, data: dict, log, marks: RunMarks | None = None) 
 
 
 def plot_base_velocity(robot, data: dict, log, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(base_velocity_figure(robot, data, log, marks), path)
+    return save_figure(base_velocity_figure(robot, data, log, marks), path)
 
 
 EeError = Callable[[np.ndarray, np.ndarray], "tuple[np.ndarray, np.ndarray] | None"]
@@ -312,7 +312,7 @@ def ee_rmse_m(error: np.ndarray, use: np.ndarray) -> float:
 
 def plot_ee_position(robot, data: dict, path: Path, ee_reference: Callable | None, marks: RunMarks | None = None,
                      ee_error: EeError | None = None, error_label: str = "|p - p_ref|") -> Path:
-    return _save(ee_position_figure(robot, data, ee_reference, marks, ee_error, error_label), path)
+    return save_figure(ee_position_figure(robot, data, ee_reference, marks, ee_error, error_label), path)
 
 
 def _torque_panel(ax, t, tau, limits, labels, title) -> None:
@@ -391,7 +391,7 @@ def joint_torques_figure(robot, data: dict, marks: RunMarks | None = None) -> Fi
 
 
 def plot_joint_torques(robot, data: dict, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(joint_torques_figure(robot, data, marks), path)
+    return save_figure(joint_torques_figure(robot, data, marks), path)
 
 
 def _planned_intervals(robot, data: dict) -> list[list[tuple[float, float]]] | None:
@@ -437,7 +437,7 @@ def foot_heights_figure(robot, data: dict, marks: RunMarks | None = None) -> Fig
 
 
 def plot_foot_heights(robot, data: dict, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(foot_heights_figure(robot, data, marks), path)
+    return save_figure(foot_heights_figure(robot, data, marks), path)
 
 
 def contact_forces_figure(robot, data: dict, marks: RunMarks | None = None) -> Figure:
@@ -470,7 +470,7 @@ def contact_forces_figure(robot, data: dict, marks: RunMarks | None = None) -> F
 
 
 def plot_contact_forces(robot, data: dict, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(contact_forces_figure(robot, data, marks), path)
+    return save_figure(contact_forces_figure(robot, data, marks), path)
 
 
 def solver_figure(robot, data: dict, budget_ms: float = 1e3 / MPC_RATE_HZ, marks: RunMarks | None = None) -> Figure:
@@ -515,7 +515,7 @@ def solver_figure(robot, data: dict, budget_ms: float = 1e3 / MPC_RATE_HZ, marks
 
 
 def plot_solver(robot, data: dict, path: Path, budget_ms: float = 1e3 / MPC_RATE_HZ, marks: RunMarks | None = None) -> Path:
-    return _save(solver_figure(robot, data, budget_ms, marks), path)
+    return save_figure(solver_figure(robot, data, budget_ms, marks), path)
 
 
 def ee_force_figure(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray, title: str = "end-effector force",
@@ -550,7 +550,7 @@ def ee_force_figure(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray,
 
 def plot_ee_force(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray, path: Path,
                   title: str = "end-effector force", marks: RunMarks | None = None) -> Path:
-    return _save(ee_force_figure(t, measured_n, target_n, title, marks), path)
+    return save_figure(ee_force_figure(t, measured_n, target_n, title, marks), path)
 
 
 # ----------------------------------------------------------------------------- entry point
