@@ -102,7 +102,7 @@ class RobotScale:
 
 
 ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
-# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the settings of today's
+# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the default settings
 # defaults belong to this robot (a test checks that the preset still measures this).
 REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
                        arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217),
@@ -214,7 +214,7 @@ def _leg_damping(scale: RobotScale) -> float:
 
 
 def derive(scale: RobotScale) -> RobotTuning:
-    """The settings of a robot of this scale (module docstring): equal to today's defaults at `REFERENCE`."""
+    """The settings of a robot of this scale (module docstring): equal to the defaults at `REFERENCE`."""
     s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
     time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
     w = CostWeights()
@@ -270,28 +270,14 @@ TUNINGS: dict[str, dict] = {
     # accelerating down at 0.7 m/s^2, pitching back), the applied torques sagged it backwards and it fell at 0.9 s;
     # 1e-5: 885 N, 10 s standing with 0 failed steps. Not a biped rule: on g1 (33 kg) 1e-5 took walking forward
     # from 0 to 35 failed steps of 800 (14.5 -> 17.0 iterations)
-    # g1 walking forward at 0.3 m/s (compiled Fatrop, 10 s, delay none): with the biped rules the base velocity's
-    # per-tick error after the start was 0.175 m/s RMS, 0.163 of it across the heading (the sway from one sole to
-    # the other), 0.063 along it, for 0.005 per gait cycle. With the hands free the lean over the next stance foot
-    # is not needed (the placed swing foot does the work) and only adds sway: support_sway_free_ee 0 gives 0.134
-    # m/s (0.110 across, 0.077 along; 0.004 per cycle), 2 failed steps of 800, both recovered (arm-track
-    # while walking, a hand held, keeps it: without it, at a 0.62 s period, it fell at 5.8 s of 10). Quicker steps
-    # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
-    # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
-    # as delay (--delay-mode measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
-    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz.
-    # Then the base's linear velocity weight 1000 (the biped rule's 5, the size-derived 44): the pelvis carries the
-    # commanded velocity and the hips and trunk take up the sway from one sole to the other (the CoM still sways, as
-    # it must: its velocity is reported next to the base's, `com_vel_rmse_settled`). Walking forward at 0.3 m/s
-    # (10 s, compiled Fatrop, delay none), per-tick base velocity error after 2 s at weights 5 / 300 / 1000: 0.134 /
-    # 0.047 / 0.020 m/s (along 0.077 / 0.028 / 0.012, across 0.110 / 0.037 / 0.016; 300 is RTI, 6 s), 0 failed
-    # steps at 1000, the CoM's 0.14 / 0.095 / 0.088. At 5 the pelvis sped up in single support and slowed in double
-    # support (0.20-0.39 m/s at 0.3) and swayed with the CoM. Walking in place at 1000: drift 0.019 cm/s (0.65 at 5).
-    # With a hand held (tasks that command it, `RobotTuning.for_task`) it stays 5: the pinned hand and the lean leave
-    # the trunk little room, and arm-track walking in place (10 s, compiled Fatrop) failed 0 / 3 / 25 steps of 800
-    # at 5 / 300 / 1000 (hand RMSE 0.35 / 0.33 / 0.32 cm; 46 at 1000 without the lean), pull's 5 kg load moved
-    # 0.780 of 0.880 m at 1000 (0.854 at 5). Not a biped rule: TALOS walking forward at 0.3 m/s fell at 1.6 s at
-    # 1000 and 2.1 s at 300 (up over 4 s at 5)
+    # g1: with the hands free the lean over the next stance foot is not needed (the placed swing foot does the
+    # work) and only adds sway, so support_sway_free_ee is 0 (walking forward at 0.3 m/s, per-tick base velocity
+    # error 0.134 against 0.175 m/s with the lean); a task that holds the end-effector keeps the lean (without it
+    # arm-track while walking fell). The base's linear velocity weight is 1000 (the biped rule's 5): the pelvis
+    # carries the commanded velocity and the hips and trunk take up the sway from one sole to the other (0.020
+    # against 0.134 m/s, 0 failed steps; the CoM still sways, as it must: `com_vel_rmse_settled`). With the
+    # end-effector commanded it stays 5: the pinned end-effector and the lean leave the trunk little room (arm-track
+    # walking in place failed 25 steps of 800 at 1000, 0 at 5). Not a biped rule: TALOS fell at 1000.
     "g1": {"support_sway_free_ee": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_ee_commanded": 5.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},

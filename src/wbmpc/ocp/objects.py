@@ -1,4 +1,4 @@
-"""The manipulated object inside the OCP (issue 22 part 2; the paper's future work, section VII: "model
+"""The manipulated object inside the OCP (the paper's future work, section VII: "model
 object-level dynamics for interaction, allowing the MPC to optimize arm end-effector force and motion
 instead of having them as an external command").
 
@@ -199,7 +199,7 @@ class SlidingBox(ObjectModel):
     push_height_m: float | None = None
     # force planned on the nodes whose gap target is within this of contact: the hand's pad and its chatter. 16 s
     # push-box --object-model (b1_z1, compiled SQP): 2 mm (CONTACT_FORCE_GAP_M) 7.6 cm RMSE, 1 cm 5.0 cm; force on
-    # every node, however far the hand (a sign slip until session 11), 4.4 cm: a plan pushing through air
+    # every node, however far the hand (a sign error before), 4.4 cm: a plan pushing through air
     force_gap_m: float = 0.01
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at

@@ -1,4 +1,4 @@
-"""Capsules of a robot's links and the pairs of them that collision avoidance checks (issue 22).
+"""Capsules of a robot's links and the pairs of them that collision avoidance checks (beyond the paper).
 
 Chosen once per robot from the URDF's collision geometry as pinocchio reads it (`pin.buildGeomFromUrdf`,
 the same placements pinocchio's and coal's collision checking use), in the frame of the pinocchio joint

@@ -69,7 +69,7 @@ class ScenarioOptions:
                            "wall trotting in place; turn: push a free box along a path at 0.1 m/s with a 90 degree "
                            "turn (--box-turn-radius; implied by --object-model), a force command without --object-model",
                            scenarios=("push-box",))
-    # issue 22 part 2: the manipulated object inside the MPC (wbmpc.ocp.objects)
+    # the manipulated object inside the MPC (wbmpc.ocp.objects)
     object_model: bool = option(False, flag="--object-model", help="plan with the manipulated object inside the "
                                 "MPC: its state and dynamics in the OCP, the hand force a variable, the object's "
                                 "motion the command (push-box: the box's path; pull: the load's speed)",

@@ -1,4 +1,4 @@
-"""Commanded object paths (issue 22 part 2): the box's path of `push-box --box-path turn` / `--object-model`,
+"""Commanded object paths: the box's path of `push-box --box-path turn` / `--object-model`,
 the commands that follow it with and without the object inside the MPC, and the path's tracking metrics.
 
 `BoxPath`: at rest until `start_s`, then the box centre moves at `speed_m_s` (reached over `ramp_s`) straight
@@ -7,7 +7,7 @@ tangent), then goes straight again. 0.8 m: on a 0.4 m arc the push that turns th
 would need a lever of 0.47 m from the face's centre (4-corner Coulomb friction), beyond its 0.22 m. The robot's base follows the box's path at its starting offset from
 the box (rotating with the box), by velocity commands with position feedback.
 
-- force command (today's MPC, the box only in MuJoCo): the hand's velocity command carries it along the face
+- force command (the paper's MPC, the box only in MuJoCo): the hand's velocity command carries it along the face
   of the box's reference pose (`feedback.ee_velocity_feedback`), its force command is the friction that slides the box, mu m g
   along the face normal, scaled with the path's speed;
 - object model: the box's measured state and its path go to the MPC (`Commands.object_command`), the path's yaw
@@ -159,7 +159,7 @@ def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0
 def force_command(path: BoxPath, t: float, box, hand_radius_m: float, hand_height_m: float, p_ee: np.ndarray,
                   feedback) -> tuple[np.ndarray, np.ndarray]:
     """(hand velocity, hand force) commands of the force-command version: the hand on the face of the box's
-    reference pose (pressed in 5 mm, as today's push-box), the force that slides the box along the face normal."""
+    reference pose (pressed in 5 mm, as push-box's wall task), the force that slides the box along the face normal."""
     x, y, yaw, vx, vy, wz = path.states(t)[0]
     face = np.array([x, y]) + _rot(yaw) @ np.array([-(box.size_m[0] / 2 + hand_radius_m) + 0.005, 0.0])
     lever = face - np.array([x, y])

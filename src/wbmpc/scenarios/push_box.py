@@ -22,7 +22,7 @@ from wbmpc.sim.objects import BoxAtWall, CompliantPad, FreeBox
 
 class PushBox(ForceTask):
     """Press a box against a wall while trotting in place, with a force target (section VI-C); or (`--box-path
-    turn`, implied by `--object-model`) push a free box along a path with a 90 degree turn (issue 22: with the
+    turn`, implied by `--object-model`) push a free box along a path with a 90 degree turn (with the
     box inside the MPC, or with a force command as the paper's MPC would)."""
 
     object_name = "box"

@@ -59,7 +59,7 @@ QP_TOLERANCE = 1e-4  # RtiConfig.qp_tolerance
 FLAT_FOOT_RTI_QP_TOLERANCE = 1e-2
 FALLBACK_FIRST_CALLS = 20  # RtiConfig.fallback_first_calls on point feet
 # ... on flat feet: g1's failed QPs fail in "balance" too (the state, not the mode: iteration cap in both), and its
-# 20 balance-first QPs after each took 13.7 ms a step in real time against 8.2 with speed_abs first (i19g)
+# 20 balance-first QPs after each took 13.7 ms a step in real time against 8.2 with speed_abs first
 FLAT_FOOT_FALLBACK_FIRST_CALLS = 0
 
 
