@@ -102,8 +102,8 @@ class RobotScale:
 
 
 ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
-# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the default settings
-# defaults belong to this robot (a test checks that the preset still measures this).
+# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the default
+# settings belong to this robot (a test checks that the preset still measures this).
 REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
                        arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217),
                        leg_joint_inertia_kg_m2=0.056588263124257965)
