@@ -70,6 +70,11 @@ class RunConfig:
     collision_avoidance: bool | None = _mpc("collision_avoidance")  # capsule distance rows (robots/collision_model.py)
     collision_margin_m: float = _mpc("collision_margin_m")
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
+    plant_model: str | None = option(None, flag="--plant-model", metavar="FILE",
+                                     help="MuJoCo simulates this file of the robot (MJCF or URDF; its own inertias, "
+                                     "geoms, friction, damping, armature, contact settings; its actuators replaced by "
+                                     "torque motors with its force limits) instead of the controller's model; joints "
+                                     "matched by name (wbmpc.sim.plant_model)", default_text="the controller's model")
     state: str = option("true", flag="--state", choices=("true", "estimated"), help="state fed to the MPC: the "
                         "simulator's (true) or estimated from simulated IMU + encoders (noise on; section V-B filter; "
                         "adds estimation RMSE metrics and estimation.png)")
@@ -90,6 +95,8 @@ class RunConfig:
         check_fields(self)
         choices = self.mpc_choices()  # the MPC options' own checks; an automatic solver chosen
         self.solver, self.auto_solver, self.delay_mode = choices.solver, choices.auto_solver, choices.delay_mode
+        if self.plant_model is not None and self.plant != "mujoco":
+            raise ConfigError("--plant-model is simulated by MuJoCo: use --plant mujoco")
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
         if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
@@ -215,8 +222,12 @@ def _plant(robot: RobotModel, config: RunConfig, scene):
     """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors;
     reset to the nominal pose."""
     plant_config = config.plant_config
-    if plant_config is None:  # a preset's rotors (g1) are the plant's too
+    if plant_config is None and config.plant_model is None:  # a preset's rotors (g1) are the plant's too
         plant_config = robot_plant_config(robot)
+    if config.plant_model is not None:  # another file of the robot: its own drive train, the config's added
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = dataclasses.replace(specialised_config(plant_config, MujocoPlantConfig), plant_model=config.plant_model)
     if scene is not None:
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
@@ -256,7 +267,8 @@ def _run_summary(robot: RobotModel, config: RunConfig, mpc: MPC, plant, duration
             "push_gait_period_scale": mpc.config.push.gait_period_scale,
             **solver_summary(mpc, config),
             "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
-            "drive_train": _drive_train_summary(robot, plant.config)}
+            "drive_train": _drive_train_summary(robot, plant.config),
+            "plant_model": plant.plant_model_report() if hasattr(plant, "plant_model_report") else None}
 
 
 def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:

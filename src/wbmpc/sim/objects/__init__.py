@@ -28,11 +28,11 @@ coordinates, which the MPC never sees (it treats the arm force as a fixed input,
 from wbmpc.sim.objects.board import Board
 from wbmpc.sim.objects.box_at_wall import BoxAtWall
 from wbmpc.sim.objects.cable_load import CableLoad
-from wbmpc.sim.objects.common import EE_SITE, SceneObject, ee_body_name, planar_box_state
+from wbmpc.sim.objects.common import EE_SITE, SceneObject, ee_body, planar_box_state
 from wbmpc.sim.objects.compliant_pad import CompliantPad
 from wbmpc.sim.objects.external_hand import ExternalHand, HandPush
 from wbmpc.sim.objects.fixed_box import FixedBox, contact_count
 from wbmpc.sim.objects.free_box import FreeBox
 from wbmpc.sim.objects.scene import Scene, SceneRecording
 
-__all__ = ["EE_SITE", "Board", "BoxAtWall", "CableLoad", "CompliantPad", "ExternalHand", "FixedBox", "FreeBox", "HandPush", "Scene", "SceneObject", "SceneRecording", "contact_count", "ee_body_name", "planar_box_state"]
+__all__ = ["EE_SITE", "Board", "BoxAtWall", "CableLoad", "CompliantPad", "ExternalHand", "FixedBox", "FreeBox", "HandPush", "Scene", "SceneObject", "SceneRecording", "contact_count", "ee_body", "planar_box_state"]

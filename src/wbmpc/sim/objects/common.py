@@ -10,15 +10,15 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.robots import RobotModel
-from wbmpc.sim.mujoco_scene import body_names
+from wbmpc.sim.mujoco_scene import scene_bodies
 
 EE_SITE = "ee_attach"
 
 
-def ee_body_name(robot: RobotModel) -> str:
-    """MuJoCo body carrying the arm end-effector frame."""
-    frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
-    return body_names(robot)[frame.parentJoint - 1]
+def ee_body(spec: mujoco.MjSpec, robot: RobotModel):
+    """(MuJoCo body carrying the arm end-effector frame, the frame's position in that body) in the scene `spec` builds."""
+    name, placement = scene_bodies(spec, robot).frame(robot, robot.arm_ee)
+    return spec.body(name), placement.translation.copy()
 
 
 def check_positive(name: str, value: float, allow_zero: bool = False) -> None:
@@ -77,11 +77,10 @@ def free_box_mjcf(name: str, centre_xy_m, size_m, mass_kg: float, friction_mu: f
 
 def add_ee_site(spec: mujoco.MjSpec, robot: RobotModel) -> None:
     """A site at the end-effector frame origin (cable attachment, hand contact point), added once."""
-    body = spec.body(ee_body_name(robot))
+    body, position = ee_body(spec, robot)
     if any(s.name == EE_SITE for s in body.sites):
         return
-    frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
-    body.add_site(name=EE_SITE, pos=frame.placement.translation.tolist(), size=[0.01, 0.01, 0.01])
+    body.add_site(name=EE_SITE, pos=position.tolist(), size=[0.01, 0.01, 0.01])
 
 def planar_box_state(plant, name: str) -> dict:
     """Position, rotation and the planar state [x, y, yaw, vx, vy, wz] (world) of a free body."""

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from wbmpc.sim.mujoco_scene import ROBOT_CONAFFINITY, ROBOT_CONTYPE
-from wbmpc.sim.objects.common import check_positive, ee_body_name
+from wbmpc.sim.objects.common import check_positive, ee_body
 
 
 @dataclass(frozen=True)
@@ -44,13 +44,12 @@ class CompliantPad:
         return []
 
     def edit_spec(self, spec, robot):
-        body = spec.body(ee_body_name(robot))
+        body, position = ee_body(spec, robot)
         for geom in list(body.geoms):  # the rigid end-effector sphere gives way to the pad
             if geom.name == robot.arm_ee:
                 spec.delete(geom)
-        frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
         inertia = 0.4 * self.mass_kg * self.radius_m**2
-        pad = body.add_body(name=self.name, pos=frame.placement.translation.tolist(), mass=self.mass_kg,
+        pad = body.add_body(name=self.name, pos=position.tolist(), mass=self.mass_kg,
                             inertia=[inertia] * 3, explicitinertial=True)
         for axis, label in zip(np.eye(3), "xyz"):
             pad.add_joint(name=f"{self.name}_{label}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=axis.tolist(),

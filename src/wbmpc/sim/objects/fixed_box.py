@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wbmpc.sim.mujoco_scene import ROBOT_CONTYPE
 from wbmpc.sim.objects.common import check_positive, mjcf_vector, replay_box
 
 
@@ -49,7 +48,7 @@ class FixedBox:
             geoms = d.contact.geom[:n]
             other = np.where(geoms[:, 0] == box, geoms[:, 1], np.where(geoms[:, 1] == box, geoms[:, 0], -1))
             other = other[other >= 0]
-            touching = float(bool(np.any(np.asarray(m.geom_contype)[other] & ROBOT_CONTYPE)))
+            touching = float(bool(np.any(plant.layout.robot_geoms[other])))
         return {"touching": touching, "force_n": -plant.ee_contact_force([self.name])}
 
     def replay_shapes(self, recording):
