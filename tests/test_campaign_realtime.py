@@ -14,17 +14,17 @@ from wbmpc.errors import ConfigError
 
 def test_realtime_cases_use_the_real_time_defaults_and_keep_old_ids():
     plain = expand(CampaignSpec(grid={"push_direction_deg": [90.0]}))[0]
-    realtime = expand(CampaignSpec(grid={"push_direction_deg": [90.0]}, delay_mode="realtime"))[0]
+    realtime = expand(CampaignSpec(grid={"push_direction_deg": [90.0]}, delay="realtime"))[0]
     assert plain.id != realtime.id  # another experiment, another row
-    assert plain.run_config().delay == "none" and plain.run_config().solver == "fatrop"
+    assert plain.run_config().delay_mode == "none" and plain.run_config().solver == "fatrop"
     config = realtime.run_config()
-    assert config.delay == "realtime" and config.solver == "sqp"
+    assert config.delay_mode == "realtime" and config.solver == "sqp"
     with pytest.raises(ConfigError, match="delay"):
         CampaignSpec(delay="sometimes")
 
 
 def test_realtime_campaign_refuses_parallel_workers(tmp_path):
-    spec = CampaignSpec(grid={"push_direction_deg": [90.0]}, delay_mode="realtime", duration_s=0.1)
+    spec = CampaignSpec(grid={"push_direction_deg": [90.0]}, delay="realtime", duration_s=0.1)
     with pytest.raises(ConfigError, match="one case at a time"):
         run_campaign(spec, tmp_path, workers=2, progress=False)
 
