@@ -19,8 +19,8 @@ from wbmpc.robots.collision_model import (
     CollisionError,
     CollisionModel,
     Obstacle,
-    _random_configurations,
     arm_workspace,
+    random_configurations,
 )
 from wbmpc.symbolic import SymbolicDynamics
 from wbmpc.symbolic.collision import collision_function
@@ -87,7 +87,7 @@ def test_capsule_distances_match_coal(robot, with_obstacle):
     function = collision_function(collision, SymbolicDynamics(robot))
     checked = 0
     rng = np.random.default_rng(7)
-    for q in _random_configurations(robot, 40, seed=3, leg_range_rad=1.0):
+    for q in random_configurations(robot, 40, seed=3, leg_range_rad=1.0):
         q = q.copy()
         q[:3] += rng.uniform(-0.3, 0.3, 3)
         q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(rng.uniform(-0.3, 0.3, 3))).coeffs()
@@ -103,7 +103,7 @@ def test_capsule_distances_match_coal(robot, with_obstacle):
 
 def test_group_rows_never_exceed_their_closest_pair(robot, collision):
     function = collision_function(collision, SymbolicDynamics(robot))
-    for q in _random_configurations(robot, 20, seed=5, leg_range_rad=0.5):
+    for q in random_configurations(robot, 20, seed=5, leg_range_rad=0.5):
         distances, rows = (np.asarray(x).ravel() for x in function(q))
         for row, idx in zip(rows, collision.groups.values()):
             closest = distances[idx].min()
@@ -112,7 +112,7 @@ def test_group_rows_never_exceed_their_closest_pair(robot, collision):
 
 def _colliding_arm(robot, collision) -> np.ndarray:
     """A configuration with the hand inside the trunk."""
-    for q in _random_configurations(robot, 2000, seed=1, leg_range_rad=0.0):
+    for q in random_configurations(robot, 2000, seed=1, leg_range_rad=0.0):
         d = collision.distances(q)
         names = [p.name for p in collision.pairs]
         if min(d[i] for i, n in enumerate(names) if "trunk" in n) < -0.03:

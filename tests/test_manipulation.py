@@ -191,7 +191,7 @@ def test_pad_replaces_the_rigid_end_effector_sphere_and_springs_back(robot):
     m, d = plant.model, plant.data
     names = [m.geom(g).name for g in range(m.ngeom)]
     assert robot.arm_ee not in names and "pad" in names
-    assert m.geom("pad").id in plant._ee_geoms
+    assert m.geom("pad").id in plant.ee_geoms
     ee = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
     np.testing.assert_allclose(d.geom("pad").xpos, ee, atol=1e-9)
     # the springs alone: no gravity, the robot made immovable (huge armature on its own dofs), a

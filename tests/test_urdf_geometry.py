@@ -16,7 +16,7 @@ from wbmpc.robots import load_robot
 from wbmpc.robots.model import RobotModel
 from wbmpc.robots.presets import PRESET_NAMES, preset_spec
 from wbmpc.robots.urdf_geometry import collision_primitives
-from wbmpc.sim.shapes import _urdf_primitives
+from wbmpc.sim.shapes import urdf_primitives
 
 # preset: (sum |q_ref| of the SRDF pose, foot radius m, URDF primitives kept, sum of their sizes and
 # |positions|), as the ElementTree readers gave them before the move to pinocchio
@@ -58,10 +58,10 @@ def test_pose_foot_radius_and_primitives_are_the_previous_ones(name):
     spec = preset_spec(name)
     q_sum, foot_radius, n_shapes, shape_sum = PREVIOUS[name]
     full = pin.buildModelFromUrdf(str(spec.urdf), pin.JointModelFreeFlyer())
-    assert np.abs(RobotModel._reference_configuration(full, spec)).sum() == pytest.approx(q_sum, abs=1e-9)
+    assert np.abs(RobotModel.reference_configuration(full, spec)).sum() == pytest.approx(q_sum, abs=1e-9)
     robot = load_robot(name)
     assert robot.foot_radius_m == pytest.approx(foot_radius, abs=1e-12)
-    shapes = [s for group in _urdf_primitives(robot).values() for s in group]
+    shapes = [s for group in urdf_primitives(robot).values() for s in group]
     assert len(shapes) == n_shapes
     assert sum(sum(s.size) + np.abs(s.pos).sum() for s in shapes) == pytest.approx(shape_sum, abs=1e-9)
 
@@ -69,7 +69,7 @@ def test_pose_foot_radius_and_primitives_are_the_previous_ones(name):
 def test_pose_is_pinocchios_reference_configuration():
     spec = preset_spec("b1_z1")
     full = pin.buildModelFromUrdf(str(spec.urdf), pin.JointModelFreeFlyer())
-    ours = RobotModel._reference_configuration(full, spec)
+    ours = RobotModel.reference_configuration(full, spec)
     pin.loadReferenceConfigurations(full, str(spec.srdf), False)
     np.testing.assert_array_equal(ours, full.referenceConfigurations[spec.pose])
 
@@ -106,4 +106,4 @@ def test_bad_srdf_values_are_refused_by_name(tmp_path):
         bad = tmp_path / "bad.srdf"
         bad.write_text(re.sub(r'(<joint name="FL_hip_joint" value=")[^"]*"', rf'\g<1>{value}"', text, count=1))
         with pytest.raises(ModelError, match=words):
-            RobotModel._reference_configuration(full, type(spec)(**{**spec.__dict__, "srdf": bad}))
+            RobotModel.reference_configuration(full, type(spec)(**{**spec.__dict__, "srdf": bad}))

@@ -307,7 +307,7 @@ def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None,
 
 
 def _damped(fake, kd=5.0):
-    last_legs, last_arm = fake.low_cmds[-1], fake.z1._latest  # the last LowCmd, the last LOWCMD of the arm
+    last_legs, last_arm = fake.low_cmds[-1], fake.z1.latest()  # the last LowCmd, the last LOWCMD of the arm
     legs = np.all(last_legs.kp == 0) and np.allclose(last_legs.kd, kd) and np.all(last_legs.tau_nm == 0)
     arm = np.all(last_arm.kp == 0) and np.allclose(last_arm.kd, kd) and np.all(last_arm.tau_nm == 0)
     return bool(legs and arm and fake.z1.fsm == zm.ArmFsmState.PASSIVE)  # damping in LOWCMD, then PASSIVE

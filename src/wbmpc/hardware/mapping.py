@@ -131,7 +131,7 @@ def _locked_reference(robot: RobotModel) -> list[float]:
     if not robot.spec.locked_joints:
         return []
     full = pin.buildModelFromUrdf(str(robot.spec.urdf), pin.JointModelFreeFlyer())
-    q_ref = RobotModel._reference_configuration(full, robot.spec)
+    q_ref = RobotModel.reference_configuration(full, robot.spec)
     out = []
     for name in robot.spec.locked_joints:
         jid = full.getJointId(name)
