@@ -31,12 +31,14 @@ class TaskLibrary:
 
 def add_hardware_commands(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
     """robot-sim and deploy; options they share with `wbmpc run` come from its declarations (`wbmpc.options`)."""
-    from wbmpc.control.interpolator import PdGains
-    from wbmpc.control.policy import MpcChoices
-    from wbmpc.options import add_declared, declared_help
+    _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks)
+    _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks)
+
+
+def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    from wbmpc.options import add_declared
 
     RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
-
     sim = sub.add_parser("robot-sim", help="MuJoCo standing in for the robot behind Unitree LowState/LowCmd (DDS)")
     add_robot_options(sim)
     _add_network_options(sim)
@@ -72,6 +74,13 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit, tasks: 
     _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit, tasks))
 
+
+def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.policy import MpcChoices
+    from wbmpc.options import add_declared, declared_help
+
+    RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
     dep = sub.add_parser("deploy", help="run the MPC on a robot (or robot-sim) over LowState/LowCmd: stand up, "
                                         "MPC, lie down")
     add_robot_options(dep)
@@ -81,7 +90,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit, tasks: 
                  help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
-    for name in ("compiled", "nodes"):
+    for name in ("compiled", "nodes", "mpc_rate_hz"):
         add_declared(dep, MpcChoices, name)
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
     add_declared(dep, MpcChoices, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
@@ -148,13 +157,15 @@ def _arm_settings(args) -> dict:
     return {"arm": arm, "z1_ports": ports}
 
 
-def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool):
+def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool,
+                      mpc_rate_hz: float | None = None):
     """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
     estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`)."""
     from wbmpc.control.policy import MpcChoices, mpc_config
 
+    rate = {} if mpc_rate_hz is None else {"mpc_rate_hz": mpc_rate_hz}
     choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
-                         delay_mode="none" if lockstep else "realtime")
+                         delay_mode="none" if lockstep else "realtime", **rate)
     return mpc_config(robot, task_needs, choices)
 
 
@@ -180,25 +191,14 @@ def _write(path, payload) -> None:
 
 
 def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
-    from wbmpc.estimation import SensorConfig
-    from wbmpc.hardware.robot_sim import UNITREE_SIM_STATE_RATE_HZ, RobotSimConfig, RobotSimulator
-    from wbmpc.hardware.safety import SafetyConfig
+    from wbmpc.hardware.robot_sim import RobotSimulator
     from wbmpc.hardware.sdk import load_sdk
 
     load_sdk()
     tasks.task_options(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
-    sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
-    config = RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
-                            start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
-                            idle_exit_s=args.idle_exit, push_time_s=args.push_time,
-                            push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
-                            refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
-                            corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
-                            state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
-                                                              else 500.0),
-                            plant_model=args.plant_model, **_arm_settings(args))
+    config = _robot_sim_config(args)
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
@@ -220,6 +220,28 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLi
         start, end = (float(x) for x in args.drift_window.split(","))
         report["window_drift_cm_s"] = result.drift_cm_s(start, end)
     _write(args.out, report)
+    emit(args, report, "\n".join(_robot_sim_summary(report, config, args)))
+    return 0
+
+
+def _robot_sim_config(args: argparse.Namespace):
+    from wbmpc.estimation import SensorConfig
+    from wbmpc.hardware.robot_sim import UNITREE_SIM_STATE_RATE_HZ, RobotSimConfig
+    from wbmpc.hardware.safety import SafetyConfig
+
+    sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
+    return RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
+                          start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
+                          idle_exit_s=args.idle_exit, push_time_s=args.push_time,
+                          push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
+                          refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
+                          corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
+                          state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
+                                                            else 500.0),
+                          plant_model=args.plant_model, **_arm_settings(args))
+
+
+def _robot_sim_summary(report: dict, config, args: argparse.Namespace) -> list[str]:
     share = report["ticks_on_time_share"]
     lines = [
         f"robot-sim {report['mode']}: {report['sim_time_s']:.2f} s simulated in {report['wall_time_s']:.1f} s, "
@@ -252,15 +274,11 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLi
                      f"watchdog (PASSIVE) {arm['watchdog_events']}x "
                      f"({', '.join(f'{x:.0f}' for x in arm['watchdog_latency_ms']) or 'no'} ms after the last valid command), "
                      f"passive at end {arm['passive_at_end']}{rtt}")
-    emit(args, report, "\n".join(lines))
-    return 0
+    return lines
 
 
 def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
-
-    from wbmpc.control.tuning import tuning_for
-    from wbmpc.hardware.deploy import Controller, DeployConfig, DeployFailure
-    from wbmpc.hardware.safety import SafetyConfig
+    from wbmpc.hardware.deploy import Controller, DeployFailure
     from wbmpc.hardware.sdk import load_sdk
     from wbmpc.solvers.nlp import SOLVERS
 
@@ -274,15 +292,8 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
     robot = robot_from_args(args)
     scenario = tasks.make_task(args.scenario, robot, tasks.task_options(speed_m_s=args.speed))
     mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
-                                   solver=args.solver, lockstep=args.lockstep)
-    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
-                                                            if v is not None})
-    config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
-                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
-                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
-                          sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
-                          arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
-                          z1_ip=args.z1_ip, robot_link=args.robot_link, **_arm_settings(args))
+                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate)
+    config = _deploy_config(args, robot, scenario)
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}, robot link "
           f"{args.robot_link}), {'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
           file=sys.stderr, flush=True)
@@ -298,6 +309,29 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
         failure = exc
         report = controller.report.summary()
     _write(args.out, report)
+    emit(args, report, "\n".join(_deploy_summary(report, args)))
+    if failure is not None:
+        print(f"wbmpc: error: {failure}", file=sys.stderr)
+        return 1
+    return 0 if not report["fell"] else 1
+
+
+def _deploy_config(args: argparse.Namespace, robot, scenario):
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.hardware.deploy import DeployConfig
+    from wbmpc.hardware.safety import SafetyConfig
+
+    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
+                                                          if v is not None})
+    return DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
+                        lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                        safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
+                        sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
+                        arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
+                        z1_ip=args.z1_ip, robot_link=args.robot_link, mpc_rate_hz=args.mpc_rate, **_arm_settings(args))
+
+
+def _deploy_summary(report: dict, args: argparse.Namespace) -> list[str]:
     arm = report["arm"]
     lines = [
         f"deploy {args.scenario}: phases {' -> '.join(f'{p} ({t:.2f} s)' for t, p in report['phases'])}",
@@ -318,8 +352,4 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
                      f"{arm['commands_sent']}")
     if report["sport_mode"] is not None:
         lines.append(f"  sport mode '{report['sport_mode']['released']}' released, restored {report['sport_mode']['restored']}")
-    emit(args, report, "\n".join(lines))
-    if failure is not None:
-        print(f"wbmpc: error: {failure}", file=sys.stderr)
-        return 1
-    return 0 if not report["fell"] else 1
+    return lines
