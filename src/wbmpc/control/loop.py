@@ -64,7 +64,7 @@ class LoopConfig:
 class CommandSource(Protocol):
     """Commands at time t given the measured state (feedback commands such as arm tracking need it)."""
 
-    def __call__(self, t: float, q: np.ndarray, v: np.ndarray) -> Commands: ...
+    def __call__(self, t_s: float, q: np.ndarray, v: np.ndarray) -> Commands: ...
 
 
 @dataclass
@@ -133,7 +133,7 @@ class ClosedLoop:
         (polled every control tick, e.g. `wbmpc.interrupt.InterruptFlag`; the log then has `interrupted`)."""
         if not duration_s > 0:
             raise ConfigError(f"duration must be positive, got {duration_s}")
-        commands = commands or (lambda t, q, v: Commands())
+        commands = commands or (lambda t_s, q, v: Commands())
         events = sorted(events or [], key=lambda e: e.time_s)
         if self.config.delay_mode == "realtime":
             return self._run_realtime(duration_s, commands, events, progress, stop)
@@ -150,17 +150,17 @@ class ClosedLoop:
     def _note_delay(self, delay_s: float) -> None:
         self._delay_mean_s = delay_s if self._delay_mean_s == 0.0 else 0.8 * self._delay_mean_s + 0.2 * delay_s
 
-    def _solve(self, log: RunLog, t: float, commands: CommandSource, first: bool = False) -> Solution:
+    def _solve(self, log: RunLog, t_s: float, commands: CommandSource, first: bool = False) -> Solution:
         """One MPC step from the state measured now; `first`: the run's first step, applied at once."""
         q, v = self._measure()
-        command = commands(t, q, v)
+        command = commands(t_s, q, v)
         start, start_cpu = time.perf_counter(), time.thread_time()
         delay_s = 0.0 if first else self._expected_delay_s(log)
         # passed only when there is one: MPC stand-ins (benchmarks' recorders) take (q, v, commands, t)
-        solution = self.mpc.solve(q, v, command, t, **({"delay_s": delay_s} if delay_s else {}))
+        solution = self.mpc.solve(q, v, command, t_s, **({"delay_s": delay_s} if delay_s else {}))
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
-        log.record_solution(t, command, solution)
+        log.record_solution(t_s, command, solution)
         return solution
 
     def _new_log(self) -> RunLog:
@@ -168,40 +168,40 @@ class ClosedLoop:
         log.mpc_rate_hz = self.config.mpc_rate_hz
         return log
 
-    def _control_tick(self, log: RunLog, active: Solution, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _control_tick(self, log: RunLog, active: Solution, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The torques of this tick and the plant's true configuration (logged)."""
         q, v = self._measure()
-        reference = interpolate(active, t)
+        reference = interpolate(active, t_s)
         q_j = self.robot.joint_positions(q, near=reference.q_des)
         tau = pd_torque(reference, q_j, v[6:], self.kp, self.kd, self.robot.tau_max)
         q_true, v_true = self.plant.state()
-        log.record_tick(t, q_true, v_true, tau, reference.tau_ff, reference.q_des, self.plant.contact_forces())
+        log.record_tick(t_s, q_true, v_true, tau, reference.tau_ff, reference.q_des, self.plant.contact_forces())
         return tau, q_true
 
-    def _low_level(self, log, active, t, next_control, tau, t0, duration_s, progress, stop=None):
+    def _low_level(self, log, active, t_s, next_control, tau, t0, duration_s, progress, stop=None):
         """The 500 Hz loop (eqs. 9-10) when due: returns (torques to hold, next tick, end the run)."""
-        if t < next_control - 1e-9:
+        if t_s < next_control - 1e-9:
             return tau, next_control, False
-        tau, q_true = self._control_tick(log, active, t)
+        tau, q_true = self._control_tick(log, active, t_s)
         next_control += 1.0 / self.config.control_rate_hz
-        if t - t0 >= len(log.rss_samples) * RSS_SAMPLE_PERIOD_S - 1e-9:
-            log.rss_samples.append((t - t0, rss_mb()))
+        if t_s - t0 >= len(log.rss_samples) * RSS_SAMPLE_PERIOD_S - 1e-9:
+            log.rss_samples.append((t_s - t0, rss_mb()))
         if self._fallen(q_true):
-            log.fell, log.fell_at_s = True, t - t0
+            log.fell, log.fell_at_s = True, t_s - t0
             return tau, next_control, True
         if progress:
-            progress((t - t0) / duration_s, log.mpc_recoveries)
+            progress((t_s - t0) / duration_s, log.mpc_recoveries)
         if stop is not None and stop():
             log.interrupted = True
             return tau, next_control, True
         return tau, next_control, False
 
-    def _apply_events(self, events: list[Event], t: float, log: RunLog) -> None:
+    def _apply_events(self, events: list[Event], t_s: float, log: RunLog) -> None:
         for event in events:
-            if not event.done and t >= event.time_s:
+            if not event.done and t_s >= event.time_s:
                 event.action(self.plant)
                 event.done = True
-                log.events.append((t, event.name))
+                log.events.append((t_s, event.name))
 
     def _run_simulated_time(self, duration_s, commands, events, progress, stop=None) -> RunLog:
         cfg, plant = self.config, self.plant
@@ -326,11 +326,11 @@ class ClosedLoop:
         log.rss_samples.append((plant.time_s - t0, rss_mb()))
         log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
 
-    def _take_answer(self, log: RunLog, solution: Solution, request, t: float, now: float, transport_s: float) -> float:
+    def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
         plan's first tick, transport included); returns the updated transport estimate."""
         log.record_solution(request[0], request[1], solution)
-        delay = max(t - request[0], now - request[2])
+        delay = max(t_s - request[0], now - request[2])
         log.record_delay(delay * 1e3)
         self._note_delay(delay)
         if delay > 1.0 / self.config.mpc_rate_hz:

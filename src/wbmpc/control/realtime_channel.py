@@ -121,12 +121,12 @@ class SharedChannel:
             self.memory.unlink()
 
     # ------------------------------------------------------------------ simulation side
-    def send_request(self, q, v, command_row: np.ndarray, t: float, delay_s: float, budget_s: float | None) -> None:
+    def send_request(self, q, v, command_row: np.ndarray, t_s: float, delay_s: float, budget_s: float | None) -> None:
         views = self.views
         views["req_q"][:] = q
         views["req_v"][:] = v
         views["req_command"][:] = command_row
-        views["req_scalars"][:] = (t, delay_s, np.nan if budget_s is None else budget_s, 0.0)
+        views["req_scalars"][:] = (t_s, delay_s, np.nan if budget_s is None else budget_s, 0.0)
         self.answer_ready.clear()
         self.request_ready.set()
 

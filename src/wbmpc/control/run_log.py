@@ -57,20 +57,20 @@ class RunLog:
         self.mpc_rate_hz: float | None = None  # the loop's configured MPC rate (`LoopConfig.mpc_rate_hz`)
 
     # ------------------------------------------------------------------ writing
-    def record_tick(self, t: float, q, v, tau, tau_ff, q_des, contact_forces) -> None:
-        row = {"t": t, "q": q, "v": v, "tau": tau, "tau_ff": tau_ff, "q_des": q_des, "contact_forces": contact_forces}
+    def record_tick(self, t_s: float, q, v, tau, tau_ff, q_des, contact_forces) -> None:
+        row = {"t": t_s, "q": q, "v": v, "tau": tau, "tau_ff": tau_ff, "q_des": q_des, "contact_forces": contact_forces}
         if self._ticks is None:
             self._ticks = self._table(row, "ticks")
         self._ticks.append(row)
 
-    def record_step(self, t: float, solve_ms: float, iterations: int, success: bool, status, command: Commands,
+    def record_step(self, t_s: float, solve_ms: float, iterations: int, success: bool, status, command: Commands,
                     planned_contact) -> None:
         status = str(status)
         code = self._status_codes.get(status)
         if code is None:
             code = self._status_codes[status] = len(self._status_names)
             self._status_names.append(status)
-        row = {"mpc_t": t, "solve_ms": solve_ms, "iterations": iterations, "success": bool(success),
+        row = {"mpc_t": t_s, "solve_ms": solve_ms, "iterations": iterations, "success": bool(success),
                "planned_contact": planned_contact, "status_code": code, "command": command_row(command)}
         if self._steps is None:
             self._steps = self._table(row, "steps")
@@ -80,12 +80,12 @@ class RunLog:
         elif RECOVERY_MARK in status:
             self.recovered_solutions += 1
 
-    def record_solution(self, t: float, command: Commands, solution) -> None:
+    def record_solution(self, t_s: float, command: Commands, solution) -> None:
         """One MPC step from its `Solution`: solve time (the solver's, else the step's wall time), iterations,
         success, status (recoveries and failures counted from it), the command and the first planned contacts;
         the solver's details (SQP iterations, residuals) once a solver reports them."""
         solve_s = solution.stats.solve_time_s if solution.stats.solve_time_s else solution.wall_time_s
-        self.record_step(t, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
+        self.record_step(t_s, solve_s * 1e3, solution.stats.iterations, solution.success, solution.stats.status, command,
                          solution.contact[0])
         if solution.stats.details or self.has_solver_details:  # one row per step once a solver reports them
             self.record_solver_details(solution.stats.details)

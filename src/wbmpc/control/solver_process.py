@@ -93,13 +93,13 @@ class SolverProcess:
     def is_alive(self) -> bool:
         return self._process.is_alive()
 
-    def request(self, q, v, command: Commands, t: float, delay_s: float = 0.0, budget_s: float | None = None) -> None:
+    def request(self, q, v, command: Commands, t_s: float, delay_s: float = 0.0, budget_s: float | None = None) -> None:
         """A plan from (q, v) at MPC time t; `delay_s`: when it will apply (delay compensation), `budget_s`:
         the step's deadline for a solver that has one."""
         if self.channel is None:
-            self._conn.send((q, v, command, t, delay_s, budget_s))
+            self._conn.send((q, v, command, t_s, delay_s, budget_s))
         else:
-            self.channel.send_request(q, v, command_row(command), t, delay_s, budget_s)
+            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s)
 
     def ready(self) -> bool:
         return self.channel.answer_ready.is_set() if self.channel is not None else self._conn.poll()
@@ -174,11 +174,11 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
             return
 
 
-def _solve(mpc: MPC, q, v, command: Commands, t: float, delay_s: float, budget_s: float | None) -> Solution:
+def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget_s: float | None) -> Solution:
     start = time.perf_counter()
     # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
     budget = budget_s if mpc.config.step_budget_s is not None else None
-    solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
+    solution = mpc.solve(q, v, command, t_s, delay_s=delay_s, budget_s=budget)
     solution.wall_time_s = time.perf_counter() - start
     solution.process_cpu_s = time.process_time()
     return solution

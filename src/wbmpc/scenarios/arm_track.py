@@ -40,33 +40,33 @@ class ArmTrack(Scenario):
         self._base_start: np.ndarray | None = None
         self._scene = None
 
-    def _reference(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _reference(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         o = self.options
         start = self._start
-        drift = np.array([o.speed_m_s * t, 0.0, 0.0])
+        drift = np.array([o.speed_m_s * t_s, 0.0, 0.0])
         if o.arm_target_path == "behind-base":
-            position, velocity = self._keyed(BEHIND_BASE_KEYS, t)
+            position, velocity = self._keyed(BEHIND_BASE_KEYS, t_s)
             return position + drift, velocity + np.array([o.speed_m_s, 0.0, 0.0])
         if o.arm_target_path == "around-obstacle":  # trotting in place: the post stands in the world
-            return self._keyed(AROUND_KEYS, t)
+            return self._keyed(AROUND_KEYS, t_s)
         w = 2 * np.pi / o.arm_period_s
-        position = start + drift + np.array([0.0, 0.0, o.arm_amplitude_m * np.sin(w * t)])
-        velocity = np.array([o.speed_m_s, 0.0, o.arm_amplitude_m * w * np.cos(w * t)])
+        position = start + drift + np.array([0.0, 0.0, o.arm_amplitude_m * np.sin(w * t_s)])
+        velocity = np.array([o.speed_m_s, 0.0, o.arm_amplitude_m * w * np.cos(w * t_s)])
         return position, velocity
 
     @property
     def base_speed_m_s(self) -> float:
         return 0.0 if self.options.arm_target_path == "around-obstacle" else self.options.speed_m_s
 
-    def _keyed(self, keys, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _keyed(self, keys, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Piecewise linear between `keys` ((time s, point relative to the base's start or None: the nominal
         hand position); held after the last key), without the forward drift."""
         times = np.array([key for key, _ in keys])
         points = np.array([self._start if p is None else self._base_start + np.asarray(p) for _, p in keys])
-        k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2))
-        if t >= times[-1]:
+        k = int(np.clip(np.searchsorted(times, t_s, side="right") - 1, 0, len(times) - 2))
+        if t_s >= times[-1]:
             return points[-1].copy(), np.zeros(3)
-        share = (t - times[k]) / (times[k + 1] - times[k])
+        share = (t_s - times[k]) / (times[k + 1] - times[k])
         velocity = (points[k + 1] - points[k]) / (times[k + 1] - times[k])
         return points[k] + share * (points[k + 1] - points[k]), velocity
 
@@ -74,9 +74,9 @@ class ArmTrack(Scenario):
         if self._start is None:
             self._start = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
             self._base_start = np.asarray(robot.q_nominal[:3], dtype=float)
-        return lambda t: self._reference(t)[0]
+        return lambda t_s: self._reference(t_s)[0]
 
-    def reachable(self, robot, t: np.ndarray) -> np.ndarray:
+    def reachable(self, robot, t_s: np.ndarray) -> np.ndarray:
         """Samples whose reference the hand can reach: within the arm's reach of its first joint and outside
         the base and the legs (their capsules at the nominal pose) and the scene's obstacles by the hand
         capsule's radius plus 3 cm."""
@@ -84,8 +84,8 @@ class ArmTrack(Scenario):
 
         self.ee_reference(robot)
         base_start = self._base_start
-        points = np.array([self._reference(float(tk))[0] for tk in t])
-        drift = np.outer(t, [self.base_speed_m_s, 0.0, 0.0])
+        points = np.array([self._reference(float(tk))[0] for tk in t_s])
+        drift = np.outer(t_s, [self.base_speed_m_s, 0.0, 0.0])
         workspace = arm_workspace(robot)
         out = workspace.reaches(points - drift - base_start + robot.q_nominal[:3])
         for box in self.obstacles(robot):  # exact distance of the point to the box
@@ -133,9 +133,9 @@ class ArmTrack(Scenario):
         base = np.array([self.base_speed_m_s, 0.0, 0.0])
         gain = self.options.arm_feedback_gain_1_s
 
-        def command(t, q, v):
+        def command(t_s, q, v):
             pin.framesForwardKinematics(robot.model, data, q)
-            position, velocity = self._reference(t)
+            position, velocity = self._reference(t_s)
             ee_velocity = velocity + gain * (position - data.oMf[fid].translation)
             speed = np.linalg.norm(ee_velocity)
             if speed > 0.9:  # stay inside the MPC's command limit

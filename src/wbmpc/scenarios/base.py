@@ -137,7 +137,7 @@ class Scenario:
                          else None, adjust_weights=self.cost_weights)
 
     def commands(self, robot: RobotModel):
-        return lambda t, q, v: Commands()
+        return lambda t_s, q, v: Commands()
 
     def events(self, robot: RobotModel) -> list[Event]:
         return []
@@ -148,14 +148,14 @@ class Scenario:
 
     ee_error_label = "|p - p_ref|"
 
-    def ee_tracking_error(self, robot: RobotModel, t: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def ee_tracking_error(self, robot: RobotModel, t_s: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(error vectors (n, 3), mask of the samples counted) of measured end-effector positions `ee`
         at times `t`: what `ee_pos_rmse_m` and the end-effector plot's RMSE are computed from. By
         default the 3D distance to `ee_reference` over the whole run; None without a reference."""
         reference = self.ee_reference(robot)
         if reference is None:
             return None
-        return ee - np.array([np.asarray(reference(float(tk)), dtype=float) for tk in t]), np.ones(len(t), dtype=bool)
+        return ee - np.array([np.asarray(reference(float(tk)), dtype=float) for tk in t_s]), np.ones(len(t_s), dtype=bool)
 
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""

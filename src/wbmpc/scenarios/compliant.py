@@ -59,7 +59,7 @@ class Compliant(Scenario):
         offset = yaw_rotation(robot.q_nominal).T @ (nominal_ee_position(robot) - robot.q_nominal[:3])
         gain = self.options.compliant_return_gain_1_s
 
-        def command(t, q, v):
+        def command(t_s, q, v):
             velocity = np.zeros(3)
             if gain > 0:
                 velocity = gain * (q[:3] + yaw_rotation(q) @ offset - ee.position(q))

@@ -31,7 +31,7 @@ class TrotForward(Scenario):
 
     def commands(self, robot):
         velocity = np.array([self.options.speed_m_s, 0.0, 0.0])
-        return lambda t, q, v: Commands(base_velocity_m_s=velocity)
+        return lambda t_s, q, v: Commands(base_velocity_m_s=velocity)
 
     def extra_metrics(self, robot, log):
         """`base_vel_cycle_mean_rmse`: the planar base velocity averaged over each whole gait cycle after the

@@ -92,13 +92,13 @@ class Pull(ForceTask):
         (-x) at the pull speed."""
         speed = self.options.pull_speed_m_s
 
-        def reference(t):
-            moving = np.maximum(np.asarray(t, dtype=float) - self.MOVE_START_S, 0.0)
+        def reference(t_s):
+            moving = np.maximum(np.asarray(t_s, dtype=float) - self.MOVE_START_S, 0.0)
             return np.column_stack([x0_m - speed * moving, np.where(moving > 0, -speed, 0.0)])
 
         return reference
 
-    def _object_command(self, robot, t):
+    def _object_command(self, robot, t_s):
         from wbmpc.ocp.objects import ObjectCommand
 
         load = self._objects(robot)[0]
@@ -123,8 +123,8 @@ class Pull(ForceTask):
         window = travel / max(speed, 1e-9)
         retract_end = self.MOVE_START_S + window
 
-        def command(t, q, v):
-            moving = t >= self.MOVE_START_S
+        def command(t_s, q, v):
+            moving = t_s >= self.MOVE_START_S
             heading = yaw_rotation(q)
             offset = offset0.copy()
             base_velocity = np.zeros(3)
@@ -133,18 +133,18 @@ class Pull(ForceTask):
                 base_velocity[0] = -speed
                 ee_velocity_ref = heading @ base_velocity
             elif not self.walking and moving:
-                share = (min(t, retract_end) - self.MOVE_START_S) / window
+                share = (min(t_s, retract_end) - self.MOVE_START_S) / window
                 offset[0] -= self.STANCE_RETRACT_M * share
-                if t < retract_end:
+                if t_s < retract_end:
                     base_velocity[0] = -self.STANCE_BASE_SHIFT_M / window
                     ee_velocity_ref = heading @ np.array([-speed, 0.0, 0.0])
             if self.options.object_model:  # the MPC plans the hand's force and motion on the load's speed
-                return Commands(base_velocity_m_s=base_velocity, object_command=self._object_command(robot, t))
+                return Commands(base_velocity_m_s=base_velocity, object_command=self._object_command(robot, t_s))
             # hold the end-effector at its (retracting) place relative to the base, in the heading frame
             p_ref = q[:3] + heading @ offset
             return Commands(base_velocity_m_s=base_velocity,
                             ee_velocity_m_s=ee_velocity_feedback(ee_velocity_ref, p_ref, ee.position(q)),
-                            ee_force_n=ramp(t, *self.RAMP_S) * force)
+                            ee_force_n=ramp(t_s, *self.RAMP_S) * force)
 
         return command
 

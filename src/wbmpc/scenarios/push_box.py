@@ -124,10 +124,10 @@ class PushBox(ForceTask):
         p_ref[0] = self._face_x(robot) - EE_SPHERE_RADIUS_M + 0.005
         force = self.force_magnitude_n * normal
 
-        def command(t, q, v):
-            free = None if t < self.APPROACH_END_S else normal
+        def command(t_s, q, v):
+            free = None if t_s < self.APPROACH_END_S else normal
             return Commands(ee_velocity_m_s=ee_velocity_feedback(np.zeros(3), p_ref, ee.position(q), free),
-                            ee_force_n=ramp(t, *self.RAMP_S) * force)
+                            ee_force_n=ramp(t_s, *self.RAMP_S) * force)
 
         return command
 
@@ -146,12 +146,12 @@ class PushBox(ForceTask):
         height = float(nominal_ee_position(robot)[2])
         pivot = self.push_pivot_m(robot)
 
-        def command(t, q, v):
-            measured = object_command(path, self._scene, self.object_name, t, pivot)
-            base = follower.base_command(t, q, measured.state)
+        def command(t_s, q, v):
+            measured = object_command(path, self._scene, self.object_name, t_s, pivot)
+            base = follower.base_command(t_s, q, measured.state)
             if self.options.object_model:
                 return Commands(**base, object_command=measured, base_height_m=self.base_height_m(robot))
-            velocity, force = force_command(path, t, box, EE_SPHERE_RADIUS_M, height, ee.position(q), ee_velocity_feedback)
+            velocity, force = force_command(path, t_s, box, EE_SPHERE_RADIUS_M, height, ee.position(q), ee_velocity_feedback)
             return Commands(**base, ee_velocity_m_s=velocity, ee_force_n=force)
 
         return command

@@ -355,7 +355,7 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         scenario = result.scenario
         reference = scenario.ee_reference(robot)
         paths += save_plots(robot, result.log, folder, ee_reference=reference,
-                            ee_error=lambda t, ee: scenario.ee_tracking_error(robot, t, ee),
+                            ee_error=lambda t_s, ee: scenario.ee_tracking_error(robot, t_s, ee),
                             ee_error_label=scenario.ee_error_label)
         # the replay shows 30 frames per second: 50 Hz of the log is plenty for long runs
         every = min(REPLAY_MAX_EVERY, max(1, round(result.log.n_ticks / REPLAY_FULL_RATE_TICKS)))

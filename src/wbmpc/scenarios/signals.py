@@ -10,9 +10,9 @@ from wbmpc.robots import RobotModel
 FORCE_SENSOR_BANDWIDTH_HZ = 30.0
 
 
-def ramp(t: float, start_s: float, end_s: float) -> float:
+def ramp(t_s: float, start_s: float, end_s: float) -> float:
     """0 before start, 1 after end, linear in between."""
-    return float(np.clip((t - start_s) / (end_s - start_s), 0.0, 1.0))
+    return float(np.clip((t_s - start_s) / (end_s - start_s), 0.0, 1.0))
 
 
 def hold(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -21,7 +21,7 @@ def hold(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
     return values[index]
 
 
-def force_tracking(t: np.ndarray, measured_n: np.ndarray, direction: np.ndarray, target_n: np.ndarray,
+def force_tracking(t_s: np.ndarray, measured_n: np.ndarray, direction: np.ndarray, target_n: np.ndarray,
                    window: np.ndarray) -> dict:
     """`ee_force_err_rel` and friends: measured force along `direction` against `target_n` (> 0) in `window`."""
     along = np.einsum("ij,ij->i", measured_n, direction)
@@ -38,12 +38,12 @@ def force_tracking(t: np.ndarray, measured_n: np.ndarray, direction: np.ndarray,
     }
 
 
-def low_pass(t: np.ndarray, values: np.ndarray, bandwidth_hz: float) -> np.ndarray:
+def low_pass(t_s: np.ndarray, values: np.ndarray, bandwidth_hz: float) -> np.ndarray:
     """First-order low-pass (a force sensor's filter) of samples `values` (n, ...) at times `t`."""
     out = np.array(values, dtype=float, copy=True)
     tau = 1.0 / (2 * np.pi * bandwidth_hz)
-    for k in range(1, len(t)):
-        alpha = (t[k] - t[k - 1]) / (t[k] - t[k - 1] + tau)
+    for k in range(1, len(t_s)):
+        alpha = (t_s[k] - t_s[k - 1]) / (t_s[k] - t_s[k - 1] + tau)
         out[k] = out[k - 1] + alpha * (values[k] - out[k - 1])
     return out
 

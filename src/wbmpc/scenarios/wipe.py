@@ -60,22 +60,22 @@ class Wipe(ForceTask):
         return [self.board(robot)] + ([CompliantPad(stiffness_n_m=stiffness, radius_m=EE_SPHERE_RADIUS_M)]
                                       if stiffness > 0 else [])
 
-    def _phase(self, t: float) -> tuple[float, float]:
+    def _phase(self, t_s: float) -> tuple[float, float]:
         """Pattern phase and its rate: the rate ramps linearly to 2 pi / period over SPEED_UP_S."""
         w = 2 * np.pi / self.options.wipe_period_s
-        tau = t - self.PATTERN_START_S
+        tau = t_s - self.PATTERN_START_S
         if tau <= 0:
             return 0.0, 0.0
         if tau < self.SPEED_UP_S:
             return 0.5 * w * tau**2 / self.SPEED_UP_S, w * tau / self.SPEED_UP_S
         return w * (tau - 0.5 * self.SPEED_UP_S), w
 
-    def path(self, robot, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def path(self, robot, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """End-effector frame position and velocity of the pattern on the board at time t."""
         board = self.board(robot)
         a1, a2 = board.plane_axes
         r = self.options.wipe_size_m
-        phi, rate = self._phase(t)
+        phi, rate = self._phase(t_s)
         if self.options.wipe_pattern == "circle":  # through the centre, like a wiping loop
             offset = r * np.sin(phi) * a1 + r * (1 - np.cos(phi)) * a2
             d_offset = r * np.cos(phi) * a1 + r * np.sin(phi) * a2
@@ -85,7 +85,7 @@ class Wipe(ForceTask):
         return self._centre + offset, d_offset * rate
 
     def ee_reference(self, robot):
-        return lambda t: self.path(robot, t)[0]
+        return lambda t_s: self.path(robot, t_s)[0]
 
     def _force_direction(self, targets):
         inward = -self.board(self._scene.robot).normal
@@ -105,14 +105,14 @@ class Wipe(ForceTask):
 
         integral = InPlaneIntegral(normal, self.options.wipe_integral_gain_1_s2)
 
-        def command(t, q, v):
-            p_ref, v_ref = self.path(robot, t)
+        def command(t_s, q, v):
+            p_ref, v_ref = self.path(robot, t_s)
             p = ee.position(q)
-            if t < self.APPROACH_END_S:
+            if t_s < self.APPROACH_END_S:
                 velocity = ee_velocity_feedback(v_ref, p_ref - 0.005 * normal, p)
             else:
-                velocity = ee_velocity_feedback(v_ref + integral.update(t, p_ref - p), p_ref, p, free_normal=normal)
-            press = ramp(t, *self.RAMP_S) * self.force_magnitude_n
+                velocity = ee_velocity_feedback(v_ref + integral.update(t_s, p_ref - p), p_ref, p, free_normal=normal)
+            press = ramp(t_s, *self.RAMP_S) * self.force_magnitude_n
             force = -normal * press
             speed = np.linalg.norm(v_ref)
             if speed > 1e-6:  # the board's friction resists the motion: the end-effector pushes along it
@@ -123,12 +123,12 @@ class Wipe(ForceTask):
 
     ee_error_label = "in-plane |p - p_ref| from the pattern's start"
 
-    def ee_tracking_error(self, robot, t, ee):
+    def ee_tracking_error(self, robot, t_s, ee):
         """In-plane error (the normal is force-controlled) from the pattern's start."""
-        reference = np.array([self.path(robot, float(ti))[0] for ti in t])
+        reference = np.array([self.path(robot, float(ti))[0] for ti in t_s])
         normal = self.board(robot).normal
         error = ee - reference
-        return error - np.outer(error @ normal, normal), np.asarray(t) >= self.PATTERN_START_S
+        return error - np.outer(error @ normal, normal), np.asarray(t_s) >= self.PATTERN_START_S
 
     def extra_metrics(self, robot, log):
         out = super().extra_metrics(robot, log)
