@@ -13,7 +13,7 @@ quadratic in the variables, so this Hessian is the Gauss-Newton one: positive de
 constraint curvature (RNEA, kinematics, friction cone) is left out, so no multipliers are needed
 to linearise and the QP stays convex. For the [h_com, q] formulations it is the exact cost Hessian
 (positive definite on the go2 tests). Iterated at a fixed state the step converges (linearly) to
-the KKT point Fatrop finds, on all six formulations (tests/test_rti.py). The Jacobian and cost gradient come from the same per-stage
+the KKT point Fatrop finds, on all six formulations (tests/solvers/test_rti.py). The Jacobian and cost gradient come from the same per-stage
 derivatives as the compiled Fatrop solver (`solvers/codegen.py`: one compiled library, cached);
 without `compiled` they are evaluated in CasADi's SX virtual machine.
 

@@ -1,5 +1,5 @@
 """Real-time push map: `wbmpc campaign --delay realtime` runs one case at a time and reports each case's
-achieved MPC rate and late share (the runs themselves are in tests/test_loop.py and tests/test_anytime.py)."""
+achieved MPC rate and late share (the runs themselves are in tests/control/test_loop.py and tests/solvers/test_anytime.py)."""
 
 import json
 

@@ -36,7 +36,7 @@ from wbmpc.sim import make_plant  # noqa: E402
 
 DOMAIN = 150 + os.getpid() % 80  # a domain of its own: parallel test runs do not hear each other
 Z1_PORTS = f"{30000 + 2 * (os.getpid() % 1000)},{30001 + 2 * (os.getpid() % 1000)}"  # UDP ports of their own
-SRC = os.path.join(os.path.dirname(__file__), "..", "src")
+SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """The real-time loop's shared-memory channel carries requests and plans unchanged (both ends in one
-process here; tests/test_loop.py and tests/test_anytime.py run it across processes)."""
+process here; tests/control/test_loop.py and tests/solvers/test_anytime.py run it across processes)."""
 
 import multiprocessing
 
