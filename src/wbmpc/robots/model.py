@@ -155,7 +155,7 @@ class RobotModel:
                 raise ModelError(
                     f"joint '{full.names[i]}' has type {full.joints[i].shortname()} ({full.joints[i].nv} DoF), which "
                     "wbmpc does not support; it supports revolute, continuous and prismatic joints (aligned or not) "
-                    "below the free-flyer root: lock the joint (--lock) or change its type in the URDF"
+                    "below the free-flyer root: lock the joint (--lock) or change its type in the robot's file"
                 )
         q_ref = self._reference_configuration(full, spec)
         self.keyframe: str | None = None  # the MJCF keyframe of the nominal pose
