@@ -216,7 +216,8 @@ def test_realtime_processes_ask_for_a_higher_priority_and_report_what_they_got()
 def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
     """`--delay-mode realtime` on a small problem: the solver process answers, every answer is logged with its
     wall time as the delay, late ones are counted, the two processes' CPU shares are measured; the robot
-    (go2, 6 nodes, standing: fast enough for any machine) stays up."""
+    (go2, 6 nodes, standing) stays up. The run ends after a number of answers (however long a loaded machine
+    takes to give them), not after a wall-clock time."""
     from wbmpc.robots import load_robot
 
     robot = load_robot("go2")
@@ -224,12 +225,14 @@ def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
                                gait="stand"))
     plant = make_plant("pinocchio", robot)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
-    log = ClosedLoop(mpc, plant, LoopConfig(delay_mode="realtime")).run(0.5)
-    assert not log.fell and not log.interrupted
-    assert len(log.solve_ms) >= 5  # some solves came back within 0.5 s of wall-clock time
+    loop = ClosedLoop(mpc, plant, LoopConfig(delay_mode="realtime"))
+    answers = 6
+    log = loop.run(60.0, stop=lambda: loop.log is not None and loop.log.n_steps >= answers)
+    assert not log.fell and log.interrupted  # stopped by the count, within the minute
+    assert len(log.solve_ms) >= answers
     assert len(log.delay_ms) == len(log.solve_ms) - 1  # all but the first (solved before the clock starts)
     assert 0 <= log.late_solutions <= len(log.delay_ms)
     assert log.late_solutions == sum(d > 1e3 / 80 for d in log.delay_ms)
     assert 0 < log.sim_cpu_share <= 1.05 and 0 < log.mpc_cpu_share <= 1.05
     assert log.realtime_priority is not None
-    assert log.wall_time_s == pytest.approx(0.5, rel=0.5)
+    assert 0 < log.wall_time_s < 60.0

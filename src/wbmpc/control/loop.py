@@ -95,6 +95,7 @@ class ClosedLoop:
         self._rng = np.random.default_rng(config.seed)
         self._filtered_v: np.ndarray | None = None
         self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
+        self.log: RunLog | None = None  # the log of the run in progress (or the last one): a `stop` may read it
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +165,7 @@ class ClosedLoop:
         return solution
 
     def _new_log(self) -> RunLog:
-        log = RunLog(self.log_dir, self.log_chunk_rows)
+        log = self.log = RunLog(self.log_dir, self.log_chunk_rows)
         log.mpc_rate_hz = self.config.mpc_rate_hz
         return log
 
