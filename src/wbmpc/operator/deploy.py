@@ -128,7 +128,8 @@ class DeployOperator:
             arrays = {"t": t, "q": np.array([s[1] for s in self._samples]), "v": np.array([s[2] for s in self._samples]),
                       "mpc_t": t, "planned_contact": np.array([[1.0] if s[3] else [0.0] for s in self._samples])}
             gait = controller.mpc.gait if controller.mpc is not None else controller.gait
-            out = operator_metrics(self.robot, arrays, self.session, gait.nominal_period_s, transitions=gait.transitions)
+            out = operator_metrics(self.robot, arrays, self.session, gait.nominal_period_s, transitions=gait.transitions,
+                                   mpc_period_s=1.0 / controller.config.mpc_rate_hz)
             out["state"] = "estimated (100 Hz)"
         elif self.session is not None:
             out = {"posts": len(self.session.posts())}
@@ -137,3 +138,26 @@ class DeployOperator:
         if self.meshcat is not None:
             out["meshcat"] = self.meshcat.summary()
         return {"operator": out} if out else {}
+
+    @staticmethod
+    def summary_lines(operator: dict | None) -> list[str]:
+        """The deploy summary's operator lines: commands, latency, segments, remote and live page."""
+        if not operator:
+            return []
+        lines = []
+        latency = operator.get("command_latency_ms") or {}
+        if latency.get("commands"):
+            lines.append(f"  operator: {latency['commands']} commands, latency max {latency['max']:.1f} ms (MPC period "
+                         f"{latency['mpc_period_ms']:.1f} ms); gait switches {len(operator.get('gait_transitions', []))}")
+        for segment in operator.get("segments", []):
+            if segment.get("base_vel_rmse") is not None:
+                lines.append(f"    {segment['start_s']:6.2f}-{segment['end_s']:6.2f} s {segment['label']}: base velocity "
+                             f"RMSE {segment['base_vel_rmse']:.3f} m/s, yaw rate {segment['yaw_rate_rmse']:.3f} rad/s "
+                             "(estimated)")
+        if operator.get("remote"):
+            lines.append(f"  remote: {operator['remote']['received']} changes received, {operator['remote']['rejected']} "
+                         "rejected")
+        if operator.get("meshcat"):
+            page = operator["meshcat"]
+            lines.append(f"  live page {page['url']}: {page['frames']} frames, {page['rate_hz'] or 0:.1f} Hz")
+        return lines

@@ -31,22 +31,26 @@ def _segments(posts: list[Posted], t_end: float) -> list[tuple[float, float, Pos
     return [(times[i], times[i + 1], p) for i, p in enumerate(kept) if times[i] < t_end]
 
 
-def operator_metrics(robot: RobotModel, arrays: dict, session, period_s: float, transitions=(),
-                     labels: dict | None = None, mpc_period_s: float = 1 / 80) -> dict:
-    """`arrays`: the run's ticks (t, q, v) and steps (mpc_t, planned_contact); `session`: the `OperatorSession`;
-    `period_s`: the walking gait's period; `labels`: {board entry seq: label} (a script's)."""
-    t, q, v = arrays["t"], arrays["q"], arrays["v"]
-    n = len(t)
-    yaw = np.empty(n)
-    v_world = np.empty((n, 3))
-    w_world = np.empty((n, 3))
+def _base_motion(q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per tick: the base's planar velocity in its heading frame (n, 2) and its angular velocity in world (n, 3)."""
+    n = len(q)
+    yaw, v_world, w_world = np.empty(n), np.empty((n, 3)), np.empty((n, 3))
     for i in range(n):
         rot = pin.Quaternion(q[i, 3:7]).toRotationMatrix()
         yaw[i] = np.arctan2(rot[1, 0], rot[0, 0])
         v_world[i] = rot @ v[i, :3]
         w_world[i] = rot @ v[i, 3:6]
     c, s = np.cos(yaw), np.sin(yaw)
-    v_heading = np.column_stack([c * v_world[:, 0] + s * v_world[:, 1], -s * v_world[:, 0] + c * v_world[:, 1]])
+    return np.column_stack([c * v_world[:, 0] + s * v_world[:, 1], -s * v_world[:, 0] + c * v_world[:, 1]]), w_world
+
+
+def operator_metrics(robot: RobotModel, arrays: dict, session, period_s: float, transitions=(),
+                     labels: dict | None = None, mpc_period_s: float = 1 / 80) -> dict:
+    """`arrays`: the run's ticks (t, q, v) and steps (mpc_t, planned_contact); `session`: the `OperatorSession`;
+    `period_s`: the walking gait's period; `labels`: {board entry seq: label} (a script's)."""
+    t, q, v = arrays["t"], arrays["q"], arrays["v"]
+    n = len(t)
+    v_heading, w_world = _base_motion(q, v)
     step_t = np.asarray(arrays["mpc_t"], dtype=float)
     stance = np.asarray(arrays["planned_contact"], dtype=float)
     all_stance = stance.min(axis=1) > 0.5 if stance.size else np.zeros(0, dtype=bool)

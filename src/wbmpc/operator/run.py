@@ -13,6 +13,7 @@ from typing import Callable
 
 import numpy as np
 
+from wbmpc.control.loop import MPC_RATE_HZ
 from wbmpc.gait import natural_gait
 from wbmpc.operator.command import OperatorCommand, OperatorLimits
 from wbmpc.operator.config import OperatorConfig
@@ -145,7 +146,8 @@ class OperatorRun:
             labels = {p.seq: by_note[p.note] for p in self.session.posts() if p.note in by_note}
         arrays = log.arrays(("t", "q", "v", "mpc_t", "planned_contact"))
         metrics = operator_metrics(self.robot, arrays, self.session, mpc.gait.nominal_period_s,
-                                   transitions=mpc.gait.transitions, labels=labels)
+                                   transitions=mpc.gait.transitions, labels=labels,
+                                   mpc_period_s=1.0 / (log.mpc_rate_hz or MPC_RATE_HZ))
         metrics["ended_by"] = self.ended_by
         metrics["script"] = self.script.path if self.script is not None else None
         if self.viewer is not None:

@@ -71,6 +71,35 @@ _LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _map
 def read_script(path: str | Path, limits: OperatorLimits, initial: OperatorCommand = OperatorCommand()) -> CommandScript:
     """Parse and check a command script (see the module docstring); ConfigError on any defect."""
     path = Path(path)
+    duration, items = _load(path)
+    entries, command, last_t = [], initial, -math.inf
+    ignored: set[str] = set()
+    for index, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ConfigError(f"--commands {path}, entry {index + 1}: each command is a mapping like {{at: 2.0, walk: "
+                              f"true, forward: 0.4}}, got {item!r}")
+        line = item.pop("__line__", 0)
+        where = f"--commands {path}:{line}"
+        at = _entry_time(item, where, last_t, duration)
+        last_t = at
+        changes = _changes(item, where, limits, ignored)
+        stop = changes.pop("stop", False)
+        if stop:
+            command = command.stopped()
+        command = command.with_changes(**changes)
+        problems = limits.violations(command)
+        if problems:
+            raise ConfigError(f"{where}: {'; '.join(problems)}: lower it (the robot's ranges: "
+                              f"{_ranges_text(limits)})")
+        if stop:
+            changes = {"stop": True, **changes}
+        label = str(item.get("label") or _auto_label(changes))
+        entries.append(ScriptEntry(at, label, changes, command, line))
+    return CommandScript(str(path), tuple(entries), None if duration is None else float(duration), tuple(sorted(ignored)))
+
+
+def _load(path: Path) -> tuple[float | None, list]:
+    """The script's `duration` (None without one) and its list of commands, each mapping with its `__line__`."""
     if not path.is_file():
         raise ConfigError(f"--commands: no command script at '{path}' (a YAML file of timed commands; see "
                           "examples/session.yaml)")
@@ -93,60 +122,47 @@ def read_script(path: str | Path, limits: OperatorLimits, initial: OperatorComma
     if not isinstance(data, list) or not data:
         raise ConfigError(f"--commands {path}: expected a list of commands (or 'commands:' holding one), each "
                           "{at: SECONDS, ...}")
-    entries, command, last_t = [], initial, -math.inf
-    ignored: set[str] = set()
-    for index, item in enumerate(data):
-        where = f"--commands {path}, entry {index + 1}"
-        if not isinstance(item, dict):
-            raise ConfigError(f"{where}: each command is a mapping like {{at: 2.0, walk: true, forward: 0.4}}, got "
-                              f"{item!r}")
-        line = item.pop("__line__", 0)
-        where = f"--commands {path}:{line}"
-        unknown = sorted(set(item) - set(ENTRY_KEYS))
-        if unknown:
-            raise ConfigError(f"{where}: unknown command {', '.join(map(repr, unknown))}; known: "
-                              f"{', '.join(ENTRY_KEYS)}")
-        at = item.get("at")
-        if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at) or at < 0:
-            raise ConfigError(f"{where}: 'at' must be a time in seconds >= 0, got {at!r}")
-        if at <= last_t:
-            raise ConfigError(f"{where}: times must increase; {at:g} s comes after {last_t:g} s")
-        if duration is not None and at >= duration:
-            raise ConfigError(f"{where}: at {at:g} s is not before the script's duration ({duration:g} s)")
-        last_t = float(at)
-        changes = {}
-        for key, value in item.items():
-            if key in NUMBER_KEYS:
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                    raise ConfigError(f"{where}: {key} must be a number in {FIELDS[key]}, got {value!r}")
-                changes[key] = float(value)
-            elif key in ("walk", "stop", "lie_down"):
-                if not isinstance(value, bool):
-                    raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
-                if key == "walk" or value:
-                    changes[key] = value
-            elif key == "hand":
-                if value is not None and (not isinstance(value, list) or len(value) != 3 or not all(
-                        isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
-                    raise ConfigError(f"{where}: hand must be [x, y, z] in metres (base heading frame, from its "
-                                      f"standing place) or null, got {value!r}")
-                if not limits.has_arm:
-                    ignored.add("hand")
-                    continue
-                changes["hand"] = None if value is None else [float(x) for x in value]
-        stop = changes.pop("stop", False)
-        if stop:
-            command = command.stopped()
-        command = command.with_changes(**changes)
-        problems = limits.violations(command)
-        if problems:
-            raise ConfigError(f"{where}: {'; '.join(problems)}: lower it (the robot's ranges: "
-                              f"{_ranges_text(limits)})")
-        if stop:
-            changes = {"stop": True, **changes}
-        label = str(item.get("label") or _auto_label(changes))
-        entries.append(ScriptEntry(float(at), label, changes, command, line))
-    return CommandScript(str(path), tuple(entries), None if duration is None else float(duration), tuple(sorted(ignored)))
+    return duration, data
+
+
+def _entry_time(item: dict, where: str, last_t: float, duration: float | None) -> float:
+    """The entry's `at`, checked: known keys, a time >= 0 after the previous one and before the duration."""
+    unknown = sorted(set(item) - set(ENTRY_KEYS))
+    if unknown:
+        raise ConfigError(f"{where}: unknown command {', '.join(map(repr, unknown))}; known: {', '.join(ENTRY_KEYS)}")
+    at = item.get("at")
+    if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at) or at < 0:
+        raise ConfigError(f"{where}: 'at' must be a time in seconds >= 0, got {at!r}")
+    if at <= last_t:
+        raise ConfigError(f"{where}: times must increase; {at:g} s comes after {last_t:g} s")
+    if duration is not None and at >= duration:
+        raise ConfigError(f"{where}: at {at:g} s is not before the script's duration ({duration:g} s)")
+    return float(at)
+
+
+def _changes(item: dict, where: str, limits: OperatorLimits, ignored: set[str]) -> dict:
+    """The fields an entry sets, each value checked for its type ("hand" on a robot without an arm: `ignored`)."""
+    changes = {}
+    for key, value in item.items():
+        if key in NUMBER_KEYS:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"{where}: {key} must be a number in {FIELDS[key]}, got {value!r}")
+            changes[key] = float(value)
+        elif key in ("walk", "stop", "lie_down"):
+            if not isinstance(value, bool):
+                raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+            if key == "walk" or value:
+                changes[key] = value
+        elif key == "hand":
+            if value is not None and (not isinstance(value, list) or len(value) != 3 or not all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
+                raise ConfigError(f"{where}: hand must be [x, y, z] in metres (base heading frame, from its "
+                                  f"standing place) or null, got {value!r}")
+            if not limits.has_arm:
+                ignored.add("hand")
+                continue
+            changes["hand"] = None if value is None else [float(x) for x in value]
+    return changes
 
 
 def script_duration(path: str | Path | None) -> float | None:

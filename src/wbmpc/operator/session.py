@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from wbmpc.control.mpc import Commands
+from wbmpc.control.commands import Commands
 from wbmpc.operator.board import CommandBoard, Posted
 from wbmpc.operator.command import OperatorCommand, OperatorLimits
 from wbmpc.operator.shaper import CommandShaper, RampLimits

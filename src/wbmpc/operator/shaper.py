@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.mpc import Commands
+from wbmpc.control.commands import Commands
 from wbmpc.errors import check_number
 from wbmpc.operator.command import OperatorCommand
 from wbmpc.robots import RobotModel
@@ -79,14 +79,14 @@ class CommandShaper:
         """Where the hand is asked to be now (world), None without an arm."""
         if self.hand_home_m is None:
             return None
-        return q[:3] + _heading(q) @ (self.hand_home_m + self.hand_offset)
+        return q[:3] + heading_rotation(q) @ (self.hand_home_m + self.hand_offset)
 
     def __call__(self, t: float, q: np.ndarray, v: np.ndarray, command: OperatorCommand, base: Commands) -> Commands:
         lim = self.limits
         dt = 0.0 if self._last_t is None else max(0.0, t - self._last_t)
         self._last_t = t
         target = np.array([command.forward_m_s, command.lateral_m_s]) if command.walking else np.zeros(2)
-        heading = _heading(q)
+        heading = heading_rotation(q)
         rot = pin.Quaternion(np.asarray(q[3:7], dtype=float)).toRotationMatrix()
         measured = (heading.T @ rot @ np.asarray(v[:3], dtype=float))[:2]
         measured_yaw = float((rot @ np.asarray(v[3:6], dtype=float))[2])
@@ -115,7 +115,7 @@ class CommandShaper:
         lim = self.limits
         previous = self.hand_offset.copy()
         self.hand_offset = _step_towards(self.hand_offset, target_offset, lim.hand_speed_m_s * dt)
-        heading = _heading(q)
+        heading = heading_rotation(q)
         lever = heading @ (self.hand_home_m + self.hand_offset)
         feedforward = heading @ np.array([self.velocity[0], self.velocity[1], 0.0])
         feedforward += np.cross([0.0, 0.0, self.yaw_rate], lever)
@@ -147,7 +147,7 @@ def _governed_step(current: np.ndarray, target: np.ndarray, max_step: float, mea
     return current + step * direction
 
 
-def _heading(q: np.ndarray) -> np.ndarray:
+def heading_rotation(q: np.ndarray) -> np.ndarray:
     """The base's heading frame (yaw only) in world coordinates."""
     rot = pin.Quaternion(np.asarray(q[3:7], dtype=float)).toRotationMatrix()
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))

@@ -100,12 +100,12 @@ def _draw(spec, rate_hz: float, queue, conn) -> None:
         import meshcat.geometry as mg
 
         from wbmpc.robots import RobotModel
-        from wbmpc.viz.replay import _viewer_class, robot_geometry
+        from wbmpc.viz.replay import robot_geometry, viewer_class
 
         robot = RobotModel(spec)
         viewer = meshcat.Visualizer()
         geometry, _ = robot_geometry(robot)
-        viz = _viewer_class()(robot.model, geometry, geometry)
+        viz = viewer_class()(robot.model, geometry, geometry)
         viz.initViewer(viewer=viewer)
         viz.loadViewerModel(rootNodeName="robot")
         viz.display(robot.q_nominal)

@@ -92,7 +92,7 @@ class LiveViewer:
             self.handle.cam.distance = 4.0 * float(self.robot.q_nominal[2]) + 1.0
             self.handle.cam.elevation = -20.0
             self.handle.cam.azimuth = 135.0
-        self._sync(force=True)
+        self.sync()
 
     def is_running(self) -> bool:
         return self.handle is None or self.handle.is_running()
@@ -120,10 +120,12 @@ class LiveViewer:
     def after_step(self, plant) -> None:
         now = time.perf_counter()
         if now - self._last_sync >= self.sync_period_s:
-            self._sync()
+            self.sync()
 
     # ------------------------------------------------------------------ drawing and syncing
-    def _sync(self, force: bool = False) -> None:
+    def sync(self) -> None:
+        """Now: the plan drawn, the scene handed to the window, the GUI's perturbation and a dragged hand target read
+        (the plant's steps call it every `sync_period_s`)."""
         handle = self.handle
         if handle is None or not handle.is_running():
             return
@@ -221,7 +223,9 @@ class LiveViewer:
             return
         q, _ = self.plant.state()
         shaper = self.session.shaper
-        heading = _heading(q)
+        from wbmpc.operator.shaper import heading_rotation
+
+        heading = heading_rotation(q)
         offset = heading.T @ (where - q[:3]) - shaper.hand_home_m
         board = self.session.board
         board.post("viewer", {"hand": offset}, note="viewer: hand target dragged")
@@ -230,12 +234,6 @@ class LiveViewer:
     def summary(self) -> dict:
         return {"syncs": self.syncs, "plans_drawn": self.plans_drawn, "geoms_last_sync": self.geoms_drawn,
                 "pushes": len(self.events)}
-
-
-def _heading(q: np.ndarray) -> np.ndarray:
-    from wbmpc.operator.shaper import _heading as heading
-
-    return heading(q)
 
 
 def _connector(scene, kind, start, end, rgba, width: float) -> None:
