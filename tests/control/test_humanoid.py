@@ -174,6 +174,60 @@ def test_swing_placement_carries_each_swing_foot_to_its_landing_point(g1):
     assert np.all(lbg[rows[~swing]] == 0.0) and np.all(ubg[rows[~swing]] == 0.0)
 
 
+def test_swing_placement_turns_each_sole_to_its_landing_heading_and_steps_with_the_turn(g1):
+    """Turning: the swing soles' yaw rates integrate over the swing left to the heading at touch-down plus half a
+    stance of turn (the sole's measured heading wound back by 0.4 rad, as a turn in place left g1's soles without
+    them); the landing point is under the hip turned to the touch-down heading, v_hip T_st / 2 ahead with
+    v_hip = omega x r_hip; the OCP's swing soles take the yaw rates, stance soles stay still."""
+    from wbmpc.control.foot_placement import SwingPlacement
+
+    placement = SwingPlacement(g1)
+    gait = make_gait("walk", 2, leg_length_m=0.65)
+    swing_s, stance_s = (1 - gait.duty_factor) * gait.period_s, gait.duty_factor * gait.period_s
+    lift_off, touch_down = 0.2 * gait.period_s, 0.5 * gait.period_s  # the left foot's first swing
+    yaw, yaw_rate = 0.3, 0.6
+    q = g1.q_nominal.copy()
+    q[3:7] = (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    data = g1.model.createData()
+    pin.framesForwardKinematics(g1.model, data, q)
+    feet = np.array([data.oMf[g1.frame_id(g1.contact_frame(f))].translation for f in g1.feet])
+    nominal = g1.q_nominal.copy()
+    nominal[3:7] = (0.0, 0.0, 0.0, 1.0)
+    pin.framesForwardKinematics(g1.model, data, nominal)
+    r_hip = data.oMf[g1.frame_id(g1.contact_frame(g1.feet[0]))].translation[:2] - nominal[:2]
+    t = lift_off + 0.3 * swing_s
+    times = np.linspace(0.0, touch_down - t, 20001)[:-1]
+    feet_yaw = np.array([yaw - 0.4, yaw])
+    rates = placement.yaw_rates(gait, t, times, yaw, yaw_rate, feet_yaw)
+    assert np.all(np.isnan(rates[:, 1])) and np.all(np.isfinite(rates[:, 0]))  # the right foot stands throughout
+    turned = feet_yaw[0] + np.trapezoid(rates[:, 0], times)
+    assert turned == pytest.approx(yaw + yaw_rate * ((touch_down - t) + stance_s / 2), abs=2e-3)
+    command = np.zeros(3)
+    v_ref = placement.velocities(gait, t, times, q, command, command, yaw, feet, yaw_rate)
+    landed = feet[0, :2] + np.trapezoid(v_ref[:, 0], times, axis=0)
+    psi = yaw + yaw_rate * (touch_down - t)
+    lever = np.array([[np.cos(psi), -np.sin(psi)], [np.sin(psi), np.cos(psi)]]) @ r_hip
+    target = q[:2] + lever + yaw_rate * np.array([-lever[1], lever[0]]) * stance_s / 2
+    np.testing.assert_allclose(landed, target, atol=2e-3)
+    # the OCP: swing soles' yaw rows equal the references, stance soles' zero
+    problem = OcpProblem(g1)
+    times = t + problem.config.grid.node_times_s
+    contact = gait.contact(times)
+    rates = placement.yaw_rates(gait, t, problem.config.grid.node_times_s, yaw, yaw_rate, feet_yaw)
+    bounds = StageBounds(v0=np.zeros(g1.nv), q_ref=q, contact=contact,
+                         swing_vz_m_s=SwingProfile().vertical_velocity(gait.swing_phase(times), gait.swing_duration_s),
+                         swing_yaw_rate_rad_s=rates)
+    lbg, ubg = problem.bounds(bounds)[2:]
+    nodes = problem.row_nodes["foot_ang"]
+    yaw_rows = problem.rows["foot_ang"].reshape(len(nodes), 2, 3)[..., 2]
+    swing = contact[nodes] == 0
+    turned = swing & np.isfinite(rates[nodes])
+    assert turned[:, 0].any() and turned[:, 1].any()
+    np.testing.assert_allclose(lbg[yaw_rows[turned]], rates[nodes][turned])
+    np.testing.assert_allclose(ubg[yaw_rows[turned]], rates[nodes][turned])
+    assert np.all(lbg[yaw_rows[~swing]] == 0.0) and np.all(ubg[yaw_rows[~swing]] == 0.0)
+
+
 def test_centroidal_wrench_includes_sole_moments(g1, rng):
     """hdot from the contact wrenches equals pinocchio's total external wrench about the CoM plus gravity."""
     dyn = SymbolicDynamics(g1)

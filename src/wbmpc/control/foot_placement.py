@@ -119,21 +119,29 @@ MAX_STEP_PER_LEG = 0.5  # landing target at most this many leg lengths from the 
 
 
 class SwingPlacement:
-    """Horizontal velocity references of swing feet that carry each one to a landing point (a biped's step).
+    """Horizontal velocity references of swing feet that carry each one to a landing point (a biped's step), and
+    yaw rates that turn a flat foot's sole to its landing heading.
 
     A biped's posture cost is light (`control/biped.py`), so nothing in the OCP makes a swing foot step ahead:
     walking forward, g1's plans kept the swing foot near where it lifted off and leant the base over the
     toes of the stance foot (CoM 9 cm ahead of both soles at touch-down, ankles at their torque limit).
     The landing point of each swing is Raibert's with capture-point feedback,
 
-        p_td = p_base + (t_td - t) v_cmd + R_heading r_foot + v_cmd T_st / 2 + k (v - v_cmd) sqrt(h / g),
+        p_td = p_base + (t_td - t) v_cmd + R(psi_td) r_foot + v_hip T_st / 2 + k (v - v_cmd) sqrt(h / g),
+        psi_td = psi + (t_td - t) omega_cmd,   v_hip = v_cmd + omega_cmd x R(psi_td) r_foot,
 
-    p_base the measured base, r_foot the foot's place under its hip in the nominal pose (heading frame),
-    T_st the stance duration, h the nominal base height; within MAX_STEP_PER_LEG leg lengths of
-    p_base + (t_td - t) v_cmd + R r_foot. The foot's path to it follows the profile 6 s (1 - s) over swing
+    p_base the measured base, psi its heading, r_foot the foot's place under its hip in the nominal pose (heading
+    frame), T_st the stance duration, h the nominal base height; within MAX_STEP_PER_LEG leg lengths of
+    p_base + (t_td - t) v_cmd + R(psi_td) r_foot. The foot's path to it follows the profile 6 s (1 - s) over swing
     progress s (zero velocity at lift-off and touch-down), rescaled every MPC step from the measured foot
     over the swing left, so the reference corrects itself; the last PLACEMENT_END_SHARE of the profile is
     left free (the rescaling would divide by almost nothing).
+
+    A flat sole's yaw rate is free in swing in the OCP and nothing else turns it: turning in place at 0.6 rad/s,
+    g1's soles stayed where they stood while the pelvis turned over them, its hip yaw joints wound up to -1.1 and
+    -1.7 rad in 4 s and the sideways steps that followed crossed its feet (ankles and knees colliding) and felled
+    it. So the sole turns with the same profile to its heading at touch-down, psi_td + omega_cmd T_st / 2 plus its
+    heading in the nominal pose (stance then turns the base over it from half a stance ahead to half behind).
     """
 
     def __init__(self, robot: RobotModel):
@@ -145,52 +153,88 @@ class SwingPlacement:
         pin.framesForwardKinematics(model, self._data, q)
         base = q[:2]
         self._foot_offsets_m = np.array([self._data.oMf[f].translation[:2] - base for f in self._frames])
+        self._foot_yaws_rad = np.array([heading_of(self._data.oMf[f].rotation) for f in self._frames])
         self._height_m = float(robot.q_nominal[2])
         self._reach_m = MAX_STEP_PER_LEG * self._height_m
 
     def velocities(self, gait: Gait, t_s: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
-                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray) -> np.ndarray:
+                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray, yaw_rate_rad_s: float = 0.0) -> np.ndarray:
         """(nodes, n_feet, 2) world xy velocity references of swing feet at t + node_times_s (NaN: stance or
         the free end of a swing). `v_world`: the measured base velocity, `command_world` the commanded one,
-        both world xy; `feet_m`: measured foot positions (n_feet, >= 2)."""
-        times = t_s + np.asarray(node_times_s, dtype=float)
-        n, n_feet = len(times), len(self._frames)
-        out = np.full((n, n_feet, 2), np.nan)
-        duty = gait.duty_factor
-        if duty >= 1:
-            return out
-        period = gait.period_s
-        swing_s, stance_s = (1 - duty) * period, duty * period
-        heading = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+        both world xy; `yaw`: the base's heading; `feet_m`: measured foot positions (n_feet, >= 2);
+        `yaw_rate_rad_s`: the commanded yaw rate."""
+        out = np.full((len(node_times_s), len(self._frames), 2), np.nan)
         command = np.asarray(command_world, dtype=float)[:2]
         capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self._height_m / 9.81)
-        phase = gait.phase(times)  # (n, feet)
-        progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
-        now_phase = gait.phase(np.array([t_s]))[0]
-        for i in range(n_feet):
-            start = np.asarray(feet_m[i][:2], dtype=float)
-            swinging = progress[:, i] >= 0
-            if not swinging.any():
-                continue
-            # swings in the horizon, in order: a new one starts where progress drops (or at the first swing node)
-            previous = np.r_[-1.0, progress[:-1, i]]
-            labels = np.cumsum(swinging & ((previous < 0) | (progress[:, i] < previous))) * swinging
-            s_now = (now_phase[i] - duty) / (1 - duty) if now_phase[i] >= duty else 0.0
-            for label in np.unique(labels[labels > 0]):
-                nodes = np.flatnonzero(labels == label)
-                s = progress[nodes, i]
-                lift_off_t = times[nodes[0]] - s[0] * swing_s
-                touch_down_t = lift_off_t + swing_s
-                s0 = s_now if lift_off_t <= t_s else 0.0
-                under_hip = q[:2] + (touch_down_t - t_s) * command + heading @ self._foot_offsets_m[i]
-                step = command * stance_s / 2 + capture
-                reach = np.linalg.norm(step)
-                if reach > self._reach_m:
-                    step *= self._reach_m / reach
-                target = under_hip + step
-                left = 1 - 3 * s0**2 + 2 * s0**3  # integral of 6 s (1 - s) from s0 to 1
-                if left > PLACEMENT_END_SHARE:
-                    shape = 6 * s * (1 - s) / (swing_s * left)
-                    out[nodes, i] = np.outer(shape, target - start)
-                start = target  # a later swing of this foot starts where this one lands
+        stance_s = gait.duty_factor * gait.period_s
+        starts = [np.asarray(foot[:2], dtype=float) for foot in feet_m]
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s, len(self._frames)):
+            lever = _rotation(yaw + yaw_rate_rad_s * ahead_s) @ self._foot_offsets_m[i]
+            under_hip = q[:2] + ahead_s * command + lever
+            step = (command + yaw_rate_rad_s * np.array([-lever[1], lever[0]])) * stance_s / 2 + capture
+            reach = np.linalg.norm(step)
+            if reach > self._reach_m:
+                step *= self._reach_m / reach
+            target = under_hip + step
+            if shape is not None:
+                out[nodes, i] = np.outer(shape, target - starts[i])
+            starts[i] = target  # a later swing of this foot starts where this one lands
         return out
+
+    def yaw_rates(self, gait: Gait, t_s: float, node_times_s: np.ndarray, yaw: float, yaw_rate_rad_s: float,
+                  feet_yaw_rad: np.ndarray) -> np.ndarray:
+        """(nodes, n_feet) world yaw rates of swing soles at t + node_times_s that turn each to its heading at
+        touch-down (NaN: stance or the free end of a swing). `yaw`: the base's heading, `yaw_rate_rad_s` the
+        commanded yaw rate, `feet_yaw_rad` the soles' measured headings."""
+        out = np.full((len(node_times_s), len(self._frames)), np.nan)
+        stance_s = gait.duty_factor * gait.period_s
+        starts = np.asarray(feet_yaw_rad, dtype=float).copy()
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s, len(self._frames)):
+            target = yaw + yaw_rate_rad_s * (ahead_s + stance_s / 2) + self._foot_yaws_rad[i]
+            turn = _wrap(target - starts[i])
+            if shape is not None:
+                out[nodes, i] = shape * turn
+            starts[i] = starts[i] + turn
+        return out
+
+
+def _swings(gait: Gait, t_s: float, node_times_s: np.ndarray, n_feet: int):
+    """The swings within the horizon, in time order per foot: (foot, its nodes, the profile 6 s (1 - s) rescaled to
+    the swing left (None: in the free end), time from t_s to its touch-down)."""
+    times = t_s + np.asarray(node_times_s, dtype=float)
+    duty = gait.duty_factor
+    if duty >= 1:
+        return
+    swing_s = (1 - duty) * gait.period_s
+    phase = gait.phase(times)  # (n, feet)
+    progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
+    now_phase = gait.phase(np.array([t_s]))[0]
+    for i in range(n_feet):
+        swinging = progress[:, i] >= 0
+        if not swinging.any():
+            continue
+        # swings in the horizon, in order: a new one starts where progress drops (or at the first swing node)
+        previous = np.r_[-1.0, progress[:-1, i]]
+        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, i] < previous))) * swinging
+        s_now = (now_phase[i] - duty) / (1 - duty) if now_phase[i] >= duty else 0.0
+        for label in np.unique(labels[labels > 0]):
+            nodes = np.flatnonzero(labels == label)
+            s = progress[nodes, i]
+            lift_off_t = times[nodes[0]] - s[0] * swing_s
+            s0 = s_now if lift_off_t <= t_s else 0.0
+            left = 1 - 3 * s0**2 + 2 * s0**3  # integral of 6 s (1 - s) from s0 to 1
+            shape = 6 * s * (1 - s) / (swing_s * left) if left > PLACEMENT_END_SHARE else None
+            yield i, nodes, shape, lift_off_t + swing_s - t_s
+
+
+def _rotation(yaw: float) -> np.ndarray:
+    return np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+
+
+def _wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def heading_of(rotation: np.ndarray) -> float:
+    """The heading (yaw about world z) of a rotation matrix's x axis."""
+    return float(np.arctan2(rotation[1, 0], rotation[0, 0]))

@@ -281,7 +281,9 @@ class MPC:
                                  **self._weights, **self._inertial, **object_values})
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
-            swing_vxy_m_s=references.swing_velocities(q, v, rot, t, node_times, base_velocity_world),
+            swing_vxy_m_s=references.swing_velocities(q, v, rot, t, node_times, base_velocity_world,
+                                                      commands.base_yaw_rate_rad_s),
+            swing_yaw_rate_rad_s=references.swing_yaw_rates(q, rot, t, node_times, commands.base_yaw_rate_rad_s),
             ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),

@@ -12,7 +12,7 @@ import pinocchio as pin
 
 from wbmpc.control.commands import Commands
 from wbmpc.control.config import ReferenceConfig
-from wbmpc.control.foot_placement import StanceReference, SwingPlacement
+from wbmpc.control.foot_placement import StanceReference, SwingPlacement, heading_of
 from wbmpc.gait import GaitClock
 from wbmpc.robots import RobotModel
 
@@ -115,11 +115,21 @@ class References:
         dq_des[:3] += rot.T[:, :2] @ shift.T
         return dq_des
 
-    def swing_velocities(self, q, v, rot, t_s, node_times, command_world) -> np.ndarray | None:
+    def swing_velocities(self, q, v, rot, t_s, node_times, command_world, yaw_rate_rad_s: float = 0.0
+                         ) -> np.ndarray | None:
         """Swing feet's xy velocity references to their landing points (`SwingPlacement`), or None."""
         if self._swing_placement is None:
             return None
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
-        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
-        return self._swing_placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world, yaw, feet)
+        return self._swing_placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world,
+                                                heading_of(rot), feet, yaw_rate_rad_s)
+
+    def swing_yaw_rates(self, q, rot, t_s, node_times, yaw_rate_rad_s: float) -> np.ndarray | None:
+        """Swing soles' yaw rates to their headings at touch-down (`SwingPlacement.yaw_rates`), or None (no
+        placement, or no flat feet: a point foot has no heading)."""
+        if self._swing_placement is None or not self.robot.soles:
+            return None
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet_yaw = np.array([heading_of(self._data.oMf[i].rotation) for i in self._foot_ids])
+        return self._swing_placement.yaw_rates(self.gait, t_s, node_times, heading_of(rot), yaw_rate_rad_s, feet_yaw)

@@ -18,7 +18,8 @@ Path constraints per node (section IV-B):
   world normal force (stance soles are flat on flat ground: the sole's normal is world z). Angular
   velocity rows (`foot_ang`): zero in stance (with foot_vel the whole 6D sole velocity), roll and pitch
   rates zero in swing, so the sole stays parallel to the ground from lift-off to touch-down while its
-  height follows eq. 6's spline; swing soles carry no wrench (bounds);
+  height follows eq. 6's spline, its yaw rate free (or, where `StageBounds.swing_yaw_rate_rad_s` gives it,
+  equal to a reference that turns it to its landing heading); swing soles carry no wrench (bounds);
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
   later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
@@ -137,6 +138,8 @@ class StageBounds:
     swing_vz_m_s: np.ndarray  # (N+1, n_feet) vertical velocity reference of swing feet
     # (N+1, n_feet, 2) world horizontal velocity references of swing feet (NaN or None: free)
     swing_vxy_m_s: np.ndarray | None = None
+    # (N+1, n_feet) world yaw rates of swing soles (flat feet; NaN or None: free)
+    swing_yaw_rate_rad_s: np.ndarray | None = None
     ee_velocity_m_s: np.ndarray | None = None  # (3,) world
     ee_force_on_robot_n: np.ndarray | None = None  # (3,) world, force acting on the robot
     foot_velocity_m_s: np.ndarray | None = None  # (n_feet, 3) measured world foot velocities (node 0)
@@ -678,6 +681,12 @@ class OcpProblem:
             ubg[ang_rows] = 0.0
             lbg[ang_rows[..., 2]] = np.where(swing_ang, -INF, 0.0)
             ubg[ang_rows[..., 2]] = np.where(swing_ang, INF, 0.0)
+            if data.swing_yaw_rate_rad_s is not None:  # swing soles turned to their landing heading
+                yaw_rate = np.asarray(data.swing_yaw_rate_rad_s, dtype=float)[self.row_nodes["foot_ang"]]
+                yaw_rate = yaw_rate[:, self.surface_feet]
+                turned = swing_ang & np.isfinite(yaw_rate)
+                lbg[ang_rows[..., 2][turned]] = yaw_rate[turned]
+                ubg[ang_rows[..., 2][turned]] = yaw_rate[turned]
             if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
                 stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
                 measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
