@@ -19,7 +19,8 @@ Path constraints per node (section IV-B):
   velocity rows (`foot_ang`): zero in stance (with foot_vel the whole 6D sole velocity), roll and pitch
   rates zero in swing, so the sole stays parallel to the ground from lift-off to touch-down while its
   height follows eq. 6's spline, its yaw rate free (or, where `StageBounds.swing_yaw_rate_rad_s` gives it,
-  equal to a reference that turns it to its landing heading); swing soles carry no wrench (bounds);
+  within SWING_YAW_RATE_BAND_RAD_S of a reference that turns it to its landing heading); swing soles carry
+  no wrench (bounds);
 - arm (eq. 7): end-effector force = command (bounds), linear velocity = command;
 - limits (eq. 8): joint positions and velocities on every node, torques on k < 3 (bounds); on the
   later input nodes, the torques the plan implies (the RNEA's joint rows with the contact forces and
@@ -75,6 +76,10 @@ EARLY_NODES = 4  # nodes after the measurement whose joint limits may be widened
 BLEND_TIME_S = 0.05  # measured foot / end-effector velocities off their constraint reach it over this time
 CONE_SMOOTHING = 1e-3  # in units of the force scale (about 0.15 N on b1_z1)
 COLLISION_BLEND_TIME_S = 0.1  # a measured distance below the margin reaches it over this time
+# a swing sole's yaw rate stays within this of its reference (`StageBounds.swing_yaw_rate_rad_s`), not on it: g1's
+# free soles turned at up to 0.5 rad/s walking straight at 0.4 m/s (the swing leg's yaw balances the stance sole's
+# torsional limit); held to the reference exactly, its plans failed 2 s into that walk and it fell
+SWING_YAW_RATE_BAND_RAD_S = 0.5
 ROW_TAGS = ("gap", "x0", "dynamics", "torque", "torque_limit", "implied_torque", "foot_vel", "foot_ang", "ee_vel",
             "collision", "cone", "wrench_cone") + OBJECT_ROW_TAGS
 IMPLIED_TORQUE_ROWS = ("auto", "all", "legs", "weak", "none")  # OcpConfig.implied_torque_rows
@@ -685,8 +690,8 @@ class OcpProblem:
                 yaw_rate = np.asarray(data.swing_yaw_rate_rad_s, dtype=float)[self.row_nodes["foot_ang"]]
                 yaw_rate = yaw_rate[:, self.surface_feet]
                 turned = swing_ang & np.isfinite(yaw_rate)
-                lbg[ang_rows[..., 2][turned]] = yaw_rate[turned]
-                ubg[ang_rows[..., 2][turned]] = yaw_rate[turned]
+                lbg[ang_rows[..., 2][turned]] = yaw_rate[turned] - SWING_YAW_RATE_BAND_RAD_S
+                ubg[ang_rows[..., 2][turned]] = yaw_rate[turned] + SWING_YAW_RATE_BAND_RAD_S
             if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
                 stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
                 measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
