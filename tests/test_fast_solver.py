@@ -1,6 +1,9 @@
 """Fast linear algebra under Fatrop (the AVX2 BLASFEO) and Fatrop options kept across contact switches."""
 
 import ctypes
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +30,35 @@ def test_the_active_blasfeo_is_the_only_one_loaded():
         assert loaded == [status.library]
     else:
         assert len(loaded) == 1 and Path(loaded[0]).parent.name == "casadi"
+
+
+def test_importing_wbmpc_loads_no_blasfeo():
+    """No import-time side effects: importing the packages (solvers included) loads no BLASFEO; the first solver
+    made activates the one `status` names before Fatrop loads."""
+    code = """
+import json
+from pathlib import Path
+def loaded():
+    return sorted({l.split()[-1] for l in Path('/proc/self/maps').read_text().splitlines()
+                   if 'libblasfeo' in l.split()[-1]})
+import wbmpc.solvers, wbmpc.solvers.nlp, wbmpc.control, wbmpc.scenarios
+before = loaded()
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.robots import load_robot
+from wbmpc.solvers import blasfeo, make_solver
+from wbmpc.solvers.nlp import SolverConfig
+problem = OcpProblem(load_robot("a1"), OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02)))
+make_solver(problem, SolverConfig())
+print(json.dumps({"before": before, "after": loaded(), "library": blasfeo.status().library}))
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["before"] == []
+    assert len(report["after"]) == 1
+    if report["library"] is not None:
+        assert report["after"] == [report["library"]]
 
 
 @pytest.mark.skipif(not blasfeo.library_path().exists(), reason="the AVX2 BLASFEO is not installed (wbmpc setup)")

@@ -7,8 +7,8 @@ the same BLASFEO version (same headers, struct layout, panel size and symbols) i
 `comma-deps-acados` wheel. `wbmpc setup` (`install`) downloads that wheel with pip, takes only
 `libblasfeo.so` out of it (never installs it: the wheel would overwrite casadi), renames its SONAME to
 `libblasfeo.so.0` with patchelf, and verifies in two subprocesses that a small Fatrop problem gives the
-same solution with either library. `activate` (called when `wbmpc.solvers` is imported, before any
-Fatrop or HPIPM plugin is loaded) then loads it RTLD_GLOBAL: the dynamic linker resolves casadi's
+same solution with either library. `activate` (called by each solver before it loads Fatrop or HPIPM:
+casadi's plugins, our shims) then loads it RTLD_GLOBAL: the dynamic linker resolves casadi's
 `libblasfeo.so.0` dependency to the library already loaded under that SONAME.
 
 `WBMPC_BLASFEO=auto` (default: the fast one where the CPU has AVX2+FMA and setup verified it),
@@ -139,7 +139,8 @@ def _choose(mode: str) -> BlasfeoStatus:
         return BlasfeoStatus("generic", None, "the AVX2 BLASFEO is not installed: run `wbmpc setup` (about 3x faster Fatrop)")
     loaded = [p for p in _loaded("libblasfeo") if Path(p) != library]
     if loaded:
-        return BlasfeoStatus("generic", None, f"casadi's BLASFEO was loaded before wbmpc.solvers ({loaded[0]})")
+        return BlasfeoStatus("generic", None, f"casadi's BLASFEO was loaded before the first wbmpc solver ({loaded[0]}): "
+                             "build a wbmpc solver before other code uses casadi's Fatrop or HPIPM")
     marker = _read_marker()
     key = _verification_key(library)
     if marker.get("key") != key:

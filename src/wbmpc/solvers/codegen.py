@@ -186,14 +186,17 @@ def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Functi
     ]
 
 
-def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float, float]:
-    """Run the compiler with a time and memory limit; (seconds, peak resident MB)."""
+def _compile(source: Path | list[Path], library: Path, config: CodegenConfig,
+             link: tuple[str, ...] = ()) -> tuple[float, float]:
+    """Run the compiler on one or more sources (C or C++, by extension) with a time and memory limit, then `link`
+    (libraries after the sources); (seconds, peak resident MB)."""
     compiler = shutil.which(config.compiler)
     if compiler is None:
         raise CompileError(f"no C compiler '{config.compiler}' on PATH: install gcc (e.g. apt install gcc) "
                            "or run without --compiled")
     partial = library.with_suffix(f".{os.getpid()}.tmp")
-    command = [compiler, *config.flags, "-shared", "-fPIC", str(source), "-o", str(partial), "-lm"]
+    sources = [str(s) for s in (source if isinstance(source, (list, tuple)) else [source])]
+    command = [compiler, *config.flags, "-shared", "-fPIC", *sources, "-o", str(partial), *link, "-lm"]
     limit = None if config.memory_limit_mb is None else int(config.memory_limit_mb * 2**20)
 
     def limit_memory():  # runs in the child before exec
@@ -212,7 +215,7 @@ def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float,
             process.kill()
             os.wait4(process.pid, 0)
             partial.unlink(missing_ok=True)
-            raise CompileError(f"compiling {source.name} took over {config.timeout_s:.0f} s; raise "
+            raise CompileError(f"compiling {Path(sources[0]).name} took over {config.timeout_s:.0f} s; raise "
                                "CodegenConfig.timeout_s or use the non-compiled solver")
         time.sleep(0.05)
     elapsed = time.perf_counter() - start
@@ -225,7 +228,8 @@ def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float,
         partial.unlink(missing_ok=True)
         message = stderr.decode(errors="replace").strip().splitlines()[-3:]
         memory_hint = " (out of memory? raise CodegenConfig.memory_limit_mb)" if "memory" in " ".join(message).lower() else ""
-        raise CompileError(f"{config.compiler} failed on {source.name}{memory_hint}: {' | '.join(message)}")
+        names = ", ".join(Path(name).name for name in sources)
+        raise CompileError(f"{config.compiler} failed on {names}{memory_hint}: {' | '.join(message)}")
     os.replace(partial, library)
     return elapsed, peak_mb
 

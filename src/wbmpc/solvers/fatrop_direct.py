@@ -2,20 +2,21 @@
 
 casadi's Fatrop plugin builds a new Fatrop instance in every solve, evaluates whole-NLP functions and
 copies each stage block out of their sparse results (the `interface` and `outside_solver` parts of
-a solve's time split). Here a generated C shim (`fatrop_shim.py`) answers Fatrop's per-stage
-callbacks with one generated call each, Fatrop instances are kept per row-count pattern (like
-`NlpSolver`) and options such as mu_init and max_iter change between calls on the same instance.
+a solve's time split). Here a C shim (`fatrop_shim.py`) answers Fatrop's callbacks from the problem's compiled
+stage functions (`stage_library.py`), every stage's evaluation on a small thread pool (`SolverConfig.threads`;
+the same iterates on any thread count), Fatrop instances are kept per row-count pattern (like `NlpSolver`) and
+options such as mu_init and max_iter change between calls on the same instance.
 
 Same problem, same row split and multiplier signs as casadi's plugin: the two solve to the same
 KKT point (tests/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
-small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `fatrop_shim.DRIVER_SOURCE`):
+small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `csrc/fatrop_driver.cpp`):
 a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
 instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT
 factorisation; `extra_options={"warm_duals": False}` turns it off) and a time limit per call
 (`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
 Its own tolerances for MPC steps (`MPC_TOLERANCE`, `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps
-its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`fatrop_kernels.py`, same iterates;
+its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
 `extra_options={"fatrop_kernels": False}` leaves Fatrop's own).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
@@ -26,6 +27,7 @@ when the direct binding runs).
 from __future__ import annotations
 
 import ctypes
+import os
 import time
 import warnings
 from dataclasses import replace
@@ -35,8 +37,9 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers import blasfeo, stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
-from wbmpc.solvers.fatrop_shim import FatropUnavailable, build
+from wbmpc.solvers.fatrop_shim import FatropUnavailable, build_shim
 from wbmpc.solvers.nlp import (
     _FATROP_FLAGS,
     NlpResult,
@@ -46,6 +49,7 @@ from wbmpc.solvers.nlp import (
     bound_violation,
     failed_result,
 )
+from wbmpc.solvers.stage_library import StageLibrary
 
 NAME = "fatrop-direct"
 # The binding's own KKT and constraint tolerances, used while SolverConfig holds its defaults (1e-4 / 1e-6) and
@@ -59,13 +63,18 @@ _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
 
 class _Library:
-    """The compiled shim loaded with ctypes, shared by every solver on the same problem."""
+    """The compiled shim and the problem's stage library, loaded with ctypes, shared by every solver on the problem."""
 
-    def __init__(self, report: CompileReport, p_index: np.ndarray):
-        self.report, self.p_index = report, p_index
-        lib = ctypes.CDLL(str(report.library))
+    def __init__(self, shim: CompileReport, stages: StageLibrary):
+        self.report, self.shim_report, self.stages = stages.report, shim, stages
+        self.p_index = stages.p_index
+        blasfeo.activate()  # before libfatrop (and its BLASFEO) is loaded with the shim
+        lib = ctypes.CDLL(str(shim.library))
         lib.wb_ctx_new.restype = ctypes.c_void_p
+        lib.wb_ctx_new.argtypes = [ctypes.c_void_p, ctypes.c_int]
         lib.wb_ctx_free.argtypes = [ctypes.c_void_p]
+        lib.wb_ctx_threads.argtypes = [ctypes.c_void_p]
+        lib.wb_sizes.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
         lib.wb_solver_new.restype = ctypes.c_void_p
         lib.wb_solver_new.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 4 + [ctypes.c_int]
         lib.wb_solver_free.argtypes = [ctypes.c_void_p]
@@ -73,15 +82,38 @@ class _Library:
                            ("wb_option_bool", ctypes.c_int)):
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
+        lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
         lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double, ctypes.c_int]
         lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
         lib.wbd_fatrop_kernels.restype = ctypes.c_int
         lib.wb_warm_up.argtypes = [ctypes.c_void_p]
-        sizes = (ctypes.c_int * 4)()
-        lib.wb_sizes(sizes)
-        self.n_stages, self.n_stage_params, self.n_variables, self.n_constraints = list(sizes)
+        lib.wb_ctx_pool_cpu_s.argtypes = [ctypes.c_void_p]
+        lib.wb_ctx_pool_cpu_s.restype = ctypes.c_double
         self.lib = lib
-        self.warmed_up = False  # wb_warm_up ran (once per library: the first solver on it)
+        self.warmed_up: set[int] = set()  # thread counts whose first context ran wb_warm_up
+
+    def context(self, threads: int) -> ctypes.c_void_p:
+        """A new context (scratch and thread pool) evaluating on `threads` threads."""
+        ctx = ctypes.c_void_p(self.lib.wb_ctx_new(self.stages.table, int(threads)))
+        if not ctx.value:
+            raise RuntimeError("the Fatrop shim could not allocate its context (out of memory, or the stage library "
+                               "was built for another shim: clear the cache directory)")
+        return ctx
+
+    def sizes(self, ctx) -> tuple[int, int, int, int]:
+        sizes = (ctypes.c_int * 4)()
+        self.lib.wb_sizes(ctx, sizes)
+        return tuple(sizes)
+
+
+def default_threads() -> int:
+    """Threads of the stage evaluations when SolverConfig.threads is None: two where this process may run on two
+    cores (the 15 stages' functions split well in two; more threads wait for the Riccati recursion in between)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return min(2, max(cores, 1))
 
 
 def _ptr(array: np.ndarray):
@@ -106,8 +138,8 @@ class FatropDirectSolver:
         self._library = library
         if library is None:
             try:
-                report, p_index = build(problem, config.codegen)
-                self._library = _Library(report, p_index)
+                stage_report, p_index = stage_library.build(problem, config.codegen)
+                self._library = _Library(build_shim(config.codegen), StageLibrary(stage_report, p_index))
             except (CompileError, FatropUnavailable, OSError) as exc:
                 self.direct_error = self.compile_error = str(exc)
                 warnings.warn(f"the direct Fatrop binding is unavailable, using casadi's Fatrop: {exc}",
@@ -115,9 +147,11 @@ class FatropDirectSolver:
                 self._fallback = NlpSolver(problem, replace(config, name="fatrop"))
                 return
         lib = self._library
-        if (lib.n_variables, lib.n_constraints) != (problem.n_variables, problem.n_constraints):
-            raise ConfigError("the compiled Fatrop shim belongs to another problem structure")
-        self._ctx = ctypes.c_void_p(lib.lib.wb_ctx_new())
+        self.threads = default_threads() if config.threads is None else config.threads
+        self._ctx = lib.context(self.threads)
+        n_stages, _, n_variables, n_constraints = lib.sizes(self._ctx)
+        if (n_variables, n_constraints) != (problem.n_variables, problem.n_constraints):
+            raise ConfigError("the compiled stage library belongs to another problem structure")
         self._by_structure: dict[bytes, ctypes.c_void_p] = {}
         self._last_solver: ctypes.c_void_p | None = None
         self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
@@ -134,13 +168,13 @@ class FatropDirectSolver:
             (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
         self.tolerance = MPC_TOLERANCE if own else config.tolerance
         self.constraint_tolerance = MPC_CONSTRAINT_TOLERANCE if own else config.constraint_tolerance
-        # Fatrop's equality elimination on our AVX2 kernels (fatrop_kernels.py; process-wide, same iterates)
+        # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp; process-wide, same iterates)
         self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
         # the first step's one-off costs now, before any clock runs (b1_z1, fresh processes on a loaded machine: first
         # closed-loop solve 24.0 -> 20.5 ms on average over 3 pairs; it stays the cold one: 5 iterations, least-squares duals)
-        if not lib.warmed_up:
+        if self.threads not in lib.warmed_up:
             lib.lib.wb_warm_up(self._ctx)
-            lib.warmed_up = True
+            lib.warmed_up.add(self.threads)
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property
@@ -180,6 +214,33 @@ class FatropDirectSolver:
         stage_p, x = self.stage_parameters(p), _f64(x)
         self._library.lib.wb_eval_g(self._ctx, _ptr(stage_p), _ptr(x), _ptr(self._g))
         return self._g.copy()
+
+    def stage_derivatives(self, x, p, lam_g, sigma: float = 1.0) -> list[dict[str, np.ndarray]]:
+        """Per stage, in Fatrop's (u_k, x_k) order: the cost gradient `grad`, the Hessian `hess` of the stage's
+        Lagrangian (sigma l and its rows' terms, lam_g with the NLP's signs) and the Jacobians `jac_next` (of f, the
+        next state) and `jac_rows` (of the path rows), evaluated by the shim on its threads."""
+        if self._fallback is not None:
+            raise ConfigError(f"the direct binding is unavailable ({self.direct_error}): no stage derivatives")
+        stage_p, x, lam_g = self.stage_parameters(p), _f64(x), _f64(lam_g)
+        problem = self.problem
+        shapes = []
+        for k, (state, inputs) in enumerate(problem.stage_slices):
+            n = inputs.stop - state.start
+            n_next = problem.nx if k < problem.N else 0
+            n_rows = (problem.stage_row_starts[k + 1] if k < problem.N else problem.n_constraints) - \
+                problem.stage_row_starts[k] - n_next
+            shapes.append({"grad": (n,), "hess": (n, n), "jac_next": (n_next, n), "jac_rows": (int(n_rows), n)})
+        out = np.empty(sum(int(np.prod(shape)) for block in shapes for shape in block.values()))
+        self._library.lib.wb_eval_derivatives(self._ctx, _ptr(stage_p), _ptr(x), float(sigma), _ptr(lam_g), _ptr(out))
+        blocks, offset = [], 0
+        for block in shapes:
+            stage = {}
+            for name, shape in block.items():  # the shim's column-major transposed blocks are row-major J
+                size = int(np.prod(shape))
+                stage[name] = out[offset:offset + size].reshape(shape).copy()
+                offset += size
+            blocks.append(stage)
+        return blocks
 
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         return bound_violation(x, self.constraints(x, p), lbx, ubx, lbg, ubg)
@@ -222,6 +283,10 @@ class FatropDirectSolver:
         return result
 
     # ---------------------------------------------------------------- internals
+    def _cpu_s(self) -> float:
+        """CPU time of this thread and the context's pool threads (s)."""
+        return time.thread_time() + (self._library.lib.wb_ctx_pool_cpu_s(self._ctx) if self.threads > 1 else 0.0)
+
     def _solver_for(self, lbx, ubx, lbg, ubg) -> ctypes.c_void_p:
         key = self.structure_key(lbx, ubx, lbg, ubg)
         solver = self._by_structure.get(key)
@@ -244,15 +309,14 @@ class FatropDirectSolver:
                deadline: float | None = None, warm_duals: bool = False) -> NlpResult:
         problem = self.problem
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
-        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver)
+        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
+        # constraint values or derivatives at x0 end the solve at its first evaluation (code -4)
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x0))):
             return failed_result(problem, x0, "invalid_input_nan")
-        if not np.all(np.isfinite(self.constraints(x0, p))):
-            return failed_result(problem, x0, "invalid_input_nan_constraints")
         if np.any(lbx > ubx) or np.any(lbg > ubg):
             return failed_result(problem, x0, "invalid_bounds")
         lib = self._library.lib
-        start, start_cpu = time.perf_counter(), time.thread_time()
+        start, start_cpu = time.perf_counter(), self._cpu_s()
         stage_p = self.stage_parameters(p)
         # the driver maps the stored multipliers position by position within each stage: where a gait switch
         # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
@@ -277,7 +341,9 @@ class FatropDirectSolver:
                 break
             solver = self._solver_for(lbx, ubx, lbg, ubg)
         self._last_solver = solver if code != -2 else None
-        elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+        elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
+        if code == -4:
+            return failed_result(problem, x0, "invalid_input_nan_constraints")
         if code == -1:
             return failed_result(problem, x0, "solver_exception: Fatrop raised (see its output with print_level > 0)")
         if code == -2:

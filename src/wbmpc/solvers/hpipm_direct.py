@@ -4,7 +4,7 @@ casadi's `conic('hpipm')` boxes every variable and keeps every constraint row, i
 +-1e8 (dummy inequalities the interior point iterates on), passes equality rows as two inequalities and
 allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks from the nonzeros of H and
 J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
-equalities, and keeps HPIPM's memory between calls (`hpipm_shim.py`, C compiled once against the HPIPM
+equalities, and keeps HPIPM's memory between calls (`csrc/hpipm_shim.c`, compiled once against the HPIPM
 and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
 as `StructuredQp` (tests/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
@@ -24,7 +24,6 @@ rows; HPIPM's dynamics multipliers pi_k are those of its form, casadi's of the g
 from __future__ import annotations
 
 import ctypes
-import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -34,8 +33,9 @@ import numpy as np
 
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, _compile, cache_key, default_cache_dir
-from wbmpc.solvers.hpipm_shim import SOURCE
+from wbmpc.solvers import blasfeo
+from wbmpc.solvers.codegen import CodegenConfig, CompileError
+from wbmpc.solvers.native import build_native
 from wbmpc.solvers.qp import HPIPM_MODES, HPIPM_STATUS, QpConfig, QpResult, StructuredQp, stage_dimensions
 
 HPIPM_BINDINGS = ("direct", "casadi")  # RtiConfig.hpipm_binding
@@ -46,28 +46,19 @@ class HpipmUnavailable(WbmpcError, RuntimeError):
 
 
 def _library(config: CodegenConfig = CodegenConfig()) -> Path:
-    """The compiled shim (built on first use, cached under the hash of its source, flags and HPIPM's headers)."""
+    """The compiled shim (`csrc/hpipm_shim.c`, built on first use, cached under the hash of its source, flags and
+    HPIPM's headers' directory)."""
     directory = Path(ca.__file__).parent
     include = directory / "include"
     if not (include / "hpipm_d_ocp_qp_ipm.h").exists() or not list(directory.glob("libhpipm.so*")):
         raise HpipmUnavailable(f"HPIPM's headers or libhpipm are missing in {directory}: use casadi's hpipm conic")
-    source = SOURCE
-    flags = (*config.flags, "-O2", f"-I{include}", f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo",
-             f"-Wl,-rpath,{directory}")
-    link = replace(config, flags=flags)
-    cache = config.cache_dir or default_cache_dir()
-    library = Path(cache) / f"hpipm_shim_{cache_key(source + str(include), link)}.so"
-    if not library.exists():
-        library.parent.mkdir(parents=True, exist_ok=True)
-        staged = library.with_suffix(f".{os.getpid()}.c")  # per process: parallel builds never share a file
-        staged.write_text(source)
-        try:
-            _compile(staged, library, link)
-        except CompileError as exc:
-            raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
-        finally:
-            staged.unlink(missing_ok=True)
-    return library
+    blasfeo.activate()  # before libhpipm (and its BLASFEO) is loaded
+    flags = (*config.flags, "-O2", f"-I{include}")
+    link = (f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{directory}")
+    try:
+        return build_native("hpipm_shim", ("hpipm_shim.c",), config, flags, link, key_extra=str(include)).library
+    except CompileError as exc:
+        raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
 
 
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)

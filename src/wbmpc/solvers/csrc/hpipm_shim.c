@@ -1,6 +1,4 @@
-"""C source of the thin layer between `hpipm_direct.DirectQp` and HPIPM's OCP QP interface (compiled once, cached)."""
-
-SOURCE = r"""/* A thin C layer between our stage-wise QP (solvers/hpipm_direct.py) and HPIPM's OCP QP interface.
+/* A thin C layer between our stage-wise QP (solvers/hpipm_direct.py) and HPIPM's OCP QP interface.
  *
  * casadi's conic('hpipm') boxes every variable and keeps every row with infinite bounds replaced by
  * +-1e8 (dummy constraints the interior point iterates on), passes equality rows as two inequalities
@@ -241,4 +239,3 @@ int wbqp_solve(void *handle, const double *A, const double *B, const double *b, 
 
 int wbqp_iterations(void *handle) { return ((wbqp *) handle)->iter; }
 void wbqp_residuals(void *handle, double *out) { memcpy(out, ((wbqp *) handle)->res, 4 * sizeof(double)); }
-"""
