@@ -27,8 +27,12 @@ def problem(robot):
 
 
 @pytest.fixture(scope="module")
-def solvers(problem, tmp_path_factory):
-    codegen = CodegenConfig(flags=("-O0", "-march=native"), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+def codegen(tmp_path_factory):
+    return CodegenConfig(flags=("-O0", "-march=native"), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+
+
+@pytest.fixture(scope="module")
+def solvers(problem, codegen):
     one = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, threads=1))
     assert one.is_direct, one.direct_error
     return {threads: one if threads == 1 else one.recreated(threads=threads) for threads in (1, 2, 3)}
@@ -122,3 +126,13 @@ def test_constraints_are_identical_on_any_thread_count(problem, solvers, steps):
 def test_threads_is_checked():
     with pytest.raises(Exception, match="threads"):
         SolverConfig(name="fatrop-direct", threads=0)
+
+
+def test_another_horizon_reuses_the_compiled_stages(robot, solvers, codegen):
+    """The stage library holds the stage kinds only: a longer horizon of the same formulation loads it from the
+    cache (the layout of its stages comes from Python) and solves."""
+    longer = OcpProblem(robot, OcpConfig(grid=TimeGrid(n_intervals=7, dt_first_s=0.01, dt_last_s=0.06)))
+    solver = FatropDirectSolver(longer, SolverConfig(name="fatrop-direct", codegen=codegen, threads=2))
+    assert solver.compile_report.cached and solver.compile_report.library == solvers[1].compile_report.library
+    mpc = MPC(robot, MpcConfig(ocp=longer.config, fallback_solver=None), problem=longer, solver=solver)
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.1).success

@@ -71,7 +71,7 @@ class _Library:
         blasfeo.activate()  # before libfatrop (and its BLASFEO) is loaded with the shim
         lib = ctypes.CDLL(str(shim.library))
         lib.wb_ctx_new.restype = ctypes.c_void_p
-        lib.wb_ctx_new.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        lib.wb_ctx_new.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)] + [ctypes.c_int] * 5
         lib.wb_ctx_free.argtypes = [ctypes.c_void_p]
         lib.wb_ctx_threads.argtypes = [ctypes.c_void_p]
         lib.wb_sizes.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
@@ -94,7 +94,9 @@ class _Library:
 
     def context(self, threads: int) -> ctypes.c_void_p:
         """A new context (scratch and thread pool) evaluating on `threads` threads."""
-        ctx = ctypes.c_void_p(self.lib.wb_ctx_new(self.stages.table, int(threads)))
+        stages = self.stages
+        layout = stages.layout.ctypes.data_as(ctypes.POINTER(ctypes.c_int))
+        ctx = ctypes.c_void_p(self.lib.wb_ctx_new(stages.kinds, layout, *stages.sizes, int(threads)))
         if not ctx.value:
             raise RuntimeError("the Fatrop shim could not allocate its context (out of memory, or the stage library "
                                "was built for another shim: clear the cache directory)")
@@ -138,8 +140,7 @@ class FatropDirectSolver:
         self._library = library
         if library is None:
             try:
-                stage_report, p_index = stage_library.build(problem, config.codegen)
-                self._library = _Library(build_shim(config.codegen), StageLibrary(stage_report, p_index))
+                self._library = _Library(build_shim(config.codegen), stage_library.build(problem, config.codegen))
             except (CompileError, FatropUnavailable, OSError) as exc:
                 self.direct_error = self.compile_error = str(exc)
                 warnings.warn(f"the direct Fatrop binding is unavailable, using casadi's Fatrop: {exc}",

@@ -3,13 +3,14 @@
 Fatrop asks an OCP for per-stage blocks: the transposed dynamics Jacobian BAbt, the Lagrangian Hessian RSQrqt,
 the equality and inequality Jacobians Ggt / Ggt_ineq, constraint values, cost gradients and bounds. Each stage
 kind's blocks are generated here directly in Fatrop's (u_k, x_k) order and dense (`stage_kind_functions`), so each
-block is one generated call and one BLASFEO pack. The generated C and a table describing the problem
-(`csrc/wbmpc_stages.h`: sizes, offsets, stage kinds and the functions) compile into one library per problem
-structure; the shim that answers Fatrop (`fatrop_shim.py`) is compiled once per machine and reads the problem only
-through that table. Stage parameters are rows of a (N+1, n_p) array (`p_index` maps them into the NLP's p).
+block is one generated call and one BLASFEO pack. The generated C and a table of the stage kinds
+(`csrc/wbmpc_stages.h`: their functions and work sizes) compile into one library per set of stage kinds (the
+horizon's length does not enter: 10 or 40 nodes of one formulation share it); the shim that answers Fatrop
+(`fatrop_shim.py`) is compiled once per machine and gets the stages' layout (kinds, sizes, offsets) from Python.
+Stage parameters are rows of a (N+1, n_p) array (`p_index` maps them into the NLP's p).
 
 The library lands in the cache directory of `codegen.py` as `<formulation>_stages_<key>.so`, the key hashing the
-generated C, the table header, compiler and flags.
+generated C, the table's header, compiler and flags.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from wbmpc.solvers.codegen import (
 from wbmpc.solvers.native import source_dir, source_text
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
-STAGES_VERSION = 1  # WB_STAGES_VERSION of csrc/wbmpc_stages.h
+KINDS_VERSION = 1  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
 O2_MAX_SOURCE_MB = 10.0  # generated C up to this size compiles at -O2 instead of CodegenConfig's -O1 (see build)
 
 
@@ -65,16 +66,16 @@ def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
     ]
 
 
-def _c_array(name: str, values) -> str:
-    return f"static const int {name}[] = {{{', '.join(str(int(v)) for v in values)}}};\n"
+LAYOUT_ROWS = ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")  # wbmpc_stages.h's WB_L_*
 
 
-def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], dict]:
-    """The generated functions of each stage kind and the per-stage table columns."""
+def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], np.ndarray]:
+    """The generated functions of each stage kind (in order of first appearance) and the stages' layout
+    (LAYOUT_ROWS x (N+1) ints)."""
     N, nx = problem.N, problem.nx
     kinds: dict[str, int] = {}
     functions: list[ca.Function] = []
-    columns = {name: [] for name in ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")}
+    layout = np.zeros((len(LAYOUT_ROWS), N + 1), dtype=np.int32)
     for k in range(N + 1):
         function, _ = problem.stage_function(k)
         if function.name() not in kinds:
@@ -82,34 +83,30 @@ def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], dict]:
             functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}")
         state, inputs = problem.stage_slices[k]
         gap = int(problem.stage_row_starts[k])
-        for name, value in (("kind", kinds[function.name()]), ("nx", nx), ("nu", inputs.stop - inputs.start),
-                            ("nr", function.size1_out(1)), ("x_offset", state.start),
-                            ("gap_offset", gap if k < N else -1), ("row_offset", gap + (nx if k < N else 0))):
-            columns[name].append(value)
-    return functions, columns
+        layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
+                        gap + (nx if k < N else 0), gap if k < N else -1)
+    return functions, layout
 
 
-def _table(problem: OcpProblem, functions: list[ca.Function], columns: dict, n_p: int) -> str:
-    """The C table (`wb_stages`) of the problem, compiled beside the generated functions."""
+def _kinds_table(functions: list[ca.Function]) -> str:
+    """The C table of the stage kinds (`wb_kinds`), compiled beside the generated functions."""
     sizes = np.array([[f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()] for f in functions]).max(axis=0)
     n_kinds = len(functions) // len(FUNCTION_KINDS)
     pointers = ", ".join(f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS)
-    max_n = max(a + b for a, b in zip(columns["nx"], columns["nu"]))
-    fields = [STAGES_VERSION, problem.N + 1, n_p, problem.n_variables, problem.n_constraints, n_kinds,
-              *[f"wb_{name}" for name in ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")],
-              "wb_functions", *sizes, max_n, max(columns["nx"]), max(max(columns["nr"]), 1)]
+    fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes]
     return "".join([
-        '\n/* ---- wbmpc: the problem table (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
-        *[_c_array(f"wb_{name}", values) for name, values in columns.items()],
+        '\n/* ---- wbmpc: the table of the stage kinds (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
         f"static const wb_fn wb_functions[] = {{{pointers}}};\n",
-        f"static const wb_stages wb_problem = {{{', '.join(str(f) for f in fields)}}};\n",
-        "const wb_stages* wbmpc_stages(void) { return &wb_problem; }\n",
+        f"static const wb_kinds wb_stage_kinds = {{{', '.join(str(f) for f in fields)}}};\n",
+        "const wb_kinds* wbmpc_stage_kinds(void) { return &wb_stage_kinds; }\n",
     ])
 
 
-def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray]:
-    """The C source of the stage library for `problem` and the (N+1, n_p) index map of the stage parameters into p."""
-    functions, columns = _stage_kinds(problem)
+def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray, np.ndarray]:
+    """The C source of the stage library for `problem`, the (N+1, n_p) index map of the stage parameters into p and
+    the stages' layout for the shim (LAYOUT_ROWS x (N+1)). The source depends on the kinds of stages only: another
+    horizon length with the same kinds reuses the library."""
+    functions, layout = _stage_kinds(problem)
     n_p = functions[0].size1_in(2)
     p_index = np.array([np.asarray(ca.evalf(problem.stage_parameters(ca.DM(np.arange(problem.params.size)), k)))
                         .ravel() for k in range(problem.N + 1)]).round().astype(np.int64)
@@ -117,7 +114,7 @@ def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray]:
     generator = ca.CodeGenerator("wbmpc_stages.c", {"with_header": False})
     for function in functions:
         generator.add(function)
-    return generator.dump() + _table(problem, functions, columns, n_p), p_index
+    return generator.dump() + _kinds_table(functions), p_index, layout
 
 
 def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfig, tuple[str, ...]]:
@@ -130,10 +127,10 @@ def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfi
     return config, tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)
 
 
-def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple[CompileReport, np.ndarray]:
-    """Generate, compile (unless cached) and return the stage library and the stage parameter map."""
+def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> "StageLibrary":
+    """Generate, compile (unless cached) and load the stage library of `problem`."""
     start = time.perf_counter()
-    code, p_index = generate_source(problem)
+    code, p_index, layout = generate_source(problem)
     generate_s = time.perf_counter() - start
     source_mb = len(code) / 1e6
     config, flags = compile_flags(config, source_mb)
@@ -145,22 +142,28 @@ def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> tuple
         raise CompileError(f"cannot create the cache directory {cache}: {exc.strerror}; set WBMPC_CACHE_DIR") from exc
     library = cache / f"{problem.config.formulation}_stages_{key}.so"
     if library.exists():
-        return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s), p_index
+        report = CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s)
+        return StageLibrary(report, problem, p_index, layout)
     source = cache / f"{library.stem}.{os.getpid()}.c"  # per process: parallel builds of one key never share a file
     source.write_text(code)
     try:
         compile_s, peak_mb = _compile(source, library, replace(config, flags=(*flags, f"-I{source_dir()}")))
     finally:
         source.unlink(missing_ok=True)
-    return CompileReport(library, cached=False, source_mb=source_mb, compile_s=compile_s, peak_memory_mb=peak_mb,
-                         generate_s=generate_s), p_index
+    report = CompileReport(library, cached=False, source_mb=source_mb, compile_s=compile_s, peak_memory_mb=peak_mb,
+                           generate_s=generate_s)
+    return StageLibrary(report, problem, p_index, layout)
 
 
 class StageLibrary:
-    """A compiled stage library loaded with ctypes; `table` is its `wb_stages*` for the shim."""
+    """A compiled stage library loaded with ctypes and the problem's stage layout: `kinds` is the library's
+    `wb_kinds*`, `layout` the stages' table (LAYOUT_ROWS x (N+1) int32) and `sizes` (stages, parameters per
+    stage, variables, constraints), what the shim's `wb_ctx_new` takes."""
 
-    def __init__(self, report: CompileReport, p_index: np.ndarray):
+    def __init__(self, report: CompileReport, problem: OcpProblem, p_index: np.ndarray, layout: np.ndarray):
         self.report, self.p_index = report, p_index
+        self.layout = np.ascontiguousarray(layout, dtype=np.int32)
+        self.sizes = (problem.N + 1, p_index.shape[1], problem.n_variables, problem.n_constraints)
         self.lib = ctypes.CDLL(str(report.library))
-        self.lib.wbmpc_stages.restype = ctypes.c_void_p
-        self.table = ctypes.c_void_p(self.lib.wbmpc_stages())
+        self.lib.wbmpc_stage_kinds.restype = ctypes.c_void_p
+        self.kinds = ctypes.c_void_p(self.lib.wbmpc_stage_kinds())

@@ -45,39 +45,73 @@ void wb_ctx_free(void* ctx) {
   free(c->a_eq); free(c->a_ineq); free(c->x_eq); free(c->x_ineq);
   free(c->a_eq_i); free(c->a_ineq_i); free(c->x_eq_i); free(c->x_ineq_i);
   free(c->zeros); free(c->stage_cost); free(c->stage_f); free(c->stage_r); free(c->last_primal);
+  free(c->stages.kind);
   free(c);
 }
 
-/* a context for `stages` evaluating on `n_threads` threads (the caller and n_threads - 1 pool workers) */
-void* wb_ctx_new(const wb_stages* stages, int n_threads) {
-  wb_ctx* c;
-  size_t K;
+/* the problem from the library's kinds and the layout table (WB_LAYOUT_ROWS x n_stages); 0 if inconsistent */
+static int wb_stages_init(wb_stages* st, const wb_kinds* kinds, const int* layout, int n_stages, int n_params,
+                          int n_variables, int n_constraints) {
+  int k, *copy = (int*) malloc(sizeof(int) * WB_LAYOUT_ROWS * (n_stages > 0 ? n_stages : 1));
+  if (!copy) return 0;
+  memcpy(copy, layout, sizeof(int) * WB_LAYOUT_ROWS * n_stages);
+  st->kinds = kinds; st->functions = kinds->functions;
+  st->sz_arg = kinds->sz_arg; st->sz_res = kinds->sz_res; st->sz_iw = kinds->sz_iw; st->sz_w = kinds->sz_w;
+  st->n_stages = n_stages; st->n_params = n_params; st->n_variables = n_variables; st->n_constraints = n_constraints;
+  st->kind = copy + WB_L_KIND * n_stages; st->nx = copy + WB_L_NX * n_stages; st->nu = copy + WB_L_NU * n_stages;
+  st->nr = copy + WB_L_NR * n_stages; st->x_offset = copy + WB_L_X_OFFSET * n_stages;
+  st->row_offset = copy + WB_L_ROW_OFFSET * n_stages; st->gap_offset = copy + WB_L_GAP_OFFSET * n_stages;
+  st->max_n = st->max_x = st->max_rows = 1;
+  for (k = 0; k < n_stages; ++k) {
+    if (st->kind[k] < 0 || st->kind[k] >= kinds->n_kinds) return 0;
+    if (st->nu[k] + st->nx[k] > st->max_n) st->max_n = st->nu[k] + st->nx[k];
+    if (st->nx[k] > st->max_x) st->max_x = st->nx[k];
+    if (st->nr[k] > st->max_rows) st->max_rows = st->nr[k];
+  }
+  return n_stages > 0;
+}
+
+static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
+  const wb_stages* st = c->st;
+  size_t K = (size_t) st->n_stages;
   int i, ok;
-  if (!stages || stages->version != WB_STAGES_VERSION) return 0;
+  c->a_eq = (int*) calloc(st->n_constraints + 1, sizeof(int));
+  c->a_ineq = (int*) calloc(st->n_constraints + 1, sizeof(int));
+  c->x_eq = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->x_ineq = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->a_eq_i = (int*) calloc(K + 1, sizeof(int)); c->a_ineq_i = (int*) calloc(K + 1, sizeof(int));
+  c->x_eq_i = (int*) calloc(K + 1, sizeof(int)); c->x_ineq_i = (int*) calloc(K + 1, sizeof(int));
+  c->zeros = (double*) calloc(st->max_n + st->max_x + st->max_rows + 3, sizeof(double));
+  c->stage_cost = (double*) calloc(K, sizeof(double));
+  c->stage_f = (double*) calloc(K * st->max_x + 1, sizeof(double));
+  c->stage_r = (double*) calloc(K * st->max_rows + 1, sizeof(double));
+  c->last_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
+  c->n_primal = st->n_variables;
+  c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
+  ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
+       c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->work;
+  for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);
+  if (ok && n_threads > 1) ok = (c->pool = wb_pool_new(n_threads - 1)) != 0;
+  return ok;
+}
+
+/* a context for a problem (the stage library's kinds, the layout of its stages: WB_LAYOUT_ROWS x n_stages ints)
+   evaluating on `n_threads` threads (the caller and n_threads - 1 pool workers); NULL if inconsistent or out of
+   memory */
+void* wb_ctx_new(const wb_kinds* kinds, const int* layout, int n_stages, int n_params, int n_variables,
+                 int n_constraints, int n_threads) {
+  wb_ctx* c;
+  if (!kinds || kinds->version != WB_KINDS_VERSION || !layout) return 0;
   if (n_threads < 1) n_threads = 1;
   wb_pack_ready();
   c = (wb_ctx*) calloc(1, sizeof(wb_ctx));
   if (!c) return 0;
-  K = (size_t) stages->n_stages;
-  c->st = stages;
-  c->a_eq = (int*) calloc(stages->n_constraints + 1, sizeof(int));
-  c->a_ineq = (int*) calloc(stages->n_constraints + 1, sizeof(int));
-  c->x_eq = (int*) calloc(stages->n_variables + 1, sizeof(int));
-  c->x_ineq = (int*) calloc(stages->n_variables + 1, sizeof(int));
-  c->a_eq_i = (int*) calloc(K + 1, sizeof(int)); c->a_ineq_i = (int*) calloc(K + 1, sizeof(int));
-  c->x_eq_i = (int*) calloc(K + 1, sizeof(int)); c->x_ineq_i = (int*) calloc(K + 1, sizeof(int));
-  c->zeros = (double*) calloc(stages->max_n + stages->max_x + stages->max_rows + 3, sizeof(double));
-  c->stage_cost = (double*) calloc(K, sizeof(double));
-  c->stage_f = (double*) calloc(K * stages->max_x + 1, sizeof(double));
-  c->stage_r = (double*) calloc(K * stages->max_rows + 1, sizeof(double));
-  c->last_primal = (double*) calloc(stages->n_variables + 1, sizeof(double));
-  c->n_primal = stages->n_variables;
-  c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
-  ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
-       c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->work;
-  for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], stages);
-  if (ok && n_threads > 1) ok = (c->pool = wb_pool_new(n_threads - 1)) != 0;
-  if (!ok) { wb_ctx_free(c); return 0; }
+  c->st = &c->stages;
+  if (!wb_stages_init(&c->stages, kinds, layout, n_stages, n_params, n_variables, n_constraints) ||
+      !wb_ctx_alloc(c, n_threads)) {
+    wb_ctx_free(c);
+    return 0;
+  }
   return c;
 }
 

@@ -43,7 +43,8 @@ typedef struct {
 } wb_job;
 
 typedef struct {
-  const wb_stages* st;
+  const wb_stages* st;    /* = &stages */
+  wb_stages stages;       /* the problem (layout arrays owned by the context) */
   const double *P, *lbx, *ubx, *lbg, *ubg, *x0;
   /* each stage's constraint rows and variables by class (equality, inequality), in NLP order; *_i: K + 1 starts */
   int *a_eq, *a_ineq, *x_eq, *x_ineq;
