@@ -605,6 +605,9 @@ def _add_bench_parsers(sub, formatter):
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
     mpc.add_argument("--collision-avoidance", action="store_true", help="also re-solve the same states with the "
                      "collision avoidance rows (their cost: same_states.collision_vs_plain)")
+    mpc.add_argument("--threads", metavar="N[,N...]", help="fatrop-direct's stage evaluation threads (default: 2 "
+                     "where two cores are free); several counts (e.g. 1,2) re-solve the same states on each and "
+                     "report the speed-up against the first")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))

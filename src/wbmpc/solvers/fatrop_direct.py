@@ -35,7 +35,6 @@ from dataclasses import replace
 import numpy as np
 
 from wbmpc.errors import ConfigError
-from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers import blasfeo, stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
@@ -158,7 +157,7 @@ class FatropDirectSolver:
         self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
         self._warm_pause = 0
         self._warm_failures = 0
-        self._x = np.zeros(problem.n_variables)
+        self._stage_p = np.zeros(lib.p_index.shape)
         self._g = np.zeros(problem.n_constraints)
         self._stats = np.zeros(_N_STATS)
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
@@ -205,8 +204,8 @@ class FatropDirectSolver:
         lib.lib.wb_ctx_free(self._ctx)
 
     def stage_parameters(self, p) -> np.ndarray:
-        """(N+1, n_p) stage parameters, row k = `problem.stage_parameters(p, k)`."""
-        return np.ascontiguousarray(np.asarray(p, dtype=float).ravel()[self._library.p_index])
+        """(N+1, n_p) stage parameters, row k = `problem.stage_parameters(p, k)` (a buffer the next call reuses)."""
+        return np.take(np.asarray(p, dtype=float).ravel(), self._library.p_index, out=self._stage_p)
 
     def constraints(self, x, p) -> np.ndarray:
         """g(x) of the NLP, evaluated by the shim's compiled stage functions."""
@@ -334,10 +333,9 @@ class FatropDirectSolver:
             lib.wb_option_double(solver, b"mu_init", mu_init)
             lib.wb_option_int(solver, b"max_iter", int(max_iterations))
             lib.wb_option_int(solver, b"print_level", int(self.config.print_level))
-            with deliver_after():
-                code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
-                                    _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s,
-                                    int(warm_duals))
+            # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler)
+            code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
+                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s, int(warm_duals))
             if code != -2 or attempt:
                 break
             solver = self._solver_for(lbx, ubx, lbg, ubg)
