@@ -99,10 +99,26 @@ class DirectQp:
     def _maps(self, problem, nx, nu, ng, hessian: ca.Sparsity, jacobian: ca.Sparsity) -> None:
         """Where each nonzero of J and H, each variable and each row goes in HPIPM's stage-major blocks."""
         N = self.N
-        n_var, n_row = problem.n_variables, problem.n_constraints
+        cols = self._column_layout(problem.n_variables, nx, nu)
+        rows = self._row_layout(problem.n_constraints, nx, ng)
+
+        def offsets(sizes):
+            return np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+
+        size = {"A": [nx[k + 1] * nx[k] for k in range(N)], "B": [nx[k + 1] * nu[k] for k in range(N)],
+                "Q": [nx[k] ** 2 for k in range(N + 1)], "S": [nu[k] * nx[k] for k in range(N + 1)],
+                "R": [nu[k] ** 2 for k in range(N + 1)], "C": [ng[k] * nx[k] for k in range(N + 1)],
+                "D": [ng[k] * nu[k] for k in range(N + 1)]}
+        off = {name: offsets(sizes) for name, sizes in size.items()}
+        self._jacobian_maps(jacobian, cols, rows, off, nx, nu, ng)
+        self._hessian_maps(hessian, cols, off, nx, nu)
+        self._allocate(off, problem.n_variables, problem.n_constraints)
+
+    def _column_layout(self, n_var: int, nx, nu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per NLP variable: its stage, part (0: x, 1: u) and position in the part; x_index, u_index."""
         col_stage, col_part, col_local = (np.full(n_var, -1) for _ in range(3))
         x_index, u_index, c = [], [], 0
-        for k in range(N + 1):
+        for k in range(self.N + 1):
             col_stage[c : c + nx[k] + nu[k]] = k
             col_part[c : c + nx[k]], col_part[c + nx[k] : c + nx[k] + nu[k]] = 0, 1
             col_local[c : c + nx[k]] = np.arange(nx[k])
@@ -112,6 +128,12 @@ class DirectQp:
             c += nx[k] + nu[k]
         if c != n_var:
             raise WbmpcError(f"HPIPM stage sizes cover {c} of {n_var} variables")
+        self.x_index, self.u_index = np.concatenate(x_index), np.concatenate(u_index)
+        return col_stage, col_part, col_local
+
+    def _row_layout(self, n_row: int, nx, ng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per NLP row: its stage, kind (0: gap, 1: path) and position; gap_index, path_index."""
+        N = self.N
         row_stage, row_kind, row_local = (np.full(n_row, -1) for _ in range(3))
         gap_index, path_index, r = [], [], 0
         for k in range(N + 1):
@@ -123,29 +145,25 @@ class DirectQp:
             row_stage[r : r + ng[k]], row_kind[r : r + ng[k]], row_local[r : r + ng[k]] = k, 1, np.arange(ng[k])
             path_index.append(np.arange(r, r + ng[k]))
             r += ng[k]
-        self.x_index, self.u_index = np.concatenate(x_index), np.concatenate(u_index)
         self.gap_index, self.path_index = np.concatenate(gap_index), np.concatenate(path_index)
+        return row_stage, row_kind, row_local
 
-        def offsets(sizes):
-            return np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-
-        size = {"A": [nx[k + 1] * nx[k] for k in range(N)], "B": [nx[k + 1] * nu[k] for k in range(N)],
-                "Q": [nx[k] ** 2 for k in range(N + 1)], "S": [nu[k] * nx[k] for k in range(N + 1)],
-                "R": [nu[k] ** 2 for k in range(N + 1)], "C": [ng[k] * nx[k] for k in range(N + 1)],
-                "D": [ng[k] * nu[k] for k in range(N + 1)]}
-        off = {name: offsets(sizes) for name, sizes in size.items()}
-        nx_arr, nu_arr, ng_arr = np.asarray(nx), np.asarray(nu), np.asarray(ng)
-        # J: nonzeros in CasADi's column-major order
+    def _jacobian_maps(self, jacobian: ca.Sparsity, cols, rows_layout, off, nx, nu, ng) -> None:
+        """J's nonzeros (CasADi's column-major order) into A, B, C, D; the gap rows' identity; the A/B scales."""
+        N = self.N
+        col_stage, col_part, col_local = cols
+        row_stage, row_kind, row_local = rows_layout
+        nx_arr, ng_arr = np.asarray(nx), np.asarray(ng)
         rows = np.asarray(jacobian.row())
-        cols = np.repeat(np.arange(jacobian.size2()), np.diff(np.asarray(jacobian.colind())))
+        columns = np.repeat(np.arange(jacobian.size2()), np.diff(np.asarray(jacobian.colind())))
         ks, kind, lr = row_stage[rows], row_kind[rows], row_local[rows]
-        cs, part, lc = col_stage[cols], col_part[cols], col_local[cols]
+        cs, part, lc = col_stage[columns], col_part[columns], col_local[columns]
         self._j_maps = {}
-        for name, mask, rows_of, dest in (
-                ("A", (kind == 0) & (cs == ks) & (part == 0), None, lambda: off["A"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
-                ("B", (kind == 0) & (cs == ks) & (part == 1), None, lambda: off["B"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
-                ("C", (kind == 1) & (cs == ks) & (part == 0), None, lambda: off["C"][ks] + lc * ng_arr[ks] + lr),
-                ("D", (kind == 1) & (cs == ks) & (part == 1), None, lambda: off["D"][ks] + lc * ng_arr[ks] + lr)):
+        for name, mask, dest in (
+                ("A", (kind == 0) & (cs == ks) & (part == 0), lambda: off["A"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
+                ("B", (kind == 0) & (cs == ks) & (part == 1), lambda: off["B"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
+                ("C", (kind == 1) & (cs == ks) & (part == 0), lambda: off["C"][ks] + lc * ng_arr[ks] + lr),
+                ("D", (kind == 1) & (cs == ks) & (part == 1), lambda: off["D"][ks] + lc * ng_arr[ks] + lr)):
             where = np.nonzero(mask)[0]
             self._j_maps[name] = (where, dest()[where])
         eye = (kind == 0) & (cs == ks + 1) & (part == 0)
@@ -158,7 +176,12 @@ class DirectQp:
         # the scale of each A / B entry: -1 / I of its row
         self._ab_scale_rows = {"A": self._gap_position_of(off, "A", nx, N)[self._j_maps["A"][1]],
                                "B": self._gap_position_of(off, "B", nx, N, nu)[self._j_maps["B"][1]]}
-        # H: both triangles written (a symmetric H stored whole writes each entry twice, the same value)
+
+    def _hessian_maps(self, hessian: ca.Sparsity, cols, off, nx, nu) -> None:
+        """H's nonzeros into Q, S, R; both triangles written (a symmetric H stored whole writes each entry twice, the
+        same value)."""
+        col_stage, col_part, col_local = cols
+        nx_arr, nu_arr = np.asarray(nx), np.asarray(nu)
         hrows = np.asarray(hessian.row())
         hcols = np.repeat(np.arange(hessian.size2()), np.diff(np.asarray(hessian.colind())))
         self._h_maps = []
@@ -172,16 +195,17 @@ class DirectQp:
                                      ("R", (pr == 1) & (pc == 1), off["R"][ks_r] + lc_ * nu_arr[ks_r] + lr_)):
                 where = np.nonzero(mask)[0]
                 self._h_maps.append((name, where, dest[where]))
-        n_gap = len(self.gap_index)
+
+    def _allocate(self, off, n_var: int, n_row: int) -> None:
+        """The blocks, vectors and results HPIPM reads and writes, bound once (`_buffers`, in wbqp_solve's order)."""
+        n_gap, n_u, n_x, n_path = len(self.gap_index), len(self.u_index), len(self.x_index), len(self.path_index)
         self._blocks = {name: np.zeros(int(off[name][-1])) for name in off}
         self._b = np.zeros(n_gap)
         self._eye_values = np.ones(n_gap)
-        self._q, self._r = np.zeros(len(self.x_index)), np.zeros(len(self.u_index))
-        self._bounds = [np.zeros(len(self.u_index)), np.zeros(len(self.u_index)), np.zeros(len(self.x_index)),
-                        np.zeros(len(self.x_index)), np.zeros(len(self.path_index)), np.zeros(len(self.path_index))]
-        self._u, self._x, self._pi = np.zeros(len(self.u_index)), np.zeros(len(self.x_index)), np.zeros(n_gap)
-        self._lam_u, self._lam_x, self._lam_g = (np.zeros(len(self.u_index)), np.zeros(len(self.x_index)),
-                                                 np.zeros(len(self.path_index)))
+        self._q, self._r = np.zeros(n_x), np.zeros(n_u)
+        self._bounds = [np.zeros(n_u), np.zeros(n_u), np.zeros(n_x), np.zeros(n_x), np.zeros(n_path), np.zeros(n_path)]
+        self._u, self._x, self._pi = np.zeros(n_u), np.zeros(n_x), np.zeros(n_gap)
+        self._lam_u, self._lam_x, self._lam_g = np.zeros(n_u), np.zeros(n_x), np.zeros(n_path)
         self._buffers = [self._blocks["A"], self._blocks["B"], self._b, self._blocks["Q"], self._blocks["S"],
                          self._blocks["R"], self._q, self._r, self._blocks["C"], self._blocks["D"], *self._bounds,
                          self._u, self._x, self._pi, self._lam_u, self._lam_x, self._lam_g]
