@@ -755,8 +755,28 @@ class MPC:
                 arm = slice(3 * len(self.robot.feet), 3 * len(self.robot.feet) + 3)
                 forces = forces.copy()
                 forces[:, arm] = _interp_rows(new_times[:-1], old_times[:-1], previous.forces[:, arm])
+            if problem.surface_feet:
+                forces = self._shifted_sole_wrenches(forces, previous, new_times[:-1], old_times[:-1])
         guess["F"] = forces
         return problem.pack(guess)
+
+    def _shifted_sole_wrenches(self, forces: np.ndarray, previous: Solution, new_times: np.ndarray,
+                               old_times: np.ndarray) -> np.ndarray:
+        """Flat feet: the previous plan's wrench (force and moments, shifted in time) for each foot and input node
+        in stance now and over the whole previous interval, instead of the weight share. A sole's wrench carries
+        the plan's centre of pressure; re-initialised (moments 0, equal shares) it violated the dynamics rows by up to
+        half the weight at the warm start (g1 walking in place: 10.0 -> 9.1 Fatrop iterations per step)."""
+        shifted = _interp_rows(new_times, old_times, previous.forces)
+        pos = np.clip(np.searchsorted(old_times, new_times) - 1, 0, max(len(old_times) - 2, 0))
+        before = previous.contact[: len(old_times)] > 0.5
+        keep = before[pos] & before[np.minimum(pos + 1, len(old_times) - 1)] & (self.gait.contact(new_times) > 0.5)
+        keep &= (new_times <= old_times[-1])[:, None]
+        dyn, forces = self.problem.dyn, forces.copy()
+        for i in self.problem.surface_feet:
+            moments = dyn.moment_slice(i)
+            for columns in (slice(3 * i, 3 * i + 3), moments):
+                forces[keep[:, i], columns] = shifted[keep[:, i], columns]
+        return forces
 
     def _joint_trajectory(self, q_traj: np.ndarray) -> np.ndarray:
         """Joint positions per node; continuous joints unwrapped along the horizon (no 2 pi jumps)."""
