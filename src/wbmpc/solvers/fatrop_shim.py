@@ -9,8 +9,11 @@ and each task writes only its stage's outputs, so any thread count gives the sam
 
 The row split follows casadi's plugin, so both paths solve the same problem the same way: a row or variable with
 lb == ub is an equality, one with a finite bound an inequality (with a slack), one with both bounds infinite is
-left out; in each stage the constraint rows come first, then the variables, each in NLP order. Fatrop's dynamics
-multipliers are those of f(x_k, u_k) - x_{k+1} = 0, the negative of casadi's (our gap rows are x_{k+1} - f).
+left out; in each stage the constraint rows come first, then the variables, each in NLP order. One difference
+(`csrc/stage_layout.c`): inputs with lb == ub (swing feet's zero forces, the arm's commanded force) are eliminated
+instead of being equality rows, so Fatrop's per-stage elimination and Riccati recursion work on fewer inputs and
+rows (the same iterates up to rounding; their multipliers follow from the Lagrangian's stationarity). Fatrop's
+dynamics multipliers are those of f(x_k, u_k) - x_{k+1} = 0, the negative of casadi's (our gap rows are x_{k+1} - f).
 
 Fatrop itself is driven by a small C++ driver (`csrc/fatrop_driver.cpp`) built from the same exported pieces as
 Fatrop's own `fatrop_ocp_c_create`, adding a primal-dual warm start and a time limit, and faster kernels for its
@@ -33,8 +36,8 @@ from wbmpc.errors import WbmpcError
 from wbmpc.solvers.codegen import CodegenConfig, CompileReport
 from wbmpc.solvers.native import build_native
 
-SOURCES = ("fatrop_shim.c", "fatrop_callbacks.c", "stage_tasks.c", "stage_pool.c", "fatrop_driver.cpp",
-           "fatrop_kernels.cpp")
+SOURCES = ("fatrop_shim.c", "fatrop_callbacks.c", "stage_layout.c", "stage_tasks.c", "stage_pool.c",
+           "fatrop_driver.cpp", "fatrop_kernels.cpp")
 HEADERS = ("fatrop_shim.h", "stage_pool.h", "wbmpc_stages.h")
 
 

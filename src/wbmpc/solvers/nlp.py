@@ -88,7 +88,7 @@ class SolverStats:
     solve_time_s: float
     max_constraint_violation: float
     cost: float
-    cpu_time_s: float = 0.0  # CPU time of the solving thread: robust to other processes on the machine
+    cpu_time_s: float = 0.0  # CPU time of the solve (its thread, fatrop-direct: its process with the pool threads)
     split_ms: dict = field(default_factory=dict)  # where the solve time went (see `time_split_ms`)
     details: dict = field(default_factory=dict)  # solver-specific (anytime SQP: iterations, KKT residuals, budget)
 

@@ -43,7 +43,7 @@ static fatrop_int cb_nx(fatrop_int k, void* d) {
   const wb_stages* st = ((wb_ctx*) d)->st;
   return st->nx[k < st->n_stages ? k : st->n_stages - 1];
 }
-static fatrop_int cb_nu(fatrop_int k, void* d) { return ((wb_ctx*) d)->st->nu[k]; }
+static fatrop_int cb_nu(fatrop_int k, void* d) { return ((wb_ctx*) d)->nur[k]; } /* the free inputs */
 static fatrop_int cb_ng(fatrop_int k, void* d) { return wb_n_eq((wb_ctx*) d, k); }
 static fatrop_int cb_ng_ineq(fatrop_int k, void* d) { return wb_n_ineq((wb_ctx*) d, k); }
 static fatrop_int cb_horizon(void* d) { return ((wb_ctx*) d)->st->n_stages; }
@@ -66,7 +66,9 @@ static fatrop_int cb_initial_xk(double* xk, fatrop_int k, void* d) {
 }
 static fatrop_int cb_initial_uk(double* uk, fatrop_int k, void* d) {
   wb_ctx* c = (wb_ctx*) d;
-  memcpy(uk, c->x0 + c->st->x_offset[k] + c->st->nx[k], sizeof(double) * c->st->nu[k]);
+  const double* u0 = c->x0 + c->st->x_offset[k] + c->st->nx[k];
+  int i;
+  for (i = 0; i < c->nur[k]; ++i) uk[i] = u0[c->rmap[c->rmap_i[k] + i]];
   return 0;
 }
 
@@ -89,6 +91,8 @@ static fatrop_int cb_full_jac(const double* primal, const double* sp, const doub
   c->job.m0 = BAbt; c->job.m1 = Gg; c->job.m2 = Gg_ineq;
   wb_run(c, wb_task_jac);
   wb_check_finite(c);
+  memcpy(c->jac_primal, primal, sizeof(double) * c->n_fatrop); /* the fixed inputs' rows kept were there */
+  c->has_jac = 1;
   return 1;
 }
 
@@ -100,7 +104,7 @@ static fatrop_int cb_full_viol(const double* primal, const double* sp, const dou
   wb_run(c, wb_task_viol);
   wb_check_finite(c);
   c->checked = 1; /* the start point's constraint values were finite */
-  memcpy(c->last_primal, primal, sizeof(double) * c->n_primal);
+  memcpy(c->last_primal, primal, sizeof(double) * c->n_fatrop);
   c->has_last = 1;
   return 1;
 }
@@ -112,6 +116,8 @@ static fatrop_int cb_full_grad(double scale, const double* primal, const double*
   c->job.out = res;
   wb_run(c, wb_task_grad);
   wb_check_finite(c);
+  memcpy(c->grad_primal, primal, sizeof(double) * c->n_fatrop);
+  c->has_grad = 1;
   return 1;
 }
 

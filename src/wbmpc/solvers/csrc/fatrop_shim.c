@@ -11,8 +11,7 @@
 typedef struct {
   struct FatropOcpCInterface ocp;
   void* solver; /* the C++ driver */
-  int* n_eq;
-  int* n_ineq;
+  int *n_eq, *n_ineq, *nur; /* per stage: the dimensions Fatrop was built with */
 } wb_solver;
 
 static int wb_work_init(wb_work* w, const wb_stages* st) {
@@ -27,12 +26,17 @@ static int wb_work_init(wb_work* w, const wb_stages* st) {
   w->f = (double*) calloc(st->max_x + 1, sizeof(double));
   w->r = (double*) calloc(st->max_rows + 1, sizeof(double));
   w->lam_rows = (double*) calloc(st->max_rows + 1, sizeof(double));
-  return w->arg && w->res && w->iw && w->w && w->hess && w->jac_next && w->jac_rows && w->f && w->r && w->lam_rows;
+  w->ufull = (double*) calloc(n + 1, sizeof(double));
+  w->compact = (double*) calloc(n * (n > (size_t) st->max_x ? n : (size_t) st->max_x) + 1, sizeof(double));
+  w->col = (double*) calloc(n + 1, sizeof(double));
+  return w->arg && w->res && w->iw && w->w && w->hess && w->jac_next && w->jac_rows && w->f && w->r && w->lam_rows &&
+         w->ufull && w->compact && w->col;
 }
 
 static void wb_work_free(wb_work* w) {
   free((void*) w->arg); free(w->res); free(w->iw); free(w->w); free(w->hess);
   free(w->jac_next); free(w->jac_rows); free(w->f); free(w->r); free(w->lam_rows);
+  free(w->ufull); free(w->compact); free(w->col);
 }
 
 void wb_ctx_free(void* ctx) {
@@ -45,6 +49,8 @@ void wb_ctx_free(void* ctx) {
   free(c->a_eq); free(c->a_ineq); free(c->x_eq); free(c->x_ineq);
   free(c->a_eq_i); free(c->a_ineq_i); free(c->x_eq_i); free(c->x_ineq_i);
   free(c->zeros); free(c->stage_cost); free(c->stage_f); free(c->stage_r); free(c->last_primal);
+  free(c->nur); free(c->u_fixed); free(c->u_fixed_i); free(c->rmap); free(c->rmap_i); free(c->red_pos);
+  free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->fix_i);
   free(c->stages.kind);
   free(c);
 }
@@ -86,10 +92,21 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->stage_f = (double*) calloc(K * st->max_x + 1, sizeof(double));
   c->stage_r = (double*) calloc(K * st->max_rows + 1, sizeof(double));
   c->last_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
-  c->n_primal = st->n_variables;
+  c->jac_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
+  c->grad_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
+  c->nur = (int*) calloc(K, sizeof(int));
+  c->u_fixed = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->rmap = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->red_pos = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->u_fixed_i = (int*) calloc(K + 1, sizeof(int)); c->rmap_i = (int*) calloc(K + 1, sizeof(int));
+  c->fix_i = (int*) calloc(K + 1, sizeof(int));
+  c->fix_grad = (double*) calloc(st->n_variables + 1, sizeof(double));
+  c->fix_jac = (double*) calloc((size_t) st->n_variables * (st->max_x + st->max_rows) + 1, sizeof(double));
   c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
   ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
-       c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->work;
+       c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->jac_primal && c->grad_primal &&
+       c->nur && c->u_fixed && c->rmap && c->red_pos && c->u_fixed_i && c->rmap_i && c->fix_i && c->fix_grad &&
+       c->fix_jac && c->work;
   for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);
   if (ok && n_threads > 1) ok = (c->pool = wb_pool_new(n_threads - 1)) != 0;
   return ok;
@@ -107,6 +124,7 @@ void* wb_ctx_new(const wb_kinds* kinds, const int* layout, int n_stages, int n_p
   c = (wb_ctx*) calloc(1, sizeof(wb_ctx));
   if (!c) return 0;
   c->st = &c->stages;
+  c->eliminate = 1;
   if (!wb_stages_init(&c->stages, kinds, layout, n_stages, n_params, n_variables, n_constraints) ||
       !wb_ctx_alloc(c, n_threads)) {
     wb_ctx_free(c);
@@ -116,7 +134,10 @@ void* wb_ctx_new(const wb_kinds* kinds, const int* layout, int n_stages, int n_p
 }
 
 int wb_ctx_threads(void* ctx) { return 1 + wb_pool_workers(((wb_ctx*) ctx)->pool); }
-double wb_ctx_pool_cpu_s(void* ctx) { return wb_pool_cpu_s(((wb_ctx*) ctx)->pool); }
+
+/* 1 (default): inputs with lb == ub are eliminated (stage_layout.c); 0: equality rows, as casadi's plugin. Set before
+   the context's first solver is made: its Fatrop instances keep the dimensions they were built with */
+void wb_ctx_eliminate_fixed(void* ctx, int on) { ((wb_ctx*) ctx)->eliminate = on != 0; }
 
 int wb_sizes(void* ctx, int* out) {
   const wb_stages* st = ((wb_ctx*) ctx)->st;
@@ -134,13 +155,16 @@ void* wb_solver_new(void* ctx, const double* lbx, const double* ubx, const doubl
   if (!s) return 0;
   s->n_eq = (int*) calloc(K, sizeof(int));
   s->n_ineq = (int*) calloc(K, sizeof(int));
+  s->nur = (int*) calloc(K, sizeof(int));
   c->lbx = lbx; c->ubx = ubx; c->lbg = lbg; c->ubg = ubg;
   wb_classify(c);
   wb_fill_interface(&s->ocp, c);
-  for (k = 0; s->n_eq && s->n_ineq && k < K; ++k) { s->n_eq[k] = wb_n_eq(c, k); s->n_ineq[k] = wb_n_ineq(c, k); }
-  s->solver = s->n_eq && s->n_ineq ? wbd_create(&s->ocp) : 0;
+  for (k = 0; s->n_eq && s->n_ineq && s->nur && k < K; ++k) {
+    s->n_eq[k] = wb_n_eq(c, k); s->n_ineq[k] = wb_n_ineq(c, k); s->nur[k] = c->nur[k];
+  }
+  s->solver = s->n_eq && s->n_ineq && s->nur ? wbd_create(&s->ocp) : 0;
   c->lbx = c->ubx = c->lbg = c->ubg = 0;
-  if (!s->solver) { free(s->n_eq); free(s->n_ineq); free(s); return 0; }
+  if (!s->solver) { free(s->n_eq); free(s->n_ineq); free(s->nur); free(s); return 0; }
   return s;
 }
 
@@ -148,7 +172,7 @@ void wb_solver_free(void* solver) {
   wb_solver* s = (wb_solver*) solver;
   if (!s) return;
   wbd_destroy(s->solver);
-  free(s->n_eq); free(s->n_ineq); free(s);
+  free(s->n_eq); free(s->n_ineq); free(s->nur); free(s);
 }
 
 int wb_option_double(void* solver, const char* name, double value) {
@@ -231,36 +255,56 @@ static double wb_violation(const wb_ctx* c, const double* x) {
   return worst;
 }
 
-/* Fatrop's solution in the NLP's layout: x, and the multipliers of the rows (gap rows: the negative of Fatrop's
-   dynamics multipliers, ours being x_{k+1} - f) and of the variables; the cost summed over the stages */
+/* Fatrop's solution in the NLP's layout: x (the fixed inputs at their value), and the multipliers of the rows (gap
+   rows: the negative of Fatrop's dynamics multipliers, ours being x_{k+1} - f) and of the variables */
+static void wb_unpack_stage(wb_ctx* c, int k, const double* primal, const double* dual,
+                            const struct FatropOcpCDims* dims, double* x_out, double* lam_g_out, double* lam_x_out) {
+  const wb_stages* st = c->st;
+  const double* u_free = primal + dims->ux_offs[k];
+  int i, col = 0;
+  memcpy(x_out + st->x_offset[k], u_free + c->nur[k], sizeof(double) * st->nx[k]);
+  memcpy(x_out + st->x_offset[k] + st->nx[k], wb_full_inputs(c, &c->work[0], k, u_free), sizeof(double) * st->nu[k]);
+  for (i = c->a_eq_i[k]; i < c->a_eq_i[k + 1]; ++i, ++col) lam_g_out[c->a_eq[i]] = dual[dims->g_offs[k] + col];
+  for (i = c->x_eq_i[k]; i < c->x_eq_i[k + 1]; ++i, ++col) lam_x_out[c->x_eq[i]] = dual[dims->g_offs[k] + col];
+  col = 0;
+  for (i = c->a_ineq_i[k]; i < c->a_ineq_i[k + 1]; ++i, ++col) lam_g_out[c->a_ineq[i]] = dual[dims->g_ineq_offs[k] + col];
+  for (i = c->x_ineq_i[k]; i < c->x_ineq_i[k + 1]; ++i, ++col) lam_x_out[c->x_ineq[i]] = dual[dims->g_ineq_offs[k] + col];
+  if (k < st->n_stages - 1)
+    for (i = 0; i < st->nx[k + 1]; ++i) lam_g_out[st->gap_offset[k] + i] = -dual[dims->dyn_eq_offs[k] + i];
+}
+
+static int wb_same_point(const wb_ctx* c, int valid, const double* stored, const double* primal) {
+  return valid && memcmp(stored, primal, sizeof(double) * c->n_fatrop) == 0;
+}
+
+/* the solution unpacked (wb_unpack_stage), its cost summed over the stages; f and r at the solution (the
+   violation) and the eliminated inputs' derivative rows (their multipliers) are those of Fatrop's last evaluations
+   when they were at the solution (the accepted iterate, usually), else evaluated now */
 static double wb_unpack(wb_ctx* c, void* solver, double* x_out, double* lam_g_out, double* lam_x_out) {
   const wb_stages* st = c->st;
   const struct FatropOcpCDims* dims = (const struct FatropOcpCDims*) wbd_dims(solver);
   const double *primal = wbd_primal(solver), *dual = wbd_dual(solver);
   double cost = 0;
-  int k, i, col;
+  int k;
   memset(lam_g_out, 0, sizeof(double) * st->n_constraints);
   memset(lam_x_out, 0, sizeof(double) * st->n_variables);
+  memset(&c->job, 0, sizeof(c->job));
+  c->job.primal = primal;
+  c->job.dims = dims;
   for (k = 0; k < st->n_stages; ++k) {
-    const double* u = primal + dims->ux_offs[k];
-    memcpy(x_out + st->x_offset[k], u + st->nu[k], sizeof(double) * st->nx[k]);
-    memcpy(x_out + st->x_offset[k] + st->nx[k], u, sizeof(double) * st->nu[k]);
-    c->job.primal = primal;
-    c->job.dims = dims;
+    wb_unpack_stage(c, k, primal, dual, dims, x_out, lam_g_out, lam_x_out);
     wb_task_cost(c, k, 0);
     cost += c->stage_cost[k];
-    col = 0;
-    for (i = c->a_eq_i[k]; i < c->a_eq_i[k + 1]; ++i, ++col) lam_g_out[c->a_eq[i]] = dual[dims->g_offs[k] + col];
-    for (i = c->x_eq_i[k]; i < c->x_eq_i[k + 1]; ++i, ++col) lam_x_out[c->x_eq[i]] = dual[dims->g_offs[k] + col];
-    col = 0;
-    for (i = c->a_ineq_i[k]; i < c->a_ineq_i[k + 1]; ++i, ++col) lam_g_out[c->a_ineq[i]] = dual[dims->g_ineq_offs[k] + col];
-    for (i = c->x_ineq_i[k]; i < c->x_ineq_i[k + 1]; ++i, ++col) lam_x_out[c->x_ineq[i]] = dual[dims->g_ineq_offs[k] + col];
-    if (k < st->n_stages - 1)
-      for (i = 0; i < st->nx[k + 1]; ++i) lam_g_out[st->gap_offset[k] + i] = -dual[dims->dyn_eq_offs[k] + i];
   }
-  /* f and r at the solution: those of Fatrop's last constraint evaluation when it was there (the accepted trial
-     point, usually), else evaluated now */
-  if (!(c->has_last && memcmp(c->last_primal, primal, sizeof(double) * c->n_primal) == 0)) {
+  if (c->u_fixed_i[st->n_stages] > 0) {
+    if (!(wb_same_point(c, c->has_jac, c->jac_primal, primal) && wb_same_point(c, c->has_grad, c->grad_primal, primal))) {
+      c->job.cache_only = 1;
+      wb_pool_run(c->pool, st->n_stages, wb_task_jac, c);
+      wb_pool_run(c->pool, st->n_stages, wb_task_grad, c);
+    }
+    wb_fixed_multipliers(c, dual, dims, lam_g_out, lam_x_out);
+  }
+  if (!wb_same_point(c, c->has_last, c->last_primal, primal)) {
     memset(&c->job, 0, sizeof(c->job));
     c->job.primal = x_out;
     wb_pool_run(c->pool, st->n_stages, wb_task_nlp_g, c);
@@ -291,9 +335,9 @@ int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const 
   c->P = P; c->lbx = lbx; c->ubx = ubx; c->lbg = lbg; c->ubg = ubg; c->x0 = x0;
   wb_classify(c);
   for (k = 0; k < c->st->n_stages; ++k)
-    if (wb_n_eq(c, k) != s->n_eq[k] || wb_n_ineq(c, k) != s->n_ineq[k]) return -2;
+    if (wb_n_eq(c, k) != s->n_eq[k] || wb_n_ineq(c, k) != s->n_ineq[k] || c->nur[k] != s->nur[k]) return -2;
   c->t_functions = 0;
-  c->deadline_hit = c->nonfinite_hit = c->checked = c->has_last = 0;
+  c->deadline_hit = c->nonfinite_hit = c->checked = c->has_last = c->has_jac = c->has_grad = 0;
   c->deadline = budget_s > 0 ? wb_now() + budget_s : 0;
   ret = wbd_solve(s->solver, warm_duals);
   c->deadline = 0;

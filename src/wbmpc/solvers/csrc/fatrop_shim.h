@@ -29,6 +29,7 @@ typedef struct {
   long long int* iw;
   double* w;
   double *hess, *jac_next, *jac_rows, *f, *r, *lam_rows;
+  double *ufull, *compact, *col; /* a stage's whole u; blocks of Fatrop's (free u, x) rows; one column */
 } wb_work;
 
 /* the evaluation a pool job runs on every stage (see stage_tasks.c) */
@@ -40,6 +41,7 @@ typedef struct {
   struct blasfeo_dmat *m0, *m1, *m2;   /* BLASFEO blocks per stage: RSQrqt or (BAbt, Ggt, Ggt_ineq) */
   double* out;                         /* flat outputs (violation, gradient, g) */
   int check_finite;                    /* flag non-finite values (the solve's first evaluations) */
+  int cache_only;                      /* Jacobian / gradient: only the eliminated inputs' rows (multipliers) */
 } wb_job;
 
 typedef struct {
@@ -49,12 +51,23 @@ typedef struct {
   /* each stage's constraint rows and variables by class (equality, inequality), in NLP order; *_i: K + 1 starts */
   int *a_eq, *a_ineq, *x_eq, *x_ineq;
   int *a_eq_i, *a_ineq_i, *x_eq_i, *x_ineq_i;
+  /* inputs with lb == ub are eliminated: Fatrop sees the free inputs u_free of each stage (nur of them) and x */
+  int eliminate;             /* 0: fixed inputs stay variables with equality rows, as in casadi's plugin */
+  int* nur;
+  int *u_fixed, *u_fixed_i;  /* each stage's fixed inputs (positions in u), K + 1 starts */
+  int *rmap, *rmap_i;        /* Fatrop's stage position in (u_free, x) -> position in (u, x); K + 1 starts */
+  int* red_pos;              /* NLP variable -> its position in Fatrop's (u_free, x) of its stage, -1 if fixed */
+  int n_fatrop;              /* length of Fatrop's primal vector */
+  /* the fixed inputs' rows of (d f)' | (d r)' and gradient entries at the last evaluations (their multipliers) */
+  double *fix_jac, *fix_grad, *jac_primal, *grad_primal;
+  int* fix_i;                /* K + 1 starts into fix_jac (fix_grad: u_fixed_i) */
+  int has_jac, has_grad;
   double* zeros;          /* max_x zeros: the last stage's dynamics multipliers */
   double* stage_cost;     /* per stage, of the last cost evaluation */
   double* stage_f;        /* K * max_x: f of the last violation evaluation, per stage */
   double* stage_r;        /* K * max_rows: r of the same */
   double* last_primal;    /* where that evaluation was (Fatrop's layout); has_last: valid */
-  int has_last, n_primal;
+  int has_last;
   wb_work* work;          /* one per thread: the caller's first */
   int n_work;
   wb_pool* pool;
@@ -64,9 +77,17 @@ typedef struct {
   int deadline_hit, nonfinite_hit, checked;
 } wb_ctx;
 
+/* stage_layout.c */
+void wb_classify(wb_ctx* c);
+const double* wb_full_inputs(const wb_ctx* c, wb_work* w, int k, const double* u_free);
+const double* wb_reduce_square(const wb_ctx* c, wb_work* w, int k, const double* A, int n);
+const double* wb_reduce_rows(const wb_ctx* c, wb_work* w, int k, const double* A, int n, int n_cols);
+void wb_keep_fixed_rows(wb_ctx* c, int k, const double* jac_next, const double* jac_rows, int n);
+void wb_fixed_multipliers(const wb_ctx* c, const double* dual, const struct FatropOcpCDims* dims,
+                          const double* lam_g, double* lam_x);
+
 /* stage_tasks.c */
 double wb_now(void);
-void wb_classify(wb_ctx* c);
 int wb_pack_ready(void);
 void wb_run(wb_ctx* c, wb_task_fn task);
 void wb_task_hess(void* job, int k, int worker);

@@ -9,7 +9,6 @@
 #include <sched.h>
 #include <stdatomic.h>
 #include <stdlib.h>
-#include <time.h>
 
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
@@ -134,18 +133,6 @@ void wb_pool_free(wb_pool* p) {
 }
 
 int wb_pool_workers(const wb_pool* p) { return p ? p->n_workers : 0; }
-
-double wb_pool_cpu_s(const wb_pool* p) {
-  double total = 0;
-  int i;
-  for (i = 0; p && i < p->n_workers; ++i) {
-    clockid_t clock;
-    struct timespec t;
-    if (pthread_getcpuclockid(p->threads[i], &clock) == 0 && clock_gettime(clock, &t) == 0)
-      total += t.tv_sec + 1e-9 * t.tv_nsec;
-  }
-  return total;
-}
 
 void wb_pool_run(wb_pool* p, int n_tasks, wb_task_fn fn, void* job) {
   int i, spin = 0;

@@ -18,8 +18,6 @@ typedef struct wb_pool wb_pool;
 wb_pool* wb_pool_new(int n_workers);
 void wb_pool_free(wb_pool* pool);
 int wb_pool_workers(const wb_pool* pool);
-/* CPU time the pool's threads have used (s) */
-double wb_pool_cpu_s(const wb_pool* pool);
 /* runs fn(job, i, worker) for i = 0 .. n_tasks - 1 and returns when all have finished */
 void wb_pool_run(wb_pool* pool, int n_tasks, wb_task_fn fn, void* job);
 

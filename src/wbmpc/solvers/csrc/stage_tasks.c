@@ -53,26 +53,6 @@ static void wb_pack(int m, int n, const double* A, int lda, struct blasfeo_dmat*
   blasfeo_pack_dmat(m, n, (double*) A, lda, B, 0, 0);
 }
 
-/* sorts each stage's constraint rows and variables into equalities (lb == ub), inequalities (a finite bound)
-   and free ones (left out), as casadi's Fatrop plugin does */
-void wb_classify(wb_ctx* c) {
-  const wb_stages* st = c->st;
-  int k, i;
-  c->a_eq_i[0] = c->a_ineq_i[0] = c->x_eq_i[0] = c->x_ineq_i[0] = 0;
-  for (k = 0; k < st->n_stages; ++k) {
-    int ae = c->a_eq_i[k], ai = c->a_ineq_i[k], xe = c->x_eq_i[k], xi = c->x_ineq_i[k];
-    for (i = st->row_offset[k]; i < st->row_offset[k] + st->nr[k]; ++i) {
-      if (c->lbg[i] == c->ubg[i]) c->a_eq[ae++] = i;
-      else if (!(isinf(c->lbg[i]) && c->lbg[i] < 0 && isinf(c->ubg[i]) && c->ubg[i] > 0)) c->a_ineq[ai++] = i;
-    }
-    for (i = st->x_offset[k]; i < st->x_offset[k] + st->nx[k] + st->nu[k]; ++i) {
-      if (c->lbx[i] == c->ubx[i]) c->x_eq[xe++] = i;
-      else if (!(isinf(c->lbx[i]) && c->lbx[i] < 0 && isinf(c->ubx[i]) && c->ubx[i] > 0)) c->x_ineq[xi++] = i;
-    }
-    c->a_eq_i[k + 1] = ae; c->a_ineq_i[k + 1] = ai; c->x_eq_i[k + 1] = xe; c->x_ineq_i[k + 1] = xi;
-  }
-}
-
 /* runs `task` on every stage (on the pool when there is one) and counts the wall time as function time */
 void wb_run(wb_ctx* c, wb_task_fn task) {
   double start = wb_now();
@@ -97,12 +77,14 @@ static int wb_all_finite(const double* v, int n) {
   return 1;
 }
 
-/* stage k's inputs and states in the job's primal vector (Fatrop's (u, x) per stage, or the NLP's (x, u)) */
-static void wb_stage_point(const wb_ctx* c, int k, const double** u, const double** x) {
+/* stage k's inputs and states in the job's primal vector (Fatrop's (u_free, x) per stage, or the NLP's (x, u));
+   the whole u (fixed inputs at their value, in w's scratch where there are some) */
+static void wb_stage_point(const wb_ctx* c, wb_work* w, int k, const double** u, const double** x) {
   const wb_job* j = &c->job;
   if (j->dims) {
-    *u = j->primal + j->dims->ux_offs[k];
-    *x = *u + c->st->nu[k];
+    const double* u_free = j->primal + j->dims->ux_offs[k];
+    *x = u_free + c->nur[k];
+    *u = wb_full_inputs(c, w, k, u_free);
   } else {
     *x = j->primal + c->st->x_offset[k];
     *u = *x + c->st->nx[k];
@@ -118,56 +100,57 @@ void wb_task_hess(void* job, int k, int worker) {
   wb_work* w = &c->work[worker];
   const double *u, *x, *lam_dyn = k < st->n_stages - 1 ? j->lam + s->dyn_eq_offs[k] : c->zeros;
   const double *lam_eq = j->lam + s->g_offs[k], *lam_ineq = j->lam + s->g_ineq_offs[k];
-  int i, col, n = st->nu[k] + st->nx[k], r0 = st->row_offset[k];
+  int i, col, n = st->nu[k] + st->nx[k], nr, r0 = st->row_offset[k];
   memset(w->lam_rows, 0, sizeof(double) * (st->nr[k] + 1));
   for (i = c->a_eq_i[k], col = 0; i < c->a_eq_i[k + 1]; ++i, ++col) w->lam_rows[c->a_eq[i] - r0] = lam_eq[col];
   for (i = c->a_ineq_i[k], col = 0; i < c->a_ineq_i[k + 1]; ++i, ++col) w->lam_rows[c->a_ineq[i] - r0] = lam_ineq[col];
-  wb_stage_point(c, k, &u, &x);
+  wb_stage_point(c, w, k, &u, &x);
   wb_call(c, w, WB_HESS, k, u, x, &j->scale, lam_dyn, w->lam_rows, w->hess, 0);
   if (j->check_finite && !wb_all_finite(w->hess, n * n)) c->nonfinite_hit = 1;
-  wb_pack(n, n, w->hess, n, j->m0 + k);
+  nr = c->nur[k] + st->nx[k];
+  wb_pack(nr, nr, wb_reduce_square(c, w, k, w->hess, n), nr, j->m0 + k);
 }
 
-/* Ggt / Ggt_ineq: the selected rows' transposed Jacobian columns, then unit columns of the selected variables */
-static void wb_pack_rows(const wb_ctx* c, const wb_work* w, int k, const int* rows, int n_rows, const int* vars,
+/* Ggt / Ggt_ineq: the selected rows' transposed Jacobian columns (Fatrop's rows of them), then unit columns of the
+   selected variables */
+static void wb_pack_rows(const wb_ctx* c, wb_work* w, int k, const int* rows, int n_rows, const int* vars,
                          int n_vars, struct blasfeo_dmat* res) {
   const wb_stages* st = c->st;
-  int i, n = st->nu[k] + st->nx[k];
-  for (i = 0; i < n_rows; ++i)
-    blasfeo_pack_dmat(n, 1, w->jac_rows + (size_t) (rows[i] - st->row_offset[k]) * n, n, res, 0, i);
+  int i, n = st->nu[k] + st->nx[k], nr = c->nur[k] + st->nx[k];
+  for (i = 0; i < n_rows; ++i) {
+    const double* column = w->jac_rows + (size_t) (rows[i] - st->row_offset[k]) * n;
+    blasfeo_pack_dmat(nr, 1, (double*) wb_reduce_rows(c, w, k, column, n, 1), nr, res, 0, i);
+  }
   if (n_vars > 0) {
-    blasfeo_dgese(n, n_vars, 0.0, res, 0, n_rows);
-    for (i = 0; i < n_vars; ++i) {
-      int local = vars[i] - st->x_offset[k]; /* its position in (u_k, x_k) */
-      blasfeo_dgein1(1.0, res, local < st->nx[k] ? st->nu[k] + local : local - st->nx[k], n_rows + i);
-    }
+    blasfeo_dgese(nr, n_vars, 0.0, res, 0, n_rows);
+    for (i = 0; i < n_vars; ++i) blasfeo_dgein1(1.0, res, c->red_pos[vars[i]], n_rows + i);
   }
 }
 
-/* BAbt, Ggt and Ggt_ineq of stage k from one Jacobian call */
+/* BAbt, Ggt and Ggt_ineq of stage k from one Jacobian call (with `cache_only`: the fixed inputs' rows alone) */
 void wb_task_jac(void* job, int k, int worker) {
   wb_ctx* c = (wb_ctx*) job;
   const wb_job* j = &c->job;
   const wb_stages* st = c->st;
   wb_work* w = &c->work[worker];
   const double *u, *x;
-  int n = st->nu[k] + st->nx[k];
-  wb_stage_point(c, k, &u, &x);
+  int n = st->nu[k] + st->nx[k], nr = c->nur[k] + st->nx[k], n_next = k < st->n_stages - 1 ? st->nx[k + 1] : 0;
+  wb_stage_point(c, w, k, &u, &x);
   wb_call(c, w, WB_JAC, k, u, x, 0, 0, 0, w->jac_next, w->jac_rows);
-  if (j->check_finite && !(wb_all_finite(w->jac_next, k < st->n_stages - 1 ? n * st->nx[k + 1] : 0) &&
-                           wb_all_finite(w->jac_rows, n * st->nr[k])))
+  if (j->check_finite && !(wb_all_finite(w->jac_next, n * n_next) && wb_all_finite(w->jac_rows, n * st->nr[k])))
     c->nonfinite_hit = 1;
-  if (k < st->n_stages - 1) wb_pack(n, st->nx[k + 1], w->jac_next, n, j->m0 + k);
+  if (c->nur[k] < st->nu[k]) wb_keep_fixed_rows(c, k, w->jac_next, w->jac_rows, n);
+  if (j->cache_only) return;
+  if (n_next > 0) wb_pack(nr, n_next, wb_reduce_rows(c, w, k, w->jac_next, n, n_next), nr, j->m0 + k);
   wb_pack_rows(c, w, k, c->a_eq + c->a_eq_i[k], c->a_eq_i[k + 1] - c->a_eq_i[k], c->x_eq + c->x_eq_i[k],
                c->x_eq_i[k + 1] - c->x_eq_i[k], j->m1 + k);
   wb_pack_rows(c, w, k, c->a_ineq + c->a_ineq_i[k], c->a_ineq_i[k + 1] - c->a_ineq_i[k], c->x_ineq + c->x_ineq_i[k],
                c->x_ineq_i[k + 1] - c->x_ineq_i[k], j->m2 + k);
 }
 
-/* NLP variable v (of stage k) in Fatrop's primal vector */
+/* NLP variable v (of stage k, not eliminated) in Fatrop's primal vector */
 static double wb_var(const wb_ctx* c, const double* primal, const struct FatropOcpCDims* s, int k, int v) {
-  int local = v - c->st->x_offset[k], nx = c->st->nx[k];
-  return local < nx ? primal[s->ux_offs[k] + c->st->nu[k] + local] : primal[s->ux_offs[k] + local - nx];
+  return primal[s->ux_offs[k] + c->red_pos[v]];
 }
 
 /* Fatrop's constraint values of stage k: dynamics gap, equality rows - lower bound, inequality rows; f and r
@@ -180,12 +163,12 @@ void wb_task_viol(void* job, int k, int worker) {
   double *f = c->stage_f + (size_t) k * st->max_x, *r = c->stage_r + (size_t) k * st->max_rows, *res = j->out;
   const double *u, *x;
   int i, col = 0, r0 = st->row_offset[k];
-  wb_stage_point(c, k, &u, &x);
+  wb_stage_point(c, &c->work[worker], k, &u, &x);
   wb_call(c, &c->work[worker], WB_VAL, k, u, x, 0, 0, 0, f, r);
   if (j->check_finite && !(wb_all_finite(f, k < st->n_stages - 1 ? st->nx[k + 1] : 0) && wb_all_finite(r, st->nr[k])))
     c->nonfinite_hit = 1;
   if (k < st->n_stages - 1) {
-    const double* x_next = j->primal + s->ux_offs[k + 1] + st->nu[k + 1];
+    const double* x_next = j->primal + s->ux_offs[k + 1] + c->nur[k + 1];
     for (i = 0; i < st->nx[k + 1]; ++i) res[s->dyn_eq_offs[k] + i] = f[i] - x_next[i];
   }
   for (i = c->a_eq_i[k]; i < c->a_eq_i[k + 1]; ++i, ++col)
@@ -198,25 +181,27 @@ void wb_task_viol(void* job, int k, int worker) {
     res[s->g_ineq_offs[k] + col] = wb_var(c, j->primal, s, k, c->x_ineq[i]);
 }
 
-/* the objective's gradient in (u_k, x_k), scaled */
+/* the objective's gradient in Fatrop's (u_free, x), scaled; the fixed inputs' entries kept (their multipliers) */
 void wb_task_grad(void* job, int k, int worker) {
   wb_ctx* c = (wb_ctx*) job;
   const wb_job* j = &c->job;
+  wb_work* w = &c->work[worker];
+  const int* map = c->rmap + c->rmap_i[k];
   const double *u, *x;
-  double* g = j->out + j->dims->ux_offs[k];
-  int i, n = c->st->nu[k] + c->st->nx[k];
-  wb_stage_point(c, k, &u, &x);
-  wb_call(c, &c->work[worker], WB_GRAD, k, u, x, 0, 0, 0, g, 0);
-  if (j->check_finite && !wb_all_finite(g, n)) c->nonfinite_hit = 1;
-  if (j->scale != 1.0)
-    for (i = 0; i < n; ++i) g[i] *= j->scale;
+  int i, n = c->st->nu[k] + c->st->nx[k], nr = c->nur[k] + c->st->nx[k];
+  wb_stage_point(c, w, k, &u, &x);
+  wb_call(c, w, WB_GRAD, k, u, x, 0, 0, 0, w->col, 0);
+  if (j->check_finite && !wb_all_finite(w->col, n)) c->nonfinite_hit = 1;
+  for (i = c->u_fixed_i[k]; i < c->u_fixed_i[k + 1]; ++i) c->fix_grad[i] = w->col[c->u_fixed[i]];
+  if (j->cache_only) return;
+  for (i = 0; i < nr; ++i) j->out[j->dims->ux_offs[k] + i] = j->scale != 1.0 ? j->scale * w->col[map[i]] : w->col[map[i]];
 }
 
 /* stage k's cost into stage_cost[k] (summed in stage order by the caller: the same sum on any thread count) */
 void wb_task_cost(void* job, int k, int worker) {
   wb_ctx* c = (wb_ctx*) job;
   const double *u, *x;
-  wb_stage_point(c, k, &u, &x);
+  wb_stage_point(c, &c->work[worker], k, &u, &x);
   wb_call(c, &c->work[worker], WB_COST, k, u, x, 0, 0, 0, c->stage_cost + k, 0);
 }
 
@@ -227,7 +212,7 @@ void wb_task_nlp_g(void* job, int k, int worker) {
   const double *u, *x, *primal = c->job.primal;
   double *f = c->stage_f + (size_t) k * st->max_x, *g = c->job.out;
   int i;
-  wb_stage_point(c, k, &u, &x);
+  wb_stage_point(c, &c->work[worker], k, &u, &x);
   wb_call(c, &c->work[worker], WB_VAL, k, u, x, 0, 0, 0, f, g ? g + st->row_offset[k] : c->stage_r + (size_t) k * st->max_rows);
   if (g && k < st->n_stages - 1)
     for (i = 0; i < st->nx[k + 1]; ++i) g[st->gap_offset[k] + i] = primal[st->x_offset[k + 1] + i] - f[i];
@@ -267,7 +252,7 @@ void wb_task_derivatives(void* job, int k, int worker) {
     for (i = 0; i < st->nx[k + 1]; ++i) w->f[i] = -j->lam[st->gap_offset[k] + i]; /* Fatrop's sign */
     lam_dyn = w->f;
   }
-  wb_stage_point(c, k, &u, &x);
+  wb_stage_point(c, w, k, &u, &x);
   wb_call(c, w, WB_GRAD, k, u, x, 0, 0, 0, out, 0);
   wb_call(c, w, WB_HESS, k, u, x, &j->scale, lam_dyn, j->lam + st->row_offset[k], out + n, 0);
   wb_call(c, w, WB_JAC, k, u, x, 0, 0, 0, out + n + (size_t) n * n,
