@@ -27,16 +27,17 @@ static int wb_work_init(wb_work* w, const wb_stages* st) {
   w->r = (double*) calloc(st->max_rows + 1, sizeof(double));
   w->lam_rows = (double*) calloc(st->max_rows + 1, sizeof(double));
   w->ufull = (double*) calloc(n + 1, sizeof(double));
-  w->compact = (double*) calloc(n * (n > (size_t) st->max_x ? n : (size_t) st->max_x) + 1, sizeof(double));
+  w->compact = (double*) calloc(n * (n + st->max_x + st->max_rows) + 1, sizeof(double));
   w->col = (double*) calloc(n + 1, sizeof(double));
+  w->cols = (int*) calloc(st->max_rows + 1, sizeof(int));
   return w->arg && w->res && w->iw && w->w && w->hess && w->jac_next && w->jac_rows && w->f && w->r && w->lam_rows &&
-         w->ufull && w->compact && w->col;
+         w->ufull && w->compact && w->col && w->cols;
 }
 
 static void wb_work_free(wb_work* w) {
   free((void*) w->arg); free(w->res); free(w->iw); free(w->w); free(w->hess);
   free(w->jac_next); free(w->jac_rows); free(w->f); free(w->r); free(w->lam_rows);
-  free(w->ufull); free(w->compact); free(w->col);
+  free(w->ufull); free(w->compact); free(w->col); free(w->cols);
 }
 
 void wb_ctx_free(void* ctx) {
@@ -51,6 +52,7 @@ void wb_ctx_free(void* ctx) {
   free(c->zeros); free(c->stage_cost); free(c->stage_f); free(c->stage_r); free(c->last_primal);
   free(c->nur); free(c->u_fixed); free(c->u_fixed_i); free(c->rmap); free(c->rmap_i); free(c->red_pos);
   free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->fix_i);
+  free(c->run_src); free(c->run_dst); free(c->run_len); free(c->run_i);
   free(c->stages.kind);
   free(c);
 }
@@ -100,13 +102,17 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->red_pos = (int*) calloc(st->n_variables + 1, sizeof(int));
   c->u_fixed_i = (int*) calloc(K + 1, sizeof(int)); c->rmap_i = (int*) calloc(K + 1, sizeof(int));
   c->fix_i = (int*) calloc(K + 1, sizeof(int));
+  c->run_src = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->run_dst = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->run_len = (int*) calloc(st->n_variables + 1, sizeof(int));
+  c->run_i = (int*) calloc(K + 1, sizeof(int));
   c->fix_grad = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->fix_jac = (double*) calloc((size_t) st->n_variables * (st->max_x + st->max_rows) + 1, sizeof(double));
   c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
   ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
        c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->jac_primal && c->grad_primal &&
        c->nur && c->u_fixed && c->rmap && c->red_pos && c->u_fixed_i && c->rmap_i && c->fix_i && c->fix_grad &&
-       c->fix_jac && c->work;
+       c->fix_jac && c->run_src && c->run_dst && c->run_len && c->run_i && c->work;
   for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);
   if (ok && n_threads > 1) ok = (c->pool = wb_pool_new(n_threads - 1)) != 0;
   return ok;

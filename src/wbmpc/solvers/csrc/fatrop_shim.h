@@ -30,6 +30,7 @@ typedef struct {
   double* w;
   double *hess, *jac_next, *jac_rows, *f, *r, *lam_rows;
   double *ufull, *compact, *col; /* a stage's whole u; blocks of Fatrop's (free u, x) rows; one column */
+  int* cols;                     /* the columns a block selects */
 } wb_work;
 
 /* the evaluation a pool job runs on every stage (see stage_tasks.c) */
@@ -57,6 +58,7 @@ typedef struct {
   int *u_fixed, *u_fixed_i;  /* each stage's fixed inputs (positions in u), K + 1 starts */
   int *rmap, *rmap_i;        /* Fatrop's stage position in (u_free, x) -> position in (u, x); K + 1 starts */
   int* red_pos;              /* NLP variable -> its position in Fatrop's (u_free, x) of its stage, -1 if fixed */
+  int *run_src, *run_dst, *run_len, *run_i; /* rmap as runs of consecutive positions; K + 1 starts */
   int n_fatrop;              /* length of Fatrop's primal vector */
   /* the fixed inputs' rows of (d f)' | (d r)' and gradient entries at the last evaluations (their multipliers) */
   double *fix_jac, *fix_grad, *jac_primal, *grad_primal;
@@ -81,7 +83,7 @@ typedef struct {
 void wb_classify(wb_ctx* c);
 const double* wb_full_inputs(const wb_ctx* c, wb_work* w, int k, const double* u_free);
 const double* wb_reduce_square(const wb_ctx* c, wb_work* w, int k, const double* A, int n);
-const double* wb_reduce_rows(const wb_ctx* c, wb_work* w, int k, const double* A, int n, int n_cols);
+const double* wb_reduce_rows(const wb_ctx* c, wb_work* w, int k, const double* A, int n, int n_cols, const int* cols);
 void wb_keep_fixed_rows(wb_ctx* c, int k, const double* jac_next, const double* jac_rows, int n);
 void wb_fixed_multipliers(const wb_ctx* c, const double* dual, const struct FatropOcpCDims* dims,
                           const double* lam_g, double* lam_x);

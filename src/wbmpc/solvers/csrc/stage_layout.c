@@ -16,6 +16,17 @@ static int wb_free(double lower, double upper) {
   return isinf(lower) && lower < 0 && isinf(upper) && upper > 0;
 }
 
+/* the runs of consecutive positions in stage k's rmap (a few: the free inputs between the fixed ones, the states) */
+static void wb_stage_runs(wb_ctx* c, int k) {
+  const int* map = c->rmap + c->rmap_i[k];
+  int p, r = c->run_i[k], n = c->rmap_i[k + 1] - c->rmap_i[k];
+  for (p = 0; p < n; ++p) {
+    if (p > 0 && map[p] == map[p - 1] + 1) { c->run_len[r - 1]++; continue; }
+    c->run_src[r] = map[p]; c->run_dst[r] = p; c->run_len[r] = 1; ++r;
+  }
+  c->run_i[k + 1] = r;
+}
+
 /* stage k's inputs: fixed ones listed, the others in Fatrop's order (rmap), the NLP -> Fatrop position map */
 static void wb_reduce_stage(wb_ctx* c, int k) {
   const wb_stages* st = c->st;
@@ -38,13 +49,14 @@ static void wb_reduce_stage(wb_ctx* c, int k) {
   c->rmap_i[k + 1] = r;
   c->fix_i[k + 1] = c->fix_i[k] + (nf - c->u_fixed_i[k]) * ((k < st->n_stages - 1 ? st->nx[k + 1] : 0) + st->nr[k]);
   c->n_fatrop += c->nur[k] + st->nx[k];
+  wb_stage_runs(c, k);
 }
 
 void wb_classify(wb_ctx* c) {
   const wb_stages* st = c->st;
   int k, i;
   c->a_eq_i[0] = c->a_ineq_i[0] = c->x_eq_i[0] = c->x_ineq_i[0] = 0;
-  c->u_fixed_i[0] = c->rmap_i[0] = c->fix_i[0] = c->n_fatrop = 0;
+  c->u_fixed_i[0] = c->rmap_i[0] = c->fix_i[0] = c->run_i[0] = c->n_fatrop = 0;
   for (k = 0; k < st->n_stages; ++k) {
     int ae = c->a_eq_i[k], ai = c->a_ineq_i[k], xe = c->x_eq_i[k], xi = c->x_ineq_i[k];
     int u0 = st->x_offset[k] + st->nx[k];
@@ -71,23 +83,32 @@ const double* wb_full_inputs(const wb_ctx* c, wb_work* w, int k, const double* u
   return w->ufull;
 }
 
+/* Fatrop's rows of column `src` (n long) of stage k into `dst` (n_r long), run by run */
+static void wb_gather_column(const wb_ctx* c, int k, const double* src, double* dst) {
+  int r;
+  for (r = c->run_i[k]; r < c->run_i[k + 1]; ++r)
+    memcpy(dst + c->run_dst[r], src + c->run_src[r], sizeof(double) * c->run_len[r]);
+}
+
 /* the (n_r x n_r) block of Fatrop's rows and columns of a column-major (n x n) matrix of stage k */
 const double* wb_reduce_square(const wb_ctx* c, wb_work* w, int k, const double* A, int n) {
   const int* map = c->rmap + c->rmap_i[k];
-  int i, j, nr = c->nur[k] + c->st->nx[k];
+  int j, nr = c->nur[k] + c->st->nx[k];
   if (nr == n) return A;
-  for (j = 0; j < nr; ++j)
-    for (i = 0; i < nr; ++i) w->compact[(size_t) j * nr + i] = A[(size_t) map[j] * n + map[i]];
+  for (j = 0; j < nr; ++j) wb_gather_column(c, k, A + (size_t) map[j] * n, w->compact + (size_t) j * nr);
   return w->compact;
 }
 
-/* the (n_r x n_cols) rows of Fatrop's variables of a column-major (n x n_cols) matrix of stage k */
-const double* wb_reduce_rows(const wb_ctx* c, wb_work* w, int k, const double* A, int n, int n_cols) {
-  const int* map = c->rmap + c->rmap_i[k];
-  int i, j, nr = c->nur[k] + c->st->nx[k];
-  if (nr == n) return A;
-  for (j = 0; j < n_cols; ++j)
-    for (i = 0; i < nr; ++i) w->compact[(size_t) j * nr + i] = A[(size_t) j * n + map[i]];
+/* the (n_r x n_cols) block of Fatrop's rows of the columns `cols` (all: NULL) of a column-major (n x .) matrix of
+   stage k; A itself when nothing is to gather */
+const double* wb_reduce_rows(const wb_ctx* c, wb_work* w, int k, const double* A, int n, int n_cols, const int* cols) {
+  int j, nr = c->nur[k] + c->st->nx[k];
+  if (nr == n && !cols) return A;
+  for (j = 0; j < n_cols; ++j) {
+    const double* src = A + (size_t) (cols ? cols[j] : j) * n;
+    if (nr == n) memcpy(w->compact + (size_t) j * nr, src, sizeof(double) * n);
+    else wb_gather_column(c, k, src, w->compact + (size_t) j * nr);
+  }
   return w->compact;
 }
 

@@ -111,15 +111,15 @@ void wb_task_hess(void* job, int k, int worker) {
   wb_pack(nr, nr, wb_reduce_square(c, w, k, w->hess, n), nr, j->m0 + k);
 }
 
-/* Ggt / Ggt_ineq: the selected rows' transposed Jacobian columns (Fatrop's rows of them), then unit columns of the
-   selected variables */
+/* Ggt / Ggt_ineq: the selected rows' transposed Jacobian columns (Fatrop's rows of them, gathered into one block and
+   packed at once), then unit columns of the selected variables */
 static void wb_pack_rows(const wb_ctx* c, wb_work* w, int k, const int* rows, int n_rows, const int* vars,
                          int n_vars, struct blasfeo_dmat* res) {
   const wb_stages* st = c->st;
   int i, n = st->nu[k] + st->nx[k], nr = c->nur[k] + st->nx[k];
-  for (i = 0; i < n_rows; ++i) {
-    const double* column = w->jac_rows + (size_t) (rows[i] - st->row_offset[k]) * n;
-    blasfeo_pack_dmat(nr, 1, (double*) wb_reduce_rows(c, w, k, column, n, 1), nr, res, 0, i);
+  if (n_rows > 0) {
+    for (i = 0; i < n_rows; ++i) w->cols[i] = rows[i] - st->row_offset[k];
+    wb_pack(nr, n_rows, wb_reduce_rows(c, w, k, w->jac_rows, n, n_rows, w->cols), nr, res);
   }
   if (n_vars > 0) {
     blasfeo_dgese(nr, n_vars, 0.0, res, 0, n_rows);
@@ -141,7 +141,7 @@ void wb_task_jac(void* job, int k, int worker) {
     c->nonfinite_hit = 1;
   if (c->nur[k] < st->nu[k]) wb_keep_fixed_rows(c, k, w->jac_next, w->jac_rows, n);
   if (j->cache_only) return;
-  if (n_next > 0) wb_pack(nr, n_next, wb_reduce_rows(c, w, k, w->jac_next, n, n_next), nr, j->m0 + k);
+  if (n_next > 0) wb_pack(nr, n_next, wb_reduce_rows(c, w, k, w->jac_next, n, n_next, 0), nr, j->m0 + k);
   wb_pack_rows(c, w, k, c->a_eq + c->a_eq_i[k], c->a_eq_i[k + 1] - c->a_eq_i[k], c->x_eq + c->x_eq_i[k],
                c->x_eq_i[k + 1] - c->x_eq_i[k], j->m1 + k);
   wb_pack_rows(c, w, k, c->a_ineq + c->a_ineq_i[k], c->a_ineq_i[k + 1] - c->a_ineq_i[k], c->x_ineq + c->x_ineq_i[k],
