@@ -31,19 +31,23 @@ EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
 # those of `run` come from its config dataclasses (`_field_flags`)
 OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
-CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
+CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock", "keyframe": "--keyframe"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
 
 def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     from wbmpc.robots.presets import PRESET_NAMES
 
-    group = parser.add_argument_group("robot (a preset, or a custom URDF with the options below it)")
+    group = parser.add_argument_group("robot (a preset, or a custom URDF or MJCF with the options below it)")
     group.add_argument("--robot", default="b1_z1", choices=PRESET_NAMES, metavar="NAME",
                        help=f"preset: {', '.join(PRESET_NAMES)} (default b1_z1: B1 + Z1 arm, 22 DoF as in the paper)")
     group.add_argument("--urdf", metavar="FILE", help="custom robot URDF (replaces --robot; needs --feet)")
+    group.add_argument("--mjcf", metavar="FILE", help="custom robot MJCF with a free joint, e.g. MuJoCo Menagerie's or "
+                       "unitree_mujoco's (replaces --robot; needs --feet: bodies, sites or geoms of the file)")
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
+    group.add_argument("--keyframe", metavar="NAME", help="custom MJCF robot: keyframe used as the nominal pose "
+                       "(default the file's first, e.g. Menagerie's home; none: its zero pose)")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
     group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame: a custom robot's, another frame of "
                        "a preset (e.g. g1's left_rubber_hand), or with --arm the mounted arm's (default its only leaf link)")
@@ -150,28 +154,35 @@ def robot_from_args(args: argparse.Namespace):
     import dataclasses
 
     from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
+    from wbmpc.robots.presets import custom_robot
 
     contact = _foot_contact(args)
     arm = _arm_mount(args)
-    if args.urdf:
+    mjcf = getattr(args, "mjcf", None)
+    if args.urdf and mjcf:
+        raise ConfigError("--urdf and --mjcf both describe the robot: give one")
+    if getattr(args, "keyframe", None) and not mjcf:
+        raise ConfigError("--keyframe names a pose of an MJCF file: it needs --mjcf FILE")
+    if args.urdf or mjcf:
         if not args.feet:
-            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
+            raise ConfigError(f"a custom {'--urdf' if args.urdf else '--mjcf'} needs --feet F1,F2,... (the foot frame "
+                              f"names{': bodies, sites or geoms of the file' if mjcf else ''})")
         spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
-                           _split(args.lock))
+                           _split(args.lock), mjcf=mjcf, keyframe=getattr(args, "keyframe", None))
         spec = dataclasses.replace(spec, **contact) if contact else spec
-        robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
+        robot = custom_robot(_with_arm(spec, arm) if arm else spec)
     elif arm:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
         if given:
-            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
+            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf or --mjcf")
         spec = preset_spec(args.robot)
         robot = RobotModel(_with_arm(dataclasses.replace(spec, **contact) if contact else spec, arm))
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
             raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
-                              f"{'s' if len(given) == 1 else ''} --urdf; "
-                              f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
+                              f"{'s' if len(given) == 1 else ''} --urdf or --mjcf; the preset --robot {args.robot} "
+                              f"defines its own (drop {', '.join(given)} or add --urdf FILE or --mjcf FILE)")
         robot = load_robot(args.robot)
         if getattr(args, "arm", None) not in (None, "none") and arm is None and not _carries_arm(robot, args.arm):
             raise ConfigError(f"--robot {args.robot} carries no {args.arm} arm: mount one with --arm {args.arm} "
@@ -414,7 +425,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
-          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}"
+          f"{f' simulating {config.plant_model}' if config.plant_model else ''}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
@@ -448,6 +460,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         f"recovered by a re-solve, {m['mpc_failures']} failed; solve {_fmt(solve['mean'])} ms mean "
         f"({_fmt(solve['max'])} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("plant_model"):
+        lines.append(plant_model_line(m["plant_model"]))
     if m.get("solver"):
         compiled = "compiled" if m["solver_compiled"] else (
             f"NOT compiled (asked for; CasADi's VM instead, several times slower: {m['compile_error']})"
@@ -491,6 +505,15 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
     if failure:
         lines.append(f"  FAILED: {failure} (exit code {EXIT_FAILED})")
     return lines
+
+
+def plant_model_line(report: dict) -> str:
+    """One summary line on the plant model a run simulated (`wbmpc.sim.plant_model`)."""
+    reversed_ = f", joints reversed: {', '.join(report['joints_reversed'])}" if report["joints_reversed"] else ""
+    welded = f", welded: {', '.join(report['welded_joints'])}" if report["welded_joints"] else ""
+    return (f"  plant model {report['file']} ({report['format']}): {report['mass_kg']:.2f} kg against the controller's "
+            f"{report['controller_mass_kg']:.2f} kg, joint anchors within {1e3 * report['joint_anchor_mismatch_m']:.1f} mm "
+            f"at the zero pose{reversed_}{welded}")
 
 
 def _fmt(value, spec: str = ".1f") -> str:
