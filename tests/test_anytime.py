@@ -236,7 +236,7 @@ class FailingQp:
 def _failing(solver, clock, step):
     failing = FailingQp(solver.qp, clock, step)
     solver.qp = failing
-    solver._capped = {}  # every QP is the failing one
+    solver.capped_qps.clear()  # every QP is the failing one
     solver._recover = lambda *args, **kwargs: pytest.fail("a step with a deadline must not run the Fatrop recovery")
     return failing
 
@@ -286,15 +286,15 @@ def test_the_qp_iteration_cap_follows_the_time_left(fixed_state):
 
     problem = fixed_state[0]
     solver = _solver(problem, clock=FakeClock(), min_qp_iterations=6)
-    assert solver._capped_qp(1.0) is solver.qp  # nothing measured yet
+    assert solver.qp_for(1.0) is solver.qp  # nothing measured yet
     for n, t in ((3, 2.65e-3), (10, 6.5e-3), (5, 3.75e-3)):  # 1 ms + 0.55 ms per iteration
-        solver._record_qp(t, n)
-    assert solver._qp_iteration_s == pytest.approx(0.55e-3, rel=1e-6)
-    per = solver.anytime.safety * solver._qp_iteration_s
-    assert solver._capped_qp(9.5 * per).config.max_iterations == 9
-    assert solver._capped_qp(1.0 * per).config.max_iterations == 6  # the floor
-    assert solver._capped_qp(1.0) is solver.qp
-    assert all(solver._capped[cap].config.max_iterations == cap for cap in QP_ITERATION_CAPS
+        solver.record_qp(t, n)
+    assert solver.qp_iteration_s == pytest.approx(0.55e-3, rel=1e-6)
+    per = solver.anytime.safety * solver.qp_iteration_s
+    assert solver.qp_for(9.5 * per).config.max_iterations == 9
+    assert solver.qp_for(1.0 * per).config.max_iterations == 6  # the floor
+    assert solver.qp_for(1.0) is solver.qp
+    assert all(solver.capped_qps[cap].config.max_iterations == cap for cap in QP_ITERATION_CAPS
                if cap < solver.qp.config.max_iterations)
 
 
@@ -306,7 +306,8 @@ def test_mpc_holds_the_last_good_plan_at_once_when_a_step_with_a_deadline_fails(
     first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
     assert first.success
     failing = FailingQp(mpc.solver.qp, FakeClock(), np.nan, cost_s=0.0)
-    mpc.solver.qp, mpc.solver._capped = failing, {}
+    mpc.solver.qp = failing
+    mpc.solver.capped_qps.clear()
     monkeypatch.setattr(mpc, "_recover", lambda *a, **k: pytest.fail("no recovery ladder within a deadline"))
     second = mpc.solve(first.q[1], first.v[1], t=0.0125)
     assert not second.success and second.held_previous

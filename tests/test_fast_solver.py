@@ -25,7 +25,7 @@ def test_the_active_blasfeo_is_the_only_one_loaded():
     robot = load_robot("go2")
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="stand"))
     assert mpc.solve(robot.q_nominal, np.zeros(robot.nv)).success
-    loaded = blasfeo._loaded("libblasfeo")
+    loaded = blasfeo.loaded_libraries("libblasfeo")
     if status.active == "avx2":
         assert loaded == [status.library]
     else:
@@ -128,7 +128,7 @@ def test_options_hold_after_contact_switches(switching):
         mpc.reset()
         mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.0)
         assert mpc.solver.solver.stats()["iter_count"] <= 3, pattern
-    assert set(mpc.solver._by_structure) == set(keys.values())
+    assert set(mpc.solver.structure_keys) == set(keys.values())
 
 
 def test_buffered_function_matches_a_plain_call():

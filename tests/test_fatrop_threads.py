@@ -60,8 +60,7 @@ def steps(robot, problem, solvers):
 
 def test_threads_are_used(solvers):
     assert [solvers[t].threads for t in (1, 2, 3)] == [1, 2, 3]
-    lib = solvers[1]._library.lib
-    assert [lib.wb_ctx_threads(solvers[t]._ctx) for t in (1, 2, 3)] == [1, 2, 3]
+    assert [solvers[t].evaluation_threads for t in (1, 2, 3)] == [1, 2, 3]
 
 
 def test_parallel_derivatives_equal_sequential_bitwise(problem, solvers, steps):

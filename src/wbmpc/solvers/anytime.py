@@ -153,6 +153,25 @@ class AnytimeSqpSolver(RtiSolver):
         self._capped = {cap: self._new_qp(replace(self.qp.config, max_iterations=cap))
                         for cap in QP_ITERATION_CAPS if cap < self.qp.config.max_iterations}
 
+    @property
+    def capped_qps(self) -> dict:
+        """{HPIPM iteration cap: QP} of steps with a deadline (`QP_ITERATION_CAPS` below the full cap); the dict
+        itself: clearing it leaves every QP its full cap."""
+        return self._capped
+
+    @property
+    def qp_iteration_s(self) -> float | None:
+        """The estimated time of one HPIPM iteration on `clock` (None until a QP was measured)."""
+        return self._qp_iteration_s
+
+    def qp_for(self, remaining_s: float):
+        """The QP a step with `remaining_s` left on `clock` solves (see `_capped_qp`)."""
+        return self._capped_qp(remaining_s)
+
+    def record_qp(self, seconds: float, iterations: int) -> None:
+        """Count a solved QP of `iterations` HPIPM iterations that took `seconds` into the estimates."""
+        self._record_qp(seconds, iterations)
+
     def _merit(self, f: float, g: np.ndarray, x: np.ndarray, lbx, ubx, lbg, ubg, nu: float) -> tuple[float, float]:
         violation = float(np.sum(np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0))
                           + np.sum(np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)))

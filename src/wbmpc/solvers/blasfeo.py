@@ -98,6 +98,11 @@ def _verification_key(library: Path) -> str:
     return f"{digest[:16]}-casadi{casadi.__version__}-avx2fma{int(cpu_has_avx2_fma())}"
 
 
+def loaded_libraries(name: str = "libblasfeo") -> list[str]:
+    """Paths of the shared objects in this process whose file name starts with `name` (which BLASFEO is loaded)."""
+    return _loaded(name)
+
+
 def _loaded(name: str) -> list[str]:
     """Paths of the shared objects in this process whose file name starts with `name`."""
     try:

@@ -193,6 +193,23 @@ class FatropDirectSolver:
     def is_direct(self) -> bool:
         return self._fallback is None
 
+    @property
+    def structure_keys(self) -> tuple[bytes, ...]:
+        """The row-count patterns (`structure_key`) a Fatrop instance was built for so far."""
+        return tuple(self._by_structure) if self._fallback is None else self._fallback.structure_keys
+
+    def set_elimination_kernels(self, enabled: bool) -> bool:
+        """Fatrop's equality elimination on our AVX2 kernels (True) or its own (False), process-wide; whether ours
+        are in place afterwards (False where they cannot be: no AVX2/FMA build, BLASFEO panels not 4 rows)."""
+        if self._fallback is not None:
+            return False
+        return self._library.lib.wbd_fatrop_kernels(int(bool(enabled))) > 0
+
+    @property
+    def evaluation_threads(self) -> int:
+        """Threads the shim's context evaluates the stages on (the caller and its pool)."""
+        return 1 if self._fallback is not None else int(self._library.lib.wb_ctx_threads(self._ctx))
+
     def recreated(self, **changes) -> "FatropDirectSolver | NlpSolver":
         """A fresh solver on the same problem and compiled shim with some settings changed."""
         if self._fallback is not None:

@@ -292,8 +292,17 @@ class NlpSolver:
         self._source = str(self.compile_report.library)
         return self._new_nlpsol()
 
+    def constraints(self, x, p) -> np.ndarray:
+        """g(x) of the NLP (a copy)."""
+        return np.array(self._g(x, p)[0], dtype=float)
+
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         return bound_violation(x, self._g(x, p)[0], lbx, ubx, lbg, ubg)
+
+    @property
+    def structure_keys(self) -> tuple[bytes, ...]:
+        """The row-count patterns (`structure_key`) a casadi nlpsol, each with its own Fatrop, was built for so far."""
+        return tuple(self._by_structure)
 
     def _failure(self, x0, status: str) -> NlpResult:
         return failed_result(self.problem, x0, status)

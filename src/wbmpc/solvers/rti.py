@@ -269,6 +269,11 @@ class RtiSolver:
             self._recovery = NlpSolver(self.problem, config, compile_report=self.compile_report)
         return self._recovery
 
+    @property
+    def recovery_solver(self) -> NlpSolver | None:
+        """The Fatrop re-solve of failed QPs, once built (`prepare_recovery` or a first failure), else None."""
+        return self._recovery
+
     def prepare_recovery(self) -> None:
         """Build the Fatrop re-solve of failed QPs now rather than at the first failure."""
         if self.rti.recovery_barrier_init is not None:
