@@ -82,7 +82,7 @@ class _Library:
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
         lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
-        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double, ctypes.c_int]
+        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int]
         lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
         lib.wbd_fatrop_kernels.restype = ctypes.c_int
         lib.wb_warm_up.argtypes = [ctypes.c_void_p]
@@ -162,8 +162,13 @@ class FatropDirectSolver:
         self._warm_pause = 0
         self._warm_failures = 0
         self._stage_p = np.zeros(lib.p_index.shape)
+        # x, lam_g, lam_x and the stats of the last call, written by the shim (results are copies of them)
+        self._out = (np.zeros(problem.n_variables), np.zeros(problem.n_constraints), np.zeros(problem.n_variables))
+        self._options: dict[int, tuple] = {}  # per Fatrop instance: the (mu_init, max_iter, print_level) set
         self._g = np.zeros(problem.n_constraints)
         self._stats = np.zeros(_N_STATS)
+        # addresses for wb_solve: stage parameters, then (after the bounds and x0) x, lam_g, lam_x, stats
+        self._out_addresses = tuple(a.ctypes.data for a in (self._stage_p, *self._out, self._stats))
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
@@ -341,50 +346,56 @@ class FatropDirectSolver:
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
         # constraint values or derivatives at x0 end the solve at its first evaluation (code -4)
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x0))):
+        if not (np.isfinite(p).all() and np.isfinite(x0).all()):
             return failed_result(problem, x0, "invalid_input_nan")
-        if np.any(lbx > ubx) or np.any(lbg > ubg):
+        if (lbx > ubx).any() or (lbg > ubg).any():
             return failed_result(problem, x0, "invalid_bounds")
-        lib = self._library.lib
         start, start_cpu = time.perf_counter(), self._cpu_s()
-        stage_p = self.stage_parameters(p)
+        self.stage_parameters(p)
         # the driver maps the stored multipliers position by position within each stage: where a gait switch
         # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
         # requiring the same rows halved the warm starts used and cost 0.5-1 ms CPU per step on average)
         warm_duals = warm_duals and self.warm_duals
-        x = np.zeros(problem.n_variables)
-        lam_g, lam_x = np.zeros(problem.n_constraints), np.zeros(problem.n_variables)
-        stats = self._stats
         budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
-        # the last step's Fatrop instance first: the shim classifies the rows anyway and refuses (-2) another
-        # structure without solving, so the row-count key is computed only then (0.08 ms a step otherwise)
+        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, int(warm_duals))
+        elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
+        if code in (-4, -1, -2):
+            return failed_result(problem, x0, {
+                -4: "invalid_input_nan_constraints", -2: "solver_exception: row structure changed under the solver",
+                -1: "solver_exception: Fatrop raised (see its output with print_level > 0)"}[code])
+        stats = self._stats
+        x = self._out[0].copy()
+        flag = int(stats[1])
+        status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
+        finite = bool(np.isfinite(x).all())
+        viol = float(stats[12]) if finite else float("inf")  # bound_violation's, computed by the shim
+        return NlpResult(x=x, lam_g=self._out[1].copy(), lam_x=self._out[2].copy(), stats=SolverStats(
+            status=status, success=flag in (0, 2) and finite, iterations=int(stats[0]), solve_time_s=elapsed,
+            max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
+            split_ms=_time_split_ms(stats, elapsed)))
+
+    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int) -> int:
+        """wb_solve on the last step's Fatrop instance first (the shim classifies the rows anyway and refuses, -2,
+        another structure without solving, so the row-count key is computed only then: 0.08 ms a step otherwise),
+        else on the instance of this structure; results into the preallocated outputs."""
+        lib = self._library.lib
         solver = self._last_solver or self._solver_for(lbx, ubx, lbg, ubg)
         for attempt in range(2):
-            lib.wb_option_double(solver, b"mu_init", mu_init)
-            lib.wb_option_int(solver, b"max_iter", int(max_iterations))
-            lib.wb_option_int(solver, b"print_level", int(self.config.print_level))
+            options = (mu_init, max_iterations, int(self.config.print_level))
+            if self._options.get(solver.value) != options:  # options hold between calls on an instance
+                lib.wb_option_double(solver, b"mu_init", mu_init)
+                lib.wb_option_int(solver, b"max_iter", max_iterations)
+                lib.wb_option_int(solver, b"print_level", options[2])
+                self._options[solver.value] = options
             # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler)
-            code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
-                                _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s, int(warm_duals))
+            code = lib.wb_solve(self._ctx, solver, self._out_addresses[0], lbx.ctypes.data, ubx.ctypes.data,
+                                lbg.ctypes.data, ubg.ctypes.data, x0.ctypes.data, *self._out_addresses[1:],
+                                budget_s, warm)
             if code != -2 or attempt:
                 break
             solver = self._solver_for(lbx, ubx, lbg, ubg)
         self._last_solver = solver if code != -2 else None
-        elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
-        if code == -4:
-            return failed_result(problem, x0, "invalid_input_nan_constraints")
-        if code == -1:
-            return failed_result(problem, x0, "solver_exception: Fatrop raised (see its output with print_level > 0)")
-        if code == -2:
-            return failed_result(problem, x0, "solver_exception: row structure changed under the solver")
-        flag = int(stats[1])
-        status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
-        success = flag in (0, 2) and bool(np.all(np.isfinite(x)))
-        viol = float(stats[12]) if np.all(np.isfinite(x)) else float("inf")  # bound_violation's, computed by the shim
-        return NlpResult(x=x, lam_g=lam_g, lam_x=lam_x, stats=SolverStats(
-            status=status, success=success, iterations=int(stats[0]), solve_time_s=elapsed,
-            max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
-            split_ms=_time_split_ms(stats, elapsed)))
+        return code
 
 
 def _time_split_ms(stats: np.ndarray, elapsed_s: float) -> dict:
