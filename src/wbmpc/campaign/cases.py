@@ -133,10 +133,13 @@ class Case:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
             period = make_gait(gait, 4, tuning_for(self.robot).gait_period_s).period_s  # a1: 0.6 s
             options.push_time_s += float(v["gait_phase"]) * period
-        delay = self.delay if v.get("delay_ms") is None else str(float(v["delay_ms"]))
-        solver = self.solver or ("auto" if delay == "realtime" else "fatrop")
+        from wbmpc.control.delay import delay_from_text
+
+        delay_mode, delay_ms = delay_from_text(self.delay) if v.get("delay_ms") is None else ("fixed", float(v["delay_ms"]))
+        solver = self.solver or ("auto" if delay_mode == "realtime" else "fatrop")
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
-                         formulation=self.formulation, seed=self.seed, options=options, delay=delay, solver=solver,
+                         formulation=self.formulation, seed=self.seed, options=options, delay_mode=delay_mode, delay_ms=delay_ms,
+                         solver=solver,
                          model_errors=self.model_errors(),
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),

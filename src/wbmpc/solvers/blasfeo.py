@@ -57,7 +57,7 @@ _status: BlasfeoStatus | None = None
 
 
 def _cache_root() -> Path:
-    from wbmpc.solvers.codegen import default_cache_dir
+    from wbmpc.cache import default_cache_dir
 
     return default_cache_dir() / "blasfeo"
 

@@ -2,7 +2,7 @@
 libraries.
 
 A library built from shipped sources only is the same for every problem: it is compiled once per machine and
-cached in `codegen.default_cache_dir()` under the hash of its sources, compiler, flags (and the CPU, with
+cached in `wbmpc.cache.default_cache_dir()` under the hash of its sources, compiler, flags (and the CPU, with
 -march=native) and anything else the caller names in `key_extra` (e.g. the directory of the headers it builds
 against). Parallel builds of one key (campaign and test workers) compile to per-process files and rename.
 """
@@ -13,7 +13,8 @@ from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, default_cache_dir
+from wbmpc.cache import default_cache_dir
+from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key
 
 
 def source_dir() -> Path:

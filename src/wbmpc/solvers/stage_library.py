@@ -24,16 +24,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from wbmpc.cache import default_cache_dir
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers.codegen import (
-    CodegenConfig,
-    CompileError,
-    CompileReport,
-    _compile,
-    cache_key,
-    default_cache_dir,
-    for_source,
-)
+from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, for_source
 from wbmpc.solvers.native import source_dir, source_text
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...

@@ -4,7 +4,7 @@
  * (fatrop_lu_fact_transposed, scalar loops over BLASFEO's panel-major storage) followed by a triangular solve
  * (blasfeo_dtrsm_rlnn, which the AVX2 BLASFEO only has as its reference C code). These are the same two operations
  * for panel-major storage with AVX2/FMA: the same pivots (the first largest |a| in column-major order, as Fatrop's
- * search) and the same eliminations rounded the same way, so the iterates are Fatrop's own. They reach Fatrop
+ * search) and the same eliminations rounded the same way, so the iterates are Fatrop's own (tests/solvers/test_fatrop_direct.py compares both). They reach Fatrop
  * through its procedure linkage table: wbd_fatrop_kernels(1) writes their addresses into libfatrop's GOT slots for
  * those two symbols (found through its dynamic section), (0) puts the saved entries back. */
 #include <cmath>

@@ -1,0 +1,237 @@
+"""The direct Fatrop binding (solvers/fatrop_direct.py) against casadi's Fatrop on a small go2 problem."""
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.robots import load_robot
+from wbmpc.solvers import make_solver
+from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
+from wbmpc.solvers.codegen import CodegenConfig
+from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
+
+TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="module")
+def problem(robot):
+    return OcpProblem(robot, TINY)
+
+
+@pytest.fixture(scope="module")
+def codegen(tmp_path_factory):
+    # -march=native: the AVX2 kernels of fatrop_kernels.py are compiled in where the CPU has AVX2/FMA
+    return CodegenConfig(flags=("-O0", "-march=native"), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+
+
+@pytest.fixture(scope="module")
+def direct(problem, codegen):
+    solver = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert solver.is_direct, solver.direct_error
+    return solver
+
+
+@pytest.fixture(scope="module")
+def step_data(robot, problem):
+    """p, bounds and initial guess of one MPC step (trot, moving base), as the MPC hands them to its solver."""
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
+    captured = {}
+    solve = mpc.solver.solve
+
+    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
+        captured.update(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(), x0=x0.copy())
+        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
+
+    mpc.solver.solve = spy
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    assert mpc.solve(robot.q_nominal, v0, t_s=0.1).success
+    return captured
+
+
+def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
+    """Tight tolerance: both follow the same iterates (up to rounding: the direct binding eliminates fixed inputs
+    instead of passing them as equality rows) to the same KKT point; residuals below tolerance. casadi's Fatrop runs
+    on Fatrop's own elimination kernels, the direct binding on ours (csrc/fatrop_kernels.cpp)."""
+    config = SolverConfig(tolerance=1e-10, warm_barrier_init=None)
+    direct.set_elimination_kernels(False)
+    try:
+        expected = NlpSolver(problem, config).solve(**step_data)
+    finally:
+        assert direct.set_elimination_kernels(True) == direct.kernels
+    got = direct.recreated(tolerance=1e-10, warm_barrier_init=None).solve(**step_data)
+    assert expected.stats.success and got.stats.success, (expected.stats, got.stats)
+    # at 1e-10 both end at Fatrop's acceptable level, after a count of iterations that rounding can change
+    assert abs(got.stats.iterations - expected.stats.iterations) <= 2
+    np.testing.assert_allclose(got.x, expected.x, atol=1e-8)
+    np.testing.assert_allclose(got.stats.cost, expected.stats.cost, rtol=1e-10)
+    scale = max(1.0, np.abs(expected.lam_g).max())
+    np.testing.assert_allclose(got.lam_g, expected.lam_g, atol=1e-6 * scale)
+    np.testing.assert_allclose(got.lam_x, expected.lam_x, atol=1e-6 * scale)
+    # residuals from casadi's own NLP constraint function, not the shim's
+    g = NlpSolver(problem).constraints(got.x, step_data["p"])
+    lbx, ubx, lbg, ubg = (step_data[k] for k in ("lbx", "ubx", "lbg", "ubg"))
+    assert np.all(g >= lbg - config.constraint_tolerance) and np.all(g <= ubg + config.constraint_tolerance)
+    assert np.all(got.x >= lbx - config.constraint_tolerance) and np.all(got.x <= ubx + config.constraint_tolerance)
+    assert got.stats.max_constraint_violation <= config.constraint_tolerance
+    # the shim's violation (computed in C) is nlp.bound_violation's on casadi's g
+    assert got.stats.max_constraint_violation == pytest.approx(bound_violation(got.x, g, lbx, ubx, lbg, ubg), abs=1e-12)
+
+
+def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
+    """Our AVX2 LU and triangular solve (csrc/fatrop_kernels.cpp) against Fatrop's own: same iterations, same
+    point."""
+    if not cpu_has_avx2_fma():
+        pytest.skip("the kernels need AVX2/FMA")
+    assert direct.kernels
+    solver = direct.recreated(tolerance=1e-10, warm_barrier_init=None)
+    ours = solver.solve(**step_data)
+    assert not solver.set_elimination_kernels(False)
+    try:
+        fatrops = solver.solve(**step_data)
+    finally:
+        assert solver.set_elimination_kernels(True)
+    assert ours.stats.success and fatrops.stats.success
+    assert ours.stats.iterations == fatrops.stats.iterations
+    np.testing.assert_allclose(ours.x, fatrops.x, atol=1e-10)
+    np.testing.assert_allclose(ours.lam_g, fatrops.lam_g, atol=1e-8 * max(1.0, np.abs(fatrops.lam_g).max()))
+
+
+def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
+    rng = np.random.default_rng(0)
+    x = step_data["x0"] + 0.01 * rng.normal(size=problem.n_variables)
+    expected = NlpSolver(problem).constraints(x, step_data["p"])
+    np.testing.assert_allclose(direct.constraints(x, step_data["p"]), expected, atol=1e-10)
+
+
+def _trot_steps(robot, problem, solver_config, times=(0.1, 0.1125, 0.125, 0.2)):
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None), solver=solver_config), problem=problem)
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    return mpc, [mpc.solve(robot.q_nominal, v0, t_s=t) for t in times]
+
+
+def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
+    """Through make_solver and the MPC (warm start, small-barrier attempts, contact changes between steps);
+    without the multiplier warm start and with casadi's row split (fixed inputs as equality rows) both follow the
+    same iterates."""
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen, extra_options={
+        "warm_duals": False, "mpc_tolerances": False, "eliminate_fixed_inputs": False}))
+    assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
+    for e, g in zip(expected, got):
+        assert e.success and g.success, (e.stats, g.stats)
+        assert g.stats.iterations == e.stats.iterations
+        np.testing.assert_allclose(g.x, e.x, atol=1e-8)
+
+
+def test_eliminated_fixed_inputs_give_the_same_steps(robot, problem, codegen, step_data):
+    """Inputs with lb == ub (swing feet's forces, the arm's) eliminated from Fatrop's stages: the same plans and
+    multipliers as with them as equality rows, within the solver's tolerance (Fatrop's convergence test weighs
+    the multipliers of every row, so the last iteration may differ), the fixed inputs at their bounds and their
+    multipliers those Fatrop computes for the equality rows."""
+    config = SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-8, warm_barrier_init=None)
+    mpc_rows, rows = _trot_steps(robot, problem, replace(config, extra_options={"eliminate_fixed_inputs": False}))
+    mpc, eliminated = _trot_steps(robot, problem, config)
+    assert mpc.solver.eliminate_fixed_inputs and not mpc_rows.solver.eliminate_fixed_inputs
+    for r, e in zip(rows, eliminated):
+        assert r.success and e.success
+        np.testing.assert_allclose(e.x, r.x, atol=1e-6)
+    data = step_data
+    expected = mpc_rows.solver.recreated().solve(**data)
+    got = mpc.solver.recreated().solve(**data)
+    fixed = data["lbx"] == data["ubx"]
+    assert fixed.any()
+    assert np.array_equal(got.x[fixed], data["lbx"][fixed])
+    scale = max(1.0, np.abs(expected.lam_x[fixed]).max())
+    np.testing.assert_allclose(got.lam_x[fixed], expected.lam_x[fixed], atol=1e-5 * scale)
+
+
+def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
+    """With the primal-dual warm start (default) the steps converge to the same plans within the
+    solver tolerance, in no more iterations in total."""
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
+                                                      extra_options={"mpc_tolerances": False}))
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        np.testing.assert_allclose(g.x, e.x, atol=1e-3)
+        assert g.stats.max_constraint_violation <= SolverConfig().constraint_tolerance
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+
+
+def test_mpc_tolerances(robot, problem, codegen):
+    """By default the binding stops at its own MPC tolerances (fatrop_direct.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
+    the plans stay within them of casadi's Fatrop at SolverConfig's tolerances, in no more iterations;
+    tolerances set in SolverConfig are kept."""
+    from wbmpc.solvers.fatrop_direct import MPC_CONSTRAINT_TOLERANCE, MPC_TOLERANCE
+
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert (mpc.solver.tolerance, mpc.solver.constraint_tolerance) == (MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE)
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        assert g.stats.max_constraint_violation <= MPC_CONSTRAINT_TOLERANCE
+        np.testing.assert_allclose(g.x, e.x, atol=1e-2)
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+    kept = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-6))
+    assert (kept.tolerance, kept.constraint_tolerance) == (1e-6, SolverConfig().constraint_tolerance)
+
+
+def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):
+    result = direct.solve(**step_data, max_iterations=1)
+    assert not result.stats.success and result.stats.status == "Maximum_Iterations_Exceeded"
+    # Fatrop's convergence check sees the iteration count before its increment: max_iter 1 stops after 2
+    assert result.stats.iterations <= 2 and np.all(np.isfinite(result.x))
+
+
+def test_a_new_row_structure_gets_its_own_fatrop(direct, step_data):
+    """A step whose rows split differently (a contact switch) is refused by the last Fatrop instance and solved by
+    one built for it; the next step of the first structure goes back to the first instance."""
+    solver = direct.recreated()
+    first = solver.solve(**step_data)
+    lbg, ubg = step_data["lbg"].copy(), step_data["ubg"].copy()
+    free = np.nonzero(np.isinf(lbg) & np.isinf(ubg))[0]
+    lbg[free[0]], ubg[free[0]] = -1e3, 1e3  # one more inequality row in some stage
+    other = solver.solve(**{**step_data, "lbg": lbg, "ubg": ubg})
+    again = solver.solve(**step_data)
+    assert first.stats.success and other.stats.success and again.stats.success
+    assert len(solver.structure_keys) == 2
+    np.testing.assert_allclose(again.x, first.x, atol=1e-6)
+
+
+def test_nan_guess_is_refused(direct, step_data):
+    data = {**step_data, "x0": np.full_like(step_data["x0"], np.nan)}
+    assert direct.solve(**data).stats.status == "invalid_input_nan"
+
+
+def test_missing_compiler_falls_back_to_casadis_fatrop(problem, step_data, tmp_path):
+    config = SolverConfig(name="fatrop-direct", codegen=CodegenConfig(compiler="no-such-cc", cache_dir=tmp_path))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        solver = make_solver(problem, config)
+    assert not solver.is_direct and "no-such-cc" in solver.direct_error
+    assert any("casadi's Fatrop" in str(w.message) for w in caught)
+    assert solver.solve(**step_data).stats.success
+
+
+def test_deadline_returns_the_last_iterate_and_the_solver_stays_usable(direct, step_data):
+    """Fatrop has no time limit: the shim throws from a callback past the deadline and Fatrop returns."""
+    expected = direct.solve(**step_data)
+    stopped = direct.solve(**step_data, time_limit_s=1e-6)
+    assert stopped.stats.status == "time_limit_reached" and not stopped.stats.success
+    assert np.all(np.isfinite(stopped.x))
+    again = direct.solve(**step_data)
+    assert again.stats.success and again.stats.iterations == expected.stats.iterations
+    np.testing.assert_allclose(again.x, expected.x, atol=1e-12)
