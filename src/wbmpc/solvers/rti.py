@@ -47,9 +47,12 @@ from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
 
 DIRECT_QP_BARRIER_INIT = 1e3  # HPIPM's mu0 on our binding (RtiConfig.qp_barrier_init)
 # ... where the OCP has flat feet (6D wrenches, hard wrench cone): g1's walk keeps 10-50 of its wrench cone rows
-# active (the CoP at a sole's edge) and HPIPM took 8.3 iterations from 1e3, 7.3 from 100, 7.0 from 10 on the same
-# 40 RTI QPs (b1_z1's trot: 3.3 from 1e3, 6.7 from 10)
-FLAT_FOOT_QP_BARRIER_INIT = 10.0
+# active (the CoP at a sole's edge). With the centre-of-pressure rows in units of the lever (hw f_z - tau_x) HPIPM
+# took 8.3 iterations from 1e3, 7.3 from 100, 7.0 from 10 on the same 40 RTI QPs (b1_z1's trot: 3.3 from 1e3, 6.7
+# from 10); with the rows divided by their lever (ocp/problem.py's wrench cone: f_z - tau_x / hw) g1's walk in place
+# (RTI, 1.5 s, MuJoCo, uncompiled) took 8.1 from 1, 6.0 from 10 and 5.0 from 100 (5.5 before from 10), same drift
+# and base velocity RMSE
+FLAT_FOOT_QP_BARRIER_INIT = 100.0
 QP_TOLERANCE = 1e-4  # RtiConfig.qp_tolerance
 # ... of one real-time iteration on flat feet: g1 walking in place (RTI, 4 s, MuJoCo, delay none) took 6.75 HPIPM
 # iterations per step with mu0 10 and 1e-3, 7.0 with mu0 100 and 1e-3, 7.8 with 100 and 1e-4, 10.0 with 1e3 and 1e-4,
