@@ -4,7 +4,7 @@ the same derivatives and the same solves bit for bit, on a small go2 problem."""
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
@@ -41,7 +41,7 @@ def solvers(problem, codegen):
 @pytest.fixture(scope="module")
 def steps(robot, problem, solvers):
     """p, bounds and guesses of a few trot steps (moving base, contact changes), as the MPC hands them over."""
-    mpc = MPC(robot, MpcConfig(ocp=SMALL, fallback_solver=None), problem=problem, solver=solvers[1].recreated())
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, recovery=RecoveryConfig(fallback_solver=None)), problem=problem, solver=solvers[1].recreated())
     captured = []
     solve = mpc.solver.solve
 
@@ -54,7 +54,7 @@ def steps(robot, problem, solvers):
     v0 = np.zeros(robot.nv)
     v0[:2] = [0.2, -0.05]
     for t in (0.1, 0.1125, 0.125, 0.2):
-        assert mpc.solve(robot.q_nominal, v0, t=t).success
+        assert mpc.solve(robot.q_nominal, v0, t_s=t).success
     return captured
 
 
@@ -133,5 +133,5 @@ def test_another_horizon_reuses_the_compiled_stages(robot, solvers, codegen):
     longer = OcpProblem(robot, OcpConfig(grid=TimeGrid(n_intervals=7, dt_first_s=0.01, dt_last_s=0.06)))
     solver = FatropDirectSolver(longer, SolverConfig(name="fatrop-direct", codegen=codegen, threads=2))
     assert solver.compile_report.cached and solver.compile_report.library == solvers[1].compile_report.library
-    mpc = MPC(robot, MpcConfig(ocp=longer.config, fallback_solver=None), problem=longer, solver=solver)
-    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t=0.1).success
+    mpc = MPC(robot, MpcConfig(ocp=longer.config, recovery=RecoveryConfig(fallback_solver=None)), problem=longer, solver=solver)
+    assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.1).success
