@@ -17,7 +17,7 @@
 #define WB_RELAX() ((void) 0)
 #endif
 
-#define WB_SPIN_WORKER 20000 /* relax instructions before a worker sleeps (~0.1-0.5 ms) */
+#define WB_SPIN_WORKER 2000 /* relax instructions before a worker sleeps (~20-50 us: less than a section takes) */
 #define WB_SPIN_CALLER 2000  /* ... before the caller yields its core while waiting for a task in flight */
 
 struct wb_pool {
