@@ -88,3 +88,40 @@ def test_dependencies_go_down_the_data_flow():
 
 def test_mpc_config_top_level_stays_small():
     assert len(dataclasses.fields(MpcConfig)) <= 15
+
+
+# test folders whose tests use the public API only (issue 33): no `obj._name` outside the test's own classes,
+# no monkeypatching of `_name`, no import of private names from wbmpc
+PUBLIC_API_TESTS = ("solvers",)
+
+
+def _private_accesses(path: Path) -> list[str]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__") \
+                and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+            found.append(f"{path.name}:{node.lineno} .{node.attr}")
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "setattr" \
+                and len(node.args) > 1 and isinstance(node.args[1], ast.Constant) \
+                and str(node.args[1].value).startswith("_"):
+            found.append(f"{path.name}:{node.lineno} setattr {node.args[1].value!r}")
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("wbmpc"):
+            found += [f"{path.name}:{node.lineno} import {a.name}" for a in node.names if a.name.startswith("_")]
+    return sorted(found, key=lambda hit: int(hit.split(":")[1].split()[0]))
+
+
+@pytest.mark.parametrize("package", PUBLIC_API_TESTS)
+def test_tests_use_the_public_api(package):
+    tests = Path(__file__).parent / package
+    assert [hit for path in sorted(tests.glob("*.py")) for hit in _private_accesses(path)] == []
+
+
+def test_the_private_access_scan_finds_them(tmp_path):
+    sample = tmp_path / "test_sample.py"
+    sample.write_text("from wbmpc.solvers.nlp import _helper\n"
+                      "def test(solver, monkeypatch):\n"
+                      "    solver._capped.clear()\n"
+                      "    monkeypatch.setattr(solver, '_recover', None)\n"
+                      "    self._fine = solver.__class__\n")
+    assert _private_accesses(sample) == ["test_sample.py:1 import _helper", "test_sample.py:3 ._capped",
+                                         "test_sample.py:4 setattr '_recover'"]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, StageBounds
 from wbmpc.robots import load_robot
@@ -77,10 +78,11 @@ def test_verification_rejects_a_broken_library(tmp_path):
 
 
 def test_bad_mode_is_refused(monkeypatch):
-    monkeypatch.setattr(blasfeo, "_status", None)
+    monkeypatch.setenv("WBMPC_BLASFEO", " AVX2 ")
+    assert blasfeo.requested_mode() == "avx2"
     monkeypatch.setenv("WBMPC_BLASFEO", "fastest")
-    with pytest.raises(Exception, match="auto, generic or avx2"):
-        blasfeo.activate()
+    with pytest.raises(ConfigError, match="'fastest' is not a choice; use auto, generic or avx2"):
+        blasfeo.requested_mode()
 
 
 def test_cpu_flags_are_read():

@@ -102,7 +102,7 @@ def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypa
     def unavailable(*args, **kwargs):
         raise HpipmUnavailable("no compiler")
 
-    monkeypatch.setattr(hd, "_library", unavailable)
+    monkeypatch.setattr(hd, "shim_library", unavailable)
     qp, error = make_qp(problem, data[0].sparsity(), data[2].sparsity(), QpConfig(mode="speed_abs"))
     # casadi's conic in the relative mode: its speed_abs returns no equality multipliers
     assert isinstance(qp, StructuredQp) and qp.config.mode == "speed" and "no compiler" in error

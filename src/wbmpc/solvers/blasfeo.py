@@ -118,14 +118,20 @@ def status() -> BlasfeoStatus:
     return _status or activate()
 
 
+def requested_mode() -> str:
+    """The BLASFEO asked for by the environment variable WBMPC_BLASFEO: auto (default), generic or avx2."""
+    mode = os.environ.get("WBMPC_BLASFEO", "auto").strip().lower()
+    if mode not in ("auto", "generic", "avx2"):
+        raise ConfigError(f"WBMPC_BLASFEO={mode!r} is not a choice; use auto, generic or avx2")
+    return mode
+
+
 def activate() -> BlasfeoStatus:
     """Preload the verified AVX2 BLASFEO if possible; idempotent, never raises unless WBMPC_BLASFEO=avx2."""
     global _status
     if _status is not None:
         return _status
-    mode = os.environ.get("WBMPC_BLASFEO", "auto").strip().lower()
-    if mode not in ("auto", "generic", "avx2"):
-        raise ConfigError(f"WBMPC_BLASFEO={mode!r} is not a choice; use auto, generic or avx2")
+    mode = requested_mode()
     _status = _choose(mode)
     if _status.active == "generic" and "wbmpc setup" in _status.reason:
         warnings.warn(f"Fatrop runs on casadi's generic BLASFEO: {_status.reason}", RuntimeWarning, stacklevel=2)

@@ -45,7 +45,7 @@ class HpipmUnavailable(WbmpcError, RuntimeError):
     """HPIPM's C interface cannot be built here (no headers or library in the casadi wheel, no compiler)."""
 
 
-def _library(config: CodegenConfig = CodegenConfig()) -> Path:
+def shim_library(config: CodegenConfig = CodegenConfig()) -> Path:
     """The compiled shim (`csrc/hpipm_shim.c`, built on first use, cached under the hash of its source, flags and
     HPIPM's headers' directory)."""
     directory = Path(ca.__file__).parent
@@ -71,7 +71,7 @@ class DirectQp:
                  declare_equalities: bool = False, codegen: CodegenConfig = CodegenConfig()):
         self.config = config
         self.hessian_sparsity, self.jacobian_sparsity = hessian, jacobian
-        self._lib = ctypes.CDLL(str(_library(codegen)))
+        self._lib = ctypes.CDLL(str(shim_library(codegen)))
         self._lib.wbqp_new.restype = ctypes.c_void_p
         self._lib.wbqp_new.argtypes = [ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 3, ctypes.c_int, ctypes.c_int,
                                        ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int]
