@@ -96,6 +96,8 @@ class ClosedLoop:
         self._filtered_v: np.ndarray | None = None
         self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
         self.log: RunLog | None = None  # the log of the run in progress (or the last one): a `stop` may read it
+        # callables(t_s, solution) told of every plan as it is logged (a live viewer draws it)
+        self.solution_listeners: list[Callable] = []
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -161,8 +163,14 @@ class ClosedLoop:
         solution = self.mpc.solve(q, v, command, t_s, **({"delay_s": delay_s} if delay_s else {}))
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
-        log.record_solution(t_s, command, solution)
+        self._record(log, t_s, command, solution)
         return solution
+
+    def _record(self, log: RunLog, t_s: float, command: Commands, solution: Solution) -> None:
+        """Log a plan and tell the solution listeners."""
+        log.record_solution(t_s, command, solution)
+        for listener in self.solution_listeners:
+            listener(t_s, solution)
 
     def _new_log(self) -> RunLog:
         log = self.log = RunLog(self.log_dir, self.log_chunk_rows)
@@ -330,7 +338,7 @@ class ClosedLoop:
     def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
         plan's first tick, transport included); returns the updated transport estimate."""
-        log.record_solution(request[0], request[1], solution)
+        self._record(log, request[0], request[1], solution)
         delay = max(t_s - request[0], now - request[2])
         log.record_delay(delay * 1e3)
         self._note_delay(delay)

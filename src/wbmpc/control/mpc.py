@@ -256,6 +256,7 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
             t = t + delay_s
+        self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t)
         result, solve_end = self._solve_step(step.p, step.bounds, step.soft_bounds, step.x0, t, budget_s, clock,
                                              clock_start)
@@ -290,8 +291,7 @@ class MPC:
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
             swing_vxy_m_s=references.swing_velocities(q, v, rot, t, node_times, base_velocity_world),
-            ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
-                             else np.asarray(commands.ee_velocity_m_s, dtype=float)),
+            ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),

@@ -43,10 +43,11 @@ from wbmpc.control import MPC, Commands, MpcConfig
 from wbmpc.control.interpolator import interpolate
 from wbmpc.errors import ConfigError, WbmpcError
 from wbmpc.estimation.estimator import StateEstimator
-from wbmpc.gait import make_gait
+from wbmpc.gait import GaitClock, make_gait
 from wbmpc.hardware.deploy_config import DeployConfig, DeployFailure, LinkMismatchError, NoRobotStateError
 from wbmpc.hardware.deploy_plans import DeployPlans
 from wbmpc.hardware.deploy_report import DeployReport
+from wbmpc.hardware.deploy_tick import DeployTick
 from wbmpc.hardware.link import LowStateLink
 from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
 from wbmpc.hardware.messages import (
@@ -106,13 +107,17 @@ class Controller:
                               f"{self.motors.describe()}; Z1 over UDP {'on' if self.arm_map else 'off'}); pass --arm z1 "
                               "for a Z1 arm")
         self.mpc = mpc  # lock-step: built once the robot answers (a missing robot is reported in 2 s, not after a build)
-        self.gait = make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s)
+        # the estimator's gait in real time (the MPC's own in lock-step); stand <-> walk commands switch it too
+        self.gait = GaitClock(make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s,
+                                        leg_length_m=float(robot.q_nominal[2])))
+        self.tick_listeners: list = []  # callables(DeployTick) after each valid LowState (remote, live view)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
         self._cond = threading.Condition()
         self._latest = None
         self._fresh = False
         self._interrupts = 0
+        self._stop = None  # the operator's lie-down (`run(stop=...)`)
         self._publisher = None
         self._z1 = None
         self._solver_process = solver_process or _solver_process
@@ -186,9 +191,10 @@ class Controller:
             pass
 
     # ------------------------------------------------------------------ loop
-    def run(self, commands=None, progress=None, ee_reference=None) -> DeployReport:
+    def run(self, commands=None, progress=None, ee_reference=None, stop=None) -> DeployReport:
         """`commands(t, q, v)`: the task's commands at MPC time t; `ee_reference(t)`: the end effector's target
-        (world, MPC time) whose error is reported, if given."""
+        (world, MPC time) whose error is reported, if given; `stop()`: true when the operator asks to lie down
+        (checked every tick while standing or in the MPC phase)."""
         sdk = load_sdk()
         cfg, report = self.config, self.report
         commands = commands or (lambda t, q, v: Commands())
@@ -202,6 +208,7 @@ class Controller:
         if threading.current_thread() is threading.main_thread():
             previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
         self._worker = self._sport = self._arm_link = None
+        self._stop = stop
         try:
             latest = self._start()
             self._publisher, self._z1 = publisher, self._arm_link  # from here on, every exit goes through damping
@@ -343,6 +350,9 @@ class Controller:
         report.states_received += 1
         t = self._t_last = reading.time_s
         q, v = self.estimator.update(reading)
+        for listener in self.tick_listeners:  # before the phase events: an operator's lie-down acts this tick
+            listener(DeployTick(t, t - self._mpc_t0 if phase.name == "mpc" else None, state[0], q, v,
+                                self._plans.active, phase.name))
         self._phase_events(q, t, reading.joint_position_rad)
         solve_ms = 0.0
         if phase.name == "stand-up":
@@ -380,7 +390,8 @@ class Controller:
         self.report.phases.append((round(t, 4), name))
 
     def _phase_events(self, q, t: float, q_joints) -> None:
-        """The start, a fall (damping) and Ctrl-C (lie down; a second one: damping) change the phase."""
+        """The start, a fall (damping), the operator's lie-down and Ctrl-C (lie down; a second one: damping) change
+        the phase."""
         cfg, phase, report = self.config, self._phase, self.report
         if phase.name is None:
             self._enter("stand-up", t, q_joints)
@@ -389,6 +400,9 @@ class Controller:
                                                                             check_height=standing):
             report.fell, report.stopped_by = True, "fall"
             self._enter("damping", t, q_joints)
+        if self._stop is not None and phase.name in ("hold", "mpc") and self._stop():
+            report.stopped_by = "operator"
+            self._enter("lie-down" if cfg.lie_down else "damping", t, q_joints)
         if self._interrupts and phase.name in ("stand-up", "hold", "mpc"):
             report.stopped_by = "ctrl-c"
             self._enter("lie-down" if cfg.lie_down else "damping", t, q_joints)

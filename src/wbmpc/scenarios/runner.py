@@ -20,6 +20,8 @@ from wbmpc.control.policy import IDENTIFY_MASS_NEEDS, MpcChoices, mpc_config
 from wbmpc.control.tuning import tuning_for
 from wbmpc.errors import ConfigError
 from wbmpc.interrupt import stop_flag
+from wbmpc.operator.config import OperatorConfig
+from wbmpc.operator.run import prepare
 from wbmpc.options import check_fields, declared, declared_field, option
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
@@ -60,6 +62,7 @@ class RunConfig:
     uniform_dt_ms: float | None = _mpc("uniform_dt_ms")
     gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
+    operator: OperatorConfig = field(default_factory=OperatorConfig)  # live commands, the viewer (wbmpc.operator)
     # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object or
     # collision avoidance is asked for
     solver: str | None = _mpc("solver")
@@ -106,6 +109,9 @@ class RunConfig:
                               f"'{self.scenario}' has no object the MPC can model: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
         if self.identify_mass and self.plant != "mujoco":
             raise ConfigError(IDENTIFY_MASS_NEEDS)
+        if self.operator.viewer and self.plant != "mujoco":
+            raise ConfigError("--viewer shows MuJoCo's own viewer: use --plant mujoco (or leave --viewer out and open "
+                              "the replay afterwards)")
 
     def mpc_choices(self) -> MpcChoices:
         """The MPC options of this run (`wbmpc.control.policy.mpc_config` turns them into the MPC's settings)."""
@@ -163,7 +169,8 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     result keeps what was measured, with `metrics["interrupted"]`; `stop` replaces that flag."""
     config = config.for_robot(robot)
     scenario = make_scenario(config.scenario, robot, config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    operator = prepare(robot, config.operator, scenario)  # script, terminal, gamepad, display: checked first
+    duration = config.duration_s or operator.duration_s or scenario.default_duration_s
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
@@ -177,12 +184,12 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     with stop_flag(stop) as stop:
         if stop():  # Ctrl-C while building (CasADi's C++ build does not raise): stop before running
             raise KeyboardInterrupt
-        return _run(robot, config, scenario, scene, mpc, duration, progress, stop)
+        return _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator)
 
 
-def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
+def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator) -> ScenarioResult:
     mpc.reset()
-    plant = _plant(robot, config, scene)
+    plant = _plant(robot, config, scene, operator)
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
@@ -199,11 +206,15 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
-    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
+    with operator:  # the scenario's commands, or the operator's sources on them
+        commands, until = operator.attach(mpc, plant, loop, stop)
+        operator.start()
+        log = loop.run(duration, commands, scenario.events(robot), progress, until)
     if not log.n_ticks:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
+    metrics.update(operator.finish(log, mpc))
     metrics["state"] = config.state
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
@@ -220,9 +231,9 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                           estimation=state_source.log if state_source is not None else None)
 
 
-def _plant(robot: RobotModel, config: RunConfig, scene):
-    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors;
-    reset to the nominal pose."""
+def _plant(robot: RobotModel, config: RunConfig, scene, operator=None):
+    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors, the
+    viewer's hand target (`operator`, a `wbmpc.operator.run.OperatorRun`); reset to the nominal pose."""
     plant_config = config.plant_config
     if plant_config is None and config.plant_model is None:  # a preset's rotors (g1) are the plant's too
         plant_config = robot_plant_config(robot)
@@ -241,6 +252,8 @@ def _plant(robot: RobotModel, config: RunConfig, scene):
     # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
     # here and would grow by ~0.3 MB per simulated second
     plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    if operator is not None:
+        plant_config = operator.plant_config(plant_config)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)

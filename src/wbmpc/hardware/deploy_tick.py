@@ -1,0 +1,22 @@
+"""`DeployTick`: what the deploy loop tells its tick listeners after each valid LowState (an operator's remote
+read from the LowState's bytes, a live page drawing the estimate and the plan)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DeployTick:
+    """Robot time, MPC time (None before the MPC phase), the LowState, the estimate, the plan in use (None before
+    the first) and the phase."""
+
+    t_s: float
+    t_mpc_s: float | None
+    msg: object
+    q: np.ndarray
+    v: np.ndarray
+    plan: object
+    phase: str | None
