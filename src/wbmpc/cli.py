@@ -348,15 +348,15 @@ def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def _gains(args: argparse.Namespace, robot):
-    """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
+def _gains(args: argparse.Namespace, robot, hold_s: float):
+    """None without --kp/--kd (the run takes the robot's tuned gains at its joint loop); else those gains with
+    --kp/--kd as given."""
     import dataclasses
 
     from wbmpc.control.tuning import tuning_for
 
-    gains = tuning_for(robot).gains
     overrides = {name: value for name, value in (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None}
-    return dataclasses.replace(gains, **overrides)
+    return dataclasses.replace(tuning_for(robot).gains_at(hold_s), **overrides) if overrides else None
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -407,8 +407,11 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=_gains(args, robot),
-                                 plant_config=plant_config_from_args(args, robot)).for_robot(robot)
+    from wbmpc.scenarios.runner import joint_loop_hold_s
+
+    plant_config = plant_config_from_args(args, robot)
+    config = dataclasses.replace(config, plant_config=plant_config)
+    config = dataclasses.replace(config, gains=_gains(args, robot, joint_loop_hold_s(config))).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)

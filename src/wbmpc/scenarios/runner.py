@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -10,9 +11,10 @@ from typing import Callable
 import numpy as np
 
 from wbmpc.control.interpolator import PdGains
+from wbmpc.control.joint_loop import hold_s, unstable_gains
 from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog, fixed_delay_s
 from wbmpc.control.mpc import BASE_TRACKING_MODES, MPC, MpcConfig
-from wbmpc.control.tuning import RobotTuning, tuning_for
+from wbmpc.control.tuning import DEFAULT_HOLD_S, RobotTuning, tuning_for
 from wbmpc.errors import ConfigError, unknown_name
 from wbmpc.interrupt import stop_flag
 from wbmpc.ocp.formulations import FORMULATIONS
@@ -75,6 +77,22 @@ class RunConfig:
                                 help="position: base x/y/yaw anchored to the integrated command, corrects drift; "
                                 "velocity: the paper's velocity-only base tracking, drift uncorrected")
     seed: int = option(0, flag="--seed", help="seed of the measurement noise", integer=True, low=0)
+    # the plant's timing (issue 37): properties of the robot link and the simulator, not of the controller
+    joint_loop_hz: float = option(500.0, flag="--joint-loop-hz", metavar="HZ", low=20.0, high=10_000.0, unit="Hz",
+                                  help="the joint loop: commands (eq. 9's references) reach the motors and the motor "
+                                  "law (eq. 10) is evaluated with that moment's joint readings at this rate, its torque "
+                                  "held until the next (unitree_mujoco: 200 Hz at its default 5 ms step; a Go2's "
+                                  "LowCmd: 500 Hz)", default_text="500 = the paper's")
+    joint_loop_jitter_ms: float = option(0.0, flag="--joint-loop-jitter", metavar="MS", low=0.0, high=50.0, unit="ms",
+                                         help="each command arrives late by a uniform draw in [0, MS] (a LowCmd over "
+                                         "DDS); at most one joint-loop period")
+    motor_law: str = option("held", flag="--motor-law", choices=("held", "continuous"),
+                            help="held: eq. (10) evaluated once per command and its torque held (unitree_mujoco, the "
+                            "paper's PD); continuous: re-evaluated at every physics step with the last command's "
+                            "references (a real motor driver)")
+    physics_dt_ms: float | None = option(None, flag="--physics-dt", metavar="MS", low=0.0, high=20.0, low_open=True,
+                                         unit="ms", help="the simulator's step (unitree_mujoco: 5 ms by default)",
+                                         default_text="the plant's, 1 ms")
     # collision avoidance (issue 22, beyond the paper): capsule distance rows in the OCP (robots/collision_model.py)
     collision_avoidance: bool | None = option(
         None, flag="--collision-avoidance", choices=("on", "off"), const="on", parse=lambda text: text == "on",
@@ -153,6 +171,10 @@ class RunConfig:
         if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
             raise ConfigError(f"--object-model plans with the manipulated object inside the MPC; scenario "
                               f"'{self.scenario}' has no object the MPC can model: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
+        if self.joint_loop_jitter_ms > 1e3 / self.joint_loop_hz:
+            raise ConfigError.for_field("joint_loop_jitter_ms", f"must be at most one joint-loop period "
+                                        f"({1e3 / self.joint_loop_hz:g} ms at {self.joint_loop_hz:g} Hz), got "
+                                        f"{self.joint_loop_jitter_ms:g}")
         if self.identify_mass and (self.plant != "mujoco" or self.delay == "realtime" or not self.formulation.startswith("wb_")):
             raise ConfigError("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of "
                               "the MPC in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
@@ -418,6 +440,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
     # here and would grow by ~0.3 MB per simulated second
     plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    if config.physics_dt_ms is not None:
+        plant_config = dataclasses.replace(plant_config, dt_s=config.physics_dt_ms / 1e3)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
@@ -436,11 +460,17 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         estimator = InertialEstimator(robot, ESTIMATED_STATE_CONFIG) if from_estimate else InertialEstimator(robot)
         identification = InertialIdentification(estimator, mpc, from_estimate=from_estimate)
         plant.add_step_hook(identification)
-    gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
+    hold = joint_loop_hold_s(config, plant.dt_s)
+    tuning = tuning_for(robot)
+    gains = scenario.pd_gains(config.gains if config.gains is not None else tuning.gains_at(hold))
+    for problem in unstable_gains(gains, tuning.leg_joint_inertia_kg_m2, tuning.arm_joint_inertia_kg_m2, hold):
+        warnings.warn(f"the motor law's damper is unstable at this joint loop: {problem}; lower the gain or leave it "
+                      "to the robot's tuning", stacklevel=2)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
         state_source.listeners.append(identification.on_estimate)
-    loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
+    loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed, control_rate_hz=config.joint_loop_hz,
+                             joint_loop_jitter_ms=config.joint_loop_jitter_ms, motor_law=config.motor_law,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
@@ -453,7 +483,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
-    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm)
+    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm, hold)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
     if state_source is not None:
@@ -461,6 +491,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
 
         metrics.update(estimation_metrics(state_source.log))
     metrics.update({"delay": config.delay, "plant": config.plant, "nodes": config.nodes,
+                    "joint_loop_hz": config.joint_loop_hz, "joint_loop_jitter_ms": config.joint_loop_jitter_ms,
+                    "motor_law": config.motor_law, "physics_dt_ms": 1e3 * plant.dt_s,
                     "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
                     "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.base_tracking,
                     "push_gait_period_scale": mpc.config.push_gait_period_scale,
@@ -493,13 +525,22 @@ def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
     return out
 
 
-def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, holds_hand: bool = False) -> dict:
+def joint_loop_hold_s(config: RunConfig, physics_dt_s: float | None = None) -> float:
+    """The longest time the run's plant holds a motor torque (`wbmpc.control.joint_loop.hold_s`)."""
+    if physics_dt_s is None:
+        physics_dt_s = (config.physics_dt_ms / 1e3 if config.physics_dt_ms is not None else
+                        (config.plant_config or PlantConfig()).dt_s)
+    return hold_s(config.joint_loop_hz, config.joint_loop_jitter_ms, config.motor_law, physics_dt_s)
+
+
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, holds_hand: bool = False,
+                     hold: float = DEFAULT_HOLD_S) -> dict:
     """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
     says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
     tuning = tuning_for(robot).for_task(holds_hand)
     used = dataclasses.replace(tuning, gains=gains, **{key: getattr(mpc.config, key) for key in tuning.mpc_fields()})
-    report = tuning.report()
-    used_report = used.report()
+    report = tuning.report(hold_s=hold)
+    used_report = used.report(hold_s=hold)
     out = {"values": {}, "sources": {}}
     for name, entry in used_report.items():
         out["values"][name] = entry["value"]
