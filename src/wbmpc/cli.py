@@ -255,11 +255,34 @@ def cmd_info(args: argparse.Namespace) -> int:
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
               for name, entry in info["settings"].items()]
+    info["controller_assumes"] = _controller_assumptions(robot)
+    lines.append(_assumptions_text(info["controller_assumes"]))
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _controller_assumptions(robot) -> dict:
+    """What the controller takes for granted about the ground and the robot link (`wbmpc info`)."""
+    from wbmpc.control.loop import LoopConfig
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.sim import PlantConfig
+
+    tuning, loop = tuning_for(robot), LoopConfig()
+    return {"friction_coefficient": tuning.friction_coefficient, "simulated_floor_friction": PlantConfig().friction_mu,
+            "joint_loop_hz": loop.control_rate_hz, "motor_law": loop.motor_law,
+            "kd_leg_by_joint_loop_hz": {hz: tuning.gains_at(1.0 / hz).kd_leg for hz in (1000.0, 500.0, 200.0)},
+            "leg_joint_mode_inertia_kg_m2": tuning.leg_joint_inertia_kg_m2}
+
+
+def _assumptions_text(a: dict) -> str:
+    kd = ", ".join(f"{v:.3g} at {hz:g} Hz" for hz, v in a["kd_leg_by_joint_loop_hz"].items())
+    return (f"controller assumes: ground friction {a['friction_coefficient']:g} (--friction; the simulated floor: "
+            f"{a['simulated_floor_friction']:g}, --floor-friction); eq. (10) evaluated at {a['joint_loop_hz']:g} Hz and "
+            f"held (--joint-loop-hz); legs' Kd {kd} (Kd T / I <= 1 on the lightest leg mode, "
+            f"{a['leg_joint_mode_inertia_kg_m2'] or 0:.3g} kg m^2)")
 
 
 def _setting_text(value) -> str:

@@ -131,6 +131,8 @@ class RobotTuning:
     support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
     free_ee_without_command: bool = MpcConfig.free_ee_without_command
     swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
+    # the ground's friction coefficient the MPC plans with (eq. 6's cone rows; `--friction`)
+    friction_coefficient: float = MpcConfig.friction_coefficient
     # the base's linear velocity weight in tasks that hold a hand (`for_task`; g1's table); None: weights' own
     base_linear_velocity_hand_held: float | None = None
     # the lightest joint-space modes (kg m^2, `RobotScale`): the held damper's bound (`gains_at`)
@@ -150,7 +152,8 @@ class RobotTuning:
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
-                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
+                "friction_coefficient": self.friction_coefficient}
 
     def for_task(self, holds_hand: bool) -> RobotTuning:
         """The settings of a task that holds a hand (its velocity or force commanded: arm-track, pull, ...) or
@@ -174,6 +177,7 @@ class RobotTuning:
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
                 "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
+                "friction_coefficient": self.friction_coefficient,
                 "base_linear_velocity_hand_held": self.base_linear_velocity_hand_held}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
         for key, value in dataclasses.asdict(held).items():

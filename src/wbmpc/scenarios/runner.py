@@ -77,6 +77,13 @@ class RunConfig:
                                 help="position: base x/y/yaw anchored to the integrated command, corrects drift; "
                                 "velocity: the paper's velocity-only base tracking, drift uncorrected")
     seed: int = option(0, flag="--seed", help="seed of the measurement noise", integer=True, low=0)
+    friction_mu: float | None = option(None, flag="--friction", metavar="MU", low=0.0, high=2.0, low_open=True,
+                                       help="the ground's friction coefficient the MPC plans with (the cone rows of "
+                                       "eq. 6); the simulated floor keeps its own (--floor-friction)",
+                                       default_text="the robot's tuning, `wbmpc info` shows it")
+    floor_friction_mu: float | None = option(None, flag="--floor-friction", metavar="MU", low=0.0, high=5.0,
+                                             help="the simulated floor's friction coefficient (the plant's, not the "
+                                             "MPC's)", default_text="0.8, MuJoCo's scene")
     # the plant's timing (issue 37): properties of the robot link and the simulator, not of the controller
     joint_loop_hz: float = option(500.0, flag="--joint-loop-hz", metavar="HZ", low=20.0, high=10_000.0, unit="Hz",
                                   help="the joint loop: commands (eq. 9's references) reach the motors and the motor "
@@ -262,7 +269,8 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                                          if config.delay_compensation is None else config.delay_compensation),
                      step_budget_s=_step_budget_s(config),
                      **{**tuning.mpc_fields(), "weights": _collision_weights(scenario.cost_weights(tuning.weights),
-                                                                         soft_arm)},
+                                                                         soft_arm),
+                        **({} if config.friction_mu is None else {"friction_coefficient": config.friction_mu})},
                      base_tracking=config.base_tracking,
                      # with a delay the plant does not wait: a long recovery leaves the robot on a stale
                      # plan, so it is cut shorter than MpcConfig's default budget and the last good plan,
@@ -440,6 +448,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
     # here and would grow by ~0.3 MB per simulated second
     plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    if config.floor_friction_mu is not None:
+        plant_config = dataclasses.replace(plant_config, friction_mu=config.floor_friction_mu)
     if config.physics_dt_ms is not None:
         plant_config = dataclasses.replace(plant_config, dt_s=config.physics_dt_ms / 1e3)
     plant = make_plant(config.plant, robot, plant_config)
