@@ -490,6 +490,9 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
     metrics["state"] = config.state
+    metrics["mass_kg"] = robot.mass_kg
+    metrics["model_errors"] = (config.model_errors.summary(robot) if config.model_errors is not None
+                               and not config.model_errors.is_nominal else None)
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
