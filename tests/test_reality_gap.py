@@ -64,7 +64,9 @@ def test_a_drawn_plant_differs_from_the_model_as_its_row_records_and_rebuilds_id
     np.testing.assert_allclose(plant.model.dof_frictionloss[dofs],
                                values["joint_frictionloss_scale"] * reference["joint_frictionloss_nm"])
     assert plant.model.geom_friction[plant.model.geom("floor").id][0] == pytest.approx(values["floor_friction_mu"])
-    assert summary["plant_mass_kg"] == pytest.approx(sum(plant.model.body(n).mass[0] for n in factors))
+    from wbmpc.scenarios.runner import _plant_mass_kg
+
+    assert _plant_mass_kg(plant) == pytest.approx(sum(plant.model.body(n).mass[0] for n in factors))
     assert config.state == "estimated" and config.delay == str(values["delay_ms"])
     assert config.sensors.imu.gyro_noise_rad_s == pytest.approx(0.005 * values["sensor_noise_scale"])
     # the same row rebuilds the same plant
@@ -85,7 +87,7 @@ def test_axis_effects_find_the_factor_that_breaks_it():
         rows.append({"case_id": str(k), "recovered": not mu < 0.5 or rng.random() < 0.2, "fell_at_s": 1.0,
                      "floor_friction_mu": mu, "delay_ms": delay, "error": None,
                      "params_json": json.dumps({"floor_friction_mu": mu, "delay_ms": delay}),
-                     "metrics_json": json.dumps({"mass_kg": 16.0, "model_errors": {"plant_mass_kg": 16.0 + k / 100}})})
+                     "metrics_json": json.dumps({"mass_kg": 16.0, "plant_mass_kg": 16.0 + k / 100})})
     effects = axis_effects(rows, ["floor_friction_mu", "delay_ms"])
     friction = effects["floor_friction_mu"]["breaking_point"]
     assert friction["side"] == "below" and 0.45 <= friction["value"] <= 0.52 and friction["p_value"] < 1e-6

@@ -440,7 +440,8 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
-          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}"
+          f"{f' simulating {config.plant_model}' if config.plant_model else ''}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
@@ -474,6 +475,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         f"recovered by a re-solve, {m['mpc_failures']} failed; solve {_fmt(solve['mean'])} ms mean "
         f"({_fmt(solve['max'])} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("plant_model"):
+        lines.append(plant_model_line(m["plant_model"]))
     if m.get("solver"):
         compiled = "compiled" if m["solver_compiled"] else (
             f"NOT compiled (asked for; CasADi's VM instead, several times slower: {m['compile_error']})"
@@ -517,6 +520,15 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
     if failure:
         lines.append(f"  FAILED: {failure} (exit code {EXIT_FAILED})")
     return lines
+
+
+def plant_model_line(report: dict) -> str:
+    """One summary line on the plant model a run simulated (`wbmpc.sim.plant_model`)."""
+    reversed_ = f", joints reversed: {', '.join(report['joints_reversed'])}" if report["joints_reversed"] else ""
+    welded = f", welded: {', '.join(report['welded_joints'])}" if report["welded_joints"] else ""
+    return (f"  plant model {report['file']} ({report['format']}): {report['mass_kg']:.2f} kg against the controller's "
+            f"{report['controller_mass_kg']:.2f} kg, joint anchors within {1e3 * report['joint_anchor_mismatch_m']:.1f} mm "
+            f"at the zero pose{reversed_}{welded}")
 
 
 def _fmt(value, spec: str = ".1f") -> str:

@@ -57,11 +57,13 @@ _OTHER_AXES = {
     "robot": "robot preset (b1_z1, b1, go2, a1, ...)",
     "state": "true (the simulator's state) or estimated (IMU + encoders and the estimator)",
     "motor_law": "held or continuous (--motor-law)",
+    "plant_model": "MJCF or URDF file MuJoCo simulates instead of the controller's model (--plant-model); "
+                   "none: the controller's model",
 }
 _SCENARIO_AXES = {f.name: f"scenario option: {help_text(f, opt)}" + (f" [{opt.flag}]" if opt.flag else "")
                   for f, opt in declared(ScenarioOptions)}
 AXES: dict[str, str] = {**_SCENARIO_AXES, **_MODEL_AXES, **_LOOP_AXES, **_OTHER_AXES}
-STRING_AXES = {"robot", "gait", "board", "wipe_pattern", "state", "motor_law"}
+STRING_AXES = {"robot", "gait", "board", "wipe_pattern", "state", "motor_law", "plant_model"}
 INTEGER_AXES = {"plant_seed"}
 
 
@@ -173,6 +175,7 @@ class Case:
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
                          identify_mass=bool(float(v.get("identify_mass", 0.0))),
+                         plant_model=None if v.get("plant_model", "none") == "none" else v["plant_model"],
                          **({"push_gait_period_scale": float(v["push_gait_period_scale"])}
                             if "push_gait_period_scale" in v else {}))
 

@@ -59,9 +59,7 @@ def randomized(spec) -> tuple[dict, dict, int]:
 def derived_values(row: dict) -> dict:
     """The derived axes of a row, from its metrics (None where the run did not report them)."""
     metrics = json.loads(row.get("metrics_json") or "{}")
-    errors = metrics.get("model_errors") or {}
-    mass = metrics.get("mass_kg")
-    plant = errors.get("plant_mass_kg")
+    mass, plant = metrics.get("mass_kg"), metrics.get("plant_mass_kg")
     return {"plant_mass_ratio": plant / mass if plant and mass else None}
 
 

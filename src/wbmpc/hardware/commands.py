@@ -35,6 +35,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                  help="base velocity kick at this simulated time")
     add_declared(sim, ScenarioOptions, "push_speed_m_s", help="kick speed to the robot's left (world y)")
     add_declared(sim, RunConfig, "seed", help="seed of the sensor noise")
+    add_declared(sim, RunConfig, "plant_model")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
@@ -164,7 +165,7 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                             idle_exit_s=args.idle_exit, push_time_s=args.push_time,
                             push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
                             refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
-                            corrupt_every=args.corrupt_every, **_arm_settings(args))
+                            corrupt_every=args.corrupt_every, plant_model=args.plant_model, **_arm_settings(args))
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     print(f"wbmpc robot-sim: {robot.name} on {args.network} (DDS domain {args.domain}), {args.mode}, motors "
@@ -179,7 +180,7 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
             result = sim.run(progress=lambda share: bar.update(share * args.duration))
     else:
         result = sim.run()
-    report = result.summary()
+    report = {**result.summary(), "plant_model": sim.plant.plant_model_report()}
     if args.drift_window:
         start, end = (float(x) for x in args.drift_window.split(","))
         report["window_drift_cm_s"] = result.drift_cm_s(start, end)
@@ -197,6 +198,10 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
     ]
     if "window_drift_cm_s" in report:
         lines.append(f"  true drift between {args.drift_window} s: {report['window_drift_cm_s']:.2f} cm/s")
+    if report["plant_model"] is not None:
+        from wbmpc.cli import plant_model_line
+
+        lines.append(plant_model_line(report["plant_model"]))
     if report["rtt_ms_p50"] is not None:
         lines.append(f"  LowState -> LowCmd round trip p50 {report['rtt_ms_p50']:.2f} ms, p99 {report['rtt_ms_p99']:.2f} ms "
                      f"({report['rtt_samples']} samples; includes the controller's work)")

@@ -71,6 +71,7 @@ class RobotSimConfig:
     refuse_sport_release: bool = False  # a robot that keeps its sport mode (fault injection)
     arm_silent_after_s: float | None = None  # the Z1 stops sending its state at this simulated time (fault injection)
     corrupt_every: int | None = None  # every n-th LowState with a bad CRC and Z1 state with NaN (fault injection)
+    plant_model: str | None = None  # MuJoCo simulates this file of the robot (wbmpc.sim.plant_model); None: the model
 
     def __post_init__(self):
         if self.arm not in ("auto", "z1", "none"):
@@ -159,7 +160,10 @@ class RobotSimulator:
         self._leg_index = np.array([robot.joint_names.index(n) for n in self.motors.joint_names], dtype=int)
         z1 = config.arm == "z1" or (config.arm == "auto" and has_z1_arm(robot))
         self.arm_map = z1_arm_map(robot) if z1 else None
-        self.plant = make_plant("mujoco", robot)
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        self.plant = make_plant("mujoco", robot, MujocoPlantConfig(plant_model=config.plant_model)
+                                if config.plant_model else None)
         q0 = robot.q_nominal.copy()
         if config.start == "lying":
             q0[7:] = lying_joint_positions(robot)

@@ -181,18 +181,23 @@ def load_robot(name: str = "b1_z1") -> RobotModel:
 
 
 def custom_spec(
-    urdf: str,
+    urdf: str | None,
     feet: list[str],
     arm_ee: str | None = None,
     srdf: str | None = None,
     pose: str | None = None,
     lock: list[str] | None = None,
     name: str | None = None,
+    mjcf: str | None = None,
+    keyframe: str | None = None,
 ) -> RobotSpec:
-    """Spec for any legged robot given by the user (CLI --urdf/--srdf/--pose/--feet/--arm-ee/--lock)."""
+    """Spec for any legged robot given by the user (CLI --urdf or --mjcf, --srdf/--pose or --keyframe, --feet,
+    --arm-ee, --lock)."""
     return RobotSpec(
-        name=name or Path(urdf).stem,
-        urdf=Path(urdf),
+        name=name or Path(urdf or mjcf).stem,
+        urdf=Path(urdf) if urdf else None,
+        mjcf=Path(mjcf) if mjcf else None,
+        keyframe=keyframe,
         srdf=Path(srdf) if srdf else None,
         pose=pose,
         feet=tuple(feet),

@@ -111,6 +111,11 @@ class RunConfig:
     collision_margin_m: float = option(0.03, flag="--collision-margin", help="with --collision-avoidance: smallest "
                                        "distance kept between two capsules", low=0.0, high=0.3, unit="m")
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
+    plant_model: str | None = option(None, flag="--plant-model", metavar="FILE",
+                                     help="MuJoCo simulates this file of the robot (MJCF or URDF; its own inertias, "
+                                     "geoms, friction, damping, armature, contact settings; its actuators replaced by "
+                                     "torque motors with its force limits) instead of the controller's model; joints "
+                                     "matched by name (wbmpc.sim.plant_model)", default_text="the controller's model")
     state: str = option("true", flag="--state", choices=("true", "estimated"), help="state fed to the MPC: the "
                         "simulator's (true) or estimated from simulated IMU + encoders (noise on; section V-B filter; "
                         "adds estimation RMSE metrics and estimation.png)")
@@ -173,6 +178,8 @@ class RunConfig:
             from wbmpc.solvers.rti import RtiConfig
 
             (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
+        if self.plant_model is not None and self.plant != "mujoco":
+            raise ConfigError("--plant-model is simulated by MuJoCo: use --plant mujoco")
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
         if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:
@@ -435,8 +442,12 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
     mpc.reset()
     plant_config = config.plant_config
-    if plant_config is None:  # a preset's rotors (g1) are the plant's too
+    if plant_config is None and config.plant_model is None:  # a preset's rotors (g1) are the plant's too
         plant_config = robot_plant_config(robot)
+    if config.plant_model is not None:  # another file of the robot: its own drive train, the config's added
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = dataclasses.replace(specialised_config(plant_config, MujocoPlantConfig), plant_model=config.plant_model)
     if scene is not None:
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
@@ -491,6 +502,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics.update(scenario.extra_metrics(robot, log))
     metrics["state"] = config.state
     metrics["mass_kg"] = robot.mass_kg
+    metrics["plant_mass_kg"] = _plant_mass_kg(plant)
     metrics["model_errors"] = (config.model_errors.summary(robot) if config.model_errors is not None
                                and not config.model_errors.is_nominal else None)
     if sole_monitor is not None:
@@ -511,7 +523,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                     "push_gait_period_scale": mpc.config.push_gait_period_scale,
                     **solver_summary(mpc, config),
                     "requested_duration_s": float(duration), "interrupted": bool(log.interrupted),
-                    "drive_train": _drive_train_summary(robot, plant.config)})
+                    "drive_train": _drive_train_summary(robot, plant.config),
+                    "plant_model": plant.plant_model_report() if hasattr(plant, "plant_model_report") else None})
     return ScenarioResult(scenario, metrics, log, scene, plant=plant,
                           estimation=state_source.log if state_source is not None else None)
 
@@ -536,6 +549,14 @@ def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
             "min_distance_m": float(distances.min()) if distances.size else None,
             "closest_pair": model.pairs[worst].name if worst is not None else None}
     return out
+
+
+def _plant_mass_kg(plant) -> float | None:
+    """The simulated robot's mass (its base's subtree in MuJoCo: payloads included, scene objects not)."""
+    model = getattr(plant, "model", None)
+    if model is None or not hasattr(model, "body_subtreemass"):
+        return None
+    return float(model.body_subtreemass[model.body(plant.body_name(1)).id])
 
 
 def joint_loop_hold_s(config: RunConfig, physics_dt_s: float | None = None) -> float:

@@ -118,11 +118,12 @@ class ModelErrors:
 
         return replace(config, spec_callback=callback, **shared)
 
-    def link_factors(self, robot: RobotModel) -> dict[str, float]:
-        """{MuJoCo body: factor on its mass and rotational inertia}, the same for the same seed."""
+    def link_factors(self, robot: RobotModel, names: list[str] | None = None) -> dict[str, float]:
+        """{MuJoCo body: factor on its mass and rotational inertia}, the same for the same seed; `names`: the
+        scene's robot bodies (default wbmpc's own scene of `robot`; a plant model's differ)."""
         from wbmpc.sim.mujoco_scene import body_names
 
-        names = body_names(robot)
+        names = body_names(robot) if names is None else names
         rng = np.random.default_rng(self.seed)
         spread = np.random.default_rng([self.seed, 2])  # its own stream: the noise's draws stay as they were
         factors = {}
@@ -141,9 +142,6 @@ class ModelErrors:
         out = {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) != f.default}
         if self.link_mass_noise_rel or self.link_mass_spread_rel or self.link_mass_scale != 1.0:
             out["link_factors"] = self.link_factors(robot)
-            masses = robot.model.inertias
-            total = sum(masses[j].mass * factor for j, factor in enumerate(out["link_factors"].values(), start=1))
-            out["plant_mass_kg"] = float(total + self.ee_payload_kg)
         reference = reference_drive_train(robot)
         for scale_name, name in SCALE_FIELDS.items():
             scale = getattr(self, scale_name)
@@ -153,22 +151,26 @@ class ModelErrors:
 
     def edit_spec(self, robot: RobotModel, spec) -> None:
         """Apply the inertial errors to a `mujoco.MjSpec` of `robot` built by `wbmpc.sim.mujoco_scene`."""
-        from wbmpc.sim.mujoco_scene import body_names
+        from wbmpc.sim.mujoco_scene import scene_bodies
 
-        names = body_names(robot)
-        for name, factor in self.link_factors(robot).items():
+        bodies = scene_bodies(spec, robot)
+        names = list(dict.fromkeys(bodies.names))  # a plant model's body may carry several merged links
+        for name, factor in self.link_factors(robot, names).items():
             body = spec.body(name)
             if factor != 1.0:
                 body.mass = body.mass * factor
-                body.fullinertia = np.asarray(body.fullinertia) * factor
+                if np.all(np.isfinite(body.fullinertia)):
+                    body.fullinertia = np.asarray(body.fullinertia) * factor
+                else:  # a plant model's file gives principal moments (diaginertia)
+                    body.inertia = np.asarray(body.inertia) * factor
         base = spec.body(names[0])
         base.ipos = np.asarray(base.ipos) + np.asarray(self.base_com_offset_m, dtype=float)
         if self.ee_payload_kg > 0:
             if robot.arm_ee is None:
                 raise PlantInputError(f"ee_payload_kg needs a robot with an arm end-effector; {robot.name} has none")
-            frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
-            parent = spec.body(names[frame.parentJoint - 1])
+            body, placement = bodies.frame(robot, robot.arm_ee)
+            parent = spec.body(body)
             inertia = 0.4 * self.ee_payload_kg * self.payload_radius_m**2
-            parent.add_body(name="ee_payload", pos=np.asarray(frame.placement.translation, dtype=float),
+            parent.add_body(name="ee_payload", pos=np.asarray(placement.translation, dtype=float),
                             ipos=[0.0, 0.0, 0.0], mass=self.ee_payload_kg, inertia=[inertia] * 3,
                             explicitinertial=True)

@@ -39,16 +39,16 @@ from wbmpc.sim.mujoco_scene import (
     ROBOT_CONAFFINITY,
     ROBOT_CONTYPE,
     MujocoPlantConfig,
-    body_names,
+    scene_bodies,
 )
 
 EE_SITE = "ee_attach"
 
 
-def ee_body_name(robot: RobotModel) -> str:
-    """MuJoCo body carrying the arm end-effector frame."""
-    frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
-    return body_names(robot)[frame.parentJoint - 1]
+def ee_body(spec: mujoco.MjSpec, robot: RobotModel):
+    """(MuJoCo body carrying the arm end-effector frame, the frame's position in that body) in the scene `spec` builds."""
+    name, placement = scene_bodies(spec, robot).frame(robot, robot.arm_ee)
+    return spec.body(name), placement.translation.copy()
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> None:
@@ -405,7 +405,7 @@ class FixedBox:
             geoms = d.contact.geom[:n]
             other = np.where(geoms[:, 0] == box, geoms[:, 1], np.where(geoms[:, 1] == box, geoms[:, 0], -1))
             other = other[other >= 0]
-            touching = float(bool(np.any(np.asarray(m.geom_contype)[other] & ROBOT_CONTYPE)))
+            touching = float(bool(np.any(plant.layout.robot_geoms[other])))
         return {"touching": touching, "force_n": -plant.ee_contact_force([self.name])}
 
     def replay_shapes(self, recording):
@@ -453,13 +453,12 @@ class CompliantPad:
         return []
 
     def edit_spec(self, spec, robot):
-        body = spec.body(ee_body_name(robot))
+        body, position = ee_body(spec, robot)
         for geom in list(body.geoms):  # the rigid end-effector sphere gives way to the pad
             if geom.name == robot.arm_ee:
                 spec.delete(geom)
-        frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
         inertia = 0.4 * self.mass_kg * self.radius_m**2
-        pad = body.add_body(name=self.name, pos=frame.placement.translation.tolist(), mass=self.mass_kg,
+        pad = body.add_body(name=self.name, pos=position.tolist(), mass=self.mass_kg,
                             inertia=[inertia] * 3, explicitinertial=True)
         for axis, label in zip(np.eye(3), "xyz"):
             pad.add_joint(name=f"{self.name}_{label}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=axis.tolist(),
@@ -566,11 +565,10 @@ class ExternalHand:
 
 def _add_ee_site(spec: mujoco.MjSpec, robot: RobotModel) -> None:
     """A site at the end-effector frame origin (cable attachment, hand contact point), added once."""
-    body = spec.body(ee_body_name(robot))
+    body, position = ee_body(spec, robot)
     if any(s.name == EE_SITE for s in body.sites):
         return
-    frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
-    body.add_site(name=EE_SITE, pos=frame.placement.translation.tolist(), size=[0.01, 0.01, 0.01])
+    body.add_site(name=EE_SITE, pos=position.tolist(), size=[0.01, 0.01, 0.01])
 
 
 # ----------------------------------------------------------------------------------- scene
