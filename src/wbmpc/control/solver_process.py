@@ -13,9 +13,9 @@ from __future__ import annotations
 import os
 import time
 
-from wbmpc.control.mpc import MPC, Commands, MpcConfig
 import numpy as np
 
+from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.control.realtime_channel import (
     INERTIAL_WIDTH,
     ChannelLayout,
