@@ -202,7 +202,7 @@ class _FakeRobot:
     def publish_state(self):
         if self.stop_after is not None and self.tick >= self.stop_after:
             return
-        msg = self._encode(self._legs_reading, self.motors, self.tick * 2)
+        msg = self._encode(self._legs_reading, self.motors, 2 * self.tick + 2)  # a robot's tick is never 0
         self.tick += 1
         if self.corrupt_every is not None and self.tick % self.corrupt_every == 0:
             msg.crc ^= 1  # corrupted in transit: deploy must not answer it; the robot publishes on anyway
@@ -320,7 +320,7 @@ def test_deploy_ends_in_damping_on_every_exit(monkeypatch):
     assert error is None and report.stopped_by == "done", report.error
     assert [p for _, p in report.phases] == ["stand-up", "hold", "mpc", "lie-down", "damping"]
     assert _damped(fake) and len(fake.arm_commands) > 10
-    assert report.states_rejected["crc"] >= 5 and report.arm["states_rejected"]["malformed"] >= 1
+    assert report.states_rejected["CRC mismatch"] >= 5 and report.arm["states_rejected"]["malformed"] >= 1
     assert report.commands_sent < fake.tick  # nothing answered the rejected LowStates
 
     report, fake, error = _deploy_with_fake_robot(monkeypatch, fail_after=3)  # solves fail: the plan ages

@@ -11,7 +11,7 @@ from wbmpc.errors import ConfigError
 from wbmpc.hardware.network import check_interface
 from wbmpc.progress import ProgressBar
 
-DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "arm-track")
+DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "walk-in-place", "walk-forward", "arm-track")
 
 
 def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None:
@@ -46,6 +46,11 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "simulated seconds after the first LowCmd")
     sim.add_argument("--corrupt-every", type=int, metavar="N", help="fault: every N-th LowState with a bad CRC and "
                      "Z1 state with a NaN")
+    sim.add_argument("--gantry", action="store_true", help="a safety strap above the base, slack while the robot "
+                     "stands, carrying it once it sinks 30 %% below its standing height (humanoids: deploy's crouch and "
+                     "damping end in it, as under a gantry on hardware)")
+    sim.add_argument("--state-rate", type=float, metavar="HZ", help="LowState rate (default 500 Hz as a Unitree robot; "
+                     "200 Hz with --robot-link sim, unitree_mujoco's 5 ms step)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
@@ -139,7 +144,17 @@ def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compil
 
 def _add_network_options(parser) -> None:
     parser.add_argument("--network", default="lo", help="network interface of the robot (lo: robot-sim on this machine)")
-    parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots)")
+    parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots; "
+                        "Unitree's simulator uses 1)")
+    if parser.prog.endswith("deploy"):
+        parser.add_argument("--robot-link", default="robot", choices=("robot", "sim"), help="robot: a Unitree robot, "
+                            "strict (LowStates without header, CRC, advancing tick or motor temperatures are rejected, "
+                            "counted and named); sim: Unitree's simulator (unitree_mujoco), which leaves them at 0: "
+                            "accepted, time from the receive clock")
+    elif parser.prog.endswith("robot-sim"):
+        parser.add_argument("--robot-link", default="robot", choices=("robot", "sim"), help="robot: publish as a Unitree "
+                            "robot; sim: imitate Unitree's simulator (unitree_mujoco: header, CRC, tick and temperatures "
+                            "0, 200 Hz, the motor law once per LowCmd and held, no checks, no watchdog)")
 
 
 def _write(path, payload) -> None:
@@ -150,7 +165,7 @@ def _write(path, payload) -> None:
 
 def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
     from wbmpc.estimation import SensorConfig
-    from wbmpc.hardware.robot_sim import RobotSimConfig, RobotSimulator
+    from wbmpc.hardware.robot_sim import UNITREE_SIM_STATE_RATE_HZ, RobotSimConfig, RobotSimulator
     from wbmpc.hardware.safety import SafetyConfig
     from wbmpc.hardware.sdk import load_sdk
     from wbmpc.scenarios import ScenarioOptions
@@ -165,11 +180,16 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                             idle_exit_s=args.idle_exit, push_time_s=args.push_time,
                             push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
                             refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
-                            corrupt_every=args.corrupt_every, plant_model=args.plant_model, **_arm_settings(args))
+                            corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
+                            state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
+                                                              else 500.0),
+                            plant_model=args.plant_model, **_arm_settings(args))
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
+    link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
+            if config.robot_link == "sim" else f"sport mode '{config.sport_mode}'")
     print(f"wbmpc robot-sim: {robot.name} on {args.network} (DDS domain {args.domain}), {args.mode}, motors "
-          f"{sim.motors.describe()}{arm}; sport mode '{config.sport_mode}'; waiting for LowCmd (Ctrl-C stops)",
+          f"{sim.motors.describe()}{arm}; {link}; waiting for LowCmd (Ctrl-C stops)",
           file=sys.stderr, flush=True)
     import signal
 
@@ -196,6 +216,10 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"watchdog (damping) at {report['watchdog_events_s']} s, "
         f"{', '.join(f'{x:.0f}' for x in report['watchdog_latency_ms']) or 'no'} ms after the last valid LowCmd",
     ]
+    if report["gantry"] is not None:
+        gantry = report["gantry"]
+        lines.append("  gantry: " + ("slack throughout" if gantry["taut_since_s"] is None else
+                                     f"taut from {gantry['taut_since_s']:.2f} s, largest pull {gantry['max_force_n']:.0f} N"))
     if "window_drift_cm_s" in report:
         lines.append(f"  true drift between {args.drift_window} s: {report['window_drift_cm_s']:.2f} cm/s")
     if report["plant_model"] is not None:
@@ -244,9 +268,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
                           safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
                           sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
                           arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
-                          z1_ip=args.z1_ip, **_arm_settings(args))
-    print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}), "
-          f"{'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
+                          z1_ip=args.z1_ip, robot_link=args.robot_link, **_arm_settings(args))
+    print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}, robot link "
+          f"{args.robot_link}), {'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
           file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
     failure = None
@@ -265,6 +289,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"deploy {args.scenario}: phases {' -> '.join(f'{p} ({t:.2f} s)' for t, p in report['phases'])}",
         f"  stopped by {report['stopped_by']}, fell {report['fell']}; LowState {report['states_received']} "
         f"(rejected {report['states_rejected']}), LowCmd {report['commands_sent']}",
+        f"  robot link {report['robot_link']}: time from the {report['time_source']}"
+        + (f", accepted unset {report['accepted_unset']}" if report["accepted_unset"] else "")
+        + (f", mode_machine {report['mode_machine']}" if report["mode_machine"] is not None else ""),
         f"  MPC {report['mpc_solves']} solves, {report['mpc_failures']} failed, "
         f"{report['solve_ms_mean'] or 0:.1f} ms mean; plan age p50 {report['plan_age_ms_p50'] or 0:.1f} ms, max "
         f"{report['plan_age_ms_max'] or 0:.1f} ms; controller work per tick p50 "

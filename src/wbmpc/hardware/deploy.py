@@ -9,7 +9,13 @@ Z1 command of a tick go out together, the Z1 joints the model locks held by PD a
 
 Start: a valid LowState within `first_state_timeout_s` (2 s), a Z1 state within the same time (before
 any leg command), the MPC built, the robot's sport mode released (`wbmpc.hardware.motion_switcher`),
-the Z1 switched to LOWCMD. Nothing is commanded when any of these fails (exit code 2).
+the Z1 switched to LOWCMD. Nothing is commanded when any of these fails (exit code 2); when LowStates
+arrived but every one was rejected, the error counts them and names why (`wbmpc.hardware.link`).
+
+Robot link (`robot_link`): "robot" (strict: a robot fills header, CRC, tick and motor temperatures) or
+"sim" (Unitree's simulator, unitree_mujoco: those fields unset, time from the receive clock); the report
+says what was accepted. Messages follow the model's family: unitree_go for quadrupeds, unitree_hg for G1
+(its `mode_machine` echoed in every LowCmd, the motors of joints the model locks held at their reference).
 
 Fail safe: a fall (estimated tilt or height) -> damping; Ctrl-C -> lie down, then damping (a second
 Ctrl-C -> damping); a plan older than `max_plan_age_s` (stale), a lost LowState (`state_timeout_ms`) or
@@ -28,7 +34,6 @@ import dataclasses
 import signal
 import threading
 import time
-from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -38,16 +43,17 @@ from wbmpc.control.mpc import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError, RunError, WbmpcError
 from wbmpc.estimation.estimator import EstimatorConfig, StateEstimator
 from wbmpc.gait import make_gait
+from wbmpc.hardware.link import LowStateLink, check_link
 from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
 from wbmpc.hardware.messages import (
     MessageError,
     MotorCommand,
-    decode_low_state,
     encode_low_cmd,
 )
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.robot_sim import LOW_CMD_TOPIC, LOW_STATE_TOPIC
 from wbmpc.hardware.safety import (
+    Posture,
     SafetyConfig,
     clamp_command,
     fallen,
@@ -99,8 +105,13 @@ class DeployConfig:
     sport_release: bool = True  # release the sport mode first (motion switcher), restore it at exit
     max_plan_age_s: float = 0.25  # an MPC plan solved from a state older than this -> damping
     first_solve_attempts: int = 3
+    robot_link: str = "robot"  # robot (strict) | sim (Unitree's simulator: unset header, CRC, tick, temperatures)
 
     def __post_init__(self):
+        check_link(self.robot_link)
+        if self.robot_link == "sim" and self.lockstep:
+            raise ConfigError("--lockstep needs a robot process that waits for each LowCmd (robot-sim --mode lockstep); "
+                              "Unitree's simulator (--robot-link sim) runs in real time: drop --lockstep")
         if not self.duration_s > 0:
             raise ConfigError(f"--duration must be positive, got {self.duration_s}")
         if not 0 <= self.domain_id <= 232:
@@ -134,6 +145,7 @@ class DeployReport:
     stopped_by: str = "done"
     error: str | None = None
     estimated_xy_m: list = field(default_factory=list)
+    link: dict = field(default_factory=dict)  # robot link, time source, accepted unset fields, mode_machine
 
     def summary(self) -> dict:
         tick = np.array(self.tick_ms)
@@ -142,6 +154,7 @@ class DeployReport:
             "phases": self.phases,
             "states_received": self.states_received,
             "states_rejected": dict(self.states_rejected),
+            **self.link,
             "commands_sent": self.commands_sent,
             "arm": self.arm,
             "sport_mode": self.sport_mode,
@@ -183,12 +196,15 @@ class Controller:
         default the one `wbmpc run --delay realtime` solves with (`control/solver_process.py`: pinned to its
         own core, shared memory); lock-step solves in this process with `mpc` (built here when None)."""
         check_interface(config.network)
+        self.report = DeployReport()
         if not config.lockstep and mpc_config.push_gait_period_scale is not None:
             # the estimator here reads the gait schedule; a solver process's clock, which speeds up after
             # a push, is out of its sight: the fixed schedule (lock-step shares the MPC's clock instead)
             mpc_config = replace(mpc_config, push_gait_period_scale=None)
         self.robot, self.mpc_config, self.config = robot, mpc_config, config
         self.motors = unitree_motor_map(robot)
+        self.link = LowStateLink(self.motors, config.robot_link)
+        self.report.link = self.link.summary()
         self._leg_index = np.array([robot.joint_names.index(n) for n in self.motors.joint_names], dtype=int)
         z1 = config.arm == "z1" or (config.arm == "auto" and has_z1_arm(robot))
         self.arm_map = z1_arm_map(robot) if z1 else None
@@ -204,8 +220,6 @@ class Controller:
         self.gait = make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
-        self.report = DeployReport()
-        self._rejected: Counter = Counter()
         self._cond = threading.Condition()
         self._latest = None
         self._fresh = False
@@ -216,11 +230,13 @@ class Controller:
 
     # ------------------------------------------------------------------ DDS side
     def _on_state(self, msg) -> None:
+        received_s = time.monotonic()
         with self._cond:
-            self._latest, self._fresh = msg, True
+            self._latest, self._fresh = (msg, received_s), True
             self._cond.notify_all()
 
     def _next_state(self, timeout_s: float):
+        """(LowState, its receive time) or None."""
         with self._cond:
             if not self._cond.wait_for(lambda: self._fresh, timeout=timeout_s):
                 return None
@@ -237,8 +253,19 @@ class Controller:
         legs = MotorCommand(command.q_rad[i], command.dq_rad_s[i], command.kp[i], command.kd[i], command.tau_nm[i])
         if self._z1 is not None:
             self._z1.send(self._arm_command(command))
-        self._publisher.Write(encode_low_cmd(legs, self.motors, echo_tick=echo_tick))
+        self._publisher.Write(encode_low_cmd(legs, self.motors, echo_tick=echo_tick, mode_machine=self.link.mode_machine or 0,
+                                             held=self._held_command()))
         self.report.commands_sent += 1
+
+    def _held_command(self, damping: bool = False) -> MotorCommand:
+        """The motors of joints the model locks (G1's wrists): PD to their reference with the posture gains, or damping."""
+        held, safety = self.motors.held, self.config.safety
+        if damping:
+            return MotorCommand.damping(len(held), safety.damping_kd)
+        tau_max = np.array([h.tau_max_nm for h in held])
+        zeros = np.zeros(len(held))
+        return MotorCommand(np.array([h.q_rad for h in held]), zeros, safety.posture_kp_per_nm * tau_max,
+                            safety.posture_kd_per_nm * tau_max, zeros.copy())
 
     def _arm_command(self, command: MotorCommand) -> Z1Command:
         arm_map = self.arm_map
@@ -257,7 +284,9 @@ class Controller:
         try:
             if self._publisher is not None:
                 legs = MotorCommand.damping(self.motors.n_motors, kd)
-                self._publisher.Write(encode_low_cmd(legs, self.motors, echo_tick=echo_tick))
+                self._publisher.Write(encode_low_cmd(legs, self.motors, echo_tick=echo_tick,
+                                                     mode_machine=self.link.mode_machine or 0,
+                                                     held=self._held_command(damping=True)))
                 self.report.commands_sent += 1
         except Exception:  # noqa: BLE001
             pass
@@ -276,9 +305,10 @@ class Controller:
         cfg, robot, report = self.config, self.robot, self.report
         commands = commands or (lambda t, q, v: Commands())
         sdk.ChannelFactoryInitialize(cfg.domain_id, cfg.network)
-        subscriber = sdk.ChannelSubscriber(LOW_STATE_TOPIC, sdk.LowState_)
+        idl = sdk.idl(self.motors.family)
+        subscriber = sdk.ChannelSubscriber(LOW_STATE_TOPIC, idl.LowState_)
         subscriber.Init(self._on_state, 0)
-        publisher = sdk.ChannelPublisher(LOW_CMD_TOPIC, sdk.LowCmd_)
+        publisher = sdk.ChannelPublisher(LOW_CMD_TOPIC, idl.LowCmd_)
         publisher.Init()
         previous_handler = None
         if threading.current_thread() is threading.main_thread():
@@ -340,30 +370,34 @@ class Controller:
                 z1.close()
             subscriber.Close()
             publisher.Close()
-            report.states_rejected = dict(self._rejected)
+            report.states_rejected = dict(self.link.rejected)
+            report.link = self.link.summary()
         return report
 
     def _first_valid_state(self):
         cfg = self.config
         deadline = time.monotonic() + cfg.first_state_timeout_s
         while True:
-            msg = self._next_state(max(0.0, deadline - time.monotonic()))
-            if msg is None:
+            state = self._next_state(max(0.0, deadline - time.monotonic()))
+            if state is None and self.link.received:
+                raise NoRobotStateError(f"{self.link.all_rejected_message(LOW_STATE_TOPIC, cfg.first_state_timeout_s)}. "
+                                        "Nothing was commanded.")
+            if state is None:
                 raise NoRobotStateError(
                     f"no LowState on '{LOW_STATE_TOPIC}' within {cfg.first_state_timeout_s:.1f} s (interface "
                     f"{cfg.network}, DDS domain {cfg.domain_id}): is the robot or `wbmpc robot-sim` running on that "
                     "interface and domain? Nothing was commanded.")
             try:
-                decode_low_state(msg, self.motors)
-                return msg
+                self.link.reading(*state)
+                return state
             except MessageError as exc:
-                if "motors" in str(exc):
+                if "motor set" in exc.reasons:
                     raise NoRobotStateError(f"{exc}. Nothing was commanded.") from None
-                self._rejected["crc" if "CRC" in str(exc) else "malformed"] += 1
 
-    def _reading(self, msg):
-        """LowState (+ the latest Z1 state) -> SensorReadings over the model's joints; MessageError if invalid."""
-        legs = decode_low_state(msg, self.motors)
+    def _reading(self, state):
+        """(LowState, receive time) (+ the latest Z1 state) -> SensorReadings over the model's joints; MessageError
+        if rejected."""
+        legs = self.link.reading(*state)
         n = self.robot.n_joints
         q, dq = np.zeros(n), np.zeros(n)
         q[self._leg_index], dq[self._leg_index] = legs.joint_position_rad, legs.joint_velocity_rad_s
@@ -381,7 +415,7 @@ class Controller:
         self._damp()
         raise DeployFailure(message + "; legs and arm were sent damping")
 
-    def _loop(self, msg, commands, worker, progress, ee_reference=None) -> None:
+    def _loop(self, state, commands, worker, progress, ee_reference=None) -> None:
         cfg, robot, report, safety = self.config, self.robot, self.report, self.config.safety
         phase, phase_t0 = None, 0.0
         pose_start = None
@@ -389,11 +423,12 @@ class Controller:
         active = None
         next_mpc = 0.0
         lying = lying_joint_positions(robot)
+        posture = Posture(robot, safety)
         mpc_period = 1.0 / 80.0
         busy = False
         delay_s, requested_at = 0.0, 0.0  # measured delay of the plans (delay compensation, MpcConfig)
         z1 = self._z1
-        t_last = msg.tick / 1e3
+        t_last = self.link.last_time_s or 0.0
 
         def enter(name, t, q_joints):
             nonlocal phase, phase_t0, pose_start
@@ -420,10 +455,10 @@ class Controller:
                 if z1.watchdog.expired():
                     self._fail("arm-state-lost", f"no valid Z1 state for {report.arm_state_age_ms[-1]:.0f} ms (limit "
                                f"{cfg.arm_state_timeout_ms:.0f} ms; rejected {dict(z1.rejected)})", t_last)
+            msg = state[0]
             try:
-                reading = self._reading(msg)
-            except MessageError as exc:
-                self._rejected["crc" if "CRC" in str(exc) else "malformed"] += 1
+                reading = self._reading(state)
+            except MessageError:
                 reading = None
             if reading is not None:
                 report.states_received += 1
@@ -443,11 +478,11 @@ class Controller:
                 elapsed = t - phase_t0
                 solve_ms = 0.0
                 if phase == "stand-up":
-                    command = posture_command(pose_start, robot.q_nominal[7:], elapsed, safety.stand_up_s, safety, robot.tau_max)
+                    command = posture.command(pose_start, robot.q_nominal[7:], elapsed, safety.stand_up_s)
                     if elapsed >= safety.stand_up_s:
                         enter("hold", t, robot.q_nominal[7:])
                 elif phase == "hold":
-                    command = posture_command(pose_start, robot.q_nominal[7:], 1.0, 0.0, safety, robot.tau_max)
+                    command = posture.command(pose_start, robot.q_nominal[7:], 1.0, 0.0)
                     ready = elapsed >= cfg.hold_s
                     if ready and active is None and worker is None:  # lock-step: the first plan while holding
                         tic = time.perf_counter()
@@ -512,7 +547,7 @@ class Controller:
                         progress(min(t_mpc / cfg.duration_s, 1.0))
                 if phase == "lie-down":
                     elapsed = t - phase_t0  # the phase may have started in this tick
-                    command = posture_command(pose_start, lying, elapsed, safety.lie_down_s, safety, robot.tau_max)
+                    command = posture.command(pose_start, lying, elapsed, safety.lie_down_s)
                     if elapsed >= safety.lie_down_s + 0.3:
                         enter("damping", t, reading.joint_position_rad)
                 if phase == "damping":
@@ -523,8 +558,8 @@ class Controller:
                 command = clamp_command(robot, command, reading.joint_position_rad, reading.joint_velocity_rad_s, safety)
                 self._send(command, echo_tick=msg.tick)
                 report.tick_ms.append(1e3 * (time.perf_counter() - start) - solve_ms)
-            msg = self._next_state(safety.state_timeout_ms / 1e3)
-            if msg is None:
+            state = self._next_state(safety.state_timeout_ms / 1e3)
+            if state is None:
                 self._fail("state-watchdog", f"no LowState for {safety.state_timeout_ms:.0f} ms", t_last)
 
     def _count_solve(self, solution, solve_ms: float) -> None:

@@ -17,6 +17,22 @@ motors to damping (kp = 0, kd = damping_kd, tau = 0) until valid commands come b
 Sport mode: the process serves Unitree's motion switcher (`wbmpc.hardware.motion_switcher`) in mode
 `sport_mode` ("normal"); LowCmds are ignored (counted as `sport-mode`) until a client releases it.
 
+Messages follow the model (`wbmpc.hardware.mapping`): unitree_go for quadrupeds, unitree_hg for G1
+(35 slots; its LowState reports `mode_machine` (`RobotSimConfig.mode_machine`) and LowCmds that do not
+echo it, or use mode_pr AB, are rejected; the motors of joints the model locks report their reference).
+`tick` counts the robot's uptime in ms (it advances while the simulation waits for its first LowCmd).
+
+Robot link `sim` imitates Unitree's own simulator (unitree_mujoco's `simulate_python`), so the controller's
+`--robot-link sim` is tested without it: LowState with header, CRC, tick, motor modes and temperatures
+left at 0, by default at 200 Hz (its 5 ms physics step); each LowCmd's motor law evaluated once, when it
+arrives, with the joint readings of that moment, and that torque held until the next one (the PD runs at
+the command rate, not at every physics step); LowCmds applied unchecked (no CRC, header or motor-set
+check: only non-finite values are refused); no command watchdog, no sport mode service, no lock-step.
+
+Gantry (`gantry`, for humanoids): a strap that is slack while the robot stands and walks and carries it once
+it sinks well below its standing height, as on hardware (`wbmpc.hardware.gantry`); after deploy's crouch and
+damping the humanoid hangs in it instead of collapsing.
+
 Arm: a Z1 arm of the model (`arm="z1"`, the default for a model with Z1 joints) is not on LowCmd but
 behind the Z1's UDP interface (`wbmpc.hardware.z1_udp.Z1Server`, z1_controller's ports): its state goes
 out every tick beside LowState, its latest LOWCMD command drives the modelled Z1 joints (joints the
@@ -35,12 +51,15 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.estimation.sensors import SensorConfig, Sensors
-from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
+from wbmpc.hardware.link import check_link
+from wbmpc.hardware.mapping import G1_MODE_MACHINE, has_z1_arm, unitree_motor_map, z1_arm_map
 from wbmpc.hardware.messages import (
     MessageError,
     MotorCommand,
+    command_echo,
     decode_low_cmd,
     encode_low_state,
+    leave_unset,
 )
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.safety import SafetyConfig, fallen, lying_joint_positions
@@ -49,6 +68,8 @@ from wbmpc.hardware.z1_messages import CONTROLLER_PORT, N_Z1_JOINTS, SDK_PORT
 from wbmpc.robots import RobotModel
 
 LOW_STATE_TOPIC, LOW_CMD_TOPIC = "rt/lowstate", "rt/lowcmd"
+BOOT_TICK_MS = 1000  # the robot's uptime when robot-sim starts publishing: a robot's tick is never 0
+UNITREE_SIM_STATE_RATE_HZ = 200.0  # unitree_mujoco publishes LowState every physics step, 5 ms by default
 
 
 @dataclass(frozen=True)
@@ -71,9 +92,15 @@ class RobotSimConfig:
     refuse_sport_release: bool = False  # a robot that keeps its sport mode (fault injection)
     arm_silent_after_s: float | None = None  # the Z1 stops sending its state at this simulated time (fault injection)
     corrupt_every: int | None = None  # every n-th LowState with a bad CRC and Z1 state with NaN (fault injection)
+    robot_link: str = "robot"  # robot | sim: imitate Unitree's simulator (see the module's docstring)
+    mode_machine: int = G1_MODE_MACHINE  # unitree_hg robots report it in LowState and expect it back in LowCmd
+    gantry: bool = False  # a safety strap above the base (humanoids), slack while standing
     plant_model: str | None = None  # MuJoCo simulates this file of the robot (wbmpc.sim.plant_model); None: the model
 
     def __post_init__(self):
+        check_link(self.robot_link)
+        if self.robot_link == "sim" and self.mode == "lockstep":
+            raise ConfigError("--robot-link sim imitates Unitree's simulator, which runs in real time: --mode realtime")
         if self.arm not in ("auto", "z1", "none"):
             raise ConfigError(f"--arm must be z1 (the arm over the Z1's UDP interface) or none, got {self.arm!r}")
         if self.mode not in ("realtime", "lockstep"):
@@ -111,6 +138,7 @@ class RobotSimReport:
     sport_calls: list = field(default_factory=list)  # motion switcher calls served, in order
     tick_cpu_ms: list = field(default_factory=list)  # CPU time of the tick loop's own thread per tick
     trajectory: list = field(default_factory=list)  # [t s, x, y, z, tilt deg] every 25 ticks (20 Hz), true base
+    gantry: dict | None = None  # when the strap first carried the robot, its largest pull
 
     def summary(self) -> dict:
         rtt = np.array(self.rtt_ms)
@@ -138,6 +166,7 @@ class RobotSimReport:
             "sport_calls": self.sport_calls,
             "tick_cpu_ms_p50": float(np.percentile(self.tick_cpu_ms, 50)) if self.tick_cpu_ms else None,
             "tick_cpu_ms_p99": float(np.percentile(self.tick_cpu_ms, 99)) if self.tick_cpu_ms else None,
+            "gantry": self.gantry,
             "trajectory": self.trajectory,
         }
 
@@ -159,6 +188,11 @@ class RobotSimulator:
         self.motors = unitree_motor_map(robot)
         self._leg_index = np.array([robot.joint_names.index(n) for n in self.motors.joint_names], dtype=int)
         z1 = config.arm == "z1" or (config.arm == "auto" and has_z1_arm(robot))
+        if z1 and config.robot_link == "sim":
+            raise ConfigError("Unitree's simulator (--robot-link sim) has no Z1 arm interface: pass --arm none")
+        if config.start == "lying" and len(robot.feet) == 2:
+            raise ConfigError(f"{robot.name} is a biped: it does not stand up from lying by joint PD; --start standing "
+                              "(on a robot: from its gantry)")
         self.arm_map = z1_arm_map(robot) if z1 else None
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
@@ -173,6 +207,12 @@ class RobotSimulator:
             for _ in range(1500):
                 q, v = self.plant.state()
                 self.plant.step(-config.safety.damping_kd * v[6:])
+        self.gantry = None
+        if config.gantry:
+            from wbmpc.hardware.gantry import Gantry
+
+            self.gantry = Gantry(self.plant, robot)
+            self.plant.add_step_hook(self.gantry)
         self.sensors = Sensors(self.plant, config.sensors)
         self._steps_per_tick = max(1, int(round(1.0 / (config.state_rate_hz * self.plant.dt_s))))
         self._lock = threading.Condition()
@@ -185,6 +225,7 @@ class RobotSimulator:
         self._stop = threading.Event()
         self._switcher = None
         self._z1 = None
+        self._joints_now = (q0[7:][self._leg_index], np.zeros(len(self._leg_index)))  # sim link: the motor law's readings
 
     def stop(self) -> None:
         self._stop.set()
@@ -196,16 +237,22 @@ class RobotSimulator:
             with self._lock:
                 self._rejected["sport-mode"] += 1  # the built-in controller owns the motors
             return
+        sim_link = self.config.robot_link == "sim"
         try:
-            command = decode_low_cmd(msg, self.motors)
+            command = decode_low_cmd(msg, self.motors, checked=not sim_link,
+                                     mode_machine=self.config.mode_machine if self.motors.family == "unitree_hg" else None)
         except MessageError as exc:
-            reason = "crc" if "CRC" in str(exc) else "malformed"
             with self._lock:
-                self._rejected[reason] += 1
+                self._rejected.update(exc.reasons)
             return
+        if sim_link:  # the motor law once, with the readings of this moment; its torque held until the next LowCmd
+            q, dq = self._joints_now
+            n = len(q)
+            command = MotorCommand(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), command.torque(q, dq))
+        echo = command_echo(msg)
         with self._lock:
-            self._command, self._command_echo, self._command_wall = command, int(msg.reserve), now
-            sent = self._send_wall.pop(int(msg.reserve), None)
+            self._command, self._command_echo, self._command_wall = command, echo, now
+            sent = self._send_wall.pop(echo, None)
             if sent is not None:
                 self.report.rtt_ms.append(1e3 * (now - sent))
             self.report.commands_received += 1
@@ -246,26 +293,30 @@ class RobotSimulator:
 
         sdk = load_sdk()
         cfg, plant, report = self.config, self.plant, self.report
+        sim_link = cfg.robot_link == "sim"
         sdk.ChannelFactoryInitialize(cfg.domain_id, cfg.network)
-        self._switcher = MotionSwitcherServer(cfg.sport_mode, cfg.refuse_sport_release)
+        if not sim_link:  # Unitree's simulator serves no motion switcher
+            self._switcher = MotionSwitcherServer(cfg.sport_mode, cfg.refuse_sport_release)
         if self.arm_map is not None:
             self._z1 = Z1Server(own_port=cfg.z1_ports[0], sdk_port=cfg.z1_ports[1],
                                 command_timeout_ms=cfg.lockstep_timeout_ms if cfg.mode == "lockstep"
                                 else cfg.safety.command_timeout_ms)
-        publisher = sdk.ChannelPublisher(LOW_STATE_TOPIC, sdk.LowState_)
+        idl = sdk.idl(self.motors.family)
+        publisher = sdk.ChannelPublisher(LOW_STATE_TOPIC, idl.LowState_)
         publisher.Init()
-        subscriber = sdk.ChannelSubscriber(LOW_CMD_TOPIC, sdk.LowCmd_)
+        subscriber = sdk.ChannelSubscriber(LOW_CMD_TOPIC, idl.LowCmd_)
         subscriber.Init(self._on_command, 0)
         period = 1.0 / cfg.state_rate_hz
         started_at: float | None = None  # simulated time of the first command
         in_damping, pushed, stood = False, False, False
+        waited_s = 0.0  # uptime spent waiting for the first LowCmd (the tick advances meanwhile)
         wall_start = time.perf_counter()
         deadline = wall_start
         try:
             while not self._stop.is_set():
                 cpu_start = time.thread_time()
                 t = plant.time_s
-                tick_ms = int(round(1e3 * t))
+                tick_ms = BOOT_TICK_MS + int(round(1e3 * (waited_s + t)))
                 reading = self.sensors.read()
                 foot_force = np.linalg.norm(plant.contact_forces(), axis=1)
                 corrupt = cfg.corrupt_every is not None and report.ticks % cfg.corrupt_every == cfg.corrupt_every - 1
@@ -274,7 +325,9 @@ class RobotSimulator:
                     self._publish_arm(reading, corrupt)
                 legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
                                            joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
-                message = encode_low_state(legs, self.motors, tick_ms, foot_force)
+                message = encode_low_state(legs, self.motors, tick_ms, foot_force, cfg.mode_machine)
+                if sim_link:
+                    leave_unset(message)
                 with self._lock:
                     self._send_wall[tick_ms] = time.perf_counter()
                     if len(self._send_wall) > 2000:
@@ -286,6 +339,7 @@ class RobotSimulator:
                 with self._lock:
                     if started_at is None:
                         self._lock.wait(timeout=period)
+                        waited_s += period
                         if self._command is None:
                             deadline = time.perf_counter()
                             if cfg.idle_exit_s is not None and deadline - wall_start > cfg.idle_exit_s:
@@ -299,7 +353,7 @@ class RobotSimulator:
                                             timeout=cfg.lockstep_timeout_ms / 1e3)
                     command, command_wall = self._command, self._command_wall
                 timeout_s = (cfg.lockstep_timeout_ms if cfg.mode == "lockstep" else cfg.safety.command_timeout_ms) / 1e3
-                stale = time.perf_counter() - command_wall > timeout_s
+                stale = time.perf_counter() - command_wall > timeout_s and not sim_link  # the simulator holds on
                 if stale and not in_damping:
                     report.watchdog_events.append(t - started_at)
                     report.watchdog_latency_ms.append(1e3 * (time.perf_counter() - command_wall))
@@ -312,6 +366,7 @@ class RobotSimulator:
                     pushed = True
                 for _ in range(self._steps_per_tick):
                     q, v = plant.state()
+                    self._joints_now = (q[7:][self._leg_index], v[6:][self._leg_index])
                     plant.step(command.torque(q[7:], v[6:]))
                 q, _ = plant.state()
                 report.base_height_min_m = float(q[2] if report.base_height_min_m is None else min(q[2], report.base_height_min_m))
@@ -350,11 +405,13 @@ class RobotSimulator:
                           "watchdog_latency_ms": list(self._z1.watchdog_latency_ms),
                           "rtt_ms_p50": float(np.percentile(rtt, 50)) if rtt.size else None,
                           "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None, "rtt_samples": int(rtt.size)}
-        report.sport_mode_at_end = self._switcher.mode
-        report.sport_calls = list(self._switcher.calls)
+        report.sport_mode_at_end = self._switcher.mode if self._switcher is not None else ""
+        report.sport_calls = list(self._switcher.calls) if self._switcher is not None else []
         report.sim_time_s = plant.time_s - started_at if started_at is not None else 0.0
         report.wall_time_s = time.perf_counter() - wall_start
         report.end_xy_m = plant.state()[0][:2].tolist()
         report.commands_rejected = dict(self._rejected)
         report.damping_at_end = in_damping
+        if self.gantry is not None:
+            report.gantry = self.gantry.summary(started_at if started_at is not None else 0.0)
         return report
