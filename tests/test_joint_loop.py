@@ -150,3 +150,35 @@ def test_run_config_refuses_a_jitter_longer_than_the_period():
     with pytest.raises(ConfigError, match="joint_loop_jitter_ms"):
         RunConfig(joint_loop_hz=500.0, joint_loop_jitter_ms=3.0)
     assert dataclasses.replace(RunConfig(), joint_loop_hz=200.0, joint_loop_jitter_ms=3.0).joint_loop_hz == 200.0
+
+
+@pytest.mark.parametrize("link, interval_s", [("sim", 0.005), ("robot", 0.002)])
+def test_deploy_takes_the_gains_of_the_links_hold_and_samples_mid_hold(link, interval_s):
+    """Unitree's simulator holds eq. (10) one LowState period (5 ms by default): deploy measures it before the
+    MPC phase and caps Kd for it; a robot's motor drivers run the law at kHz: the tuned Kd stays."""
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.hardware.commands import deploy_mpc_config
+    from wbmpc.hardware.deploy import ROBOT_MOTOR_LAW_PERIOD_S, Controller, DeployConfig
+    from wbmpc.scenarios import make_scenario
+
+    robot = load_robot("go2")
+    tuning = tuning_for(robot)
+    scenario = make_scenario("trot-in-place", robot)
+    mpc_config = deploy_mpc_config(robot, scenario, scenario_name="trot-in-place", nodes=4, compiled=False,
+                                   solver="auto", lockstep=False)
+    config = DeployConfig(robot_link=link, gains=tuning.gains, joint_loop_gains=tuning.gains_at)
+    controller = Controller(robot, mpc_config, config, mpc=object())
+    rng = np.random.default_rng(0)
+    t = 0.0
+    for _ in range(400):
+        controller._note_interval(t)
+        t += interval_s * (1.0 + 0.05 * rng.random())
+    controller._start_joint_loop()
+    hold = controller.report.joint_loop["hold_ms"] / 1e3
+    expected = tuning.gains_at(hold if link == "sim" else ROBOT_MOTOR_LAW_PERIOD_S).kd_leg
+    assert controller.kd[robot.leg_joint_mask] == pytest.approx(expected)
+    if link == "sim":
+        assert interval_s <= hold <= 1.05 * interval_s and expected < tuning.gains.kd_leg
+    else:
+        assert expected == tuning.gains.kd_leg
+    assert controller._reference_lead_s == pytest.approx(0.5 * interval_s * 1.025, rel=0.02)

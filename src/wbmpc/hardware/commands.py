@@ -36,6 +36,9 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     add_declared(sim, ScenarioOptions, "push_speed_m_s", help="kick speed to the robot's left (world y)")
     add_declared(sim, RunConfig, "seed", help="seed of the sensor noise")
     add_declared(sim, RunConfig, "plant_model")
+    sim.add_argument("--plant-payload-kg", type=float, metavar="KG", help="a mass the model does not know, at the hand "
+                     "(a robot with an arm) or at the base origin (without): what deploy --identify-mass estimates")
+    sim.add_argument("--plant-com-offset", metavar="X,Y,Z", help="the plant's base CoM moved by this (base frame, m)")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
@@ -69,6 +72,9 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
     add_declared(dep, RunConfig, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
                  "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
+    add_declared(dep, RunConfig, "identify_mass", help="estimate the base CoM offset and a payload online from the "
+                 "estimated state and the motor law's torques and plan with them; the report gives "
+                 "base_com_offset_estimate_m and payload_estimate_kg")
     for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
         add_declared(dep, PdGains, name, help=f"{declared_help(PdGains, name)}, sent in LowCmd")
     dep.add_argument("--no-sport-release", action="store_true", help="do not call the motion switcher (a robot "
@@ -131,15 +137,20 @@ def _arm_settings(args) -> dict:
     return {"arm": arm, "z1_ports": ports}
 
 
-def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool):
+def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool,
+                      identify_mass: bool = False):
     """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and scenario
-    with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
+    with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`);
+    `identify_mass`: with the inertial parameters in the NLP (set from the identification with each request)."""
     from wbmpc.scenarios import RunConfig
     from wbmpc.scenarios.runner import mpc_config_for
 
     run_config = RunConfig(scenario=scenario_name, nodes=nodes, compiled=compiled, solver=solver, state="estimated",
                            delay="none" if lockstep else "realtime")
-    return mpc_config_for(scenario, run_config, robot)
+    config = mpc_config_for(scenario, run_config, robot)
+    if identify_mass:
+        config = dataclasses.replace(config, ocp=dataclasses.replace(config.ocp, inertial_parameters=True))
+    return config
 
 
 def _add_network_options(parser) -> None:
@@ -155,6 +166,23 @@ def _add_network_options(parser) -> None:
         parser.add_argument("--robot-link", default="robot", choices=("robot", "sim"), help="robot: publish as a Unitree "
                             "robot; sim: imitate Unitree's simulator (unitree_mujoco: header, CRC, tick and temperatures "
                             "0, 200 Hz, the motor law once per LowCmd and held, no checks, no watchdog)")
+
+
+def _plant_errors(args, robot):
+    """robot-sim's --plant-payload-kg / --plant-com-offset as `ModelErrors` (None without either)."""
+    from wbmpc.sim.model_errors import ModelErrors
+
+    payload, offset = args.plant_payload_kg, args.plant_com_offset
+    if payload is None and offset is None:
+        return None
+    try:
+        xyz = tuple(float(x) for x in offset.split(",")) if offset else (0.0, 0.0, 0.0)
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3:
+        raise ConfigError(f"--plant-com-offset takes X,Y,Z in metres (base frame), got {offset!r}")
+    payload = payload or 0.0
+    return ModelErrors(base_com_offset_m=xyz, **({"ee_payload_kg": payload} if robot.arm_ee else {"base_payload_kg": payload}))
 
 
 def _write(path, payload) -> None:
@@ -183,7 +211,8 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                             corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
                             state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
                                                               else 500.0),
-                            plant_model=args.plant_model, **_arm_settings(args))
+                            plant_model=args.plant_model, model_errors=_plant_errors(args, robot),
+                            **_arm_settings(args))
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
@@ -260,11 +289,18 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
     robot = robot_from_args(args)
     scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
     mpc_config = deploy_mpc_config(robot, scenario, scenario_name=args.scenario, nodes=args.nodes,
-                                   compiled=args.compiled, solver=args.solver, lockstep=args.lockstep)
-    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
-                                                            if v is not None})
+                                   compiled=args.compiled, solver=args.solver, lockstep=args.lockstep,
+                                   identify_mass=args.identify_mass)
+    overrides = {k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}
+    tuning = tuning_for(robot)
+    gains = dataclasses.replace(tuning.gains, **overrides)
+
+    def joint_loop_gains(hold_s: float):  # the tuned gains for the link's hold; --kp/--kd as given
+        return scenario.pd_gains(dataclasses.replace(tuning.gains_at(hold_s), **overrides))
+
     config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
                           lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                          joint_loop_gains=joint_loop_gains, identify_mass=args.identify_mass,
                           safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
                           sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
                           arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),

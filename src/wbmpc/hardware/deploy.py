@@ -75,6 +75,10 @@ from wbmpc.hardware.z1_messages import (
 )
 from wbmpc.robots import RobotModel
 
+# a robot's motor drivers evaluate eq. (10) at kHz with the last LowCmd's references: the hold its gains must
+# stand (`wbmpc.control.joint_loop`); at 1 ms no preset's tuned Kd is capped
+ROBOT_MOTOR_LAW_PERIOD_S = 1e-3
+
 
 class NoRobotStateError(ConfigError, RuntimeError):
     """No (valid) LowState arrived in time; nothing was commanded. A set-up problem (robot off, wrong
@@ -106,6 +110,9 @@ class DeployConfig:
     max_plan_age_s: float = 0.25  # an MPC plan solved from a state older than this -> damping
     first_solve_attempts: int = 3
     robot_link: str = "robot"  # robot (strict) | sim (Unitree's simulator: unset header, CRC, tick, temperatures)
+    # the MPC phase's gains for the hold the link applies (`JointLoopGains`); None: `gains` as given
+    joint_loop_gains: object | None = None
+    identify_mass: bool = False  # base CoM offset and payload identified from the estimated state, fed to the MPC
 
     def __post_init__(self):
         check_link(self.robot_link)
@@ -146,6 +153,8 @@ class DeployReport:
     error: str | None = None
     estimated_xy_m: list = field(default_factory=list)
     link: dict = field(default_factory=dict)  # robot link, time source, accepted unset fields, mode_machine
+    joint_loop: dict | None = None  # the hold measured before the MPC phase and the gains it took
+    inertial: dict | None = None  # --identify-mass: the estimate (`InertialEstimator.report`) and its history
 
     def summary(self) -> dict:
         tick = np.array(self.tick_ms)
@@ -155,6 +164,8 @@ class DeployReport:
             "states_received": self.states_received,
             "states_rejected": dict(self.states_rejected),
             **self.link,
+            "joint_loop": self.joint_loop,
+            **(self.inertial or {}),
             "commands_sent": self.commands_sent,
             "arm": self.arm,
             "sport_mode": self.sport_mode,
@@ -220,6 +231,15 @@ class Controller:
         self.gait = make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
+        self._intervals: list[float] = []  # LowState intervals before the MPC phase (the link's command period)
+        self._last_state_s: float | None = None
+        self._reference_lead_s = 0.0  # eq. 9 sampled this far ahead: the middle of a command's hold
+        self.identification = None
+        if config.identify_mass:
+            from wbmpc.estimation.inertial import ESTIMATED_STATE_CONFIG, InertialEstimator, InertialIdentification
+
+            self.identification = InertialIdentification(InertialEstimator(robot, ESTIMATED_STATE_CONFIG),
+                                                         from_estimate=True)
         self._cond = threading.Condition()
         self._latest = None
         self._fresh = False
@@ -355,6 +375,8 @@ class Controller:
                                         "damping") from exc
             raise
         finally:
+            if self.identification is not None:
+                self.report.inertial = self.identification.metrics()
             if previous_handler is not None:
                 signal.signal(signal.SIGINT, previous_handler)
             if worker is not None:
@@ -463,6 +485,8 @@ class Controller:
             if reading is not None:
                 report.states_received += 1
                 t = t_last = reading.time_s
+                if phase in (None, "stand-up", "hold"):
+                    self._note_interval(t)
                 q, v = self.estimator.update(reading)
                 if phase is None:
                     enter("stand-up", t, reading.joint_position_rad)
@@ -500,6 +524,7 @@ class Controller:
                         self._count_solve(solution, 1e3 * solution.wall_time_s)
                         first_plan(solution, t, reading.joint_position_rad)
                     if phase == "hold" and ready and active is not None:
+                        self._start_joint_loop()
                         enter("mpc", t, reading.joint_position_rad)
                         mpc_t0, next_mpc = t, mpc_period
                         self.estimator.gait = self.mpc.gait if self.mpc is not None else self.gait
@@ -525,7 +550,8 @@ class Controller:
                             if solution.success or solution.held_previous:
                                 active = solution
                         if not busy and t_mpc >= next_mpc - 1e-9:
-                            worker.request(q, v, commands(t_mpc, q, v), t_mpc, delay_s)
+                            worker.request(q, v, commands(t_mpc, q, v), t_mpc, delay_s,
+                                           inertial=self.identification.parameters() if self.identification else None)
                             requested_at = time.perf_counter()
                             busy = True
                             while next_mpc <= t_mpc + 1e-9:
@@ -535,8 +561,10 @@ class Controller:
                     if age_s > cfg.max_plan_age_s:
                         self._fail("stale-plan", f"the MPC plan in use is {1e3 * age_s:.0f} ms old (limit "
                                    f"{1e3 * cfg.max_plan_age_s:.0f} ms): the solver fell behind", t)
-                    reference = interpolate(active, t_mpc)
+                    reference = interpolate(active, t_mpc + self._reference_lead_s)
                     command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
+                    if self.identification is not None:
+                        self.identification.on_estimate(t, q, v)
                     report.estimated_xy_m.append(q[:2].tolist())
                     if ee_reference is not None:
                         ee = robot.frame_trajectories(q[None, :], [robot.arm_ee])[robot.arm_ee][0]
@@ -556,11 +584,39 @@ class Controller:
                         raise DeployFailure(report.error + "; legs and arm were sent damping")
                     return
                 command = clamp_command(robot, command, reading.joint_position_rad, reading.joint_velocity_rad_s, safety)
+                if self.identification is not None and phase == "mpc":  # the torque the motors apply until the next
+                    self.identification.on_torque(command.torque(reading.joint_position_rad, reading.joint_velocity_rad_s))
                 self._send(command, echo_tick=msg.tick)
                 report.tick_ms.append(1e3 * (time.perf_counter() - start) - solve_ms)
             state = self._next_state(safety.state_timeout_ms / 1e3)
             if state is None:
                 self._fail("state-watchdog", f"no LowState for {safety.state_timeout_ms:.0f} ms", t_last)
+
+    def _note_interval(self, t_s: float) -> None:
+        """A LowState's robot time before the MPC phase (the sim link's: its receive clock): the intervals give
+        the link's command period (one LowCmd answers each LowState)."""
+        if self._last_state_s is not None and len(self._intervals) < 5000:
+            self._intervals.append(t_s - self._last_state_s)
+        self._last_state_s = t_s
+
+    def _start_joint_loop(self) -> None:
+        """At the MPC phase's start: the gains for the hold this link applies, eq. 9's lead, the identification's
+        MPC (lock-step: this process's)."""
+        intervals = np.array(self._intervals[1:]) if len(self._intervals) > 1 else np.array([2e-3])
+        period = float(np.median(intervals))
+        # the sim link evaluates eq. 10 once per command and holds it (unitree_mujoco): the longest usual interval;
+        # a robot's motor drivers run it at kHz with the command held: their own period
+        hold = float(np.percentile(intervals, 95)) if self.config.robot_link == "sim" else ROBOT_MOTOR_LAW_PERIOD_S
+        if self.config.joint_loop_gains is not None:
+            gains = self.config.joint_loop_gains(hold)
+            self.kp, self.kd = gains.vectors(~self.robot.leg_joint_mask)
+        self._reference_lead_s = 0.5 * period
+        legs = self.robot.leg_joint_mask
+        self.report.joint_loop = {"command_period_ms": 1e3 * period, "hold_ms": 1e3 * hold,
+                                  "kd_leg": float(self.kd[legs][0]) if legs.any() else None,
+                                  "kp_leg": float(self.kp[legs][0]) if legs.any() else None}
+        if self.identification is not None and self.mpc is not None:
+            self.identification.mpc = self.mpc
 
     def _count_solve(self, solution, solve_ms: float) -> None:
         self.report.mpc_solves += 1

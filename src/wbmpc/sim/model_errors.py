@@ -11,6 +11,8 @@ fields); the MPC keeps the nominal `RobotModel`.
 - `link_mass_noise_rel` + `seed`: on top, each body gets its own factor 1 + N(0, noise);
 - `link_mass_spread_rel` + `seed`: on top, each body gets its own factor uniform in [1 - s, 1 + s] (the reality
   gap's draw, `wbmpc campaign --randomize`); `link_factors` lists every body's factor;
+- `base_payload_kg`: a point-like mass rigidly attached at the base origin (what the inertial identification
+  estimates as the payload of a robot without an arm);
 - `ee_payload_kg`: a point-like mass (sphere of `payload_radius_m`) rigidly attached at the arm
   end-effector frame;
 - `joint_armature_kg_m2`, `joint_damping_nm_s_per_rad`, `joint_frictionloss_nm`: rotor inertia,
@@ -58,6 +60,7 @@ class ModelErrors:
     link_mass_scale: float = 1.0
     link_mass_noise_rel: float = 0.0
     ee_payload_kg: float = 0.0
+    base_payload_kg: float = 0.0
     payload_radius_m: float = 0.03
     joint_armature_kg_m2: float | None = None  # None: the plant's default
     joint_damping_nm_s_per_rad: float | None = None
@@ -79,8 +82,9 @@ class ModelErrors:
             raise PlantInputError(f"link_mass_noise_rel must be in [0, 0.5], got {self.link_mass_noise_rel}")
         if not (np.isfinite(self.link_mass_spread_rel) and 0 <= self.link_mass_spread_rel <= 0.5):
             raise PlantInputError(f"link_mass_spread_rel must be in [0, 0.5], got {self.link_mass_spread_rel}")
-        if not (np.isfinite(self.ee_payload_kg) and self.ee_payload_kg >= 0):
-            raise PlantInputError(f"ee_payload_kg must be a mass >= 0 kg, got {self.ee_payload_kg}")
+        for name in ("ee_payload_kg", "base_payload_kg"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise PlantInputError(f"{name} must be a mass >= 0 kg, got {getattr(self, name)}")
         if not self.payload_radius_m > 0:
             raise PlantInputError(f"payload_radius_m must be positive, got {self.payload_radius_m}")
         for name in ("joint_armature_kg_m2", "joint_damping_nm_s_per_rad", "joint_frictionloss_nm", "floor_friction_mu",
@@ -165,6 +169,10 @@ class ModelErrors:
                     body.inertia = np.asarray(body.inertia) * factor
         base = spec.body(names[0])
         base.ipos = np.asarray(base.ipos) + np.asarray(self.base_com_offset_m, dtype=float)
+        if self.base_payload_kg > 0:
+            inertia = 0.4 * self.base_payload_kg * self.payload_radius_m**2
+            base.add_body(name="base_payload", pos=[0.0, 0.0, 0.0], ipos=[0.0, 0.0, 0.0], mass=self.base_payload_kg,
+                          inertia=[inertia] * 3, explicitinertial=True)
         if self.ee_payload_kg > 0:
             if robot.arm_ee is None:
                 raise PlantInputError(f"ee_payload_kg needs a robot with an arm end-effector; {robot.name} has none")
