@@ -83,6 +83,12 @@ def go2_files():
     (["info", "--lock", "x", "--srdf", "y.srdf"], "--srdf, --lock describe a custom robot and need --urdf"),
     (["info", "--sole", "0.2"], "--sole needs LENGTH,WIDTH in metres"),
     (["info", "--pose", "standing"], "--pose describes a custom robot and needs --urdf"),
+    (["info", "--urdf", "a.urdf", "--mjcf", "a.xml", "--feet", "f"], "--urdf and --mjcf both describe the robot"),
+    (["info", "--keyframe", "home"], "--keyframe names a pose of an MJCF file: it needs --mjcf FILE"),
+    (["info", "--mjcf", "a.xml"], "a custom --mjcf needs --feet F1,F2,... (the foot frame names: bodies, sites or geoms"),
+    (["info", "--mjcf", "nothere.xml", "--feet", "a,b"], "MJCF file not found: nothere.xml"),
+    (["run", "stand", "--plant", "pinocchio", "--plant-model", "a.xml"], "--plant-model is simulated by MuJoCo"),
+    (["run", "stand", "--plant-model", "nothere.xml"], "--plant-model file not found: nothere.xml"),
 ])
 def test_bad_input_exits_2_naming_the_flag_before_building(argv, words, capsys, no_build, tmp_path):
     out = tmp_path / "never"

@@ -279,6 +279,31 @@ def test_unset_low_states_are_refused_on_the_robot_link_and_accepted_on_sim(name
         strict.reading(good, 52.002)  # the same tick again
 
 
+@pytest.mark.parametrize("speed", [1.0, 0.6])
+def test_the_link_measures_the_robots_clock_against_its_own(go2, speed):
+    """A simulator at `speed` x the wall clock behind the receive clock: joint motion (position change against the
+    reported velocity) tells the rate; on a robot's tick clock it reads 1."""
+    from wbmpc.estimation.sensors import SensorReadings
+    from wbmpc.hardware.link import LowStateLink
+    from wbmpc.hardware.messages import leave_unset
+
+    motors = unitree_motor_map(go2)
+    sim, robot = LowStateLink(motors, "sim"), LowStateLink(motors, "robot")
+    rng = np.random.default_rng(3)
+    for k in range(400):
+        received_s = 0.005 * k
+        t = speed * received_s  # the robot's time
+        phase = 2 * np.pi * 2.0 * t + np.arange(12)
+        q = go2.q_nominal[7:] + 0.3 * np.sin(phase)
+        dq = 0.3 * 2 * np.pi * 2.0 * np.cos(phase) + rng.normal(0, 0.02, 12)  # Unitree-like velocity noise
+        reading = SensorReadings(t, np.array([0, 0, 0, 1.0]), np.zeros(3), np.array([0, 0, 9.81]), q, dq, np.full(4, np.nan))
+        msg = encode_low_state(reading, motors, tick_ms=1000 + round(1e3 * t))
+        robot.reading(msg, received_s)
+        leave_unset(msg)
+        sim.reading(msg, received_s)
+    assert sim.clock_rate == pytest.approx(speed, rel=0.03) and robot.clock_rate == pytest.approx(1.0, rel=0.03)
+
+
 def test_unitree_simulator_link_has_no_lock_step():
     from wbmpc.errors import ConfigError
     from wbmpc.hardware.deploy import DeployConfig

@@ -141,6 +141,8 @@ def test_a_plant_model_without_free_joint_or_file_is_an_error(go2, tmp_path):
         MujocoPlant(go2, MujocoPlantConfig(plant_model=str(tmp_path / "nothere.xml")))
     with pytest.raises(ConfigError, match="--plant mujoco"):
         RunConfig(plant="pinocchio", plant_model="x.xml")
+    with pytest.raises(ConfigError, match="plant_model file not found: .*nothere.xml"):  # before anything is built
+        RunConfig(plant_model=str(tmp_path / "nothere.xml"))
 
 
 def test_a_missing_mesh_is_an_error_naming_the_file(go2, tmp_path):

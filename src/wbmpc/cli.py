@@ -31,19 +31,23 @@ EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
 # those of `run` come from its config dataclasses (`_field_flags`)
 OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
-CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
+CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock", "keyframe": "--keyframe"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
 
 def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     from wbmpc.robots.presets import PRESET_NAMES
 
-    group = parser.add_argument_group("robot (a preset, or a custom URDF with the options below it)")
+    group = parser.add_argument_group("robot (a preset, or a custom URDF or MJCF with the options below it)")
     group.add_argument("--robot", default="b1_z1", choices=PRESET_NAMES, metavar="NAME",
                        help=f"preset: {', '.join(PRESET_NAMES)} (default b1_z1: B1 + Z1 arm, 22 DoF as in the paper)")
     group.add_argument("--urdf", metavar="FILE", help="custom robot URDF (replaces --robot; needs --feet)")
+    group.add_argument("--mjcf", metavar="FILE", help="custom robot MJCF with a free joint, e.g. MuJoCo Menagerie's or "
+                       "unitree_mujoco's (replaces --robot; needs --feet: bodies, sites or geoms of the file)")
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
+    group.add_argument("--keyframe", metavar="NAME", help="custom MJCF robot: keyframe used as the nominal pose "
+                       "(default the file's first, e.g. Menagerie's home; none: its zero pose)")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
     group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame: a custom robot's, another frame of "
                        "a preset (e.g. g1's left_rubber_hand), or with --arm the mounted arm's (default its only leaf link)")
@@ -150,28 +154,35 @@ def robot_from_args(args: argparse.Namespace):
     import dataclasses
 
     from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
+    from wbmpc.robots.presets import custom_robot
 
     contact = _foot_contact(args)
     arm = _arm_mount(args)
-    if args.urdf:
+    mjcf = getattr(args, "mjcf", None)
+    if args.urdf and mjcf:
+        raise ConfigError("--urdf and --mjcf both describe the robot: give one")
+    if getattr(args, "keyframe", None) and not mjcf:
+        raise ConfigError("--keyframe names a pose of an MJCF file: it needs --mjcf FILE")
+    if args.urdf or mjcf:
         if not args.feet:
-            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
+            raise ConfigError(f"a custom {'--urdf' if args.urdf else '--mjcf'} needs --feet F1,F2,... (the foot frame "
+                              f"names{': bodies, sites or geoms of the file' if mjcf else ''})")
         spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
-                           _split(args.lock))
+                           _split(args.lock), mjcf=mjcf, keyframe=getattr(args, "keyframe", None))
         spec = dataclasses.replace(spec, **contact) if contact else spec
-        robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
+        robot = custom_robot(_with_arm(spec, arm) if arm else spec)
     elif arm:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
         if given:
-            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
+            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf or --mjcf")
         spec = preset_spec(args.robot)
         robot = RobotModel(_with_arm(dataclasses.replace(spec, **contact) if contact else spec, arm))
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
             raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
-                              f"{'s' if len(given) == 1 else ''} --urdf; "
-                              f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
+                              f"{'s' if len(given) == 1 else ''} --urdf or --mjcf; the preset --robot {args.robot} "
+                              f"defines its own (drop {', '.join(given)} or add --urdf FILE or --mjcf FILE)")
         robot = load_robot(args.robot)
         if getattr(args, "arm", None) not in (None, "none") and arm is None and not _carries_arm(robot, args.arm):
             raise ConfigError(f"--robot {args.robot} carries no {args.arm} arm: mount one with --arm {args.arm} "

@@ -309,6 +309,6 @@ def tuning_for(robot: RobotModel | str) -> RobotTuning:
 
         robot = load_robot(robot)
     tuning = derive(RobotScale.of(robot))
-    overrides = TUNINGS.get(robot.name)
+    overrides = TUNINGS.get(robot.name) or TUNINGS.get(robot.spec.like_preset)  # another file of a preset's robot
     tuning = with_overrides(tuning, overrides) if overrides else tuning
     return tuning

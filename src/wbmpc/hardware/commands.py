@@ -327,7 +327,10 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"(rejected {report['states_rejected']}), LowCmd {report['commands_sent']}",
         f"  robot link {report['robot_link']}: time from the {report['time_source']}"
         + (f", accepted unset {report['accepted_unset']}" if report["accepted_unset"] else "")
-        + (f", mode_machine {report['mode_machine']}" if report["mode_machine"] is not None else ""),
+        + (f", mode_machine {report['mode_machine']}" if report["mode_machine"] is not None else "")
+        + (f"; the robot's clock ran at {report['clock_rate']:.2f} x this clock (joint motion against reported velocity)"
+           + (": the robot (a simulator falling behind the wall clock?) did not run in real time"
+              if abs(report["clock_rate"] - 1.0) > 0.1 else "") if report["clock_rate"] is not None else ""),
         f"  MPC {report['mpc_solves']} solves, {report['mpc_failures']} failed, "
         f"{report['solve_ms_mean'] or 0:.1f} ms mean; plan age p50 {report['plan_age_ms_p50'] or 0:.1f} ms, max "
         f"{report['plan_age_ms_max'] or 0:.1f} ms; controller work per tick p50 "

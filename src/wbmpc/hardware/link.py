@@ -6,7 +6,11 @@
 - `sim`: Unitree's own simulator (unitree_mujoco's `simulate_python`) leaves header, CRC, tick and
   temperatures at 0. Those unset fields are accepted and counted (a header or CRC that is set must still
   be right); the model's motors are taken as present; time comes from the receive clock wherever the
-  tick does not advance (from the first such message on).
+  tick does not advance (from the first such message on). Such a simulator's messages carry no time:
+  if it falls behind the wall clock (a loaded machine), the controller's clock runs ahead of the
+  robot's. `clock_rate` measures it: the robot's seconds per receive-clock second, from the joints'
+  motion (position change against reported velocity, sum over the moving joints of
+  dq dq_reported / sum |dq_reported|^2 dt).
 
 When LowStates arrive and all are rejected, `all_rejected_message` counts them and names why, and
 points a strict link that hears a simulator to `--robot-link sim`.
@@ -17,6 +21,8 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 
+import numpy as np
+
 from wbmpc.errors import ConfigError
 from wbmpc.estimation.sensors import SensorReadings
 from wbmpc.hardware.mapping import MotorMap
@@ -24,6 +30,8 @@ from wbmpc.hardware.messages import UNSET, MessageError, decode_low_state, low_s
 
 LINKS = ("robot", "sim")
 TICK_CLOCK, RECEIVE_CLOCK = "tick", "receive clock"
+MOVING_RAD_S = 0.5  # joints faster than this tell the clock rate (slower ones: encoder noise dominates)
+MIN_RATE_EVIDENCE_RAD2 = 1.0  # sum of |dq_reported|^2 dt before a clock rate is reported
 
 
 def check_link(link: str) -> str:
@@ -46,6 +54,8 @@ class LowStateLink:
         self._last_tick: int | None = None
         self._last_time_s: float | None = None
         self._receive_offset_s = 0.0
+        self._last_joints: tuple[np.ndarray, np.ndarray] | None = None
+        self._rate_num = self._rate_den = 0.0
 
     @property
     def last_time_s(self) -> float | None:
@@ -75,10 +85,27 @@ class LowStateLink:
         t = msg.tick / 1e3 if self.time_source == TICK_CLOCK else received_s + self._receive_offset_s
         if self._last_time_s is not None and t <= self._last_time_s:
             t = self._last_time_s + 1e-6  # the receive clock is monotonic; two messages in one clock step
+        self._measure_clock_rate(reading.joint_position_rad, reading.joint_velocity_rad_s, t)
         self._last_tick, self._last_time_s = msg.tick, t
         if self.motors.family == "unitree_hg":
             self.mode_machine = int(msg.mode_machine)
         return dataclasses.replace(reading, time_s=t)
+
+    def _measure_clock_rate(self, q: np.ndarray, dq: np.ndarray, t: float) -> None:
+        last, self._last_joints = self._last_joints, (q, dq)
+        if last is None or self._last_time_s is None:
+            return
+        dt = t - self._last_time_s
+        mean_dq = 0.5 * (dq + last[1])
+        moving = np.abs(mean_dq) > MOVING_RAD_S
+        if 0 < dt < 0.1 and np.any(moving):
+            self._rate_num += float((q - last[0])[moving] @ mean_dq[moving])
+            self._rate_den += float(mean_dq[moving] @ mean_dq[moving]) * dt
+
+    @property
+    def clock_rate(self) -> float | None:
+        """Robot seconds per second of this link's clock, from the joints' motion (None: too little motion)."""
+        return self._rate_num / self._rate_den if self._rate_den >= MIN_RATE_EVIDENCE_RAD2 else None
 
     def all_rejected_message(self, topic: str, within_s: float) -> str:
         """Every LowState so far was rejected: how many, why, and (strict link, unset fields) what to do."""
@@ -91,4 +118,4 @@ class LowStateLink:
 
     def summary(self) -> dict:
         return {"robot_link": self.link, "time_source": self.time_source, "accepted_unset": dict(self.accepted_unset),
-                "mode_machine": self.mode_machine}
+                "mode_machine": self.mode_machine, "clock_rate": self.clock_rate}

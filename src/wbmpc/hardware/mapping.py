@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.crc import N_HG_MOTOR_SLOTS, N_MOTOR_SLOTS
@@ -197,12 +196,13 @@ def _locked_joints(robot: RobotModel) -> list[tuple[str, float, float]]:
     model froze it, from the full model."""
     if not robot.spec.locked_joints:
         return []
-    full = pin.buildModelFromUrdf(str(robot.spec.urdf), pin.JointModelFreeFlyer())
-    q_ref = RobotModel._reference_configuration(full, robot.spec)
-    out = []
-    for name in robot.spec.locked_joints:
-        jid = full.getJointId(name)
-        start, nq, v = full.idx_qs[jid], full.nqs[jid], full.idx_vs[jid]
-        q = float(np.arctan2(q_ref[start + 1], q_ref[start])) if nq == 2 else float(q_ref[start])
-        out.append((name, q, float(full.effortLimit[v])))
-    return out
+    full, limits = robot.full_model, {}
+    if robot.mjcf is not None:  # an MJCF's torque limits are its actuators' (pinocchio's parser leaves them out)
+        from wbmpc.robots.mjcf import force_limits, mjcf_joints
+
+        own = mjcf_joints(robot.mjcf)
+        limits = {n: min(-lo, hi) for n, (lo, hi, _) in
+                  force_limits(robot.mjcf, [n for n in robot.spec.locked_joints if n in own]).items()}
+    return [(name, robot.locked_positions[name],
+             limits.get(name, float(full.effortLimit[full.idx_vs[full.getJointId(name)]])))
+            for name in robot.spec.locked_joints]

@@ -273,11 +273,14 @@ def robot_capsules(robot: RobotModel) -> tuple[list[Capsule], list[str]]:
 
     model = robot.model
     try:
-        geometry = pin.buildGeomFromUrdf(model, str(robot.spec.urdf), pin.GeometryType.COLLISION,
-                                         package_dirs=_package_dirs(robot.spec.urdf))
+        if robot.mjcf is not None:  # an MJCF robot: its colliding geoms as pinocchio reads them
+            geometry = robot.geometry(pin.GeometryType.COLLISION)
+        else:
+            geometry = pin.buildGeomFromUrdf(model, str(robot.spec.urdf), pin.GeometryType.COLLISION,
+                                             package_dirs=_package_dirs(robot.spec.urdf))
     except (RuntimeError, ValueError) as exc:
         raise ModelError(f"collision avoidance: pinocchio could not read the collision geometry of "
-                         f"{robot.spec.urdf} ({exc}); check the URDF's <collision> meshes") from exc
+                         f"{robot.model_file} ({exc}); check the file's collision geometry and meshes") from exc
     capsules: list[Capsule] = []
     with_geometry = set()
     for obj in geometry.geometryObjects:

@@ -52,6 +52,11 @@ def joint_name(m: mujoco.MjModel, j: int) -> str:
     return m.joint(j).name or f"joint{j}"
 
 
+def mjcf_joints(m: mujoco.MjModel) -> set[str]:
+    """The names of the file's joints."""
+    return {m.joint(j).name for j in range(m.njnt)}
+
+
 def force_limits(m: mujoco.MjModel, joints) -> dict[str, tuple[float, float, str]]:
     """{joint: (low, high, source)} of the file's force limits on the named joints (N m or N); joints without
     any are left out. An actuator's `forcerange` if limited, else a motor's (fixed gain, no bias) gear x gain x

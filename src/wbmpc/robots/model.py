@@ -21,6 +21,7 @@ from wbmpc.errors import ModelError, unknown_name
 from wbmpc.robots.soles import FOOT_CONTACTS, Sole, sole_from_size, soles_from_collisions, soles_from_primitives
 
 GRAVITY_M_S2 = 9.81
+MIN_SOLE_M = (0.08, 0.04)  # (length, width): a derived flat foot's sole is at least this (a ball foot is not)
 SUPPORTED_JOINTS = frozenset(
     f"JointModel{kind}"
     for kind in ("RX", "RY", "RZ", "RevoluteUnaligned", "RUBX", "RUBY", "RUBZ", "RevoluteUnboundedUnaligned",
@@ -81,22 +82,29 @@ class RobotSpec:
     coulomb_friction_nm: JointValues | None = None
     coulomb_velocity_rad_s: float = 0.05
     # "point": 3D force at each foot frame; "surface": flat feet with a 6D wrench at the sole (soles.py),
-    # the sole rectangle from `sole_m` (length, width) or else the foot link's collision geometry
-    foot_contact: str = "point"
+    # the sole rectangle from `sole_m` (length, width) or else the foot link's collision geometry; None: derived,
+    # surface for two feet whose links carry a sole (`MIN_SOLE_M`), else point
+    foot_contact: str | None = None
     sole_m: tuple[float, float] | None = None
     mjcf: Path | None = None  # the robot's MJCF instead of a URDF (free joint at its root)
     keyframe: str | None = None  # MJCF keyframe of the nominal pose (None: the file's first, else its zero pose)
+    like_preset: str | None = None  # the preset this file is another description of: its settings apply (presets.py)
+    # an arm on an MJCF base (robots/compose.py): (its URDF, the base frame it is mounted on, x y z roll pitch yaw)
+    mjcf_arm: tuple[Path, str, tuple[float, ...]] | None = None
 
     def __post_init__(self):
         if (self.urdf is None) == (self.mjcf is None):
             raise ModelError("a robot is described by a URDF (--urdf) or an MJCF (--mjcf): give exactly one")
+        if self.mjcf_arm is not None and self.mjcf is None:
+            raise ModelError("mjcf_arm mounts an arm URDF on an MJCF base: it needs mjcf (a URDF base is composed "
+                             "into one URDF, robots/compose.py)")
         if self.keyframe is not None and self.mjcf is None:
             raise ModelError(f"a keyframe ('{self.keyframe}', --keyframe) names a pose of an MJCF file (--mjcf FILE)")
         if self.keyframe is not None and self.srdf is not None:
             raise ModelError("the nominal pose comes from an SRDF (--srdf/--pose) or an MJCF keyframe (--keyframe): not both")
-        if self.foot_contact not in FOOT_CONTACTS:
+        if self.foot_contact not in (*FOOT_CONTACTS, None):
             raise ModelError(f"foot contact must be one of {', '.join(FOOT_CONTACTS)}, got {self.foot_contact!r}")
-        if self.sole_m is not None and self.foot_contact != "surface":
+        if self.sole_m is not None and self.foot_contact == "point":
             raise ModelError("a sole size (--sole) describes flat feet: it needs foot_contact='surface'")
         duplicates = sorted({f for f in self.feet if self.feet.count(f) > 1})
         if duplicates:
@@ -150,8 +158,11 @@ class RobotModel:
                     "below the free-flyer root: lock the joint (--lock) or change its type in the URDF"
                 )
         q_ref = self._reference_configuration(full, spec)
+        self.keyframe: str | None = None  # the MJCF keyframe of the nominal pose
         if self.mjcf is not None and spec.srdf is None:
             q_ref = self._keyframe_configuration(full, spec)
+        # where the nominal pose comes from: "srdf", "keyframe" or "zero" (the file's zero pose), before overrides
+        self.pose_source = "srdf" if spec.srdf is not None else "keyframe" if self.keyframe is not None else "zero"
         for joint in spec.locked_joints:
             if not full.existJointName(joint) or full.getJointId(joint) == 1:
                 raise ModelError(unknown_name("joint to lock", joint, list(full.names)[2:]))
@@ -221,16 +232,40 @@ class RobotModel:
             raise ModelError(f"MJCF {path} has no free joint at its root: wbmpc's robots move freely (add "
                              "<freejoint/> to the root body of the legs)")
         mjcf.add_point_frames(full, self.mjcf, (*spec.feet, spec.arm_ee))
+        if spec.mjcf_arm is not None:  # the arm's URDF model appended at its mount, as a composed URDF would read
+            urdf, frame, (x, y, z, roll, pitch, yaw) = spec.mjcf_arm
+            try:
+                arm = pin.buildModelFromUrdf(str(urdf))
+            except (RuntimeError, ValueError) as exc:
+                raise ModelError(f"pinocchio cannot parse the arm URDF {urdf}: {exc}") from exc
+            mount = pin.SE3(pin.rpy.rpyToMatrix(np.array([roll, pitch, yaw])), np.array([x, y, z]))
+            from wbmpc.robots.compose import append_model
+
+            full = append_model(full, arm, full.getFrameId(frame), mount)
         return full
+
+    def geometry(self, kind: pin.GeometryType) -> pin.GeometryModel:
+        """An MJCF robot's geoms as pinocchio reads them (VISUAL or COLLISION), with its mounted arm's URDF geometry
+        (the replay, collision avoidance; a URDF robot's is read by pinocchio's URDF parser where it is needed)."""
+        from wbmpc.robots.urdf_geometry import _package_dirs
+
+        geometry = pin.buildGeomFromMJCF(self.model, str(self.spec.mjcf), kind)
+        if self.spec.mjcf_arm is not None:
+            urdf = Path(self.spec.mjcf_arm[0])
+            for obj in pin.buildGeomFromUrdf(self.model, str(urdf), kind, package_dirs=_package_dirs(urdf)).geometryObjects:
+                geometry.addGeometryObject(obj)
+        return geometry
 
     def collision_primitives(self):
         """The file's primitive collision geometry (`urdf_geometry.Primitive` list, in the pinocchio joint
         frames of this model): a URDF's `<collision>` boxes, spheres, cylinders, an MJCF's colliding geoms."""
         if "_primitives" not in self.__dict__:
             if self.mjcf is not None:
-                from wbmpc.robots.mjcf import collision_primitives
+                from wbmpc.robots import mjcf, urdf_geometry
 
-                self._primitives = collision_primitives(self.model, self.mjcf)
+                self._primitives = mjcf.collision_primitives(self.model, self.mjcf)
+                if self.spec.mjcf_arm is not None:
+                    self._primitives += urdf_geometry.collision_primitives(self.model, self.spec.mjcf_arm[0])
             else:
                 from wbmpc.robots.urdf_geometry import collision_primitives
 
@@ -238,24 +273,38 @@ class RobotModel:
         return self._primitives
 
     def _add_sole_frames(self, model: pin.Model, spec: RobotSpec) -> dict[str, Sole]:
-        """Flat feet: the sole of each foot and a frame `<foot>_sole` at its centre (the contact frame)."""
-        if spec.foot_contact != "surface":
+        """Flat feet: the sole of each foot and a frame `<foot>_sole` at its centre (the contact frame). Where the
+        spec leaves the kind of contact open, two feet whose links carry a sole of at least MIN_SOLE_M stand on
+        it (g1's feet), any others are points (`foot_contact_source`: "spec" or "derived")."""
+        self.foot_contact_source = "spec" if spec.foot_contact is not None else "derived"
+        if spec.foot_contact == "point" or (spec.foot_contact is None and len(self.feet) != 2 and spec.sole_m is None):
             return {}
         if spec.sole_m is not None:
             soles = {foot: sole_from_size(foot, spec.sole_m) for foot in self.feet}
-        elif self.mjcf is not None:
-            from wbmpc.robots.mjcf import collision_primitives
-
-            soles = soles_from_primitives(model, collision_primitives(model, self.mjcf), self.feet, self.frame_id,
-                                          self.model_file)
         else:
-            soles = soles_from_collisions(model, Path(spec.urdf), self.feet, self.frame_id)
+            try:
+                soles = self._soles_from_geometry(model, spec)
+            except ModelError:
+                if spec.foot_contact == "surface":
+                    raise
+                return {}
+            if spec.foot_contact is None and not all(s.length_m >= MIN_SOLE_M[0] and s.width_m >= MIN_SOLE_M[1]
+                                                     for s in soles.values()):
+                return {}  # ball feet, not soles
         for foot, sole in soles.items():
             fid = self.frame_id(foot)
             frame = model.frames[fid]
             placement = frame.placement * pin.SE3(np.eye(3), sole.centre_m)
             model.addFrame(pin.Frame(sole.frame, frame.parentJoint, fid, placement, pin.FrameType.OP_FRAME))
         return soles
+
+    def _soles_from_geometry(self, model: pin.Model, spec: RobotSpec) -> dict[str, Sole]:
+        if self.mjcf is not None:
+            from wbmpc.robots.mjcf import collision_primitives
+
+            return soles_from_primitives(model, collision_primitives(model, self.mjcf), self.feet, self.frame_id,
+                                         self.model_file)
+        return soles_from_collisions(model, Path(spec.urdf), self.feet, self.frame_id)
 
     @staticmethod
     def _q_index_locked(full: pin.Model, lock_ids: list[int], i: int) -> bool:
@@ -336,29 +385,34 @@ class RobotModel:
     def _set_mjcf_limits(self, names: list[str]) -> None:
         """An MJCF's joint ranges and torque limits as MuJoCo compiles them (`robots/mjcf.py`); MJCF has no
         velocity limits (the OCP's bound is then 1e10 rad/s, as for joints without position limits)."""
-        from wbmpc.robots.mjcf import force_limits
+        from wbmpc.robots.mjcf import force_limits, mjcf_joints
 
         m = self.mjcf
+        own = mjcf_joints(m)  # a mounted arm's joints keep its URDF's limits
         for k, name in enumerate(names):
+            if name not in own:
+                continue
             j = int(m.joint(name).id)
             if m.jnt_limited[j] and not self.continuous[k]:
                 offset = m.qpos0[m.jnt_qposadr[j]]
                 self.q_min[k], self.q_max[k] = m.jnt_range[j] - offset
             else:
                 self.q_min[k], self.q_max[k] = -np.inf, np.inf
-        limits = force_limits(m, names)
-        self.tau_max = np.array([min(-limits[n][0], limits[n][1]) if n in limits else np.inf for n in names])
-        self.v_max = np.full(len(names), 1e10)
+        limits = force_limits(m, [n for n in names if n in own])
+        for k, name in enumerate(names):
+            if name in own:
+                self.tau_max[k] = min(-limits[name][0], limits[name][1]) if name in limits else np.inf
+                self.v_max[k] = 1e10
 
     def _set_drive_train(self, model: pin.Model, spec: RobotSpec) -> None:
         """Armature and joint friction of the controller's model; pinocchio's algorithms (rnea, crba,
         aba) include `model.armature`, its `damping`/`friction` fields are set for reference only."""
         names = self.joint_names
         own = {"armature_kg_m2": 0.0, "viscous_friction_nm_s": 0.0, "coulomb_friction_nm": 0.0}
-        if self.mjcf is not None:  # the file's armature, damping and frictionloss
-            from wbmpc.robots.mjcf import drive_train
+        if self.mjcf is not None:  # the file's armature, damping and frictionloss (a mounted arm's: none)
+            from wbmpc.robots.mjcf import drive_train, mjcf_joints
 
-            own = drive_train(self.mjcf, names)
+            own = drive_train(self.mjcf, [n for n in names if n in mjcf_joints(self.mjcf)])
         for label in own:
             value = getattr(spec, label)
             setattr(self, label, joint_values(own[label] if value is None else value, names, label))
@@ -518,6 +572,8 @@ class RobotModel:
     def summary(self) -> dict:
         return {
             "robot": self.name,
+            "file": str(self.model_file),
+            "like_preset": self.spec.like_preset,
             "nq": self.nq,
             "nv": self.nv,
             "n_joints": self.n_joints,
@@ -525,6 +581,9 @@ class RobotModel:
             "feet": list(self.feet),
             "arm_ee": self.arm_ee,
             "contacts": self.contact_kinds,
+            "contacts_source": self.foot_contact_source,
+            "pose_source": "preset" if self.pose_source == "zero" and self.spec.joint_positions_rad else self.pose_source,
+            "keyframe": self.keyframe,
             "soles_m": {f: {"length": s.length_m, "width": s.width_m, "centre": [float(c) for c in s.centre_m]}
                         for f, s in self.soles.items()},
             "joints": list(self.joint_names),

@@ -180,6 +180,8 @@ class RunConfig:
             (AnytimeConfig if self.solver == "sqp" else RtiConfig).from_options(self.solver_options)
         if self.plant_model is not None and self.plant != "mujoco":
             raise ConfigError("--plant-model is simulated by MuJoCo: use --plant mujoco")
+        if self.plant_model is not None and not Path(self.plant_model).is_file():
+            raise ConfigError.for_field("plant_model", f"file not found: {self.plant_model}")
         if self.state == "estimated" and self.plant != "mujoco":
             raise ConfigError("--state estimated reads IMU and encoders simulated in MuJoCo; use --plant mujoco")
         if self.options.object_model and self.scenario not in OBJECT_MODEL_SCENARIOS:

@@ -68,9 +68,8 @@ def build_plant_scene(robot: RobotModel, config: MujocoPlantConfig) -> tuple[muj
     _replace_actuators(spec, robot, limits)
     for element in (*spec.sensors, *spec.keys):
         spec.delete(element)
-    report["dropped_world_geoms"] = _drop_world_geoms(spec) if kind == "mjcf" else []
-    if kind == "urdf":
-        _drop_world_geoms(spec)  # wbmpc's own floor of that scene, added again below as for any file
+    dropped = _drop_world_geoms(spec)  # a URDF's: wbmpc's own floor of that scene, added again below as for any file
+    report["dropped_world_geoms"] = dropped if kind == "mjcf" else []
     _weld_locked_joints(spec, original, robot, match)
     _add_drive_train(spec, robot, config)
     spec.option.timestep = config.dt_s
@@ -130,8 +129,8 @@ def _urdf_spec(robot: RobotModel, path: Path, config: MujocoPlantConfig) -> mujo
     from wbmpc.robots import RobotSpec
     from wbmpc.sim.mujoco_scene import build_mjcf, self_contact_exclusions
 
-    spec = RobotSpec(name=path.stem, urdf=path, feet=robot.feet, arm_ee=robot.arm_ee, foot_contact=robot.spec.foot_contact,
-                     sole_m=robot.spec.sole_m)
+    spec = RobotSpec(name=path.stem, urdf=path, feet=robot.feet, arm_ee=robot.arm_ee,
+                     foot_contact="surface" if robot.soles else "point", sole_m=robot.spec.sole_m)
     try:
         plant_robot = RobotModel(spec)
     except ModelError as exc:
