@@ -40,7 +40,8 @@ def test_the_held_damper_bound_matches_the_swinging_legs_dynamics():
     robot = load_robot("go2")
     inertia = joint_mode_inertia(robot, robot.leg_joint_mask)
     hold = 0.005
-    assert _swing_leg_growth(robot, DAMPER_BOUND * inertia / hold, hold) < 0.05
+    assert _swing_leg_growth(robot, 1.0 * inertia / hold, hold) < 0.05  # dead-beat
+    assert _swing_leg_growth(robot, DAMPER_BOUND * inertia / hold, hold) < 0.5
     assert _swing_leg_growth(robot, 2.6 * inertia / hold, hold) > 10.0
     # the diagonal of the mass matrix (the former bound) overestimates the lightest mode
     data = robot.model.createData()
@@ -56,6 +57,7 @@ def test_held_gains_cap_only_above_the_bound_and_name_the_unstable_ones():
     assert held_gains(gains, 0.003, None, 0.0005) is gains
     problems = unstable_gains(gains, 0.003, 0.01, 0.005)
     assert len(problems) == 1 and problems[0].startswith("kd_leg 3") and "Kd T / I = 5.00" in problems[0]
+    assert unstable_gains(PdGains(kd_leg=1.19), 0.003, None, 0.005) == []  # Kd T / I = 1.98
     assert unstable_gains(capped, 0.003, 0.01, 0.005) == []
 
 

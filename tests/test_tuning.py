@@ -155,7 +155,9 @@ def test_info_prints_every_setting_and_its_source(capsys):
     assert {"robot", "nq", "nv", "n_joints", "mass_kg", "feet", "arm_ee", "joints"} <= set(info)
     assert info["settings"]["gait_period_s"]["source"] == "derived"
     assert info["settings"]["gains.kd_leg"]["value"] == pytest.approx(tuning_for("go2").gains_at().kd_leg)
-    assert info["settings"]["gains.kd_leg"]["source"].startswith("joint loop: 2.57 capped")
+    assert info["settings"]["gains.kd_leg"]["source"] == "derived"  # Kd T / I = 1.7 at 500 Hz: not capped
+    capped = tuning_for("solo12").report()["gains.kd_leg"]
+    assert capped["source"].startswith("joint loop: 1.01 capped") and capped["value"] < 0.4
     assert info["scale"]["leg_length_m"] == pytest.approx(RobotScale.of(load_robot("go2")).leg_length_m)
 
 

@@ -289,10 +289,12 @@ def _controller_assumptions(robot) -> dict:
 
 
 def _assumptions_text(a: dict) -> str:
+    from wbmpc.control.joint_loop import DAMPER_BOUND
+
     kd = ", ".join(f"{v:.3g} at {hz:g} Hz" for hz, v in a["kd_leg_by_joint_loop_hz"].items())
     return (f"controller assumes: ground friction {a['friction_coefficient']:g} (--friction; the simulated floor: "
             f"{a['simulated_floor_friction']:g}, --floor-friction); eq. (10) evaluated at {a['joint_loop_hz']:g} Hz and "
-            f"held (--joint-loop-hz); legs' Kd {kd} (Kd T / I <= 1 on the lightest leg mode, "
+            f"held (--joint-loop-hz); legs' Kd {kd} (Kd T / I <= {DAMPER_BOUND:g} on the lightest leg mode, "
             f"{a['leg_joint_mode_inertia_kg_m2'] or 0:.3g} kg m^2)")
 
 
