@@ -54,6 +54,7 @@ class LoopConfig:
     joint_loop_jitter_ms: float = 0.0
     motor_law: str = "held"
     sample_mid_hold: bool = True
+    touchdown_events: bool = False  # pass the plant's measured foot contacts to the MPC (`MpcConfig.touchdown_events`)
     delay: str = "none"  # "none" | "measured" | "realtime" | a number of milliseconds
     gains: PdGains = field(default_factory=PdGains)
     joint_position_noise_rad: float = 0.0
@@ -397,7 +398,12 @@ class ClosedLoop:
         start, start_cpu = time.perf_counter(), time.thread_time()
         delay_s = 0.0 if first else self._expected_delay_s(log)
         # passed only when there is one: MPC stand-ins (benchmarks' recorders) take (q, v, commands, t)
-        solution = self.mpc.solve(q, v, command, t, **({"delay_s": delay_s} if delay_s else {}))
+        extra = {"delay_s": delay_s} if delay_s else {}
+        if self.config.touchdown_events:
+            from wbmpc.control.touchdown import measured_contacts
+
+            extra["measured_contact"] = measured_contacts(self.plant.contact_forces(), self.robot.mass_kg * 9.81)
+        solution = self.mpc.solve(q, v, command, t, **extra)
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
         self._log_solution(log, t, command, solution)

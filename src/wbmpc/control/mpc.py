@@ -169,6 +169,9 @@ class MpcConfig:
     # recovery ladder above (soft rows, Fatrop, the fallback solver) only if True; False: it holds the last
     # good plan at once (after b1_z1's 0.8 m/s pushes the ladder took 50-150 ms, a real-time plan 4-12 periods old)
     recover_past_deadline: bool = False
+    # the schedule follows measured touch-down (`control/touchdown.py`): `solve(..., measured_contact=...)` keeps
+    # an early foot down and a late one reaching; off by default (docs/robots.md: measured no better)
+    touchdown_events: bool = False
 
     def __post_init__(self):
         check_number("gait_period_s", self.gait_period_s, low=0.0, high=10.0, low_open=True, unit="s", allow_none=True)
@@ -479,11 +482,12 @@ class MPC:
 
     # ------------------------------------------------------------------ solve
     def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t: float = 0.0,
-              delay_s: float = 0.0, budget_s: float | None = None) -> Solution:
+              delay_s: float = 0.0, budget_s: float | None = None, measured_contact=None) -> Solution:
         """The plan from the state (q, v) measured at t. `delay_s`: when the plan will reach the robot, after t;
         with `MpcConfig.delay_compensation` the plan starts there (state rolled forward, `Solution.t_s` = t +
         delay_s). `budget_s`: this step's time budget (overrides `MpcConfig.step_budget_s`) for a solver
-        with a deadline."""
+        with a deadline. `measured_contact` (one bool per foot: loaded now): with `MpcConfig.touchdown_events`
+        the schedule follows it (`control/touchdown.py`)."""
         start = time.perf_counter()
         clock = getattr(self.solver, "clock", None)
         clock_start = clock() if clock is not None else None
@@ -499,6 +503,11 @@ class MPC:
         after_push = self._after_push(v, rot, base_velocity_world, t)
         self._adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
+        if self.config.touchdown_events and measured_contact is not None:
+            from wbmpc.control.touchdown import follow_touchdown
+
+            contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
+                                                 self.config.swing.touchdown_velocity_m_s)
         sway = self.config.support_sway
         if self.config.support_sway_free_hands is not None and self._hands_free(commands):
             sway = self.config.support_sway_free_hands

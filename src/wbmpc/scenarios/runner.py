@@ -97,6 +97,9 @@ class RunConfig:
                             help="held: eq. (10) evaluated once per command and its torque held (unitree_mujoco, the "
                             "paper's PD); continuous: re-evaluated at every physics step with the last command's "
                             "references (a real motor driver)")
+    touchdown_events: bool = option(False, flag="--touchdown-events", help="the contact schedule follows the feet's "
+                                    "measured touch-down (MuJoCo's foot forces): an early foot stays down, a late one "
+                                    "keeps reaching for the ground (control/touchdown.py)")
     physics_dt_ms: float | None = option(None, flag="--physics-dt", metavar="MS", low=0.0, high=20.0, low_open=True,
                                          unit="ms", help="the simulator's step (unitree_mujoco: 5 ms by default)",
                                          default_text="the plant's, 1 ms")
@@ -191,6 +194,9 @@ class RunConfig:
             raise ConfigError.for_field("joint_loop_jitter_ms", f"must be at most one joint-loop period "
                                         f"({1e3 / self.joint_loop_hz:g} ms at {self.joint_loop_hz:g} Hz), got "
                                         f"{self.joint_loop_jitter_ms:g}")
+        if self.touchdown_events and (self.plant != "mujoco" or self.delay == "realtime"):
+            raise ConfigError("--touchdown-events reads MuJoCo's foot forces in this process: use --plant mujoco and "
+                              "no --delay realtime")
         if self.identify_mass and (self.plant != "mujoco" or self.delay == "realtime" or not self.formulation.startswith("wb_")):
             raise ConfigError("--identify-mass observes the MuJoCo plant's steps and updates the whole-body model of "
                               "the MPC in this process: use --plant mujoco, a wb_* --formulation and no --delay realtime")
@@ -276,7 +282,7 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                                          extra_options=_solver_options(config, flat_feet)),
                      delay_compensation=(_delay_compensation_default(config, flat_feet)
                                          if config.delay_compensation is None else config.delay_compensation),
-                     step_budget_s=_step_budget_s(config),
+                     step_budget_s=_step_budget_s(config), touchdown_events=config.touchdown_events,
                      **{**tuning.mpc_fields(), "weights": _collision_weights(scenario.cost_weights(tuning.weights),
                                                                          soft_arm),
                         **({} if config.friction_mu is None else {"friction_coefficient": config.friction_mu})},
@@ -494,6 +500,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         state_source.listeners.append(identification.on_estimate)
     loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed, control_rate_hz=config.joint_loop_hz,
                              joint_loop_jitter_ms=config.joint_loop_jitter_ms, motor_law=config.motor_law,
+                             touchdown_events=config.touchdown_events,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
