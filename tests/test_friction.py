@@ -56,3 +56,41 @@ def test_floor_friction_reaches_the_mujoco_floor_only():
     model = result.plant.model
     assert model.geom_friction[model.geom("floor").id][0] == pytest.approx(0.35)
     assert result.metrics["settings"]["values"]["friction_coefficient"] == 0.6
+
+
+class _Mpc:
+    def __init__(self):
+        self.mu = []
+
+    def set_friction_coefficient(self, mu):
+        self.mu.append(mu)
+
+
+def test_a_sliding_foot_lowers_the_planned_coefficient_and_it_relaxes_back():
+    from wbmpc.estimation.friction import FrictionObserver, FrictionObserverConfig
+    from wbmpc.robots import load_robot
+
+    robot = load_robot("go2")
+    mpc = _Mpc()
+    observer = FrictionObserver(robot, 0.7, mpc, FrictionObserverConfig(relax_per_s=0.05))
+    q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
+    weight = robot.mass_kg * 9.81
+    forces = np.zeros((4, 3))
+    forces[:, 2] = weight / 4
+    forces[0, :2] = [0.45 * weight / 4, 0.0]  # FL pushes at 0.45 of its load
+    for k in range(5):  # standing still: the ratio alone says nothing
+        observer.observe(0.002 * k, q, v, forces, 0.002)
+    assert observer.estimate == 0.7 and mpc.mu == []
+    v[:3] = [0.3, 0.0, 0.0]  # the base (and every foot) slides at 0.3 m/s
+    for k in range(3):
+        observer.observe(0.01 + 0.002 * k, q, v, forces, 0.002)
+    assert observer.estimate == pytest.approx(0.1)  # feet sliding at no tangential force: the estimate's floor
+    forces[1:, :2] = [0.45 * weight / 4, 0.0]  # every loaded foot at 0.45 while sliding
+    observer = FrictionObserver(robot, 0.7, mpc)
+    for k in range(3):
+        observer.observe(0.002 * k, q, v, forces, 0.002)
+    assert observer.estimate == pytest.approx(0.45) and mpc.mu[-1] == pytest.approx(0.9 * 0.45)
+    v[:] = 0.0
+    for k in range(500):  # a second without a slip
+        observer.observe(0.1 + 0.002 * k, q, v, forces, 0.002)
+    assert observer.estimate == pytest.approx(0.45 + 0.05, abs=1e-6) and observer.slips == 4
