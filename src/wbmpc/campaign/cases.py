@@ -52,7 +52,6 @@ _LOOP_AXES = {
     "physics_dt_ms": "the simulator's step (--physics-dt)",
     "kd_leg": "the legs' Kd as given (not capped by the joint loop; default: the robot's tuning)",
     "touchdown_events": "1: the contact schedule follows the feet's measured touch-down (--touchdown-events)",
-    "observe_friction": "1: the MPC's friction lowered to what a sliding foot measures (--observe-friction)",
 }
 _OTHER_AXES = {
     "gait_phase": "push time shifted by this share of the gait period (0..1)",
@@ -160,9 +159,8 @@ class Case:
         loop = {name: float(v[name]) for name in ("friction_mu", "joint_loop_hz", "joint_loop_jitter_ms", "physics_dt_ms")
                 if name in v}
         loop.update({name: str(v[name]) for name in ("state", "motor_law") if name in v})
-        for name in ("touchdown_events", "observe_friction"):
-            if name in v:
-                loop[name] = bool(float(v[name]))
+        if "touchdown_events" in v:
+            loop["touchdown_events"] = bool(float(v["touchdown_events"]))
         if "sensor_noise_scale" in v:
             from wbmpc.estimation import SensorConfig
 

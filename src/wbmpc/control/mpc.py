@@ -255,7 +255,6 @@ class MPC:
         self._weights = config.weights.vectors(robot, self.problem.nf)
         # the model's mass distribution (OcpConfig.inertial_parameters): NLP parameters, set between steps
         self._inertial = self._nominal_inertial()
-        self._friction_coefficient = config.friction_coefficient  # `set_friction_coefficient` (an observed floor)
         self._trajectories = BufferedFunction(self.problem.trajectory_function())
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
@@ -278,17 +277,6 @@ class MPC:
         names = [n for n in ("base_com_offset", "payload_kg", "base_payload_kg") if n in self.problem.params.names]
         return {name: np.zeros(self.problem.params.shape(name)[0]) for name in names}
 
-    def set_friction_coefficient(self, mu: float | None) -> None:
-        """The ground friction the next plans use (eq. 6's cones; no rebuild); None: `MpcConfig.friction_coefficient`."""
-        mu = self.config.friction_coefficient if mu is None else float(mu)
-        check_number("friction_coefficient", mu, low=0.0, high=5.0, low_open=True)
-        self._friction_coefficient = mu
-
-    @property
-    def friction_coefficient(self) -> float:
-        """The ground friction the plans use now."""
-        return self._friction_coefficient
-
     def set_inertial_parameters(self, base_com_offset_m, payload_kg: float, base_payload_kg: float = 0.0) -> None:
         """The base CoM offset (base frame, m), hand payload (kg; the base's without an arm) and, with an arm, a
         load at the base origin (kg) the next plans use (no rebuild); needs `OcpConfig.inertial_parameters`."""
@@ -306,8 +294,7 @@ class MPC:
                              else {})}
 
     def reset(self) -> None:
-        """Forget the warm start, the position references and an observed friction (e.g. after a reset of the plant)."""
-        self._friction_coefficient = self.config.friction_coefficient
+        """Forget the warm start and the position references (e.g. after a reset of the plant)."""
         self._previous = None
         self._xy_reference = None
         self._yaw_reference = None
@@ -537,7 +524,7 @@ class MPC:
             "dq_des": dq_des,
             "v_des": v_des,
             "F_des": forces.T,
-            "mu": [self._friction_coefficient],
+            "mu": [self.config.friction_coefficient],
             **self._weights,
             **self._inertial,
             **object_values,

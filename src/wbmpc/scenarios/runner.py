@@ -81,8 +81,6 @@ class RunConfig:
                                        help="the ground's friction coefficient the MPC plans with (the cone rows of "
                                        "eq. 6); the simulated floor keeps its own (--floor-friction)",
                                        default_text="the robot's tuning, `wbmpc info` shows it")
-    observe_friction: bool = option(False, flag="--observe-friction", help="lower the MPC's friction coefficient to "
-                                    "what a sliding foot measures (MuJoCo's foot forces; estimation/friction.py)")
     floor_friction_mu: float | None = option(None, flag="--floor-friction", metavar="MU", low=0.0, high=5.0,
                                              help="the simulated floor's friction coefficient (the plant's, not the "
                                              "MPC's)", default_text="0.8, MuJoCo's scene")
@@ -196,9 +194,6 @@ class RunConfig:
             raise ConfigError.for_field("joint_loop_jitter_ms", f"must be at most one joint-loop period "
                                         f"({1e3 / self.joint_loop_hz:g} ms at {self.joint_loop_hz:g} Hz), got "
                                         f"{self.joint_loop_jitter_ms:g}")
-        if self.observe_friction and (self.plant != "mujoco" or self.delay == "realtime"):
-            raise ConfigError("--observe-friction reads MuJoCo's foot forces and sets the MPC in this process: use "
-                              "--plant mujoco and no --delay realtime")
         if self.touchdown_events and (self.plant != "mujoco" or self.delay == "realtime"):
             raise ConfigError("--touchdown-events reads MuJoCo's foot forces in this process: use --plant mujoco and "
                               "no --delay realtime")
@@ -496,12 +491,6 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         plant.add_step_hook(identification)
     hold = joint_loop_hold_s(config, plant.dt_s)
     tuning = tuning_for(robot)
-    friction = None
-    if config.observe_friction:
-        from wbmpc.estimation.friction import FrictionObserver
-
-        friction = FrictionObserver(robot, mpc.config.friction_coefficient, mpc)
-        plant.add_step_hook(friction)
     gains = scenario.pd_gains(config.gains if config.gains is not None else tuning.gains_at(hold))
     for problem in unstable_gains(gains, tuning.leg_joint_inertia_kg_m2, tuning.arm_joint_inertia_kg_m2, hold):
         warnings.warn(f"the motor law's damper is unstable at this joint loop: {problem}; lower the gain or leave it "
@@ -531,8 +520,6 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm, hold)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
-    if friction is not None:
-        metrics.update(friction.metrics())
     if state_source is not None:
         from wbmpc.estimation.metrics import estimation_metrics
 
