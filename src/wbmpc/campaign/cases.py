@@ -51,6 +51,8 @@ _LOOP_AXES = {
     "joint_loop_jitter_ms": "each command late by a uniform draw in [0, this] (--joint-loop-jitter)",
     "physics_dt_ms": "the simulator's step (--physics-dt)",
     "kd_leg": "the legs' Kd as given (not capped by the joint loop; default: the robot's tuning)",
+    "kp_arm": "the arm's Kp of eq. (10) (default: the robot's tuning)",
+    "kd_arm": "the arm's Kd as given (default: the robot's tuning)",
     "touchdown_events": "1: the contact schedule follows the feet's measured touch-down (--touchdown-events)",
 }
 _OTHER_AXES = {
@@ -168,10 +170,11 @@ class Case:
                 raise ConfigError("sensor_noise_scale scales the IMU's and encoders' noise, read only with "
                                   "state=estimated: add --set state=estimated")
             loop["sensors"] = SensorConfig(seed=self.seed).scaled(float(v["sensor_noise_scale"]))
-        if "kd_leg" in v:
+        gains = {name: float(v[name]) for name in ("kd_leg", "kp_arm", "kd_arm") if name in v}
+        if gains:  # the tuned gains at the paper's 500 Hz joint loop, these as given
             from dataclasses import replace
 
-            loop["gains"] = replace(tuning_for(self.robot).gains, kd_leg=float(v["kd_leg"]))
+            loop["gains"] = replace(tuning_for(self.robot).gains_at(), **gains)
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
                          formulation=self.formulation, seed=self.seed, options=options, delay=delay, solver=solver,
                          model_errors=self.model_errors(), **loop,
