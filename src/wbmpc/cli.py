@@ -3,7 +3,8 @@
 With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
 text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
 fell, the load was not pulled, the solve did not converge, the simulation diverged) or failed
-while running (`RunError`: the first MPC solve failed, a solver process did not start), 2 bad
+while running (`RunError`: the first MPC solve failed, the step budget is shorter than one QP, a solver
+process did not start, the robot or its arm did not answer), 2 bad
 input (`ConfigError`, `ModelError`: the message names the option and the fix; nothing is built or
 written), 130 interrupted by Ctrl-C (a run keeps and writes what it measured so far).
 """
@@ -23,14 +24,15 @@ from wbmpc.strict_json import to_json
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
               "the solve did not converge or the simulation diverged; or it failed while running: the first MPC "
-              "solve failed, a solver process did not start", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              "solve failed, the step budget is shorter than one QP, a solver process did not start, the robot "
+              "or its arm did not answer", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
                                        for code, text in EXIT_CODES.items())
 
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
-# those of `run` come from its config dataclasses (`_field_flags`)
-OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
+# those of `run` come from its config dataclasses (`field_flags_of_commands`)
+OTHER_FIELD_FLAGS = {"delay": "--delay", "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
 CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock", "keyframe": "--keyframe"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
@@ -251,7 +253,7 @@ def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from wbmpc.control.tuning import RobotScale, tuning_for
+    from wbmpc.control.tuning import RENAMED_SETTINGS, RobotScale, tuning_for
     from wbmpc.solvers import blasfeo
 
     robot = robot_from_args(args)
@@ -265,7 +267,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     lines.append("settings (source: derived from the scale with B1 + Z1 as reference; derived: biped = the two-feet "
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
-              for name, entry in info["settings"].items()]
+              for name, entry in info["settings"].items() if name not in RENAMED_SETTINGS]
     info["controller_assumes"] = _controller_assumptions(robot)
     lines.append(_assumptions_text(info["controller_assumes"]))
     status = blasfeo.status()
@@ -364,17 +366,26 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_config(args: argparse.Namespace):
+def run_config_from_args(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
+    values = values_from_args(RunConfig, args)
+    if args.delay is not None:  # the one-string --delay of before (deprecated): a mode or a fixed delay in ms
+        from wbmpc.control.delay import delay_from_text
+
+        if values.get("delay_mode", "none") != "none" or "delay_ms" in values:
+            raise ConfigError("--delay is the old form of --delay-mode / --delay-ms: give one or the other")
+        values["delay_mode"], values["delay_ms"] = delay_from_text(args.delay)
+        print("wbmpc: warning: --delay is deprecated; use --delay-mode none|measured|measured-wall|realtime or "
+              "--delay-ms MS", file=sys.stderr)
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
-                     gains=PdGains(**values_from_args(PdGains, args)), **values_from_args(RunConfig, args))
+                     gains=PdGains(**values_from_args(PdGains, args)), **values)
 
 
-def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
+def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
     """(flag, scenarios that read it) of the scenario options given that this run's scenario does not read."""
     from wbmpc.options import declared, flag_default
     from wbmpc.scenarios import ScenarioOptions
@@ -384,9 +395,9 @@ def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def _gains(args: argparse.Namespace, robot, hold_s: float):
-    """None without --kp/--kd (the run takes the robot's tuned gains at its joint loop); else those gains with
-    --kp/--kd as given."""
+def gains_from_args(args: argparse.Namespace, robot, hold_s: float):
+    """None without --kp/--kd (the run takes the robot's tuned gains for its joint loop's hold `hold_s`); else
+    those gains with --kp/--kd as given."""
     import dataclasses
 
     from wbmpc.control.tuning import tuning_for
@@ -407,11 +418,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
     if args.object_model:  # on a scenario without an object: its own error, not a warning that the scenario ignores it
-        _run_config(args)
-    for flag, scenarios in _ignored_scenario_options(args):
+        run_config_from_args(args)
+    for flag, scenarios in ignored_scenario_options(args):
         readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
         print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)
-    config = _run_config(args)
+    config = run_config_from_args(args)
     loads = None
     if args.sweep is not None:
         from wbmpc.scenarios.sweep import parse_loads
@@ -425,6 +436,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     import warnings
     from pathlib import Path
 
+    from wbmpc.control.delay import delay_text
     from wbmpc.scenarios import (
         SCENARIOS,
         check_output_dir,
@@ -445,15 +457,15 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
         check_output_dir(out_dir)
     from wbmpc.scenarios.runner import joint_loop_hold_s
 
-    plant_config = plant_config_from_args(args, robot)
-    config = dataclasses.replace(config, plant_config=plant_config)
-    config = dataclasses.replace(config, gains=_gains(args, robot, joint_loop_hold_s(config))).for_robot(robot)
+    config = dataclasses.replace(config, plant_config=plant_config_from_args(args, robot))
+    config = dataclasses.replace(config, gains=gains_from_args(args, robot, joint_loop_hold_s(config))).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = SCENARIOS[args.scenario](config.options)
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
-          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}"
+          f"{' (compiled)' if config.compiled else ''}, delay {delay_text(config.delay_mode, config.delay_ms)}"
+          f"{' ms' if config.delay_mode == 'fixed' else ''}, plant {args.plant}"
           f"{f' simulating {config.plant_model}' if config.plant_model else ''}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
@@ -501,8 +513,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         direct = f", NOT on its direct binding ({m['direct_fallback']})" if m.get("direct_fallback") else ""
         lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
                      f"{', delay compensation on' if m.get('delay_compensation') else ''}{direct}")
-    if m.get("delay") != "none":
-        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
+    if m.get("delay_mode") != "none":
+        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target {m['mpc_rate_target_hz']:g} Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
                      f"mean delay {m['delay_ms_mean']:.1f} ms")
         if m.get("sim_cpu_share") is not None:
@@ -593,12 +605,13 @@ def _add_run_parser(sub, formatter) -> None:
     """`wbmpc run`: its options come from the fields of RunConfig, PdGains and ScenarioOptions (`wbmpc.options`),
     the scenario options grouped by the scenarios that read them."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.loop import MPC_RATE_HZ
     from wbmpc.options import add_arguments, scenario_groups
     from wbmpc.scenarios import SCENARIOS, RunConfig, ScenarioOptions
 
     run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay",
-                         description=textwrap.fill("Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 "
-                         "Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
+                         description=textwrap.fill(f"Run a scenario in closed loop (MPC at {MPC_RATE_HZ:g} Hz "
+                         "by default, joint PD at 500 Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
                          "what was measured and exits 130.", 90), epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
     run.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)} (listed below)")
     _add_robot_options(run)
@@ -607,6 +620,8 @@ def _add_run_parser(sub, formatter) -> None:
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
     loop = run.add_argument_group("closed loop, solver and state (every scenario)")
     add_arguments(loop, RunConfig)
+    loop.add_argument("--delay", metavar="DELAY", help="deprecated, the old form of --delay-mode / --delay-ms: "
+                      "none | measured | measured-wall | realtime | a fixed delay in ms")
     add_arguments(loop, PdGains)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
@@ -627,6 +642,8 @@ def _add_run_parser(sub, formatter) -> None:
 def _add_bench_parsers(sub, formatter):
     """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
     returns the bench subparsers (the hardware module adds `bench dds`)."""
+    from wbmpc.control.loop import MPC_RATE_HZ
+
     bench = sub.add_parser("bench", help="benchmarks", epilog=EPILOG, formatter_class=formatter)
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
@@ -640,14 +657,14 @@ def _add_bench_parsers(sub, formatter):
     robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
     robots.add_argument("--mpc", action="store_true", help="also per quadruped: decision variables and closed-loop "
                         "Fatrop and RTI step times with its own settings (compiles each robot once, cached)")
-    robots.add_argument("--steps", type=int, default=40, help="with --mpc: MPC steps at 80 Hz per solver (default 40)")
+    robots.add_argument("--steps", type=int, default=40, help=f"with --mpc: MPC steps at {MPC_RATE_HZ:g} Hz per solver (default 40)")
     robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
     _add_robot_options(mpc)
-    mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
+    mpc.add_argument("--steps", type=int, default=100, help=f"MPC steps at {MPC_RATE_HZ:g} Hz per run (default 100 = {100 / MPC_RATE_HZ:g} s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
     mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti, sqp (anytime, no deadline: to convergence); the first (fatrop if listed) is the reference")
@@ -722,12 +739,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
 
-    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
+    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit, _task_library())  # robot-sim, deploy (DDS)
     add_bench_dds(bench_sub, _add_robot_options, robot_from_args, _emit)
     from wbmpc.campaign.command import add_parser as add_campaign_parser
 
     add_campaign_parser(sub)
     return parser
+
+
+def _task_library():
+    """The scenarios' tasks and run options for robot-sim and deploy (`hardware.commands.TaskLibrary`)."""
+    from wbmpc.hardware.commands import TaskLibrary
+    from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario
+
+    return TaskLibrary(run_options=RunConfig, task_options=ScenarioOptions, make_task=make_scenario)
 
 
 def _bench_module(name: str):
@@ -752,7 +777,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         raise
 
 
-def _field_flags() -> dict[str, str]:
+def field_flags_of_commands() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import field_flags
@@ -768,7 +793,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _dispatch(args)
     except ConfigError as exc:
-        print(f"wbmpc: error: {exc.worded(_field_flags()) if exc.field else exc}", file=sys.stderr)
+        print(f"wbmpc: error: {exc.worded(field_flags_of_commands()) if exc.field else exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)

@@ -156,8 +156,10 @@ class Case:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
             period = make_gait(gait, 4, tuning_for(self.robot).gait_period_s).period_s  # a1: 0.6 s
             options.push_time_s += float(v["gait_phase"]) * period
-        delay = self.delay if v.get("delay_ms") is None else str(float(v["delay_ms"]))
-        solver = self.solver or ("auto" if delay == "realtime" else "fatrop")
+        from wbmpc.control.delay import delay_from_text
+
+        delay_mode, delay_ms = delay_from_text(self.delay) if v.get("delay_ms") is None else ("fixed", float(v["delay_ms"]))
+        solver = self.solver or ("auto" if delay_mode == "realtime" else "fatrop")
         loop = {name: float(v[name]) for name in ("friction_mu", "joint_loop_hz", "joint_loop_jitter_ms", "physics_dt_ms")
                 if name in v}
         loop.update({name: str(v[name]) for name in ("state", "motor_law") if name in v})
@@ -176,8 +178,8 @@ class Case:
 
             loop["gains"] = replace(tuning_for(self.robot).gains_at(), **gains)
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
-                         formulation=self.formulation, seed=self.seed, options=options, delay=delay, solver=solver,
-                         model_errors=self.model_errors(), **loop,
+                         formulation=self.formulation, seed=self.seed, options=options, delay_mode=delay_mode,
+                         delay_ms=delay_ms, solver=solver, model_errors=self.model_errors(), **loop,
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
                          identify_mass=bool(float(v.get("identify_mass", 0.0))),

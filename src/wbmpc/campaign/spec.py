@@ -79,9 +79,9 @@ class CampaignSpec:
     randomize: bool = False
 
     def __post_init__(self):
-        from wbmpc.control.loop import fixed_delay_s
+        from wbmpc.control.delay import delay_from_text
 
-        fixed_delay_s(self.delay)
+        delay_from_text(self.delay)
         if isinstance(self.random, dict):
             self.random = RandomSamples(**self.random)
         if self.random.samples and not self.random.ranges and not self.randomize:

@@ -1,4 +1,4 @@
-"""The MPC in its own process: what `wbmpc run --delay realtime` and `wbmpc deploy` both solve with.
+"""The MPC in its own process: what `wbmpc run --delay-mode realtime` and `wbmpc deploy` both solve with.
 
 A process, not a thread: the 500 Hz loop beside it is Python and would starve a solver thread of the
 GIL. `SolverProcess` starts `mpc_worker` (spawned, single-threaded BLAS, pinned to its own cores and
@@ -15,7 +15,9 @@ import time
 
 import numpy as np
 
-from wbmpc.control.mpc import MPC, Commands, MpcConfig
+from wbmpc.control.commands import Commands
+from wbmpc.control.config import MpcConfig
+from wbmpc.control.mpc import MPC
 from wbmpc.control.realtime_channel import (
     INERTIAL_WIDTH,
     ChannelLayout,
@@ -99,16 +101,16 @@ class SolverProcess:
     def is_alive(self) -> bool:
         return self._process.is_alive()
 
-    def request(self, q, v, command: Commands, t: float, delay_s: float = 0.0, budget_s: float | None = None,
+    def request(self, q, v, command: Commands, t_s: float, delay_s: float = 0.0, budget_s: float | None = None,
                 inertial=None) -> None:
         """A plan from (q, v) at MPC time t; `delay_s`: when it will apply (delay compensation), `budget_s`:
         the step's deadline for a solver that has one; `inertial`: an identified (base CoM offset x, y, z (m),
         hand payload, base payload (kg)) the plan uses (`MPC.set_inertial_parameters`), None: the last ones."""
         inertial = None if inertial is None else np.asarray(inertial, dtype=float).reshape(INERTIAL_WIDTH)
         if self.channel is None:
-            self._conn.send((q, v, command, t, delay_s, budget_s, inertial))
+            self._conn.send((q, v, command, t_s, delay_s, budget_s, inertial))
         else:
-            self.channel.send_request(q, v, command_row(command), t, delay_s, budget_s, inertial)
+            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s, inertial)
 
     def ready(self) -> bool:
         return self.channel.answer_ready.is_set() if self.channel is not None else self._conn.poll()
@@ -183,14 +185,14 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
             return
 
 
-def _solve(mpc: MPC, q, v, command: Commands, t: float, delay_s: float, budget_s: float | None,
+def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget_s: float | None,
            inertial=None) -> Solution:
     if inertial is not None:
         mpc.set_inertial_parameters(inertial[:3], inertial[3], inertial[4])
     start = time.perf_counter()
     # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
     budget = budget_s if mpc.config.step_budget_s is not None else None
-    solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
+    solution = mpc.solve(q, v, command, t_s, delay_s=delay_s, budget_s=budget)
     solution.wall_time_s = time.perf_counter() - start
     solution.process_cpu_s = time.process_time()
     return solution

@@ -6,6 +6,8 @@ import argparse
 import dataclasses
 import json
 import sys
+from dataclasses import dataclass
+from typing import Callable
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.network import check_interface
@@ -14,12 +16,29 @@ from wbmpc.progress import ProgressBar
 DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "walk-in-place", "walk-forward", "arm-track")
 
 
-def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None:
-    """robot-sim and deploy; options they share with `wbmpc run` come from its declarations (`wbmpc.options`)."""
-    from wbmpc.control.interpolator import PdGains
-    from wbmpc.options import add_declared, declared_help
-    from wbmpc.scenarios import RunConfig, ScenarioOptions
+@dataclass(frozen=True)
+class TaskLibrary:
+    """The tasks `wbmpc deploy` runs and the declarations of the `wbmpc run` options robot-sim and deploy share,
+    passed in by the front end (`wbmpc.cli` gives the scenarios'): the robot interface itself does not depend on
+    the simulated scenarios or their runner. The MPC's options come from `wbmpc.control.policy.MpcChoices`."""
 
+    run_options: type  # declares duration_s and seed (`wbmpc.scenarios.RunConfig`)
+    task_options: type  # declares and checks speed_m_s, push_speed_m_s, push_time_s (`ScenarioOptions`)
+    # (name, robot, task options) -> a task: needs(robot) (`TaskNeeds`), commands(robot), ee_reference(robot),
+    # pd_gains(gains) (`wbmpc.scenarios.make_scenario`)
+    make_task: Callable
+
+
+def add_hardware_commands(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    """robot-sim and deploy; options they share with `wbmpc run` come from its declarations (`wbmpc.options`)."""
+    _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks)
+    _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks)
+
+
+def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    from wbmpc.options import add_declared
+
+    RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
     sim = sub.add_parser("robot-sim", help="MuJoCo standing in for the robot behind Unitree LowState/LowCmd (DDS)")
     add_robot_options(sim)
     _add_network_options(sim)
@@ -56,8 +75,15 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "200 Hz with --robot-link sim, unitree_mujoco's 5 ms step)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     _add_arm_options(sim)
-    sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
+    sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit, tasks))
 
+
+def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.policy import MpcChoices
+    from wbmpc.options import add_declared, declared_help
+
+    RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
     dep = sub.add_parser("deploy", help="run the MPC on a robot (or robot-sim) over LowState/LowCmd: stand up, "
                                         "MPC, lie down")
     add_robot_options(dep)
@@ -67,12 +93,12 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                  help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
-    for name in ("compiled", "nodes"):
-        add_declared(dep, RunConfig, name)
+    for name in ("compiled", "nodes", "mpc_rate_hz"):
+        add_declared(dep, MpcChoices, name)
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
-    add_declared(dep, RunConfig, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
+    add_declared(dep, MpcChoices, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
                  "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
-    add_declared(dep, RunConfig, "identify_mass", help="estimate the base CoM offset and a payload online from the "
+    add_declared(dep, MpcChoices, "identify_mass", help="estimate the base CoM offset and a payload online from the "
                  "estimated state and the motor law's torques and plan with them; the report gives "
                  "base_com_offset_estimate_m and payload_estimate_kg")
     for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
@@ -86,7 +112,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
-    dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
+    dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit, tasks))
 
 
 def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
@@ -137,18 +163,18 @@ def _arm_settings(args) -> dict:
     return {"arm": arm, "z1_ports": ports}
 
 
-def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool,
-                      identify_mass: bool = False):
-    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and scenario
-    with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`);
+def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool,
+                      mpc_rate_hz: float | None = None, identify_mass: bool = False):
+    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
+    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`);
     `identify_mass`: with the inertial parameters in the NLP (set from the identification with each request)."""
-    from wbmpc.scenarios import RunConfig
-    from wbmpc.scenarios.runner import mpc_config_for
+    from wbmpc.control.policy import MpcChoices, mpc_config
 
-    run_config = RunConfig(scenario=scenario_name, nodes=nodes, compiled=compiled, solver=solver, state="estimated",
-                           delay="none" if lockstep else "realtime")
-    config = mpc_config_for(scenario, run_config, robot)
-    if identify_mass:
+    rate = {} if mpc_rate_hz is None else {"mpc_rate_hz": mpc_rate_hz}
+    choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
+                         delay_mode="none" if lockstep else "realtime", **rate)
+    config = mpc_config(robot, task_needs, choices)
+    if identify_mass:  # a real-time solver process too: the estimate goes with each request
         config = dataclasses.replace(config, ocp=dataclasses.replace(config.ocp, inertial_parameters=True))
     return config
 
@@ -191,28 +217,15 @@ def _write(path, payload) -> None:
             json.dump(payload, fh, indent=2)
 
 
-def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
-    from wbmpc.estimation import SensorConfig
-    from wbmpc.hardware.robot_sim import UNITREE_SIM_STATE_RATE_HZ, RobotSimConfig, RobotSimulator
-    from wbmpc.hardware.safety import SafetyConfig
+def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
+    from wbmpc.hardware.robot_sim import RobotSimulator
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import ScenarioOptions
 
     load_sdk()
-    ScenarioOptions(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
+    tasks.task_options(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
-    sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
-    config = RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
-                            start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
-                            idle_exit_s=args.idle_exit, push_time_s=args.push_time,
-                            push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
-                            refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
-                            corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
-                            state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
-                                                              else 500.0),
-                            plant_model=args.plant_model, model_errors=_plant_errors(args, robot),
-                            **_arm_settings(args))
+    config = dataclasses.replace(_robot_sim_config(args), model_errors=_plant_errors(args, robot))
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
@@ -234,6 +247,28 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         start, end = (float(x) for x in args.drift_window.split(","))
         report["window_drift_cm_s"] = result.drift_cm_s(start, end)
     _write(args.out, report)
+    emit(args, report, "\n".join(_robot_sim_summary(report, config, args)))
+    return 0
+
+
+def _robot_sim_config(args: argparse.Namespace):
+    from wbmpc.estimation import SensorConfig
+    from wbmpc.hardware.robot_sim import UNITREE_SIM_STATE_RATE_HZ, RobotSimConfig
+    from wbmpc.hardware.safety import SafetyConfig
+
+    sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
+    return RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
+                          start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
+                          idle_exit_s=args.idle_exit, push_time_s=args.push_time,
+                          push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
+                          refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
+                          corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
+                          state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
+                                                            else 500.0),
+                          plant_model=args.plant_model, **_arm_settings(args))
+
+
+def _robot_sim_summary(report: dict, config, args: argparse.Namespace) -> list[str]:
     share = report["ticks_on_time_share"]
     lines = [
         f"robot-sim {report['mode']}: {report['sim_time_s']:.2f} s simulated in {report['wall_time_s']:.1f} s, "
@@ -266,17 +301,12 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                      f"watchdog (PASSIVE) {arm['watchdog_events']}x "
                      f"({', '.join(f'{x:.0f}' for x in arm['watchdog_latency_ms']) or 'no'} ms after the last valid command), "
                      f"passive at end {arm['passive_at_end']}{rtt}")
-    emit(args, report, "\n".join(lines))
-    return 0
+    return lines
 
 
-def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
-
-    from wbmpc.control.tuning import tuning_for
-    from wbmpc.hardware.deploy import Controller, DeployConfig, DeployFailure
-    from wbmpc.hardware.safety import SafetyConfig
+def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
+    from wbmpc.hardware.deploy import Controller, DeployFailure
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import ScenarioOptions, make_scenario
     from wbmpc.solvers.nlp import SOLVERS
 
     load_sdk()
@@ -287,24 +317,11 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         raise ConfigError(f"unknown solver '{args.solver}'; available: auto, {', '.join(SOLVERS)}")
     check_interface(args.network)
     robot = robot_from_args(args)
-    scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
-    mpc_config = deploy_mpc_config(robot, scenario, scenario_name=args.scenario, nodes=args.nodes,
-                                   compiled=args.compiled, solver=args.solver, lockstep=args.lockstep,
+    scenario = tasks.make_task(args.scenario, robot, tasks.task_options(speed_m_s=args.speed))
+    mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
+                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate,
                                    identify_mass=args.identify_mass)
-    overrides = {k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}
-    tuning = tuning_for(robot)
-    gains = dataclasses.replace(tuning.gains, **overrides)
-
-    def joint_loop_gains(hold_s: float):  # the tuned gains for the link's hold; --kp/--kd as given
-        return scenario.pd_gains(dataclasses.replace(tuning.gains_at(hold_s), **overrides))
-
-    config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
-                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
-                          joint_loop_gains=joint_loop_gains, identify_mass=args.identify_mass,
-                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
-                          sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
-                          arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
-                          z1_ip=args.z1_ip, robot_link=args.robot_link, **_arm_settings(args))
+    config = _deploy_config(args, robot, scenario)
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}, robot link "
           f"{args.robot_link}), {'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
           file=sys.stderr, flush=True)
@@ -320,6 +337,35 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         failure = exc
         report = controller.report.summary()
     _write(args.out, report)
+    emit(args, report, "\n".join(_deploy_summary(report, args)))
+    if failure is not None:
+        print(f"wbmpc: error: {failure}", file=sys.stderr)
+        return 1
+    return 0 if not report["fell"] else 1
+
+
+def _deploy_config(args: argparse.Namespace, robot, scenario):
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.hardware.deploy import DeployConfig
+    from wbmpc.hardware.safety import SafetyConfig
+
+    overrides = {k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}
+    tuning = tuning_for(robot)
+    gains = dataclasses.replace(tuning.gains, **overrides)
+
+    def joint_loop_gains(hold_s: float):  # the tuned gains for the link's hold; --kp/--kd as given
+        return scenario.pd_gains(dataclasses.replace(tuning.gains_at(hold_s), **overrides))
+
+    return DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
+                        lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                        joint_loop_gains=joint_loop_gains, identify_mass=args.identify_mass,
+                        safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
+                        sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
+                        arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
+                        z1_ip=args.z1_ip, robot_link=args.robot_link, mpc_rate_hz=args.mpc_rate, **_arm_settings(args))
+
+
+def _deploy_summary(report: dict, args: argparse.Namespace) -> list[str]:
     arm = report["arm"]
     lines = [
         f"deploy {args.scenario}: phases {' -> '.join(f'{p} ({t:.2f} s)' for t, p in report['phases'])}",
@@ -343,8 +389,4 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
                      f"{arm['commands_sent']}")
     if report["sport_mode"] is not None:
         lines.append(f"  sport mode '{report['sport_mode']['released']}' released, restored {report['sport_mode']['restored']}")
-    emit(args, report, "\n".join(lines))
-    if failure is not None:
-        print(f"wbmpc: error: {failure}", file=sys.stderr)
-        return 1
-    return 0 if not report["fell"] else 1
+    return lines

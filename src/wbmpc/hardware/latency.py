@@ -60,19 +60,13 @@ def _echo_main(spec, network: str, domain_id: int, ready, stop) -> None:
 
 def dds_round_trip(robot, network: str = "lo", domain_id: int = 0, samples: int = 2000, rate_hz: float = 500.0) -> dict:
     """Round-trip times (ms) of `samples` LowState -> LowCmd exchanges at `rate_hz`."""
-    from wbmpc.sim import make_plant
-
     check_interface(network)
     if samples < 10:
         raise ConfigError(f"--samples must be >= 10, got {samples}")
     sdk = load_sdk()
     motors = unitree_motor_map(robot)
     idl = sdk.idl(motors.family)
-    plant = make_plant("mujoco", robot)
-    reading = Sensors(plant, SensorConfig.noiseless()).read()
-    legs = [robot.joint_names.index(n) for n in motors.joint_names]
-    reading = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[legs],
-                                  joint_velocity_rad_s=reading.joint_velocity_rad_s[legs])
+    reading = _legs_reading(robot, motors)
     context = multiprocessing.get_context("spawn")
     ready, stop = context.Event(), context.Event()
     echo = context.Process(target=_echo_main, args=(robot.spec, network, domain_id, ready, stop), daemon=True)
@@ -120,10 +114,24 @@ def dds_round_trip(robot, network: str = "lo", domain_id: int = 0, samples: int 
         echo.join(timeout=10)
         if echo.is_alive():
             echo.terminate()
+    return _round_trip_report(rtt, network, motors.family, samples, rate_hz)
+
+
+def _legs_reading(robot, motors):
+    """A noiseless reading of the standing robot over the LowState's motors (what the benchmark sends)."""
+    from wbmpc.sim import make_plant
+
+    reading = Sensors(make_plant("mujoco", robot), SensorConfig.noiseless()).read()
+    legs = [robot.joint_names.index(n) for n in motors.joint_names]
+    return dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[legs],
+                               joint_velocity_rad_s=reading.joint_velocity_rad_s[legs])
+
+
+def _round_trip_report(rtt: list[float], network: str, family: str, samples: int, rate_hz: float) -> dict:
     values = np.array(rtt[50:])  # skip the first exchanges (discovery, caches)
     if values.size == 0:
         raise ConfigError(f"no LowCmd came back over {network}: DDS discovery failed on that interface")
-    return {"network": network, "family": motors.family, "samples": int(values.size), "sent": samples, "rate_hz": rate_hz,
+    return {"network": network, "family": family, "samples": int(values.size), "sent": samples, "rate_hz": rate_hz,
             "lost_share": float(1 - values.size / samples),
             "rtt_ms_p50": float(np.percentile(values, 50)), "rtt_ms_p90": float(np.percentile(values, 90)),
             "rtt_ms_p99": float(np.percentile(values, 99)), "rtt_ms_max": float(values.max())}

@@ -178,6 +178,20 @@ class RobotSimReport:
         return float(100 * np.linalg.norm(traj[b, 1:3] - traj[a, 1:3]) / max(traj[b, 0] - traj[a, 0], 1e-9))
 
 
+@dataclass
+class _RunClock:
+    """A robot-sim run's progress: when the first LowCmd came (simulated s), the uptime waited for it, the wall
+    clock's start and next tick, whether it is damping, was pushed, has stood."""
+
+    wall_start: float
+    deadline: float
+    started_at: float | None = None
+    waited_s: float = 0.0
+    in_damping: bool = False
+    pushed: bool = False
+    stood: bool = False
+
+
 class RobotSimulator:
     """The robot process: MuJoCo + sensors behind LowState/LowCmd."""
 
@@ -291,14 +305,15 @@ class RobotSimulator:
         self._z1.publish(q, dq, np.zeros(N_Z1_JOINTS))
 
     def run(self, progress=None) -> RobotSimReport:
+        """Publish LowState at `state_rate_hz` and simulate the commands answered, until `duration_s` after the first
+        LowCmd, `idle_exit_s` without one, or `stop()`."""
         from wbmpc.hardware.motion_switcher import MotionSwitcherServer
         from wbmpc.hardware.z1_udp import Z1Server
 
         sdk = load_sdk()
-        cfg, plant, report = self.config, self.plant, self.report
-        sim_link = cfg.robot_link == "sim"
+        cfg = self.config
         sdk.ChannelFactoryInitialize(cfg.domain_id, cfg.network)
-        if not sim_link:  # Unitree's simulator serves no motion switcher
+        if cfg.robot_link != "sim":  # Unitree's simulator serves no motion switcher
             self._switcher = MotionSwitcherServer(cfg.sport_mode, cfg.refuse_sport_release)
         if self.arm_map is not None:
             self._z1 = Z1Server(own_port=cfg.z1_ports[0], sdk_port=cfg.z1_ports[1],
@@ -309,98 +324,123 @@ class RobotSimulator:
         publisher.Init()
         subscriber = sdk.ChannelSubscriber(LOW_CMD_TOPIC, idl.LowCmd_)
         subscriber.Init(self._on_command, 0)
-        period = 1.0 / cfg.state_rate_hz
-        started_at: float | None = None  # simulated time of the first command
-        in_damping, pushed, stood = False, False, False
-        waited_s = 0.0  # uptime spent waiting for the first LowCmd (the tick advances meanwhile)
-        wall_start = time.perf_counter()
-        deadline = wall_start
+        run = _RunClock(wall_start=time.perf_counter(), deadline=time.perf_counter())
         try:
-            while not self._stop.is_set():
-                cpu_start = time.thread_time()
-                t = plant.time_s
-                tick_ms = BOOT_TICK_MS + int(round(1e3 * (waited_s + t)))
-                reading = self.sensors.read()
-                foot_force = np.linalg.norm(plant.contact_forces(), axis=1)
-                corrupt = cfg.corrupt_every is not None and report.ticks % cfg.corrupt_every == cfg.corrupt_every - 1
-                if not (cfg.arm_silent_after_s is not None and started_at is not None
-                        and t - started_at >= cfg.arm_silent_after_s):
-                    self._publish_arm(reading, corrupt)
-                legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
-                                           joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
-                message = encode_low_state(legs, self.motors, tick_ms, foot_force, cfg.mode_machine)
-                if sim_link:
-                    leave_unset(message)
-                with self._lock:
-                    self._send_wall[tick_ms] = time.perf_counter()
-                    if len(self._send_wall) > 2000:
-                        self._send_wall.pop(next(iter(self._send_wall)))
-                if corrupt:
-                    message.crc ^= 1  # corrupted in transit
-                publisher.Write(message)
-                # wait for (lock-step) or take (real time) the command
-                with self._lock:
-                    if started_at is None:
-                        self._lock.wait(timeout=period)
-                        waited_s += period
-                        if self._command is None:
-                            deadline = time.perf_counter()
-                            if cfg.idle_exit_s is not None and deadline - wall_start > cfg.idle_exit_s:
-                                break
-                            continue  # frozen until the first command
-                        started_at = t
-                        report.start_xy_m = plant.state()[0][:2].tolist()
-                        wall_start = deadline = time.perf_counter()
-                    elif cfg.mode == "lockstep" and not in_damping and not corrupt:  # nobody answers a corrupted one
-                        self._lock.wait_for(lambda: self._command_echo == tick_ms or self._stop.is_set(),
-                                            timeout=cfg.lockstep_timeout_ms / 1e3)
-                    command, command_wall = self._command, self._command_wall
-                timeout_s = (cfg.lockstep_timeout_ms if cfg.mode == "lockstep" else cfg.safety.command_timeout_ms) / 1e3
-                stale = time.perf_counter() - command_wall > timeout_s and not sim_link  # the simulator holds on
-                if stale and not in_damping:
-                    report.watchdog_events.append(t - started_at)
-                    report.watchdog_latency_ms.append(1e3 * (time.perf_counter() - command_wall))
-                in_damping = stale
-                command = self._full_command(None if in_damping else command)
-                if cfg.idle_exit_s is not None and time.perf_counter() - command_wall > cfg.idle_exit_s:
-                    break
-                if cfg.push_time_s is not None and not pushed and t - started_at >= cfg.push_time_s:
-                    plant.apply_base_velocity_kick(np.array(cfg.push_velocity_m_s, dtype=float))
-                    pushed = True
-                for _ in range(self._steps_per_tick):
-                    q, v = plant.state()
-                    self._joints_now = (q[7:][self._leg_index], v[6:][self._leg_index])
-                    plant.step(command.torque(q[7:], v[6:]))
-                q, _ = plant.state()
-                report.base_height_min_m = float(q[2] if report.base_height_min_m is None else min(q[2], report.base_height_min_m))
-                stood = stood or q[2] > 0.8 * self.robot.q_nominal[2]  # a lying start has not fallen
-                if stood and not report.fell and fallen(self.robot, q, cfg.safety):
-                    report.fell, report.fell_at_s = True, plant.time_s - started_at
-                if report.ticks % 25 == 0:
-                    tilt_deg = np.degrees(np.arccos(np.clip(1 - 2 * (q[3] ** 2 + q[4] ** 2), -1, 1)))
-                    report.trajectory.append([round(plant.time_s - started_at, 4), *np.round(q[:3], 5).tolist(),
-                                              round(float(tilt_deg), 2)])
-                report.ticks += 1
-                report.tick_cpu_ms.append(1e3 * (time.thread_time() - cpu_start))
-                deadline += period
-                if cfg.mode == "realtime":
-                    slack = deadline - time.perf_counter()
-                    if slack >= 0:
-                        report.ticks_on_time += 1
-                        time.sleep(slack)
-                    elif slack < -0.1:  # far behind (machine stalled): re-anchor instead of racing
-                        deadline = time.perf_counter()
-                else:
-                    report.ticks_on_time += 1
-                if progress and cfg.duration_s:
-                    progress((plant.time_s - started_at) / cfg.duration_s)
-                if cfg.duration_s is not None and plant.time_s - started_at >= cfg.duration_s - 1e-9:
-                    break
+            while not self._stop.is_set() and self._tick(publisher, run, progress):
+                pass
         finally:
             subscriber.Close()
             publisher.Close()
             if self._z1 is not None:
                 self._z1.close()
+        return self._final_report(run)
+
+    def _tick(self, publisher, run: _RunClock, progress) -> bool:
+        """One LowState out and the command it gets simulated for one tick; False: the run ends."""
+        cfg, plant, report = self.config, self.plant, self.report
+        cpu_start = time.thread_time()
+        t = plant.time_s
+        tick_ms = BOOT_TICK_MS + int(round(1e3 * (run.waited_s + t)))
+        corrupt = cfg.corrupt_every is not None and report.ticks % cfg.corrupt_every == cfg.corrupt_every - 1
+        self._publish_state(publisher, run, t, tick_ms, corrupt)
+        status, command, command_wall = self._await_command(run, t, tick_ms, corrupt)
+        if status != "go":
+            return status == "wait"
+        timeout_s = (cfg.lockstep_timeout_ms if cfg.mode == "lockstep" else cfg.safety.command_timeout_ms) / 1e3
+        stale = time.perf_counter() - command_wall > timeout_s and cfg.robot_link != "sim"  # the simulator holds on
+        if stale and not run.in_damping:
+            report.watchdog_events.append(t - run.started_at)
+            report.watchdog_latency_ms.append(1e3 * (time.perf_counter() - command_wall))
+        run.in_damping = stale
+        command = self._full_command(None if run.in_damping else command)
+        if cfg.idle_exit_s is not None and time.perf_counter() - command_wall > cfg.idle_exit_s:
+            return False
+        if cfg.push_time_s is not None and not run.pushed and t - run.started_at >= cfg.push_time_s:
+            plant.apply_base_velocity_kick(np.array(cfg.push_velocity_m_s, dtype=float))
+            run.pushed = True
+        for _ in range(self._steps_per_tick):
+            q, v = plant.state()
+            self._joints_now = (q[7:][self._leg_index], v[6:][self._leg_index])
+            plant.step(command.torque(q[7:], v[6:]))
+        self._record_tick(run)
+        report.tick_cpu_ms.append(1e3 * (time.thread_time() - cpu_start))
+        self._pace(run)
+        if progress and cfg.duration_s:
+            progress((plant.time_s - run.started_at) / cfg.duration_s)
+        return not (cfg.duration_s is not None and plant.time_s - run.started_at >= cfg.duration_s - 1e-9)
+
+    def _publish_state(self, publisher, run: _RunClock, t: float, tick_ms: int, corrupt: bool) -> None:
+        """This tick's LowState (and the Z1's state unless it went silent), as the robot's link sends them."""
+        cfg = self.config
+        reading = self.sensors.read()
+        foot_force = np.linalg.norm(self.plant.contact_forces(), axis=1)
+        if not (cfg.arm_silent_after_s is not None and run.started_at is not None
+                and t - run.started_at >= cfg.arm_silent_after_s):
+            self._publish_arm(reading, corrupt)
+        legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
+                                   joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
+        message = encode_low_state(legs, self.motors, tick_ms, foot_force, cfg.mode_machine)
+        if cfg.robot_link == "sim":
+            leave_unset(message)
+        with self._lock:
+            self._send_wall[tick_ms] = time.perf_counter()
+            if len(self._send_wall) > 2000:
+                self._send_wall.pop(next(iter(self._send_wall)))
+        if corrupt:
+            message.crc ^= 1  # corrupted in transit
+        publisher.Write(message)
+
+    def _await_command(self, run: _RunClock, t: float, tick_ms: int, corrupt: bool):
+        """("go", command, its wall time): the command to simulate, waited for in lock-step, the latest in real
+        time; ("wait", ...) before the first LowCmd (frozen meanwhile); ("stop", ...) idle past `idle_exit_s`."""
+        cfg = self.config
+        with self._lock:
+            if run.started_at is None:
+                self._lock.wait(timeout=1.0 / cfg.state_rate_hz)
+                run.waited_s += 1.0 / cfg.state_rate_hz
+                if self._command is None:
+                    run.deadline = time.perf_counter()
+                    idle = cfg.idle_exit_s is not None and run.deadline - run.wall_start > cfg.idle_exit_s
+                    return ("stop" if idle else "wait"), None, None
+                run.started_at = t
+                self.report.start_xy_m = self.plant.state()[0][:2].tolist()
+                run.wall_start = run.deadline = time.perf_counter()
+            elif cfg.mode == "lockstep" and not run.in_damping and not corrupt:  # nobody answers a corrupted one
+                self._lock.wait_for(lambda: self._command_echo == tick_ms or self._stop.is_set(),
+                                    timeout=cfg.lockstep_timeout_ms / 1e3)
+            return "go", self._command, self._command_wall
+
+    def _record_tick(self, run: _RunClock) -> None:
+        """The lowest base, a fall (once the robot stood), every 25th tick's base pose and tilt."""
+        report, plant = self.report, self.plant
+        q, _ = plant.state()
+        report.base_height_min_m = float(q[2] if report.base_height_min_m is None else min(q[2], report.base_height_min_m))
+        run.stood = run.stood or q[2] > 0.8 * self.robot.q_nominal[2]  # a lying start has not fallen
+        if run.stood and not report.fell and fallen(self.robot, q, self.config.safety):
+            report.fell, report.fell_at_s = True, plant.time_s - run.started_at
+        if report.ticks % 25 == 0:
+            tilt_deg = np.degrees(np.arccos(np.clip(1 - 2 * (q[3] ** 2 + q[4] ** 2), -1, 1)))
+            report.trajectory.append([round(plant.time_s - run.started_at, 4), *np.round(q[:3], 5).tolist(),
+                                      round(float(tilt_deg), 2)])
+        report.ticks += 1
+
+    def _pace(self, run: _RunClock) -> None:
+        """Real time: sleep until the next tick's wall time (counted on time when there was slack); lock-step: on
+        time by definition."""
+        report = self.report
+        run.deadline += 1.0 / self.config.state_rate_hz
+        if self.config.mode == "realtime":
+            slack = run.deadline - time.perf_counter()
+            if slack >= 0:
+                report.ticks_on_time += 1
+                time.sleep(slack)
+            elif slack < -0.1:  # far behind (machine stalled): re-anchor instead of racing
+                run.deadline = time.perf_counter()
+        else:
+            report.ticks_on_time += 1
+
+    def _final_report(self, run: _RunClock) -> RobotSimReport:
+        report, plant = self.report, self.plant
         if self._z1 is not None:
             rtt = np.array(self._z1.rtt_ms)
             report.arm = {"commands_received": self._z1.received, "commands_rejected": dict(self._z1.rejected),
@@ -410,11 +450,11 @@ class RobotSimulator:
                           "rtt_ms_p99": float(np.percentile(rtt, 99)) if rtt.size else None, "rtt_samples": int(rtt.size)}
         report.sport_mode_at_end = self._switcher.mode if self._switcher is not None else ""
         report.sport_calls = list(self._switcher.calls) if self._switcher is not None else []
-        report.sim_time_s = plant.time_s - started_at if started_at is not None else 0.0
-        report.wall_time_s = time.perf_counter() - wall_start
+        report.sim_time_s = plant.time_s - run.started_at if run.started_at is not None else 0.0
+        report.wall_time_s = time.perf_counter() - run.wall_start
         report.end_xy_m = plant.state()[0][:2].tolist()
         report.commands_rejected = dict(self._rejected)
-        report.damping_at_end = in_damping
+        report.damping_at_end = run.in_damping
         if self.gantry is not None:
-            report.gantry = self.gantry.summary(started_at if started_at is not None else 0.0)
+            report.gantry = self.gantry.summary(run.started_at if run.started_at is not None else 0.0)
         return report

@@ -7,7 +7,7 @@ MuJoCo scene and its collision primitives, the replay, deploy) reads the compose
 any other. A massless root link of the arm (z1.urdf's `world`) with one fixed child joint is folded
 into the mount. Link and joint names of the arm that the base already uses get the prefix `arm_`
 (reported in `Composition.renamed`). The result equals pinocchio's `appendModel` of the two models
-(tests/test_compose.py), and b1.urdf + z1.urdf at the mount of b1-z1.urdf equals b1-z1.urdf.
+(tests/robots/test_compose.py), and b1.urdf + z1.urdf at the mount of b1-z1.urdf equals b1-z1.urdf.
 
 ElementTree, not pinocchio, handles the URDFs here: composing edits and writes URDF text (pinocchio
 reads URDFs into models, it does not write them), and that file is what MuJoCo, the replay and deploy read.
@@ -175,7 +175,7 @@ def compose(base_urdf: Path, arm: ArmMount, cache_dir: Path | None = None) -> Co
     text = ET.tostring(base, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     if cache_dir is None:
-        from wbmpc.solvers.codegen import default_cache_dir
+        from wbmpc.cache import default_cache_dir
 
         cache_dir = default_cache_dir()
     folder = Path(cache_dir) / "composed"
@@ -282,7 +282,7 @@ def compose_on_mjcf(base_mjcf: Path, arm: ArmMount, cache_dir: Path | None = Non
     text = ET.tostring(root, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     if cache_dir is None:
-        from wbmpc.solvers.codegen import default_cache_dir
+        from wbmpc.cache import default_cache_dir
 
         cache_dir = default_cache_dir()
     folder = Path(cache_dir) / "composed"

@@ -155,9 +155,9 @@ class RobotModel:
                 raise ModelError(
                     f"joint '{full.names[i]}' has type {full.joints[i].shortname()} ({full.joints[i].nv} DoF), which "
                     "wbmpc does not support; it supports revolute, continuous and prismatic joints (aligned or not) "
-                    "below the free-flyer root: lock the joint (--lock) or change its type in the URDF"
+                    "below the free-flyer root: lock the joint (--lock) or change its type in the robot's file"
                 )
-        q_ref = self._reference_configuration(full, spec)
+        q_ref = self.reference_configuration(full, spec)
         self.keyframe: str | None = None  # the MJCF keyframe of the nominal pose
         if self.mjcf is not None and spec.srdf is None:
             q_ref = self._keyframe_configuration(full, spec)
@@ -315,7 +315,7 @@ class RobotModel:
         return False
 
     @staticmethod
-    def _reference_configuration(full: pin.Model, spec: RobotSpec) -> np.ndarray:
+    def reference_configuration(full: pin.Model, spec: RobotSpec) -> np.ndarray:
         """The SRDF pose `spec.pose` as read by pinocchio (`loadReferenceConfigurations`), after
         `_check_srdf_pose` refused what pinocchio would silently read as the neutral value."""
         q = pin.neutral(full)

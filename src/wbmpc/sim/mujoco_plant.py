@@ -63,6 +63,12 @@ class MujocoPlant:
             self._ee_geoms = {g for g in range(m.ngeom) if _in_subtree(m, int(m.geom_bodyid[g]), body)}
         self.reset()
 
+    @property
+    def ee_geoms(self) -> frozenset[int]:
+        """MuJoCo geoms of the end-effector: the last link's shapes and those of any body mounted on it (a tool, a
+        wiping pad); empty without an arm."""
+        return frozenset(self._ee_geoms)
+
     # ------------------------------------------------------------------ Plant interface
     @property
     def time_s(self) -> float:

@@ -65,14 +65,14 @@ def robot_collision_shapes(
         frame = model.frames[robot.frame_id(robot.arm_ee)]
         centre = frame.placement.translation.copy()
         shapes.append(CollisionShape(robot.arm_ee, frame.parentJoint, "sphere", (ee_sphere_radius_m,), centre, np.eye(3)))
-    urdf = _urdf_primitives(robot) if use_urdf_primitives else {}
+    urdf = urdf_primitives(robot) if use_urdf_primitives else {}
     for jid in range(1, model.njoints):
         shapes.extend(urdf.get(jid) or _kinematic_shapes(robot, jid))
     return shapes
 
 
 # ------------------------------------------------------------------------------- URDF primitives
-def _urdf_primitives(robot: RobotModel) -> dict[int, list[CollisionShape]]:
+def urdf_primitives(robot: RobotModel) -> dict[int, list[CollisionShape]]:
     """URDF box/cylinder/sphere/capsule collisions (read by pinocchio, `wbmpc.robots.urdf_geometry`)
     grouped by the pinocchio joint that carries their link; none on the feet, none of IMU size."""
     foot_links = set(robot.feet)

@@ -221,7 +221,7 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_triangles: int) -> tup
 
 
 def _cache_dir() -> Path:
-    from wbmpc.solvers.codegen import default_cache_dir
+    from wbmpc.cache import default_cache_dir
 
     return default_cache_dir() / "replay_meshes"
 
