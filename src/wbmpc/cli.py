@@ -268,11 +268,36 @@ def cmd_info(args: argparse.Namespace) -> int:
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
               for name, entry in info["settings"].items() if name not in RENAMED_SETTINGS]
+    info["controller_assumes"] = _controller_assumptions(robot)
+    lines.append(_assumptions_text(info["controller_assumes"]))
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _controller_assumptions(robot) -> dict:
+    """What the controller takes for granted about the ground and the robot link (`wbmpc info`)."""
+    from wbmpc.control.loop import LoopConfig
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.sim import PlantConfig
+
+    tuning, loop = tuning_for(robot), LoopConfig()
+    return {"friction_coefficient": tuning.friction_coefficient, "simulated_floor_friction": PlantConfig().friction_mu,
+            "joint_loop_hz": loop.control_rate_hz, "motor_law": loop.motor_law,
+            "kd_leg_by_joint_loop_hz": {hz: tuning.gains_at(1.0 / hz).kd_leg for hz in (1000.0, 500.0, 200.0)},
+            "leg_joint_mode_inertia_kg_m2": tuning.leg_joint_inertia_kg_m2}
+
+
+def _assumptions_text(a: dict) -> str:
+    from wbmpc.control.joint_loop import DAMPER_BOUND
+
+    kd = ", ".join(f"{v:.3g} at {hz:g} Hz" for hz, v in a["kd_leg_by_joint_loop_hz"].items())
+    return (f"controller assumes: ground friction {a['friction_coefficient']:g} (--friction; the simulated floor: "
+            f"{a['simulated_floor_friction']:g}, --floor-friction); eq. (10) evaluated at {a['joint_loop_hz']:g} Hz and "
+            f"held (--joint-loop-hz); legs' Kd {kd} (Kd T / I <= {DAMPER_BOUND:g} on the lightest leg mode, "
+            f"{a['leg_joint_mode_inertia_kg_m2'] or 0:.3g} kg m^2)")
 
 
 def _setting_text(value) -> str:
@@ -372,15 +397,15 @@ def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def gains_from_args(args: argparse.Namespace, robot):
-    """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
+def gains_from_args(args: argparse.Namespace, robot, hold_s: float):
+    """None without --kp/--kd (the run takes the robot's tuned gains for its joint loop's hold `hold_s`); else
+    those gains with --kp/--kd as given."""
     import dataclasses
 
     from wbmpc.control.tuning import tuning_for
 
-    gains = tuning_for(robot).gains
     overrides = {name: value for name, value in (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None}
-    return dataclasses.replace(gains, **overrides)
+    return dataclasses.replace(tuning_for(robot).gains_at(hold_s), **overrides) if overrides else None
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -432,8 +457,10 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=gains_from_args(args, robot),
-                                 plant_config=plant_config_from_args(args, robot)).for_robot(robot)
+    from wbmpc.scenarios.runner import joint_loop_hold_s
+
+    config = dataclasses.replace(config, plant_config=plant_config_from_args(args, robot))
+    config = dataclasses.replace(config, gains=gains_from_args(args, robot, joint_loop_hold_s(config))).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     from wbmpc.operator.script import script_duration

@@ -96,6 +96,7 @@ class RobotSimConfig:
     mode_machine: int = G1_MODE_MACHINE  # unitree_hg robots report it in LowState and expect it back in LowCmd
     gantry: bool = False  # a safety strap above the base (humanoids), slack while standing
     plant_model: str | None = None  # MuJoCo simulates this file of the robot (wbmpc.sim.plant_model); None: the model
+    model_errors: object | None = None  # wbmpc.sim.model_errors.ModelErrors of the plant (a payload, a CoM offset)
 
     def __post_init__(self):
         check_link(self.robot_link)
@@ -210,8 +211,10 @@ class RobotSimulator:
         self.arm_map = z1_arm_map(robot) if z1 else None
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
-        self.plant = make_plant("mujoco", robot, MujocoPlantConfig(plant_model=config.plant_model)
-                                if config.plant_model else None)
+        plant_config = MujocoPlantConfig(plant_model=config.plant_model) if config.plant_model else None
+        if config.model_errors is not None and not config.model_errors.is_nominal:
+            plant_config = config.model_errors.plant_config(robot, plant_config)
+        self.plant = make_plant("mujoco", robot, plant_config)
         q0 = robot.q_nominal.copy()
         if config.start == "lying":
             q0[7:] = lying_joint_positions(robot)
