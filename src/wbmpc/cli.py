@@ -268,11 +268,36 @@ def cmd_info(args: argparse.Namespace) -> int:
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
               for name, entry in info["settings"].items() if name not in RENAMED_SETTINGS]
+    info["controller_assumes"] = _controller_assumptions(robot)
+    lines.append(_assumptions_text(info["controller_assumes"]))
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _controller_assumptions(robot) -> dict:
+    """What the controller takes for granted about the ground and the robot link (`wbmpc info`)."""
+    from wbmpc.control.loop import LoopConfig
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.sim import PlantConfig
+
+    tuning, loop = tuning_for(robot), LoopConfig()
+    return {"friction_coefficient": tuning.friction_coefficient, "simulated_floor_friction": PlantConfig().friction_mu,
+            "joint_loop_hz": loop.control_rate_hz, "motor_law": loop.motor_law,
+            "kd_leg_by_joint_loop_hz": {hz: tuning.gains_at(1.0 / hz).kd_leg for hz in (1000.0, 500.0, 200.0)},
+            "leg_joint_mode_inertia_kg_m2": tuning.leg_joint_inertia_kg_m2}
+
+
+def _assumptions_text(a: dict) -> str:
+    from wbmpc.control.joint_loop import DAMPER_BOUND
+
+    kd = ", ".join(f"{v:.3g} at {hz:g} Hz" for hz, v in a["kd_leg_by_joint_loop_hz"].items())
+    return (f"controller assumes: ground friction {a['friction_coefficient']:g} (--friction; the simulated floor: "
+            f"{a['simulated_floor_friction']:g}, --floor-friction); eq. (10) evaluated at {a['joint_loop_hz']:g} Hz and "
+            f"held (--joint-loop-hz); legs' Kd {kd} (Kd T / I <= {DAMPER_BOUND:g} on the lightest leg mode, "
+            f"{a['leg_joint_mode_inertia_kg_m2'] or 0:.3g} kg m^2)")
 
 
 def _setting_text(value) -> str:
@@ -372,15 +397,15 @@ def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def gains_from_args(args: argparse.Namespace, robot):
-    """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
+def gains_from_args(args: argparse.Namespace, robot, hold_s: float):
+    """None without --kp/--kd (the run takes the robot's tuned gains for its joint loop's hold `hold_s`); else
+    those gains with --kp/--kd as given."""
     import dataclasses
 
     from wbmpc.control.tuning import tuning_for
 
-    gains = tuning_for(robot).gains
     overrides = {name: value for name, value in (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None}
-    return dataclasses.replace(gains, **overrides)
+    return dataclasses.replace(tuning_for(robot).gains_at(hold_s), **overrides) if overrides else None
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -432,8 +457,10 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=gains_from_args(args, robot),
-                                 plant_config=plant_config_from_args(args, robot)).for_robot(robot)
+    from wbmpc.scenarios.runner import joint_loop_hold_s
+
+    config = dataclasses.replace(config, plant_config=plant_config_from_args(args, robot))
+    config = dataclasses.replace(config, gains=gains_from_args(args, robot, joint_loop_hold_s(config))).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     from wbmpc.operator.script import script_duration
@@ -622,7 +649,7 @@ def _add_run_parser(sub, formatter) -> None:
 
 
 def _add_bench_parsers(sub, formatter):
-    """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
+    """`wbmpc bench dynamics|robots|mpc|scaling|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
     returns the bench subparsers (the hardware module adds `bench dds`)."""
     from wbmpc.control.loop import MPC_RATE_HZ
 
@@ -655,9 +682,30 @@ def _add_bench_parsers(sub, formatter):
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
     mpc.add_argument("--collision-avoidance", action="store_true", help="also re-solve the same states with the "
                      "collision avoidance rows (their cost: same_states.collision_vs_plain)")
+    mpc.add_argument("--threads", metavar="N[,N...]", help="fatrop-direct's stage evaluation threads (default: 2 "
+                     "where two cores are free); several counts (e.g. 1,2) re-solve the same states on each and "
+                     "report the speed-up against the first")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))
+
+    scaling = bench_sub.add_parser("scaling", help="MPC step time against the horizon's nodes and the robot's "
+                                                   "degrees of freedom (closed loop, plotted)")
+    scaling.add_argument("--robot", default="b1_z1", metavar="NAME", help="robot of the horizon sweep (default b1_z1)")
+    scaling.add_argument("--nodes-list", default="10,15,25,40", metavar="N,N", help="horizon nodes of the horizon "
+                         "sweep (default 10,15,25,40)")
+    scaling.add_argument("--robots", default="go2,b1_z1,g1,talos", metavar="NAME,NAME", help="presets of the robot "
+                         "sweep (default go2,b1_z1,g1,talos)")
+    scaling.add_argument("--nodes", type=int, default=15, help="horizon nodes of the robot sweep (default 15)")
+    scaling.add_argument("--steps", type=int, default=40, help="MPC steps at 80 Hz per point (default 40)")
+    scaling.add_argument("--solver", default="fatrop-direct", help="solver (default fatrop-direct)")
+    scaling.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
+    scaling.add_argument("--threads", type=int, help="fatrop-direct's stage evaluation threads (default: 2 where two "
+                         "cores are free)")
+    scaling.add_argument("--plot", metavar="FILE", help="draw both sweeps into FILE (PNG)")
+    scaling.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    scaling.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    scaling.set_defaults(func=lambda args: _bench_module("scaling").cli_bench_scaling(args, _load_preset))
 
     solvers = bench_sub.add_parser("solvers", help="Fatrop vs IPOPT, warm vs cold, adaptive vs uniform grid, "
                                                    "solve time vs number of nodes")
@@ -741,6 +789,12 @@ def _bench_module(name: str):
     import importlib
 
     return importlib.import_module(f"wbmpc.bench.{name}")
+
+
+def _load_preset(name: str):
+    from wbmpc.robots import load_robot
+
+    return load_robot(name)
 
 
 def _bench_mpc():

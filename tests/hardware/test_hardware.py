@@ -58,7 +58,7 @@ def test_crc_matches_the_sdk_reference(go2):
     n = go2.n_joints
     msg = encode_low_cmd(MotorCommand(rng.normal(size=n), rng.normal(size=n), np.full(n, 20.0), np.ones(n),
                                       rng.normal(size=n)), motors, echo_tick=42)
-    assert msg.crc == _sdk_reference_crc(crc._words(crc.pack_low_cmd(msg)))
+    assert msg.crc == _sdk_reference_crc(crc.payload_words(crc.pack_low_cmd(msg)))
     assert len(crc.pack_low_cmd(msg)) == 812 and len(crc.pack_low_state(SDK.new_low_state())) == 1180
 
 
@@ -338,15 +338,15 @@ def test_robot_sim_imitating_unitree_simulator_holds_each_low_cmd_torque(go2):
     msg = encode_low_cmd(MotorCommand(target, np.zeros(n), np.full(n, 20.0), np.full(n, 0.5), np.full(n, 1.0)), motors)
     msg.crc ^= 1  # unchecked on this link
     q_now, dq_now = go2.q_nominal[7:].copy(), np.full(n, 0.2)
-    sim._joints_now = (q_now, dq_now)
-    sim._on_command(msg)
-    held = sim._command
+    sim.joint_readings = (q_now, dq_now)
+    sim.on_low_cmd(msg)
+    held = sim.held_command
     expected = 1.0 + 20.0 * (target - q_now) + 0.5 * (0.0 - dq_now)
     np.testing.assert_allclose(held.torque(q_now + 0.3, dq_now - 1.0), expected, atol=1e-5)  # held as the robot moves
-    assert sim.report.commands_received == 1 and sim._rejected == {}
+    assert sim.report.commands_received == 1 and sim.rejected_counts == {}
     strict = RobotSimulator(go2, RobotSimConfig())
-    strict._on_command(msg)
-    assert strict._command is None and dict(strict._rejected) == {"crc": 1}
+    strict.on_low_cmd(msg)
+    assert strict.held_command is None and strict.rejected_counts == {"crc": 1}
 
 
 def test_clamps_keep_targets_and_torques_in_limits(go2):
@@ -563,6 +563,28 @@ def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
     assert robot["commands_received"] > 1000 and not robot["watchdog_events_s"][:-1]
     standing = [row for row in robot["trajectory"] if 2.5 <= row[0] <= 4.5]  # the MPC phase, robot time
     assert min(row[3] for row in standing) > 0.8 * 0.33 and max(row[4] for row in standing) < 10
+
+
+@pytest.mark.slow
+def test_deploy_identifies_a_payload_the_model_does_not_know(dds):
+    """robot-sim carries 2 kg at the base origin that the controller's model lacks; deploy --identify-mass estimates
+    it from the estimated state and the motor law's torques (lock-step, trot in place)."""
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "12",
+               "--plant-payload-kg", "2.0", "--idle-exit", "600", "--json")
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "trot-in-place", "--lockstep",
+                      "--nodes", "6", "--duration", "5", "--identify-mass", "--json")
+    try:
+        c_out, c_err = controller.communicate(timeout=1800)
+        sim.communicate(timeout=120)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    deploy = json.loads(c_out)
+    assert not deploy["fell"] and "mpc" in [p for _, p in deploy["phases"]], c_err
+    assert deploy["payload_estimate_kg"] == pytest.approx(2.0, abs=0.5), deploy["inertial_estimate_history"][-5:]
+    assert np.linalg.norm(deploy["base_com_offset_estimate_m"][:2]) < 0.02
+    assert deploy["joint_loop"]["kd_leg"] == pytest.approx(2.5694, rel=1e-3)  # a robot link: the tuned Kd
 
 
 @pytest.mark.slow

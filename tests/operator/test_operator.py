@@ -425,12 +425,10 @@ def test_keyboard_drives_a_run_through_a_pseudo_terminal(tmp_path):
     assert commands[0]["walking"] and commands[1]["forward_m_s"] == pytest.approx(0.1)  # x ended the run at once
 
 
-def test_live_meshcat_page_draws_states_and_plans(tmp_path):
+def test_live_meshcat_page_draws_states_and_plans(tmp_path, forward_plan):
     """deploy --meshcat's drawing process: it starts a meshcat server, draws what the loop hands over, and reports
     its frames (the rate is a measurement, reported by deploy, not asserted here)."""
     from types import SimpleNamespace
-
-    from test_live_viewer import _plan
 
     from wbmpc.viz.live_meshcat import LiveMeshcat
 
@@ -439,7 +437,7 @@ def test_live_meshcat_page_draws_states_and_plans(tmp_path):
     url = live.open()
     try:
         assert url.startswith("http://127.0.0.1:")
-        plan = _plan(robot)
+        plan = forward_plan(robot)
         start = time.perf_counter()
         while time.perf_counter() - start < 1.5:
             q = robot.q_nominal.copy()

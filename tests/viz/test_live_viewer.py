@@ -50,23 +50,6 @@ class Display(str):
         return display
 
 
-def _plan(robot, nodes: int = 8):
-    """A plan moving forward 5 cm per node with the weight on the stance feet (the shape the MPC returns)."""
-    from wbmpc.control.solution import Solution
-    from wbmpc.solvers.nlp import SolverStats
-
-    q = np.tile(robot.q_nominal, (nodes, 1))
-    q[:, 0] += 0.05 * np.arange(nodes)
-    n_feet = len(robot.feet)
-    forces = np.zeros((nodes - 1, 3 * n_feet + (3 if robot.arm_ee else 0)))
-    forces[:, 2 : 3 * n_feet : 3] = robot.mass_kg * 9.81 / n_feet
-    return Solution(t_s=0.0, node_times_s=np.linspace(0, 0.3, nodes), q=q, v=np.zeros((nodes, robot.nv)),
-                    a=np.zeros((nodes - 1, robot.nv)), forces=forces, tau=np.zeros((3, robot.n_joints)),
-                    contact=np.ones((nodes, n_feet), dtype=bool), stats=SolverStats(status="ok", success=True, iterations=1, solve_time_s=0.0,
-                                                                             max_constraint_violation=0.0, cost=0.0),
-                    success=True, x=None, q_joints=q[:, 7:])
-
-
 def _screenshot_pixels(display: Display) -> np.ndarray:
     """(height, width, 3) RGB of the virtual screen, read from Xvfb's XWD frame buffer file: a header of 25
     big-endian 32-bit fields (its size, ..., width, height, ..., byte order, ..., bits per pixel, bytes per line,
@@ -82,7 +65,7 @@ def _screenshot_pixels(display: Display) -> np.ndarray:
     return (pixels[..., 2::-1] if byte_order == 0 else pixels[..., 1:]).astype(int)  # LSB first: B G R x
 
 
-def test_viewer_opens_draws_the_plan_logs_a_push_and_closes(display):
+def test_viewer_opens_draws_the_plan_logs_a_push_and_closes(display, forward_plan):
     import mujoco
 
     from wbmpc.robots import load_robot
@@ -97,7 +80,7 @@ def test_viewer_opens_draws_the_plan_logs_a_push_and_closes(display):
     plant.add_step_hook(viewer)
     viewer.open()
     try:
-        viewer.on_plan(0.0, _plan(robot))
+        viewer.on_plan(0.0, forward_plan(robot))
         for _ in range(20):
             plant.step(np.zeros(robot.n_joints))
         assert viewer.is_running() and viewer.syncs >= 20 and viewer.plans_drawn == 1

@@ -26,6 +26,7 @@ STATS_SCALARS = ("t_s", "success", "held_previous", "iterations", "solve_time_s"
 DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")
 STATUS_BYTES = 2048
 REQUEST_SCALARS = ("t", "delay_s", "budget_s", "stop")
+INERTIAL_WIDTH = 5  # identified base CoM offset (3, m), hand payload, base payload (kg); NaN: none
 
 
 COMMAND_WIDTH = 12  # numbers in a `command_row`
@@ -66,7 +67,7 @@ class ChannelLayout:
     def fields(self) -> list[tuple[str, tuple[int, ...]]]:
         """(name, shape) of every float64 view, in the block's order."""
         out = [("req_q", (self.nq,)), ("req_v", (self.nv,)), ("req_command", (self.command_width,)),
-               ("req_scalars", (len(REQUEST_SCALARS),))]
+               ("req_scalars", (len(REQUEST_SCALARS),)), ("req_inertial", (INERTIAL_WIDTH,))]
         out += [(f"sol_{name}", shape) for name, shape in self.arrays]
         out += [("sol_scalars", (len(STATS_SCALARS),)), ("sol_details", (len(DETAIL_KEYS),))]
         return out
@@ -125,8 +126,10 @@ class SharedChannel:
             self.memory.unlink()
 
     # ------------------------------------------------------------------ simulation side
-    def send_request(self, q, v, command_row: np.ndarray, t_s: float, delay_s: float, budget_s: float | None) -> None:
+    def send_request(self, q, v, command_row: np.ndarray, t_s: float, delay_s: float, budget_s: float | None,
+                     inertial: np.ndarray | None = None) -> None:
         views = self.views
+        views["req_inertial"][:] = np.nan if inertial is None else inertial
         views["req_q"][:] = q
         views["req_v"][:] = v
         views["req_command"][:] = command_row
@@ -158,15 +161,17 @@ class SharedChannel:
 
     # ------------------------------------------------------------------ solver side
     def receive_request(self) -> tuple | None:
-        """Block until a request; None when asked to stop. Returns (q, v, command row, t, delay_s, budget_s)."""
+        """Block until a request; None when asked to stop. Returns (q, v, command row, t, delay_s, budget_s,
+        inertial parameters or None)."""
         self.request_ready.wait()
         self.request_ready.clear()
         views = self.views
         t, delay_s, budget_s, stop = views["req_scalars"].tolist()
         if stop:
             return None
+        inertial = views["req_inertial"].copy()
         return (views["req_q"].copy(), views["req_v"].copy(), views["req_command"].copy(), t, delay_s,
-                None if np.isnan(budget_s) else budget_s)
+                None if np.isnan(budget_s) else budget_s, None if np.isnan(inertial).any() else inertial)
 
     def send_solution(self, solution: Solution) -> None:
         views = self.views

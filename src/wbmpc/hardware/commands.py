@@ -56,6 +56,9 @@ def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: 
     add_declared(sim, ScenarioOptions, "push_speed_m_s", help="kick speed to the robot's left (world y)")
     add_declared(sim, RunConfig, "seed", help="seed of the sensor noise")
     add_declared(sim, RunConfig, "plant_model")
+    sim.add_argument("--plant-payload-kg", type=float, metavar="KG", help="a mass the model does not know, at the hand "
+                     "(a robot with an arm) or at the base origin (without): what deploy --identify-mass estimates")
+    sim.add_argument("--plant-com-offset", metavar="X,Y,Z", help="the plant's base CoM moved by this (base frame, m)")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
@@ -102,6 +105,9 @@ def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: Tas
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
     add_declared(dep, MpcChoices, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
                  "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
+    add_declared(dep, MpcChoices, "identify_mass", help="estimate the base CoM offset and a payload online from the "
+                 "estimated state and the motor law's torques and plan with them; the report gives "
+                 "base_com_offset_estimate_m and payload_estimate_kg")
     for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
         add_declared(dep, PdGains, name, help=f"{declared_help(PdGains, name)}, sent in LowCmd")
     dep.add_argument("--no-sport-release", action="store_true", help="do not call the motion switcher (a robot "
@@ -180,15 +186,19 @@ def _arm_settings(args) -> dict:
 
 
 def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool,
-                      mpc_rate_hz: float | None = None):
+                      mpc_rate_hz: float | None = None, identify_mass: bool = False):
     """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
-    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`)."""
+    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`);
+    `identify_mass`: with the inertial parameters in the NLP (set from the identification with each request)."""
     from wbmpc.control.policy import MpcChoices, mpc_config
 
     rate = {} if mpc_rate_hz is None else {"mpc_rate_hz": mpc_rate_hz}
     choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
                          delay_mode="none" if lockstep else "realtime", **rate)
-    return mpc_config(robot, task_needs, choices)
+    config = mpc_config(robot, task_needs, choices)
+    if identify_mass:  # a real-time solver process too: the estimate goes with each request
+        config = dataclasses.replace(config, ocp=dataclasses.replace(config.ocp, inertial_parameters=True))
+    return config
 
 
 def _add_network_options(parser) -> None:
@@ -206,6 +216,23 @@ def _add_network_options(parser) -> None:
                             "0, 200 Hz, the motor law once per LowCmd and held, no checks, no watchdog)")
 
 
+def _plant_errors(args, robot):
+    """robot-sim's --plant-payload-kg / --plant-com-offset as `ModelErrors` (None without either)."""
+    from wbmpc.sim.model_errors import ModelErrors
+
+    payload, offset = args.plant_payload_kg, args.plant_com_offset
+    if payload is None and offset is None:
+        return None
+    try:
+        xyz = tuple(float(x) for x in offset.split(",")) if offset else (0.0, 0.0, 0.0)
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3:
+        raise ConfigError(f"--plant-com-offset takes X,Y,Z in metres (base frame), got {offset!r}")
+    payload = payload or 0.0
+    return ModelErrors(base_com_offset_m=xyz, **({"ee_payload_kg": payload} if robot.arm_ee else {"base_payload_kg": payload}))
+
+
 def _write(path, payload) -> None:
     if path:
         with open(path, "w") as fh:
@@ -220,7 +247,7 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLi
     tasks.task_options(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
-    config = _robot_sim_config(args)
+    config = dataclasses.replace(_robot_sim_config(args), model_errors=_plant_errors(args, robot))
     sim = RobotSimulator(robot, config)
     if args.remote_script or args.remote_gamepad:
         from wbmpc.operator.remote_script import GamepadRemote, RemotePublisher, ScriptedRemote, read_remote_script
@@ -322,7 +349,8 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
     if args.duration is None:  # a script's own length; live sources: until the operator lies the robot down
         args.duration = operator.duration_s or (math.inf if operator.active and operator.script is None else 10.0)
     mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
-                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate)
+                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate,
+                                   identify_mass=args.identify_mass)
     config = _deploy_config(args, robot, scenario)
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}, robot link "
           f"{args.robot_link}), {'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
@@ -373,10 +401,16 @@ def _deploy_config(args: argparse.Namespace, robot, scenario):
     from wbmpc.hardware.deploy import DeployConfig
     from wbmpc.hardware.safety import SafetyConfig
 
-    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
-                                                          if v is not None})
+    overrides = {k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}
+    tuning = tuning_for(robot)
+    gains = dataclasses.replace(tuning.gains, **overrides)
+
+    def joint_loop_gains(hold_s: float):  # the tuned gains for the link's hold; --kp/--kd as given
+        return scenario.pd_gains(dataclasses.replace(tuning.gains_at(hold_s), **overrides))
+
     return DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
                         lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                        joint_loop_gains=joint_loop_gains, identify_mass=args.identify_mass,
                         safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
                         sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
                         arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),

@@ -35,7 +35,7 @@ import dataclasses
 import signal
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -43,27 +43,19 @@ from wbmpc.control import MPC, Commands, MpcConfig
 from wbmpc.control.interpolator import interpolate
 from wbmpc.errors import ConfigError, WbmpcError
 from wbmpc.estimation.estimator import StateEstimator
+from wbmpc.estimation.inertial import InertialIdentification
 from wbmpc.gait import GaitClock, make_gait
 from wbmpc.hardware.deploy_config import DeployConfig, DeployFailure, LinkMismatchError, NoRobotStateError
 from wbmpc.hardware.deploy_plans import DeployPlans
 from wbmpc.hardware.deploy_report import DeployReport
-from wbmpc.hardware.deploy_tick import DeployTick
+from wbmpc.hardware.deploy_tick import DeployPhase, DeployTick
 from wbmpc.hardware.link import LowStateLink
+from wbmpc.hardware.link_timing import LinkTiming
 from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
-from wbmpc.hardware.messages import (
-    MessageError,
-    MotorCommand,
-    encode_low_cmd,
-)
+from wbmpc.hardware.messages import MessageError, MotorCommand, encode_low_cmd
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.robot_sim import LOW_CMD_TOPIC, LOW_STATE_TOPIC
-from wbmpc.hardware.safety import (
-    Posture,
-    clamp_command,
-    fallen,
-    lying_joint_positions,
-    posture_command,
-)
+from wbmpc.hardware.safety import Posture, clamp_command, fallen, lying_joint_positions, posture_command
 from wbmpc.hardware.sdk import load_sdk
 from wbmpc.hardware.z1_messages import (
     DEFAULT_KD_UNITS,
@@ -113,6 +105,9 @@ class Controller:
         self.tick_listeners: list = []  # callables(DeployTick) after each valid LowState (remote, live view)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
+        self.timing = LinkTiming(config.robot_link)  # the link's command period and hold, before the MPC phase
+        self._reference_lead_s = 0.0  # eq. 9 sampled this far ahead; it and the gains: the hold measured (`LinkTiming`)
+        self.identification = InertialIdentification.from_estimated_state(robot) if config.identify_mass else None
         self._cond = threading.Condition()
         self._latest = None
         self._fresh = False
@@ -224,6 +219,8 @@ class Controller:
                                         "damping") from exc
             raise
         finally:
+            if self.identification is not None:
+                report.inertial = self.identification.metrics()
             if previous_handler is not None:
                 signal.signal(signal.SIGINT, previous_handler)
             self._close()
@@ -250,6 +247,8 @@ class Controller:
             self.mpc = MPC(robot, self.mpc_config)
         elif not cfg.lockstep:
             self._worker = self._solver_process(robot, self.mpc_config)
+        if self.identification is not None and cfg.lockstep:  # the estimate goes to this process's MPC
+            self.identification.mpc = self.mpc
         if cfg.sport_release:  # after the build: the robot stays under its own controller until we command it
             from wbmpc.hardware.motion_switcher import SportModeRelease
 
@@ -327,8 +326,9 @@ class Controller:
 
     def _loop(self, state, commands, worker, progress, ee_reference=None) -> None:
         """Answer every LowState until the damping phase (or a fault): one `_tick` each."""
-        self._phase = _Phase()
-        self._plans = DeployPlans(self.mpc, worker, 1.0 / self.config.mpc_rate_hz, self.report)
+        self._phase = DeployPhase()
+        self._plans = DeployPlans(self.mpc, worker, 1.0 / self.config.mpc_rate_hz, self.report,
+                                  inertial=self.identification.parameters if self.identification is not None else None)
         self._t_last = self.link.last_time_s or 0.0
         self._posture = Posture(self.robot, self.config.safety)
         self._lying = lying_joint_positions(self.robot)
@@ -353,6 +353,8 @@ class Controller:
         for listener in self.tick_listeners:  # before the phase events: an operator's lie-down acts this tick
             listener(DeployTick(t, t - self._mpc_t0 if phase.name == "mpc" else None, state[0], q, v,
                                 self._plans.active, phase.name))
+        if phase.name in (None, "stand-up", "hold"):
+            self.timing.note(t)
         self._phase_events(q, t, reading.joint_position_rad)
         solve_ms = 0.0
         if phase.name == "stand-up":
@@ -370,6 +372,8 @@ class Controller:
             return False
         command = clamp_command(self.robot, command, reading.joint_position_rad, reading.joint_velocity_rad_s,
                                 self.config.safety)
+        if self.identification is not None and phase.name == "mpc":  # the torque the motors apply until the next
+            self.identification.on_torque(command.torque(reading.joint_position_rad, reading.joint_velocity_rad_s))
         self._send(command, echo_tick=state[0].tick)
         report.tick_ms.append(1e3 * (time.perf_counter() - start) - solve_ms)
         return True
@@ -427,6 +431,8 @@ class Controller:
             if solution is not None:
                 self._first_plan(solution, t, q_joints)
         if phase.name == "hold" and t - phase.t0 >= self.config.hold_s and plans.active is not None:
+            self.kp, self.kd, self._reference_lead_s, self.report.joint_loop = self.timing.for_mpc_phase(
+                self.config.joint_loop_gains, self.kp, self.kd, self.robot.leg_joint_mask)
             self._enter("mpc", t, q_joints)
             self._mpc_t0 = t
             plans.start()
@@ -458,8 +464,10 @@ class Controller:
         if age_s > cfg.max_plan_age_s:
             self._fail("stale-plan", f"the MPC plan in use is {1e3 * age_s:.0f} ms old (limit "
                        f"{1e3 * cfg.max_plan_age_s:.0f} ms): the solver fell behind", t)
-        reference = interpolate(plans.active, t_mpc)
+        reference = interpolate(plans.active, t_mpc + self._reference_lead_s)
         command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
+        if self.identification is not None:
+            self.identification.on_estimate(t, q, v)
         report.estimated_xy_m.append(q[:2].tolist())
         if ee_reference is not None:
             ee = robot.frame_trajectories(q[None, :], [robot.arm_ee])[robot.arm_ee][0]
@@ -477,16 +485,6 @@ class Controller:
         if elapsed >= safety.lie_down_s + 0.3:
             self._enter("damping", t, q_joints)
         return command
-
-
-@dataclass
-class _Phase:
-    """The deploy loop's phase (stand-up, hold, mpc, lie-down, damping), when it started and the pose it started
-    from."""
-
-    name: str | None = None
-    t0: float = 0.0
-    pose_start: np.ndarray | None = None
 
 
 def _solver_process(robot: RobotModel, mpc_config: MpcConfig):

@@ -1,5 +1,6 @@
-"""`DeployTick`: what the deploy loop tells its tick listeners after each valid LowState (an operator's remote
-read from the LowState's bytes, a live page drawing the estimate and the plan)."""
+"""The deploy loop's tick: `DeployPhase`, the phase it is in, and `DeployTick`, what it tells its tick listeners
+after each valid LowState (an operator's remote read from the LowState's bytes, a live page drawing the estimate
+and the plan)."""
 
 from __future__ import annotations
 
@@ -20,3 +21,13 @@ class DeployTick:
     v: np.ndarray
     plan: object
     phase: str | None
+
+
+@dataclass
+class DeployPhase:
+    """The deploy loop's phase (stand-up, hold, mpc, lie-down, damping), when it started and the pose it started
+    from."""
+
+    name: str | None = None
+    t0: float = 0.0
+    pose_start: np.ndarray | None = None
