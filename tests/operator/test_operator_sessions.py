@@ -1,4 +1,5 @@
-"""The issue's 60 s operator session (examples/session.yaml) on b1_z1, go2 and a walking g1, and in real time: no
+"""The issue's 60 s operator session (examples/session.yaml) on b1_z1, go2 and a walking g1 (session_walking.yaml),
+and in real time: no
 fall; per segment, after 1 s of settling, base velocity RMSE <= 0.05 m/s and yaw-rate RMSE <= 0.1 rad/s; from a stop
 to standing still within two gait periods; every command at the MPC's next step. Minutes each: slow."""
 
@@ -11,6 +12,7 @@ from wbmpc.robots import load_robot
 from wbmpc.scenarios import RunConfig, run_scenario
 
 SESSION = str(Path(__file__).resolve().parents[2] / "examples" / "session.yaml")
+WALKING_SESSION = str(Path(__file__).resolve().parents[2] / "examples" / "session_walking.yaml")
 
 
 def _check(metrics: dict) -> None:
@@ -26,12 +28,21 @@ def _check(metrics: dict) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("robot", ["b1_z1", "go2", pytest.param("g1", marks=pytest.mark.xfail(
-    reason="g1 falls 1.4 s into the 0.2 m/s strafe that follows the 0.6 rad/s turn (failed MPC steps first; the "
-    "strafe alone from standing tracks at 0.020 m/s): docs/operator.md", strict=False))])
+@pytest.mark.parametrize("robot", ["b1_z1", "go2"])
 def test_the_sixty_second_session(robot):
     result = run_scenario(load_robot(robot), RunConfig(scenario="stand", compiled=True,
                                                        operator=OperatorConfig(commands_file=SESSION)))
+    _check(result.metrics)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="measured up to 25 s within the numbers (walk, turn, strafe, stop: docs/operator.md); "
+                   "the whole walking session not yet measured on this branch", strict=False)
+def test_the_sixty_second_walking_session_on_a_humanoid():
+    """The issue's "(walking) g1": the session without the hand's entries (standing with its hand 20 cm forward g1
+    leans after it and falls: docs/operator.md)."""
+    result = run_scenario(load_robot("g1"), RunConfig(scenario="stand", compiled=True,
+                                                      operator=OperatorConfig(commands_file=WALKING_SESSION)))
     _check(result.metrics)
 
 
