@@ -17,6 +17,7 @@ import pinocchio as pin
 from wbmpc.control.delay import roll_forward
 from wbmpc.control.foot_placement import StanceReference, SwingPlacement
 from wbmpc.control.solution import Solution
+from wbmpc.control.terrain_references import TerrainReferences
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, SwingProfile, make_gait
 from wbmpc.ocp.objects import ObjectCommand
@@ -25,6 +26,7 @@ from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.nlp import FATROP_SOLVERS, NlpSolver, SolverConfig
+from wbmpc.terrain import FootholdConfig, Terrain
 
 COLD_FALLBACK_ITERATIONS = 300  # the fallback's cap on a run's first step (no plan to hold while it solves)
 
@@ -162,6 +164,11 @@ class MpcConfig:
     # (the measurement rolled forward with the previous plan's accelerations) and returns a plan starting at
     # t + d; off: the plan starts at the measurement, d late
     delay_compensation: bool = False
+    # the ground (issue 35, `wbmpc.terrain`): footholds, swing splines, cone normals and base targets follow it
+    # (`control/terrain_references.py`); None or a flat one: the flat floor at 0. Per-step data only: the OCP
+    # and its (compiled) solver are the same on any terrain
+    terrain: Terrain | None = None
+    footholds: FootholdConfig | None = None  # the keep-out band at edges (None: from the feet's size)
     # the whole step's budget (s, on the solver's clock) for solvers with a deadline (the anytime SQP): the
     # solver stops in time for the MPC's own work after it (measured); None: the solver's own setting
     step_budget_s: float | None = None
@@ -257,6 +264,9 @@ class MPC:
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._stance_reference = StanceReference(robot) if config.stance_posture_reference else None
         self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
+        self._terrain = (TerrainReferences(robot, config.terrain, config.swing, config.footholds)
+                         if config.terrain is not None and not config.terrain.is_flat else None)
+        self._flat_normals = np.tile([0.0, 0.0, 1.0], (N, len(robot.feet))).T.copy()  # (3 n_feet, N): world z
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._previous: Solution | None = None
         self._fallback: NlpSolver | None = None
@@ -300,6 +310,8 @@ class MPC:
         self._push_until_t = None
         self._fast_cadence_until_t = None
         self.gait.reset()
+        if self._terrain is not None:
+            self._terrain.reset()
         self._inertial = self._nominal_inertial()  # until an estimator sets it again
 
     def continue_from(self, solution: Solution) -> None:
@@ -388,6 +400,8 @@ class MPC:
             targets[:, 2] = commands.base_height_m
         yaws = self._yaw_reference + commands.base_yaw_rate_rad_s * node_times
         targets[:, 3:7] = np.column_stack([np.zeros_like(yaws), np.zeros_like(yaws), np.sin(yaws / 2), np.cos(yaws / 2)])
+        if self._terrain is not None:  # height over the terrain's support, its pitch (control/terrain_references.py)
+            self._terrain.shape_base_targets(targets, yaws)
         dq_des = self._difference(np.tile(q, (len(node_times), 1)).T, targets.T, shaped=True)[0].copy()
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
@@ -415,6 +429,13 @@ class MPC:
         feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
         return self._swing_placement.velocities(self.gait, t, node_times, q, rot @ v[:3], command_world, yaw, feet)
+
+    def _terrain_step(self, q, v, rot, t, node_times, command_world):
+        """The terrain's swing references, footholds and cone normals of this step (`TerrainReferences.step`)."""
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        return self._terrain.step(self.gait, t, node_times, q, rot @ v[:3], command_world, yaw, feet)
 
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
@@ -507,6 +528,10 @@ class MPC:
                                                 sway)
         forces = self._force_guess(contact, commands)
         swing_vxy = self._swing_velocities(q, v, rot, t, node_times, base_velocity_world)
+        contact_normal = self._flat_normals
+        if self._terrain is not None:  # footholds, swing splines and cone normals from the terrain
+            terrain = self._terrain_step(q, v, rot, t, node_times, base_velocity_world)
+            swing_vz, swing_vxy, contact_normal = terrain.swing_vz_m_s, terrain.swing_vxy_m_s, terrain.contact_normal
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
         values = {
             "q_ref": q,
@@ -516,6 +541,7 @@ class MPC:
             "v_des": v_des,
             "F_des": forces.T,
             "mu": [self.config.friction_coefficient],
+            "contact_normal": contact_normal,
             **self._weights,
             **self._inertial,
             **object_values,

@@ -1,0 +1,241 @@
+"""What the MPC takes from a known terrain each step: swing splines, footholds, cone normals, base height and pitch.
+
+The OCP is the same on any ground (`ocp/problem.py`): the terrain enters through per-step data only, so one built
+(and compiled) solver serves a flat floor and stairs alike:
+
+- footholds: each swing's landing point is Raibert's (`foot_placement.SwingPlacement`: under the hip at touch-down,
+  half a stance of commanded motion ahead, capture-point feedback), moved to the nearest safe cell of the terrain
+  (`terrain.FootholdMap`: a keep-out band on both sides of every edge). The swing feet's horizontal velocity rows
+  carry them there (the 6 s (1 - s) profile of `SwingPlacement`, rescaled from the measured foot every step);
+- eq. (6)'s swing spline between the terrain's heights (`gait.swing_between`): from the lift-off height up to an
+  apex the swing height above the highest ground between lift-off and landing, down to the landing point's
+  height. Where the ground ahead rises above the lift-off height (a riser), the apex comes early enough for the
+  foot to be over it when it gets there (`apex_share`, at least MIN_APEX_SHARE of the swing); else midway, as on
+  a flat floor. A swing in progress is re-planned from the measured foot height (the error is taken out linearly
+  until touch-down), so that the plan lands on the terrain, not where the integrated velocities would;
+- stance feet stay where they stand (eq. 6's zero velocity), at the terrain's height by construction;
+- friction and wrench cones about the terrain's normal under each foot, per node (the OCP's "contact_normal");
+- base targets: height above the support plane of the terrain under the feet (`terrain.SupportFootprint`) and, on
+  three or more feet, its pitch (the plane's slope along the heading), with the leg joints' posture targets of
+  the pitched base with the feet still under the hips (a table of inverse-kinematics solutions over pitch, built
+  once). A biped keeps its pelvis upright.
+
+Everything is vectorised over nodes; the loops run over feet and the (one or two) swings of each in the horizon.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.control.foot_placement import CAPTURE_GAIN, PLACEMENT_END_SHARE, SwingPlacement
+from wbmpc.gait import Gait, SwingProfile, swing_between
+from wbmpc.robots import GRAVITY_M_S2, RobotModel
+from wbmpc.terrain import FootholdConfig, FootholdMap, Terrain
+from wbmpc.terrain.support import SupportFootprint
+
+MIN_APEX_SHARE = 0.3  # a swing over a riser reaches its apex no earlier than this share of the swing
+RISE_M = 0.02  # ground this much above the lift-off point counts as something to step over
+MAX_HEIGHT_CORRECTION_M_S = 1.0  # at most this vertical velocity re-plans a swing in progress onto the terrain
+KEEP_OUT_MARGIN_M = 0.05  # keep-out band: the foot's own extent (sphere radius, half a sole) plus this
+SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length ahead of and behind each foot
+PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
+IK_ITERATIONS = 30
+
+
+def default_footholds(robot: RobotModel) -> FootholdConfig:
+    """The keep-out band of a robot: its feet's extent from their contact point plus KEEP_OUT_MARGIN_M."""
+    extent = max([robot.foot_radius_m or 0.0] + [max(s.half_length_m, s.half_width_m) for s in robot.soles.values()])
+    return FootholdConfig(keep_out_m=extent + KEEP_OUT_MARGIN_M)
+
+
+@dataclass
+class TerrainStep:
+    """One step's terrain data: swing v_z and xy velocity references (bounds) and cone normals (parameters)."""
+
+    swing_vz_m_s: np.ndarray  # (nodes, n_feet)
+    swing_vxy_m_s: np.ndarray  # (nodes, n_feet, 2), NaN: free
+    contact_normal: np.ndarray  # (3 n_feet, N): the OCP parameter
+    footholds_m: np.ndarray  # (nodes, n_feet, 3) where each foot stands (or will land) at each node
+    apex_m: np.ndarray  # (nodes, n_feet) planned swing heights (NaN in stance), for plots and tests
+
+
+class TerrainReferences:
+    """The terrain's per-step data for the MPC of `robot` (see the module docstring)."""
+
+    def __init__(self, robot: RobotModel, terrain: Terrain, swing: SwingProfile,
+                 footholds: FootholdConfig | None = None):
+        self.robot, self.terrain, self.swing = robot, terrain, swing
+        self.footholds = FootholdMap(terrain, footholds or default_footholds(robot))
+        self.raster = self.footholds.raster
+        self._placement = SwingPlacement(robot)
+        self._contact_height = np.array([robot.contact_height_m(f) for f in robot.feet])
+        self._foot_extent = default_footholds(robot).keep_out_m - KEEP_OUT_MARGIN_M
+        leg = float(robot.q_nominal[2])
+        self.support = SupportFootprint(terrain, self._placement._foot_offsets_m, SUPPORT_REACH * leg)
+        self.follows_pitch = len(robot.feet) >= 3
+        self._pitch_offsets = _pitch_posture_table(robot, PITCH_TABLE_RAD) if self.follows_pitch else None
+        share = np.linspace(0.0, 1.0, 201)
+        self._progress_of_share = (3 * share**2 - 2 * share**3, share)  # xy path share -> swing progress
+        self.reset()
+
+    def reset(self) -> None:
+        self._stance_xy: np.ndarray | None = None  # where each foot last stood (a swing's lift-off point)
+
+    # ------------------------------------------------------------------ base
+    def shape_base_targets(self, targets: np.ndarray, yaws: np.ndarray) -> None:
+        """Base height over the support plane, pitch along it (3+ feet) and the leg postures of that pitch, in
+        place on the configuration targets (nodes, nq) whose base xy and yaw are set."""
+        plane = self.support.plane(targets[:, :2], yaws)
+        targets[:, 2] += plane[:, 0]
+        if not self.follows_pitch:
+            return
+        pitch = np.clip(-np.arctan(plane[:, 1]), PITCH_TABLE_RAD[0], PITCH_TABLE_RAD[-1])
+        targets[:, 3:7] = _yaw_pitch_quaternions(yaws, pitch)
+        offsets = self._pitch_offsets
+        position = np.interp(pitch, PITCH_TABLE_RAD, np.arange(len(PITCH_TABLE_RAD)))
+        low = np.minimum(np.floor(position).astype(int), len(PITCH_TABLE_RAD) - 2)
+        share = (position - low)[:, None]
+        targets[:, 7:] += (1 - share) * offsets[low] + share * offsets[low + 1]
+
+    # ------------------------------------------------------------------ feet
+    def step(self, gait: Gait, t: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
+             command_world: np.ndarray, yaw: float, feet_m: np.ndarray) -> TerrainStep:
+        """Swing references, footholds and cone normals of the horizon at t + node_times_s from the measured base
+        (q, world velocity), the commanded world velocity, the heading and the measured feet (n_feet, 3)."""
+        times = t + np.asarray(node_times_s, dtype=float)
+        n, n_feet = len(times), len(self.robot.feet)
+        feet_m = np.asarray(feet_m, dtype=float)
+        stance_now = gait.contact(np.array([t]))[0] > 0
+        if self._stance_xy is None:
+            self._stance_xy = feet_m[:, :2].copy()
+        self._stance_xy[stance_now] = feet_m[stance_now, :2]
+        vz = np.zeros((n, n_feet))
+        vxy = np.full((n, n_feet, 2), np.nan)
+        apex_plan = np.full((n, n_feet), np.nan)
+        stand = np.repeat(feet_m[None, :, :2], n, axis=0)  # where each foot stands per node
+        duty = gait.duty_factor
+        if duty < 1:
+            swing_s, stance_s = gait.swing_duration_s, duty * gait.period_s
+            placement = self._placement
+            heading = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+            command = np.asarray(command_world, dtype=float)[:2]
+            capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(
+                placement._height_m / GRAVITY_M_S2)
+            step = command * stance_s / 2 + capture
+            reach = np.linalg.norm(step)
+            if reach > placement._reach_m:
+                step = step * placement._reach_m / reach
+            for foot, nodes, s, lift_off_t, touch_down_t, s_now in _swings(gait, t, times):
+                in_progress = lift_off_t <= t
+                lift_off_xy = self._stance_xy[foot] if in_progress else stand[nodes[0] - 1, foot] if nodes[0] > 0 \
+                    else feet_m[foot, :2]
+                raw = q[:2] + (touch_down_t - t) * command + heading @ placement._foot_offsets_m[foot] + step
+                target = self.footholds.adapt(raw)
+                s0 = s_now if in_progress else 0.0
+                start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
+                left = 1 - 3 * s0**2 + 2 * s0**3  # share of the 6 s (1 - s) path still ahead
+                if left > PLACEMENT_END_SHARE:
+                    vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
+                stand[nodes[0]:, foot] = target
+                h0, apex, h1, share = self._swing_heights(foot, lift_off_xy, target)
+                height, velocity = swing_between(s, swing_s, h0, apex, h1, share, self.swing.liftoff_velocity_m_s,
+                                                 self.swing.touchdown_velocity_m_s)
+                if in_progress:  # the plan from the measured height: its error taken out linearly until touch-down
+                    planned_now, _ = swing_between(np.array([s0]), swing_s, h0, apex, h1, share,
+                                                   self.swing.liftoff_velocity_m_s, self.swing.touchdown_velocity_m_s)
+                    error = feet_m[foot, 2] - planned_now[0]
+                    correction = np.clip(error / max((1 - s0) * swing_s, 1e-3), -MAX_HEIGHT_CORRECTION_M_S,
+                                         MAX_HEIGHT_CORRECTION_M_S)
+                    velocity = velocity - correction
+                    height = height + error * (1 - s) / max(1 - s0, 1e-3)
+                vz[nodes, foot] = velocity
+                apex_plan[nodes, foot] = height
+        heights, normals = self.terrain.height_normal(stand)
+        footholds = np.concatenate([stand, (heights + self._contact_height)[..., None]], axis=-1)
+        N = n - 1
+        return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
+
+    def _swing_heights(self, foot: int, lift_off_xy: np.ndarray, target_xy: np.ndarray):
+        """(lift-off, apex, touch-down heights of the contact frame, apex share) of a swing between two points."""
+        contact = self._contact_height[foot]
+        ground = self.terrain.height(np.stack([lift_off_xy, target_xy]))
+        profile = self.raster.path_heights(lift_off_xy, target_xy, self._foot_extent)
+        apex = max(float(profile.max()), float(ground.max())) + contact + self.swing.apex_height_m
+        share = 0.5
+        rising = np.flatnonzero(profile > ground[0] + RISE_M)
+        if rising.size:  # the apex over the first point that rises: progress where the xy path gets there
+            path_share = rising[0] / max(len(profile) - 1, 1)
+            progress = float(np.interp(path_share, *self._progress_of_share))
+            share = float(np.clip(progress, MIN_APEX_SHARE, 0.5))
+        return ground[0] + contact, apex, ground[1] + contact, share
+
+
+def _swings(gait: Gait, t: float, times: np.ndarray):
+    """(foot, nodes, progress at those nodes, lift-off time, touch-down time, progress now) of every swing in the
+    horizon, in order per foot (as `SwingPlacement` segments them)."""
+    duty = gait.duty_factor
+    swing_s = gait.swing_duration_s
+    phase = gait.phase(times)
+    progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
+    now_phase = gait.phase(np.array([t]))[0]
+    for foot in range(phase.shape[1]):
+        swinging = progress[:, foot] >= 0
+        if not swinging.any():
+            continue
+        previous = np.r_[-1.0, progress[:-1, foot]]
+        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, foot] < previous))) * swinging
+        s_now = (now_phase[foot] - duty) / (1 - duty) if now_phase[foot] >= duty else 0.0
+        for label in np.unique(labels[labels > 0]):
+            nodes = np.flatnonzero(labels == label)
+            s = progress[nodes, foot]
+            lift_off_t = times[nodes[0]] - s[0] * swing_s
+            yield foot, nodes, s, lift_off_t, lift_off_t + swing_s, s_now
+
+
+def _yaw_pitch_quaternions(yaw: np.ndarray, pitch: np.ndarray) -> np.ndarray:
+    """(n, 4) xyzw quaternions of R = Rz(yaw) Ry(pitch)."""
+    cz, sz = np.cos(yaw / 2), np.sin(yaw / 2)
+    cy, sy = np.cos(pitch / 2), np.sin(pitch / 2)
+    return np.column_stack([-sz * sy, cz * sy, sz * cy, cz * cy])
+
+
+def _pitch_posture_table(robot: RobotModel, pitches_rad: np.ndarray) -> np.ndarray:
+    """(len(pitches), nq - 7) leg joint offsets from the nominal pose that keep each foot at its nominal horizontal
+    place under a base pitched by each angle, on a ground of that slope (inverse kinematics, base fixed)."""
+    model, data = robot.model, robot.model.createData()
+    frames = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]
+    q0 = robot.q_nominal.copy()
+    q0[:2] = 0.0
+    q0[3:7] = (0.0, 0.0, 0.0, 1.0)
+    pin.framesForwardKinematics(model, data, q0)
+    nominal = np.array([data.oMf[f].translation.copy() for f in frames])
+    q_column = {model.joints[j].idx_v - 6: model.joints[j].idx_q - 7 for j in range(2, model.njoints)
+                if model.joints[j].nq == 1}
+    pin.computeJointJacobians(model, data, q0)
+    legs = []
+    for frame in frames:
+        jacobian = pin.getFrameJacobian(model, data, frame, pin.LOCAL_WORLD_ALIGNED)[:3, 6:]
+        columns = [c for c in np.flatnonzero(np.any(np.abs(jacobian) > 1e-9, axis=0))
+                   if robot.leg_joint_mask[c] and c in q_column]
+        legs.append(np.array(columns, dtype=int))
+    table = np.zeros((len(pitches_rad), robot.nq - 7))
+    for k, pitch in enumerate(pitches_rad):
+        q = q0.copy()
+        q[3:7] = _yaw_pitch_quaternions(np.array([0.0]), np.array([pitch]))[0]
+        slope = -np.tan(pitch)
+        target = nominal.copy()
+        target[:, 2] += slope * nominal[:, 0]  # the ground of that slope through the point under the base
+        for _ in range(IK_ITERATIONS):
+            pin.framesForwardKinematics(model, data, q)
+            error = target - np.array([data.oMf[f].translation for f in frames])
+            if np.max(np.abs(error)) < 1e-7:
+                break
+            pin.computeJointJacobians(model, data, q)
+            for frame, columns, e in zip(frames, legs, error):
+                jacobian = pin.getFrameJacobian(model, data, frame, pin.LOCAL_WORLD_ALIGNED)[:3, 6 + columns]
+                q[7 + np.array([q_column[c] for c in columns], dtype=int)] += np.linalg.lstsq(jacobian, e, rcond=None)[0]
+        table[k] = q[7:] - q0[7:]
+    return table - table[np.argmin(np.abs(pitches_rad))]

@@ -1,0 +1,74 @@
+"""MuJoCo geometry of a `wbmpc.terrain.Terrain`: boxes, ramps as convex wedge meshes, heightmaps as height fields.
+
+Each piece becomes one static geom named `terrain:<piece name>` (the contact metrics find the piece a robot geom
+touches by that name); the floor plane moves to the terrain's floor height. A height field samples its heights
+at the grid points and MuJoCo interpolates linearly on the triangles that split each cell along the diagonal
+from (i, j) to (i + 1, j + 1), as `Heightmap.height` does.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from wbmpc.terrain import Box, Heightmap, Ramp, Terrain
+
+TERRAIN_PREFIX = "terrain:"
+HFIELD_BASE_M = 0.05  # thickness of a height field's solid base below its lowest point
+COLORS = (".55 .5 .45 1", ".62 .57 .5 1")  # alternating, so that steps stand out from each other
+
+
+def geom_name(piece_name: str) -> str:
+    return TERRAIN_PREFIX + piece_name
+
+
+def add_terrain(root: ET.Element, asset: ET.Element, world: ET.Element, terrain: Terrain) -> None:
+    """The terrain's geoms into an MJCF tree (assets for meshes and height fields); the floor plane named "floor"
+    is moved to `terrain.floor_m`."""
+    for geom in world.iter("geom"):
+        if geom.get("name") == "floor" and terrain.floor_m:
+            geom.set("pos", _v([0.0, 0.0, terrain.floor_m]))
+    for k, piece in enumerate(terrain.pieces):
+        color = COLORS[k % 2]
+        name = geom_name(piece.name)
+        if isinstance(piece, Box):
+            bottom = terrain.floor_m if piece.bottom_m is None else piece.bottom_m
+            half = [0.5 * piece.size_m[0], 0.5 * piece.size_m[1], 0.5 * (piece.top_m - bottom)]
+            yaw = np.deg2rad(piece.yaw_deg)
+            ET.SubElement(world, "geom", name=name, type="box", size=_v(half), rgba=color,
+                          pos=_v([*piece.centre_m, 0.5 * (piece.top_m + bottom)]),
+                          quat=_v([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]))
+        elif isinstance(piece, Ramp):
+            mesh = f"terrain_mesh_{k}"
+            ET.SubElement(asset, "mesh", name=mesh, vertex=_v(ramp_vertices(piece, terrain.floor_m)))
+            ET.SubElement(world, "geom", name=name, type="mesh", mesh=mesh, rgba=color)
+        elif isinstance(piece, Heightmap):
+            field_name = f"terrain_hfield_{k}"
+            heights = piece.heights_m
+            low, high = float(heights.min()), float(heights.max())
+            span = high - low
+            normalised = (heights - low) / span if span > 0 else np.zeros_like(heights)
+            lx, ly = piece.extent_m
+            rows, cols = piece.shape
+            base = max(HFIELD_BASE_M, low - terrain.floor_m)  # down to the floor: no gap under a raised map
+            # MJCF's elevation lists the top row (largest y) first
+            ET.SubElement(asset, "hfield", name=field_name, nrow=str(rows), ncol=str(cols),
+                          size=_v([0.5 * lx, 0.5 * ly, max(span, 1e-6), base]),
+                          elevation=" ".join(f"{x:.9g}" for x in normalised[::-1].ravel()))
+            ET.SubElement(world, "geom", name=name, type="hfield", hfield=field_name, rgba=color,
+                          pos=_v([piece.origin_m[0] + 0.5 * lx, piece.origin_m[1] + 0.5 * ly, low]))
+
+
+def ramp_vertices(ramp: Ramp, floor_m: float) -> np.ndarray:
+    """(n, 3) vertices of the ramp's convex wedge: its top surface's corners and their feet on the floor (the
+    feet of a corner on the floor already are dropped, MuJoCo's hull needs distinct points)."""
+    corners = ramp.corners()  # start - side, end - side, end + side, start + side
+    heights = [ramp.start_m[2], ramp.end_m[2], ramp.end_m[2], ramp.start_m[2]]
+    top = [[x, y, z] for (x, y), z in zip(corners, heights)]
+    feet = [[x, y, floor_m] for (x, y), z in zip(corners, heights) if z > floor_m + 1e-9]
+    return np.array(top + feet)
+
+
+def _v(values) -> str:
+    return " ".join(repr(float(x)) for x in np.asarray(values, dtype=float).ravel())
