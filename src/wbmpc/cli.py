@@ -390,7 +390,6 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     from pathlib import Path
 
     from wbmpc.scenarios import (
-        SCENARIOS,
         check_output_dir,
         make_scenario,
         run_scenario,
@@ -411,7 +410,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
                                  plant_config=plant_config_from_args(args, robot)).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
-    scenario = SCENARIOS[args.scenario](config.options)
+    scenario = make_scenario(args.scenario, robot, config.options)  # its default duration may follow the robot
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
           f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",

@@ -10,8 +10,8 @@ The OCP is the same on any ground (`ocp/problem.py`): the terrain enters through
 - eq. (6)'s swing spline between the terrain's heights (`gait.swing_between`): from the lift-off height up to an
   apex the swing height above the highest ground between lift-off and landing, down to the landing point's
   height. Where the ground ahead rises above the lift-off height (a riser), the apex comes early enough for the
-  foot to be over it when it gets there (`apex_share`, at least MIN_APEX_SHARE of the swing); else midway, as on
-  a flat floor. A swing in progress is re-planned from the measured foot height (the error is taken out linearly
+  foot to be half the swing height over it when it gets there (the latest of APEX_SHARES that does); else midway,
+  as on a flat floor. A swing in progress is re-planned from the measured foot height (the error is taken out linearly
   until touch-down), so that the plan lands on the terrain, not where the integrated velocities would;
 - stance feet stay where they stand (eq. 6's zero velocity), at the terrain's height by construction;
 - friction and wrench cones about the terrain's normal under each foot, per node (the OCP's "contact_normal");
@@ -36,7 +36,7 @@ from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.terrain import FootholdConfig, FootholdMap, Terrain
 from wbmpc.terrain.support import SupportFootprint
 
-MIN_APEX_SHARE = 0.3  # a swing over a riser reaches its apex no earlier than this share of the swing
+APEX_SHARES = np.arange(0.5, 0.29, -0.05)  # a swing over a riser reaches its apex at one of these shares of it
 RISE_M = 0.02  # ground this much above the lift-off point counts as something to step over
 MAX_HEIGHT_CORRECTION_M_S = 1.0  # at most this vertical velocity re-plans a swing in progress onto the terrain
 KEEP_OUT_MARGIN_M = 0.05  # keep-out band: the foot's own extent (sphere radius, half a sole) plus this
@@ -73,8 +73,7 @@ class TerrainReferences:
         self._placement = SwingPlacement(robot)
         self._contact_height = np.array([robot.contact_height_m(f) for f in robot.feet])
         self._foot_extent = default_footholds(robot).keep_out_m - KEEP_OUT_MARGIN_M
-        leg = float(robot.q_nominal[2])
-        self.support = SupportFootprint(terrain, self._placement._foot_offsets_m, SUPPORT_REACH * leg)
+        self.support = support_footprint(robot, terrain)
         self.follows_pitch = len(robot.feet) >= 3
         self._pitch_offsets = _pitch_posture_table(robot, PITCH_TABLE_RAD) if self.follows_pitch else None
         share = np.linspace(0.0, 1.0, 201)
@@ -83,6 +82,7 @@ class TerrainReferences:
 
     def reset(self) -> None:
         self._stance_xy: np.ndarray | None = None  # where each foot last stood (a swing's lift-off point)
+        self._committed: dict[int, tuple[float, np.ndarray, float]] = {}  # foot -> (lift-off t, landing, its height)
 
     # ------------------------------------------------------------------ base
     def shape_base_targets(self, targets: np.ndarray, yaws: np.ndarray) -> None:
@@ -133,7 +133,7 @@ class TerrainReferences:
                 lift_off_xy = self._stance_xy[foot] if in_progress else stand[nodes[0] - 1, foot] if nodes[0] > 0 \
                     else feet_m[foot, :2]
                 raw = q[:2] + (touch_down_t - t) * command + heading @ placement._foot_offsets_m[foot] + step
-                target = self.footholds.adapt(raw)
+                target = self._landing(foot, raw, in_progress, lift_off_t)
                 s0 = s_now if in_progress else 0.0
                 start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
                 left = 1 - 3 * s0**2 + 2 * s0**3  # share of the 6 s (1 - s) path still ahead
@@ -158,19 +158,51 @@ class TerrainReferences:
         N = n - 1
         return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
 
+    def _landing(self, foot: int, raw_xy: np.ndarray, in_progress: bool, lift_off_t: float) -> np.ndarray:
+        """The safe landing point of a swing (`FootholdMap.adapt` of Raibert's target). A swing in progress keeps the
+        ground level it was given at its first step in the air: the target still follows the capture point while it
+        stays on that level (within EDGE's height), else the committed point is kept. Without this a raw target
+        near a riser flipped between the step's top and its foot from one MPC step to the next."""
+        target = self.footholds.adapt(raw_xy)
+        committed = self._committed.get(foot)
+        if not in_progress:
+            return target
+        if committed is None or abs(committed[0] - lift_off_t) > 1e-3:  # a new swing
+            self._committed[foot] = (lift_off_t, target, float(self.terrain.height(target)))
+            return target
+        _, kept, level = committed
+        if abs(float(self.terrain.height(target)) - level) <= self.footholds.config.edge_height_m:
+            self._committed[foot] = (lift_off_t, target, level)
+            return target
+        return kept
+
     def _swing_heights(self, foot: int, lift_off_xy: np.ndarray, target_xy: np.ndarray):
         """(lift-off, apex, touch-down heights of the contact frame, apex share) of a swing between two points."""
         contact = self._contact_height[foot]
         ground = self.terrain.height(np.stack([lift_off_xy, target_xy]))
-        profile = self.raster.path_heights(lift_off_xy, target_xy, self._foot_extent)
+        profile = self.raster.path_heights(lift_off_xy, target_xy, self._foot_extent)  # under the foot's centre path
+        h0, h1 = ground[0] + contact, ground[1] + contact
         apex = max(float(profile.max()), float(ground.max())) + contact + self.swing.apex_height_m
-        share = 0.5
-        rising = np.flatnonzero(profile > ground[0] + RISE_M)
-        if rising.size:  # the apex over the first point that rises: progress where the xy path gets there
-            path_share = rising[0] / max(len(profile) - 1, 1)
-            progress = float(np.interp(path_share, *self._progress_of_share))
-            share = float(np.clip(progress, MIN_APEX_SHARE, 0.5))
-        return ground[0] + contact, apex, ground[1] + contact, share
+        # rising edges on the way (risers, a box's side): the foot must be over each when it gets there
+        edges = np.flatnonzero(np.diff(profile) > RISE_M) + 1
+        if profile[0] > ground[0] + RISE_M:
+            edges = np.r_[0, edges]
+        if not edges.size:
+            return h0, apex, h1, 0.5
+        # the latest apex (share <= 1/2, eq. 6's) whose spline is half the swing height over each edge where the
+        # foot's xy path (3 s^2 - 2 s^3 of the way) reaches it
+        progress = np.interp(edges / max(len(profile) - 1, 1), *self._progress_of_share)
+        needed = profile[edges] + contact + 0.5 * self.swing.apex_height_m
+        for share in APEX_SHARES:
+            height, _ = swing_between(progress, 1.0, h0, apex, h1, share)
+            if np.all(height >= needed):
+                return h0, apex, h1, float(share)
+        return h0, apex, h1, float(APEX_SHARES[-1])
+
+
+def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:
+    """The terrain's support plane under `robot` (its feet's nominal places, SUPPORT_REACH leg lengths either way)."""
+    return SupportFootprint(terrain, SwingPlacement(robot)._foot_offsets_m, SUPPORT_REACH * float(robot.q_nominal[2]))
 
 
 def _swings(gait: Gait, t: float, times: np.ndarray):

@@ -21,6 +21,7 @@ from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.manipulation import Compliant, Pull, PushBox, Wipe
 from wbmpc.scenarios.metrics import SETTLE_S, base_world_velocity, base_yaw, heading_rotation
+from wbmpc.scenarios.terrain import Slope, Stairs, SteppingStones
 
 
 class Stand(Scenario):
@@ -37,8 +38,22 @@ class TrotForward(Scenario):
     def __init__(self, options: ScenarioOptions):
         super().__init__("trot-forward", "trot forward at the commanded speed", "trot", 6.0, options=options)
 
+    def terrain(self, robot):
+        """--terrain FILE, else the flat floor."""
+        if not hasattr(self, "_file_terrain"):
+            from wbmpc.scenarios.terrain import file_terrain
+
+            self._file_terrain = file_terrain(self.options)
+        return self._file_terrain
+
     def commands(self, robot):
         velocity = np.array([self.options.speed_m_s, 0.0, 0.0])
+        terrain = self.terrain(robot)
+        if terrain is not None and robot.arm_ee is not None:  # the hand carried over the terrain
+            from wbmpc.scenarios.terrain import TerrainHand
+
+            return TerrainHand(robot, terrain, self.start_pose(robot), self.options.speed_m_s,
+                               self.default_duration_s).command(velocity)
         return lambda t, q, v: Commands(base_velocity_m_s=velocity)
 
     def extra_metrics(self, robot, log):
@@ -162,8 +177,30 @@ class ArmTrack(Scenario):
         self._start: np.ndarray | None = None
         self._base_start: np.ndarray | None = None
         self._scene = None
+        self._terrain_hand = None  # on a terrain: the lift of the reference (scenarios/terrain.TerrainHand)
+
+    def terrain(self, robot):
+        """--terrain FILE, or a ramp up along the path (--slope-deg), else the flat floor."""
+        if not hasattr(self, "_terrain"):
+            from wbmpc.scenarios.terrain import file_terrain, ramp_along_path
+
+            self._terrain = file_terrain(self.options) or (
+                ramp_along_path(robot, self.options.slope_deg, backwards=self.base_speed_m_s < 0)
+                if self.options.slope_deg is not None and self.base_speed_m_s != 0 else None)
+        return self._terrain
+
+    def _lifted(self, position: np.ndarray, velocity: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """On a terrain, the reference rises with the support under the base's path (`TerrainHand`)."""
+        if self._terrain_hand is None:
+            return position, velocity
+        lifted, carried = self._terrain_hand.reference(t)
+        return position + np.array([0.0, 0.0, lifted[2] - self._terrain_hand.start[2]]), \
+            velocity + np.array([0.0, 0.0, carried[2]])
 
     def _reference(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self._lifted(*self._flat_reference(t), t)
+
+    def _flat_reference(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         o = self.options
         start = self._start
         drift = np.array([o.speed_m_s * t, 0.0, 0.0])
@@ -195,8 +232,14 @@ class ArmTrack(Scenario):
 
     def ee_reference(self, robot):
         if self._start is None:
-            self._start = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
-            self._base_start = np.asarray(robot.q_nominal[:3], dtype=float)
+            start_q = self.start_pose(robot)
+            self._start = robot.frame_trajectories(start_q, [robot.arm_ee])[robot.arm_ee][0]
+            self._base_start = np.asarray(start_q[:3], dtype=float)
+            terrain = self.terrain(robot)
+            if terrain is not None:
+                from wbmpc.scenarios.terrain import TerrainHand
+
+                self._terrain_hand = TerrainHand(robot, terrain, start_q, self.base_speed_m_s, self.default_duration_s)
         return lambda t: self._reference(t)[0]
 
     def reachable(self, robot, t: np.ndarray) -> np.ndarray:
@@ -287,7 +330,8 @@ class ArmTrack(Scenario):
 
 
 SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, WalkInPlace, WalkForward,
-                                                                 Push, ArmTrack, Pull, PushBox, Wipe, Compliant)}
+                                                                 Push, ArmTrack, Pull, PushBox, Wipe, Compliant, Stairs,
+                                                                 Slope, SteppingStones)}
 TROT_SCENARIOS = ("trot-in-place", "trot-forward")  # trot by name: refused on robots without a trot
 
 

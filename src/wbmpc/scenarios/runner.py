@@ -226,7 +226,8 @@ def mpc_config_for(scenario: Scenario, config: RunConfig, robot: RobotModel | No
                  if config.collision_avoidance else None)
     soft_arm = collision is not None and (robot is None or robot.arm_ee is not None)
     flat_feet = robot is not None and bool(robot.soles)
-    return MpcConfig(ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
+    return MpcConfig(terrain=scenario.terrain(robot) if robot is not None else None,
+                     ocp=OcpConfig(formulation=config.formulation, grid=grid, collision=collision,
                                    soft_rows=("ee_vel",) if soft_arm else (),
                                    inertial_parameters=config.identify_mass,
                                    object_model=(scenario.object_model(robot) if config.options.object_model and robot is not None
@@ -389,6 +390,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
+    _check_terrain(robot, scenario, config)
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     # the plant does not wait: recovery solvers must not be built mid-run (in real time the solver process
     # builds its own MPC and prepares it; this one only solves the first step, before the clock runs)
@@ -418,10 +420,21 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
     # here and would grow by ~0.3 MB per simulated second
     plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    terrain = scenario.terrain(robot)
+    if terrain is not None:  # MuJoCo builds the terrain the MPC plans on
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = dataclasses.replace(specialised_config(plant_config, MujocoPlantConfig), terrain=terrain)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
-    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    terrain_monitor = None
+    if terrain is not None:
+        from wbmpc.sim.terrain_contacts import TerrainContactMonitor
+
+        terrain_monitor = TerrainContactMonitor(plant.model, robot, terrain)
+        plant.add_step_hook(terrain_monitor)
+    plant.reset(scenario.start_pose(robot), np.zeros(robot.nv))
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
@@ -440,7 +453,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
         state_source.listeners.append(identification.on_estimate)
-    loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed,
+    loop_config = LoopConfig(delay=config.delay, gains=gains, seed=config.seed, terrain=terrain,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
@@ -453,6 +466,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
+    if terrain_monitor is not None:
+        metrics.update(terrain_monitor.metrics())
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
@@ -540,7 +555,21 @@ def _estimated_state(plant, mpc: MPC, config: RunConfig):
     from wbmpc.estimation.source import EstimatedState
 
     sensors = config.sensors or SensorConfig(seed=config.seed)
-    return EstimatedState(plant, mpc.gait, sensors)
+    return EstimatedState(plant, mpc.gait, sensors, terrain=mpc.config.terrain)
+
+
+def _check_terrain(robot: RobotModel, scenario: Scenario, config: RunConfig) -> None:
+    """A scenario on a terrain needs MuJoCo (the pinocchio plant's ground is a plane) and a start pose on the
+    terrain, not inside it (`sim.terrain_geoms.check_start_pose`); checked before anything is built."""
+    terrain = scenario.terrain(robot)
+    if terrain is None:
+        return
+    if config.plant != "mujoco":
+        raise ConfigError(f"scenario '{scenario.name}' walks on a terrain ({terrain.name}), which only the MuJoCo plant "
+                          "builds: use --plant mujoco")
+    from wbmpc.sim.terrain_geoms import check_start_pose
+
+    check_start_pose(robot, terrain, scenario.start_pose(robot))
 
 
 

@@ -72,3 +72,59 @@ def ramp_vertices(ramp: Ramp, floor_m: float) -> np.ndarray:
 
 def _v(values) -> str:
     return " ".join(repr(float(x)) for x in np.asarray(values, dtype=float).ravel())
+
+
+START_TOLERANCE_M = 0.005  # shapes this deep in the terrain at the start count as inside it
+START_FLOAT_M = 0.03  # a foot this far above the terrain at the start would drop onto it
+
+
+def check_start_pose(robot, terrain: Terrain, q: np.ndarray) -> None:
+    """Refuse a start configuration with a robot shape inside the terrain or a foot above it (a TerrainError naming
+    the shape, the terrain piece and where): the robot's collision shapes (`sim/shapes.py`) are sampled (sphere
+    bottoms, box corners and faces, capsule and cylinder axes) and compared with the terrain's height under them."""
+    import pinocchio as pin
+
+    from wbmpc.sim.shapes import robot_collision_shapes
+    from wbmpc.terrain import TerrainError
+
+    model, data = robot.model, robot.model.createData()
+    pin.forwardKinematics(model, data, q)
+    worst = None  # (depth, shape name, point)
+    feet = set(robot.feet)
+    for shape in robot_collision_shapes(robot):
+        placement = data.oMi[shape.joint_id]
+        rotation = placement.rotation @ shape.rotation
+        centre = placement.translation + placement.rotation @ shape.pos
+        points, radius = _shape_points(shape, centre, rotation)
+        ground = terrain.height(points[:, :2])
+        depth = ground - (points[:, 2] - radius)
+        k = int(np.argmax(depth))
+        if depth[k] > START_TOLERANCE_M and (worst is None or depth[k] > worst[0]):
+            worst = (float(depth[k]), shape.name, points[k])
+        if shape.name in feet and -float(depth.max()) > START_FLOAT_M:
+            point = points[int(np.argmax(depth))]
+            raise TerrainError(f"the start pose leaves {shape.name} {100 * -float(depth.max()):.1f} cm above the terrain "
+                               f"({_piece(terrain, point)}) at x {point[0]:.3f}, y {point[1]:.3f} m: the ground under "
+                               "the robot's start must be level; move the terrain's pieces or the start")
+    if worst is not None:
+        depth, name, point = worst
+        raise TerrainError(f"the start pose puts {name} {100 * depth:.1f} cm inside the terrain ({_piece(terrain, point)}) "
+                           f"at x {point[0]:.3f}, y {point[1]:.3f} m: the robot starts at x {q[0]:.2f}, y {q[1]:.2f} m "
+                           "on the level ground there; move the terrain's pieces away from it")
+
+
+def _piece(terrain: Terrain, point: np.ndarray) -> str:
+    name = terrain.piece_at(point[:2])[0]
+    return f"{name!r}" if name is not None else "the floor"
+
+
+def _shape_points(shape, centre: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, float]:
+    """Sample points of a collision shape in the world and the radius to take off their height."""
+    if shape.kind == "sphere":
+        return centre[None], float(shape.size[0])
+    if shape.kind in ("capsule", "cylinder"):
+        radius, half = float(shape.size[0]), float(shape.size[1])
+        along = np.linspace(-half, half, 5)[:, None] * rotation[:, 2]
+        return centre + along, radius
+    grid = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 1])).reshape(3, -1).T * np.asarray(shape.size)
+    return centre + grid @ rotation.T, 0.0

@@ -3,8 +3,9 @@
 A foot landing on a step's nose slips off it; one landing at the foot of a riser stubs its toe on the way up.
 `FootholdMap` marks as edges the raster cells whose height differs from a neighbour's by more than
 `edge_height_m` (a step, a stone's side; a slope's gentle rise is not one), keeps every cell within
-`keep_out_m` of an edge out (the band on both sides of the edge), and cells steeper than `max_slope_deg`. A
-landing target on an unsafe cell moves to the nearest safe cell (`adapt`, a Euclidean distance transform
+`keep_out_m` of an edge out (the band on both sides of the edge), cells steeper than `max_slope_deg` and the
+bottoms of holes and gaps (more than `max_drop_m` below the ground around them: a gap between stepping stones
+wider than twice the band still has no foothold). A landing target on an unsafe cell moves to the nearest safe cell (`adapt`, a Euclidean distance transform
 computed once: no search per step).
 """
 
@@ -19,6 +20,8 @@ from wbmpc.errors import check_number
 from wbmpc.terrain.pieces import TerrainError
 from wbmpc.terrain.terrain import Terrain
 
+HOLE_REACH_M = 0.1
+
 
 @dataclass(frozen=True)
 class FootholdConfig:
@@ -27,12 +30,15 @@ class FootholdConfig:
     keep_out_m: float = 0.06  # band kept free on both sides of an edge
     edge_height_m: float = 0.02  # a height jump between neighbouring cells larger than this is an edge
     max_slope_deg: float = 35.0  # steeper cells are no foothold
+    # ground more than this below the highest ground within keep_out_m + HOLE_REACH_M is the bottom of a hole or a gap
+    max_drop_m: float = 0.25
     resolution_m: float = 0.01  # raster of the map
 
     def __post_init__(self):
         check_number("keep_out_m", self.keep_out_m, low=0.0, high=1.0, unit="m")
         check_number("edge_height_m", self.edge_height_m, low=0.0, low_open=True, high=1.0, unit="m")
         check_number("max_slope_deg", self.max_slope_deg, low=0.0, low_open=True, high=90.0, unit="deg")
+        check_number("max_drop_m", self.max_drop_m, low=0.0, low_open=True, high=10.0, unit="m")
         check_number("resolution_m", self.resolution_m, low=0.001, high=0.2, unit="m")
 
 
@@ -55,7 +61,9 @@ class FootholdMap:
         self.edge_distance_m = ndimage.distance_transform_edt(~edges) * raster.resolution_m if edges.any() else \
             np.full(heights.shape, np.inf)
         steep = raster.normals[..., 2] < np.cos(np.deg2rad(config.max_slope_deg))
-        self.safe = (self.edge_distance_m > config.keep_out_m) & ~steep
+        window = 2 * int(np.ceil((config.keep_out_m + HOLE_REACH_M) / raster.resolution_m)) + 1
+        hole = ndimage.maximum_filter(heights, size=window, mode="nearest") - heights > config.max_drop_m
+        self.safe = (self.edge_distance_m > config.keep_out_m) & ~steep & ~hole
         if not self.safe.any():
             raise TerrainError(f"terrain '{terrain.name}' has no foothold {100 * config.keep_out_m:.0f} cm from every "
                                f"edge and flatter than {config.max_slope_deg:g} deg: widen its steps or lower keep_out_m")

@@ -34,6 +34,10 @@ def _vector(name: str, value, size: int, label: str) -> np.ndarray:
     return array
 
 
+def _floats(values) -> list[float]:
+    return [float(v) for v in values]
+
+
 def _rotation(yaw_rad: float) -> np.ndarray:
     c, s = np.cos(yaw_rad), np.sin(yaw_rad)
     return np.array([[c, -s], [s, c]])
@@ -96,7 +100,7 @@ class Box:
         return _up(np.shape(xy)[:-1])
 
     def to_dict(self) -> dict:
-        out = {"name": self.name, "centre": list(self.centre_m), "size": list(self.size_m), "top": float(self.top_m)}
+        out = {"name": self.name, "centre": _floats(self.centre_m), "size": _floats(self.size_m), "top": float(self.top_m)}
         if self.bottom_m is not None:
             out["bottom"] = float(self.bottom_m)
         if self.yaw_deg:
@@ -173,7 +177,7 @@ class Ramp:
         return np.broadcast_to(n, np.shape(xy)[:-1] + (3,)).copy()
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "start": list(self.start_m), "end": list(self.end_m), "width": float(self.width_m)}
+        return {"name": self.name, "start": _floats(self.start_m), "end": _floats(self.end_m), "width": float(self.width_m)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -265,9 +269,9 @@ class Heightmap:
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
     def to_dict(self) -> dict:
-        out = {"name": self.name, "resolution": float(self.resolution_m), "origin": list(self.origin_m)}
-        if self.source is not None:
-            out["file"] = self.source
+        out = {"name": self.name, "resolution": float(self.resolution_m), "origin": _floats(self.origin_m)}
+        if self.source is not None and self.source.lower().endswith((".npy", ".csv", ".txt")):
+            out["file"] = self.source  # heights in m, read again as they are
         else:
             out["heights"] = self.heights_m.tolist()
         return out

@@ -14,7 +14,7 @@ import numpy as np
 
 from wbmpc.terrain.terrain import Terrain
 
-SAMPLES_ALONG = 5  # per foot, from -reach to +reach along the heading
+SAMPLES_ALONG = 11  # per foot, from -reach to +reach along the heading
 
 
 class SupportFootprint:

@@ -208,17 +208,17 @@ class TerrainRaster:
         return np.where(inside, self.heights_m[i, j], self.floor_m)
 
     def path_heights(self, start_xy, end_xy, radius_m: float = 0.0) -> np.ndarray:
-        """Heights sampled every half cell on the segment start -> end (one pair of points (2,)), each the highest of
-        three lines `radius_m` apart across it; the segment is extended by `radius_m` at both ends."""
+        """The highest ground under a disc of `radius_m` (its centre, and `radius_m` ahead, behind and to either
+        side) at samples every half cell along the segment start -> end (one pair of points (2,)): what a foot of
+        that size passes over."""
         start, end = np.asarray(start_xy, dtype=float), np.asarray(end_xy, dtype=float)
         length = float(np.linalg.norm(end - start))
         direction = (end - start) / length if length > 1e-9 else np.array([1.0, 0.0])
         side = np.array([-direction[1], direction[0]])
-        n = int(np.clip(np.ceil((length + 2 * radius_m) / (0.5 * self.resolution_m)), 1, 400)) + 1
-        share = np.linspace(0.0, 1.0, n)[:, None]
-        a, b = start - radius_m * direction, end + radius_m * direction
-        lines = np.stack([a + offset * side + share * (b - a) for offset in (-radius_m, 0.0, radius_m)])
-        return self.height(lines).max(axis=0)
+        n = int(np.clip(np.ceil(length / (0.5 * self.resolution_m)), 1, 400)) + 1
+        centres = start + np.linspace(0.0, 1.0, n)[:, None] * (end - start)
+        offsets = radius_m * np.array([[0.0, 0.0], direction, -direction, side, -side])
+        return self.height(centres[None] + offsets[:, None]).max(axis=0)
 
     def max_height_along(self, start_xy, end_xy, radius_m: float = 0.0) -> np.ndarray:
         """Highest sampled height on each segment start -> end (arrays (..., 2)), widened by `radius_m` on
