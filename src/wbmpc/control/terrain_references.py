@@ -5,7 +5,9 @@ The OCP is the same on any ground (`ocp/problem.py`): the terrain enters through
 
 - footholds: each swing's landing point is Raibert's (`foot_placement.SwingPlacement`: under the hip at touch-down,
   half a stance of commanded motion ahead, capture-point feedback), moved to the nearest safe cell of the terrain
-  (`terrain.FootholdMap`: a keep-out band on both sides of every edge). The swing feet's horizontal velocity rows
+  (`terrain.FootholdMap`: a keep-out band on both sides of every edge) and, where the ground rises on the side
+  the shin leans to (a knee-backward leg coming down a step), far enough from that rise for the shin to pass
+  over its edge (`shin_leans`). The swing feet's horizontal velocity rows
   carry them there (the 6 s (1 - s) profile of `SwingPlacement`, rescaled from the measured foot every step);
 - eq. (6)'s swing spline between the terrain's heights (`gait.swing_between`): from the lift-off height up to an
   apex the swing height above the highest ground between lift-off and landing, down to the landing point's
@@ -43,6 +45,9 @@ KEEP_OUT_MARGIN_M = 0.05  # keep-out band: the foot's own extent (sphere radius,
 SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length ahead of and behind each foot
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
+SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
+SHIN_MARGIN_M = 0.04  # room between the shin's line and a step's edge (its thickness and a clearance)
+SHIN_SAMPLES = 50  # raster cells checked on the shin's side of a landing point
 
 
 def default_footholds(robot: RobotModel) -> FootholdConfig:
@@ -72,6 +77,7 @@ class TerrainReferences:
         self.raster = self.footholds.raster
         self._placement = SwingPlacement(robot)
         self._contact_height = np.array([robot.contact_height_m(f) for f in robot.feet])
+        self._shin_lean = shin_leans(robot)
         self._foot_extent = default_footholds(robot).keep_out_m - KEEP_OUT_MARGIN_M
         self.support = support_footprint(robot, terrain)
         self.follows_pitch = len(robot.feet) >= 3
@@ -133,12 +139,14 @@ class TerrainReferences:
                 lift_off_xy = self._stance_xy[foot] if in_progress else stand[nodes[0] - 1, foot] if nodes[0] > 0 \
                     else feet_m[foot, :2]
                 raw = q[:2] + (touch_down_t - t) * command + heading @ placement._foot_offsets_m[foot] + step
-                target = self._landing(foot, raw, in_progress, lift_off_t)
+                target = self._landing(foot, raw, in_progress, lift_off_t, heading)
                 s0 = s_now if in_progress else 0.0
                 start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
-                left = 1 - 3 * s0**2 + 2 * s0**3  # share of the 6 s (1 - s) path still ahead
-                if left > PLACEMENT_END_SHARE:
-                    vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
+                # the 6 s (1 - s) profile over what is left of the path (at least PLACEMENT_END_SHARE of it, so that
+                # the rescaling stays bounded); unlike a biped's step on the floor the end is not left free: a foot
+                # free to go on after 90 % of its way slid into the keep-out band of a riser
+                left = max(1 - 3 * s0**2 + 2 * s0**3, PLACEMENT_END_SHARE)
+                vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
                 stand[nodes[0]:, foot] = target
                 h0, apex, h1, share = self._swing_heights(foot, lift_off_xy, target)
                 height, velocity = swing_between(s, swing_s, h0, apex, h1, share, self.swing.liftoff_velocity_m_s,
@@ -158,12 +166,29 @@ class TerrainReferences:
         N = n - 1
         return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
 
-    def _landing(self, foot: int, raw_xy: np.ndarray, in_progress: bool, lift_off_t: float) -> np.ndarray:
+    def _clear_of_shin(self, foot: int, target_xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+        """`target_xy` moved away from ground that rises on the side the foot's shin leans to (behind the foot of a
+        knee-backward leg: the step a front foot has just come down from), until the shin's line (its nominal lean,
+        horizontal per vertical metre, plus SHIN_MARGIN_M) passes over that ground's edge."""
+        lean = self._shin_lean[foot]
+        if abs(lean) < 1e-3:
+            return target_xy
+        side = np.sign(lean) * heading[:, 0]
+        distances = np.arange(1, SHIN_SAMPLES + 1) * self.raster.resolution_m
+        rise = self.raster.height(target_xy + distances[:, None] * side) - float(self.terrain.height(target_xy))
+        shortfall = np.where(rise > RISE_M, abs(lean) * rise + SHIN_MARGIN_M - distances, 0.0).max()
+        return target_xy - side * shortfall if shortfall > 0 else target_xy
+
+    def _landing(self, foot: int, raw_xy: np.ndarray, in_progress: bool, lift_off_t: float,
+                 heading: np.ndarray) -> np.ndarray:
         """The safe landing point of a swing (`FootholdMap.adapt` of Raibert's target). A swing in progress keeps the
         ground level it was given at its first step in the air: the target still follows the capture point while it
         stays on that level (within EDGE's height), else the committed point is kept. Without this a raw target
         near a riser flipped between the step's top and its foot from one MPC step to the next."""
         target = self.footholds.adapt(raw_xy)
+        moved = self._clear_of_shin(foot, target, heading)
+        if moved is not target:
+            target = self.footholds.adapt(moved)
         committed = self._committed.get(foot)
         if not in_progress:
             return target
@@ -198,6 +223,28 @@ class TerrainReferences:
             if np.all(height >= needed):
                 return h0, apex, h1, float(share)
         return h0, apex, h1, float(APEX_SHARES[-1])
+
+
+def shin_leans(robot: RobotModel) -> np.ndarray:
+    """Per foot, the lean of its shin in the nominal pose: the horizontal offset (along the heading; negative:
+    behind) of the first joint up its leg at least SHIN_MIN_HEIGHT leg lengths above the contact point, per
+    metre of height (-1.03 on b1_z1, -0.77 on go2: their knees point backwards)."""
+    model, data = robot.model, robot.model.createData()
+    pin.framesForwardKinematics(model, data, robot.q_nominal)
+    rotation = data.oMi[1].rotation
+    leans = []
+    for foot in robot.feet:
+        frame = robot.frame_id(robot.contact_frame(foot))
+        contact = data.oMf[frame].translation
+        joint, lean = model.frames[frame].parentJoint, 0.0
+        while joint > 1:
+            offset = rotation.T @ (data.oMi[joint].translation - contact)
+            if offset[2] >= SHIN_MIN_HEIGHT * robot.q_nominal[2]:
+                lean = float(offset[0] / offset[2])
+                break
+            joint = model.parents[joint]
+        leans.append(lean)
+    return np.array(leans)
 
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:

@@ -8,7 +8,8 @@ between the robot's geoms and the terrain's (`sim/terrain_geoms.py`, named `terr
   normal there (a toe on a riser, a foot on a step's nose) or within EDGE_DISTANCE_M of an edge of the terrain;
   each touch counted once (per foot, when it starts);
 - slips: a loaded foot (normal force over SLIP_LOAD_SHARE of the weight shared over the feet) whose contact point
-  slides faster than SLIP_SPEED_M_S along the surface; counted per start, with the distance slid;
+  slides faster than SLIP_SPEED_M_S along the surface for SLIP_MIN_S or longer (not the brief slide of a
+  touch-down); counted once per slide, with the distance slid;
 - body contacts: any other robot geom touching the terrain (a shin or a knee on a step's edge), per touch, by geom.
 """
 
@@ -24,8 +25,9 @@ from wbmpc.terrain import FootholdConfig, FootholdMap, Terrain
 
 EDGE_ANGLE_DEG = 30.0
 EDGE_DISTANCE_M = 0.01
-SLIP_SPEED_M_S = 0.05
+SLIP_SPEED_M_S = 0.1
 SLIP_LOAD_SHARE = 0.1
+SLIP_MIN_S = 0.01
 
 
 class TerrainContactMonitor:
@@ -55,6 +57,8 @@ class TerrainContactMonitor:
         self.body_contact_time_s = 0.0
         self._on_edge = np.zeros(n_feet, dtype=bool)
         self._slipping = np.zeros(n_feet, dtype=bool)
+        self._sliding_s = np.zeros(n_feet)  # how long each foot has been sliding
+        self._slid_m = np.zeros(n_feet)  # ... and how far
         self._body_touching: set[str] = set()
         self.first_body_contact: dict | None = None
 
@@ -94,12 +98,16 @@ class TerrainContactMonitor:
                     linear = self._velocity[3:] + np.cross(self._velocity[:3], position - d.geom_xpos[mine])
                     sliding = linear - (linear @ normal) * normal
                     speed = float(np.linalg.norm(sliding))
-                    if speed > SLIP_SPEED_M_S:
+                    if speed > SLIP_SPEED_M_S and not slipping[foot]:
                         slipping[foot] = True
-                        self.slip_distance_m[foot] += speed * plant.dt_s
+                        self._slid_m[foot] += speed * plant.dt_s
         self.edge_contacts += on_edge & ~self._on_edge
-        self.slips += slipping & ~self._slipping
-        self._on_edge, self._slipping = on_edge, slipping
+        self._sliding_s = np.where(slipping, self._sliding_s + plant.dt_s, 0.0)
+        long_enough = self._sliding_s >= SLIP_MIN_S - 1e-9
+        self.slips += long_enough & ~self._slipping
+        self.slip_distance_m += np.where(long_enough, self._slid_m, 0.0)
+        self._slid_m = np.where(slipping & ~long_enough, self._slid_m, 0.0)
+        self._on_edge, self._slipping = on_edge, long_enough
         for name in body - self._body_touching:
             self.body_contacts[name] = self.body_contacts.get(name, 0) + 1
             if self.first_body_contact is None:
