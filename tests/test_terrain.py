@@ -179,7 +179,6 @@ def test_the_swing_spline_clears_a_step_of_known_height(go2, riser_share):
 def test_swing_references_land_on_the_step_and_cones_tilt_with_the_ramp(go2):
     """One MPC step's terrain data for go2 trotting towards a ramp: the swing feet land on safe cells, the normals
     of the nodes after a landing on the ramp are its normal, the swing v_z integrate to the landing heights."""
-    ramp = Ramp((0.25, -1.0, 0.0), (1.25, -1.0, 0.0), 3.0, name="flat")  # replaced below
     angle = np.deg2rad(15.0)
     ramp = Ramp((0.25, 0.0, 0.0), (1.75, 0.0, 1.5 * np.tan(angle)), 3.0, name="ramp")
     terrain = Terrain((ramp,))
@@ -191,8 +190,8 @@ def test_swing_references_land_on_the_step_and_cones_tilt_with_the_ramp(go2):
     node_times = np.linspace(0.0, 0.56, 15)
     t = 0.65 * 0.5 - 0.01  # the FR/RL pair is about to swing... both pairs swing within the horizon
     step = references.step(gait, t, node_times, q, np.array([0.3, 0.0, 0.0]), np.array([0.3, 0.0, 0.0]), 0.0, feet)
-    on_ramp = step.footholds_m[-1, :, 0] > 0.25 + references.footholds.config.keep_out_m
-    assert on_ramp[:2].all()  # the front feet land on it
+    on_ramp = step.footholds_m[-1, :, 0] > 0.25  # the ramp meets the floor without an edge: no keep-out band
+    assert on_ramp[:2].all() and not on_ramp[2:].any()  # the front feet land on it, the rear ones before it
     normals = step.contact_normal.T.reshape(len(node_times) - 1, 4, 3)
     np.testing.assert_allclose(normals[-1, on_ramp], np.tile(ramp.normal(np.zeros((1, 2)))[0], (on_ramp.sum(), 1)),
                                atol=1e-12)

@@ -5,15 +5,16 @@ The OCP is the same on any ground (`ocp/problem.py`): the terrain enters through
 
 - footholds: each swing's landing point is Raibert's (`foot_placement.SwingPlacement`: under the hip at touch-down,
   half a stance of commanded motion ahead, capture-point feedback), moved to the nearest safe cell of the terrain
-  (`terrain.FootholdMap`: a keep-out band on both sides of every edge) and, where the ground rises on the side
-  the shin leans to (a knee-backward leg coming down a step), far enough from that rise for the shin to pass
-  over its edge (`shin_leans`). The swing feet's horizontal velocity rows
+  (`terrain.FootholdMap`: a keep-out band on both sides of every edge) and, where the shin (`LegShins`: the leg
+  as two links from the hip at its target to the landing point) would touch the terrain (a knee-backward leg
+  coming down a step, its shin over the nose above), to the nearest safe point along the heading where it clears. The swing feet's horizontal velocity rows
   carry them there (the 6 s (1 - s) profile of `SwingPlacement`, rescaled from the measured foot every step);
 - eq. (6)'s swing spline between the terrain's heights (`gait.swing_between`): from the lift-off height up to an
   apex the swing height above the highest ground between lift-off and landing, down to the landing point's
   height. Where the ground ahead rises above the lift-off height (a riser), the apex comes early enough for the
-  foot to be half the swing height over it when it gets there (the latest of APEX_SHARES that does); else midway,
-  as on a flat floor. A swing in progress is re-planned from the measured foot height (the error is taken out linearly
+  foot to be half the swing height over it when it gets there; where the foot comes down past a step's nose with
+  its shin trailing (a knee-backward leg going forward), late enough for the shin to pass over the nose (the
+  share of APEX_SHARES nearest 1/2 that does); else midway, as on a flat floor. A swing in progress is re-planned from the measured foot height (the error is taken out linearly
   until touch-down), so that the plan lands on the terrain, not where the integrated velocities would;
 - stance feet stay where they stand (eq. 6's zero velocity), at the terrain's height by construction;
 - friction and wrench cones about the terrain's normal under each foot, per node (the OCP's "contact_normal");
@@ -38,16 +39,21 @@ from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.terrain import FootholdConfig, FootholdMap, Terrain
 from wbmpc.terrain.support import SupportFootprint
 
-APEX_SHARES = np.arange(0.5, 0.29, -0.05)  # a swing over a riser reaches its apex at one of these shares of it
+# a swing over a riser or down past a step's nose reaches its apex at the first of these shares of it that clears
+APEX_SHARES = np.array([0.5, 0.45, 0.55, 0.4, 0.6, 0.35, 0.65, 0.3, 0.7])
 RISE_M = 0.02  # ground this much above the lift-off point counts as something to step over
 MAX_HEIGHT_CORRECTION_M_S = 1.0  # at most this vertical velocity re-plans a swing in progress onto the terrain
 KEEP_OUT_MARGIN_M = 0.05  # keep-out band: the foot's own extent (sphere radius, half a sole) plus this
 SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length ahead of and behind each foot
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
+RIDE_GAIN = 2.0  # the base rides this many RMS of the terrain about its support plane higher (`ride_height`)
+RIDE_MAX = 0.15  # ... at most this share of the standing height
 SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
-SHIN_MARGIN_M = 0.04  # room between the shin's line and a step's edge (its thickness and a clearance)
-SHIN_SAMPLES = 50  # raster cells checked on the shin's side of a landing point
+SHIN_MARGIN_M = 0.06  # room kept between the shin's axis and the terrain (its thickness and a clearance)
+SHIN_FROM = 0.2  # the shin's points checked: from this share of the way from the foot to the knee (below: the foot)
+SHIN_POINTS = 9
+SHIN_SHIFTS_M = np.r_[np.arange(-0.3, 0.0, 0.02), np.arange(0.02, 0.31, 0.02)]  # landing points tried along the heading
 
 
 def default_footholds(robot: RobotModel) -> FootholdConfig:
@@ -77,7 +83,8 @@ class TerrainReferences:
         self.raster = self.footholds.raster
         self._placement = SwingPlacement(robot)
         self._contact_height = np.array([robot.contact_height_m(f) for f in robot.feet])
-        self._shin_lean = shin_leans(robot)
+        self.shins = LegShins(robot)
+        self._base_height_m = float(robot.q_nominal[2])
         self._foot_extent = default_footholds(robot).keep_out_m - KEEP_OUT_MARGIN_M
         self.support = support_footprint(robot, terrain)
         self.follows_pitch = len(robot.feet) >= 3
@@ -95,7 +102,7 @@ class TerrainReferences:
         """Base height over the support plane, pitch along it (3+ feet) and the leg postures of that pitch, in
         place on the configuration targets (nodes, nq) whose base xy and yaw are set."""
         plane = self.support.plane(targets[:, :2], yaws)
-        targets[:, 2] += plane[:, 0]
+        targets[:, 2] += ride_height(plane, self._base_height_m)
         if not self.follows_pitch:
             return
         pitch = np.clip(-np.arctan(plane[:, 1]), PITCH_TABLE_RAD[0], PITCH_TABLE_RAD[-1])
@@ -138,8 +145,10 @@ class TerrainReferences:
                 in_progress = lift_off_t <= t
                 lift_off_xy = self._stance_xy[foot] if in_progress else stand[nodes[0] - 1, foot] if nodes[0] > 0 \
                     else feet_m[foot, :2]
-                raw = q[:2] + (touch_down_t - t) * command + heading @ placement._foot_offsets_m[foot] + step
-                target = self._landing(foot, raw, in_progress, lift_off_t, heading)
+                base_xy = q[:2] + (touch_down_t - t) * command
+                raw = base_xy + heading @ placement._foot_offsets_m[foot] + step
+                hips = self._hips(foot, q, base_xy, yaw)
+                target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips)
                 s0 = s_now if in_progress else 0.0
                 start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
                 # the 6 s (1 - s) profile over what is left of the path (at least PLACEMENT_END_SHARE of it, so that
@@ -148,7 +157,7 @@ class TerrainReferences:
                 left = max(1 - 3 * s0**2 + 2 * s0**3, PLACEMENT_END_SHARE)
                 vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
                 stand[nodes[0]:, foot] = target
-                h0, apex, h1, share = self._swing_heights(foot, lift_off_xy, target)
+                h0, apex, h1, share = self._swing_heights(foot, lift_off_xy, target, heading, hips)
                 height, velocity = swing_between(s, swing_s, h0, apex, h1, share, self.swing.liftoff_velocity_m_s,
                                                  self.swing.touchdown_velocity_m_s)
                 if in_progress:  # the plan from the measured height: its error taken out linearly until touch-down
@@ -166,29 +175,57 @@ class TerrainReferences:
         N = n - 1
         return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
 
-    def _clear_of_shin(self, foot: int, target_xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
-        """`target_xy` moved away from ground that rises on the side the foot's shin leans to (behind the foot of a
-        knee-backward leg: the step a front foot has just come down from), until the shin's line (its nominal lean,
-        horizontal per vertical metre, plus SHIN_MARGIN_M) passes over that ground's edge."""
-        lean = self._shin_lean[foot]
-        if abs(lean) < 1e-3:
+    def _shin_clearance(self, foot: int, hips: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray) -> np.ndarray:
+        """For landing points feet_xy (n, 2): the smallest height (m) of the shin (knee -> foot, from the planar leg
+        with its hip at each of `hips` (k, 3)) over the terrain beneath it, less SHIN_MARGIN_M; negative: it would
+        touch."""
+        return np.min([self._shin_clearance_from(foot, hip, heading, feet_xy) for hip in np.atleast_2d(hips)], axis=0)
+
+    def _shin_clearance_from(self, foot: int, hip_xyz: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray):
+        direction = heading[:, 0]
+        ground = self.terrain.height(feet_xy)
+        feet = np.column_stack([(feet_xy - hip_xyz[:2]) @ direction, ground + self._contact_height[foot]])
+        knees = self.shins.knees(foot, np.array([0.0, hip_xyz[2]]), feet)
+        share = np.linspace(SHIN_FROM, 1.0, SHIN_POINTS)[:, None, None]
+        points = feet[None] + share * (knees - feet)[None]  # (points, n, 2): along the heading from the hip, up
+        xy = hip_xyz[:2] + points[..., :1] * direction + (feet_xy - hip_xyz[:2] - ((feet_xy - hip_xyz[:2]) @ direction)[
+            :, None] * direction)[None]
+        return (points[..., 1] - self.raster.height(xy)).min(axis=0) - SHIN_MARGIN_M
+
+    def _clear_of_shin(self, foot: int, target_xy: np.ndarray, hips: np.ndarray, heading: np.ndarray) -> np.ndarray:
+        """`target_xy`, or if the shin would touch the terrain there (a knee-backward leg coming down a step, its shin
+        over the nose above), the safe landing point nearest it along the heading whose shin clears the terrain."""
+        if not self.shins.legged[foot] or self._shin_clearance(foot, hips, heading, target_xy[None])[0] >= 0:
             return target_xy
-        side = np.sign(lean) * heading[:, 0]
-        distances = np.arange(1, SHIN_SAMPLES + 1) * self.raster.resolution_m
-        rise = self.raster.height(target_xy + distances[:, None] * side) - float(self.terrain.height(target_xy))
-        shortfall = np.where(rise > RISE_M, abs(lean) * rise + SHIN_MARGIN_M - distances, 0.0).max()
-        return target_xy - side * shortfall if shortfall > 0 else target_xy
+        candidates = self.footholds.adapt(target_xy + np.outer(SHIN_SHIFTS_M, heading[:, 0]))
+        clear = self._shin_clearance(foot, hips, heading, candidates) >= 0
+        clear &= self.footholds.is_safe(candidates)
+        if not clear.any():
+            return target_xy
+        distance = np.linalg.norm(candidates - target_xy, axis=1)
+        return candidates[np.flatnonzero(clear)[np.argmin(distance[clear])]]
+
+    def _hips(self, foot: int, q: np.ndarray, base_xy: np.ndarray, yaw: float) -> np.ndarray:
+        """(2, 3) world positions of a leg's hip at a touch-down with the base over base_xy: at its target (the
+        support's height and pitch there) and where the measured base would be, carried by the change of the support's
+        height (a base that lags its height target lowers the hip: the shin must clear the terrain from both)."""
+        plane = self.support.plane(np.stack([q[:2], base_xy]), np.array([yaw, yaw]))
+        pitch = -np.arctan(plane[1, 1]) if self.follows_pitch else 0.0
+        c, s, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+        rotation = np.array([[c * cp, -s, c * sp], [s * cp, c, s * sp], [-sp, 0.0, cp]])
+        ride = ride_height(plane, self._base_height_m)
+        target = np.r_[base_xy, ride[1] + self._base_height_m] + rotation @ self.shins.hip_offsets_m[foot]
+        measured_rotation = pin.Quaternion(q[3:7]).toRotationMatrix()
+        measured = np.r_[base_xy, q[2] + ride[1] - ride[0]] + measured_rotation @ self.shins.hip_offsets_m[foot]
+        return np.stack([target, measured])
 
     def _landing(self, foot: int, raw_xy: np.ndarray, in_progress: bool, lift_off_t: float,
-                 heading: np.ndarray) -> np.ndarray:
+                 heading: np.ndarray, hips: np.ndarray) -> np.ndarray:
         """The safe landing point of a swing (`FootholdMap.adapt` of Raibert's target). A swing in progress keeps the
         ground level it was given at its first step in the air: the target still follows the capture point while it
         stays on that level (within EDGE's height), else the committed point is kept. Without this a raw target
         near a riser flipped between the step's top and its foot from one MPC step to the next."""
-        target = self.footholds.adapt(raw_xy)
-        moved = self._clear_of_shin(foot, target, heading)
-        if moved is not target:
-            target = self.footholds.adapt(moved)
+        target = self._clear_of_shin(foot, self.footholds.adapt(raw_xy), hips, heading)
         committed = self._committed.get(foot)
         if not in_progress:
             return target
@@ -201,50 +238,116 @@ class TerrainReferences:
             return target
         return kept
 
-    def _swing_heights(self, foot: int, lift_off_xy: np.ndarray, target_xy: np.ndarray):
+    def _landing_lean(self, foot: int, target_xy: np.ndarray, hips: np.ndarray, heading: np.ndarray) -> float:
+        """The shin's lean at the landing point (horizontal along the heading per vertical metre, knee from foot), the
+        larger of those from `hips` (k, 3)."""
+        if not self.shins.legged[foot]:
+            return 0.0
+        leans = []
+        for hip_xyz in np.atleast_2d(hips):
+            foot_sz = np.array([[(target_xy - hip_xyz[:2]) @ heading[:, 0],
+                                 float(self.terrain.height(target_xy)) + self._contact_height[foot]]])
+            knee = self.shins.knees(foot, np.array([0.0, hip_xyz[2]]), foot_sz)[0]
+            leans.append(float((knee[0] - foot_sz[0, 0]) / max(knee[1] - foot_sz[0, 1], 1e-3)))
+        return max(leans, key=abs)
+
+    def _swing_heights(self, foot: int, lift_off_xy: np.ndarray, target_xy: np.ndarray,
+                       heading: np.ndarray | None = None, hips: np.ndarray | None = None):
         """(lift-off, apex, touch-down heights of the contact frame, apex share) of a swing between two points."""
         contact = self._contact_height[foot]
         ground = self.terrain.height(np.stack([lift_off_xy, target_xy]))
         profile = self.raster.path_heights(lift_off_xy, target_xy, self._foot_extent)  # under the foot's centre path
         h0, h1 = ground[0] + contact, ground[1] + contact
         apex = max(float(profile.max()), float(ground.max())) + contact + self.swing.apex_height_m
-        # rising edges on the way (risers, a box's side): the foot must be over each when it gets there
+        # lowest heights of the contact frame along the path: half the swing height over each rising edge (a riser,
+        # a box's side) where the foot gets there; and, where the shin trails the foot (a knee-backward leg going
+        # forward), its line clear of the ground behind by SHIN_MARGIN_M (coming down past a step's nose)
+        n = len(profile)
+        needed = np.full(n, -np.inf)
         edges = np.flatnonzero(np.diff(profile) > RISE_M) + 1
         if profile[0] > ground[0] + RISE_M:
             edges = np.r_[0, edges]
-        if not edges.size:
+        needed[edges] = profile[edges] + contact + 0.5 * self.swing.apex_height_m
+        length = float(np.linalg.norm(target_xy - lift_off_xy))
+        lean = self._landing_lean(foot, target_xy, hips, heading) if hips is not None else 0.0
+        if heading is not None and abs(lean) > 1e-3 and length > 1e-6:
+            motion = (target_xy - lift_off_xy) / length
+            if np.sign(lean) * float(heading[:, 0] @ motion) < 0:  # the shin trails the foot
+                along = np.linspace(0.0, length, n)
+                reach = np.maximum.accumulate(profile + along / abs(lean))  # max_j<=i of ground_j + s_j / |lean|
+                shin = reach - along / abs(lean) + SHIN_MARGIN_M / abs(lean)
+                needed = np.maximum(needed, np.where(shin > profile + RISE_M, shin + contact, -np.inf))
+        checked = np.flatnonzero(np.isfinite(needed))
+        if not checked.size:
             return h0, apex, h1, 0.5
-        # the latest apex (share <= 1/2, eq. 6's) whose spline is half the swing height over each edge where the
-        # foot's xy path (3 s^2 - 2 s^3 of the way) reaches it
-        progress = np.interp(edges / max(len(profile) - 1, 1), *self._progress_of_share)
-        needed = profile[edges] + contact + 0.5 * self.swing.apex_height_m
+        apex = max(apex, float(needed.max()) + 0.25 * self.swing.apex_height_m)
+        # the apex share nearest eq. (6)'s 1/2 whose spline clears them where the foot's xy path (3 s^2 - 2 s^3 of
+        # the way) gets there
+        progress = np.interp(checked / max(n - 1, 1), *self._progress_of_share)
         for share in APEX_SHARES:
             height, _ = swing_between(progress, 1.0, h0, apex, h1, share)
-            if np.all(height >= needed):
+            if np.all(height >= needed[checked]):
                 return h0, apex, h1, float(share)
-        return h0, apex, h1, float(APEX_SHARES[-1])
+        return h0, apex, h1, 0.5
 
 
-def shin_leans(robot: RobotModel) -> np.ndarray:
-    """Per foot, the lean of its shin in the nominal pose: the horizontal offset (along the heading; negative:
-    behind) of the first joint up its leg at least SHIN_MIN_HEIGHT leg lengths above the contact point, per
-    metre of height (-1.03 on b1_z1, -0.77 on go2: their knees point backwards)."""
-    model, data = robot.model, robot.model.createData()
-    pin.framesForwardKinematics(model, data, robot.q_nominal)
-    rotation = data.oMi[1].rotation
-    leans = []
-    for foot in robot.feet:
-        frame = robot.frame_id(robot.contact_frame(foot))
-        contact = data.oMf[frame].translation
-        joint, lean = model.frames[frame].parentJoint, 0.0
-        while joint > 1:
-            offset = rotation.T @ (data.oMi[joint].translation - contact)
-            if offset[2] >= SHIN_MIN_HEIGHT * robot.q_nominal[2]:
-                lean = float(offset[0] / offset[2])
-                break
-            joint = model.parents[joint]
-        leans.append(lean)
-    return np.array(leans)
+class LegShins:
+    """The shins of a robot's legs in their sagittal planes: each leg as two links, hip (the joint above the knee) ->
+    knee (the first joint up the leg at least SHIN_MIN_HEIGHT standing heights above the contact point) -> contact
+    point, with the knee on the side it is in the nominal pose. `knees` places the knee for a hip and a foot (planar
+    inverse kinematics), `clearance` measures how far the shin (knee -> foot) keeps over the terrain."""
+
+    def __init__(self, robot: RobotModel):
+        model, data = robot.model, robot.model.createData()
+        pin.framesForwardKinematics(model, data, robot.q_nominal)
+        rotation = data.oMi[1].rotation
+        base = data.oMi[1].translation
+        hips, lengths, sides, legged = [], [], [], []
+        for foot in robot.feet:
+            frame = robot.frame_id(robot.contact_frame(foot))
+            contact = data.oMf[frame].translation
+            joint = model.frames[frame].parentJoint
+            knee = None
+            while joint > 1:
+                if (rotation.T @ (data.oMi[joint].translation - contact))[2] >= SHIN_MIN_HEIGHT * robot.q_nominal[2]:
+                    knee = joint
+                    break
+                joint = model.parents[joint]
+            if knee is None or model.parents[knee] <= 1:
+                hips.append(np.zeros(3)), lengths.append((1.0, 1.0)), sides.append(0.0), legged.append(False)
+                continue
+            k, h = data.oMi[knee].translation, data.oMi[model.parents[knee]].translation
+            hips.append(rotation.T @ (h - base))
+            lengths.append((float(np.linalg.norm(k - h)), float(np.linalg.norm(contact - k))))
+            # the knee's side of the hip -> foot line in the sagittal plane (x forward, z up): the cross product's sign
+            (hx, hz), (kx, kz), (fx, fz) = ((rotation.T @ (v - base))[[0, 2]] for v in (h, k, contact))
+            sides.append(float(np.sign((fx - hx) * (kz - hz) - (fz - hz) * (kx - hx))))
+            legged.append(True)
+        self.hip_offsets_m = np.array(hips)  # hips in the base frame
+        self.lengths_m = np.array(lengths)  # (thigh, shin) per leg
+        self.sides = np.array(sides)
+        self.legged = np.array(legged)
+
+    def knees(self, foot: int, hip_sz: np.ndarray, feet_sz: np.ndarray) -> np.ndarray:
+        """Knee positions (n, 2) in a sagittal plane (along the heading, up) for the hip (2,) and feet (n, 2)."""
+        thigh, shin = self.lengths_m[foot]
+        d = feet_sz - hip_sz
+        distance = np.clip(np.linalg.norm(d, axis=-1), abs(thigh - shin) + 1e-6, thigh + shin - 1e-6)
+        angle = np.arccos(np.clip((thigh**2 + distance**2 - shin**2) / (2 * thigh * distance), -1.0, 1.0))
+        unit = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        turn = self.sides[foot] * angle  # rotate the hip -> foot direction towards the knee's side
+        c, s = np.cos(turn)[..., None], np.sin(turn)[..., None]
+        rotated = np.concatenate([c * unit[..., :1] - s * unit[..., 1:], s * unit[..., :1] + c * unit[..., 1:]], axis=-1)
+        return hip_sz + thigh * rotated
+
+
+def ride_height(plane: np.ndarray, base_height_m: float) -> np.ndarray:
+    """The base target's height over the nominal one: the support plane's height under the base, raised on rough
+    ground by RIDE_GAIN times the terrain's RMS about the plane (at most RIDE_MAX of the standing height). Straighter
+    legs keep the knees of a knee-backward leg over the step edges: b1_z1's nominal shin leans 45 deg (its knee 25 cm
+    behind the foot), so a foot coming down a 12 cm step had to land 16 cm past the nose for the shin to clear it,
+    on a 30 cm tread; 7 cm higher (RMS 3.5 cm) the shin leans 35 deg."""
+    return plane[..., 0] + np.minimum(RIDE_GAIN * plane[..., 3], RIDE_MAX * base_height_m)
 
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:

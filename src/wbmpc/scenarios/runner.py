@@ -591,6 +591,13 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         arrays = result.log.arrays(("t", "q"), every=every)
         paths += scenario.extra_plots(robot, result.log, folder)
         objects = result.scene.replay_objects() if result.scene is not None else None
+        terrain = scenario.terrain(robot)
+        if terrain is not None:  # the steps, ramps and heightmaps the robot walked on, drawn and as a file
+            from wbmpc.sim.terrain_geoms import replay_shapes
+            from wbmpc.terrain import save_terrain
+
+            objects = (objects or []) + replay_shapes(terrain)
+            paths.append(save_terrain(terrain, folder / "terrain.yaml"))
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
         if result.estimation is not None:

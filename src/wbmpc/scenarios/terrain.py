@@ -50,10 +50,14 @@ def feet_extent(robot: RobotModel) -> tuple[float, float]:
 
 class TerrainHand:
     """A hand's world reference over a terrain: its nominal place moving with the commanded base velocity (world x,
-    the start's heading) and lifted by the support height under the base's commanded path, smoothed."""
+    the start's heading) and lifted with the terrain's support plane under the base's commanded path, taken where
+    the hand is (c0 + c1 dx: the plane's height dx ahead of the base, smoothed over LIFT_SMOOTHING_M). The MPC
+    pitches the base with that plane, so the hand keeps its nominal place relative to the body; lifted by the
+    height under the base alone, a hand 0.6 m ahead of b1_z1's base had to come 20 cm down relative to its pitched
+    body on the 12/30 cm stairs and the Z1's elbow ran into its limit (8 cm error)."""
 
     def __init__(self, robot: RobotModel, terrain: Terrain, start_q: np.ndarray, speed_m_s: float, duration_s: float):
-        from wbmpc.control.terrain_references import support_footprint
+        from wbmpc.control.terrain_references import ride_height, support_footprint
 
         self.robot, self.speed = robot, float(speed_m_s)
         self.start = robot.frame_trajectories(start_q, [robot.arm_ee])[robot.arm_ee][0]
@@ -61,7 +65,9 @@ class TerrainHand:
         support = support_footprint(robot, terrain)
         travel = abs(self.speed) * (duration_s + 5.0) + 1.0
         self._x = self.base_x0 + np.sign(self.speed or 1.0) * np.arange(0.0, travel, 0.01)
-        lift = support.height(np.column_stack([self._x, np.full_like(self._x, start_q[1])]), np.zeros_like(self._x))
+        ahead = float(self.start[0] - start_q[0])  # the hand's place ahead of the base (the start's heading is +x)
+        plane = support.plane(np.column_stack([self._x, np.full_like(self._x, start_q[1])]), np.zeros_like(self._x))
+        lift = ride_height(plane, float(robot.q_nominal[2])) + plane[:, 1] * ahead
         width = max(int(LIFT_SMOOTHING_M / 0.01), 1)
         padded = np.pad(lift, (width, width), mode="edge")
         smooth = np.convolve(padded, np.ones(2 * width + 1) / (2 * width + 1), mode="same")[width:-width]

@@ -128,3 +128,45 @@ def _shape_points(shape, centre: np.ndarray, rotation: np.ndarray) -> tuple[np.n
         return centre + along, radius
     grid = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 1])).reshape(3, -1).T * np.asarray(shape.size)
     return centre + grid @ rotation.T, 0.0
+
+
+REPLAY_COLOR = "#8c8073"
+REPLAY_MAX_CELLS = 60  # a heightmap is drawn as at most this many columns of boxes per side
+
+
+def replay_shapes(terrain: Terrain) -> list[dict]:
+    """The terrain as static boxes for the HTML replay (`wbmpc.viz.replay`): boxes as they are, a ramp as a slab
+    under its surface, a heightmap as columns of boxes (coarsened to REPLAY_MAX_CELLS a side)."""
+    shapes = []
+    for piece in terrain.pieces:
+        if isinstance(piece, Box):
+            bottom = terrain.floor_m if piece.bottom_m is None else piece.bottom_m
+            yaw = np.deg2rad(piece.yaw_deg)
+            rotation = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+            shapes.append(_replay_box(piece.name, [0.5 * piece.size_m[0], 0.5 * piece.size_m[1], 0.5 * (piece.top_m - bottom)],
+                                      [*piece.centre_m, 0.5 * (piece.top_m + bottom)], rotation))
+        elif isinstance(piece, Ramp):
+            axis = np.r_[piece.axis, piece.slope] / np.sqrt(1.0 + piece.slope**2)
+            normal = piece.normal(np.zeros((1, 2)))[0]
+            rotation = np.column_stack([axis, np.cross(normal, axis), normal])
+            thickness = 0.02
+            middle = 0.5 * (np.asarray(piece.start_m) + np.asarray(piece.end_m)) - 0.5 * thickness * normal
+            length = piece.length_m * np.sqrt(1.0 + piece.slope**2)
+            shapes.append(_replay_box(piece.name, [0.5 * length, 0.5 * piece.width_m, 0.5 * thickness], middle, rotation))
+        elif isinstance(piece, Heightmap):
+            rows, cols = piece.shape
+            step = max(1, int(np.ceil(max(rows, cols) / REPLAY_MAX_CELLS)))
+            size = step * piece.resolution_m
+            for i in range(0, rows, step):
+                for j in range(0, cols, step):
+                    top = float(piece.heights_m[i: i + step, j: j + step].mean())
+                    x, y = piece.origin_m[0] + (j + 0.5 * step) * piece.resolution_m, \
+                        piece.origin_m[1] + (i + 0.5 * step) * piece.resolution_m
+                    shapes.append(_replay_box(f"{piece.name} {i}.{j}", [0.5 * size, 0.5 * size, 0.5 * (top - terrain.floor_m)],
+                                              [x, y, 0.5 * (top + terrain.floor_m)], np.eye(3)))
+    return shapes
+
+
+def _replay_box(name: str, half, position, rotation) -> dict:
+    return {"name": f"terrain {name}", "kind": "box", "color": REPLAY_COLOR, "half_size_m": np.asarray(half, dtype=float),
+            "position_m": np.asarray(position, dtype=float), "rotation": np.asarray(rotation, dtype=float)}

@@ -27,17 +27,21 @@ class SupportFootprint:
         along = np.linspace(-reach_m, reach_m, SAMPLES_ALONG)
         self.samples_m = (offsets[:, None, :] + np.stack([along, np.zeros_like(along)], axis=-1)[None]).reshape(-1, 2)
         design = np.column_stack([np.ones(len(self.samples_m)), self.samples_m])
+        self._design = design
         self._fit = np.linalg.pinv(design)  # (3, samples)
 
     def plane(self, xy, yaw) -> np.ndarray:
-        """(..., 3) [c0, c1, c2]: height under the base, slope along and across the heading, for base positions
-        xy (..., 2) and headings yaw (...)."""
+        """(..., 4) [c0, c1, c2, rms]: height under the base, slope along and across the heading and the RMS of the
+        terrain about that plane (0 on a plane, about rise / (2 sqrt 3) on stairs), for base positions xy (..., 2)
+        and headings yaw (...)."""
         xy, yaw = np.asarray(xy, dtype=float), np.asarray(yaw, dtype=float)
         c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
         dx, dy = self.samples_m[:, 0], self.samples_m[:, 1]
         points = np.stack([xy[..., None, 0] + c * dx - s * dy, xy[..., None, 1] + s * dx + c * dy], axis=-1)
         heights = self.terrain.height(points)  # (..., samples)
-        return heights @ self._fit.T
+        fit = heights @ self._fit.T
+        residual = heights - fit @ self._design.T
+        return np.concatenate([fit, np.sqrt(np.mean(residual**2, axis=-1, keepdims=True))], axis=-1)
 
     def height(self, xy, yaw) -> np.ndarray:
         """The support's height under the base (c0)."""
