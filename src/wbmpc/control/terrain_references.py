@@ -48,12 +48,15 @@ SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length 
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
 RIDE_GAIN = 2.0  # the base rides this many RMS of the terrain about its support plane higher (`ride_height`)
-RIDE_MAX = 0.15  # ... at most this share of the standing height
+RIDE_LEAN = 0.8  # ... at most until the shins lean this much (`ride_limit_m`)
 SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
-SHIN_MARGIN_M = 0.06  # room kept between the shin's axis and the terrain (its thickness and a clearance)
+HIP_SAG_M = 0.03  # the hip may come this much lower than the measured base's height predicts (`_hips`)
+SHIN_CLEARANCE_M = 0.04  # room kept between a shin's surface and the terrain (its axis: plus `shin_radius_m`)
 SHIN_FROM = 0.2  # the shin's points checked: from this share of the way from the foot to the knee (below: the foot)
 SHIN_POINTS = 9
-SHIN_SHIFTS_M = np.r_[np.arange(-0.3, 0.0, 0.02), np.arange(0.02, 0.31, 0.02)]  # landing points tried along the heading
+# landing points tried along the heading when the shin would touch (at most a quarter of b1_z1's leg: 30 cm made
+# strides of 55 cm that the shin did not clear in the end)
+SHIN_SHIFTS_M = np.r_[np.arange(-0.15, 0.0, 0.01), np.arange(0.01, 0.151, 0.01)]
 
 
 def default_footholds(robot: RobotModel) -> FootholdConfig:
@@ -84,7 +87,9 @@ class TerrainReferences:
         self._placement = SwingPlacement(robot)
         self._contact_height = np.array([robot.contact_height_m(f) for f in robot.feet])
         self.shins = LegShins(robot)
+        self._shin_margin_m = SHIN_CLEARANCE_M + shin_radius_m(robot)
         self._base_height_m = float(robot.q_nominal[2])
+        self.ride_max_m = ride_limit_m(robot)
         self._foot_extent = default_footholds(robot).keep_out_m - KEEP_OUT_MARGIN_M
         self.support = support_footprint(robot, terrain)
         self.follows_pitch = len(robot.feet) >= 3
@@ -102,7 +107,7 @@ class TerrainReferences:
         """Base height over the support plane, pitch along it (3+ feet) and the leg postures of that pitch, in
         place on the configuration targets (nodes, nq) whose base xy and yaw are set."""
         plane = self.support.plane(targets[:, :2], yaws)
-        targets[:, 2] += ride_height(plane, self._base_height_m)
+        targets[:, 2] += ride_height(plane, self.ride_max_m)
         if not self.follows_pitch:
             return
         pitch = np.clip(-np.arctan(plane[:, 1]), PITCH_TABLE_RAD[0], PITCH_TABLE_RAD[-1])
@@ -147,8 +152,8 @@ class TerrainReferences:
                     else feet_m[foot, :2]
                 base_xy = q[:2] + (touch_down_t - t) * command
                 raw = base_xy + heading @ placement._foot_offsets_m[foot] + step
-                hips = self._hips(foot, q, base_xy, yaw)
-                target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips)
+                hips = self._hips(foot, q, base_xy, q[:2] + (touch_down_t - t) * np.asarray(v_world)[:2], yaw)
+                target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips, s_now if in_progress else 0.0)
                 s0 = s_now if in_progress else 0.0
                 start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
                 # the 6 s (1 - s) profile over what is left of the path (at least PLACEMENT_END_SHARE of it, so that
@@ -177,8 +182,9 @@ class TerrainReferences:
 
     def _shin_clearance(self, foot: int, hips: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray) -> np.ndarray:
         """For landing points feet_xy (n, 2): the smallest height (m) of the shin (knee -> foot, from the planar leg
-        with its hip at each of `hips` (k, 3)) over the terrain beneath it, less SHIN_MARGIN_M; negative: it would
-        touch."""
+        with its hip at each of `hips` (k, 3)) over terrain beneath it that rises above the foot's own ground, less
+        the shin's radius and SHIN_CLEARANCE_M (at most that margin: nothing under the shin rises); negative: it
+        would touch."""
         return np.min([self._shin_clearance_from(foot, hip, heading, feet_xy) for hip in np.atleast_2d(hips)], axis=0)
 
     def _shin_clearance_from(self, foot: int, hip_xyz: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray):
@@ -190,7 +196,9 @@ class TerrainReferences:
         points = feet[None] + share * (knees - feet)[None]  # (points, n, 2): along the heading from the hip, up
         xy = hip_xyz[:2] + points[..., :1] * direction + (feet_xy - hip_xyz[:2] - ((feet_xy - hip_xyz[:2]) @ direction)[
             :, None] * direction)[None]
-        return (points[..., 1] - self.raster.height(xy)).min(axis=0) - SHIN_MARGIN_M
+        under = self.raster.height(xy)
+        above = np.where(under > ground + RISE_M, points[..., 1] - under, np.inf)  # only over ground above the foot's
+        return np.minimum(above.min(axis=0) - self._shin_margin_m, self._shin_margin_m)
 
     def _clear_of_shin(self, foot: int, target_xy: np.ndarray, hips: np.ndarray, heading: np.ndarray) -> np.ndarray:
         """`target_xy`, or if the shin would touch the terrain there (a knee-backward leg coming down a step, its shin
@@ -205,26 +213,30 @@ class TerrainReferences:
         distance = np.linalg.norm(candidates - target_xy, axis=1)
         return candidates[np.flatnonzero(clear)[np.argmin(distance[clear])]]
 
-    def _hips(self, foot: int, q: np.ndarray, base_xy: np.ndarray, yaw: float) -> np.ndarray:
-        """(2, 3) world positions of a leg's hip at a touch-down with the base over base_xy: at its target (the
-        support's height and pitch there) and where the measured base would be, carried by the change of the support's
-        height (a base that lags its height target lowers the hip: the shin must clear the terrain from both)."""
-        plane = self.support.plane(np.stack([q[:2], base_xy]), np.array([yaw, yaw]))
-        pitch = -np.arctan(plane[1, 1]) if self.follows_pitch else 0.0
-        c, s, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
-        rotation = np.array([[c * cp, -s, c * sp], [s * cp, c, s * sp], [-sp, 0.0, cp]])
-        ride = ride_height(plane, self._base_height_m)
-        target = np.r_[base_xy, ride[1] + self._base_height_m] + rotation @ self.shins.hip_offsets_m[foot]
-        measured_rotation = pin.Quaternion(q[3:7]).toRotationMatrix()
-        measured = np.r_[base_xy, q[2] + ride[1] - ride[0]] + measured_rotation @ self.shins.hip_offsets_m[foot]
-        return np.stack([target, measured])
+    def _hips(self, foot: int, q: np.ndarray, base_xy: np.ndarray, measured_xy: np.ndarray, yaw: float) -> np.ndarray:
+        """(2, 3) world positions of a leg's hip at a touch-down: the base over base_xy (commanded motion) at its height
+        target, and the base over measured_xy (its measured velocity) at its measured height carried by the change of
+        the support's height, less HIP_SAG_M, each pitched as the support there (a base that lags its height target lowers the hip: the shin must clear the terrain from both).
+        b1_z1 coming down 12 cm steps: the base ran 2-5 cm under its target, and sagged 3 cm more while a rear foot
+        swung: predicted from the measured height alone, its rear shins still touched the steps' noses."""
+        plane = self.support.plane(np.stack([q[:2], base_xy, measured_xy]), np.full(3, yaw))
+        ride = ride_height(plane, self.ride_max_m)
+        hips = []
+        for k, z in ((1, ride[1] + self._base_height_m), (2, q[2] + ride[2] - ride[0] - HIP_SAG_M)):
+            pitch = -np.arctan(plane[k, 1]) if self.follows_pitch else 0.0
+            c, s, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+            rotation = np.array([[c * cp, -s, c * sp], [s * cp, c, s * sp], [-sp, 0.0, cp]])
+            hips.append(np.r_[base_xy if k == 1 else measured_xy, z]
+                        + rotation @ self.shins.hip_offsets_m[foot])
+        return np.stack(hips)
 
     def _landing(self, foot: int, raw_xy: np.ndarray, in_progress: bool, lift_off_t: float,
-                 heading: np.ndarray, hips: np.ndarray) -> np.ndarray:
+                 heading: np.ndarray, hips: np.ndarray, progress: float = 0.0) -> np.ndarray:
         """The safe landing point of a swing (`FootholdMap.adapt` of Raibert's target). A swing in progress keeps the
         ground level it was given at its first step in the air: the target still follows the capture point while it
         stays on that level (within EDGE's height), else the committed point is kept. Without this a raw target
-        near a riser flipped between the step's top and its foot from one MPC step to the next."""
+        near a riser flipped between the step's top and its foot from one MPC step to the next. `progress`: of the
+        swing in progress."""
         target = self._clear_of_shin(foot, self.footholds.adapt(raw_xy), hips, heading)
         committed = self._committed.get(foot)
         if not in_progress:
@@ -233,8 +245,12 @@ class TerrainReferences:
             self._committed[foot] = (lift_off_t, target, float(self.terrain.height(target)))
             return target
         _, kept, level = committed
-        if abs(float(self.terrain.height(target)) - level) <= self.footholds.config.edge_height_m:
-            self._committed[foot] = (lift_off_t, target, level)
+        same_level = abs(float(self.terrain.height(target)) - level) <= self.footholds.config.edge_height_m
+        # ... unless, in the first half of the swing, the kept point's shin would now touch (the base came lower or
+        # further than foreseen at lift-off)
+        touching = progress < 0.5 and self._shin_clearance(foot, hips, heading, kept[None])[0] < 0
+        if same_level or touching:
+            self._committed[foot] = (lift_off_t, target, float(self.terrain.height(target)))
             return target
         return kept
 
@@ -261,7 +277,7 @@ class TerrainReferences:
         apex = max(float(profile.max()), float(ground.max())) + contact + self.swing.apex_height_m
         # lowest heights of the contact frame along the path: half the swing height over each rising edge (a riser,
         # a box's side) where the foot gets there; and, where the shin trails the foot (a knee-backward leg going
-        # forward), its line clear of the ground behind by SHIN_MARGIN_M (coming down past a step's nose)
+        # forward), its axis clear of the ground behind by its radius and SHIN_CLEARANCE_M (down past a step's nose)
         n = len(profile)
         needed = np.full(n, -np.inf)
         edges = np.flatnonzero(np.diff(profile) > RISE_M) + 1
@@ -273,10 +289,11 @@ class TerrainReferences:
         if heading is not None and abs(lean) > 1e-3 and length > 1e-6:
             motion = (target_xy - lift_off_xy) / length
             if np.sign(lean) * float(heading[:, 0] @ motion) < 0:  # the shin trails the foot
+                # the foot at sample i, its shin over the ground behind (samples j < i) that rises above the foot's own
                 along = np.linspace(0.0, length, n)
-                reach = np.maximum.accumulate(profile + along / abs(lean))  # max_j<=i of ground_j + s_j / |lean|
-                shin = reach - along / abs(lean) + SHIN_MARGIN_M / abs(lean)
-                needed = np.maximum(needed, np.where(shin > profile + RISE_M, shin + contact, -np.inf))
+                behind = (np.arange(n)[None, :] < np.arange(n)[:, None]) & (profile[None, :] > profile[:, None] + RISE_M)
+                shin = np.where(behind, profile[None, :] - (along[:, None] - along[None, :]) / abs(lean), -np.inf)
+                needed = np.maximum(needed, shin.max(axis=1) + self._shin_margin_m / abs(lean) + contact)
         checked = np.flatnonzero(np.isfinite(needed))
         if not checked.size:
             return h0, apex, h1, 0.5
@@ -303,12 +320,14 @@ class LegShins:
         rotation = data.oMi[1].rotation
         base = data.oMi[1].translation
         hips, lengths, sides, legged = [], [], [], []
+        self.shin_joints: set[int] = set()  # the joints from the knees down (their links make the shins)
         for foot in robot.feet:
             frame = robot.frame_id(robot.contact_frame(foot))
             contact = data.oMf[frame].translation
             joint = model.frames[frame].parentJoint
             knee = None
             while joint > 1:
+                self.shin_joints.add(joint)
                 if (rotation.T @ (data.oMi[joint].translation - contact))[2] >= SHIN_MIN_HEIGHT * robot.q_nominal[2]:
                     knee = joint
                     break
@@ -341,13 +360,41 @@ class LegShins:
         return hip_sz + thigh * rotated
 
 
-def ride_height(plane: np.ndarray, base_height_m: float) -> np.ndarray:
+def ride_height(plane: np.ndarray, ride_max_m: float) -> np.ndarray:
     """The base target's height over the nominal one: the support plane's height under the base, raised on rough
-    ground by RIDE_GAIN times the terrain's RMS about the plane (at most RIDE_MAX of the standing height). Straighter
-    legs keep the knees of a knee-backward leg over the step edges: b1_z1's nominal shin leans 45 deg (its knee 25 cm
-    behind the foot), so a foot coming down a 12 cm step had to land 16 cm past the nose for the shin to clear it,
-    on a 30 cm tread; 7 cm higher (RMS 3.5 cm) the shin leans 35 deg."""
-    return plane[..., 0] + np.minimum(RIDE_GAIN * plane[..., 3], RIDE_MAX * base_height_m)
+    ground by RIDE_GAIN times the terrain's RMS about the plane, at most `ride_max_m` (`ride_limit_m`)."""
+    return plane[..., 0] + np.minimum(RIDE_GAIN * plane[..., 3], ride_max_m)
+
+
+def ride_limit_m(robot: RobotModel) -> float:
+    """How much higher than nominal the base rides on rough ground: until the shins lean at most RIDE_LEAN (horizontal
+    per vertical, knee from foot) in the leg's straighter pose, 0 where they do already. Straighter legs keep the
+    knees of knee-backward legs over step edges: b1_z1's nominal shin leans 1.03 (45 deg, its knee 25 cm behind the
+    foot), so a foot coming down a 12 cm step had to land 16 cm past the nose for the shin to clear it, on a 30 cm
+    tread, and the shins touched the noses; 5.9 cm higher they lean 0.8 (none touched). go2's lean 0.77: no raise
+    (raised by 5 cm, its legs near their reach, its plans failed on the stairs)."""
+    shins = LegShins(robot)
+    raises = []
+    for foot, (thigh, shin), legged, hip in zip(robot.feet, shins.lengths_m, shins.legged, shins.hip_offsets_m):
+        if not legged or abs(thigh - shin) > 0.2 * max(thigh, shin):
+            continue
+        length = 0.5 * (thigh + shin)
+        reach = float(robot.q_nominal[2]) + hip[2] - robot.contact_height_m(foot)  # hip -> contact point, nominal
+        straighter = 2 * length / np.sqrt(1 + RIDE_LEAN**2)  # hip -> foot distance at which the shin leans RIDE_LEAN
+        raises.append(max(0.0, straighter - reach))
+    return float(np.mean(raises)) if raises else 0.0
+
+
+def shin_radius_m(robot: RobotModel) -> float:
+    """The shins' half thickness: of the collision shapes on the links from the knees down other than the feet (a box's
+    middle half size, a capsule's or cylinder's radius), the largest; 0 without any."""
+    from wbmpc.sim.shapes import robot_collision_shapes
+
+    shins = LegShins(robot)
+    sizes = [sorted(shape.size)[1] if shape.kind == "box" else shape.size[0]
+             for shape in robot_collision_shapes(robot) if shape.joint_id in shins.shin_joints and not shape.is_foot
+             and shape.kind in ("box", "capsule", "cylinder")]
+    return float(max(sizes, default=0.0))
 
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:

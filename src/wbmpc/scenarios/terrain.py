@@ -57,7 +57,7 @@ class TerrainHand:
     body on the 12/30 cm stairs and the Z1's elbow ran into its limit (8 cm error)."""
 
     def __init__(self, robot: RobotModel, terrain: Terrain, start_q: np.ndarray, speed_m_s: float, duration_s: float):
-        from wbmpc.control.terrain_references import ride_height, support_footprint
+        from wbmpc.control.terrain_references import ride_height, ride_limit_m, support_footprint
 
         self.robot, self.speed = robot, float(speed_m_s)
         self.start = robot.frame_trajectories(start_q, [robot.arm_ee])[robot.arm_ee][0]
@@ -67,7 +67,7 @@ class TerrainHand:
         self._x = self.base_x0 + np.sign(self.speed or 1.0) * np.arange(0.0, travel, 0.01)
         ahead = float(self.start[0] - start_q[0])  # the hand's place ahead of the base (the start's heading is +x)
         plane = support.plane(np.column_stack([self._x, np.full_like(self._x, start_q[1])]), np.zeros_like(self._x))
-        lift = ride_height(plane, float(robot.q_nominal[2])) + plane[:, 1] * ahead
+        lift = ride_height(plane, ride_limit_m(robot)) + plane[:, 1] * ahead
         width = max(int(LIFT_SMOOTHING_M / 0.01), 1)
         padded = np.pad(lift, (width, width), mode="edge")
         smooth = np.convolve(padded, np.ones(2 * width + 1) / (2 * width + 1), mode="same")[width:-width]
