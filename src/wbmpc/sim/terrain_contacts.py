@@ -124,6 +124,8 @@ class TerrainContactMonitor:
             "steps_total": len(pieces),
             "steps_climbed": len(climbed),  # pieces every foot stood on
             "pieces_climbed": climbed,
+            "pieces_stood_on": len({p for feet in self.stood_on for p in feet if p in pieces}),  # by any foot
+            "foot_floor_touches": int(sum("floor" in feet for feet in self.stood_on)),  # feet that touched the floor
             "foot_slips": int(self.slips.sum()),
             "foot_slip_distance_m": float(self.slip_distance_m.sum()),
             "edge_contacts": int(self.edge_contacts.sum()),
