@@ -22,8 +22,9 @@ import pytest
 
 import wbmpc
 from wbmpc.cli import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, build_parser, main
+from wbmpc.cli_reference import arguments, command, commands
+from wbmpc.control import Commands, CostWeights, MpcConfig
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import Commands, CostWeights, MpcConfig
 from wbmpc.errors import ConfigError, ModelError
 from wbmpc.progress import ProgressBar
 from wbmpc.robots import custom_spec
@@ -64,7 +65,12 @@ def go2_files():
     (["solve", "--uniform-dt", "1e9"], "--uniform-dt must be <= 500 ms"),  # hung inside Fatrop
     (["run", "stand", "--nodes", "100000"], "--nodes must be <= 100"),
     (["solve", "--nodes", "100000"], "--nodes must be <= 100"),
-    (["run", "stand", "--delay", "inf"], "--delay must be a finite number"),
+    (["run", "stand", "--delay-ms", "inf"], "--delay-ms must be a finite number"),
+    (["run", "stand", "--delay-ms", "2000"], "--delay-ms must be <= 1000 ms"),
+    (["run", "stand", "--delay-mode", "fixed"], "a fixed delay needs its length: --delay-ms MS"),
+    (["run", "stand", "--delay-mode", "realtime", "--delay-ms", "5"], "does not go with --delay-mode realtime"),
+    (["run", "stand", "--delay", "5", "--delay-mode", "measured"], "--delay is the old form"),
+    (["run", "stand", "--delay", "inf"], "--delay must be a finite number"),  # the old form, one release
     (["run", "stand", "--delay", "later"], "--delay must be none, measured, measured-wall, realtime or a number of ms"),
     (["run", "pull", "--pull-speed", "nan"], "--pull-speed must be a finite number"),
     (["run", "stand", "--kp", "-1"], "--kp must be >= 0"),
@@ -83,6 +89,12 @@ def go2_files():
     (["info", "--lock", "x", "--srdf", "y.srdf"], "--srdf, --lock describe a custom robot and need --urdf"),
     (["info", "--sole", "0.2"], "--sole needs LENGTH,WIDTH in metres"),
     (["info", "--pose", "standing"], "--pose describes a custom robot and needs --urdf"),
+    (["info", "--urdf", "a.urdf", "--mjcf", "a.xml", "--feet", "f"], "--urdf and --mjcf both describe the robot"),
+    (["info", "--keyframe", "home"], "--keyframe names a pose of an MJCF file: it needs --mjcf FILE"),
+    (["info", "--mjcf", "a.xml"], "a custom --mjcf needs --feet F1,F2,... (the foot frame names: bodies, sites or geoms"),
+    (["info", "--mjcf", "nothere.xml", "--feet", "a,b"], "MJCF file not found: nothere.xml"),
+    (["run", "stand", "--plant", "pinocchio", "--plant-model", "a.xml"], "--plant-model is simulated by MuJoCo"),
+    (["run", "stand", "--plant-model", "nothere.xml"], "--plant-model file not found: nothere.xml"),
 ])
 def test_bad_input_exits_2_naming_the_flag_before_building(argv, words, capsys, no_build, tmp_path):
     out = tmp_path / "never"
@@ -115,15 +127,15 @@ def test_every_declared_range_is_refused_on_the_command_line_naming_its_flag(cls
 
 def test_run_options_come_from_their_declarations():
     """Flag, default and scenario grouping of `wbmpc run` are those declared on the config fields."""
-    from wbmpc.cli import _field_flags
+    from wbmpc.cli import field_flags_of_commands
     from wbmpc.options import flag_default
     from wbmpc.scenarios import SCENARIOS
 
     parser = build_parser()
-    run = parser._subparsers._group_actions[0].choices["run"]
-    actions = {a.option_strings[0]: a for a in run._actions if a.option_strings}
-    titles = {a.option_strings[0]: g.title for g in run._action_groups for a in g._group_actions if a.option_strings}
-    flags = _field_flags()
+    run = command(parser, "run")
+    actions = {a.option_strings[0]: a for a, _ in arguments(run) if a.option_strings}
+    titles = {a.option_strings[0]: title for a, title in arguments(run) if a.option_strings}
+    flags = field_flags_of_commands()
     for cls, f, opt in _declared_run_options():
         action = actions[opt.flag]
         assert action.default == (None if opt.repeat else flag_default(f, opt)), opt.flag
@@ -132,9 +144,9 @@ def test_run_options_come_from_their_declarations():
             assert set(opt.scenarios) <= set(SCENARIOS), opt.scenarios
             assert titles[opt.flag].startswith(", ".join(opt.scenarios) + " only"), titles[opt.flag]
     args = parser.parse_args(["run", "pull", "--load-kg", "12", "--kd", "7", "--delay-compensation", "off"])
-    from wbmpc.cli import _run_config
+    from wbmpc.cli import run_config_from_args
 
-    config = _run_config(args)
+    config = run_config_from_args(args)
     assert config.options.load_kg == 12.0 and config.gains.kd_leg == 7.0 and config.delay_compensation is False
     assert config.solver == "sqp" and config.options == ScenarioOptions(load_kg=12.0)  # auto, uncompiled: sqp
 
@@ -148,16 +160,15 @@ def test_robot_sim_and_deploy_share_the_run_declarations(argv, flag, capsys, no_
     pytest.importorskip("cyclonedds")
     assert main(argv) == EXIT_BAD_INPUT
     assert capsys.readouterr().err.startswith(f"wbmpc: error: {flag} must be ")
-    deploy = build_parser()._subparsers._group_actions[0].choices["deploy"]
-    kd = next(a for a in deploy._actions if "--kd" in a.option_strings)
+    kd = next(a for a, _ in arguments(command(build_parser(), "deploy")) if "--kd" in a.option_strings)
     assert "leg joint Kd of eq. (10)" in kd.help and "sent in LowCmd" in kd.help and kd.type is float
 
 
 def test_a_scenario_option_the_scenario_does_not_read_is_named_in_a_warning(capsys, no_build, tmp_path):
-    from wbmpc.cli import _ignored_scenario_options
+    from wbmpc.cli import ignored_scenario_options
 
     args = build_parser().parse_args(["run", "stand", "--load-kg", "12", "--gait", "stand", "--speed", "0.2"])
-    assert _ignored_scenario_options(args) == [("--load-kg", ("pull",))]  # --speed at its default: not given
+    assert ignored_scenario_options(args) == [("--load-kg", ("pull",))]  # --speed at its default: not given
     assert main(["run", "stand", "--load-kg", "12", "--uniform-dt", "0", "--out", str(tmp_path / "x")]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "warning: --load-kg is read by pull only; stand ignores it" in err
@@ -295,20 +306,10 @@ def test_progress_bar_is_silent_in_logs_and_complete_on_a_terminal():
 
 def test_every_option_has_help_and_run_help_lists_scenarios_and_exit_codes():
     parser = build_parser()
-
-    def parsers(p):
-        yield p
-        for action in p._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for sub in action.choices.values():
-                    yield from parsers(sub)
-
-    for p in parsers(parser):
-        for action in p._actions:
-            if not isinstance(action, argparse._SubParsersAction):
-                assert action.help and action.help != argparse.SUPPRESS, (p.prog, action.dest)
-    run = [p for p in parsers(parser) if p.prog.endswith(" run")][0]
-    text = run.format_help()
+    for prog, p in commands(parser):
+        for action, _ in arguments(p):
+            assert action.help and action.help != argparse.SUPPRESS, (prog, action.dest)
+    text = command(parser, "run").format_help()
     assert "trot-in-place    10 s" in text and "exit codes:" in text and "130" in text
 
 
@@ -349,7 +350,7 @@ def test_output_dir_replaces_only_what_wbmpc_wrote(tmp_path):
 
 def test_a_fall_exits_1(tmp_path, capsys):
     # a 1 s solver delay leaves the trot without new plans: go2 falls within a second
-    code = main(["run", "trot-in-place", "--robot", "go2", "--plant", "pinocchio", "--delay", "1000",
+    code = main(["run", "trot-in-place", "--robot", "go2", "--plant", "pinocchio", "--delay-ms", "1000",
                  "--duration", "1.5", "--nodes", "6", "--no-outputs", "--json"])
     captured = capsys.readouterr()
     metrics = json.loads(captured.out)

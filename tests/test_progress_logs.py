@@ -16,9 +16,9 @@ from wbmpc.campaign import CampaignSpec, run_campaign
 
 def _instant_case(case) -> dict:
     """A case that does not simulate: the bar, not the runs, is under test."""
-    from wbmpc.campaign.execution import _base_row
+    from wbmpc.campaign.execution import base_row
 
-    row = _base_row(case)
+    row = base_row(case)
     row.update(recovered=True, fell=False)
     return row
 

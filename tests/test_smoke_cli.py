@@ -27,7 +27,7 @@ SHORT_S = 0.3
 RUN_KEYS = {"scenario", "robot", "fell", "fell_at_s", "duration_s", "requested_duration_s", "interrupted",
             "base_drift_cm_s", "base_vel_rmse", "max_torque_ratio", "torque_margin_per_joint", "solve_ms",
             "iterations_mean", "mpc_solves", "mpc_failures", "mpc_recoveries", "mpc_rate_hz", "late_solution_share",
-            "delay_ms_mean", "state", "delay", "plant", "nodes", "time_steps", "base_tracking", "drive_train"}
+            "delay_ms_mean", "state", "delay", "delay_mode", "delay_ms", "mpc_rate_target_hz", "plant", "nodes", "time_steps", "base_tracking", "drive_train"}
 SRC = str(Path(wbmpc.__file__).parents[1])
 
 
@@ -75,7 +75,7 @@ def test_default_run_writes_metrics_plots_and_replay(capsys, tmp_path):
     """fatrop, no delay, the simulator's state: the README's first command, shortened, with its outputs."""
     out = tmp_path / "run"
     code, m, err = run_json(capsys, "trot-in-place", *SMALL, "--duration", str(SHORT_S), "--out", str(out))
-    check_run(code, m, err, state="true", delay="none", plant="mujoco", nodes=6, time_steps="geometric")
+    check_run(code, m, err, state="true", delay_mode="none", plant="mujoco", nodes=6, time_steps="geometric")
     assert m["mpc_solves"] >= int(SHORT_S * 80) - 1 and m["mpc_failures"] == 0  # 80 Hz MPC in simulated time
     assert m["mpc_rate_hz"] == pytest.approx(80, rel=0.05)
     files = {p.name for p in out.iterdir()}
@@ -107,9 +107,10 @@ def test_each_solver(capsys, solver):
 
 @pytest.mark.parametrize("delay", ["measured", "20", "realtime"])
 def test_each_delay_mode(capsys, delay):
-    code, m, err = run_json(capsys, "trot-in-place", *SMALL, "--duration", str(SHORT_S), "--delay", delay,
-                            "--no-outputs")
+    flag = ["--delay-ms", delay] if delay[0].isdigit() else ["--delay-mode", delay]
+    code, m, err = run_json(capsys, "trot-in-place", *SMALL, "--duration", str(SHORT_S), *flag, "--no-outputs")
     check_run(code, m, err, delay=delay)
+    assert (m["delay_mode"], m["delay_ms"]) == (("fixed", 20.0) if delay == "20" else (delay, None))
     assert m["mpc_rate_hz"] is not None and m["mpc_rate_hz"] > 0  # achieved rates, not asserted (loaded machines)
     assert "achieved MPC rate" in err
     if delay == "20":
@@ -122,7 +123,7 @@ def test_a_failed_first_solve_is_a_run_error_exit_1(capsys, tmp_path, monkeypatc
     """Runtime failures exit 1 (the run failed), not 2 (bad input): nothing is written."""
     import dataclasses
 
-    from wbmpc.control.mpc import MPC
+    from wbmpc.control import MPC
 
     solve = MPC.solve
 
@@ -143,7 +144,7 @@ def test_a_real_time_solver_process_that_does_not_start_is_a_run_error(capsys, m
     from wbmpc.control import solver_process
 
     monkeypatch.setattr(solver_process, "mpc_worker", sys.exit)  # the spawned process dies on its arguments at once
-    code = main(["run", "stand", *SMALL, "--duration", str(SHORT_S), "--delay", "realtime", "--no-outputs", "--json"])
+    code = main(["run", "stand", *SMALL, "--duration", str(SHORT_S), "--delay-mode", "realtime", "--no-outputs", "--json"])
     err = capsys.readouterr().err
     assert code == EXIT_FAILED, err[-2000:]
     assert "wbmpc: error: the real-time MPC process did not start" in err
@@ -191,8 +192,8 @@ def test_compiled_solvers_on_the_small_robot(capsys, solver):
 @pytest.mark.slow
 def test_estimated_state_in_real_time(capsys):
     code, m, err = run_json(capsys, "trot-in-place", *SMALL, "--duration", "0.5", "--state", "estimated",
-                            "--delay", "realtime", "--no-outputs")
-    check_run(code, m, err, duration_s=0.5, state="estimated", delay="realtime")
+                            "--delay-mode", "realtime", "--no-outputs")
+    check_run(code, m, err, duration_s=0.5, state="estimated", delay_mode="realtime")
     assert m["est_base_vel_rmse_m_s"] is not None
 
 

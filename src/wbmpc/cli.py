@@ -3,7 +3,8 @@
 With --json exactly one JSON object (strict JSON: no NaN/Infinity) goes to stdout; human-readable
 text goes to stderr. Exit codes (`EXIT_CODES`): 0 done, 1 the run failed its task (the robot
 fell, the load was not pulled, the solve did not converge, the simulation diverged) or failed
-while running (`RunError`: the first MPC solve failed, a solver process did not start), 2 bad
+while running (`RunError`: the first MPC solve failed, the step budget is shorter than one QP, a solver
+process did not start, the robot or its arm did not answer), 2 bad
 input (`ConfigError`, `ModelError`: the message names the option and the fix; nothing is built or
 written), 130 interrupted by Ctrl-C (a run keeps and writes what it measured so far).
 """
@@ -23,27 +24,32 @@ from wbmpc.strict_json import to_json
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_CODES = {EXIT_OK: "done", EXIT_FAILED: "the run failed its task: the robot fell, the load (no load of a sweep) was not pulled, "
               "the solve did not converge or the simulation diverged; or it failed while running: the first MPC "
-              "solve failed, a solver process did not start", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
+              "solve failed, the step budget is shorter than one QP, a solver process did not start, the robot "
+              "or its arm did not answer", EXIT_BAD_INPUT: "bad input (nothing was built or written)",
               EXIT_INTERRUPTED: "interrupted by Ctrl-C (a run writes what it measured until then)"}
 EPILOG = "exit codes:\n" + "\n".join(textwrap.fill(text, 90, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
                                        for code, text in EXIT_CODES.items())
 
 # config fields of other commands -> the options that set them, so that errors name what the user typed;
-# those of `run` come from its config dataclasses (`_field_flags`)
-OTHER_FIELD_FLAGS = {"samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
-CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock"}
+# those of `run` come from its config dataclasses (`field_flags_of_commands`)
+OTHER_FIELD_FLAGS = {"delay": "--delay", "samples": "--samples", "out": "--out", "steps": "--steps", "t": "--t"}
+CUSTOM_ROBOT_FLAGS = {"srdf": "--srdf", "pose": "--pose", "feet": "--feet", "lock": "--lock", "keyframe": "--keyframe"}
 LONG_RUN_S = 60.0  # runs at least this long report their memory and solve-time stability in the summary
 
 
 def _add_robot_options(parser: argparse.ArgumentParser) -> None:
     from wbmpc.robots.presets import PRESET_NAMES
 
-    group = parser.add_argument_group("robot (a preset, or a custom URDF with the options below it)")
+    group = parser.add_argument_group("robot (a preset, or a custom URDF or MJCF with the options below it)")
     group.add_argument("--robot", default="b1_z1", choices=PRESET_NAMES, metavar="NAME",
                        help=f"preset: {', '.join(PRESET_NAMES)} (default b1_z1: B1 + Z1 arm, 22 DoF as in the paper)")
     group.add_argument("--urdf", metavar="FILE", help="custom robot URDF (replaces --robot; needs --feet)")
+    group.add_argument("--mjcf", metavar="FILE", help="custom robot MJCF with a free joint, e.g. MuJoCo Menagerie's or "
+                       "unitree_mujoco's (replaces --robot; needs --feet: bodies, sites or geoms of the file)")
     group.add_argument("--srdf", metavar="FILE", help="custom robot: SRDF with the reference pose (needs --pose)")
     group.add_argument("--pose", metavar="NAME", help="custom robot: SRDF group_state used as the nominal pose")
+    group.add_argument("--keyframe", metavar="NAME", help="custom MJCF robot: keyframe used as the nominal pose "
+                       "(default the file's first, e.g. Menagerie's home; none: its zero pose)")
     group.add_argument("--feet", metavar="F1,F2,...", help="custom robot: comma-separated foot frame names")
     group.add_argument("--arm-ee", metavar="FRAME", help="arm end-effector frame: a custom robot's, another frame of "
                        "a preset (e.g. g1's left_rubber_hand), or with --arm the mounted arm's (default its only leaf link)")
@@ -150,28 +156,35 @@ def robot_from_args(args: argparse.Namespace):
     import dataclasses
 
     from wbmpc.robots import RobotModel, custom_spec, load_robot, preset_spec
+    from wbmpc.robots.presets import custom_robot
 
     contact = _foot_contact(args)
     arm = _arm_mount(args)
-    if args.urdf:
+    mjcf = getattr(args, "mjcf", None)
+    if args.urdf and mjcf:
+        raise ConfigError("--urdf and --mjcf both describe the robot: give one")
+    if getattr(args, "keyframe", None) and not mjcf:
+        raise ConfigError("--keyframe names a pose of an MJCF file: it needs --mjcf FILE")
+    if args.urdf or mjcf:
         if not args.feet:
-            raise ConfigError("a custom --urdf needs --feet F1,F2,... (the foot frame names)")
+            raise ConfigError(f"a custom {'--urdf' if args.urdf else '--mjcf'} needs --feet F1,F2,... (the foot frame "
+                              f"names{': bodies, sites or geoms of the file' if mjcf else ''})")
         spec = custom_spec(args.urdf, _split(args.feet), None if arm else args.arm_ee, args.srdf, args.pose,
-                           _split(args.lock))
+                           _split(args.lock), mjcf=mjcf, keyframe=getattr(args, "keyframe", None))
         spec = dataclasses.replace(spec, **contact) if contact else spec
-        robot = RobotModel(_with_arm(spec, arm)) if arm else RobotModel(spec)
+        robot = custom_robot(_with_arm(spec, arm) if arm else spec)
     elif arm:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if dest != "arm_ee" and getattr(args, dest, None)]
         if given:
-            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf")
+            raise ConfigError(f"{', '.join(given)} describe a custom robot and need --urdf or --mjcf")
         spec = preset_spec(args.robot)
         robot = RobotModel(_with_arm(dataclasses.replace(spec, **contact) if contact else spec, arm))
     else:
         given = [flag for dest, flag in CUSTOM_ROBOT_FLAGS.items() if getattr(args, dest, None)]
         if given:
             raise ConfigError(f"{', '.join(given)} describe{'s' if len(given) == 1 else ''} a custom robot and need"
-                              f"{'s' if len(given) == 1 else ''} --urdf; "
-                              f"the preset --robot {args.robot} defines its own (drop {', '.join(given)} or add --urdf FILE)")
+                              f"{'s' if len(given) == 1 else ''} --urdf or --mjcf; the preset --robot {args.robot} "
+                              f"defines its own (drop {', '.join(given)} or add --urdf FILE or --mjcf FILE)")
         robot = load_robot(args.robot)
         if getattr(args, "arm", None) not in (None, "none") and arm is None and not _carries_arm(robot, args.arm):
             raise ConfigError(f"--robot {args.robot} carries no {args.arm} arm: mount one with --arm {args.arm} "
@@ -240,7 +253,7 @@ def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from wbmpc.control.tuning import RobotScale, tuning_for
+    from wbmpc.control.tuning import RENAMED_SETTINGS, RobotScale, tuning_for
     from wbmpc.solvers import blasfeo
 
     robot = robot_from_args(args)
@@ -254,7 +267,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     lines.append("settings (source: derived from the scale with B1 + Z1 as reference; derived: biped = the two-feet "
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
-              for name, entry in info["settings"].items()]
+              for name, entry in info["settings"].items() if name not in RENAMED_SETTINGS]
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
@@ -328,17 +341,26 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_config(args: argparse.Namespace):
+def run_config_from_args(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
+    values = values_from_args(RunConfig, args)
+    if args.delay is not None:  # the one-string --delay of before (deprecated): a mode or a fixed delay in ms
+        from wbmpc.control.delay import delay_from_text
+
+        if values.get("delay_mode", "none") != "none" or "delay_ms" in values:
+            raise ConfigError("--delay is the old form of --delay-mode / --delay-ms: give one or the other")
+        values["delay_mode"], values["delay_ms"] = delay_from_text(args.delay)
+        print("wbmpc: warning: --delay is deprecated; use --delay-mode none|measured|measured-wall|realtime or "
+              "--delay-ms MS", file=sys.stderr)
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
-                     gains=PdGains(**values_from_args(PdGains, args)), **values_from_args(RunConfig, args))
+                     gains=PdGains(**values_from_args(PdGains, args)), **values)
 
 
-def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
+def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
     """(flag, scenarios that read it) of the scenario options given that this run's scenario does not read."""
     from wbmpc.options import declared, flag_default
     from wbmpc.scenarios import ScenarioOptions
@@ -348,7 +370,7 @@ def _ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def _gains(args: argparse.Namespace, robot):
+def gains_from_args(args: argparse.Namespace, robot):
     """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
     import dataclasses
 
@@ -371,11 +393,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.sweep is not None and args.scenario != "pull":
         raise ConfigError(f"--sweep runs the pull scenario over loads; it does not apply to {args.scenario}")
     if args.object_model:  # on a scenario without an object: its own error, not a warning that the scenario ignores it
-        _run_config(args)
-    for flag, scenarios in _ignored_scenario_options(args):
+        run_config_from_args(args)
+    for flag, scenarios in ignored_scenario_options(args):
         readers = " and ".join([", ".join(scenarios[:-1]), scenarios[-1]] if len(scenarios) > 1 else scenarios)
         print(f"wbmpc: warning: {flag} is read by {readers} only; {args.scenario} ignores it", file=sys.stderr)
-    config = _run_config(args)
+    config = run_config_from_args(args)
     loads = None
     if args.sweep is not None:
         from wbmpc.scenarios.sweep import parse_loads
@@ -389,6 +411,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     import warnings
     from pathlib import Path
 
+    from wbmpc.control.delay import delay_text
     from wbmpc.scenarios import (
         check_output_dir,
         make_scenario,
@@ -406,14 +429,16 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=_gains(args, robot),
+    config = dataclasses.replace(config, gains=gains_from_args(args, robot),
                                  plant_config=plant_config_from_args(args, robot)).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     scenario = make_scenario(args.scenario, robot, config.options)  # its default duration may follow the robot
     duration = config.duration_s or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
-          f"{' (compiled)' if config.compiled else ''}, delay {args.delay}, plant {args.plant}, state {args.state}",
+          f"{' (compiled)' if config.compiled else ''}, delay {delay_text(config.delay_mode, config.delay_ms)}"
+          f"{' ms' if config.delay_mode == 'fixed' else ''}, plant {args.plant}"
+          f"{f' simulating {config.plant_model}' if config.plant_model else ''}, state {args.state}",
           file=sys.stderr)
     from wbmpc.progress import ProgressBar
 
@@ -447,6 +472,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         f"recovered by a re-solve, {m['mpc_failures']} failed; solve {_fmt(solve['mean'])} ms mean "
         f"({_fmt(solve['max'])} max), {m['iterations_mean']:.1f} iterations",
     ]
+    if m.get("plant_model"):
+        lines.append(plant_model_line(m["plant_model"]))
     if m.get("solver"):
         compiled = "compiled" if m["solver_compiled"] else (
             f"NOT compiled (asked for; CasADi's VM instead, several times slower: {m['compile_error']})"
@@ -458,8 +485,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         direct = f", NOT on its direct binding ({m['direct_fallback']})" if m.get("direct_fallback") else ""
         lines.append(f"  solver {m['solver']} ({compiled}){budget}{sqp}"
                      f"{', delay compensation on' if m.get('delay_compensation') else ''}{direct}")
-    if m.get("delay") != "none":
-        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target 80 Hz), "
+    if m.get("delay_mode") != "none":
+        lines.append(f"  achieved MPC rate {_fmt(m.get('mpc_rate_hz'))} Hz (target {m['mpc_rate_target_hz']:g} Hz), "
                      f"{100 * m['late_solution_share']:.0f} % of solutions late (longer than a period), "
                      f"mean delay {m['delay_ms_mean']:.1f} ms")
         if m.get("sim_cpu_share") is not None:
@@ -490,6 +517,15 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
     if failure:
         lines.append(f"  FAILED: {failure} (exit code {EXIT_FAILED})")
     return lines
+
+
+def plant_model_line(report: dict) -> str:
+    """One summary line on the plant model a run simulated (`wbmpc.sim.plant_model`)."""
+    reversed_ = f", joints reversed: {', '.join(report['joints_reversed'])}" if report["joints_reversed"] else ""
+    welded = f", welded: {', '.join(report['welded_joints'])}" if report["welded_joints"] else ""
+    return (f"  plant model {report['file']} ({report['format']}): {report['mass_kg']:.2f} kg against the controller's "
+            f"{report['controller_mass_kg']:.2f} kg, joint anchors within {1e3 * report['joint_anchor_mismatch_m']:.1f} mm "
+            f"at the zero pose{reversed_}{welded}")
 
 
 def _fmt(value, spec: str = ".1f") -> str:
@@ -541,12 +577,13 @@ def _add_run_parser(sub, formatter) -> None:
     """`wbmpc run`: its options come from the fields of RunConfig, PdGains and ScenarioOptions (`wbmpc.options`),
     the scenario options grouped by the scenarios that read them."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.loop import MPC_RATE_HZ
     from wbmpc.options import add_arguments, scenario_groups
     from wbmpc.scenarios import SCENARIOS, RunConfig, ScenarioOptions
 
     run = sub.add_parser("run", help="closed-loop scenario in simulation: metrics, plots and a replay",
-                         description=textwrap.fill("Run a scenario in closed loop (MPC at 80 Hz, joint PD at 500 "
-                         "Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
+                         description=textwrap.fill(f"Run a scenario in closed loop (MPC at {MPC_RATE_HZ:g} Hz "
+                         "by default, joint PD at 500 Hz) and write metrics.json, PNG plots and replay.html to --out. Ctrl-C stops the run, keeps "
                          "what was measured and exits 130.", 90), epilog=_scenario_list() + "\n\n" + EPILOG, formatter_class=formatter)
     run.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)} (listed below)")
     _add_robot_options(run)
@@ -555,6 +592,8 @@ def _add_run_parser(sub, formatter) -> None:
     run.add_argument("--no-outputs", action="store_true", help="skip plots and replay (metrics only)")
     loop = run.add_argument_group("closed loop, solver and state (every scenario)")
     add_arguments(loop, RunConfig)
+    loop.add_argument("--delay", metavar="DELAY", help="deprecated, the old form of --delay-mode / --delay-ms: "
+                      "none | measured | measured-wall | realtime | a fixed delay in ms")
     add_arguments(loop, PdGains)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
@@ -575,6 +614,8 @@ def _add_run_parser(sub, formatter) -> None:
 def _add_bench_parsers(sub, formatter):
     """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
     returns the bench subparsers (the hardware module adds `bench dds`)."""
+    from wbmpc.control.loop import MPC_RATE_HZ
+
     bench = sub.add_parser("bench", help="benchmarks", epilog=EPILOG, formatter_class=formatter)
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     dyn = bench_sub.add_parser("dynamics", help="symbolic dynamics: instruction counts and errors vs pinocchio")
@@ -588,14 +629,14 @@ def _add_bench_parsers(sub, formatter):
     robots.add_argument("--seed", type=int, default=0, help="seed of the random states (default 0)")
     robots.add_argument("--mpc", action="store_true", help="also per quadruped: decision variables and closed-loop "
                         "Fatrop and RTI step times with its own settings (compiles each robot once, cached)")
-    robots.add_argument("--steps", type=int, default=40, help="with --mpc: MPC steps at 80 Hz per solver (default 40)")
+    robots.add_argument("--steps", type=int, default=40, help=f"with --mpc: MPC steps at {MPC_RATE_HZ:g} Hz per solver (default 40)")
     robots.add_argument("--no-compile", action="store_true", help="with --mpc: solvers without generated C")
     robots.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     robots.set_defaults(func=cmd_bench_robots)
 
     mpc = bench_sub.add_parser("mpc", help="receding-horizon MPC benchmark in closed loop (solvers, warm start, grids)")
     _add_robot_options(mpc)
-    mpc.add_argument("--steps", type=int, default=100, help="MPC steps at 80 Hz per run (default 100 = 1.25 s)")
+    mpc.add_argument("--steps", type=int, default=100, help=f"MPC steps at {MPC_RATE_HZ:g} Hz per run (default 100 = {100 / MPC_RATE_HZ:g} s)")
     mpc.add_argument("--gait", default="trot", help="stand, trot (default) or walk")
     mpc.add_argument("--plant", default="pinocchio", help="pinocchio (default) or mujoco")
     mpc.add_argument("--solvers", default="fatrop,ipopt", help="comma-separated from fatrop, fatrop-direct, ipopt, rti, sqp (anytime, no deadline: to convergence); the first (fatrop if listed) is the reference")
@@ -670,12 +711,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     from wbmpc.hardware.commands import add_bench_dds, add_hardware_commands
 
-    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit)  # robot-sim, deploy (DDS)
+    add_hardware_commands(sub, _add_robot_options, robot_from_args, _emit, _task_library())  # robot-sim, deploy (DDS)
     add_bench_dds(bench_sub, _add_robot_options, robot_from_args, _emit)
     from wbmpc.campaign.command import add_parser as add_campaign_parser
 
     add_campaign_parser(sub)
     return parser
+
+
+def _task_library():
+    """The scenarios' tasks and run options for robot-sim and deploy (`hardware.commands.TaskLibrary`)."""
+    from wbmpc.hardware.commands import TaskLibrary
+    from wbmpc.scenarios import RunConfig, ScenarioOptions, make_scenario
+
+    return TaskLibrary(run_options=RunConfig, task_options=ScenarioOptions, make_task=make_scenario)
 
 
 def _bench_module(name: str):
@@ -700,7 +749,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         raise
 
 
-def _field_flags() -> dict[str, str]:
+def field_flags_of_commands() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.options import field_flags
@@ -716,7 +765,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _dispatch(args)
     except ConfigError as exc:
-        print(f"wbmpc: error: {exc.worded(_field_flags()) if exc.field else exc}", file=sys.stderr)
+        print(f"wbmpc: error: {exc.worded(field_flags_of_commands()) if exc.field else exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except ModelError as exc:
         print(f"wbmpc: error: {exc}", file=sys.stderr)

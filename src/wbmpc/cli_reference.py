@@ -16,20 +16,34 @@ HEADER = ("# Command-line reference\n\nGenerated from the parser by `python -m w
           " (do not edit by hand; `tests/test_docs.py` checks it is up to date).\n")
 
 
-def _commands(parser: argparse.ArgumentParser):
+def commands(parser: argparse.ArgumentParser):
     """(prog, parser) of the command and every subcommand, depth first, in the parser's order."""
     yield parser.prog, parser
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
-                yield from _commands(sub)
+                yield from commands(sub)
+
+
+def command(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    """The parser of the subcommand `name` ("run", "bench mpc", ...)."""
+    for prog, sub in commands(parser):
+        if prog.split(" ", 1)[-1] == name:
+            return sub
+    raise KeyError(f"no command '{name}'")
+
+
+def arguments(parser: argparse.ArgumentParser) -> list[tuple[argparse.Action, str | None]]:
+    """(action, title of its help group) of every argument of one command (subcommand choices aside)."""
+    return [(action, group.title) for group in parser._action_groups for action in group._group_actions
+            if not isinstance(action, argparse._SubParsersAction)]
 
 
 def render() -> str:
     from wbmpc.cli import build_parser
 
     sections = [HEADER]
-    for prog, parser in _commands(build_parser()):
+    for prog, parser in commands(build_parser()):
         formatter = parser.formatter_class
         parser.formatter_class = functools.partial(formatter, width=WIDTH, max_help_position=34)
         try:

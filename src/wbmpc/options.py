@@ -73,6 +73,17 @@ def option(default: Any = _UNSET, *, default_factory: Any = _UNSET, **declaratio
     return dataclasses.field(default=default, metadata=metadata)
 
 
+def declared_field(cls, name: str) -> Any:
+    """`cls`'s declared field `name` as a field of another dataclass (same default and declaration): a config
+    that carries another's options flat (`RunConfig` those of `MpcChoices`) declares each of them once."""
+    for f in dataclasses.fields(cls):
+        if f.name == name and _KEY in f.metadata:
+            if f.default_factory is not dataclasses.MISSING:
+                return dataclasses.field(default_factory=f.default_factory, metadata=f.metadata)
+            return dataclasses.field(default=f.default, metadata=f.metadata)
+    raise KeyError(f"{cls.__name__} declares no option '{name}'")
+
+
 def declared(cls_or_obj) -> list[tuple[dataclasses.Field, Option]]:
     """(field, Option) of every declared field, in declaration order."""
     return [(f, f.metadata[_KEY]) for f in dataclasses.fields(cls_or_obj) if _KEY in f.metadata]

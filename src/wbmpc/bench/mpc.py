@@ -24,11 +24,11 @@ from typing import Callable
 
 import numpy as np
 
+from wbmpc.control.loop import MPC_RATE_HZ
 from wbmpc.errors import ConfigError, check_number, unknown_name
 from wbmpc.progress import ProgressBar
 from wbmpc.strict_json import to_json
 
-MPC_RATE_HZ = 80.0
 PLANTS = ("pinocchio", "mujoco")
 
 
@@ -80,11 +80,11 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
                        solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
-    config = replace(config, fallback_solver=None, recovery_barrier_init=None)
+    config = replace(config, recovery=replace(config.recovery, fallback_solver=None, barrier_init=None))
     if robot is not None:
         from wbmpc.control.tuning import tuning_for
 
-        config = replace(config, **tuning_for(robot).mpc_fields())
+        config = tuning_for(robot).apply_to(config)
     return config
 
 
@@ -187,9 +187,9 @@ class _Recorder:
     def robot(self):
         return self.mpc.robot
 
-    def solve(self, q, v, commands=None, t=0.0):
-        self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t)))
-        solution, cpu_ms = _timed_solve(self.mpc, q, v, commands, t)
+    def solve(self, q, v, commands=None, t_s=0.0):
+        self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t_s)))
+        solution, cpu_ms = _timed_solve(self.mpc, q, v, commands, t_s)
         self.eval_ms.append(_function_eval_ms(solution))
         self.splits.append(dict(solution.stats.split_ms))
         self.cpu_ms.append(cpu_ms)
@@ -257,7 +257,7 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
     from wbmpc.control.tuning import tuning_for
 
     gains = tuning_for(robot).gains  # the robot's own PD (B1's Kd 5 saturates a Go2's legs)
-    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none", gains=gains)).run(
+    log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, gains=gains)).run(
         duration, progress=lambda share, _recoveries: on_progress(share))
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))

@@ -61,7 +61,7 @@ def _trot(robot: RobotModel, mpc, steps: int):
     plant = make_plant("mujoco", robot)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     recorder = _Recorder(mpc)
-    loop = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, delay="none", gains=tuning_for(robot).gains))
+    loop = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, gains=tuning_for(robot).gains))
     log = loop.run(steps / MPC_RATE_HZ)
     arrays = log.arrays()
     n = min(steps, len(arrays["iterations"]), len(recorder.cpu_ms))

@@ -42,11 +42,13 @@ _LOOP_AXES = {
 _OTHER_AXES = {
     "gait_phase": "push time shifted by this share of the gait period (0..1)",
     "robot": "robot preset (b1_z1, b1, go2, a1, ...)",
+    "plant_model": "MJCF or URDF file MuJoCo simulates instead of the controller's model (--plant-model); "
+                   "none: the controller's model",
 }
 _SCENARIO_AXES = {f.name: f"scenario option: {help_text(f, opt)}" + (f" [{opt.flag}]" if opt.flag else "")
                   for f, opt in declared(ScenarioOptions)}
 AXES: dict[str, str] = {**_SCENARIO_AXES, **_MODEL_AXES, **_LOOP_AXES, **_OTHER_AXES}
-STRING_AXES = {"robot", "gait", "board", "wipe_pattern"}
+STRING_AXES = {"robot", "gait", "board", "wipe_pattern", "plant_model"}
 
 
 def check_axes(spec) -> None:
@@ -131,14 +133,18 @@ class Case:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
             period = make_gait(gait, 4, tuning_for(self.robot).gait_period_s).period_s  # a1: 0.6 s
             options.push_time_s += float(v["gait_phase"]) * period
-        delay = self.delay if v.get("delay_ms") is None else str(float(v["delay_ms"]))
-        solver = self.solver or ("auto" if delay == "realtime" else "fatrop")
+        from wbmpc.control.delay import delay_from_text
+
+        delay_mode, delay_ms = delay_from_text(self.delay) if v.get("delay_ms") is None else ("fixed", float(v["delay_ms"]))
+        solver = self.solver or ("auto" if delay_mode == "realtime" else "fatrop")
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
-                         formulation=self.formulation, seed=self.seed, options=options, delay=delay, solver=solver,
+                         formulation=self.formulation, seed=self.seed, options=options, delay_mode=delay_mode, delay_ms=delay_ms,
+                         solver=solver,
                          model_errors=self.model_errors(),
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
                          identify_mass=bool(float(v.get("identify_mass", 0.0))),
+                         plant_model=None if v.get("plant_model", "none") == "none" else v["plant_model"],
                          **({"push_gait_period_scale": float(v["push_gait_period_scale"])}
                             if "push_gait_period_scale" in v else {}))
 

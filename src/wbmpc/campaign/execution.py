@@ -63,18 +63,18 @@ def _cached(key: tuple, build: Callable):
 
 def run_case(case: Case) -> dict:
     """One closed-loop run -> one row (errors are recorded in the row, never raised)."""
+    from wbmpc.control.policy import mpc_config
     from wbmpc.robots import load_robot
     from wbmpc.scenarios import make_scenario, run_scenario
-    from wbmpc.scenarios.runner import mpc_config_for
 
-    row = _base_row(case)
+    row = base_row(case)
     try:
         config = case.run_config()
         robot = _cached(("robot", case.robot), lambda: load_robot(case.robot))
         scenario = make_scenario(config.scenario, robot, config.options)
-        mpc_config = mpc_config_for(scenario, config, robot)
+        settings = mpc_config(robot, scenario.needs(robot), config.mpc_choices())
         # one MPC per distinct configuration (gait, grid, solver, tuning, delay's recovery budget, cadence)
-        mpc = _cached(("mpc", case.robot, repr(mpc_config)), lambda: _built_mpc(robot, mpc_config))
+        mpc = _cached(("mpc", case.robot, repr(settings)), lambda: _built_mpc(robot, settings))
         result = run_scenario(robot, config, mpc=mpc)
         m = result.metrics
         row.update(
@@ -103,7 +103,7 @@ def _built_mpc(robot, config):
     return mpc
 
 
-def _base_row(case: Case) -> dict:
+def base_row(case: Case) -> dict:
     try:
         from distributed import get_worker
 
@@ -132,7 +132,7 @@ def axis_types(cases: list[Case]) -> dict[str, pa.DataType]:
     return {name: pa.string() if name in STRING_AXES else pa.float64() for name in names}
 
 
-def _worker_env() -> dict[str, str]:
+def worker_env() -> dict[str, str]:
     """Worker processes import this wbmpc (not another install) and use one BLAS thread each."""
     src = str(Path(__file__).resolve().parents[2])
     path = os.environ.get("PYTHONPATH", "")
@@ -156,7 +156,7 @@ def start_client(workers: int | None = None, scheduler: str | None = None):
     if n < 1:
         raise ConfigError(f"--workers must be >= 1, got {n}")
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR, env=_worker_env())
+                           silence_logs=logging.ERROR, env=worker_env())
     return Client(cluster), cluster
 
 
@@ -286,7 +286,7 @@ def _record(future, case: Case, table: ResultTable, run: CampaignRun, bar, kille
         bar.advance(1)
         return
     except Exception as exc:  # the runner itself raised (run_case never does)
-        row = _base_row(case)
+        row = base_row(case)
         row.update(recovered=False, error=f"{type(exc).__name__}: {exc}"[:2000], worker="unknown")
     table.write(row)
     run.recorded += 1

@@ -77,9 +77,9 @@ class CampaignSpec:
     solver: str | None = None  # None: fatrop, or with delay realtime the run's default (--solver auto)
 
     def __post_init__(self):
-        from wbmpc.control.loop import fixed_delay_s
+        from wbmpc.control.delay import delay_from_text
 
-        fixed_delay_s(self.delay)
+        delay_from_text(self.delay)
         if isinstance(self.random, dict):
             self.random = RandomSamples(**self.random)
         if not self.duration_s > 0:

@@ -1,6 +1,10 @@
 """Control: the MPC (state + commands -> Solution), interpolation and joint PD."""
 
-from wbmpc.control.mpc import MPC, Commands, CostWeights, MpcConfig
+from wbmpc.control.commands import Commands
+from wbmpc.control.config import CommandLimits, MpcConfig, PushConfig, RecoveryConfig, ReferenceConfig
+from wbmpc.control.mpc import MPC
 from wbmpc.control.solution import Solution
+from wbmpc.control.weights import CostWeights
 
-__all__ = ["MPC", "Commands", "CostWeights", "MpcConfig", "Solution"]
+__all__ = ["MPC", "CommandLimits", "Commands", "CostWeights", "MpcConfig", "PushConfig", "RecoveryConfig",
+           "ReferenceConfig", "Solution"]

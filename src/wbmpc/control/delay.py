@@ -18,6 +18,43 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.solution import Solution
+from wbmpc.errors import ConfigError, check_number
+
+# when a plan reaches the plant in closed loop (control/loop.py): none (the simulation waits for the solver), measured
+# (the step's CPU time elapses: its time on a core of its own), measured-wall (its wall time), fixed (`delay_ms`),
+# realtime (the solver in its own process, the simulation paced by the wall clock)
+DELAY_MODES = ("none", "measured", "measured-wall", "fixed", "realtime")
+MAX_FIXED_DELAY_MS = 1000.0
+
+
+def check_delay(delay_mode: str, delay_ms: float | None) -> None:
+    """Refuse an unknown mode, a fixed delay without its milliseconds, milliseconds with another mode."""
+    if delay_mode not in DELAY_MODES:
+        raise ConfigError.for_field("delay_mode", f"must be one of {', '.join(DELAY_MODES)}; got {delay_mode!r}")
+    if delay_mode == "fixed":
+        if delay_ms is None:
+            raise ConfigError("a fixed delay needs its length: --delay-ms MS (delay_ms)")
+        check_number("delay_ms", delay_ms, low=0.0, high=MAX_FIXED_DELAY_MS, unit="ms")
+    elif delay_ms is not None:
+        raise ConfigError(f"--delay-ms sets a fixed delay; it does not go with --delay-mode {delay_mode}")
+
+
+def delay_from_text(text: str) -> tuple[str, float | None]:
+    """(delay_mode, delay_ms) of the one-string delay of before (`--delay-mode none|measured|measured-wall|realtime|MS`)."""
+    if text in DELAY_MODES and text != "fixed":
+        return text, None
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise ConfigError.for_field("delay", "must be none, measured, measured-wall, realtime or a number of ms; "
+                                    f"got '{text}'") from None
+    check_number("delay", value, low=0.0, high=MAX_FIXED_DELAY_MS, unit="ms")
+    return "fixed", value
+
+
+def delay_text(delay_mode: str, delay_ms: float | None) -> str:
+    """The one-string form of a delay (the metrics' `delay` key of before): the mode, or the milliseconds."""
+    return f"{delay_ms:g}" if delay_mode == "fixed" else delay_mode
 
 
 def roll_forward(model: pin.Model, q: np.ndarray, v: np.ndarray, plan: Solution | None, t_s: float,

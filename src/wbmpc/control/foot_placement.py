@@ -148,12 +148,12 @@ class SwingPlacement:
         self._height_m = float(robot.q_nominal[2])
         self._reach_m = MAX_STEP_PER_LEG * self._height_m
 
-    def velocities(self, gait: Gait, t: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
+    def velocities(self, gait: Gait, t_s: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
                    command_world: np.ndarray, yaw: float, feet_m: np.ndarray) -> np.ndarray:
         """(nodes, n_feet, 2) world xy velocity references of swing feet at t + node_times_s (NaN: stance or
         the free end of a swing). `v_world`: the measured base velocity, `command_world` the commanded one,
         both world xy; `feet_m`: measured foot positions (n_feet, >= 2)."""
-        times = t + np.asarray(node_times_s, dtype=float)
+        times = t_s + np.asarray(node_times_s, dtype=float)
         n, n_feet = len(times), len(self._frames)
         out = np.full((n, n_feet, 2), np.nan)
         duty = gait.duty_factor
@@ -166,7 +166,7 @@ class SwingPlacement:
         capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self._height_m / 9.81)
         phase = gait.phase(times)  # (n, feet)
         progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
-        now_phase = gait.phase(np.array([t]))[0]
+        now_phase = gait.phase(np.array([t_s]))[0]
         for i in range(n_feet):
             start = np.asarray(feet_m[i][:2], dtype=float)
             swinging = progress[:, i] >= 0
@@ -181,8 +181,8 @@ class SwingPlacement:
                 s = progress[nodes, i]
                 lift_off_t = times[nodes[0]] - s[0] * swing_s
                 touch_down_t = lift_off_t + swing_s
-                s0 = s_now if lift_off_t <= t else 0.0
-                under_hip = q[:2] + (touch_down_t - t) * command + heading @ self._foot_offsets_m[i]
+                s0 = s_now if lift_off_t <= t_s else 0.0
+                under_hip = q[:2] + (touch_down_t - t_s) * command + heading @ self._foot_offsets_m[i]
                 step = command * stance_s / 2 + capture
                 reach = np.linalg.norm(step)
                 if reach > self._reach_m:

@@ -1,4 +1,4 @@
-"""Shared-memory channel between the real-time simulation and its MPC process (`--delay realtime`).
+"""Shared-memory channel between the real-time simulation and its MPC process (`--delay-mode realtime`).
 
 Each MPC step moves a request (measured q, v, the command, t, the expected delay and the step budget)
 one way and a plan (the `Solution` arrays and its solver statistics) the other. Through a pipe that
@@ -16,7 +16,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from wbmpc.control.mpc import Commands
+from wbmpc.control.commands import Commands
 from wbmpc.control.solution import Solution
 from wbmpc.solvers.nlp import SolverStats
 
@@ -121,12 +121,12 @@ class SharedChannel:
             self.memory.unlink()
 
     # ------------------------------------------------------------------ simulation side
-    def send_request(self, q, v, command_row: np.ndarray, t: float, delay_s: float, budget_s: float | None) -> None:
+    def send_request(self, q, v, command_row: np.ndarray, t_s: float, delay_s: float, budget_s: float | None) -> None:
         views = self.views
         views["req_q"][:] = q
         views["req_v"][:] = v
         views["req_command"][:] = command_row
-        views["req_scalars"][:] = (t, delay_s, np.nan if budget_s is None else budget_s, 0.0)
+        views["req_scalars"][:] = (t_s, delay_s, np.nan if budget_s is None else budget_s, 0.0)
         self.answer_ready.clear()
         self.request_ready.set()
 

@@ -37,7 +37,7 @@ class Solution:
     held_previous: bool = False
     # timings of the step, set by the loop or solver process that ran it (0 until then)
     wall_time_s: float = 0.0  # wall time of `MPC.solve`
-    cpu_time_s: float = 0.0  # CPU time of the thread that ran it (`--delay measured`)
+    cpu_time_s: float = 0.0  # CPU time of the thread that ran it (`--delay-mode measured`)
     process_cpu_s: float = 0.0  # the solver process's CPU clock when the step ended (real-time CPU share)
 
     def __post_init__(self) -> None:

@@ -1,4 +1,4 @@
-"""The MPC in its own process: what `wbmpc run --delay realtime` and `wbmpc deploy` both solve with.
+"""The MPC in its own process: what `wbmpc run --delay-mode realtime` and `wbmpc deploy` both solve with.
 
 A process, not a thread: the 500 Hz loop beside it is Python and would starve a solver thread of the
 GIL. `SolverProcess` starts `mpc_worker` (spawned, single-threaded BLAS, pinned to its own cores and
@@ -13,7 +13,9 @@ from __future__ import annotations
 import os
 import time
 
-from wbmpc.control.mpc import MPC, Commands, MpcConfig
+from wbmpc.control.commands import Commands
+from wbmpc.control.config import MpcConfig
+from wbmpc.control.mpc import MPC
 from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
 from wbmpc.control.solution import Solution
 from wbmpc.errors import RunError, WbmpcError
@@ -91,13 +93,13 @@ class SolverProcess:
     def is_alive(self) -> bool:
         return self._process.is_alive()
 
-    def request(self, q, v, command: Commands, t: float, delay_s: float = 0.0, budget_s: float | None = None) -> None:
+    def request(self, q, v, command: Commands, t_s: float, delay_s: float = 0.0, budget_s: float | None = None) -> None:
         """A plan from (q, v) at MPC time t; `delay_s`: when it will apply (delay compensation), `budget_s`:
         the step's deadline for a solver that has one."""
         if self.channel is None:
-            self._conn.send((q, v, command, t, delay_s, budget_s))
+            self._conn.send((q, v, command, t_s, delay_s, budget_s))
         else:
-            self.channel.send_request(q, v, command_row(command), t, delay_s, budget_s)
+            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s)
 
     def ready(self) -> bool:
         return self.channel.answer_ready.is_set() if self.channel is not None else self._conn.poll()
@@ -172,11 +174,11 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
             return
 
 
-def _solve(mpc: MPC, q, v, command: Commands, t: float, delay_s: float, budget_s: float | None) -> Solution:
+def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget_s: float | None) -> Solution:
     start = time.perf_counter()
     # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
     budget = budget_s if mpc.config.step_budget_s is not None else None
-    solution = mpc.solve(q, v, command, t, delay_s=delay_s, budget_s=budget)
+    solution = mpc.solve(q, v, command, t_s, delay_s=delay_s, budget_s=budget)
     solution.wall_time_s = time.perf_counter() - start
     solution.process_cpu_s = time.process_time()
     return solution

@@ -51,6 +51,7 @@ RIDE_GAIN = 2.0  # the base rides this many RMS of the terrain about its support
 RIDE_LEAN = 0.8  # ... at most until the shins lean this much (`ride_limit_m`)
 SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
 HIP_SAG_M = 0.03  # the hip may come this much lower than the measured base's height predicts (`_hips`)
+SHIN_RADIUS_M = 0.02  # a shin's half thickness where the robot's description has no primitive for it
 SHIN_CLEARANCE_M = 0.04  # room kept between a shin's surface and the terrain (its axis: plus `shin_radius_m`)
 SHIN_FROM = 0.2  # the shin's points checked: from this share of the way from the foot to the knee (below: the foot)
 SHIN_POINTS = 9
@@ -386,15 +387,17 @@ def ride_limit_m(robot: RobotModel) -> float:
 
 
 def shin_radius_m(robot: RobotModel) -> float:
-    """The shins' half thickness: of the collision shapes on the links from the knees down other than the feet (a box's
-    middle half size, a capsule's or cylinder's radius), the largest; 0 without any."""
-    from wbmpc.sim.shapes import robot_collision_shapes
+    """The shins' half thickness: of the URDF's collision primitives on the links from the knees down (a box's middle
+    half size, a capsule's or cylinder's radius), the largest; SHIN_RADIUS_M where the robot has none (meshes, no
+    URDF)."""
+    from wbmpc.robots.urdf_geometry import collision_primitives
 
     shins = LegShins(robot)
-    sizes = [sorted(shape.size)[1] if shape.kind == "box" else shape.size[0]
-             for shape in robot_collision_shapes(robot) if shape.joint_id in shins.shin_joints and not shape.is_foot
-             and shape.kind in ("box", "capsule", "cylinder")]
-    return float(max(sizes, default=0.0))
+    urdf = getattr(robot.spec, "urdf", None)
+    primitives = collision_primitives(robot.model, urdf) if urdf else []
+    sizes = [sorted(p.size)[1] if p.kind == "box" else p.size[0] for p in primitives
+             if p.joint_id in shins.shin_joints and p.kind in ("box", "capsule", "cylinder")]
+    return float(max(sizes, default=SHIN_RADIUS_M))
 
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:

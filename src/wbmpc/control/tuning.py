@@ -20,7 +20,7 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints), capped by the
   stability of an explicit damper at the 500 Hz joint PD (`DAMPER_STABILITY`: a 2.5 kg Solo12 fell at
   0.03 s on sqrt(M)'s Kd 1.0); the arm's gains with the mass it carries (the same Z1 gets the same gains on any base);
-- the base's horizontal position weight (the anchor of `MpcConfig.base_tracking = "position"`) 10x on a
+- the base's horizontal position weight (the anchor of `ReferenceConfig.base_tracking = "position"`) 10x on a
   robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
   hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
   cm/s (10 s) with 10x;
@@ -51,8 +51,9 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.biped import BIPED_SOURCE, biped_overrides
+from wbmpc.control.config import MpcConfig, PushConfig, ReferenceConfig
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.mpc import CostWeights, MpcConfig
+from wbmpc.control.weights import CostWeights
 from wbmpc.gait import SwingProfile
 from wbmpc.robots import RobotModel
 
@@ -101,8 +102,8 @@ class RobotScale:
 
 
 ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
-# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the settings of today's
-# defaults belong to this robot (a test checks that the preset still measures this).
+# B1 + Z1 (the paper's robot, preset b1_z1) as RobotScale.of measures it: the default
+# settings belong to this robot (a test checks that the preset still measures this).
 REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
                        arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217),
                        leg_joint_inertia_kg_m2=0.056588263124257965)
@@ -110,6 +111,14 @@ REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
 ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
 LEG_POSTURE = 20.0  # leg joint posture weight factor over the paper's 50 (module docstring)
 ACCELERATION = 0.1  # acceleration regularisation factor over the paper's 1e-2 (module docstring)
+# RobotTuning's settings of push recovery mode (PushConfig field by tuning name) and of the targets (ReferenceConfig)
+TUNED_PUSH = {"push_velocity_error_m_s": "velocity_error_m_s", "push_hold_s": "hold_s",
+              "push_cadence_hold_s": "cadence_hold_s"}
+TUNED_REFERENCES = ("support_sway", "support_lead_s", "support_sway_free_ee", "free_ee_without_command",
+                    "swing_placement")
+# settings renamed (old report name -> new): the report carries both for one release
+RENAMED_SETTINGS = {"support_sway_free_hands": "support_sway_free_ee",
+                    "base_linear_velocity_hand_held": "base_linear_velocity_ee_commanded"}
 CONTROL_PERIOD_S = 1 / 500  # the joint PD's tick (`LoopConfig.control_rate_hz`, section V-B)
 DAMPER_STABILITY = 1.5  # largest Kd dt / I of the leg damper: |1 - Kd dt / I| <= 0.5 (`_leg_damping`)
 
@@ -122,35 +131,49 @@ class RobotTuning:
     gains: PdGains = field(default_factory=PdGains)
     swing: SwingProfile = field(default_factory=SwingProfile)
     gait_period_s: float | None = None  # None: the gait's default
-    push_velocity_error_m_s: float = MpcConfig.push_velocity_error_m_s
-    push_hold_s: float = MpcConfig.push_hold_s
-    push_cadence_hold_s: float = MpcConfig.push_cadence_hold_s
-    support_sway: float = MpcConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
-    support_lead_s: float = MpcConfig.support_lead_s
-    support_sway_free_hands: float | None = MpcConfig.support_sway_free_hands
-    free_ee_without_command: bool = MpcConfig.free_ee_without_command
-    swing_placement: bool = MpcConfig.swing_placement  # bipeds: swing feet carried to a landing point
+    push_velocity_error_m_s: float = PushConfig.velocity_error_m_s
+    push_hold_s: float = PushConfig.hold_s
+    push_cadence_hold_s: float = PushConfig.cadence_hold_s
+    support_sway: float = ReferenceConfig.support_sway  # bipeds: lean over the next stance foot (control/biped.py)
+    support_lead_s: float = ReferenceConfig.support_lead_s
+    support_sway_free_ee: float | None = ReferenceConfig.support_sway_free_ee
+    free_ee_without_command: bool = ReferenceConfig.free_ee_without_command
+    swing_placement: bool = ReferenceConfig.swing_placement  # bipeds: swing feet carried to a landing point
     # the base's linear velocity weight in tasks that hold a hand (`for_task`; g1's table); None: weights' own
-    base_linear_velocity_hand_held: float | None = None
+    base_linear_velocity_ee_commanded: float | None = None
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
 
-    def mpc_fields(self) -> dict:
-        """The MpcConfig fields these settings set."""
-        return {"weights": self.weights, "swing": self.swing, "gait_period_s": self.gait_period_s,
-                "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
-                "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
-                "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement}
+    def push_config(self, **settings) -> PushConfig:
+        """Push recovery mode with these settings' detection and hold times (`settings`: the other fields)."""
+        return PushConfig(**{key: getattr(self, name) for name, key in TUNED_PUSH.items()}, **settings)
 
-    def for_task(self, holds_hand: bool) -> RobotTuning:
+    def reference_config(self, **settings) -> ReferenceConfig:
+        """How the targets are formed with these settings' biped rules (`settings`: the other fields)."""
+        return ReferenceConfig(**{name: getattr(self, name) for name in TUNED_REFERENCES}, **settings)
+
+    def apply_to(self, config: MpcConfig) -> MpcConfig:
+        """`config` with these settings (weights, swing, gait period, push detection, biped rules)."""
+        return dataclasses.replace(
+            config, weights=self.weights, swing=self.swing, gait_period_s=self.gait_period_s,
+            push=dataclasses.replace(config.push, **{key: getattr(self, name) for name, key in TUNED_PUSH.items()}),
+            references=dataclasses.replace(config.references, **{name: getattr(self, name) for name in TUNED_REFERENCES}))
+
+    def as_used_in(self, config: MpcConfig) -> RobotTuning:
+        """These settings as `config` holds them (a run's options or its task may have changed some)."""
+        return dataclasses.replace(
+            self, weights=config.weights, swing=config.swing, gait_period_s=config.gait_period_s,
+            **{name: getattr(config.push, key) for name, key in TUNED_PUSH.items()},
+            **{name: getattr(config.references, name) for name in TUNED_REFERENCES})
+
+    def for_task(self, commands_ee: bool) -> RobotTuning:
         """The settings of a task that holds a hand (its velocity or force commanded: arm-track, pull, ...) or
-        not: with a hand held the base velocity weight is `base_linear_velocity_hand_held` if set (g1's table)."""
-        if not holds_hand or self.base_linear_velocity_hand_held is None:
+        not: with a hand held the base velocity weight is `base_linear_velocity_ee_commanded` if set (g1's table)."""
+        if not commands_ee or self.base_linear_velocity_ee_commanded is None:
             return self
-        weights = dataclasses.replace(self.weights, base_linear_velocity=self.base_linear_velocity_hand_held)
+        weights = dataclasses.replace(self.weights, base_linear_velocity=self.base_linear_velocity_ee_commanded)
         return dataclasses.replace(self, weights=weights, sources={
-            **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_hand_held", "default")})
+            **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_ee_commanded", "default")})
 
     def report(self, options: dict | None = None) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
@@ -162,10 +185,12 @@ class RobotTuning:
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
-                "support_lead_s": self.support_lead_s, "support_sway_free_hands": self.support_sway_free_hands,
+                "support_lead_s": self.support_lead_s, "support_sway_free_ee": self.support_sway_free_ee,
                 "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
-                "base_linear_velocity_hand_held": self.base_linear_velocity_hand_held}
+                "base_linear_velocity_ee_commanded": self.base_linear_velocity_ee_commanded}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
+        for old_name, name in RENAMED_SETTINGS.items():  # the names of before, one release (CHANGELOG.md)
+            out[old_name] = out[name]
         for name, value in (options or {}).items():
             out[name] = {"value": value, "source": "option"}
         return out
@@ -189,7 +214,7 @@ def _leg_damping(scale: RobotScale) -> float:
 
 
 def derive(scale: RobotScale) -> RobotTuning:
-    """The settings of a robot of this scale (module docstring): equal to today's defaults at `REFERENCE`."""
+    """The settings of a robot of this scale (module docstring): equal to the defaults at `REFERENCE`."""
     s = scale.leg_length_m / REFERENCE.leg_length_m  # length ratio
     time, speed = math.sqrt(s), math.sqrt(s)  # Froude: durations sqrt(L/g), speeds sqrt(g L)
     w = CostWeights()
@@ -215,10 +240,10 @@ def derive(scale: RobotScale) -> RobotTuning:
     sw = SwingProfile()
     swing = SwingProfile(apex_height_m=sw.apex_height_m * s, liftoff_velocity_m_s=sw.liftoff_velocity_m_s * speed,
                          touchdown_velocity_m_s=sw.touchdown_velocity_m_s * speed)
-    m = MpcConfig
+    push = PushConfig
     tuning = RobotTuning(weights=weights, gains=gains, swing=swing, gait_period_s=REFERENCE_GAIT_PERIOD_S * time,
-                         push_velocity_error_m_s=m.push_velocity_error_m_s * speed, push_hold_s=m.push_hold_s * time,
-                         push_cadence_hold_s=m.push_cadence_hold_s * time, note="derived from the robot's size")
+                         push_velocity_error_m_s=push.velocity_error_m_s * speed, push_hold_s=push.hold_s * time,
+                         push_cadence_hold_s=push.cadence_hold_s * time, note="derived from the robot's size")
     tuning = dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
     if scale.feet == 2:
         tuning = with_overrides(tuning, {**biped_overrides(scale.leg_length_m),
@@ -245,29 +270,15 @@ TUNINGS: dict[str, dict] = {
     # accelerating down at 0.7 m/s^2, pitching back), the applied torques sagged it backwards and it fell at 0.9 s;
     # 1e-5: 885 N, 10 s standing with 0 failed steps. Not a biped rule: on g1 (33 kg) 1e-5 took walking forward
     # from 0 to 35 failed steps of 800 (14.5 -> 17.0 iterations)
-    # g1 walking forward at 0.3 m/s (compiled Fatrop, 10 s, delay none): with the biped rules the base velocity's
-    # per-tick error after the start was 0.175 m/s RMS, 0.163 of it across the heading (the sway from one sole to
-    # the other), 0.063 along it, for 0.005 per gait cycle. With the hands free the lean over the next stance foot
-    # is not needed (the placed swing foot does the work) and only adds sway: support_sway_free_hands 0 gives 0.134
-    # m/s (0.110 across, 0.077 along; 0.004 per cycle), 2 failed steps of 800, both recovered (arm-track
-    # while walking, a hand held, keeps it: without it, at a 0.62 s period, it fell at 5.8 s of 10). Quicker steps
-    # sway less too (RTI, 6 s, no lean, periods 1.03 / 0.82 / 0.72 / 0.62 s: 0.132 / 0.095 / 0.079 / 0.067 m/s;
-    # Fatrop at 0.62 s: 0.069, 0.055 across) but cost real time: RTI walking in place with each step's CPU time
-    # as delay (--delay measured, loaded machine) fell in 3 of 4 runs at 0.62 s, 2 of 4 at 1.03 s (each fall after
-    # a failed QP whose Fatrop recovery took ~200 ms); the runs that stayed up held 80 Hz.
-    # Then the base's linear velocity weight 1000 (the biped rule's 5, the size-derived 44): the pelvis carries the
-    # commanded velocity and the hips and trunk take up the sway from one sole to the other (the CoM still sways, as
-    # it must: its velocity is reported next to the base's, `com_vel_rmse_settled`). Walking forward at 0.3 m/s
-    # (10 s, compiled Fatrop, delay none), per-tick base velocity error after 2 s at weights 5 / 300 / 1000: 0.134 /
-    # 0.047 / 0.020 m/s (along 0.077 / 0.028 / 0.012, across 0.110 / 0.037 / 0.016; 300 is RTI, 6 s), 0 failed
-    # steps at 1000, the CoM's 0.14 / 0.095 / 0.088. At 5 the pelvis sped up in single support and slowed in double
-    # support (0.20-0.39 m/s at 0.3) and swayed with the CoM. Walking in place at 1000: drift 0.019 cm/s (0.65 at 5).
-    # With a hand held (tasks that command it, `RobotTuning.for_task`) it stays 5: the pinned hand and the lean leave
-    # the trunk little room, and arm-track walking in place (10 s, compiled Fatrop) failed 0 / 3 / 25 steps of 800
-    # at 5 / 300 / 1000 (hand RMSE 0.35 / 0.33 / 0.32 cm; 46 at 1000 without the lean), pull's 5 kg load moved
-    # 0.780 of 0.880 m at 1000 (0.854 at 5). Not a biped rule: TALOS walking forward at 0.3 m/s fell at 1.6 s at
-    # 1000 and 2.1 s at 300 (up over 4 s at 5)
-    "g1": {"support_sway_free_hands": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_hand_held": 5.0},
+    # g1: with the hands free the lean over the next stance foot is not needed (the placed swing foot does the
+    # work) and only adds sway, so support_sway_free_ee is 0 (walking forward at 0.3 m/s, per-tick base velocity
+    # error 0.134 against 0.175 m/s with the lean); a task that holds the end-effector keeps the lean (without it
+    # arm-track while walking fell). The base's linear velocity weight is 1000 (the biped rule's 5): the pelvis
+    # carries the commanded velocity and the hips and trunk take up the sway from one sole to the other (0.020
+    # against 0.134 m/s, 0 failed steps; the CoM still sways, as it must: `com_vel_rmse_settled`). With the
+    # end-effector commanded it stays 5: the pinned end-effector and the lean leave the trunk little room (arm-track
+    # walking in place failed 25 steps of 800 at 1000, 0 at 5). Not a biped rule: TALOS fell at 1000.
+    "g1": {"support_sway_free_ee": 0.0, "weights.base_linear_velocity": 1000.0, "base_linear_velocity_ee_commanded": 5.0},
     "talos": {"weights.joint_torque": 1e-5},
     "talos_full": {"weights.joint_torque": 1e-5},
 }
@@ -297,6 +308,6 @@ def tuning_for(robot: RobotModel | str) -> RobotTuning:
 
         robot = load_robot(robot)
     tuning = derive(RobotScale.of(robot))
-    overrides = TUNINGS.get(robot.name)
+    overrides = TUNINGS.get(robot.name) or TUNINGS.get(robot.spec.like_preset)  # another file of a preset's robot
     tuning = with_overrides(tuning, overrides) if overrides else tuning
     return tuning

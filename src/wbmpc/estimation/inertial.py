@@ -1,4 +1,4 @@
-"""Online identification of the mass distribution: the base CoM offset and a payload (issue 22, part 3).
+"""Online identification of the mass distribution: the base CoM offset and a payload (beyond the paper).
 
 The paper's B2 carried its mass ~60 % further back than its URDF says (section VI); the authors moved the
 CoM by hand. Here the floating-base dynamics identify it while the robot walks. With the joint torque
@@ -224,7 +224,7 @@ class InertialEstimator:
         return self.observed_s >= self.config.settle_s
 
     def report(self) -> dict:
-        """JSON keys of a run (issue 22's contract): the final estimate."""
+        """JSON keys of a run: the final estimate."""
         return {"base_com_offset_estimate_m": [float(x) for x in self.base_com_offset_m],
                 "payload_estimate_kg": self.payload_kg, "base_payload_estimate_kg": self.base_payload_kg,
                 "inertial_estimate_samples": self.samples,

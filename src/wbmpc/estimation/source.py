@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbmpc.control.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
+from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.estimation.estimator import EstimatorConfig, StateEstimator
 from wbmpc.estimation.sensors import SensorConfig, Sensors
 from wbmpc.gait import Gait

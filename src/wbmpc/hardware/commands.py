@@ -6,20 +6,39 @@ import argparse
 import dataclasses
 import json
 import sys
+from dataclasses import dataclass
+from typing import Callable
 
 from wbmpc.errors import ConfigError
 from wbmpc.hardware.network import check_interface
 from wbmpc.progress import ProgressBar
 
-DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "arm-track")
+DEPLOY_SCENARIOS = ("stand", "trot-in-place", "trot-forward", "walk-in-place", "walk-forward", "arm-track")
 
 
-def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None:
+@dataclass(frozen=True)
+class TaskLibrary:
+    """The tasks `wbmpc deploy` runs and the declarations of the `wbmpc run` options robot-sim and deploy share,
+    passed in by the front end (`wbmpc.cli` gives the scenarios'): the robot interface itself does not depend on
+    the simulated scenarios or their runner. The MPC's options come from `wbmpc.control.policy.MpcChoices`."""
+
+    run_options: type  # declares duration_s and seed (`wbmpc.scenarios.RunConfig`)
+    task_options: type  # declares and checks speed_m_s, push_speed_m_s, push_time_s (`ScenarioOptions`)
+    # (name, robot, task options) -> a task: needs(robot) (`TaskNeeds`), commands(robot), ee_reference(robot),
+    # pd_gains(gains) (`wbmpc.scenarios.make_scenario`)
+    make_task: Callable
+
+
+def add_hardware_commands(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
     """robot-sim and deploy; options they share with `wbmpc run` come from its declarations (`wbmpc.options`)."""
-    from wbmpc.control.interpolator import PdGains
-    from wbmpc.options import add_declared, declared_help
-    from wbmpc.scenarios import RunConfig, ScenarioOptions
+    _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks)
+    _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks)
 
+
+def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    from wbmpc.options import add_declared
+
+    RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
     sim = sub.add_parser("robot-sim", help="MuJoCo standing in for the robot behind Unitree LowState/LowCmd (DDS)")
     add_robot_options(sim)
     _add_network_options(sim)
@@ -35,6 +54,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                  help="base velocity kick at this simulated time")
     add_declared(sim, ScenarioOptions, "push_speed_m_s", help="kick speed to the robot's left (world y)")
     add_declared(sim, RunConfig, "seed", help="seed of the sensor noise")
+    add_declared(sim, RunConfig, "plant_model")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
@@ -45,10 +65,22 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                      "simulated seconds after the first LowCmd")
     sim.add_argument("--corrupt-every", type=int, metavar="N", help="fault: every N-th LowState with a bad CRC and "
                      "Z1 state with a NaN")
+    sim.add_argument("--gantry", action="store_true", help="a safety strap above the base, slack while the robot "
+                     "stands, carrying it once it sinks 30 %% below its standing height (humanoids: deploy's crouch and "
+                     "damping end in it, as under a gantry on hardware)")
+    sim.add_argument("--state-rate", type=float, metavar="HZ", help="LowState rate (default 500 Hz as a Unitree robot; "
+                     "200 Hz with --robot-link sim, unitree_mujoco's 5 ms step)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     _add_arm_options(sim)
-    sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit))
+    sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit, tasks))
 
+
+def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: TaskLibrary) -> None:
+    from wbmpc.control.interpolator import PdGains
+    from wbmpc.control.policy import MpcChoices
+    from wbmpc.options import add_declared, declared_help
+
+    RunConfig, ScenarioOptions = tasks.run_options, tasks.task_options
     dep = sub.add_parser("deploy", help="run the MPC on a robot (or robot-sim) over LowState/LowCmd: stand up, "
                                         "MPC, lie down")
     add_robot_options(dep)
@@ -58,10 +90,10 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
                  help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
-    for name in ("compiled", "nodes"):
-        add_declared(dep, RunConfig, name)
+    for name in ("compiled", "nodes", "mpc_rate_hz"):
+        add_declared(dep, MpcChoices, name)
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
-    add_declared(dep, RunConfig, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
+    add_declared(dep, MpcChoices, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
                  "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
     for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
         add_declared(dep, PdGains, name, help=f"{declared_help(PdGains, name)}, sent in LowCmd")
@@ -74,7 +106,7 @@ def add_hardware_commands(sub, add_robot_options, robot_from_args, emit) -> None
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
-    dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit))
+    dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit, tasks))
 
 
 def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
@@ -125,20 +157,31 @@ def _arm_settings(args) -> dict:
     return {"arm": arm, "z1_ports": ports}
 
 
-def deploy_mpc_config(robot, scenario, *, scenario_name: str, nodes: int, compiled: bool, solver: str, lockstep: bool):
-    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and scenario
-    with an estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay realtime`)."""
-    from wbmpc.scenarios import RunConfig
-    from wbmpc.scenarios.runner import mpc_config_for
+def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool,
+                      mpc_rate_hz: float | None = None):
+    """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
+    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`)."""
+    from wbmpc.control.policy import MpcChoices, mpc_config
 
-    run_config = RunConfig(scenario=scenario_name, nodes=nodes, compiled=compiled, solver=solver, state="estimated",
-                           delay="none" if lockstep else "realtime")
-    return mpc_config_for(scenario, run_config, robot)
+    rate = {} if mpc_rate_hz is None else {"mpc_rate_hz": mpc_rate_hz}
+    choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
+                         delay_mode="none" if lockstep else "realtime", **rate)
+    return mpc_config(robot, task_needs, choices)
 
 
 def _add_network_options(parser) -> None:
     parser.add_argument("--network", default="lo", help="network interface of the robot (lo: robot-sim on this machine)")
-    parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots)")
+    parser.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0, as on Unitree robots; "
+                        "Unitree's simulator uses 1)")
+    if parser.prog.endswith("deploy"):
+        parser.add_argument("--robot-link", default="robot", choices=("robot", "sim"), help="robot: a Unitree robot, "
+                            "strict (LowStates without header, CRC, advancing tick or motor temperatures are rejected, "
+                            "counted and named); sim: Unitree's simulator (unitree_mujoco), which leaves them at 0: "
+                            "accepted, time from the receive clock")
+    elif parser.prog.endswith("robot-sim"):
+        parser.add_argument("--robot-link", default="robot", choices=("robot", "sim"), help="robot: publish as a Unitree "
+                            "robot; sim: imitate Unitree's simulator (unitree_mujoco: header, CRC, tick and temperatures "
+                            "0, 200 Hz, the motor law once per LowCmd and held, no checks, no watchdog)")
 
 
 def _write(path, payload) -> None:
@@ -147,28 +190,21 @@ def _write(path, payload) -> None:
             json.dump(payload, fh, indent=2)
 
 
-def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
-    from wbmpc.estimation import SensorConfig
-    from wbmpc.hardware.robot_sim import RobotSimConfig, RobotSimulator
-    from wbmpc.hardware.safety import SafetyConfig
+def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
+    from wbmpc.hardware.robot_sim import RobotSimulator
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import ScenarioOptions
 
     load_sdk()
-    ScenarioOptions(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
+    tasks.task_options(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
-    sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
-    config = RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
-                            start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
-                            idle_exit_s=args.idle_exit, push_time_s=args.push_time,
-                            push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
-                            refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
-                            corrupt_every=args.corrupt_every, **_arm_settings(args))
+    config = _robot_sim_config(args)
     sim = RobotSimulator(robot, config)
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
+    link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
+            if config.robot_link == "sim" else f"sport mode '{config.sport_mode}'")
     print(f"wbmpc robot-sim: {robot.name} on {args.network} (DDS domain {args.domain}), {args.mode}, motors "
-          f"{sim.motors.describe()}{arm}; sport mode '{config.sport_mode}'; waiting for LowCmd (Ctrl-C stops)",
+          f"{sim.motors.describe()}{arm}; {link}; waiting for LowCmd (Ctrl-C stops)",
           file=sys.stderr, flush=True)
     import signal
 
@@ -179,11 +215,33 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
             result = sim.run(progress=lambda share: bar.update(share * args.duration))
     else:
         result = sim.run()
-    report = result.summary()
+    report = {**result.summary(), "plant_model": sim.plant.plant_model_report()}
     if args.drift_window:
         start, end = (float(x) for x in args.drift_window.split(","))
         report["window_drift_cm_s"] = result.drift_cm_s(start, end)
     _write(args.out, report)
+    emit(args, report, "\n".join(_robot_sim_summary(report, config, args)))
+    return 0
+
+
+def _robot_sim_config(args: argparse.Namespace):
+    from wbmpc.estimation import SensorConfig
+    from wbmpc.hardware.robot_sim import UNITREE_SIM_STATE_RATE_HZ, RobotSimConfig
+    from wbmpc.hardware.safety import SafetyConfig
+
+    sensors = SensorConfig.noiseless() if args.no_noise else SensorConfig(seed=args.seed)
+    return RobotSimConfig(network=args.network, domain_id=args.domain, mode=args.mode, duration_s=args.duration,
+                          start=args.start, sensors=sensors, safety=SafetyConfig(command_timeout_ms=args.watchdog_ms),
+                          idle_exit_s=args.idle_exit, push_time_s=args.push_time,
+                          push_velocity_m_s=(0.0, args.push_speed, 0.0), sport_mode=args.sport_mode,
+                          refuse_sport_release=args.refuse_sport_release, arm_silent_after_s=args.arm_silent_after,
+                          corrupt_every=args.corrupt_every, robot_link=args.robot_link, gantry=args.gantry,
+                          state_rate_hz=args.state_rate or (UNITREE_SIM_STATE_RATE_HZ if args.robot_link == "sim"
+                                                            else 500.0),
+                          plant_model=args.plant_model, **_arm_settings(args))
+
+
+def _robot_sim_summary(report: dict, config, args: argparse.Namespace) -> list[str]:
     share = report["ticks_on_time_share"]
     lines = [
         f"robot-sim {report['mode']}: {report['sim_time_s']:.2f} s simulated in {report['wall_time_s']:.1f} s, "
@@ -195,8 +253,16 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
         f"watchdog (damping) at {report['watchdog_events_s']} s, "
         f"{', '.join(f'{x:.0f}' for x in report['watchdog_latency_ms']) or 'no'} ms after the last valid LowCmd",
     ]
+    if report["gantry"] is not None:
+        gantry = report["gantry"]
+        lines.append("  gantry: " + ("slack throughout" if gantry["taut_since_s"] is None else
+                                     f"taut from {gantry['taut_since_s']:.2f} s, largest pull {gantry['max_force_n']:.0f} N"))
     if "window_drift_cm_s" in report:
         lines.append(f"  true drift between {args.drift_window} s: {report['window_drift_cm_s']:.2f} cm/s")
+    if report["plant_model"] is not None:
+        from wbmpc.cli import plant_model_line
+
+        lines.append(plant_model_line(report["plant_model"]))
     if report["rtt_ms_p50"] is not None:
         lines.append(f"  LowState -> LowCmd round trip p50 {report['rtt_ms_p50']:.2f} ms, p99 {report['rtt_ms_p99']:.2f} ms "
                      f"({report['rtt_samples']} samples; includes the controller's work)")
@@ -208,17 +274,12 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit) -> int:
                      f"watchdog (PASSIVE) {arm['watchdog_events']}x "
                      f"({', '.join(f'{x:.0f}' for x in arm['watchdog_latency_ms']) or 'no'} ms after the last valid command), "
                      f"passive at end {arm['passive_at_end']}{rtt}")
-    emit(args, report, "\n".join(lines))
-    return 0
+    return lines
 
 
-def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
-
-    from wbmpc.control.tuning import tuning_for
-    from wbmpc.hardware.deploy import Controller, DeployConfig, DeployFailure
-    from wbmpc.hardware.safety import SafetyConfig
+def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibrary) -> int:
+    from wbmpc.hardware.deploy import Controller, DeployFailure
     from wbmpc.hardware.sdk import load_sdk
-    from wbmpc.scenarios import ScenarioOptions, make_scenario
     from wbmpc.solvers.nlp import SOLVERS
 
     load_sdk()
@@ -229,19 +290,12 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         raise ConfigError(f"unknown solver '{args.solver}'; available: auto, {', '.join(SOLVERS)}")
     check_interface(args.network)
     robot = robot_from_args(args)
-    scenario = make_scenario(args.scenario, robot, ScenarioOptions(speed_m_s=args.speed))
-    mpc_config = deploy_mpc_config(robot, scenario, scenario_name=args.scenario, nodes=args.nodes,
-                                   compiled=args.compiled, solver=args.solver, lockstep=args.lockstep)
-    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
-                                                            if v is not None})
-    config = DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
-                          lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
-                          safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
-                          sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
-                          arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
-                          z1_ip=args.z1_ip, **_arm_settings(args))
-    print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}), "
-          f"{'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
+    scenario = tasks.make_task(args.scenario, robot, tasks.task_options(speed_m_s=args.speed))
+    mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
+                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate)
+    config = _deploy_config(args, robot, scenario)
+    print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}, robot link "
+          f"{args.robot_link}), {'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
           file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
     failure = None
@@ -255,11 +309,40 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
         failure = exc
         report = controller.report.summary()
     _write(args.out, report)
+    emit(args, report, "\n".join(_deploy_summary(report, args)))
+    if failure is not None:
+        print(f"wbmpc: error: {failure}", file=sys.stderr)
+        return 1
+    return 0 if not report["fell"] else 1
+
+
+def _deploy_config(args: argparse.Namespace, robot, scenario):
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.hardware.deploy import DeployConfig
+    from wbmpc.hardware.safety import SafetyConfig
+
+    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
+                                                          if v is not None})
+    return DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
+                        lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                        safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
+                        sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
+                        arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),
+                        z1_ip=args.z1_ip, robot_link=args.robot_link, mpc_rate_hz=args.mpc_rate, **_arm_settings(args))
+
+
+def _deploy_summary(report: dict, args: argparse.Namespace) -> list[str]:
     arm = report["arm"]
     lines = [
         f"deploy {args.scenario}: phases {' -> '.join(f'{p} ({t:.2f} s)' for t, p in report['phases'])}",
         f"  stopped by {report['stopped_by']}, fell {report['fell']}; LowState {report['states_received']} "
         f"(rejected {report['states_rejected']}), LowCmd {report['commands_sent']}",
+        f"  robot link {report['robot_link']}: time from the {report['time_source']}"
+        + (f", accepted unset {report['accepted_unset']}" if report["accepted_unset"] else "")
+        + (f", mode_machine {report['mode_machine']}" if report["mode_machine"] is not None else "")
+        + (f"; the robot's clock ran at {report['clock_rate']:.2f} x this clock (joint motion against reported velocity)"
+           + (": the robot (a simulator falling behind the wall clock?) did not run in real time"
+              if abs(report["clock_rate"] - 1.0) > 0.1 else "") if report["clock_rate"] is not None else ""),
         f"  MPC {report['mpc_solves']} solves, {report['mpc_failures']} failed, "
         f"{report['solve_ms_mean'] or 0:.1f} ms mean; plan age p50 {report['plan_age_ms_p50'] or 0:.1f} ms, max "
         f"{report['plan_age_ms_max'] or 0:.1f} ms; controller work per tick p50 "
@@ -272,8 +355,4 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit) -> int:
                      f"{arm['commands_sent']}")
     if report["sport_mode"] is not None:
         lines.append(f"  sport mode '{report['sport_mode']['released']}' released, restored {report['sport_mode']['restored']}")
-    emit(args, report, "\n".join(lines))
-    if failure is not None:
-        print(f"wbmpc: error: {failure}", file=sys.stderr)
-        return 1
-    return 0 if not report["fell"] else 1
+    return lines

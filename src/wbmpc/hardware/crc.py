@@ -1,7 +1,8 @@
-"""CRC of Unitree `unitree_go` LowCmd_ / LowState_ messages, as the robot checks it.
+"""CRC of Unitree LowCmd_ / LowState_ messages, as the robot checks it: `unitree_go` (quadrupeds,
+20 motor slots) and `unitree_hg` (humanoids such as G1, 35 motor slots).
 
 The message is packed little-endian in the robot's C layout (formats from unitree_sdk2py's
-`utils/crc.py`), cut into 32-bit words (the last word, the crc field itself, excluded) and run
+`utils/crc.py`; unitree_hg LowCmd_ 1004 bytes, LowState_ 2092), cut into 32-bit words (the last word, the crc field itself, excluded) and run
 through Unitree's `crc32_core`: CRC-32 with polynomial 0x04C11DB7, initial value 0xFFFFFFFF,
 most significant bit first, no reflection, no final xor (CRC-32/MPEG-2 over the words' big-endian
 bytes). zlib's CRC-32 is the reflected form of the same polynomial, so bit-reversing the input
@@ -15,9 +16,15 @@ import zlib
 
 import numpy as np
 
-N_MOTOR_SLOTS = 20
+N_MOTOR_SLOTS = 20  # unitree_go
+N_HG_MOTOR_SLOTS = 35  # unitree_hg
 _LOW_CMD = struct.Struct("<4B4IH2x" + "B3x5f3I" * N_MOTOR_SLOTS + "4B" + "55Bx2I")  # 812 bytes
 _LOW_STATE = struct.Struct("<4B4IH2x" + "13fb3x" + "B3x7fb3x3I" * N_MOTOR_SLOTS + "4BiH4b15H" + "8hI41B3xf2b2x2f4h2I")
+# unitree_hg: mode_pr, mode_machine; per motor mode, q, dq, tau, kp, kd, reserve; reserve[4], crc
+_HG_LOW_CMD = struct.Struct("<2B2x" + "B3x5fI" * N_HG_MOTOR_SLOTS + "5I")  # 1004 bytes
+# version[2], mode_pr, mode_machine, tick; IMU (13 floats, int16 temperature); per motor mode, q, dq, ddq, tau_est,
+# temperature[2], vol, sensor[2], motorstate, reserve[4]; wireless_remote[40], reserve[4], crc
+_HG_LOW_STATE = struct.Struct("<2I2B2xI" + "13fh2x" + "B3x4f2hf7I" * N_HG_MOTOR_SLOTS + "40B5I")  # 2092 bytes
 _BIT_REVERSE = bytes(int(f"{b:08b}"[::-1], 2) for b in range(256))
 
 
@@ -60,9 +67,32 @@ def pack_low_state(state) -> bytes:
     return _LOW_STATE.pack(*values)
 
 
+def pack_hg_low_cmd(cmd) -> bytes:
+    values = [cmd.mode_pr, cmd.mode_machine]
+    for m in cmd.motor_cmd:
+        values += [m.mode, m.q, m.dq, m.tau, m.kp, m.kd, m.reserve]
+    return _HG_LOW_CMD.pack(*values, *cmd.reserve, cmd.crc)
+
+
+def pack_hg_low_state(state) -> bytes:
+    imu = state.imu_state
+    values = [*state.version, state.mode_pr, state.mode_machine, state.tick, *imu.quaternion, *imu.gyroscope,
+              *imu.accelerometer, *imu.rpy, imu.temperature]
+    for m in state.motor_state:
+        values += [m.mode, m.q, m.dq, m.ddq, m.tau_est, *m.temperature, m.vol, *m.sensor, m.motorstate, *m.reserve]
+    return _HG_LOW_STATE.pack(*values, *state.wireless_remote, *state.reserve, state.crc)
+
+
+def is_hg(msg) -> bool:
+    """A unitree_hg message (else unitree_go), from its IDL type name."""
+    return msg.__idl_typename__.startswith("unitree_hg.")
+
+
 def low_cmd_crc(cmd) -> int:
-    return _crc_of(pack_low_cmd(cmd))
+    """CRC of a LowCmd_ of either family."""
+    return _crc_of(pack_hg_low_cmd(cmd) if is_hg(cmd) else pack_low_cmd(cmd))
 
 
 def low_state_crc(state) -> int:
-    return _crc_of(pack_low_state(state))
+    """CRC of a LowState_ of either family."""
+    return _crc_of(pack_hg_low_state(state) if is_hg(state) else pack_low_state(state))

@@ -10,6 +10,13 @@ model joint is which Z1 joint and holds the joints the model locks at their refe
 (not Unitree's) take slots 12, 13, ... in `robot.joint_names` order, a convention of `wbmpc
 robot-sim` only: no Unitree robot forwards those slots to an arm.
 
+Unitree humanoids (G1, `unitree_hg` messages, 35 motor slots) number their motors in the order of
+Unitree's G1 documentation (`G1_MOTOR_ORDER`, the 29-DoF G1; joints named as in Unitree's G1 URDF and
+MJCF): legs left then right (hip pitch, roll, yaw, knee, ankle pitch, roll: 0-11), waist yaw, roll,
+pitch (12-14), arms left then right (shoulder pitch, roll, yaw, elbow, wrist roll, pitch, yaw: 15-28),
+the ankle and waist joints in pitch/roll (`mode_pr` PR) coordinates. Motors whose joints the model locks
+(g1's wrists) are `held`: commanded to the locked reference, reported there by robot-sim.
+
 A motor is present in LowState when its temperature is reported (> 0 C); an absent slot reads 0.
 """
 
@@ -18,39 +25,80 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from wbmpc.errors import ConfigError
-from wbmpc.hardware.crc import N_MOTOR_SLOTS
+from wbmpc.hardware.crc import N_HG_MOTOR_SLOTS, N_MOTOR_SLOTS
 from wbmpc.hardware.z1_messages import N_Z1_JOINTS, Z1_JOINT_NAMES
 from wbmpc.robots import RobotModel
 
 UNITREE_LEG_SLOTS = {"FR": 0, "FL": 3, "RR": 6, "RL": 9}
 _LEG_PARTS = ("hip", "thigh", "calf")
 FIRST_ARM_SLOT = 12
+_G1_LEG = ("hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch", "ankle_roll")
+_G1_ARM = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")
+G1_MOTOR_ORDER = tuple([f"{side}_{j}_joint" for side in ("left", "right") for j in _G1_LEG]
+                       + [f"waist_{j}_joint" for j in ("yaw", "roll", "pitch")]
+                       + [f"{side}_{j}_joint" for side in ("left", "right") for j in _G1_ARM])  # slots 0-28
+G1_MODE_MACHINE = 5  # the mode_machine a 29-DoF G1 (rev 1.0) reports, as its users publish it (robot-sim's)
+
+
+@dataclass(frozen=True)
+class HeldMotor:
+    """A motor whose joint the model locks: held at the model's reference `q_rad` (effort limit `tau_max_nm`)."""
+
+    slot: int
+    joint_name: str
+    q_rad: float
+    tau_max_nm: float
 
 
 @dataclass(frozen=True)
 class MotorMap:
-    """`slots[j]`: the motor slot of joint j (`robot.joint_names` order)."""
+    """`slots[j]`: the motor slot of joint j (`robot.joint_names` order) in `family`'s messages; `held`: motors
+    of joints the model locks."""
 
     joint_names: tuple[str, ...]
     slots: tuple[int, ...]
+    family: str = "unitree_go"
+    held: tuple[HeldMotor, ...] = ()
 
     @property
     def n_motors(self) -> int:
         return len(self.slots)
 
+    @property
+    def n_slots(self) -> int:
+        return N_HG_MOTOR_SLOTS if self.family == "unitree_hg" else N_MOTOR_SLOTS
+
+    @property
+    def held_slots(self) -> tuple[int, ...]:
+        return tuple(h.slot for h in self.held)
+
+    @property
+    def robot_slots(self) -> tuple[int, ...]:
+        """Every motor the robot must report: the model's and the held ones."""
+        return self.slots + self.held_slots
+
     def slot_array(self) -> np.ndarray:
         return np.array(self.slots, dtype=int)
 
+    def slot_name(self, slot: int) -> str:
+        """Unitree's joint name of a motor slot (e.g. unitree_go 3 -> FL_hip_joint), or `slot N`."""
+        if self.family == "unitree_hg":
+            return G1_MOTOR_ORDER[slot] if slot < len(G1_MOTOR_ORDER) else f"slot {slot}"
+        return slot_joint_name(slot)
+
     def describe(self) -> str:
-        return ", ".join(f"{name}->{slot}" for name, slot in zip(self.joint_names, self.slots))
+        held = "".join(f", {h.joint_name}->{h.slot} (held {h.q_rad:.2f} rad)" for h in self.held)
+        return f"{self.family}: " + ", ".join(f"{n}->{s}" for n, s in zip(self.joint_names, self.slots)) + held
 
 
 def unitree_motor_map(robot: RobotModel) -> MotorMap:
-    """The LowCmd map for a Unitree-named quadruped (joints `FL_hip_joint`, ...): its legs, and the joints of
-    an arm that is not a Z1 (a robot-sim convention, see the module's docstring)."""
+    """The LowCmd map of a Unitree-named robot: a G1 (joints named as `G1_MOTOR_ORDER`) on unitree_hg, else a
+    quadruped (joints `FL_hip_joint`, ...) on unitree_go: its legs, and the joints of an arm that is not a Z1
+    (a robot-sim convention, see the module's docstring)."""
+    if is_g1(robot):
+        return g1_motor_map(robot)
     slots, names = [], []
     next_arm = FIRST_ARM_SLOT
     z1 = has_z1_arm(robot)
@@ -62,8 +110,9 @@ def unitree_motor_map(robot: RobotModel) -> MotorMap:
             leg, _, part = name.partition("_")
             part = part.replace("_joint", "")
             if leg not in UNITREE_LEG_SLOTS or part not in _LEG_PARTS:
-                raise ConfigError(f"leg joint '{name}' is not named like a Unitree leg joint (FR/FL/RR/RL + "
-                                  f"_hip/_thigh/_calf_joint); the Unitree motor map cannot place it")
+                raise ConfigError(f"leg joint '{name}' is not named like a Unitree leg joint (quadrupeds: FR/FL/RR/RL + "
+                                  "_hip/_thigh/_calf_joint; G1: left/right_hip_pitch_joint, ...); the Unitree motor "
+                                  "map cannot place it")
             slots.append(UNITREE_LEG_SLOTS[leg] + _LEG_PARTS.index(part))
         else:
             slots.append(next_arm)
@@ -73,6 +122,22 @@ def unitree_motor_map(robot: RobotModel) -> MotorMap:
     if len(set(slots)) != len(slots):
         raise ConfigError(f"two joints of {robot.name} map to the same motor slot: {slots}")
     return MotorMap(tuple(names), tuple(slots))
+
+
+def is_g1(robot: RobotModel) -> bool:
+    """Every joint of the model, locked ones included, is one of G1's motors."""
+    names = set(robot.joint_names) | set(robot.spec.locked_joints)
+    return bool(robot.joint_names) and names <= set(G1_MOTOR_ORDER)
+
+
+def g1_motor_map(robot: RobotModel) -> MotorMap:
+    """G1 on unitree_hg: each model joint on its slot of `G1_MOTOR_ORDER`, locked joints held at their reference."""
+    if not is_g1(robot):
+        other = sorted((set(robot.joint_names) | set(robot.spec.locked_joints)) - set(G1_MOTOR_ORDER))
+        raise ConfigError(f"{robot.name}: joints {', '.join(other)} are not G1 motors ({', '.join(G1_MOTOR_ORDER)})")
+    slots = tuple(G1_MOTOR_ORDER.index(n) for n in robot.joint_names)
+    held = tuple(HeldMotor(G1_MOTOR_ORDER.index(name), name, q, tau) for name, q, tau in _locked_joints(robot))
+    return MotorMap(tuple(robot.joint_names), slots, "unitree_hg", held)
 
 
 def slot_joint_name(slot: int) -> str:
@@ -111,7 +176,7 @@ def z1_arm_map(robot: RobotModel) -> Z1ArmMap:
     if not has_z1_arm(robot):
         raise ConfigError(f"{robot.name} has no Z1 arm (arm joints named {', '.join(Z1_JOINT_NAMES[:6])}); the Z1 link "
                           "needs a model with one (--robot b1_z1)")
-    locked = dict(zip(robot.spec.locked_joints, _locked_reference(robot)))
+    locked = {name: q for name, q, _ in _locked_joints(robot)}
     index, held = [], []
     for name in Z1_JOINT_NAMES:
         if name in robot.joint_names:
@@ -126,15 +191,18 @@ def z1_arm_map(robot: RobotModel) -> Z1ArmMap:
     return Z1ArmMap(tuple(index), tuple(held))
 
 
-def _locked_reference(robot: RobotModel) -> list[float]:
-    """Positions of the locked joints in the model's reference pose (where the reduced model froze them)."""
+def _locked_joints(robot: RobotModel) -> list[tuple[str, float, float]]:
+    """(name, position in the model's reference pose, effort limit) of each locked joint: where the reduced
+    model froze it, from the full model."""
     if not robot.spec.locked_joints:
         return []
-    full = pin.buildModelFromUrdf(str(robot.spec.urdf), pin.JointModelFreeFlyer())
-    q_ref = RobotModel._reference_configuration(full, robot.spec)
-    out = []
-    for name in robot.spec.locked_joints:
-        jid = full.getJointId(name)
-        start, nq = full.idx_qs[jid], full.nqs[jid]
-        out.append(float(np.arctan2(q_ref[start + 1], q_ref[start])) if nq == 2 else float(q_ref[start]))
-    return out
+    full, limits = robot.full_model, {}
+    if robot.mjcf is not None:  # an MJCF's torque limits are its actuators' (pinocchio's parser leaves them out)
+        from wbmpc.robots.mjcf import force_limits, mjcf_joints
+
+        own = mjcf_joints(robot.mjcf)
+        limits = {n: min(-lo, hi) for n, (lo, hi, _) in
+                  force_limits(robot.mjcf, [n for n in robot.spec.locked_joints if n in own]).items()}
+    return [(name, robot.locked_positions[name],
+             limits.get(name, float(full.effortLimit[full.idx_vs[full.getJointId(name)]])))
+            for name in robot.spec.locked_joints]

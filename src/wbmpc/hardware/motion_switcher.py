@@ -17,7 +17,7 @@ import json
 import sys
 import time
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import RunError
 from wbmpc.hardware.sdk import load_sdk
 
 SERVICE = "motion_switcher"
@@ -25,7 +25,7 @@ API_VERSION = "1.0.0.1"
 CHECK_MODE, SELECT_MODE, RELEASE_MODE = 1001, 1002, 1003
 
 
-class SportModeError(ConfigError, RuntimeError):
+class SportModeError(RunError):
     """The robot's sport mode could not be released (no answer, or refused): nothing was commanded."""
 
 

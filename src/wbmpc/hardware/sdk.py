@@ -21,9 +21,22 @@ from wbmpc.errors import ConfigError
 INSTALL_HINT = 'pip install "cyclonedds>=11" && pip install --no-deps unitree-sdk2'
 
 
+FAMILIES = ("unitree_go", "unitree_hg")  # LowCmd/LowState IDL of quadrupeds / of humanoids (G1, H1-2)
+
+
+@dataclass(frozen=True)
+class Idl:
+    """One family's LowState_/LowCmd_ types and constructors of default (zeroed) messages."""
+
+    LowState_: type
+    LowCmd_: type
+    new_low_state: object
+    new_low_cmd: object
+
+
 @dataclass(frozen=True)
 class Sdk:
-    """The SDK pieces wbmpc uses."""
+    """The SDK pieces wbmpc uses (LowState_ ... new_low_cmd: unitree_go's; `idl(family)` for either)."""
 
     ChannelFactoryInitialize: object
     ChannelPublisher: type
@@ -32,6 +45,16 @@ class Sdk:
     LowCmd_: type
     new_low_state: object
     new_low_cmd: object
+    hg: Idl | None = None
+
+    def idl(self, family: str) -> Idl:
+        if family == "unitree_hg":
+            if self.hg is None:
+                raise ConfigError("this SDK has no unitree_hg messages")
+            return self.hg
+        if family != "unitree_go":
+            raise ConfigError(f"unknown message family {family!r}; available: {', '.join(FAMILIES)}")
+        return Idl(self.LowState_, self.LowCmd_, self.new_low_state, self.new_low_cmd)
 
 
 _SDK: Sdk | None = None
@@ -59,10 +82,14 @@ def load_sdk() -> Sdk:
         from unitree_sdk2py.idl.default import (
             unitree_go_msg_dds__LowCmd_,
             unitree_go_msg_dds__LowState_,
+            unitree_hg_msg_dds__LowCmd_,
+            unitree_hg_msg_dds__LowState_,
         )
         from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
+        from unitree_sdk2py.idl.unitree_hg.msg import dds_ as hg
     except ImportError as exc:
         raise ConfigError(f"Unitree SDK2 Python could not be loaded ({exc}); reinstall it: {INSTALL_HINT}") from None
     _SDK = Sdk(ChannelFactoryInitialize, ChannelPublisher, ChannelSubscriber, LowState_, LowCmd_,
-               unitree_go_msg_dds__LowState_, unitree_go_msg_dds__LowCmd_)
+               unitree_go_msg_dds__LowState_, unitree_go_msg_dds__LowCmd_,
+               Idl(hg.LowState_, hg.LowCmd_, unitree_hg_msg_dds__LowState_, unitree_hg_msg_dds__LowCmd_))
     return _SDK

@@ -20,7 +20,7 @@ from collections import Counter
 
 import numpy as np
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.hardware.messages import MessageError
 from wbmpc.hardware.safety import Watchdog
 from wbmpc.hardware.z1_messages import (
@@ -40,7 +40,7 @@ from wbmpc.hardware.z1_messages import (
 _MAX_DATAGRAM = 2048
 
 
-class ArmNotAnsweringError(ConfigError, RuntimeError):
+class ArmNotAnsweringError(RunError):
     """The Z1 arm sent no valid state in time, or refused LOWCMD; nothing was commanded to the legs."""
 
 
@@ -74,6 +74,11 @@ class _Endpoint:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._receive, daemon=True, name=f"z1-udp-{own_port}")
         self._thread.start()
+
+    def latest(self):
+        """The last valid message received (a `Z1State` at the client, a `Z1Command` at the server), or None."""
+        with self._lock:
+            return self._latest
 
     def _receive(self) -> None:
         while not self._stop.is_set():
@@ -136,10 +141,6 @@ class Z1Client(_Endpoint):
     def _on_message(self, message, now: float) -> None:
         super()._on_message(message, now)
         self.watchdog.feed()
-
-    def latest(self) -> Z1State | None:
-        with self._lock:
-            return self._latest
 
     def send(self, command: Z1Command) -> None:
         self._send(encode_send_cmd(command))

@@ -1,4 +1,4 @@
-"""The manipulated object inside the OCP (issue 22 part 2; the paper's future work, section VII: "model
+"""The manipulated object inside the OCP (the paper's future work, section VII: "model
 object-level dynamics for interaction, allowing the MPC to optimize arm end-effector force and motion
 instead of having them as an external command").
 
@@ -32,7 +32,7 @@ the static friction the object creeps at about eps F / (mu N - F), and at speed 
 v / sqrt(v^2 + eps^2) of Coulomb's: eps = 1 cm/s gives 99.5 % at 0.1 m/s (3 cm/s gave 95.8 %, and a MuJoCo box
 under the planned force lagged the plan by 1.1 cm over 0.48 s). Fatrop's line search still failed on most
 push-box steps with the contact rows (IPOPT solved them in 10-50 iterations): `wbmpc run --object-model` and
-`RunConfig`'s default use the anytime SQP (`scenarios/runner.default_solver`).
+`RunConfig`'s default use the anytime SQP (`control/policy.default_solver`).
 
 What the box model lacks (push-box, measured in MuJoCo): pushed at the hand's height h, the box rests on its far
 corners (91 % of the weight at 0.87 m) and turns about that edge, its centre sliding out of a turn at w mu h; the
@@ -199,7 +199,7 @@ class SlidingBox(ObjectModel):
     push_height_m: float | None = None
     # force planned on the nodes whose gap target is within this of contact: the hand's pad and its chatter. 16 s
     # push-box --object-model (b1_z1, compiled SQP): 2 mm (CONTACT_FORCE_GAP_M) 7.6 cm RMSE, 1 cm 5.0 cm; force on
-    # every node, however far the hand (a sign slip until session 11), 4.4 cm: a plan pushing through air
+    # every node, however far the hand (a sign error before), 4.4 cm: a plan pushing through air
     force_gap_m: float = 0.01
     state_names: tuple[str, ...] = ("x_m", "y_m", "yaw_rad", "vx_m_s", "vy_m_s", "wz_rad_s")
     # tracking weights of [x, y, yaw, vx, vy, wz]: the yaw too, as the hand's force stays within atan(mu) (17 deg at

@@ -104,9 +104,9 @@ class OcpConfig:
     implied_torque_rows: str = "auto"
     # the base CoM offset (3, base frame, m), a payload at the hand (kg; the base origin without an arm) and, with
     # an arm, a load at the base origin as NLP parameters "base_com_offset", "payload_kg", "base_payload_kg" of
-    # the whole-body dynamics (issue 22: mass distribution online)
+    # the whole-body dynamics (mass distribution online, estimation/inertial.py)
     inertial_parameters: bool = False
-    # the manipulated object's states, inputs, rows and tracking cost (issue 22: `wbmpc.ocp.objects`); None: the
+    # the manipulated object's states, inputs, rows and tracking cost (`wbmpc.ocp.objects`); None: the
     # paper's OCP, the arm force fixed to the command
     object_model: ObjectModel | None = None
 

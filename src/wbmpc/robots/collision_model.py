@@ -1,4 +1,4 @@
-"""Capsules of a robot's links and the pairs of them that collision avoidance checks (issue 22).
+"""Capsules of a robot's links and the pairs of them that collision avoidance checks (beyond the paper).
 
 Chosen once per robot from the URDF's collision geometry as pinocchio reads it (`pin.buildGeomFromUrdf`,
 the same placements pinocchio's and coal's collision checking use), in the frame of the pinocchio joint
@@ -197,7 +197,7 @@ class CollisionModel:
         nominal = capsule_distances(robot, robot.q_nominal, first, second)
         data = robot.model.createData()
         samples = np.array([capsule_distances(robot, q, first, second, data)
-                            for q in _random_configurations(robot, cfg.reach_samples, cfg.seed, cfg.leg_range_rad)])
+                            for q in random_configurations(robot, cfg.reach_samples, cfg.seed, cfg.leg_range_rad)])
         samples = samples if len(samples) else nominal[None, :]
         reach, farthest = samples.min(axis=0), np.maximum(samples.max(axis=0), nominal)
         likely = np.percentile(samples, 5, axis=0)
@@ -273,11 +273,14 @@ def robot_capsules(robot: RobotModel) -> tuple[list[Capsule], list[str]]:
 
     model = robot.model
     try:
-        geometry = pin.buildGeomFromUrdf(model, str(robot.spec.urdf), pin.GeometryType.COLLISION,
-                                         package_dirs=_package_dirs(robot.spec.urdf))
+        if robot.mjcf is not None:  # an MJCF robot: its colliding geoms as pinocchio reads them
+            geometry = robot.geometry(pin.GeometryType.COLLISION)
+        else:
+            geometry = pin.buildGeomFromUrdf(model, str(robot.spec.urdf), pin.GeometryType.COLLISION,
+                                             package_dirs=_package_dirs(robot.spec.urdf))
     except (RuntimeError, ValueError) as exc:
         raise ModelError(f"collision avoidance: pinocchio could not read the collision geometry of "
-                         f"{robot.spec.urdf} ({exc}); check the URDF's <collision> meshes") from exc
+                         f"{robot.model_file} ({exc}); check the file's collision geometry and meshes") from exc
     capsules: list[Capsule] = []
     with_geometry = set()
     for obj in geometry.geometryObjects:
@@ -406,7 +409,7 @@ def capsule_distances(robot: RobotModel, q: np.ndarray, first: list[Capsule], se
     return segment_distances(p0, p1, q0, q1) - radii
 
 
-def _random_configurations(robot: RobotModel, n: int, seed: int, leg_range_rad: float):
+def random_configurations(robot: RobotModel, n: int, seed: int, leg_range_rad: float):
     """n configurations: base at the nominal pose, the legs' joints uniform within `leg_range_rad` of the
     nominal pose, the others (arm) within their limits (+-pi where unlimited)."""
     rng = np.random.default_rng(seed)
@@ -453,7 +456,7 @@ def arm_workspace(robot: RobotModel, margin_m: float = 0.03, samples: int = 2000
     pin.framesForwardKinematics(model, data, robot.q_nominal)
     shoulder = data.oMi[arm[0]].translation.copy()
     reach = 0.0
-    for q in _random_configurations(robot, samples, 0, 0.0):
+    for q in random_configurations(robot, samples, 0, 0.0):
         pin.framesForwardKinematics(model, data, q)
         reach = max(reach, float(np.linalg.norm(data.oMf[robot.frame_id(robot.arm_ee)].translation - data.oMi[arm[0]].translation)))
     pin.forwardKinematics(model, data, robot.q_nominal)

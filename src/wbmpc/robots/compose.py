@@ -7,7 +7,7 @@ MuJoCo scene and its collision primitives, the replay, deploy) reads the compose
 any other. A massless root link of the arm (z1.urdf's `world`) with one fixed child joint is folded
 into the mount. Link and joint names of the arm that the base already uses get the prefix `arm_`
 (reported in `Composition.renamed`). The result equals pinocchio's `appendModel` of the two models
-(tests/test_compose.py), and b1.urdf + z1.urdf at the mount of b1-z1.urdf equals b1-z1.urdf.
+(tests/robots/test_compose.py), and b1.urdf + z1.urdf at the mount of b1-z1.urdf equals b1-z1.urdf.
 
 ElementTree, not pinocchio, handles the URDFs here: composing edits and writes URDF text (pinocchio
 reads URDFs into models, it does not write them), and that file is what MuJoCo, the replay and deploy read.
@@ -175,7 +175,7 @@ def compose(base_urdf: Path, arm: ArmMount, cache_dir: Path | None = None) -> Co
     text = ET.tostring(base, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     if cache_dir is None:
-        from wbmpc.solvers.codegen import default_cache_dir
+        from wbmpc.cache import default_cache_dir
 
         cache_dir = default_cache_dir()
     folder = Path(cache_dir) / "composed"
@@ -191,6 +191,7 @@ def compose(base_urdf: Path, arm: ArmMount, cache_dir: Path | None = None) -> Co
 def _free_name(name: str, taken: set[str]) -> str:
     while name in taken:
         name = ARM_PREFIX + name
+    taken.add(name)
     return name
 
 
@@ -212,15 +213,109 @@ def _arm_ee(arm: ArmMount, links: list[ET.Element], joints: list[ET.Element], re
 
 
 def compose_spec(base: RobotSpec, arm: ArmMount, name: str | None = None) -> tuple[RobotSpec, Composition]:
-    """The spec of the base with the arm mounted: the composed URDF, the arm's end-effector, its locked
-    joints and reference pose added to the base's (arm names mapped through the renaming)."""
+    """The spec of the base with the arm mounted: the composed URDF (an MJCF base: the base's file and the arm's URDF,
+    renamed, with its mount, `mjcf_arm`), the arm's end-effector, its locked joints and reference pose added to the
+    base's (arm names mapped through the renaming)."""
     if base.arm_ee is not None:
         raise ModelError(f"{base.name} already has an arm (end-effector {base.arm_ee}); mount an arm on a legged base")
-    composition = compose(base.urdf, arm)
+    if base.mjcf is not None:
+        composition, mount = compose_on_mjcf(Path(base.mjcf), arm)
+        files = dict(mjcf_arm=(composition.urdf, arm.mount_frame, mount))
+    else:
+        composition = compose(base.urdf, arm)
+        files = dict(urdf=composition.urdf)
     mapped = composition.renamed
     locked = tuple(mapped.get(j, j) for j in arm.locked_joints)
     pose = {mapped.get(j, j): v for j, v in arm.joint_positions_rad.items()}
-    spec = replace(base, name=name or f"{base.name}+{Path(arm.urdf).stem}", urdf=composition.urdf,
+    spec = replace(base, name=name or f"{base.name}+{Path(arm.urdf).stem}", **files,
                    arm_ee=composition.arm_ee, locked_joints=tuple(base.locked_joints) + locked,
                    joint_positions_rad={**base.joint_positions_rad, **pose})
     return spec, composition
+
+
+def compose_on_mjcf(base_mjcf: Path, arm: ArmMount, cache_dir: Path | None = None) -> tuple[Composition, tuple]:
+    """An arm on an MJCF base: the arm's URDF with the names the base also uses prefixed and a massless root
+    folded into the mount, written content-addressed to the cache; `RobotModel` appends its pinocchio model to the
+    base's at the mount (`pin.appendModel`, as the URDF composition equals). Returns the composition and the
+    mount placement in the mount frame (x, y, z, roll, pitch, yaw)."""
+    import pinocchio as pin
+
+    base = pin.buildModelFromMJCF(str(base_mjcf))
+    frames = [f.name for f in base.frames]
+    if arm.mount_frame not in frames:
+        bodies = [f.name for f in base.frames if f.type == pin.FrameType.BODY]
+        raise ModelError(f"--mount '{arm.mount_frame}' is not a body or joint of {base_mjcf}; its bodies: "
+                         f"{', '.join(bodies)}; joints: {', '.join(base.names[1:])}")
+    taken = set(frames) | set(base.names)
+    root = copy.deepcopy(_parse(arm.urdf, "arm"))
+    _absolute_meshes(root, arm.urdf)
+    links, joints = root.findall("link"), root.findall("joint")
+    renamed: dict[str, str] = {}
+    for element in links + joints:
+        if element.get("name") in taken:
+            renamed[element.get("name")] = _free_name(ARM_PREFIX + element.get("name"), taken)
+    link_names = {e.get("name") for e in links}
+    for element in links + joints:
+        element.set("name", renamed.get(element.get("name"), element.get("name")))
+    for joint in joints:
+        for tag in ("parent", "child"):
+            element = joint.find(tag)
+            if element is not None and element.get("link") in link_names:
+                element.set("link", renamed.get(element.get("link"), element.get("link")))
+    mount = pin.SE3(pin.rpy.rpyToMatrix(np.asarray(arm.mount_rpy_rad, float)), np.asarray(arm.mount_xyz_m, float))
+    children = {j.find("child").get("link") for j in joints}
+    roots = [link for link in links if link.get("name") not in children]
+    if len(roots) != 1:
+        raise ModelError(f"arm URDF {arm.urdf} has {len(roots)} root links ({', '.join(r.get('name') for r in roots)}); "
+                         "it needs exactly one, the link to mount")
+    below = [j for j in joints if j.find("parent").get("link") == roots[0].get("name")]
+    if not list(roots[0]) and len(below) == 1 and below[0].get("type") == "fixed":  # a massless 'world' root: fold it
+        mount = mount * _origin(below[0].find("origin"))
+        new_root = below[0].find("child").get("link")
+        root.remove(roots[0])
+        root.remove(below[0])
+        links = [link for link in links if link is not roots[0]]
+        joints = [j for j in joints if j is not below[0]]
+        roots = [link for link in links if link.get("name") == new_root]
+    moving = tuple(j.get("name") for j in joints if j.get("type") not in ("fixed", "floating", "planar"))
+    ee = _arm_ee(arm, links, joints, renamed)
+    text = ET.tostring(root, encoding="unicode")
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    if cache_dir is None:
+        from wbmpc.solvers.codegen import default_cache_dir
+
+        cache_dir = default_cache_dir()
+    folder = Path(cache_dir) / "composed"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{Path(base_mjcf).stem}+{Path(arm.urdf).stem}-{digest}.urdf"
+    if not path.is_file():
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text('<?xml version="1.0" ?>\n' + text)
+        tmp.replace(path)
+    placement = (*map(float, mount.translation), *map(float, pin.rpy.matrixToRpy(mount.rotation)))
+    return Composition(urdf=path, renamed=renamed, arm_ee=ee, arm_joints=moving), placement
+
+
+def append_model(base: pin.Model, arm: pin.Model, frame_id: int, placement: pin.SE3) -> pin.Model:
+    """`arm` (a fixed-base model) attached to frame `frame_id` of `base` at `placement` in that frame: its joints,
+    limits, inertias (the root link's on the mount's joint) and frames. `pin.appendModel` does the same but looks
+    frames up by name alone and stops at a link and a joint of the same name (Z1's gripperStator)."""
+    model = pin.Model(base)
+    mount = base.frames[frame_id]
+    offset = mount.placement * placement  # the arm's universe in the mount's joint frame
+    joints = {0: mount.parentJoint}
+    for j in range(1, arm.njoints):
+        iq, nq, iv, nv = arm.idx_qs[j], arm.nqs[j], arm.idx_vs[j], arm.nvs[j]
+        joint_placement = offset * arm.jointPlacements[j] if arm.parents[j] == 0 else arm.jointPlacements[j]
+        joints[j] = model.addJoint(joints[arm.parents[j]], arm.joints[j], joint_placement, arm.names[j],
+                                   arm.effortLimit[iv:iv + nv], arm.velocityLimit[iv:iv + nv],
+                                   arm.lowerPositionLimit[iq:iq + nq], arm.upperPositionLimit[iq:iq + nq])
+        model.appendBodyToJoint(joints[j], arm.inertias[j], pin.SE3.Identity())
+    model.appendBodyToJoint(mount.parentJoint, offset.act(arm.inertias[0]), pin.SE3.Identity())
+    frames = {0: frame_id}
+    for k in range(1, len(arm.frames)):
+        f = arm.frames[k]
+        frame_placement = offset * f.placement if f.parentJoint == 0 else f.placement
+        frames[k] = model.addFrame(pin.Frame(f.name, joints[f.parentJoint], frames.get(f.parentFrame, frame_id),
+                                             frame_placement, f.type, f.inertia), False)  # inertias are in the joints
+    return model

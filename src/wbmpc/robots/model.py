@@ -1,8 +1,10 @@
 """`RobotModel`: a floating-base pinocchio model with limits, feet and arm end-effector.
 
-Loaded from a URDF with a free-flyer root joint; an optional SRDF group state gives the
-reference (nominal) pose. Joints can be locked at that pose (the paper locks the last two
-Z1 joints and the gripper, section V-B).
+Loaded from a URDF with a free-flyer root joint, or from an MJCF with a free joint (MuJoCo Menagerie,
+unitree_mujoco; `robots/mjcf.py`: limits, torque limits, keyframes, drive train and feet given as sites or
+geoms from MuJoCo's compiler). An optional SRDF group state (or an MJCF keyframe) gives the reference
+(nominal) pose. Joints can be locked at that pose (the paper locks the last two Z1 joints and the gripper,
+section V-B).
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.errors import ModelError, unknown_name
-from wbmpc.robots.soles import FOOT_CONTACTS, Sole, sole_from_size, soles_from_collisions
+from wbmpc.robots.soles import FOOT_CONTACTS, Sole, sole_from_size, soles_from_collisions, soles_from_primitives
 
 GRAVITY_M_S2 = 9.81
+MIN_SOLE_M = (0.08, 0.04)  # (length, width): a derived flat foot's sole is at least this (a ball foot is not)
 SUPPORTED_JOINTS = frozenset(
     f"JointModel{kind}"
     for kind in ("RX", "RY", "RZ", "RevoluteUnaligned", "RUBX", "RUBY", "RUBZ", "RevoluteUnboundedUnaligned",
@@ -62,7 +65,7 @@ class RobotSpec:
     """
 
     name: str
-    urdf: Path
+    urdf: Path | None  # the robot's URDF, or None with `mjcf`
     feet: tuple[str, ...]
     arm_ee: str | None = None
     srdf: Path | None = None
@@ -73,19 +76,35 @@ class RobotSpec:
     position_limit_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
     foot_radius_m: float | None = None
     joint_positions_rad: dict[str, float] = field(default_factory=dict)  # overrides of the reference pose
-    armature_kg_m2: JointValues = 0.0
-    viscous_friction_nm_s: JointValues = 0.0
-    coulomb_friction_nm: JointValues = 0.0
+    # None: the file's own values where it has them (an MJCF's armature, damping, frictionloss), else 0
+    armature_kg_m2: JointValues | None = None
+    viscous_friction_nm_s: JointValues | None = None
+    coulomb_friction_nm: JointValues | None = None
     coulomb_velocity_rad_s: float = 0.05
     # "point": 3D force at each foot frame; "surface": flat feet with a 6D wrench at the sole (soles.py),
-    # the sole rectangle from `sole_m` (length, width) or else the foot link's URDF collision geometry
-    foot_contact: str = "point"
+    # the sole rectangle from `sole_m` (length, width) or else the foot link's collision geometry; None: derived,
+    # surface for two feet whose links carry a sole (`MIN_SOLE_M`), else point
+    foot_contact: str | None = None
     sole_m: tuple[float, float] | None = None
+    mjcf: Path | None = None  # the robot's MJCF instead of a URDF (free joint at its root)
+    keyframe: str | None = None  # MJCF keyframe of the nominal pose (None: the file's first, else its zero pose)
+    like_preset: str | None = None  # the preset this file is another description of: its settings apply (presets.py)
+    # an arm on an MJCF base (robots/compose.py): (its URDF, the base frame it is mounted on, x y z roll pitch yaw)
+    mjcf_arm: tuple[Path, str, tuple[float, ...]] | None = None
 
     def __post_init__(self):
-        if self.foot_contact not in FOOT_CONTACTS:
+        if (self.urdf is None) == (self.mjcf is None):
+            raise ModelError("a robot is described by a URDF (--urdf) or an MJCF (--mjcf): give exactly one")
+        if self.mjcf_arm is not None and self.mjcf is None:
+            raise ModelError("mjcf_arm mounts an arm URDF on an MJCF base: it needs mjcf (a URDF base is composed "
+                             "into one URDF, robots/compose.py)")
+        if self.keyframe is not None and self.mjcf is None:
+            raise ModelError(f"a keyframe ('{self.keyframe}', --keyframe) names a pose of an MJCF file (--mjcf FILE)")
+        if self.keyframe is not None and self.srdf is not None:
+            raise ModelError("the nominal pose comes from an SRDF (--srdf/--pose) or an MJCF keyframe (--keyframe): not both")
+        if self.foot_contact not in (*FOOT_CONTACTS, None):
             raise ModelError(f"foot contact must be one of {', '.join(FOOT_CONTACTS)}, got {self.foot_contact!r}")
-        if self.sole_m is not None and self.foot_contact != "surface":
+        if self.sole_m is not None and self.foot_contact == "point":
             raise ModelError("a sole size (--sole) describes flat feet: it needs foot_contact='surface'")
         duplicates = sorted({f for f in self.feet if self.feet.count(f) > 1})
         if duplicates:
@@ -117,29 +136,41 @@ class RobotModel:
     def __init__(self, spec: RobotSpec):
         self.spec = spec
         self.name = spec.name
-        urdf = Path(spec.urdf)
-        if not urdf.is_file():
-            raise ModelError(f"URDF file not found: {urdf}")
         if spec.srdf is not None and not Path(spec.srdf).is_file():
             raise ModelError(f"SRDF file not found: {spec.srdf}")
-        try:
-            full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
-        except (RuntimeError, ValueError) as exc:
-            raise ModelError(f"pinocchio cannot parse URDF {urdf}: {exc}") from exc
+        self.mjcf = None  # MuJoCo's compiled model of an MJCF robot's file
+        if spec.mjcf is not None:
+            full = self._load_mjcf(spec)
+        else:
+            urdf = Path(spec.urdf)
+            if not urdf.is_file():
+                raise ModelError(f"URDF file not found: {urdf}")
+            try:
+                full = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+            except (RuntimeError, ValueError) as exc:
+                raise ModelError(f"pinocchio cannot parse URDF {urdf}: {exc}") from exc
 
         for i in range(2, full.njoints):
             if full.joints[i].shortname() not in SUPPORTED_JOINTS and full.names[i] not in spec.locked_joints:
                 raise ModelError(
                     f"joint '{full.names[i]}' has type {full.joints[i].shortname()} ({full.joints[i].nv} DoF), which "
                     "wbmpc does not support; it supports revolute, continuous and prismatic joints (aligned or not) "
-                    "below the free-flyer root: lock the joint (--lock) or change its type in the URDF"
+                    "below the free-flyer root: lock the joint (--lock) or change its type in the robot's file"
                 )
-        q_ref = self._reference_configuration(full, spec)
+        q_ref = self.reference_configuration(full, spec)
+        self.keyframe: str | None = None  # the MJCF keyframe of the nominal pose
+        if self.mjcf is not None and spec.srdf is None:
+            q_ref = self._keyframe_configuration(full, spec)
+        # where the nominal pose comes from: "srdf", "keyframe" or "zero" (the file's zero pose), before overrides
+        self.pose_source = "srdf" if spec.srdf is not None else "keyframe" if self.keyframe is not None else "zero"
         for joint in spec.locked_joints:
-            if not full.existJointName(joint) or joint == "root_joint":
+            if not full.existJointName(joint) or full.getJointId(joint) == 1:
                 raise ModelError(unknown_name("joint to lock", joint, list(full.names)[2:]))
         lock_ids = [full.getJointId(j) for j in spec.locked_joints]
         model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full
+        self.full_model: pin.Model = full  # before locking: a plant model holding the locked joints reads it
+        self.locked_positions: dict[str, float] = {
+            full.names[j]: _joint_angle(full, j, q_ref) for j in lock_ids}  # where each locked joint is held
         keep = [i for i in range(full.nq) if not self._q_index_locked(full, lock_ids, i)]
         self.model: pin.Model = model
         self.data = model.createData()
@@ -154,19 +185,22 @@ class RobotModel:
         self.arm_ee = spec.arm_ee
         frames = [f.name for f in model.frames]
         for frame in (*self.feet, *([self.arm_ee] if self.arm_ee else [])):
+            if not model.existFrame(frame) and self.mjcf is not None:
+                bodies = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+                sites = [self.mjcf.site(k).name for k in range(self.mjcf.nsite) if self.mjcf.site(k).name]
+                raise ModelError(f"MJCF {spec.mjcf} has no body, site or geom named '{frame}' (--feet/--arm-ee); "
+                                 f"its bodies: {', '.join(bodies)}; its sites: {', '.join(sites) or 'none'}")
             if not model.existFrame(frame):
                 raise ModelError(unknown_name("frame", frame, frames))
         if len(self.feet) == 0:
             raise ModelError("a legged robot needs at least one foot frame (--feet F1,F2,...)")
 
         self.mass_kg = float(sum(inertia.mass for inertia in model.inertias))
-        self.soles: dict[str, Sole] = self._add_sole_frames(model, urdf, spec)
+        self.soles: dict[str, Sole] = self._add_sole_frames(model, spec)
         self.data = model.createData()
         self._set_limits(model, spec)
         self._set_drive_train(model, spec)
-        self.foot_radius_m = (
-            spec.foot_radius_m if spec.foot_radius_m is not None else _foot_radius_from_urdf(urdf, model, self.feet)
-        )
+        self.foot_radius_m = spec.foot_radius_m if spec.foot_radius_m is not None else self._foot_radius()
         q_ref = np.asarray(q_ref)[keep]
         for joint, value in spec.joint_positions_rad.items():
             if joint not in self.joint_names:
@@ -178,20 +212,99 @@ class RobotModel:
         self.q_nominal = self._standing_configuration(q_ref)
 
     # ------------------------------------------------------------------ loading helpers
-    def _add_sole_frames(self, model: pin.Model, urdf: Path, spec: RobotSpec) -> dict[str, Sole]:
-        """Flat feet: the sole of each foot and a frame `<foot>_sole` at its centre (the contact frame)."""
-        if spec.foot_contact != "surface":
+    @property
+    def model_file(self) -> Path:
+        """The file the robot was loaded from (its URDF or MJCF)."""
+        return Path(self.spec.mjcf if self.spec.mjcf is not None else self.spec.urdf)
+
+    def _load_mjcf(self, spec: RobotSpec) -> pin.Model:
+        """pinocchio's model of an MJCF with a free joint at its root, frames for feet given as sites or geoms;
+        MuJoCo's compiled model of the same file in `self.mjcf` (robots/mjcf.py)."""
+        from wbmpc.robots import mjcf
+
+        path = Path(spec.mjcf)
+        self.mjcf = mjcf.compile_mjcf(path)
+        try:
+            full = pin.buildModelFromMJCF(str(path))
+        except (RuntimeError, ValueError) as exc:
+            raise ModelError(f"pinocchio cannot parse MJCF {path}: {exc}") from exc
+        if full.njoints < 2 or full.joints[1].shortname() != "JointModelFreeFlyer":
+            raise ModelError(f"MJCF {path} has no free joint at its root: wbmpc's robots move freely (add "
+                             "<freejoint/> to the root body of the legs)")
+        mjcf.add_point_frames(full, self.mjcf, (*spec.feet, spec.arm_ee))
+        if spec.mjcf_arm is not None:  # the arm's URDF model appended at its mount, as a composed URDF would read
+            urdf, frame, (x, y, z, roll, pitch, yaw) = spec.mjcf_arm
+            try:
+                arm = pin.buildModelFromUrdf(str(urdf))
+            except (RuntimeError, ValueError) as exc:
+                raise ModelError(f"pinocchio cannot parse the arm URDF {urdf}: {exc}") from exc
+            mount = pin.SE3(pin.rpy.rpyToMatrix(np.array([roll, pitch, yaw])), np.array([x, y, z]))
+            from wbmpc.robots.compose import append_model
+
+            full = append_model(full, arm, full.getFrameId(frame), mount)
+        return full
+
+    def geometry(self, kind: pin.GeometryType) -> pin.GeometryModel:
+        """An MJCF robot's geoms as pinocchio reads them (VISUAL or COLLISION), with its mounted arm's URDF geometry
+        (the replay, collision avoidance; a URDF robot's is read by pinocchio's URDF parser where it is needed)."""
+        from wbmpc.robots.urdf_geometry import _package_dirs
+
+        geometry = pin.buildGeomFromMJCF(self.model, str(self.spec.mjcf), kind)
+        if self.spec.mjcf_arm is not None:
+            urdf = Path(self.spec.mjcf_arm[0])
+            for obj in pin.buildGeomFromUrdf(self.model, str(urdf), kind, package_dirs=_package_dirs(urdf)).geometryObjects:
+                geometry.addGeometryObject(obj)
+        return geometry
+
+    def collision_primitives(self):
+        """The file's primitive collision geometry (`urdf_geometry.Primitive` list, in the pinocchio joint
+        frames of this model): a URDF's `<collision>` boxes, spheres, cylinders, an MJCF's colliding geoms."""
+        if "_primitives" not in self.__dict__:
+            if self.mjcf is not None:
+                from wbmpc.robots import mjcf, urdf_geometry
+
+                self._primitives = mjcf.collision_primitives(self.model, self.mjcf)
+                if self.spec.mjcf_arm is not None:
+                    self._primitives += urdf_geometry.collision_primitives(self.model, self.spec.mjcf_arm[0])
+            else:
+                from wbmpc.robots.urdf_geometry import collision_primitives
+
+                self._primitives = collision_primitives(self.model, self.spec.urdf)
+        return self._primitives
+
+    def _add_sole_frames(self, model: pin.Model, spec: RobotSpec) -> dict[str, Sole]:
+        """Flat feet: the sole of each foot and a frame `<foot>_sole` at its centre (the contact frame). Where the
+        spec leaves the kind of contact open, two feet whose links carry a sole of at least MIN_SOLE_M stand on
+        it (g1's feet), any others are points (`foot_contact_source`: "spec" or "derived")."""
+        self.foot_contact_source = "spec" if spec.foot_contact is not None else "derived"
+        if spec.foot_contact == "point" or (spec.foot_contact is None and len(self.feet) != 2 and spec.sole_m is None):
             return {}
         if spec.sole_m is not None:
             soles = {foot: sole_from_size(foot, spec.sole_m) for foot in self.feet}
         else:
-            soles = soles_from_collisions(model, urdf, self.feet, self.frame_id)
+            try:
+                soles = self._soles_from_geometry(model, spec)
+            except ModelError:
+                if spec.foot_contact == "surface":
+                    raise
+                return {}
+            if spec.foot_contact is None and not all(s.length_m >= MIN_SOLE_M[0] and s.width_m >= MIN_SOLE_M[1]
+                                                     for s in soles.values()):
+                return {}  # ball feet, not soles
         for foot, sole in soles.items():
             fid = self.frame_id(foot)
             frame = model.frames[fid]
             placement = frame.placement * pin.SE3(np.eye(3), sole.centre_m)
             model.addFrame(pin.Frame(sole.frame, frame.parentJoint, fid, placement, pin.FrameType.OP_FRAME))
         return soles
+
+    def _soles_from_geometry(self, model: pin.Model, spec: RobotSpec) -> dict[str, Sole]:
+        if self.mjcf is not None:
+            from wbmpc.robots.mjcf import collision_primitives
+
+            return soles_from_primitives(model, collision_primitives(model, self.mjcf), self.feet, self.frame_id,
+                                         self.model_file)
+        return soles_from_collisions(model, Path(spec.urdf), self.feet, self.frame_id)
 
     @staticmethod
     def _q_index_locked(full: pin.Model, lock_ids: list[int], i: int) -> bool:
@@ -202,7 +315,7 @@ class RobotModel:
         return False
 
     @staticmethod
-    def _reference_configuration(full: pin.Model, spec: RobotSpec) -> np.ndarray:
+    def reference_configuration(full: pin.Model, spec: RobotSpec) -> np.ndarray:
         """The SRDF pose `spec.pose` as read by pinocchio (`loadReferenceConfigurations`), after
         `_check_srdf_pose` refused what pinocchio would silently read as the neutral value."""
         q = pin.neutral(full)
@@ -217,6 +330,23 @@ class RobotModel:
             q[3:7] /= np.linalg.norm(q[3:7])
         return q
 
+    def _keyframe_configuration(self, full: pin.Model, spec: RobotSpec) -> np.ndarray:
+        """An MJCF's keyframe `spec.keyframe` (default: its first; none: its zero pose) as a configuration."""
+        from wbmpc.robots.mjcf import keyframe_positions
+
+        self.keyframe, positions = keyframe_positions(self.mjcf, spec.keyframe, Path(spec.mjcf))
+        q = pin.neutral(full)
+        for joint, value in positions.items():
+            if not full.existJointName(joint):
+                continue
+            jid = full.getJointId(joint)
+            start = full.idx_qs[jid]
+            if full.nqs[jid] == 2 and full.nvs[jid] == 1:
+                q[start:start + 2] = np.cos(value), np.sin(value)
+            elif full.nqs[jid] == 1:
+                q[start] = value
+        return q
+
     def _set_limits(self, model: pin.Model, spec: RobotSpec) -> None:
         names = list(self.joint_names)
         iq = [model.idx_qs[model.getJointId(n)] for n in names]
@@ -227,6 +357,8 @@ class RobotModel:
         self.q_min[unlimited], self.q_max[unlimited] = -np.inf, np.inf
         self.v_max = np.array(model.velocityLimit)[iv]
         self.tau_max = np.array(model.effortLimit)[iv]
+        if self.mjcf is not None:
+            self._set_mjcf_limits(names)
         for table, target in (
             (spec.effort_limit_nm, "tau_max"),
             (spec.velocity_limit_rad_s, "v_max"),
@@ -244,16 +376,46 @@ class RobotModel:
         self.q_max = np.minimum(self.q_max, big)
         for label, arr in (("effort", self.tau_max), ("velocity", self.v_max)):
             bad = [names[i] for i in np.flatnonzero(~(arr > 0) | (arr > big))]
+            if bad and self.mjcf is not None:
+                raise ModelError(f"joints {bad} have no torque limit in MJCF {spec.mjcf}: give their actuators a "
+                                 "ctrlrange (motor) or forcerange, or the joints an actuatorfrcrange")
             if bad:
                 raise ModelError(f"joints {bad} have no positive {label} limit in the URDF; give one in the RobotSpec")
+
+    def _set_mjcf_limits(self, names: list[str]) -> None:
+        """An MJCF's joint ranges and torque limits as MuJoCo compiles them (`robots/mjcf.py`); MJCF has no
+        velocity limits (the OCP's bound is then 1e10 rad/s, as for joints without position limits)."""
+        from wbmpc.robots.mjcf import force_limits, mjcf_joints
+
+        m = self.mjcf
+        own = mjcf_joints(m)  # a mounted arm's joints keep its URDF's limits
+        for k, name in enumerate(names):
+            if name not in own:
+                continue
+            j = int(m.joint(name).id)
+            if m.jnt_limited[j] and not self.continuous[k]:
+                offset = m.qpos0[m.jnt_qposadr[j]]
+                self.q_min[k], self.q_max[k] = m.jnt_range[j] - offset
+            else:
+                self.q_min[k], self.q_max[k] = -np.inf, np.inf
+        limits = force_limits(m, [n for n in names if n in own])
+        for k, name in enumerate(names):
+            if name in own:
+                self.tau_max[k] = min(-limits[name][0], limits[name][1]) if name in limits else np.inf
+                self.v_max[k] = 1e10
 
     def _set_drive_train(self, model: pin.Model, spec: RobotSpec) -> None:
         """Armature and joint friction of the controller's model; pinocchio's algorithms (rnea, crba,
         aba) include `model.armature`, its `damping`/`friction` fields are set for reference only."""
         names = self.joint_names
-        self.armature_kg_m2 = joint_values(spec.armature_kg_m2, names, "armature_kg_m2")
-        self.viscous_friction_nm_s = joint_values(spec.viscous_friction_nm_s, names, "viscous_friction_nm_s")
-        self.coulomb_friction_nm = joint_values(spec.coulomb_friction_nm, names, "coulomb_friction_nm")
+        own = {"armature_kg_m2": 0.0, "viscous_friction_nm_s": 0.0, "coulomb_friction_nm": 0.0}
+        if self.mjcf is not None:  # the file's armature, damping and frictionloss (a mounted arm's: none)
+            from wbmpc.robots.mjcf import drive_train, mjcf_joints
+
+            own = drive_train(self.mjcf, [n for n in names if n in mjcf_joints(self.mjcf)])
+        for label in own:
+            value = getattr(spec, label)
+            setattr(self, label, joint_values(own[label] if value is None else value, names, label))
         self.coulomb_velocity_rad_s = _non_negative(spec.coulomb_velocity_rad_s, "coulomb_velocity_rad_s")
         if not self.coulomb_velocity_rad_s > 0:
             raise ModelError("coulomb_velocity_rad_s must be > 0 (the smoothing of sign(v))")
@@ -279,6 +441,25 @@ class RobotModel:
                   for f in self.feet]
         q[2] -= min(z_feet)
         return q
+
+    def _foot_radius(self) -> float:
+        """Radius of the first foot's collision sphere (a URDF: the foot link's; an MJCF: the sphere on the foot's
+        body nearest the foot frame, within its radius + 1 cm: Menagerie's and Unitree's feet are spheres on the
+        calf at a foot body or site); else 2 cm."""
+        spheres = [s for s in self.collision_primitives() if s.kind == "sphere"]
+        for foot in self.feet:
+            if self.mjcf is None:
+                own = [s for s in spheres if s.link == foot]
+                if own:
+                    return min(own, key=lambda shape: shape.index).size[0]
+                continue
+            frame = self.model.frames[self.frame_id(foot)]
+            near = [(np.linalg.norm(s.placement.translation - frame.placement.translation), s) for s in spheres
+                    if s.joint_id == frame.parentJoint]
+            near = [(d, s) for d, s in near if d <= s.size[0] + 0.01]
+            if near:
+                return min(near, key=lambda item: item[0])[1].size[0]
+        return 0.02
 
     # ------------------------------------------------------------------ queries
     def frame_id(self, name: str) -> int:
@@ -391,6 +572,8 @@ class RobotModel:
     def summary(self) -> dict:
         return {
             "robot": self.name,
+            "file": str(self.model_file),
+            "like_preset": self.spec.like_preset,
             "nq": self.nq,
             "nv": self.nv,
             "n_joints": self.n_joints,
@@ -398,6 +581,9 @@ class RobotModel:
             "feet": list(self.feet),
             "arm_ee": self.arm_ee,
             "contacts": self.contact_kinds,
+            "contacts_source": self.foot_contact_source,
+            "pose_source": "preset" if self.pose_source == "zero" and self.spec.joint_positions_rad else self.pose_source,
+            "keyframe": self.keyframe,
             "soles_m": {f: {"length": s.length_m, "width": s.width_m, "centre": [float(c) for c in s.centre_m]}
                         for f, s in self.soles.items()},
             "joints": list(self.joint_names),
@@ -406,6 +592,14 @@ class RobotModel:
             "viscous_friction_nm_s": _compact(self.viscous_friction_nm_s, self.joint_names),
             "coulomb_friction_nm": _compact(self.coulomb_friction_nm, self.joint_names),
         }
+
+
+def _joint_angle(model: pin.Model, jid: int, q: np.ndarray) -> float:
+    """The angle (displacement) of 1-DoF joint `jid` in configuration q: continuous joints from (cos, sin)."""
+    start = model.idx_qs[jid]
+    if model.nqs[jid] == 2 and model.nvs[jid] == 1:
+        return float(np.arctan2(q[start + 1], q[start]))
+    return float(q[start])
 
 
 def _compact(values: np.ndarray, names: tuple[str, ...]):
@@ -445,18 +639,3 @@ def _check_srdf_pose(full: pin.Model, spec: RobotSpec) -> None:
         continuous = values.size == 1 and full.nqs[jid] == 2 and full.nvs[jid] == 1  # given by its angle
         if values.size != full.nqs[jid] and not continuous:
             raise ModelError(f"SRDF pose '{spec.pose}': joint '{name}' needs {full.nqs[jid]} values, got {values.size}")
-
-
-def _foot_radius_from_urdf(urdf: Path, model: pin.Model, feet: tuple[str, ...]) -> float:
-    """Radius of the collision sphere of the first foot link that has one (as pinocchio reads the
-    URDF's collision geometry, `urdf_geometry`); else 2 cm."""
-    from wbmpc.robots.urdf_geometry import collision_primitives
-
-    spheres = {}
-    for shape in collision_primitives(model, urdf):
-        if shape.kind == "sphere" and shape.link in feet:
-            spheres.setdefault(shape.link, []).append(shape)
-    for foot in feet:
-        if foot in spheres:
-            return min(spheres[foot], key=lambda shape: shape.index).size[0]
-    return 0.02

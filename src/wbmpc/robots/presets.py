@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import importlib.metadata
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
+
+import numpy as np
 
 from wbmpc.errors import ModelError, unknown_name
 from wbmpc.robots.compose import ArmMount, compose_spec
@@ -174,6 +177,87 @@ def preset_spec(name: str) -> RobotSpec:
     return presets[name]
 
 
+# --------------------------------------------------------------------------- another file of a preset's robot
+MATCH_MASS_REL = 0.25  # another file of a preset's robot: its mass within this share of the preset's ...
+MATCH_LEG_REL = 0.1  # ... and its leg length within this share
+
+
+def matching_preset(robot: RobotModel) -> str | None:
+    """The preset `robot` is another description of (Unitree's or Menagerie's MJCF of g1 or go2, a URDF with hands):
+    every moving joint of the preset among the robot's (moving or locked), as many feet, the mass within 25 % and the
+    legs' length (`leg_chain_length_m`, whatever the pose) within 10 % of the preset's; of several, the one with the
+    most joints, then the nearest in mass and leg length (go2, go1 and a1 share their joint names)."""
+    names = set(robot.full_model.names[2:])
+    candidates = []
+    for preset, (joints, n_feet, mass_kg) in _preset_joints().items():
+        mass = abs(robot.mass_kg / mass_kg - 1.0)
+        if n_feet != len(robot.feet) or not joints <= names or mass > MATCH_MASS_REL:
+            continue
+        leg = abs(leg_chain_length_m(robot) / leg_chain_length_m(load_robot(preset)) - 1.0)
+        if leg <= MATCH_LEG_REL:
+            candidates.append((-len(joints), mass + leg, preset))
+    return min(candidates)[2] if candidates else None
+
+
+def leg_chain_length_m(robot: RobotModel) -> float:
+    """Mean over the feet of the summed distances between successive joints from the root to the foot (the legs'
+    length whatever the pose)."""
+    model, lengths = robot.model, []
+    for foot in robot.feet:
+        frame = model.frames[robot.frame_id(robot.contact_frame(foot))]
+        total, joint = float(np.linalg.norm(frame.placement.translation)), frame.parentJoint
+        while model.parents[joint] > 1:
+            total += float(np.linalg.norm(model.jointPlacements[joint].translation))
+            joint = model.parents[joint]
+        lengths.append(total)
+    return float(np.mean(lengths))
+
+
+@lru_cache(maxsize=1)
+def _preset_joints() -> dict[str, tuple[frozenset[str], int, float]]:
+    """{preset: (its moving joints, its number of feet, its mass)}, read by pinocchio without loading the robots."""
+    import pinocchio as pin
+
+    out = {}
+    for name in PRESET_NAMES:
+        spec = preset_spec(name)
+        try:
+            model = pin.buildModelFromUrdf(str(spec.urdf))
+        except (RuntimeError, ValueError):
+            continue
+        moving = frozenset(model.names[1:]) - set(spec.locked_joints)
+        out[name] = (moving, len(spec.feet), float(sum(i.mass for i in model.inertias)))
+    return out
+
+
+def custom_robot(spec: RobotSpec) -> RobotModel:
+    """A robot from the user's file with what its preset knows where the file is silent: when it is another file of
+    a preset's robot (`matching_preset`), that preset's settings (`like_preset`: the tuning table's overrides), its
+    rotor inertias where the file has none, its standing pose where the file has none (no SRDF pose, no keyframe),
+    and its flat feet (its sole size if the file's feet carry no sole geometry) where the spec leaves the contact
+    open. A robot like no preset keeps what the file says and the settings derived from its size."""
+    robot = RobotModel(spec)
+    like = spec.like_preset or matching_preset(robot)
+    if like is None:
+        return robot
+    preset = load_robot(like)
+    changes: dict = {"like_preset": like}
+    if spec.armature_kg_m2 is None and not np.any(robot.armature_kg_m2) and np.any(preset.armature_kg_m2):
+        changes["armature_kg_m2"] = {n: float(a) for n, a in zip(preset.joint_names, preset.armature_kg_m2)
+                                     if n in robot.joint_names}
+    if robot.pose_source == "zero" and not spec.joint_positions_rad:
+        changes["joint_positions_rad"] = {n: float(x) for n, x in zip(preset.joint_names, preset.joint_positions(preset.q_nominal))
+                                         if n in robot.joint_names}
+    if spec.foot_contact is None and preset.soles and not robot.soles:
+        changes["foot_contact"] = "surface"
+        if preset.spec.sole_m is not None:
+            changes["sole_m"] = preset.spec.sole_m
+    try:
+        return RobotModel(replace(spec, **changes))
+    except ModelError:  # e.g. the preset's sole read from geometry this file's feet lack: keep the file's own
+        return RobotModel(replace(spec, like_preset=like))
+
+
 @lru_cache(maxsize=32)
 def load_robot(name: str = "b1_z1") -> RobotModel:
     """Load a preset robot (cached: robots are immutable once built)."""
@@ -181,18 +265,23 @@ def load_robot(name: str = "b1_z1") -> RobotModel:
 
 
 def custom_spec(
-    urdf: str,
+    urdf: str | None,
     feet: list[str],
     arm_ee: str | None = None,
     srdf: str | None = None,
     pose: str | None = None,
     lock: list[str] | None = None,
     name: str | None = None,
+    mjcf: str | None = None,
+    keyframe: str | None = None,
 ) -> RobotSpec:
-    """Spec for any legged robot given by the user (CLI --urdf/--srdf/--pose/--feet/--arm-ee/--lock)."""
+    """Spec for any legged robot given by the user (CLI --urdf or --mjcf, --srdf/--pose or --keyframe, --feet,
+    --arm-ee, --lock)."""
     return RobotSpec(
-        name=name or Path(urdf).stem,
-        urdf=Path(urdf),
+        name=name or Path(urdf or mjcf).stem,
+        urdf=Path(urdf) if urdf else None,
+        mjcf=Path(mjcf) if mjcf else None,
+        keyframe=keyframe,
         srdf=Path(srdf) if srdf else None,
         pose=pose,
         feet=tuple(feet),

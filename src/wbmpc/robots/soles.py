@@ -93,6 +93,47 @@ def soles_from_collisions(model: pin.Model, urdf: Path, feet: tuple[str, ...], f
     return soles
 
 
+def soles_from_primitives(model: pin.Model, primitives, feet: tuple[str, ...], frame_id, path: Path) -> dict[str, Sole]:
+    """The sole of each foot from a file's primitive collision geometry (`urdf_geometry.Primitive`, e.g. an MJCF's
+    colliding geoms: g1's four 5 mm corner spheres): the bounding box, in the foot frame, of the primitives of the
+    body carrying the foot (the foot's own body, or the body a foot site sits on); its bottom face is the sole."""
+    soles = {}
+    for foot in feet:
+        frame = model.frames[frame_id(foot)]
+        body = frame.name if frame.type == pin.FrameType.BODY else model.frames[frame.parentFrame].name
+        lows, highs = [], []
+        for shape in primitives:
+            if shape.link != body:
+                continue
+            extent = _shape_extent(shape.kind, shape.size)
+            placement = frame.placement.actInv(shape.placement)
+            corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * extent
+            points = corners @ placement.rotation.T + placement.translation
+            lows.append(points.min(axis=0))
+            highs.append(points.max(axis=0))
+        if not lows:
+            raise ModelError(f"foot '{foot}' (body '{body}') has no primitive collision geom (box, sphere, capsule, "
+                             f"cylinder) in {path} to read its sole from; give the sole size with --sole LENGTH,WIDTH "
+                             "(metres) or use point feet (--foot-contact point)")
+        soles[foot] = _sole(foot, np.min(lows, axis=0), np.max(highs, axis=0))
+    return soles
+
+
+def _sole(foot: str, low: np.ndarray, high: np.ndarray) -> Sole:
+    centre = np.array([0.5 * (low[0] + high[0]), 0.5 * (low[1] + high[1]), low[2]])
+    return Sole(foot, float(high[0] - low[0]), float(high[1] - low[1]), centre)
+
+
+def _shape_extent(kind: str, size: tuple[float, ...]) -> np.ndarray:
+    """Half extents of a primitive's bounding box in its own frame (MuJoCo's size convention)."""
+    if kind == "box":
+        return np.asarray(size, dtype=float)
+    if kind == "sphere":
+        return np.full(3, float(size[0]))
+    r, h = float(size[0]), float(size[1])
+    return np.array([r, r, h + (r if kind == "capsule" else 0.0)])
+
+
 def _collision_model(model: pin.Model, urdf: Path) -> pin.GeometryModel:
     from wbmpc.robots.presets import example_robot_data_dir
 

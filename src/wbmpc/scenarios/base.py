@@ -6,9 +6,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wbmpc.control.commands import Commands
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.loop import Event, RunLog
-from wbmpc.control.mpc import Commands, CostWeights
+from wbmpc.control.loop import Event
+from wbmpc.control.policy import TaskNeeds
+from wbmpc.control.run_log import RunLog
+from wbmpc.control.weights import CostWeights
 from wbmpc.gait import GAIT_NAMES
 from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
@@ -67,7 +70,7 @@ class ScenarioOptions:
                            "wall trotting in place; turn: push a free box along a path at 0.1 m/s with a 90 degree "
                            "turn (--box-turn-radius; implied by --object-model), a force command without --object-model",
                            scenarios=("push-box",))
-    # issue 22 part 2: the manipulated object inside the MPC (wbmpc.ocp.objects)
+    # the manipulated object inside the MPC (wbmpc.ocp.objects)
     object_model: bool = option(False, flag="--object-model", help="plan with the manipulated object inside the "
                                 "MPC: its state and dynamics in the OCP, the hand force a variable, the object's "
                                 "motion the command (push-box: the box's path; pull: the load's speed)",
@@ -147,13 +150,22 @@ class Scenario:
     default_duration_s: float
     needs_arm: bool = False
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
+    sweeps_ee = False  # the hand sweeps the workspace: collision avoidance on by default (control/policy.py)
 
     def __post_init__(self):
         if self.options.gait is not None:
             self.gait = self.options.gait
 
+    def needs(self, robot: RobotModel | None) -> TaskNeeds:
+        """What this task asks of the MPC on `robot` (None: the task as declared, no obstacles nor object)."""
+        return TaskNeeds(gait=self.gait, commands_ee=self.needs_arm, sweeps_ee=self.sweeps_ee,
+                         obstacles=tuple(self.obstacles(robot)) if robot is not None else (),
+                         object_model=self.object_model(robot) if self.options.object_model and robot is not None
+                         else None, adjust_weights=self.cost_weights,
+                         terrain=self.terrain(robot) if robot is not None else None)
+
     def commands(self, robot: RobotModel):
-        return lambda t, q, v: Commands()
+        return lambda t_s, q, v: Commands()
 
     def events(self, robot: RobotModel) -> list[Event]:
         return []
@@ -164,14 +176,14 @@ class Scenario:
 
     ee_error_label = "|p - p_ref|"
 
-    def ee_tracking_error(self, robot: RobotModel, t: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def ee_tracking_error(self, robot: RobotModel, t_s: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(error vectors (n, 3), mask of the samples counted) of measured end-effector positions `ee`
         at times `t`: what `ee_pos_rmse_m` and the end-effector plot's RMSE are computed from. By
         default the 3D distance to `ee_reference` over the whole run; None without a reference."""
         reference = self.ee_reference(robot)
         if reference is None:
             return None
-        return ee - np.array([np.asarray(reference(float(tk)), dtype=float) for tk in t]), np.ones(len(t), dtype=bool)
+        return ee - np.array([np.asarray(reference(float(tk)), dtype=float) for tk in t_s]), np.ones(len(t_s), dtype=bool)
 
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.loop import RunLog
+from wbmpc.control.run_log import RunLog
 from wbmpc.robots import RobotModel
 
 SETTLE_S = 2.0

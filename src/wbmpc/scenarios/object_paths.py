@@ -1,4 +1,4 @@
-"""Commanded object paths (issue 22 part 2): the box's path of `push-box --box-path turn` / `--object-model`,
+"""Commanded object paths: the box's path of `push-box --box-path turn` / `--object-model`,
 the commands that follow it with and without the object inside the MPC, and the path's tracking metrics.
 
 `BoxPath`: at rest until `start_s`, then the box centre moves at `speed_m_s` (reached over `ramp_s`) straight
@@ -7,8 +7,8 @@ tangent), then goes straight again. 0.8 m: on a 0.4 m arc the push that turns th
 would need a lever of 0.47 m from the face's centre (4-corner Coulomb friction), beyond its 0.22 m. The robot's base follows the box's path at its starting offset from
 the box (rotating with the box), by velocity commands with position feedback.
 
-- force command (today's MPC, the box only in MuJoCo): the hand's velocity command carries it along the face
-  of the box's reference pose (`_feedback`), its force command is the friction that slides the box, mu m g
+- force command (the paper's MPC, the box only in MuJoCo): the hand's velocity command carries it along the face
+  of the box's reference pose (`feedback.ee_velocity_feedback`), its force command is the friction that slides the box, mu m g
   along the face normal, scaled with the path's speed;
 - object model: the box's measured state and its path go to the MPC (`Commands.object_command`), the path's yaw
   led by the box's sideslip about the push's pivot (`sideslip_lead`); hand force and motion are the OCP's.
@@ -50,17 +50,17 @@ class BoxPath:
     radius_m: float = 0.8
     turn_rad: float = np.pi / 2
 
-    def distance(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def distance(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Path length travelled and speed at times t."""
-        tau = np.maximum(np.asarray(t, dtype=float) - self.start_s, 0.0)
+        tau = np.maximum(np.asarray(t_s, dtype=float) - self.start_s, 0.0)
         v, ramp = self.speed_m_s, self.ramp_s
         s = np.where(tau < ramp, 0.5 * v * tau**2 / ramp, v * (tau - 0.5 * ramp))
         return s, np.where(tau < ramp, v * tau / ramp, v)
 
-    def states(self, t) -> np.ndarray:
+    def states(self, t_s) -> np.ndarray:
         """(n, 6) reference states at times t."""
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        s, speed = self.distance(t)
+        t_s = np.atleast_1d(np.asarray(t_s, dtype=float))
+        s, speed = self.distance(t_s)
         arc = self.radius_m * self.turn_rad
         phi = np.clip((s - self.straight_m) / self.radius_m, 0.0, self.turn_rad)
         after = np.maximum(s - self.straight_m - arc, 0.0)
@@ -90,9 +90,9 @@ class PathFollower:
         self.path = path
         self.offset = np.asarray(base_start_xy_m, dtype=float) - np.asarray(path.start_xy_m, dtype=float)
 
-    def base_command(self, t: float, q: np.ndarray, box_state: np.ndarray | None = None) -> dict:
+    def base_command(self, t_s: float, q: np.ndarray, box_state: np.ndarray | None = None) -> dict:
         """Base velocity (heading frame) and yaw rate; `box_state` the measured [x, y, yaw, ...] (None: the path's)."""
-        reference = self.path.states(t)[0]
+        reference = self.path.states(t_s)[0]
         x, y, yaw = (reference if box_state is None else box_state)[:3]
         vx, vy, wz = reference[3:]
         arm = _rot(yaw) @ self.offset
@@ -116,7 +116,7 @@ def measured_box_state(scene, name: str, fallback: np.ndarray, reference_yaw: fl
     return state
 
 
-def sideslip_lead(path: BoxPath, t, pivot_m: float) -> np.ndarray:
+def sideslip_lead(path: BoxPath, t_s, pivot_m: float) -> np.ndarray:
     """The yaw (rad) by which the box must lead its path's tangent at times t so that its centre moves along the path.
 
     Pushed at the hand's height h, the box's weight rests towards its far edge: the push's tipping moment moves the
@@ -129,21 +129,21 @@ def sideslip_lead(path: BoxPath, t, pivot_m: float) -> np.ndarray:
     0.26 m and 0.8 m): then the centre follows the path. The OCP's box (even corner loads) does not slide so: an
     MPC with the loads shifted by the push (`SlidingBox.push_shifts_loads`) or by a fixed pivot pushed in bursts
     (the hand in contact 7 % of the time) and missed the path by 24 cm."""
-    s, speed = path.distance(np.asarray(t, dtype=float))
+    s, speed = path.distance(np.asarray(t_s, dtype=float))
     arc = path.radius_m * path.turn_rad
     turning = (s > path.straight_m) & (s < path.straight_m + arc)
     rate = np.where(turning, speed / path.radius_m, 0.0)
     return np.arcsin(np.clip(rate * pivot_m / np.maximum(speed, 1e-6), 0.0, 1.0))
 
 
-def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0.0) -> ObjectCommand:
+def object_command(path: BoxPath, scene, name: str, t_s: float, pivot_m: float = 0.0) -> ObjectCommand:
     """The box's measured state and its path (the MPC's reference over the horizon), its yaw leading the path's
     tangent by `sideslip_lead` about the push's `pivot_m` (0: on the tangent). b1_z1, 16 s, compiled SQP: 5.0 cm
     RMSE with the lead and the hand's pad, 22.9 cm without either. What is left sits at the turn's start and end:
     building the lead turns the box about its pivot, which swings its centre out (even the best trajectory of a box
     turning about a pivot 0.26 m ahead misses the path by 2.7 cm RMSE). What was tried and measured, and why a
     lower push did worse: docs/design/object-model.md."""
-    reference = path.states(t)[0]
+    reference = path.states(t_s)[0]
     state = measured_box_state(scene, name, np.concatenate([path.start_xy_m, np.zeros(4)]), reference[2])
     if not pivot_m:
         return ObjectCommand(state=state, reference=path.states)
@@ -156,34 +156,34 @@ def object_command(path: BoxPath, scene, name: str, t: float, pivot_m: float = 0
     return ObjectCommand(state=state, reference=reference_with_lead)
 
 
-def force_command(path: BoxPath, t: float, box, hand_radius_m: float, hand_height_m: float, p_ee: np.ndarray,
+def force_command(path: BoxPath, t_s: float, box, hand_radius_m: float, hand_height_m: float, p_ee: np.ndarray,
                   feedback) -> tuple[np.ndarray, np.ndarray]:
     """(hand velocity, hand force) commands of the force-command version: the hand on the face of the box's
-    reference pose (pressed in 5 mm, as today's push-box), the force that slides the box along the face normal."""
-    x, y, yaw, vx, vy, wz = path.states(t)[0]
+    reference pose (pressed in 5 mm, as push-box's wall task), the force that slides the box along the face normal."""
+    x, y, yaw, vx, vy, wz = path.states(t_s)[0]
     face = np.array([x, y]) + _rot(yaw) @ np.array([-(box.size_m[0] / 2 + hand_radius_m) + 0.005, 0.0])
     lever = face - np.array([x, y])
     v_face = np.array([vx, vy]) + wz * np.array([-lever[1], lever[0]])
     p_ref = np.array([face[0], face[1], hand_height_m])
     velocity = feedback(np.array([v_face[0], v_face[1], 0.0]), p_ref, p_ee)
-    _, speed = path.distance(np.array([t]))
+    _, speed = path.distance(np.array([t_s]))
     share = float(speed[0]) / path.speed_m_s
     normal = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     return velocity, share * box.friction_mu * box.mass_kg * GRAVITY_M_S2 * normal
 
 
-def path_metrics(path: BoxPath, t: np.ndarray, states: np.ndarray, prefix: str = "box", pivot_m: float = 0.0) -> dict:
+def path_metrics(path: BoxPath, t_s: np.ndarray, states: np.ndarray, prefix: str = "box", pivot_m: float = 0.0) -> dict:
     """`box_pos_rmse_m` (the box centre against its commanded path while the path moves) and friends: the same on
     the straight before the turn and from the turn's start on (`_before_turn_`, `_turn_`), the yaw against the
     path's tangent and (`pivot_m` > 0, the object model's reference) against the tangent led by `sideslip_lead`."""
-    reference = path.states(t)
-    use = t >= path.start_s
+    reference = path.states(t_s)
+    use = t_s >= path.start_s
     if not use.any():
         return {f"{prefix}_pos_rmse_m": None}
     error = np.linalg.norm(states[use, :2] - reference[use, :2], axis=1)
     yaw_error = np.degrees(_wrap(states[use, 2] - reference[use, 2]))
-    straight = path.distance(t[use])[0] <= path.straight_m  # before the turn
-    led = _wrap(states[use, 2] - reference[use, 2] - sideslip_lead(path, t[use], pivot_m)) if pivot_m else None
+    straight = path.distance(t_s[use])[0] <= path.straight_m  # before the turn
+    led = _wrap(states[use, 2] - reference[use, 2] - sideslip_lead(path, t_s[use], pivot_m)) if pivot_m else None
     return {f"{prefix}_pos_rmse_m": float(np.sqrt(np.mean(error**2))),
             f"{prefix}_pos_rmse_before_turn_m": float(np.sqrt(np.mean(error[straight] ** 2))) if straight.any() else None,
             f"{prefix}_pos_rmse_turn_m": float(np.sqrt(np.mean(error[~straight] ** 2))) if (~straight).any() else None,

@@ -148,7 +148,7 @@ class TerrainCourse(Scenario):
         return None if hand is None else (lambda t: hand.reference(t)[0])
 
     def extra_metrics(self, robot, log):
-        from wbmpc.scenarios.library import TrotForward
+        from wbmpc.scenarios.locomotion import TrotForward
 
         out = TrotForward.extra_metrics(self, robot, log)  # the velocity tracking of walking forward
         a = log.arrays(("t", "q"))

@@ -52,10 +52,19 @@ def __getattr__(name: str):
 
 def robot_plant_config(robot) -> PlantConfig | None:
     """The plant settings a robot brings itself: its rotor inertias on the plant's joints (`RobotSpec.armature_kg_m2`,
-    g1's); None where it has none (the plant's defaults)."""
+    g1's), and an MJCF robot's file its joints' armature, damping and frictionloss (the physical robot the file
+    describes, whatever the controller's model assumes); None where it has none (the plant's defaults)."""
+    armature = dict(zip(robot.joint_names, map(float, robot.armature_kg_m2)))
+    if getattr(robot, "mjcf", None) is not None:
+        from wbmpc.robots.mjcf import drive_train, mjcf_joints
+
+        own = drive_train(robot.mjcf, [n for n in robot.joint_names if n in mjcf_joints(robot.mjcf)])
+        return PlantConfig(joint_armature_kg_m2={**armature, **own["armature_kg_m2"]},
+                           joint_damping_nm_s_per_rad=own["viscous_friction_nm_s"],
+                           joint_frictionloss_nm=own["coulomb_friction_nm"])
     if not np.any(robot.armature_kg_m2):
         return None
-    return PlantConfig(joint_armature_kg_m2=dict(zip(robot.joint_names, map(float, robot.armature_kg_m2))))
+    return PlantConfig(joint_armature_kg_m2=armature)
 
 
 def make_plant(kind: str, robot, config: PlantConfig | None = None) -> Plant:

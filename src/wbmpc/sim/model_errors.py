@@ -82,9 +82,10 @@ class ModelErrors:
 
     def edit_spec(self, robot: RobotModel, spec) -> None:
         """Apply the inertial errors to a `mujoco.MjSpec` of `robot` built by `wbmpc.sim.mujoco_scene`."""
-        from wbmpc.sim.mujoco_scene import body_names
+        from wbmpc.sim.mujoco_scene import scene_bodies
 
-        names = body_names(robot)
+        bodies = scene_bodies(spec, robot)
+        names = list(dict.fromkeys(bodies.names))  # a plant model's body may carry several merged links
         rng = np.random.default_rng(self.seed)
         for name in names:
             body = spec.body(name)
@@ -93,15 +94,18 @@ class ModelErrors:
                 factor *= max(0.1, 1.0 + rng.normal(0.0, self.link_mass_noise_rel))
             if factor != 1.0:
                 body.mass = body.mass * factor
-                body.fullinertia = np.asarray(body.fullinertia) * factor
+                if np.all(np.isfinite(body.fullinertia)):
+                    body.fullinertia = np.asarray(body.fullinertia) * factor
+                else:  # a plant model's file gives principal moments (diaginertia)
+                    body.inertia = np.asarray(body.inertia) * factor
         base = spec.body(names[0])
         base.ipos = np.asarray(base.ipos) + np.asarray(self.base_com_offset_m, dtype=float)
         if self.ee_payload_kg > 0:
             if robot.arm_ee is None:
                 raise PlantInputError(f"ee_payload_kg needs a robot with an arm end-effector; {robot.name} has none")
-            frame = robot.model.frames[robot.frame_id(robot.arm_ee)]
-            parent = spec.body(names[frame.parentJoint - 1])
+            body, placement = bodies.frame(robot, robot.arm_ee)
+            parent = spec.body(body)
             inertia = 0.4 * self.ee_payload_kg * self.payload_radius_m**2
-            parent.add_body(name="ee_payload", pos=np.asarray(frame.placement.translation, dtype=float),
+            parent.add_body(name="ee_payload", pos=np.asarray(placement.translation, dtype=float),
                             ipos=[0.0, 0.0, 0.0], mass=self.ee_payload_kg, inertia=[inertia] * 3,
                             explicitinertial=True)

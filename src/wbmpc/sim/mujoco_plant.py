@@ -3,7 +3,9 @@
 MuJoCo free joint: qpos = [p, quat wxyz], qvel = [linear velocity in WORLD, angular velocity in
 the body frame]. Pinocchio: q = [p, quat xyzw], v = [linear velocity in the BASE frame, angular
 velocity in the base frame]. Joints are matched by name, so extra scene objects with their own
-joints may appear anywhere in MuJoCo's vectors.
+joints may appear anywhere in MuJoCo's vectors. With a plant model (`MujocoPlantConfig.plant_model`,
+`wbmpc.sim.plant_model`) MuJoCo simulates another file of the robot; `SceneRobot` says where the controller's
+joints (their signs and offsets), actuators, bodies and feet are in it, and `plant_model_report()` what it is.
 """
 
 from __future__ import annotations
@@ -23,13 +25,7 @@ from wbmpc.sim.base import (
     quat_xyzw_to_matrix,
     specialised_config,
 )
-from wbmpc.sim.mujoco_scene import (
-    ROBOT_CONTYPE,
-    MujocoPlantConfig,
-    body_names,
-    build_model,
-    is_robot_geom,
-)
+from wbmpc.sim.mujoco_scene import MujocoPlantConfig, build_scene
 
 _INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
 
@@ -40,19 +36,20 @@ class MujocoPlant:
     def __init__(self, robot: RobotModel, config: PlantConfig | None = None):
         self.robot = robot
         self.config = specialised_config(config, MujocoPlantConfig)
-        self.model: mujoco.MjModel = build_model(robot, self.config)
+        self.model, self.layout = build_scene(robot, self.config)
         self.data = mujoco.MjData(self.model)
         self.recording = Recording()
-        m = self.model
-        root = m.joint("root_joint")
+        m, layout = self.model, self.layout
+        root = m.joint(layout.root_joint)
         self._root_qadr, self._root_vadr = int(root.qposadr[0]), int(root.dofadr[0])
-        self._qadr = np.array([m.joint(n).qposadr[0] for n in robot.joint_names])
-        self._vadr = np.array([m.joint(n).dofadr[0] for n in robot.joint_names])
-        self._act = np.array([m.actuator(n).id for n in robot.joint_names])
-        self._foot_index = {int(m.geom(f).id): k for k, f in enumerate(robot.feet)}
-        self._body_names = body_names(robot)
+        self._qadr = np.array([m.joint(n).qposadr[0] for n in layout.joints])
+        self._vadr = np.array([m.joint(n).dofadr[0] for n in layout.joints])
+        self._sign, self._offset = layout.joint_sign, layout.joint_offset
+        self._act = np.array(layout.actuators)
+        self._foot_index = {g: k for k, geoms in enumerate(layout.foot_geoms) for g in geoms}
+        self._body_names = list(layout.bodies.names)
         self._steps = 0
-        self._robot_geom = is_robot_geom(m)
+        self._robot_geom = layout.robot_geoms
         self.self_contacts = SelfContactCounter()
         self._force = np.zeros(6)
         self._step_hooks: list = []
@@ -65,6 +62,12 @@ class MujocoPlant:
             # the last link's shapes and those of any body mounted on it (a tool, a wiping pad)
             self._ee_geoms = {g for g in range(m.ngeom) if _in_subtree(m, int(m.geom_bodyid[g]), body)}
         self.reset()
+
+    @property
+    def ee_geoms(self) -> frozenset[int]:
+        """MuJoCo geoms of the end-effector: the last link's shapes and those of any body mounted on it (a tool, a
+        wiping pad); empty without an arm."""
+        return frozenset(self._ee_geoms)
 
     # ------------------------------------------------------------------ Plant interface
     @property
@@ -91,16 +94,16 @@ class MujocoPlant:
         d = self.data
         d.qpos[self._root_qadr : self._root_qadr + 3] = q[:3]
         d.qpos[self._root_qadr + 3 : self._root_qadr + 7] = q[[6, 3, 4, 5]]
-        d.qpos[self._qadr] = self.robot.joint_positions(q)
+        d.qpos[self._qadr] = self._offset + self._sign * self.robot.joint_positions(q)
         d.qvel[self._root_vadr : self._root_vadr + 3] = quat_xyzw_to_matrix(q[3:7]) @ v[:3]
         d.qvel[self._root_vadr + 3 : self._root_vadr + 6] = v[3:6]
-        d.qvel[self._vadr] = v[6:]
+        d.qvel[self._vadr] = self._sign * v[6:]
         mujoco.mj_forward(self.model, self.data)
 
     def step(self, tau_joints: np.ndarray) -> np.ndarray:
         """One physics step of `dt_s` with joint torques clamped to +-tau_max; returns the applied torques."""
         tau = checked_torques(self.robot, tau_joints)
-        self.data.ctrl[self._act] = tau
+        self.data.ctrl[self._act] = self._sign * tau
         for hook in self._step_hooks:
             hook.before_step(self)
         mujoco.mj_step(self.model, self.data)
@@ -121,7 +124,7 @@ class MujocoPlant:
 
     def applied_torques(self) -> np.ndarray:
         """The joint torques of the current step (clamped), robot joint order (step hooks read them)."""
-        return np.array(self.data.ctrl[self._act])
+        return self._sign * np.array(self.data.ctrl[self._act])
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """(q, v) in pinocchio layout."""
@@ -129,11 +132,11 @@ class MujocoPlant:
         qw = d.qpos[self._root_qadr + 3 : self._root_qadr + 7]
         quat_xyzw = qw[[1, 2, 3, 0]] / np.linalg.norm(qw)
         base = np.concatenate([d.qpos[self._root_qadr : self._root_qadr + 3], quat_xyzw])
-        q = self.robot.with_joint_positions(np.concatenate([base, np.zeros(self.robot.nq - 7)]), d.qpos[self._qadr])
+        angles = self._sign * (d.qpos[self._qadr] - self._offset)
+        q = self.robot.with_joint_positions(np.concatenate([base, np.zeros(self.robot.nq - 7)]), angles)
         v_world = d.qvel[self._root_vadr : self._root_vadr + 3]
-        v = np.concatenate(
-            [quat_xyzw_to_matrix(quat_xyzw).T @ v_world, d.qvel[self._root_vadr + 3 : self._root_vadr + 6], d.qvel[self._vadr]]
-        )
+        v = np.concatenate([quat_xyzw_to_matrix(quat_xyzw).T @ v_world, d.qvel[self._root_vadr + 3 : self._root_vadr + 6],
+                            self._sign * d.qvel[self._vadr]])
         return q, v
 
     def apply_base_velocity_kick(self, dv_world_m_s: np.ndarray) -> None:
@@ -151,7 +154,7 @@ class MujocoPlant:
             g1, g2 = geoms[i]
             for sign, foot, other in ((1.0, g2, g1), (-1.0, g1, g2)):
                 k = self._foot_index.get(int(foot))
-                if k is not None and not m.geom_contype[other] & ROBOT_CONTYPE:
+                if k is not None and not self._robot_geom[other]:
                     mujoco.mj_contactForce(m, d, i, self._force)
                     # contact frame rows: normal (from geom1 to geom2), tangent 1, tangent 2;
                     # the force acts on geom2 along the normal and on geom1 opposite
@@ -164,13 +167,15 @@ class MujocoPlant:
         normal forces (floor and scene objects), expressed in the sole frame (the box's bottom face)."""
         m, d = self.model, self.data
         out: dict[str, tuple[np.ndarray, float] | None] = {}
-        for foot in self.robot.soles:
-            gid = int(m.geom(foot).id)
+        for k, foot in enumerate(self.robot.feet):
+            if foot not in self.robot.soles:
+                continue
+            geoms = set(self.layout.foot_geoms[k])
             weighted, total = np.zeros(3), 0.0
             for i in range(d.ncon):
                 g1, g2 = (int(g) for g in d.contact.geom[i])
-                other = g1 if g2 == gid else g2 if g1 == gid else None
-                if other is None or m.geom_contype[other] & ROBOT_CONTYPE:
+                other = g1 if g2 in geoms else g2 if g1 in geoms else None
+                if other is None or self._robot_geom[other]:
                     continue
                 mujoco.mj_contactForce(m, d, i, self._force)
                 normal = float(self._force[0])
@@ -179,8 +184,11 @@ class MujocoPlant:
             if total <= 1e-9:
                 out[foot] = None
                 continue
-            rotation = d.geom_xmat[gid].reshape(3, 3)
-            local = rotation.T @ (weighted / total - d.geom_xpos[gid])
+            body, placement = self.layout.bodies.frame(self.robot, self.robot.soles[foot].frame)
+            b = m.body(body).id
+            rotation = d.xmat[b].reshape(3, 3) @ placement.rotation
+            origin = d.xpos[b] + d.xmat[b].reshape(3, 3) @ placement.translation
+            local = rotation.T @ (weighted / total - origin)
             out[foot] = (local[:2], total)
         return out
 
@@ -211,8 +219,12 @@ class MujocoPlant:
         qpos = self.data.qpos.copy()
         qpos[self._root_qadr : self._root_qadr + 3] = q[:3]
         qpos[self._root_qadr + 3 : self._root_qadr + 7] = np.asarray(q)[[6, 3, 4, 5]]
-        qpos[self._qadr] = self.robot.joint_positions(q)
+        qpos[self._qadr] = self._offset + self._sign * self.robot.joint_positions(q)
         return qpos
+
+    def plant_model_report(self) -> dict | None:
+        """What the plant simulates when it is not the controller's model (`wbmpc.sim.plant_model`), else None."""
+        return self.layout.plant_model
 
     def body_name(self, joint_id: int) -> str:
         """MuJoCo body carrying pinocchio joint `joint_id` (1 = base)."""

@@ -11,14 +11,21 @@ and `<exclude>` leaves out the body pairs whose shapes touch at the nominal pose
 trunk) and those of a body and its grandparent that touch somewhere within the joint limits (a hip
 rotor on the trunk and the thigh: the URDF's primitives overlap where the real parts do not). Extra scene
 objects are MJCF `<body>` snippets added to the worldbody (their geoms inherit the environment
-defaults), or arbitrary edits through `spec_callback(spec: mujoco.MjSpec)` before compilation.
+defaults), or arbitrary edits through `spec_callback(spec: mujoco.MjSpec)` before compilation; such an
+edit finds the robot's bodies with `scene_bodies(spec, robot)`, in this scene and in a plant model's.
+
+With `MujocoPlantConfig.plant_model` the robot is another file of the same robot instead
+(`wbmpc.sim.plant_model`); `build_scene` gives either scene and `SceneRobot`, where the controller's
+joints, actuators, bodies and feet are in it.
 """
 
 from __future__ import annotations
 
+import weakref
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -68,6 +75,9 @@ class MujocoPlantConfig(PlantConfig):
     spec_callback: Callable[[mujoco.MjSpec], None] | None = None
     terrain: Terrain | None = None  # boxes, ramps, heightmaps and the floor's height (sim/terrain_geoms.py)
     self_collision: bool = True  # robot-robot contacts (see the module docstring); counted by the plant
+    # another file of the same robot (MJCF or URDF) that MuJoCo simulates instead of the controller's model
+    # (`wbmpc.sim.plant_model`); None: the scene is built from the controller's `RobotModel`
+    plant_model: str | Path | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -82,6 +92,78 @@ class MujocoPlantConfig(PlantConfig):
             raise PlantInputError(
                 f"contact_timeconst_s ({self.contact_timeconst_s}) must be >= 2 * dt_s ({2 * self.dt_s}) for a stable contact"
             )
+
+
+@dataclass(frozen=True)
+class SceneBodies:
+    """The MuJoCo body carrying each pinocchio joint 1..njoints-1 of the controller's model (`names`) and that
+    joint's frame in the body's frame (`joint_frames`): identities in wbmpc's own scene, a plant model's own
+    body frames otherwise."""
+
+    names: tuple[str, ...]
+    joint_frames: tuple[pin.SE3, ...]
+
+    def body(self, joint_id: int) -> str:
+        return self.names[joint_id - 1]
+
+    def frame(self, robot: RobotModel, frame: str) -> tuple[str, pin.SE3]:
+        """(MuJoCo body, placement in that body's frame) of a frame of the controller's model."""
+        f = robot.model.frames[robot.frame_id(frame)]
+        return self.names[f.parentJoint - 1], self.joint_frames[f.parentJoint - 1] * f.placement
+
+
+@dataclass(frozen=True)
+class SceneRobot:
+    """Where the controller's robot is in a compiled scene. Joint k of `robot.joint_names` is MuJoCo joint
+    `joints[k]` with qpos = `joint_offset[k]` + `joint_sign[k]` * q_k (an axis the file points the other way,
+    a `ref`), driven by actuator `actuators[k]` (ids) with ctrl = sign * tau; `foot_geoms[i]`: the geom ids that
+    make foot i's contacts; `robot_geoms`: (ngeom,) True for the robot's geoms; `plant_model`: the plant model's
+    report (None in wbmpc's own scene)."""
+
+    root_joint: str
+    joints: tuple[str, ...]
+    joint_sign: np.ndarray
+    joint_offset: np.ndarray
+    actuators: tuple[int, ...]
+    bodies: SceneBodies
+    foot_geoms: tuple[tuple[int, ...], ...]
+    robot_geoms: np.ndarray
+    plant_model: dict | None = None
+
+
+_SCENE_BODIES: "weakref.WeakKeyDictionary[mujoco.MjSpec, SceneBodies]" = weakref.WeakKeyDictionary()
+
+
+def scene_bodies(spec: mujoco.MjSpec, robot: RobotModel) -> SceneBodies:
+    """The robot's bodies in the scene `spec` is building (for `spec_callback` edits: sites at a frame, payloads)."""
+    return _SCENE_BODIES.get(spec) or own_scene_bodies(robot)
+
+
+def register_scene_bodies(spec: mujoco.MjSpec, bodies: SceneBodies) -> None:
+    _SCENE_BODIES[spec] = bodies
+
+
+def own_scene_bodies(robot: RobotModel) -> SceneBodies:
+    names = tuple(body_names(robot))
+    return SceneBodies(names, tuple(pin.SE3.Identity() for _ in names))
+
+
+def build_scene(robot: RobotModel, config: MujocoPlantConfig | None = None) -> tuple[mujoco.MjModel, SceneRobot]:
+    """The compiled scene and where the robot is in it: wbmpc's own scene of `robot`, or with
+    `config.plant_model` that file's robot (`wbmpc.sim.plant_model`)."""
+    config = config or MujocoPlantConfig()
+    if config.plant_model is not None:
+        from wbmpc.sim.plant_model import build_plant_scene
+
+        return build_plant_scene(robot, config)
+    model = build_model(robot, config)
+    n = robot.n_joints
+    layout = SceneRobot(
+        root_joint=robot.model.names[1], joints=tuple(robot.joint_names), joint_sign=np.ones(n), joint_offset=np.zeros(n),
+        actuators=tuple(int(model.actuator(name).id) for name in robot.joint_names),
+        bodies=own_scene_bodies(robot), foot_geoms=tuple((int(model.geom(f).id),) for f in robot.feet),
+        robot_geoms=is_robot_geom(model))
+    return model, layout
 
 
 def body_names(robot: RobotModel) -> list[str]:
@@ -202,7 +284,7 @@ def self_contact_exclusions(robot: RobotModel, model: mujoco.MjModel, seed: int 
     body = np.asarray(model.geom_bodyid)
     pairs = [(g1, g2) for i, g1 in enumerate(robot_geoms) for g2 in robot_geoms[i + 1:]
              if body[g1] != body[g2] and parent[body[g1]] != body[g2] and parent[body[g2]] != body[g1]]
-    root = model.joint("root_joint")
+    root = model.joint(robot.model.names[1])
     qadr = np.array([model.joint(n).qposadr[0] for n in robot.joint_names])
 
     def pose(q):

@@ -1,8 +1,9 @@
 """Primitive collision shapes for a `RobotModel`, expressed in the frames of its pinocchio joints.
 
 Two sources, per moving body (= pinocchio joint):
-1. the URDF's own primitive collision geometry (box, cylinder, sphere, capsule) of the links merged
-   into that body, as pinocchio reads it (meshes are ignored), when present and allowed;
+1. the file's own primitive collision geometry (box, cylinder, sphere, capsule) of the links merged
+   into that body (a URDF's `<collision>` as pinocchio reads it, an MJCF's colliding geoms as MuJoCo
+   compiles them; meshes are ignored), when present and allowed;
 2. otherwise shapes guessed from the kinematics: a box spanning the children's joint origins for
    the floating base, and capsules from the joint origin to each child joint origin / frame of
    interest for the other bodies.
@@ -20,7 +21,6 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.robots import RobotModel
-from wbmpc.robots.urdf_geometry import collision_primitives
 
 MIN_SHAPE_SIZE_M = 0.005  # URDF shapes smaller than this in every direction (IMU boxes) are dropped
 SOLE_THICKNESS_M = 0.01  # box soles of flat feet
@@ -65,19 +65,19 @@ def robot_collision_shapes(
         frame = model.frames[robot.frame_id(robot.arm_ee)]
         centre = frame.placement.translation.copy()
         shapes.append(CollisionShape(robot.arm_ee, frame.parentJoint, "sphere", (ee_sphere_radius_m,), centre, np.eye(3)))
-    urdf = _urdf_primitives(robot) if use_urdf_primitives else {}
+    urdf = urdf_primitives(robot) if use_urdf_primitives else {}
     for jid in range(1, model.njoints):
         shapes.extend(urdf.get(jid) or _kinematic_shapes(robot, jid))
     return shapes
 
 
 # ------------------------------------------------------------------------------- URDF primitives
-def _urdf_primitives(robot: RobotModel) -> dict[int, list[CollisionShape]]:
+def urdf_primitives(robot: RobotModel) -> dict[int, list[CollisionShape]]:
     """URDF box/cylinder/sphere/capsule collisions (read by pinocchio, `wbmpc.robots.urdf_geometry`)
     grouped by the pinocchio joint that carries their link; none on the feet, none of IMU size."""
     foot_links = set(robot.feet)
     out: dict[int, list[CollisionShape]] = {}
-    for shape in collision_primitives(robot.model, robot.spec.urdf):
+    for shape in robot.collision_primitives():
         if shape.link in foot_links or max(shape.size) < MIN_SHAPE_SIZE_M:
             continue
         out.setdefault(shape.joint_id, []).append(

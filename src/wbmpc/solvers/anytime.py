@@ -28,7 +28,7 @@ time left (`QP_ITERATION_CAPS`, at least `min_qp_iterations`); a QP HPIPM does n
 step length: after hard pushes) still yields its last iterate, taken when the line search finds it lowers the
 merit (`details["inexact_steps"]`), and the step ends there; otherwise the step fails at once
 (`details["qp_failures"]`) and the MPC holds the last good plan shifted in time (`MpcConfig.recover_past_deadline`).
-Only a call without a deadline (the cold first step, `--delay none`) goes on to the capped Fatrop re-solve of
+Only a call without a deadline (the cold first step, `--delay-mode none`) goes on to the capped Fatrop re-solve of
 `RtiConfig.recovery_barrier_init`. On b1_z1 after 0.8 m/s pushes those re-solves and the MPC's IPOPT fallback took
 50-150 ms per failed step, the real-time rate fell to 53-63 Hz and the robot fell on stale plans.
 """
@@ -41,7 +41,7 @@ from typing import Callable
 
 import numpy as np
 
-from wbmpc.errors import ConfigError
+from wbmpc.errors import ConfigError, RunError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers.nlp import NlpResult, SolverConfig, SolverStats, bound_violation
 from wbmpc.solvers.qp import QpResult
@@ -54,7 +54,7 @@ QP_ITERATION_CAPS = (4, 6, 9, 12, 16, 20)
 COLD_QP_SHARE = 0.5  # a warm QP's share of the shortest cold one, at least (the budget floor, see `solve`)
 
 
-class DeadlineError(ConfigError):
+class DeadlineError(RunError):
     """The step's time budget is shorter than one SQP iteration."""
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from wbmpc.cache import default_cache_dir
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
 
@@ -66,13 +67,6 @@ class CompileReport:
         return {"library": str(self.library), "cached": self.cached, "source_mb": round(self.source_mb, 2),
                 "compile_s": round(self.compile_s, 2), "peak_memory_mb": round(self.peak_memory_mb, 1),
                 "generate_s": round(self.generate_s, 2)}
-
-
-def default_cache_dir() -> Path:
-    if os.environ.get("WBMPC_CACHE_DIR"):
-        return Path(os.environ["WBMPC_CACHE_DIR"])
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "wbmpc"
 
 
 def cache_key(code: str, config: CodegenConfig) -> str:

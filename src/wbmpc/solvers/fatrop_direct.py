@@ -7,7 +7,7 @@ callbacks with one generated call each, Fatrop instances are kept per row-count 
 `NlpSolver`) and options such as mu_init and max_iter change between calls on the same instance.
 
 Same problem, same row split and multiplier signs as casadi's plugin: the two solve to the same
-KKT point (tests/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
+KKT point (tests/solvers/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
 small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `fatrop_shim.DRIVER_SOURCE`):
 a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
 instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT

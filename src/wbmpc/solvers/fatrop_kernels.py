@@ -7,7 +7,7 @@ wb_inverse OCP (37 columns, 82 rows, rank 26 per stage) these two took ~40 % of 
 more than the Riccati recursion itself. `KERNELS_SOURCE` holds the same two operations written for
 panel-major storage with AVX2/FMA: the same pivots (the first largest |a| in column-major order, as
 Fatrop's search) and the same eliminations rounded the same way (the LU's factors and the triangular solve's
-result are bitwise BLASFEO's and Fatrop's on 3000 random shapes, ranks and ties), so the iterates are Fatrop's own (tests/test_fatrop_direct.py compares both).
+result are bitwise BLASFEO's and Fatrop's on 3000 random shapes, ranks and ties), so the iterates are Fatrop's own (tests/solvers/test_fatrop_direct.py compares both).
 
 They reach Fatrop through its procedure linkage table: `wbd_fatrop_kernels(1)` writes their addresses
 into libfatrop's GOT slots for those two symbols (found through its dynamic section), `(0)` puts the

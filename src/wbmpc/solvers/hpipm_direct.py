@@ -6,7 +6,7 @@ allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks fro
 J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
 equalities, and keeps HPIPM's memory between calls (`hpipm_shim.py`, C compiled once against the HPIPM
 and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
-as `StructuredQp` (tests/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
+as `StructuredQp` (tests/solvers/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
 In HPIPM's absolute mode (speed_abs) the equality multipliers are computed on exit (comp_dual_sol_eq): the SQP's
 merit penalty and dual residual need them, and casadi's conic cannot ask for them.

@@ -13,7 +13,7 @@ quadratic in the variables, so this Hessian is the Gauss-Newton one: positive de
 constraint curvature (RNEA, kinematics, friction cone) is left out, so no multipliers are needed
 to linearise and the QP stays convex. For the [h_com, q] formulations it is the exact cost Hessian
 (positive definite on the go2 tests). Iterated at a fixed state the step converges (linearly) to
-the KKT point Fatrop finds, on all six formulations (tests/test_rti.py). The Jacobian and cost gradient come from the same per-stage
+the KKT point Fatrop finds, on all six formulations (tests/solvers/test_rti.py). The Jacobian and cost gradient come from the same per-stage
 derivatives as the compiled Fatrop solver (`solvers/codegen.py`: one compiled library, cached);
 without `compiled` they are evaluated in CasADi's SX virtual machine.
 
@@ -59,7 +59,7 @@ QP_TOLERANCE = 1e-4  # RtiConfig.qp_tolerance
 FLAT_FOOT_RTI_QP_TOLERANCE = 1e-2
 FALLBACK_FIRST_CALLS = 20  # RtiConfig.fallback_first_calls on point feet
 # ... on flat feet: g1's failed QPs fail in "balance" too (the state, not the mode: iteration cap in both), and its
-# 20 balance-first QPs after each took 13.7 ms a step in real time against 8.2 with speed_abs first (i19g)
+# 20 balance-first QPs after each took 13.7 ms a step in real time against 8.2 with speed_abs first
 FLAT_FOOT_FALLBACK_FIRST_CALLS = 0
 
 

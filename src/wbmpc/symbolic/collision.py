@@ -1,4 +1,4 @@
-"""Capsule distances in CasADi SX: the collision avoidance rows of the OCP (issue 22, beyond the paper).
+"""Capsule distances in CasADi SX: the collision avoidance rows of the OCP (beyond the paper).
 
 Capsule end points are placed by forward kinematics in the base frame (a distance between two links does
 not depend on where the base is, so these rows read the joint angles only); against an obstacle, fixed

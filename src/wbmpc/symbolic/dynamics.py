@@ -12,7 +12,7 @@ zero/one entries of placements vanish through SX simplification, per-body dynami
 Newton-Euler equations about the centre of mass, and contact forces are rotated down the
 chain one joint at a time instead of through world Jacobians.
 
-Mass distribution (issue 22): a `Configuration` may carry `InertialParameters` (symbols of the NLP or
+Mass distribution: a `Configuration` may carry `InertialParameters` (symbols of the NLP or
 numbers): the base body's centre of mass moved by `base_com_offset` (base frame, its mass and rotational
 inertia about the CoM kept), a point mass `payload_kg` at `SymbolicDynamics.payload_frame` (the arm's
 end-effector, else the base origin) and, on a robot with an arm, optionally a second one `base_payload_kg` at

@@ -8,7 +8,7 @@
                        came closest to their limits (largest |tau| / tau_max) in a highlighted panel
 - `foot_heights.png`   foot clearance (pinocchio FK) with the planned stance phases shaded
 - `contact_forces.png` measured normal contact forces with the planned stance phases shaded
-- `solver.png`         solve time and iterations per MPC step against the 80 Hz budget
+- `solver.png`         solve time and iterations per MPC step against the MPC period (the run's rate)
 - `ee_force.png`       (manipulation scenarios) measured end-effector force against its target
 
 Every time plot marks the run's events (`RunMarks`): scripted events such as a push (dash-dot
@@ -31,12 +31,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from wbmpc.control.loop import MPC_RATE_HZ
 from wbmpc.errors import ConfigError
 
 DPI = 110
-MPC_BUDGET_MS = 1e3 / 80.0  # the paper's MPC rate (section V-B)
 PLOT_FULL_RATE_TICKS = 30_000  # up to 60 s at 500 Hz the plots get every control tick
-MAX_ITERATION_BARS = 4000  # up to 50 s at 80 Hz the solver plot draws a bar per MPC step
+MAX_ITERATION_BARS = 4000  # up to 50 s at 80 Hz the solver plot draws a bar per MPC step (a line beyond)
 COMMAND_STYLE = dict(color="black", linestyle="--", linewidth=1.4)
 STANCE_COLOR = "#9ecae1"
 HIGHLIGHT_COLOR = "#c0392b"
@@ -169,7 +169,7 @@ def _figure(width: float, height: float) -> Figure:
     return fig
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     return path
 
@@ -255,7 +255,7 @@ def base_velocity_figure(robot, data: dict, log, marks: RunMarks | None = None) 
 
 
 def plot_base_velocity(robot, data: dict, log, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(base_velocity_figure(robot, data, log, marks), path)
+    return save_figure(base_velocity_figure(robot, data, log, marks), path)
 
 
 EeError = Callable[[np.ndarray, np.ndarray], "tuple[np.ndarray, np.ndarray] | None"]
@@ -312,7 +312,7 @@ def ee_rmse_m(error: np.ndarray, use: np.ndarray) -> float:
 
 def plot_ee_position(robot, data: dict, path: Path, ee_reference: Callable | None, marks: RunMarks | None = None,
                      ee_error: EeError | None = None, error_label: str = "|p - p_ref|") -> Path:
-    return _save(ee_position_figure(robot, data, ee_reference, marks, ee_error, error_label), path)
+    return save_figure(ee_position_figure(robot, data, ee_reference, marks, ee_error, error_label), path)
 
 
 def _torque_panel(ax, t, tau, limits, labels, title) -> None:
@@ -391,7 +391,7 @@ def joint_torques_figure(robot, data: dict, marks: RunMarks | None = None) -> Fi
 
 
 def plot_joint_torques(robot, data: dict, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(joint_torques_figure(robot, data, marks), path)
+    return save_figure(joint_torques_figure(robot, data, marks), path)
 
 
 def _planned_intervals(robot, data: dict) -> list[list[tuple[float, float]]] | None:
@@ -437,7 +437,7 @@ def foot_heights_figure(robot, data: dict, marks: RunMarks | None = None) -> Fig
 
 
 def plot_foot_heights(robot, data: dict, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(foot_heights_figure(robot, data, marks), path)
+    return save_figure(foot_heights_figure(robot, data, marks), path)
 
 
 def contact_forces_figure(robot, data: dict, marks: RunMarks | None = None) -> Figure:
@@ -470,10 +470,11 @@ def contact_forces_figure(robot, data: dict, marks: RunMarks | None = None) -> F
 
 
 def plot_contact_forces(robot, data: dict, path: Path, marks: RunMarks | None = None) -> Path:
-    return _save(contact_forces_figure(robot, data, marks), path)
+    return save_figure(contact_forces_figure(robot, data, marks), path)
 
 
-def solver_figure(robot, data: dict, budget_ms: float = MPC_BUDGET_MS, marks: RunMarks | None = None) -> Figure:
+def solver_figure(robot, data: dict, budget_ms: float = 1e3 / MPC_RATE_HZ, marks: RunMarks | None = None) -> Figure:
+    """Solve time per MPC step against `budget_ms` (the MPC period) and the solver's iterations."""
     mpc_t, solve_ms, iterations = data["mpc_t"], data["solve_ms"].astype(float), data["iterations"]
     success = data["success"].astype(bool) if data["success"].size == mpc_t.size else np.ones(mpc_t.size, bool)
     marks = marks or RunMarks()
@@ -513,8 +514,8 @@ def solver_figure(robot, data: dict, budget_ms: float = MPC_BUDGET_MS, marks: Ru
     return fig
 
 
-def plot_solver(robot, data: dict, path: Path, budget_ms: float = MPC_BUDGET_MS, marks: RunMarks | None = None) -> Path:
-    return _save(solver_figure(robot, data, budget_ms, marks), path)
+def plot_solver(robot, data: dict, path: Path, budget_ms: float = 1e3 / MPC_RATE_HZ, marks: RunMarks | None = None) -> Path:
+    return save_figure(solver_figure(robot, data, budget_ms, marks), path)
 
 
 def ee_force_figure(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray, title: str = "end-effector force",
@@ -549,12 +550,12 @@ def ee_force_figure(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray,
 
 def plot_ee_force(t: np.ndarray, measured_n: np.ndarray, target_n: np.ndarray, path: Path,
                   title: str = "end-effector force", marks: RunMarks | None = None) -> Path:
-    return _save(ee_force_figure(t, measured_n, target_n, title, marks), path)
+    return save_figure(ee_force_figure(t, measured_n, target_n, title, marks), path)
 
 
 # ----------------------------------------------------------------------------- entry point
 def save_plots(robot, log, out_dir, ee_reference: Callable[[float], np.ndarray] | None = None,
-               budget_ms: float = MPC_BUDGET_MS, ee_error: EeError | None = None,
+               budget_ms: float | None = None, ee_error: EeError | None = None,
                ee_error_label: str = "|p - p_ref|") -> list[Path]:
     """Write the diagnostic PNGs of a run into `out_dir` (created) and return their paths.
 
@@ -562,7 +563,7 @@ def save_plots(robot, log, out_dir, ee_reference: Callable[[float], np.ndarray] 
     `ee_error(t, ee) -> (error (n, 3), mask)` the tracking error behind the run's `ee_pos_rmse_m`
     (the plot's RMSE is then the metric's). The end-effector plot is skipped for robots without
     an arm, the solver plot for logs without MPC steps. The run's events (`RunMarks.from_log`)
-    are marked on every plot.
+    are marked on every plot. `budget_ms`: the solve-time line of the solver plot; None: the run's MPC period.
     """
     # a long run is plotted from every k-th control tick (k = ceil(ticks / PLOT_FULL_RATE_TICKS)): a PNG
     # shows no more, and the whole 500 Hz run would not fit in memory for long; the MPC steps stay whole
@@ -588,5 +589,7 @@ def save_plots(robot, log, out_dir, ee_reference: Callable[[float], np.ndarray] 
     if data["contact_forces"].ndim == 3 and data["contact_forces"].shape[0] == t.size:
         paths.append(plot_contact_forces(robot, data, out / "contact_forces.png", marks))
     if data["mpc_t"].size:
+        if budget_ms is None:
+            budget_ms = 1e3 / (getattr(log, "mpc_rate_hz", None) or MPC_RATE_HZ)
         paths.append(plot_solver(robot, data, out / "solver.png", budget_ms, marks))
     return paths

@@ -2,8 +2,8 @@
 meshcat's offline viewer (three.js, shipped in the `meshcat` wheel), as Crocoddyl and aligator show
 their trajectories.
 
-`save_replay(robot, time_s, q, out_path)` loads the robot's geometry with pinocchio's URDF parser
-(visual meshes of example-robot-data; if they are missing: the URDF's collision geometry; if that is
+`save_replay(robot, time_s, q, out_path)` loads the robot's geometry with pinocchio's URDF (or MJCF) parser
+(visual meshes of example-robot-data; if they are missing: the file's collision geometry; if that is
 missing too: the primitive shapes of the MuJoCo scene, `wbmpc.sim.shapes`, with a warning that says
 so), draws it through `MeshcatVisualizer` into a recorder instead of a meshcat server, samples the
 run at `fps` and records every geometry's placement (`pin.updateGeometryPlacements`) as one meshcat
@@ -81,7 +81,7 @@ def robot_geometry(robot) -> tuple[pin.GeometryModel, str]:
 
 
 def _index_path(robot) -> Path | None:
-    urdf = Path(robot.spec.urdf)
+    urdf = robot.model_file
     try:
         stat = urdf.stat()
     except OSError:
@@ -142,11 +142,14 @@ def _geometry_from_index(index: dict) -> tuple[pin.GeometryModel, str]:
 
 
 def _parse_geometry(robot) -> tuple[pin.GeometryModel, str]:
-    urdf = Path(robot.spec.urdf)
+    urdf = robot.model_file
     problems = []
     for kind, source in ((pin.GeometryType.VISUAL, GEOMETRY_SOURCES[0]), (pin.GeometryType.COLLISION, GEOMETRY_SOURCES[1])):
         try:
-            geometry = pin.buildGeomFromUrdf(robot.model, str(urdf), kind, package_dirs=_package_dirs(urdf))
+            if robot.mjcf is not None:  # an MJCF robot: its geoms as pinocchio reads them (and a mounted arm's)
+                geometry = robot.geometry(kind)
+            else:
+                geometry = pin.buildGeomFromUrdf(robot.model, str(urdf), kind, package_dirs=_package_dirs(urdf))
         except (RuntimeError, ValueError, OSError) as exc:
             problems.append(f"{source}: {str(exc).splitlines()[0]}")
             continue
@@ -218,7 +221,7 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_triangles: int) -> tup
 
 
 def _cache_dir() -> Path:
-    from wbmpc.solvers.codegen import default_cache_dir
+    from wbmpc.cache import default_cache_dir
 
     return default_cache_dir() / "replay_meshes"
 

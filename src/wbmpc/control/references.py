@@ -1,0 +1,131 @@
+"""The per-step targets of the cost (eq. 3) and the swing-feet references, formed from the commands.
+
+The base follows the commanded velocity from a position reference (`ReferenceConfig.base_tracking`), the
+joints a nominal posture moved with the feet (`foot_placement.StanceReference`); bipeds lean over their
+next stance foot (`sway_towards_support`) and carry their swing feet to a landing point (`swing_velocities`).
+On a terrain (`ReferenceConfig.terrain`) the base rides over its support and the feet land on it
+(`terrain_step`, control/terrain_references.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from wbmpc.control.commands import Commands
+from wbmpc.control.config import ReferenceConfig
+from wbmpc.control.foot_placement import StanceReference, SwingPlacement
+from wbmpc.control.terrain_references import TerrainReferences, TerrainStep
+from wbmpc.gait import GaitClock, SwingProfile
+from wbmpc.robots import RobotModel
+
+MAX_ANCHOR_OFFSET_M = 0.3  # the base's position reference stays this close to the measured base (no wind-up)
+
+
+class References:
+    """Targets of one robot's steps; keeps the base's position reference between steps (`reset` forgets it)."""
+
+    def __init__(self, robot: RobotModel, config: ReferenceConfig, gait: GaitClock, difference,
+                 swing: SwingProfile | None = None):
+        self.robot = robot
+        self.config = config
+        self.gait = gait
+        self._difference = difference  # the MPC's buffered q (-) q over the nodes
+        self._data = robot.model.createData()
+        self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
+        self._stance_reference = StanceReference(robot) if config.stance_posture else None
+        self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
+        # on a terrain (not the flat floor): its footholds, swing splines, cone normals and base targets
+        self.terrain = TerrainReferences(robot, config.terrain, swing or SwingProfile(), config.footholds) \
+            if config.terrain is not None and not config.terrain.is_flat else None
+        # the base's position reference (`base_tracking` "position": the commanded velocity integrated from where the
+        # run started; "velocity": the measured base of the last step), world x/y and yaw; None before a step
+        self.anchor_xy_m: np.ndarray | None = None
+        self.anchor_yaw_rad: float | None = None
+        self.last_t_s: float | None = None  # time of the last step's targets
+
+    def reset(self) -> None:
+        self.anchor_xy_m = None
+        self.anchor_yaw_rad = None
+        self.last_t_s = None
+        if self.terrain is not None:
+            self.terrain.reset()
+
+    def ee_free(self, commands: Commands) -> bool:
+        """The end-effector's velocity rows are dropped this step (`free_ee_without_command`, no command)."""
+        return bool(self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None)
+
+    def targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float, node_times: np.ndarray):
+        """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the
+        commanded base velocity in world coordinates."""
+        robot = self.robot
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        dt_since = 0.0 if self.last_t_s is None else max(0.0, t_s - self.last_t_s)
+        self.last_t_s = t_s
+        velocity_only = self.config.base_tracking == "velocity"
+        if self.anchor_xy_m is None or velocity_only:
+            self.anchor_xy_m, self.anchor_yaw_rad = q[:2].copy(), yaw
+        cos_y, sin_y = np.cos(self.anchor_yaw_rad), np.sin(self.anchor_yaw_rad)
+        heading = np.array([[cos_y, -sin_y, 0], [sin_y, cos_y, 0], [0, 0, 1]])
+        v_world = heading @ np.asarray(commands.base_velocity_m_s, dtype=float)
+        if not velocity_only:
+            self.anchor_xy_m = self.anchor_xy_m + v_world[:2] * dt_since
+            self.anchor_yaw_rad = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * dt_since
+        offset = self.anchor_xy_m - q[:2]
+        if np.linalg.norm(offset) > MAX_ANCHOR_OFFSET_M:
+            self.anchor_xy_m = q[:2] + MAX_ANCHOR_OFFSET_M * offset / np.linalg.norm(offset)
+        targets = np.tile(robot.q_nominal, (len(node_times), 1))
+        if self._stance_reference is not None:
+            targets[:, 7:] += self._stance_reference.joint_offsets(
+                self.gait, t_s + node_times, np.asarray(commands.base_velocity_m_s, dtype=float),
+                commands.base_yaw_rate_rad_s)
+        targets[:, :2] = self.anchor_xy_m + np.outer(node_times, v_world[:2])
+        if commands.base_height_m is not None:
+            targets[:, 2] = commands.base_height_m
+        yaws = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * node_times
+        targets[:, 3:7] = np.column_stack([np.zeros_like(yaws), np.zeros_like(yaws), np.sin(yaws / 2), np.cos(yaws / 2)])
+        if self.terrain is not None:  # height over the terrain's support, its pitch
+            self.terrain.shape_base_targets(targets, yaws)
+        dq_des = self._difference(np.tile(q, (len(node_times), 1)).T, targets.T, shaped=True)[0].copy()
+        v_des = np.zeros(robot.nv)
+        v_des[:3] = rot.T @ v_world
+        v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
+        return dq_des, v_des, v_world
+
+    def sway(self, commands: Commands) -> float:
+        """The share of the lean over the stance feet this step (`support_sway`, `support_sway_free_ee`)."""
+        if self.config.support_sway_free_ee is not None and self.ee_free(commands):
+            return self.config.support_sway_free_ee
+        return self.config.support_sway
+
+    def sway_towards_support(self, q: np.ndarray, rot: np.ndarray, dq_des: np.ndarray, t_s: float,
+                             node_times: np.ndarray, sway: float) -> np.ndarray:
+        """Base xy targets moved by `sway` x (centre of each node's stance feet `support_lead_s` later - centre
+        of all feet): a biped's pelvis leans over the foot it will stand on, so the plan shifts its weight in
+        double support instead of lifting a foot with the CoM between the feet (measured foot positions)."""
+        contact = self.gait.contact(t_s + node_times + self.config.support_lead_s)
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation[:2] for i in self._foot_ids])
+        stance = contact / np.maximum(contact.sum(axis=1, keepdims=True), 1)
+        shift = sway * (stance @ feet - feet.mean(axis=0))  # (nodes, 2) world
+        dq_des = dq_des.copy()  # (nv, nodes); its base position part is (nearly) in the base frame
+        dq_des[:3] += rot.T[:, :2] @ shift.T
+        return dq_des
+
+    def swing_velocities(self, q, v, rot, t_s, node_times, command_world) -> np.ndarray | None:
+        """Swing feet's xy velocity references to their landing points (`SwingPlacement`), or None."""
+        if self._swing_placement is None:
+            return None
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        return self._swing_placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world, yaw, feet)
+
+    def terrain_step(self, q, v, rot, t_s, node_times, command_world) -> TerrainStep | None:
+        """On a terrain, this step's swing references, footholds and cone normals (`TerrainReferences.step`)."""
+        if self.terrain is None:
+            return None
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        return self.terrain.step(self.gait, t_s, node_times, q, rot @ v[:3], command_world, yaw, feet)

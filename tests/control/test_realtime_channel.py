@@ -1,0 +1,56 @@
+"""The real-time loop's shared-memory channel carries requests and plans unchanged (both ends in one
+process here; tests/control/test_loop.py and tests/solvers/test_anytime.py run it across processes)."""
+
+import multiprocessing
+
+import numpy as np
+
+from wbmpc.control import Commands
+from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
+from wbmpc.control.solution import Solution
+from wbmpc.solvers.nlp import SolverStats
+
+
+def _solution(rng, status="Deadline", held=False) -> Solution:
+    n, nq, nv, nj = 7, 19, 18, 12
+    stats = SolverStats(status, True, 9, 0.004, 1e-7, 215.1, cpu_time_s=0.0039,
+                        details={"sqp_iterations": 2, "primal_residual": 1e-7, "dual_residual": None, "late": False})
+    solution = Solution(t_s=1.25, node_times_s=np.linspace(0, 0.5, n), q=rng.normal(size=(n, nq)),
+                        v=rng.normal(size=(n, nv)), a=rng.normal(size=(n - 1, nv)), forces=rng.normal(size=(n - 1, 12)),
+                        tau=rng.normal(size=(3, nj)), contact=rng.random((n, 4)) > 0.5, stats=stats, success=True)
+    solution.wall_time_s, solution.process_cpu_s = 0.0051, 12.5
+    if held:
+        solution.held_previous = True
+    return solution
+
+
+def test_requests_and_plans_cross_unchanged():
+    rng = np.random.default_rng(0)
+    first = _solution(rng)
+    command = Commands(base_velocity_m_s=np.array([0.2, 0.0, 0.0]), ee_force_n=np.array([0.0, 0.0, -5.0]))
+    layout = ChannelLayout.from_solution(first, len(command_row(command)))
+    events = SharedChannel.events(multiprocessing.get_context("spawn"))
+    sim = SharedChannel.create(layout, events)
+    solver = SharedChannel.attach(*sim.handle, events)
+    try:
+        q, v = rng.normal(size=19), rng.normal(size=18)
+        sim.send_request(q, v, command_row(command), 2.5, 0.006, 0.0095)
+        assert events[0].is_set() and not events[1].is_set()
+        q2, v2, row, t, delay_s, budget_s = solver.receive_request()
+        assert np.array_equal(q2, q) and np.array_equal(v2, v) and (t, delay_s, budget_s) == (2.5, 0.006, 0.0095)
+        assert np.array_equal(command_from_row(row).ee_force_n, command.ee_force_n)
+        plan = _solution(rng, status="ipopt: Solve_Succeeded (recovery after Deadline)", held=True)
+        solver.send_solution(plan)
+        assert events[1].is_set()
+        got = sim.receive_solution()
+        for name in ("node_times_s", "q", "v", "a", "forces", "tau", "contact", "q_joints"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(plan, name))
+        assert got.contact.dtype == bool and got.t_s == plan.t_s and got.success and got.held_previous
+        assert got.stats.status == plan.stats.status and got.stats.iterations == 9
+        assert got.stats.details == {"sqp_iterations": 2, "primal_residual": 1e-7, "late": 0.0}
+        assert (got.wall_time_s, got.process_cpu_s) == (0.0051, 12.5)
+        sim.send_stop()
+        assert solver.receive_request() is None
+    finally:
+        solver.close()
+        sim.close()

@@ -1,0 +1,212 @@
+"""The direct Fatrop binding (solvers/fatrop_direct.py) against casadi's Fatrop on a small go2 problem."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.robots import load_robot
+from wbmpc.solvers import make_solver
+from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
+from wbmpc.solvers.codegen import CodegenConfig
+from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
+
+TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="module")
+def problem(robot):
+    return OcpProblem(robot, TINY)
+
+
+@pytest.fixture(scope="module")
+def codegen(tmp_path_factory):
+    # -march=native: the AVX2 kernels of fatrop_kernels.py are compiled in where the CPU has AVX2/FMA
+    return CodegenConfig(flags=("-O0", "-march=native"), cache_dir=tmp_path_factory.mktemp("wbmpc_cache"))
+
+
+@pytest.fixture(scope="module")
+def direct(problem, codegen):
+    solver = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert solver.is_direct, solver.direct_error
+    return solver
+
+
+@pytest.fixture(scope="module")
+def step_data(robot, problem):
+    """p, bounds and initial guess of one MPC step (trot, moving base), as the MPC hands them to its solver."""
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
+    captured = {}
+    solve = mpc.solver.solve
+
+    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
+        captured.update(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(), x0=x0.copy())
+        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
+
+    mpc.solver.solve = spy
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    assert mpc.solve(robot.q_nominal, v0, t_s=0.1).success
+    return captured
+
+
+def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
+    """Tight tolerance: both follow the same iterates to the same KKT point; residuals below tolerance.
+    casadi's Fatrop runs on Fatrop's own elimination kernels, the direct binding on ours (fatrop_kernels.py)."""
+    config = SolverConfig(tolerance=1e-10, warm_barrier_init=None)
+    kernels = direct._library.lib.wbd_fatrop_kernels
+    kernels(0)
+    try:
+        expected = NlpSolver(problem, config).solve(**step_data)
+    finally:
+        assert (kernels(1) > 0) == direct.kernels
+    got = direct.recreated(tolerance=1e-10, warm_barrier_init=None).solve(**step_data)
+    assert expected.stats.success and got.stats.success, (expected.stats, got.stats)
+    assert got.stats.iterations == expected.stats.iterations
+    np.testing.assert_allclose(got.x, expected.x, atol=1e-8)
+    np.testing.assert_allclose(got.stats.cost, expected.stats.cost, rtol=1e-10)
+    scale = max(1.0, np.abs(expected.lam_g).max())
+    np.testing.assert_allclose(got.lam_g, expected.lam_g, atol=1e-6 * scale)
+    np.testing.assert_allclose(got.lam_x, expected.lam_x, atol=1e-6 * scale)
+    # residuals from casadi's own NLP constraint function, not the shim's
+    g = np.asarray(NlpSolver(problem)._g(got.x, step_data["p"])[0]).ravel()
+    lbx, ubx, lbg, ubg = (step_data[k] for k in ("lbx", "ubx", "lbg", "ubg"))
+    assert np.all(g >= lbg - config.constraint_tolerance) and np.all(g <= ubg + config.constraint_tolerance)
+    assert np.all(got.x >= lbx - config.constraint_tolerance) and np.all(got.x <= ubx + config.constraint_tolerance)
+    assert got.stats.max_constraint_violation <= config.constraint_tolerance
+    # the shim's violation (computed in C) is nlp.bound_violation's on casadi's g
+    assert got.stats.max_constraint_violation == pytest.approx(bound_violation(got.x, g, lbx, ubx, lbg, ubg), abs=1e-12)
+
+
+def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
+    """Our AVX2 LU and triangular solve (fatrop_kernels.py) against Fatrop's own: same iterations, same point."""
+    if not cpu_has_avx2_fma():
+        pytest.skip("the kernels need AVX2/FMA")
+    assert direct.kernels
+    solver = direct.recreated(tolerance=1e-10, warm_barrier_init=None)
+    kernels = direct._library.lib.wbd_fatrop_kernels
+    ours = solver.solve(**step_data)
+    assert kernels(0) == 0
+    try:
+        fatrops = solver.solve(**step_data)
+    finally:
+        assert kernels(1) > 0
+    assert ours.stats.success and fatrops.stats.success
+    assert ours.stats.iterations == fatrops.stats.iterations
+    np.testing.assert_allclose(ours.x, fatrops.x, atol=1e-10)
+    np.testing.assert_allclose(ours.lam_g, fatrops.lam_g, atol=1e-8 * max(1.0, np.abs(fatrops.lam_g).max()))
+
+
+def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
+    rng = np.random.default_rng(0)
+    x = step_data["x0"] + 0.01 * rng.normal(size=problem.n_variables)
+    expected = np.asarray(NlpSolver(problem)._g(x, step_data["p"])[0]).ravel()
+    np.testing.assert_allclose(direct.constraints(x, step_data["p"]), expected, atol=1e-10)
+
+
+def _trot_steps(robot, problem, solver_config, times=(0.1, 0.1125, 0.125, 0.2)):
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None), solver=solver_config), problem=problem)
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    return mpc, [mpc.solve(robot.q_nominal, v0, t_s=t) for t in times]
+
+
+def test_mpc_steps_match_casadis_fatrop(robot, problem, codegen):
+    """Through make_solver and the MPC (warm start, small-barrier attempts, contact changes between steps);
+    without the multiplier warm start both follow the same iterates."""
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
+                                                        extra_options={"warm_duals": False, "mpc_tolerances": False}))
+    assert isinstance(mpc.solver, FatropDirectSolver) and mpc.solver.is_compiled
+    for e, g in zip(expected, got):
+        assert e.success and g.success, (e.stats, g.stats)
+        assert g.stats.iterations == e.stats.iterations
+        np.testing.assert_allclose(g.x, e.x, atol=1e-8)
+
+
+def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
+    """With the primal-dual warm start (default) the steps converge to the same plans within the
+    solver tolerance, in no more iterations in total."""
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    _, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen,
+                                                      extra_options={"mpc_tolerances": False}))
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        np.testing.assert_allclose(g.x, e.x, atol=1e-3)
+        assert g.stats.max_constraint_violation <= SolverConfig().constraint_tolerance
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+
+
+def test_mpc_tolerances(robot, problem, codegen):
+    """By default the binding stops at its own MPC tolerances (fatrop_direct.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
+    the plans stay within them of casadi's Fatrop at SolverConfig's tolerances, in no more iterations;
+    tolerances set in SolverConfig are kept."""
+    from wbmpc.solvers.fatrop_direct import MPC_CONSTRAINT_TOLERANCE, MPC_TOLERANCE
+
+    _, expected = _trot_steps(robot, problem, SolverConfig())
+    mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    assert (mpc.solver.tolerance, mpc.solver.constraint_tolerance) == (MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE)
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        assert g.stats.max_constraint_violation <= MPC_CONSTRAINT_TOLERANCE
+        np.testing.assert_allclose(g.x, e.x, atol=1e-2)
+    assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
+    kept = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-6))
+    assert (kept.tolerance, kept.constraint_tolerance) == (1e-6, SolverConfig().constraint_tolerance)
+
+
+def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):
+    result = direct.solve(**step_data, max_iterations=1)
+    assert not result.stats.success and result.stats.status == "Maximum_Iterations_Exceeded"
+    # Fatrop's convergence check sees the iteration count before its increment: max_iter 1 stops after 2
+    assert result.stats.iterations <= 2 and np.all(np.isfinite(result.x))
+
+
+def test_a_new_row_structure_gets_its_own_fatrop(direct, step_data):
+    """A step whose rows split differently (a contact switch) is refused by the last Fatrop instance and solved by
+    one built for it; the next step of the first structure goes back to the first instance."""
+    solver = direct.recreated()
+    first = solver.solve(**step_data)
+    lbg, ubg = step_data["lbg"].copy(), step_data["ubg"].copy()
+    free = np.nonzero(np.isinf(lbg) & np.isinf(ubg))[0]
+    lbg[free[0]], ubg[free[0]] = -1e3, 1e3  # one more inequality row in some stage
+    other = solver.solve(**{**step_data, "lbg": lbg, "ubg": ubg})
+    again = solver.solve(**step_data)
+    assert first.stats.success and other.stats.success and again.stats.success
+    assert len(solver._by_structure) == 2
+    np.testing.assert_allclose(again.x, first.x, atol=1e-6)
+
+
+def test_nan_guess_is_refused(direct, step_data):
+    data = {**step_data, "x0": np.full_like(step_data["x0"], np.nan)}
+    assert direct.solve(**data).stats.status == "invalid_input_nan"
+
+
+def test_missing_compiler_falls_back_to_casadis_fatrop(problem, step_data, tmp_path):
+    config = SolverConfig(name="fatrop-direct", codegen=CodegenConfig(compiler="no-such-cc", cache_dir=tmp_path))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        solver = make_solver(problem, config)
+    assert not solver.is_direct and "no-such-cc" in solver.direct_error
+    assert any("casadi's Fatrop" in str(w.message) for w in caught)
+    assert solver.solve(**step_data).stats.success
+
+
+def test_deadline_returns_the_last_iterate_and_the_solver_stays_usable(direct, step_data):
+    """Fatrop has no time limit: the shim throws from a callback past the deadline and Fatrop returns."""
+    expected = direct.solve(**step_data)
+    stopped = direct.solve(**step_data, time_limit_s=1e-6)
+    assert stopped.stats.status == "time_limit_reached" and not stopped.stats.success
+    assert np.all(np.isfinite(stopped.x))
+    again = direct.solve(**step_data)
+    assert again.stats.success and again.stats.iterations == expected.stats.iterations
+    np.testing.assert_allclose(again.x, expected.x, atol=1e-12)

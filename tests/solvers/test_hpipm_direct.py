@@ -1,0 +1,133 @@
+"""Our HPIPM binding (`solvers/hpipm_direct.py`) solves the same QP as casadi's hpipm conic: same step and
+multipliers (CasADi's sign convention) on go2's trot QP, in every HPIPM mode including speed_abs, whose
+equality multipliers casadi's conic does not return; the RTI and anytime SQP use it where it builds."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig
+from wbmpc.robots import load_robot
+from wbmpc.solvers.hpipm_direct import DirectQp, HpipmUnavailable, make_qp
+from wbmpc.solvers.nlp import SolverConfig
+from wbmpc.solvers.qp import QpConfig, StructuredQp
+from wbmpc.solvers.rti import RtiSolver
+
+SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
+
+
+@pytest.fixture(scope="module")
+def qp_data():
+    """The QP of the first SQP iteration of go2's trot OCP from a moving state (with active bounds)."""
+    robot = load_robot("go2")
+    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None), solver=SolverConfig(name="rti")))
+    calls = []
+    solve = mpc.solver.solve
+
+    def recording(*args, **kwargs):
+        calls.append(args)
+        return solve(*args, **kwargs)
+
+    mpc.solver.solve = recording
+    v0 = np.zeros(robot.nv)
+    v0[:3] = [0.4, -0.2, 0.0]
+    mpc.solve(robot.q_nominal, v0, t_s=0.0)
+    (p, lbx, ubx, lbg, ubg, x0), = calls
+    problem, nlp = mpc.problem, mpc.problem.nlp
+    x, pp = nlp["x"], nlp["p"]
+    g, J = ca.Function("qp_jacobian", [x, pp], [nlp["g"], ca.jacobian(nlp["g"], x)])(x0, p)
+    gradient = ca.Function("qp_gradient", [x, pp], [ca.gradient(nlp["f"], x)])(x0, p)
+    H = ca.Function("qp_hessian", [x, pp], [ca.hessian(nlp["f"], x)[0] + 1e-6 * ca.SX.eye(x.numel())])(x0, p)
+    g = np.asarray(g).ravel()
+    return problem, (H, gradient, J, lbg - g, ubg - g, lbx - x0, ubx - x0)
+
+
+def _direct(problem, data, config):
+    try:
+        return DirectQp(problem, data[0].sparsity(), data[2].sparsity(), config)
+    except HpipmUnavailable as exc:
+        pytest.skip(f"no HPIPM binding here: {exc}")
+
+
+def _objective(data, step):
+    H, gradient = ca.DM(data[0]), np.asarray(gradient_of(data)).ravel()
+    return float(0.5 * step @ np.asarray(H.full()) @ step + gradient @ step)
+
+
+def gradient_of(data):
+    return data[1].full() if isinstance(data[1], ca.DM) else data[1]
+
+
+@pytest.mark.parametrize("mode", ["balance", "robust", "speed_abs"])
+def test_direct_hpipm_returns_casadis_solution(qp_data, mode):
+    """balance/robust: casadi's solution to 1e-6; speed_abs (absolute form, it exits on the barrier alone) is less exact,
+    but it returns the equality multipliers (casadi's conic returns zeros there): same QP optimum to 1e-5 relative."""
+    problem, data = qp_data
+    reference = StructuredQp(problem, data[0].sparsity(), data[2].sparsity(),
+                             QpConfig(mode="balance", tolerance=1e-6, max_iterations=200)).solve(*data)
+    assert reference.success, reference.status
+    direct = _direct(problem, data, QpConfig(mode=mode, tolerance=1e-6, max_iterations=200))
+    atol = 1e-6 if mode != "speed_abs" else 2e-2
+    for H, J in ((data[0], data[2]), (np.array(data[0].nonzeros()), np.array(data[2].nonzeros()))):  # DMs or nonzeros
+        result = direct.solve(H, data[1], J, *data[3:])
+        assert result.success, result.status
+        assert _objective(data, result.step) == pytest.approx(_objective(data, reference.step), rel=1e-5)
+        scale = max(1.0, np.abs(reference.step).max())
+        np.testing.assert_allclose(result.step / scale, reference.step / scale, atol=atol)
+        lam_scale = max(1.0, np.abs(reference.lam_g).max(), np.abs(reference.lam_x).max())
+        np.testing.assert_allclose(result.lam_g / lam_scale, reference.lam_g / lam_scale, atol=atol)
+        np.testing.assert_allclose(result.lam_x / lam_scale, reference.lam_x / lam_scale, atol=atol)
+    # some bounds and rows are active, and the dynamics multipliers are not zero: the comparison covers their signs
+    assert np.abs(reference.lam_x).max() > 1e-3 and np.abs(reference.lam_g[direct.gap_index]).max() > 1e-1
+
+
+def test_a_failed_direct_qp_reports_hpipms_status(qp_data):
+    problem, data = qp_data
+    result = _direct(problem, data, QpConfig(mode="speed_abs", tolerance=1e-10, max_iterations=1)).solve(*data)
+    assert not result.success and result.status == "QP_Maximum_Iterations_Exceeded" and result.iterations == 1
+
+
+def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypatch):
+    """Where the binding cannot be built (here: no compiler) the RTI and the anytime SQP warn, name the reason
+    (`direct_error`, the run's metrics `direct_fallback`) and run on casadi's conic: an MPC step still succeeds."""
+    problem, data = qp_data
+    rti = RtiSolver(problem, SolverConfig(name="rti"))
+    if rti.direct_error is not None:
+        pytest.skip(f"no HPIPM binding here: {rti.direct_error}")
+    assert rti.direct_qp and isinstance(rti.qp, DirectQp) and isinstance(rti.fallback_qp, DirectQp)
+    import wbmpc.solvers.hpipm_direct as hd
+
+    def unavailable(*args, **kwargs):
+        raise HpipmUnavailable("no compiler")
+
+    monkeypatch.setattr(hd, "_library", unavailable)
+    qp, error = make_qp(problem, data[0].sparsity(), data[2].sparsity(), QpConfig(mode="speed_abs"))
+    # casadi's conic in the relative mode: its speed_abs returns no equality multipliers
+    assert isinstance(qp, StructuredQp) and qp.config.mode == "speed" and "no compiler" in error
+    with pytest.warns(RuntimeWarning, match="direct binding is unavailable.*no compiler"):
+        fallback = RtiSolver(problem, SolverConfig(name="rti"))
+    assert not fallback.direct_qp and "no compiler" in fallback.direct_error
+    assert isinstance(fallback.qp, StructuredQp) and isinstance(fallback.fallback_qp, StructuredQp)
+    robot = load_robot("go2")
+    with pytest.warns(RuntimeWarning, match="direct binding is unavailable"):
+        mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.05))
+    assert all(isinstance(q, StructuredQp) for q in (mpc.solver.qp, *mpc.solver._capped.values()))
+    first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
+    second = mpc.solve(first.q[1], first.v[1], t_s=0.0125)
+    assert first.success and second.success, second.stats.status
+    from wbmpc.scenarios import RunConfig
+    from wbmpc.scenarios.runner import solver_summary
+
+    assert "no compiler" in solver_summary(mpc, RunConfig(solver="sqp", delay_ms=6.0))["direct_fallback"]
+
+
+def test_casadis_conic_on_request_and_bad_binding_names_the_fix(qp_data):
+    from wbmpc.errors import ConfigError
+
+    problem, _ = qp_data
+    conic = RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": "casadi"}))
+    assert not conic.direct_qp and isinstance(conic.qp, StructuredQp) and conic.qp.config.mode == "speed"
+    with pytest.raises(ConfigError, match="unknown hpipm_binding 'ctypes'; available: direct, casadi"):
+        RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": "ctypes"}))
