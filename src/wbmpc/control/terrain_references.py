@@ -176,7 +176,9 @@ class TerrainReferences:
                     height = height + error * (1 - s) / max(1 - s0, 1e-3)
                 vz[nodes, foot] = velocity
                 apex_plan[nodes, foot] = height
-        heights, normals = self.terrain.height_normal(stand)
+        unique, inverse = np.unique(stand.reshape(-1, 2), axis=0, return_inverse=True)  # a few footholds: exact
+        heights, normals = (values[inverse.ravel()].reshape(stand.shape[:-1] + values.shape[1:])
+                            for values in self.terrain.height_normal(unique))
         footholds = np.concatenate([stand, (heights + self._contact_height)[..., None]], axis=-1)
         N = n - 1
         return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
@@ -186,20 +188,19 @@ class TerrainReferences:
         with its hip at each of `hips` (k, 3)) over terrain beneath it that rises above the foot's own ground, less
         the shin's radius and SHIN_CLEARANCE_M (at most that margin: nothing under the shin rises); negative: it
         would touch."""
-        return np.min([self._shin_clearance_from(foot, hip, heading, feet_xy) for hip in np.atleast_2d(hips)], axis=0)
-
-    def _shin_clearance_from(self, foot: int, hip_xyz: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray):
+        hips = np.atleast_2d(hips)[:, None, :]  # (k, 1, 3), against the n points
         direction = heading[:, 0]
-        ground = self.terrain.height(feet_xy)
-        feet = np.column_stack([(feet_xy - hip_xyz[:2]) @ direction, ground + self._contact_height[foot]])
-        knees = self.shins.knees(foot, np.array([0.0, hip_xyz[2]]), feet)
-        share = np.linspace(SHIN_FROM, 1.0, SHIN_POINTS)[:, None, None]
-        points = feet[None] + share * (knees - feet)[None]  # (points, n, 2): along the heading from the hip, up
-        xy = hip_xyz[:2] + points[..., :1] * direction + (feet_xy - hip_xyz[:2] - ((feet_xy - hip_xyz[:2]) @ direction)[
-            :, None] * direction)[None]
+        ground = self.raster.height(feet_xy)
+        along = (feet_xy[None] - hips[..., :2]) @ direction  # (k, n): the feet along the heading from each hip
+        feet = np.stack([along, np.broadcast_to(ground + self._contact_height[foot], along.shape)], axis=-1)
+        knees = self.shins.knees(foot, np.stack([np.zeros_like(along), np.broadcast_to(hips[..., 2], along.shape)],
+                                                axis=-1), feet)
+        share = np.linspace(SHIN_FROM, 1.0, SHIN_POINTS)[:, None, None, None]
+        points = feet[None] + share * (knees - feet)[None]  # (points, k, n, 2): along the heading from the hip, up
+        xy = feet_xy + (points[..., 0] - along)[..., None] * direction  # the points' ground, beside the foot's line
         under = self.raster.height(xy)
         above = np.where(under > ground + RISE_M, points[..., 1] - under, np.inf)  # only over ground above the foot's
-        return np.minimum(above.min(axis=0) - self._shin_margin_m, self._shin_margin_m)
+        return np.minimum(above.min(axis=(0, 1)) - self._shin_margin_m, self._shin_margin_m)
 
     def _clear_of_shin(self, foot: int, target_xy: np.ndarray, hips: np.ndarray, heading: np.ndarray) -> np.ndarray:
         """`target_xy`, or if the shin would touch the terrain there (a knee-backward leg coming down a step, its shin
@@ -243,15 +244,15 @@ class TerrainReferences:
         if not in_progress:
             return target
         if committed is None or abs(committed[0] - lift_off_t) > 1e-3:  # a new swing
-            self._committed[foot] = (lift_off_t, target, float(self.terrain.height(target)))
+            self._committed[foot] = (lift_off_t, target, float(self.raster.height(target)))
             return target
         _, kept, level = committed
-        same_level = abs(float(self.terrain.height(target)) - level) <= self.footholds.config.edge_height_m
+        same_level = abs(float(self.raster.height(target)) - level) <= self.footholds.config.edge_height_m
         # ... unless, in the first half of the swing, the kept point's shin would now touch (the base came lower or
         # further than foreseen at lift-off)
         touching = progress < 0.5 and self._shin_clearance(foot, hips, heading, kept[None])[0] < 0
         if same_level or touching:
-            self._committed[foot] = (lift_off_t, target, float(self.terrain.height(target)))
+            self._committed[foot] = (lift_off_t, target, float(self.raster.height(target)))
             return target
         return kept
 
@@ -263,7 +264,7 @@ class TerrainReferences:
         leans = []
         for hip_xyz in np.atleast_2d(hips):
             foot_sz = np.array([[(target_xy - hip_xyz[:2]) @ heading[:, 0],
-                                 float(self.terrain.height(target_xy)) + self._contact_height[foot]]])
+                                 float(self.raster.height(target_xy)) + self._contact_height[foot]]])
             knee = self.shins.knees(foot, np.array([0.0, hip_xyz[2]]), foot_sz)[0]
             leans.append(float((knee[0] - foot_sz[0, 0]) / max(knee[1] - foot_sz[0, 1], 1e-3)))
         return max(leans, key=abs)
@@ -272,7 +273,7 @@ class TerrainReferences:
                        heading: np.ndarray | None = None, hips: np.ndarray | None = None):
         """(lift-off, apex, touch-down heights of the contact frame, apex share) of a swing between two points."""
         contact = self._contact_height[foot]
-        ground = self.terrain.height(np.stack([lift_off_xy, target_xy]))
+        ground = self.raster.height(np.stack([lift_off_xy, target_xy]))
         profile = self.raster.path_heights(lift_off_xy, target_xy, self._foot_extent)  # under the foot's centre path
         h0, h1 = ground[0] + contact, ground[1] + contact
         apex = max(float(profile.max()), float(ground.max())) + contact + self.swing.apex_height_m
@@ -302,11 +303,10 @@ class TerrainReferences:
         # the apex share nearest eq. (6)'s 1/2 whose spline clears them where the foot's xy path (3 s^2 - 2 s^3 of
         # the way) gets there
         progress = np.interp(checked / max(n - 1, 1), *self._progress_of_share)
-        for share in APEX_SHARES:
-            height, _ = swing_between(progress, 1.0, h0, apex, h1, share)
-            if np.all(height >= needed[checked]):
-                return h0, apex, h1, float(share)
-        return h0, apex, h1, 0.5
+        height, _ = swing_between(np.broadcast_to(progress, (len(APEX_SHARES), len(progress))), 1.0, h0, apex, h1,
+                                  APEX_SHARES[:, None])
+        clears = np.flatnonzero(np.all(height >= needed[checked], axis=1))
+        return h0, apex, h1, float(APEX_SHARES[clears[0]]) if clears.size else 0.5
 
 
 class LegShins:
@@ -349,7 +349,7 @@ class LegShins:
         self.legged = np.array(legged)
 
     def knees(self, foot: int, hip_sz: np.ndarray, feet_sz: np.ndarray) -> np.ndarray:
-        """Knee positions (n, 2) in a sagittal plane (along the heading, up) for the hip (2,) and feet (n, 2)."""
+        """Knee positions (..., 2) in a sagittal plane (along the heading, up) for hips and feet (..., 2)."""
         thigh, shin = self.lengths_m[foot]
         d = feet_sz - hip_sz
         distance = np.clip(np.linalg.norm(d, axis=-1), abs(thigh - shin) + 1e-6, thigh + shin - 1e-6)

@@ -47,7 +47,7 @@ class FootholdMap:
 
     def __init__(self, terrain: Terrain, config: FootholdConfig = FootholdConfig()):
         self.terrain, self.config = terrain, config
-        raster = terrain.raster(config.resolution_m, margin_m=config.keep_out_m + 0.2)
+        raster = terrain.raster(config.resolution_m, margin_m=max(config.keep_out_m + 0.2, 0.5))
         self.raster = raster
         heights = raster.heights_m
         edges = np.zeros(heights.shape, dtype=bool)

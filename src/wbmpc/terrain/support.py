@@ -5,7 +5,8 @@ and `reach_m` ahead of and behind it, and fits the plane z = c0 + c1 x + c2 y (h
 by least squares: c0 is the height under the base, c1 the slope along the heading. The MPC's base height and
 pitch targets follow it (`wbmpc.control.terrain_references`), the fall check and the scenarios' hand
 references measure heights from it. The fit's pseudo-inverse is the same for every pose (the samples are
-fixed in the heading frame): one matrix product per query, vectorised over poses.
+fixed in the heading frame): one matrix product per query, vectorised over poses, on the terrain's 1 cm raster (the
+fits run on every MPC step and, for the fall check, every control tick).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ class SupportFootprint:
 
     def __init__(self, terrain: Terrain, foot_offsets_m: np.ndarray, reach_m: float):
         self.terrain = terrain
+        self._raster = terrain.raster()  # 1 cm cells: the fits run on every MPC step and every control tick
         offsets = np.asarray(foot_offsets_m, dtype=float).reshape(-1, 2)
         along = np.linspace(-reach_m, reach_m, SAMPLES_ALONG)
         self.samples_m = (offsets[:, None, :] + np.stack([along, np.zeros_like(along)], axis=-1)[None]).reshape(-1, 2)
@@ -38,7 +40,7 @@ class SupportFootprint:
         c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
         dx, dy = self.samples_m[:, 0], self.samples_m[:, 1]
         points = np.stack([xy[..., None, 0] + c * dx - s * dy, xy[..., None, 1] + s * dx + c * dy], axis=-1)
-        heights = self.terrain.height(points)  # (..., samples)
+        heights = self._raster.height(points)  # (..., samples)
         fit = heights @ self._fit.T
         residual = heights - fit @ self._design.T
         return np.concatenate([fit, np.sqrt(np.mean(residual**2, axis=-1, keepdims=True))], axis=-1)

@@ -135,7 +135,7 @@ class Terrain:
         points = np.concatenate([p.corners() for p in self.pieces])
         return (*points.min(axis=0), *points.max(axis=0))
 
-    def raster(self, resolution_m: float = 0.01, margin_m: float = 0.3) -> "TerrainRaster":
+    def raster(self, resolution_m: float = 0.01, margin_m: float = 0.5) -> "TerrainRaster":
         """The heights and normals sampled at the centres of a grid over the pieces' bounds plus `margin_m` (cached;
         coarser than asked if the grid would exceed RASTER_MAX_CELLS)."""
         key = (float(resolution_m), float(margin_m))
@@ -194,11 +194,12 @@ class TerrainRaster:
 
     def cell(self, xy) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(row, column, inside the grid) of points xy (..., 2)."""
-        g = (np.asarray(xy, dtype=float) - self.origin_m) / self.resolution_m
-        j, i = np.floor(g[..., 0]).astype(int), np.floor(g[..., 1]).astype(int)
-        rows, cols = self.shape
+        g = np.floor((np.asarray(xy, dtype=float) - self.origin_m) / self.resolution_m).astype(np.intp)
+        j, i = g[..., 0], g[..., 1]
+        rows, cols = self.heights_m.shape
         inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
-        return np.clip(i, 0, rows - 1), np.clip(j, 0, cols - 1), inside
+        # (np.minimum / np.maximum: np.clip's wrappers cost more than the lookup on the MPC's small arrays)
+        return np.minimum(np.maximum(i, 0), rows - 1), np.minimum(np.maximum(j, 0), cols - 1), inside
 
     def centre(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         return self.origin_m + (np.stack([j, i], axis=-1) + 0.5) * self.resolution_m
