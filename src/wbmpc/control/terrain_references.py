@@ -44,6 +44,7 @@ APEX_SHARES = np.array([0.5, 0.45, 0.55, 0.4, 0.6, 0.35, 0.65, 0.3, 0.7])
 RISE_M = 0.02  # ground this much above the lift-off point counts as something to step over
 MAX_HEIGHT_CORRECTION_M_S = 1.0  # at most this vertical velocity re-plans a swing in progress onto the terrain
 KEEP_OUT_MARGIN_M = 0.05  # keep-out band: the foot's own extent (sphere radius, half a sole) plus this
+SOLE_MARGIN_M = 0.02  # ... plus this for a flat foot (g1: 11 cm, leaving 8 cm of a 30 cm tread)
 SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length ahead of and behind each foot
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
@@ -61,9 +62,15 @@ SHIN_SHIFTS_M = np.r_[np.arange(-0.15, 0.0, 0.01), np.arange(0.01, 0.151, 0.01)]
 
 
 def default_footholds(robot: RobotModel) -> FootholdConfig:
-    """The keep-out band of a robot: its feet's extent from their contact point plus KEEP_OUT_MARGIN_M."""
-    extent = max([robot.foot_radius_m or 0.0] + [max(s.half_length_m, s.half_width_m) for s in robot.soles.values()])
-    return FootholdConfig(keep_out_m=extent + KEEP_OUT_MARGIN_M)
+    """The keep-out band of a robot: its feet's extent from their contact point (a sphere's radius, half a sole's
+    length) plus KEEP_OUT_MARGIN_M (a point foot rolls on its sphere) or SOLE_MARGIN_M (a sole lies flat)."""
+    extent = foot_extent_m(robot)
+    return FootholdConfig(keep_out_m=extent + (SOLE_MARGIN_M if robot.soles else KEEP_OUT_MARGIN_M))
+
+
+def foot_extent_m(robot: RobotModel) -> float:
+    """How far a foot reaches from its contact point: a sphere's radius, half a sole's length (or width)."""
+    return max([robot.foot_radius_m or 0.0] + [max(s.half_length_m, s.half_width_m) for s in robot.soles.values()])
 
 
 @dataclass
@@ -91,7 +98,7 @@ class TerrainReferences:
         self._shin_margin_m = SHIN_CLEARANCE_M + shin_radius_m(robot)
         self._base_height_m = float(robot.q_nominal[2])
         self.ride_max_m = ride_limit_m(robot)
-        self._foot_extent = default_footholds(robot).keep_out_m - KEEP_OUT_MARGIN_M
+        self._foot_extent = foot_extent_m(robot)
         self.support = support_footprint(robot, terrain)
         self.follows_pitch = len(robot.feet) >= 3
         self._pitch_offsets = _pitch_posture_table(robot, PITCH_TABLE_RAD) if self.follows_pitch else None

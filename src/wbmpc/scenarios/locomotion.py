@@ -38,11 +38,11 @@ class TrotForward(Scenario):
         return self._file_terrain
 
     def commands(self, robot):
+        from wbmpc.scenarios.terrain import TerrainHand, carries_hand
+
         velocity = np.array([self.options.speed_m_s, 0.0, 0.0])
         terrain = self.terrain(robot)
-        if terrain is not None and robot.arm_ee is not None:  # the hand carried over the terrain
-            from wbmpc.scenarios.terrain import TerrainHand
-
+        if terrain is not None and carries_hand(robot):  # the hand carried over the terrain
             return TerrainHand(robot, terrain, self.start_pose(robot), self.options.speed_m_s,
                                self.default_duration_s).command(velocity)
         return lambda t_s, q, v: Commands(base_velocity_m_s=velocity)

@@ -10,7 +10,7 @@ the time the base is over the course). Metrics beyond the common ones: the terra
 and the course's progress here (`course_completed`, `progress_m`).
 
 `TerrainHand` is the hand reference of any scenario on a terrain (trot-forward / walk-forward with --terrain,
-arm-track and pull on a slope).
+arm-track and pull on a slope); a biped's hands swing free (`carries_hand`).
 """
 
 from __future__ import annotations
@@ -46,6 +46,11 @@ def feet_extent(robot: RobotModel) -> tuple[float, float]:
     xs = np.array([positions[robot.contact_frame(f)][0, 0] for f in robot.feet])
     extent = max([robot.foot_radius_m or 0.0] + [s.half_length_m + abs(s.centre_m[0]) for s in robot.soles.values()])
     return float(xs.max() + extent), float(xs.min() - extent)
+
+
+def carries_hand(robot: RobotModel) -> bool:
+    """Whether a walk over a terrain carries the hand along a reference: a legged base with an arm, not a biped."""
+    return robot.arm_ee is not None and len(robot.feet) >= 3
 
 
 class TerrainHand:
@@ -111,6 +116,14 @@ class TerrainCourse(Scenario):
     def course(self, robot: RobotModel, start_x_m: float) -> Terrain:
         raise NotImplementedError
 
+    def course_start_x(self, terrain: Terrain) -> float:
+        """Where the course begins along x (its first riser, ramp or gap)."""
+        return float(terrain.bounds()[0])
+
+    def course_end_x(self, terrain: Terrain) -> float:
+        """Where the course ends along x: a run crosses it when the rear feet are past this."""
+        return course_end_x(terrain)
+
     def check(self, robot: RobotModel) -> None:
         """Build the course for `robot` (and the default duration: across it at --speed)."""
         if abs(self.options.speed_m_s) < 0.02:
@@ -126,12 +139,14 @@ class TerrainCourse(Scenario):
             self._robot = robot
             self._terrain = self.course(robot, front + COURSE_CLEARANCE_M)
             self._hand = None
-            distance = course_end_x(self._terrain) - rear + COURSE_CLEARANCE_M
+            distance = self.course_end_x(self._terrain) - rear + COURSE_CLEARANCE_M
             self.default_duration_s = round(START_S + distance / abs(self.options.speed_m_s), 1)
         return self._terrain
 
     def hand(self, robot: RobotModel) -> TerrainHand | None:
-        if robot.arm_ee is None:
+        """The hand's reference of a legged base carrying an arm; None without an arm and on two feet (a humanoid's
+        hands swing free as it walks: `ReferenceConfig.free_ee_without_command`)."""
+        if not carries_hand(robot):
             return None
         if self._hand is None:
             self._hand = TerrainHand(robot, self.terrain(robot), self.start_pose(robot), self.options.speed_m_s,
@@ -154,7 +169,7 @@ class TerrainCourse(Scenario):
         a = log.arrays(("t", "q"))
         terrain = self.terrain(robot)
         _, rear = feet_extent(robot)
-        start_x, end_x = terrain.bounds()[0], course_end_x(terrain)
+        start_x, end_x = self.course_start_x(terrain), self.course_end_x(terrain)
         base_x = a["q"][:, 0]
         start_q = self.start_pose(robot)
         out.update({"progress_m": float(base_x[-1] - start_q[0]),
@@ -213,7 +228,16 @@ class SteppingStones(TerrainCourse):
                          options)
 
     def course(self, robot, start_x_m):
-        return stepping_stones(self.options.gap_m, start_x_m, stone_m=self.options.stone_size_m)
+        front, rear = feet_extent(robot)
+        # the end platform holds the whole robot with room ahead once its rear feet are off the stones
+        return stepping_stones(self.options.gap_m, start_x_m, stone_m=self.options.stone_size_m,
+                               platform_m=max(1.5, front - rear + 1.0))
+
+    def course_start_x(self, terrain):
+        return float(next(p for p in terrain.pieces if p.name == "start").corners()[:, 0].max())
+
+    def course_end_x(self, terrain):
+        return float(next(p for p in terrain.pieces if p.name == "end").corners()[:, 0].min())
 
 
 def file_terrain(options: ScenarioOptions) -> Terrain | None:

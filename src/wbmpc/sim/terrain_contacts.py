@@ -45,6 +45,7 @@ class TerrainContactMonitor:
         self._robot = is_robot_geom(model)
         self._feet = {int(model.geom(f).id): k for k, f in enumerate(robot.feet)}
         self._edges = FootholdMap(terrain, FootholdConfig(keep_out_m=0.0)) if terrain.pieces else None
+        self._raster = terrain.raster()  # normals and edge distances looked up on its 1 cm cells (every step)
         self._load_n = SLIP_LOAD_SHARE * robot.mass_kg * GRAVITY_M_S2 / len(robot.feet)
         self._force = np.zeros(6)
         self._velocity = np.zeros(6)
@@ -87,10 +88,10 @@ class TerrainContactMonitor:
                 frame = d.contact.frame[c].reshape(3, 3)
                 position = d.contact.pos[c]
                 normal = frame[0] if mine == g2 else -frame[0]  # pointing from the terrain to the foot
-                _, terrain_normal = self.terrain.height_normal(position[:2])
+                i, j, inside = self._raster.cell(position[:2])
+                terrain_normal = self._raster.normals[i, j] if inside else np.array([0.0, 0.0, 1.0])
                 tilted = float(normal @ terrain_normal) < np.cos(np.deg2rad(EDGE_ANGLE_DEG))
-                near_edge = self._edges is not None and \
-                    float(_edge_distance(self._edges, position[:2])) < EDGE_DISTANCE_M
+                near_edge = self._edges is not None and inside and self._edges.edge_distance_m[i, j] < EDGE_DISTANCE_M
                 on_edge[foot] |= tilted or near_edge
                 mujoco.mj_contactForce(m, d, c, self._force)
                 if self._force[0] > self._load_n:
@@ -136,7 +137,3 @@ class TerrainContactMonitor:
             "first_body_terrain_contact": self.first_body_contact,
         }
 
-
-def _edge_distance(footholds: FootholdMap, xy: np.ndarray) -> float:
-    i, j, inside = footholds.raster.cell(xy)
-    return float(footholds.edge_distance_m[i, j]) if inside else np.inf
