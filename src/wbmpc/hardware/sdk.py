@@ -6,7 +6,8 @@ wheel and needs a C build of CycloneDDS (CYCLONEDDS_HOME); cyclonedds 11 install
 runs the SDK's channels and IDL types unchanged. The 1.0.1 wheel's top-level `__init__` imports a
 `b2` package that is not in the wheel, and its CRC helper loads a `crc_amd64.so` that is not
 either: we load the SDK's subpackages without the top-level `__init__` and compute the CRC in
-`wbmpc.hardware.crc`.
+`wbmpc.hardware.crc`. The SDK's channels print their reader errors ("[Reader] take sample error") on
+stdout, from DDS threads: they go to stderr here, so that `--json` output stays one JSON object.
 """
 
 from __future__ import annotations
@@ -60,6 +61,11 @@ class Sdk:
 _SDK: Sdk | None = None
 
 
+def _print_to_stderr(*args, **kwargs) -> None:
+    kwargs["file"] = sys.stderr
+    print(*args, **kwargs)
+
+
 def load_sdk() -> Sdk:
     """Import unitree_sdk2py's channel and IDL modules (once), or a ConfigError saying how to install them."""
     global _SDK
@@ -74,6 +80,7 @@ def load_sdk() -> Sdk:
         package.__spec__ = spec
         sys.modules["unitree_sdk2py"] = package
     try:
+        from unitree_sdk2py.core import channel
         from unitree_sdk2py.core.channel import (
             ChannelFactoryInitialize,
             ChannelPublisher,
@@ -89,6 +96,7 @@ def load_sdk() -> Sdk:
         from unitree_sdk2py.idl.unitree_hg.msg import dds_ as hg
     except ImportError as exc:
         raise ConfigError(f"Unitree SDK2 Python could not be loaded ({exc}); reinstall it: {INSTALL_HINT}") from None
+    channel.print = _print_to_stderr  # the module's own `print` (its reader threads' diagnostics)
     _SDK = Sdk(ChannelFactoryInitialize, ChannelPublisher, ChannelSubscriber, LowState_, LowCmd_,
                unitree_go_msg_dds__LowState_, unitree_go_msg_dds__LowCmd_,
                Idl(hg.LowState_, hg.LowCmd_, unitree_hg_msg_dds__LowState_, unitree_hg_msg_dds__LowCmd_))

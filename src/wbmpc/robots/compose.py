@@ -282,7 +282,7 @@ def compose_on_mjcf(base_mjcf: Path, arm: ArmMount, cache_dir: Path | None = Non
     text = ET.tostring(root, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     if cache_dir is None:
-        from wbmpc.solvers.codegen import default_cache_dir
+        from wbmpc.cache import default_cache_dir
 
         cache_dir = default_cache_dir()
     folder = Path(cache_dir) / "composed"
