@@ -123,3 +123,21 @@ def test_whole_courses(capsys, tmp_path, robot, scenario, extra):
     assert m["body_terrain_contacts"] == 0 and m["edge_contacts"] == 0
     if robot == "b1_z1":
         assert m["ee_pos_rmse_course_m"] < 0.02
+
+
+@pytest.mark.parametrize("robot_name", ["go2", "g1"])
+def test_stairs_up_end_with_the_whole_robot_on_the_landing(robot_name):
+    """`stairs --stairs up` runs until the rear feet are past the last riser: where the base is by then at the
+    commanded speed (started after START_S), every foot's sole lies on the landing, clear of its far end (g1
+    walked off the landing's end and fell when the run went on to pass it)."""
+    from wbmpc.scenarios import ScenarioOptions
+    from wbmpc.scenarios.terrain import START_S, Stairs, feet_extent
+
+    robot = load_robot(robot_name)
+    scenario = Stairs(ScenarioOptions(stairs_direction="up"))
+    scenario.check(robot)
+    terrain = scenario.terrain(robot)
+    landing = next(p for p in terrain.pieces if p.name == "landing").corners()[:, 0]
+    front, rear = feet_extent(robot)
+    base_x = scenario.start_pose(robot)[0] + scenario.options.speed_m_s * (scenario.default_duration_s - START_S)
+    assert landing.min() < base_x + rear and base_x + front < landing.max() - 0.1

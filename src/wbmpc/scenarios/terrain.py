@@ -206,10 +206,18 @@ class Stairs(TerrainCourse):
         front, rear = feet_extent(robot)
         if self.options.stairs_direction == "down":  # the robot starts on the landing, which ends at start_x_m
             landing = start_x_m - (rear - 2 * COURSE_CLEARANCE_M)
-        else:  # room for the whole robot at the top
+        else:  # room for the whole robot at the top (up: where it ends, its rear feet past the last riser)
             landing = max(1.2 * (front - rear), 2 * tread)
+            if self.options.stairs_direction == "up":
+                landing = max(landing, front - rear + 3 * COURSE_CLEARANCE_M)
         return stairs(self.options.steps, rise, tread, start_x_m, landing_m=landing,
                       direction=self.options.stairs_direction)
+
+    def course_end_x(self, terrain):
+        """Up: the last riser (the run ends with the robot on the landing, not walking off its far end)."""
+        if self.options.stairs_direction == "up":
+            return float(next(p for p in terrain.pieces if p.name == "landing").corners()[:, 0].min())
+        return course_end_x(terrain)
 
 
 class Slope(TerrainCourse):
