@@ -284,9 +284,6 @@ class MPC:
         after_push = self.push_mode.update(v, rot, base_velocity_world, t, self._previous)
         self.push_mode.adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
-        if self.config.references.touchdown_events and measured_contact is not None:
-            contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
-                                                 self.config.swing.touchdown_velocity_m_s)
         sway = references.sway(commands)
         if sway:  # lean over the feet that will stand support_lead_s later
             dq_des = references.sway_towards_support(q, rot, dq_des, t, node_times, sway)
@@ -295,6 +292,9 @@ class MPC:
         terrain = references.terrain_step(q, v, rot, t, node_times, base_velocity_world)
         if terrain is not None:
             swing_vz, swing_vxy = terrain.swing_vz_m_s, terrain.swing_vxy_m_s
+        if self.config.references.touchdown_events and measured_contact is not None:  # (on the terrain's splines too)
+            contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
+                                                 self.config.swing.touchdown_velocity_m_s)
         forces = self._force_guess(contact, commands)
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
         p = problem.params.pack({"q_ref": q, "rot_ref": rot, "dt": problem.config.grid.dt_s, "dq_des": dq_des,
