@@ -170,25 +170,30 @@ class TerrainReferences:
                 left = max(1 - 3 * s0**2 + 2 * s0**3, PLACEMENT_END_SHARE)
                 vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
                 stand[nodes[0]:, foot] = target
-                h0, apex, h1, share = self._swing_heights(foot, lift_off_xy, target, heading, hips)
-                height, velocity = swing_between(s, swing_s, h0, apex, h1, share, self.swing.liftoff_velocity_m_s,
-                                                 self.swing.touchdown_velocity_m_s)
-                if in_progress:  # the plan from the measured height: its error taken out linearly until touch-down
-                    planned_now, _ = swing_between(np.array([s0]), swing_s, h0, apex, h1, share,
-                                                   self.swing.liftoff_velocity_m_s, self.swing.touchdown_velocity_m_s)
-                    error = feet_m[foot, 2] - planned_now[0]
-                    correction = np.clip(error / max((1 - s0) * swing_s, 1e-3), -MAX_HEIGHT_CORRECTION_M_S,
-                                         MAX_HEIGHT_CORRECTION_M_S)
-                    velocity = velocity - correction
-                    height = height + error * (1 - s) / max(1 - s0, 1e-3)
-                vz[nodes, foot] = velocity
-                apex_plan[nodes, foot] = height
+                heights = self._swing_heights(foot, lift_off_xy, target, heading, hips)
+                apex_plan[nodes, foot], vz[nodes, foot] = self._swing_plan(
+                    heights, s, swing_s, s0, feet_m[foot, 2] if in_progress else None)
         unique, inverse = np.unique(stand.reshape(-1, 2), axis=0, return_inverse=True)  # a few footholds: exact
         heights, normals = (values[inverse.ravel()].reshape(stand.shape[:-1] + values.shape[1:])
                             for values in self.terrain.height_normal(unique))
         footholds = np.concatenate([stand, (heights + self._contact_height)[..., None]], axis=-1)
         N = n - 1
         return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
+
+    def _swing_plan(self, heights: tuple, s: np.ndarray, swing_s: float, s0: float,
+                    measured_z: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """(heights, vertical velocities) of eq. (6)'s spline between (lift-off, apex, touch-down heights, apex share)
+        at swing progress s; a swing in progress (`measured_z`: its foot's height, at progress s0) planned from the
+        measured height, its error taken out linearly until touch-down."""
+        h0, apex, h1, share = heights
+        lift_off, touch_down = self.swing.liftoff_velocity_m_s, self.swing.touchdown_velocity_m_s
+        height, velocity = swing_between(s, swing_s, h0, apex, h1, share, lift_off, touch_down)
+        if measured_z is None:
+            return height, velocity
+        planned_now, _ = swing_between(np.array([s0]), swing_s, h0, apex, h1, share, lift_off, touch_down)
+        error = measured_z - planned_now[0]
+        correction = np.clip(error / max((1 - s0) * swing_s, 1e-3), -MAX_HEIGHT_CORRECTION_M_S, MAX_HEIGHT_CORRECTION_M_S)
+        return height + error * (1 - s) / max(1 - s0, 1e-3), velocity - correction
 
     def _shin_clearance(self, foot: int, hips: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray) -> np.ndarray:
         """For landing points feet_xy (n, 2): the smallest height (m) of the shin (knee -> foot, from the planar leg

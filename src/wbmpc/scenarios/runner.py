@@ -29,6 +29,7 @@ from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import SCENARIOS, make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.scenarios.outputs import write_output_files
+from wbmpc.scenarios.terrain import check_terrain, contact_monitor
 from wbmpc.sim import PLANTS, PlantConfig, make_plant, robot_plant_config
 from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
 from wbmpc.sim.model_errors import ModelErrors
@@ -203,7 +204,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
-    _check_terrain(robot, scenario, config)
+    check_terrain(robot, scenario, config.plant)
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     # the plant does not wait: recovery solvers must not be built mid-run (in real time the solver process
     # builds its own MPC and prepares it; this one only solves the first step, before the clock runs)
@@ -221,7 +222,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator
     mpc.reset()
     terrain = scenario.terrain(robot)
     plant = _plant(robot, config, scene, operator, terrain, scenario.start_pose(robot))
-    terrain_monitor = _terrain_monitor(robot, plant, terrain)
+    terrain_monitor = contact_monitor(robot, plant, terrain)
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
@@ -310,32 +311,6 @@ def _plant(robot: RobotModel, config: RunConfig, scene, operator=None, terrain=N
         scene.attach(plant)
     plant.reset(robot.q_nominal if start_q is None else start_q, np.zeros(robot.nv))
     return plant
-
-
-def _terrain_monitor(robot: RobotModel, plant, terrain):
-    """The terrain's contact metrics in MuJoCo (`sim/terrain_contacts.py`), counted from the plant's steps; None
-    on the flat floor."""
-    if terrain is None:
-        return None
-    from wbmpc.sim.terrain_contacts import TerrainContactMonitor
-
-    monitor = TerrainContactMonitor(plant.model, robot, terrain)
-    plant.add_step_hook(monitor)
-    return monitor
-
-
-def _check_terrain(robot: RobotModel, scenario: Scenario, config: RunConfig) -> None:
-    """A scenario on a terrain needs MuJoCo (the pinocchio plant's ground is a plane) and a start pose on the
-    terrain, not inside it (`sim.terrain_geoms.check_start_pose`); checked before anything is built."""
-    terrain = scenario.terrain(robot)
-    if terrain is None:
-        return
-    if config.plant != "mujoco":
-        raise ConfigError(f"scenario '{scenario.name}' walks on a terrain ({terrain.name}), which only the MuJoCo plant "
-                          "builds: use --plant mujoco")
-    from wbmpc.sim.terrain_geoms import check_start_pose
-
-    check_start_pose(robot, terrain, scenario.start_pose(robot))
 
 
 def joint_loop_hold_s(config: RunConfig, physics_dt_s: float | None = None) -> float:

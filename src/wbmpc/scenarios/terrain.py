@@ -19,6 +19,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.mpc import Commands
+from wbmpc.errors import ConfigError
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.terrain import Terrain, course_end_x, load_terrain, slope, stairs, stepping_stones
@@ -127,8 +128,6 @@ class TerrainCourse(Scenario):
     def check(self, robot: RobotModel) -> None:
         """Build the course for `robot` (and the default duration: across it at --speed)."""
         if abs(self.options.speed_m_s) < 0.02:
-            from wbmpc.errors import ConfigError
-
             raise ConfigError.for_field("speed_m_s", f"must be at least 0.02 m/s to cross the {self.name} course, "
                                         f"got {self.options.speed_m_s:g}")
         self.terrain(robot)
@@ -266,3 +265,29 @@ def ramp_along_path(robot: RobotModel, angle_deg: float, backwards: bool = False
         return Terrain((Ramp((x0, 0.0, 0.0), (x0 - run, 0.0, rise), 3.0, name="slope"),), name=f"slope {angle_deg:g} deg")
     x0 = front + COURSE_CLEARANCE_M
     return Terrain((Ramp((x0, 0.0, 0.0), (x0 + run, 0.0, rise), 3.0, name="slope"),), name=f"slope {angle_deg:g} deg")
+
+
+def contact_monitor(robot: RobotModel, plant, terrain: Terrain | None):
+    """The terrain's contact metrics in MuJoCo (`sim/terrain_contacts.py`), counted from the plant's steps; None
+    on the flat floor."""
+    if terrain is None:
+        return None
+    from wbmpc.sim.terrain_contacts import TerrainContactMonitor
+
+    monitor = TerrainContactMonitor(plant.model, robot, terrain)
+    plant.add_step_hook(monitor)
+    return monitor
+
+
+def check_terrain(robot: RobotModel, scenario: Scenario, plant: str) -> None:
+    """A scenario on a terrain needs MuJoCo (the pinocchio plant's ground is a plane) and a start pose on the
+    terrain, not inside it (`sim.terrain_geoms.check_start_pose`); checked before anything is built."""
+    terrain = scenario.terrain(robot)
+    if terrain is None:
+        return
+    if plant != "mujoco":
+        raise ConfigError(f"scenario '{scenario.name}' walks on a terrain ({terrain.name}), which only the MuJoCo plant "
+                          "builds: use --plant mujoco")
+    from wbmpc.sim.terrain_geoms import check_start_pose
+
+    check_start_pose(robot, terrain, scenario.start_pose(robot))
