@@ -268,11 +268,36 @@ def cmd_info(args: argparse.Namespace) -> int:
                  "rules of control/biped.py; table = control/tuning.py):")
     lines += [f"  {name:36s} {_setting_text(entry['value']):>24s}  {entry['source']}"
               for name, entry in info["settings"].items() if name not in RENAMED_SETTINGS]
+    info["controller_assumes"] = _controller_assumptions(robot)
+    lines.append(_assumptions_text(info["controller_assumes"]))
     status = blasfeo.status()
     info["blasfeo"] = status.as_dict()
     lines.append(f"blasfeo: {status.active} ({status.reason})")
     _emit(args, info, "\n".join(lines))
     return EXIT_OK
+
+
+def _controller_assumptions(robot) -> dict:
+    """What the controller takes for granted about the ground and the robot link (`wbmpc info`)."""
+    from wbmpc.control.loop import LoopConfig
+    from wbmpc.control.tuning import tuning_for
+    from wbmpc.sim import PlantConfig
+
+    tuning, loop = tuning_for(robot), LoopConfig()
+    return {"friction_coefficient": tuning.friction_coefficient, "simulated_floor_friction": PlantConfig().friction_mu,
+            "joint_loop_hz": loop.control_rate_hz, "motor_law": loop.motor_law,
+            "kd_leg_by_joint_loop_hz": {hz: tuning.gains_at(1.0 / hz).kd_leg for hz in (1000.0, 500.0, 200.0)},
+            "leg_joint_mode_inertia_kg_m2": tuning.leg_joint_inertia_kg_m2}
+
+
+def _assumptions_text(a: dict) -> str:
+    from wbmpc.control.joint_loop import DAMPER_BOUND
+
+    kd = ", ".join(f"{v:.3g} at {hz:g} Hz" for hz, v in a["kd_leg_by_joint_loop_hz"].items())
+    return (f"controller assumes: ground friction {a['friction_coefficient']:g} (--friction; the simulated floor: "
+            f"{a['simulated_floor_friction']:g}, --floor-friction); eq. (10) evaluated at {a['joint_loop_hz']:g} Hz and "
+            f"held (--joint-loop-hz); legs' Kd {kd} (Kd T / I <= {DAMPER_BOUND:g} on the lightest leg mode, "
+            f"{a['leg_joint_mode_inertia_kg_m2'] or 0:.3g} kg m^2)")
 
 
 def _setting_text(value) -> str:
@@ -344,6 +369,7 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
 def run_config_from_args(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.operator.config import OperatorConfig
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
@@ -357,7 +383,8 @@ def run_config_from_args(args: argparse.Namespace):
         print("wbmpc: warning: --delay is deprecated; use --delay-mode none|measured|measured-wall|realtime or "
               "--delay-ms MS", file=sys.stderr)
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
-                     gains=PdGains(**values_from_args(PdGains, args)), **values)
+                     gains=PdGains(**values_from_args(PdGains, args)),
+                     operator=OperatorConfig(**values_from_args(OperatorConfig, args)), **values)
 
 
 def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
@@ -370,15 +397,15 @@ def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[
             and getattr(args, opt.dest) != flag_default(f, opt)]
 
 
-def gains_from_args(args: argparse.Namespace, robot):
-    """The robot's tuned PD gains (wbmpc.control.tuning) with --kp/--kd when given."""
+def gains_from_args(args: argparse.Namespace, robot, hold_s: float):
+    """None without --kp/--kd (the run takes the robot's tuned gains for its joint loop's hold `hold_s`); else
+    those gains with --kp/--kd as given."""
     import dataclasses
 
     from wbmpc.control.tuning import tuning_for
 
-    gains = tuning_for(robot).gains
     overrides = {name: value for name, value in (("kp_leg", args.kp), ("kd_leg", args.kd)) if value is not None}
-    return dataclasses.replace(gains, **overrides)
+    return dataclasses.replace(tuning_for(robot).gains_at(hold_s), **overrides) if overrides else None
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -430,12 +457,16 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     out_dir = Path(args.out or f"runs/{args.scenario}")
     if not args.no_outputs:
         check_output_dir(out_dir)
-    config = dataclasses.replace(config, gains=gains_from_args(args, robot),
-                                 plant_config=plant_config_from_args(args, robot)).for_robot(robot)
+    from wbmpc.scenarios.runner import joint_loop_hold_s
+
+    config = dataclasses.replace(config, plant_config=plant_config_from_args(args, robot))
+    config = dataclasses.replace(config, gains=gains_from_args(args, robot, joint_loop_hold_s(config))).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
+    from wbmpc.operator.script import script_duration
+
     scenario = SCENARIOS[args.scenario](config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    duration = config.duration_s or script_duration(config.operator.commands_file) or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
           f"{' (compiled)' if config.compiled else ''}, delay {delay_text(config.delay_mode, config.delay_ms)}"
           f"{' ms' if config.delay_mode == 'fixed' else ''}, plant {args.plant}"
@@ -575,7 +606,8 @@ def _scenario_list() -> str:
 
 
 def _add_run_parser(sub, formatter) -> None:
-    """`wbmpc run`: its options come from the fields of RunConfig, PdGains and ScenarioOptions (`wbmpc.options`),
+    """`wbmpc run`: its options come from the fields of RunConfig, PdGains, OperatorConfig and ScenarioOptions
+    (`wbmpc.options`),
     the scenario options grouped by the scenarios that read them."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.control.loop import MPC_RATE_HZ
@@ -596,6 +628,10 @@ def _add_run_parser(sub, formatter) -> None:
     loop.add_argument("--delay", metavar="DELAY", help="deprecated, the old form of --delay-mode / --delay-ms: "
                       "none | measured | measured-wall | realtime | a fixed delay in ms")
     add_arguments(loop, PdGains)
+    from wbmpc.operator.config import OperatorConfig
+
+    operator = run.add_argument_group("an operator in the loop: live commands and the viewer (docs/operator.md)")
+    add_arguments(operator, OperatorConfig)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
     plant_drive.add_argument("--plant-armature", metavar="KG_M2", help="rotor inertia (MuJoCo joint armature), kg m^2")
@@ -780,10 +816,11 @@ def _dispatch(args: argparse.Namespace) -> int:
 def field_flags_of_commands() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.operator.config import OperatorConfig
     from wbmpc.options import field_flags
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
-    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains)}
+    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains, OperatorConfig)}
 
 
 def main(argv: list[str] | None = None) -> int:

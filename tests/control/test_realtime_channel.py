@@ -36,8 +36,12 @@ def test_requests_and_plans_cross_unchanged():
         q, v = rng.normal(size=19), rng.normal(size=18)
         sim.send_request(q, v, command_row(command), 2.5, 0.006, 0.0095)
         assert events[0].is_set() and not events[1].is_set()
-        q2, v2, row, t, delay_s, budget_s = solver.receive_request()
+        q2, v2, row, t, delay_s, budget_s, inertial = solver.receive_request()
         assert np.array_equal(q2, q) and np.array_equal(v2, v) and (t, delay_s, budget_s) == (2.5, 0.006, 0.0095)
+        assert inertial is None  # nothing identified: the MPC keeps its parameters
+        sim.send_request(q, v, command_row(command), 2.5, 0.006, None, np.array([-0.02, 0.0, 0.001, 1.5, 0.0]))
+        *_, budget_s, inertial = solver.receive_request()
+        assert budget_s is None and inertial.tolist() == [-0.02, 0.0, 0.001, 1.5, 0.0]
         assert np.array_equal(command_from_row(row).ee_force_n, command.ee_force_n)
         plan = _solution(rng, status="ipopt: Solve_Succeeded (recovery after Deadline)", held=True)
         solver.send_solution(plan)

@@ -566,6 +566,28 @@ def test_loop_closes_through_dds_and_the_robot_stays_up(dds):
 
 
 @pytest.mark.slow
+def test_deploy_identifies_a_payload_the_model_does_not_know(dds):
+    """robot-sim carries 2 kg at the base origin that the controller's model lacks; deploy --identify-mass estimates
+    it from the estimated state and the motor law's torques (lock-step, trot in place)."""
+    sim = _cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "12",
+               "--plant-payload-kg", "2.0", "--idle-exit", "600", "--json")
+    controller = _cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "trot-in-place", "--lockstep",
+                      "--nodes", "6", "--duration", "5", "--identify-mass", "--json")
+    try:
+        c_out, c_err = controller.communicate(timeout=1800)
+        sim.communicate(timeout=120)
+    finally:
+        for proc in (sim, controller):
+            if proc.poll() is None:
+                proc.kill()
+    deploy = json.loads(c_out)
+    assert not deploy["fell"] and "mpc" in [p for _, p in deploy["phases"]], c_err
+    assert deploy["payload_estimate_kg"] == pytest.approx(2.0, abs=0.5), deploy["inertial_estimate_history"][-5:]
+    assert np.linalg.norm(deploy["base_com_offset_estimate_m"][:2]) < 0.02
+    assert deploy["joint_loop"]["kd_leg"] == pytest.approx(2.5694, rel=1e-3)  # a robot link: the tuned Kd
+
+
+@pytest.mark.slow
 def test_ctrl_c_lies_the_robot_down_then_damps(dds):
     heard = dds
     heard.clear()

@@ -30,7 +30,13 @@ _MODEL_AXES = {
     "joint_armature_kg_m2": "rotor inertia of every plant joint (kg m^2)",
     "joint_damping_nm_s_per_rad": "viscous friction of every plant joint (N m s/rad)",
     "joint_frictionloss_nm": "dry (Coulomb) friction of every plant joint (N m)",
-    "floor_friction_mu": "floor friction coefficient of the plant (the MPC assumes 0.7)",
+    "floor_friction_mu": "floor friction coefficient of the plant (the MPC's is friction_mu)",
+    "link_mass_spread_rel": "each plant link's mass and inertia x its own factor uniform in 1 +- this (drawn from "
+                            "plant_seed)",
+    "joint_armature_scale": "rotor inertia of every plant joint, x the robot's reference drive train",
+    "joint_damping_scale": "viscous friction of every plant joint, x the robot's reference drive train",
+    "joint_frictionloss_scale": "dry friction of every plant joint, x the robot's reference drive train",
+    "plant_seed": "seed of the plant's per-link draws (default: the case seed)",
 }
 _LOOP_AXES = {
     "joint_position_noise_rad": "std of the joint position measurement noise (rad)",
@@ -38,17 +44,30 @@ _LOOP_AXES = {
     "delay_ms": "fixed solver delay before a solution applies (ms)",
     "push_gait_period_scale": "gait period factor after a push, (0, 1]; 1: the paper's fixed schedule",
     "identify_mass": "1: estimate the base CoM offset and hand payload online and plan with them (--identify-mass)",
+    "sensor_noise_scale": "the IMU's and encoders' noise and biases x this (state estimated; 1: the sensor models' "
+                          "defaults)",
+    "friction_mu": "the ground friction the MPC plans with (--friction)",
+    "joint_loop_hz": "rate of the joint loop: eq. (10) evaluated per command and held (--joint-loop-hz)",
+    "joint_loop_jitter_ms": "each command late by a uniform draw in [0, this] (--joint-loop-jitter)",
+    "physics_dt_ms": "the simulator's step (--physics-dt)",
+    "kd_leg": "the legs' Kd as given (not capped by the joint loop; default: the robot's tuning)",
+    "kp_arm": "the arm's Kp of eq. (10) (default: the robot's tuning)",
+    "kd_arm": "the arm's Kd as given (default: the robot's tuning)",
+    "touchdown_events": "1: the contact schedule follows the feet's measured touch-down (--touchdown-events)",
 }
 _OTHER_AXES = {
     "gait_phase": "push time shifted by this share of the gait period (0..1)",
     "robot": "robot preset (b1_z1, b1, go2, a1, ...)",
+    "state": "true (the simulator's state) or estimated (IMU + encoders and the estimator)",
+    "motor_law": "held or continuous (--motor-law)",
     "plant_model": "MJCF or URDF file MuJoCo simulates instead of the controller's model (--plant-model); "
                    "none: the controller's model",
 }
 _SCENARIO_AXES = {f.name: f"scenario option: {help_text(f, opt)}" + (f" [{opt.flag}]" if opt.flag else "")
                   for f, opt in declared(ScenarioOptions)}
 AXES: dict[str, str] = {**_SCENARIO_AXES, **_MODEL_AXES, **_LOOP_AXES, **_OTHER_AXES}
-STRING_AXES = {"robot", "gait", "board", "wipe_pattern", "plant_model"}
+STRING_AXES = {"robot", "gait", "board", "wipe_pattern", "state", "motor_law", "plant_model"}
+INTEGER_AXES = {"plant_seed"}
 
 
 def check_axes(spec) -> None:
@@ -116,7 +135,11 @@ class Case:
             joint_damping_nm_s_per_rad=_optional(v, "joint_damping_nm_s_per_rad"),
             joint_frictionloss_nm=_optional(v, "joint_frictionloss_nm"),
             floor_friction_mu=_optional(v, "floor_friction_mu"),
-            seed=self.seed,
+            link_mass_spread_rel=float(v.get("link_mass_spread_rel", 0.0)),
+            joint_armature_scale=_optional(v, "joint_armature_scale"),
+            joint_damping_scale=_optional(v, "joint_damping_scale"),
+            joint_frictionloss_scale=_optional(v, "joint_frictionloss_scale"),
+            seed=int(v.get("plant_seed", self.seed)),
         )
 
     def run_config(self):
@@ -137,10 +160,26 @@ class Case:
 
         delay_mode, delay_ms = delay_from_text(self.delay) if v.get("delay_ms") is None else ("fixed", float(v["delay_ms"]))
         solver = self.solver or ("auto" if delay_mode == "realtime" else "fatrop")
+        loop = {name: float(v[name]) for name in ("friction_mu", "joint_loop_hz", "joint_loop_jitter_ms", "physics_dt_ms")
+                if name in v}
+        loop.update({name: str(v[name]) for name in ("state", "motor_law") if name in v})
+        if "touchdown_events" in v:
+            loop["touchdown_events"] = bool(float(v["touchdown_events"]))
+        if "sensor_noise_scale" in v:
+            from wbmpc.estimation import SensorConfig
+
+            if loop.get("state") != "estimated":
+                raise ConfigError("sensor_noise_scale scales the IMU's and encoders' noise, read only with "
+                                  "state=estimated: add --set state=estimated")
+            loop["sensors"] = SensorConfig(seed=self.seed).scaled(float(v["sensor_noise_scale"]))
+        gains = {name: float(v[name]) for name in ("kd_leg", "kp_arm", "kd_arm") if name in v}
+        if gains:  # the tuned gains at the paper's 500 Hz joint loop, these as given
+            from dataclasses import replace
+
+            loop["gains"] = replace(tuning_for(self.robot).gains_at(), **gains)
         return RunConfig(scenario=self.scenario, duration_s=self.duration_s, nodes=self.nodes, compiled=self.compiled,
-                         formulation=self.formulation, seed=self.seed, options=options, delay_mode=delay_mode, delay_ms=delay_ms,
-                         solver=solver,
-                         model_errors=self.model_errors(),
+                         formulation=self.formulation, seed=self.seed, options=options, delay_mode=delay_mode,
+                         delay_ms=delay_ms, solver=solver, model_errors=self.model_errors(), **loop,
                          joint_position_noise_rad=float(v.get("joint_position_noise_rad", 0.0)),
                          joint_velocity_noise_rad_s=float(v.get("joint_velocity_noise_rad_s", 0.0)),
                          identify_mass=bool(float(v.get("identify_mass", 0.0))),
@@ -158,13 +197,17 @@ def expand(spec) -> list[Case]:
     axes = sorted(spec.grid)
     grid_points = [dict(zip(axes, combo)) for combo in itertools.product(*(spec.grid[a] for a in axes))] or [{}]
     rng = np.random.default_rng(spec.random.seed)
+    ranges, fixed, samples = spec.random.ranges, spec.fixed, spec.random.samples
+    if getattr(spec, "randomize", False):
+        from wbmpc.campaign.reality_gap import randomized
+
+        ranges, fixed, samples = randomized(spec)
     cases = []
     for point in grid_points:
-        draws = [{}] if not spec.random.samples else [
-            {name: round(float(rng.uniform(low, high)), 6) for name, (low, high) in sorted(spec.random.ranges.items())}
-            for _ in range(spec.random.samples)]
+        draws = [{}] if not samples else [{name: _draw(rng, name, low, high) for name, (low, high) in sorted(ranges.items())}
+                                          for _ in range(samples)]
         for draw in draws:
-            values = {**spec.fixed, **point, **draw}
+            values = {**fixed, **point, **draw}
             robot = str(values.pop("robot", spec.robot))
             params = tuple(sorted((k, _normal(k, x)) for k, x in values.items()))
             for seed in spec.seeds:
@@ -173,5 +216,13 @@ def expand(spec) -> list[Case]:
     return cases
 
 
+def _draw(rng, name: str, low: float, high: float):
+    if name in INTEGER_AXES:
+        return int(rng.integers(int(low), int(high) + 1))
+    return round(float(rng.uniform(low, high)), 6)
+
+
 def _normal(name: str, value):
+    if name in INTEGER_AXES:
+        return int(value)
     return value if name in STRING_AXES else float(value)

@@ -25,6 +25,13 @@ def add_parser(sub) -> None:
     p.add_argument("--grid", action="append", metavar="AXIS=V1,V2|START:STOP:STEP",
                    help="add a grid axis (repeatable); `--list-axes` shows the axes")
     p.add_argument("--set", action="append", metavar="AXIS=VALUE", help="fixed axis value for every case (repeatable)")
+    p.add_argument("--randomize", action="store_true", default=None,
+                   help="the reality gap: each case a plant drawn around the robot's model (link masses and inertias "
+                   "+-10 %%, base CoM +-2 cm, floor friction 0.4-1.0, rotor inertia, joint damping and dry friction "
+                   "0-2x the robot's, a delay of 0-10 ms, IMU and encoder noise 0-2x, the estimator's state), seeded "
+                   "and recorded in its row; --grid/--set override single axes")
+    p.add_argument("--samples", type=int, metavar="N", help="random draws per grid point (with --randomize: default "
+                   "100)")
     p.add_argument("--seeds", help="comma-separated seeds (default 0)")
     p.add_argument("--out", default="runs/campaign", help="output directory: rows/, results.parquet, report")
     p.add_argument("--workers", type=int, help="LocalCluster worker processes (default: one per core)")
@@ -54,6 +61,18 @@ def _pairs(items, label):
     return out
 
 
+def _random(spec_path, samples: int | None):
+    """--samples on top of the spec file's random draws (None: the file's)."""
+    if samples is None:
+        return None
+    if samples < 1:
+        raise ConfigError(f"--samples must be >= 1, got {samples}")
+    from wbmpc.campaign.spec import load_spec
+
+    random = load_spec(spec_path).random if spec_path else None
+    return {"samples": samples, "ranges": dict(random.ranges) if random else {}, "seed": random.seed if random else 0}
+
+
 def cmd_campaign(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -70,7 +89,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else None
         spec = load_spec(args.spec, scenario=args.scenario, robot=args.robot, duration_s=args.duration,
                          nodes=args.nodes, compiled=args.compiled, seeds=seeds, delay=args.delay, solver=args.solver,
-                         grid=_pairs(args.grid, "grid"), fixed=_pairs(args.set, "set"))
+                         grid=_pairs(args.grid, "grid"), fixed=_pairs(args.set, "set"), randomize=args.randomize,
+                         random=_random(args.spec, args.samples))
         cases = expand(spec)
         if args.dry_run:
             for case in cases:

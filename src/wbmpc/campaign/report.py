@@ -16,9 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from wbmpc.campaign.cases import STRING_AXES
+from wbmpc.campaign.reality_gap import REALITY_GAP_RANGES, axis_effects, effects_markdown
 from wbmpc.campaign.table import ResultTable, row_dicts
 
 PUSH_AXES = ("push_direction_deg", "push_speed_m_s", "gait_phase")
+MAX_CURVE_VALUES = 12  # an axis with more distinct values was drawn, not gridded: binned (reality_gap.axis_effects)
 
 
 def push_map(rows: list[dict]) -> dict | None:
@@ -137,12 +139,12 @@ def plot_curves(name: str, points: list[dict], path: Path) -> Path:
 
 
 def case_timing(rows: list[dict]) -> list[dict] | None:
-    """Per case with a delay: achieved MPC rate, share of late solutions, mean delay, solver (from its metrics)."""
+    """Per case with a measured or real-time delay: achieved MPC rate, share of late solutions, mean delay, solver."""
     out = []
     for row in rows:
         metrics = json.loads(row.get("metrics_json") or "{}")
-        if metrics.get("delay", "none") == "none" or "mpc_rate_hz" not in metrics:
-            continue
+        if metrics.get("delay", "none") not in ("realtime", "measured", "measured-wall") or "mpc_rate_hz" not in metrics:
+            continue  # a fixed delay or none: the simulation keeps the MPC's rate
         out.append({"case_id": row["case_id"], "params": json.loads(row.get("params_json") or "{}"),
                     "delay": metrics["delay"], "solver": metrics.get("solver"), "fell": bool(row.get("fell")),
                     "mpc_rate_hz": metrics["mpc_rate_hz"], "late_solution_share": metrics["late_solution_share"],
@@ -156,8 +158,10 @@ def write_report(out_dir: str | Path, run_info: dict | None = None) -> list[Path
     table = ResultTable(out_dir).read()
     rows = row_dicts(table)
     params = sorted({k for r in rows for k in json.loads(r.get("params_json") or "{}")})
+    drawn = _drawn_axes(out_dir, rows, params)
     pmap = push_map(rows)
-    curve_data = curves(rows, params)
+    curve_data = curves(rows, [p for p in params if p not in drawn and p != "plant_seed"])
+    effects = axis_effects(rows, drawn) if drawn else None
     paths: list[Path] = []
     if pmap:
         paths.append(plot_push_map(pmap, out_dir / "push_map.png"))
@@ -174,15 +178,34 @@ def write_report(out_dir: str | Path, run_info: dict | None = None) -> list[Path
         "push_map": {str(k): v for k, v in pmap.items()} if pmap else None,
         "timing": case_timing(rows),
         "curves": curve_data,
+        "reality_gap": effects,
         "run": run_info,
     }
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     paths.append(out_dir / "summary.json")
-    paths.append(_markdown(out_dir / "summary.md", summary, pmap, curve_data, errors))
+    paths.append(_markdown(out_dir / "summary.md", summary, pmap, curve_data, errors,
+                           effects_markdown(effects, rows) if effects else []))
     return paths
 
 
-def _markdown(path: Path, summary: dict, pmap, curve_data, errors) -> Path:
+def _drawn_axes(out_dir: Path, rows: list[dict], params: list[str]) -> list[str]:
+    """The axes drawn at random (the spec's random ranges and the reality-gap draw), plus any axis with more distinct
+    values than a grid would hold; `plant_seed` is an identifier, not a factor."""
+    drawn = set()
+    spec_path = out_dir / "spec.json"
+    if spec_path.is_file():
+        spec = json.loads(spec_path.read_text())
+        drawn |= set((spec.get("random") or {}).get("ranges") or {})
+        if spec.get("randomize"):
+            drawn |= set(REALITY_GAP_RANGES) | set(spec.get("grid") or {})
+    for name in params:
+        if len({r.get(name) for r in rows if r.get(name) is not None}) > MAX_CURVE_VALUES:
+            drawn.add(name)
+    drawn.discard("plant_seed")
+    return sorted(name for name in drawn if name in params)
+
+
+def _markdown(path: Path, summary: dict, pmap, curve_data, errors, gap_lines=()) -> Path:
     lines = ["# Campaign summary", "",
              f"{summary['cases']} cases: {summary['recovered']} recovered, {summary['fell']} fell, "
              f"{summary['errors']} errors; longest MPC step {summary['solve_ms_max'] or 0:.0f} ms; "
@@ -211,6 +234,7 @@ def _markdown(path: Path, summary: dict, pmap, curve_data, errors) -> Path:
             lines.append(f"| {p['value']:g} | {p['cases']} | {p['recovered_share']:.2f} | "
                          f"{_fmt(p['max_torque_ratio'])} | {_fmt(p['base_drift_cm_s_mean'])} |")
         lines += ["", f"![{axis}](curve_{axis}.png)", ""]
+    lines += list(gap_lines)
     if summary.get("timing"):
         lines += ["## Timing per case", "", "| case | delay | solver | fell | MPC rate (Hz) | late share | mean delay (ms) | "
                   "SQP iterations |", "|---|---|---|---|---|---|---|---|"]

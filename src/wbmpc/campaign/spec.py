@@ -14,6 +14,7 @@ A spec comes from a YAML, JSON or TOML file and/or command-line grid flags::
     random:                    # optional: N uniform samples per grid point
       samples: 0
       ranges: {ee_payload_kg: [0, 3]}
+    randomize: false           # true: the reality-gap draw (campaign/reality_gap.py) as `random`'s defaults
 
 Axis names are listed in `wbmpc.campaign.cases.AXES` (scenario options, model errors, sensor
 noise, delay, robot); unknown names are rejected with the list of known ones.
@@ -41,8 +42,6 @@ class RandomSamples:
     def __post_init__(self):
         if self.samples < 0:
             raise ConfigError(f"random.samples must be >= 0, got {self.samples}")
-        if self.samples and not self.ranges:
-            raise ConfigError("random.samples > 0 needs random.ranges: {axis: [low, high], ...}")
         clean = {}
         for name, bounds in self.ranges.items():
             try:
@@ -75,6 +74,9 @@ class CampaignSpec:
     # overrides it); "none": the simulation waits
     delay: str = "none"
     solver: str | None = None  # None: fatrop, or with delay realtime the run's default (--solver auto)
+    # the reality-gap draw (`wbmpc.campaign.reality_gap`): random plants around the robot's model, `random.samples`
+    # of them (default 100) per grid point, the spec's own ranges and fixed values over the draw's defaults
+    randomize: bool = False
 
     def __post_init__(self):
         from wbmpc.control.delay import delay_from_text
@@ -82,6 +84,8 @@ class CampaignSpec:
         delay_from_text(self.delay)
         if isinstance(self.random, dict):
             self.random = RandomSamples(**self.random)
+        if self.random.samples and not self.random.ranges and not self.randomize:
+            raise ConfigError("random.samples > 0 needs random.ranges: {axis: [low, high], ...} (or randomize: true)")
         if not self.duration_s > 0:
             raise ConfigError(f"duration_s must be positive, got {self.duration_s}")
         if self.nodes < 2:

@@ -26,20 +26,36 @@ from wbmpc.control.mpc import MPC
 from wbmpc.control.run_log import RSS_SAMPLE_PERIOD_S, RunLog
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import SolverProcess, cpu_split, raise_priority
-from wbmpc.errors import ConfigError, RunError
+from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
 Progress = Callable[[float, int], None]  # (share of the run done, recovered steps so far)
 MPC_RATE_HZ = 80.0  # the paper's MPC rate (section V-B)
 
 
+MOTOR_LAWS = ("held", "continuous")
+
+
 @dataclass(frozen=True)
 class LoopConfig:
     """The closed loop: MPC and control rates, when plans apply (`delay_mode`, `delay_ms` for a fixed delay),
-    the joint PD, measurement noise, the fall criterion."""
+    the joint PD, measurement noise, the fall criterion.
+
+    `control_rate_hz` is the joint loop: the rate at which a command (eq. 9's references) reaches the motors and
+    the motor law (eq. 10) is evaluated with the joint readings of that moment (a LowCmd arriving). `motor_law`:
+    "held" keeps that torque until the next command (unitree_mujoco's LowCmd callback, the paper's 500 Hz PD),
+    "continuous" re-evaluates eq. 10 at every physics step with the last command's references (a robot's motor
+    driver). `joint_loop_jitter_ms`: each command arrives late by a uniform draw in [0, MS] (a LowCmd over DDS).
+    `sample_mid_hold`: eq. (9) is sampled half a joint-loop period ahead, at the middle of the time its command is
+    held, so that the held feed-forward torque is the plan's mean over the hold instead of lagging it by half a
+    period (docs/robots.md: the plant's timing)."""
 
     mpc_rate_hz: float = MPC_RATE_HZ
     control_rate_hz: float = 500.0
+    joint_loop_jitter_ms: float = 0.0
+    motor_law: str = "held"
+    sample_mid_hold: bool = True
+    touchdown_events: bool = False  # pass the plant's measured foot contacts to the MPC (`ReferenceConfig.touchdown_events`)
     delay_mode: str = "none"  # control/delay.py: DELAY_MODES
     delay_ms: float | None = None  # the fixed delay of delay_mode "fixed" (given alone, it implies it)
     gains: PdGains = field(default_factory=PdGains)
@@ -52,6 +68,10 @@ class LoopConfig:
     def __post_init__(self):
         if not (self.mpc_rate_hz > 0 and self.control_rate_hz > 0):
             raise ConfigError("MPC and control rates must be positive")
+        if self.motor_law not in MOTOR_LAWS:
+            raise ConfigError.for_field("motor_law", f"must be held or continuous, got {self.motor_law!r}")
+        check_number("joint_loop_jitter_ms", self.joint_loop_jitter_ms, low=0.0, high=1e3 / self.control_rate_hz,
+                     unit="ms")
         if self.delay_ms is not None and self.delay_mode == "none":
             object.__setattr__(self, "delay_mode", "fixed")
         check_delay(self.delay_mode, self.delay_ms)
@@ -93,9 +113,14 @@ class ClosedLoop:
         self.config = config
         self.kp, self.kd = config.gains.vectors(~self.robot.leg_joint_mask)
         self._rng = np.random.default_rng(config.seed)
+        self._jitter_rng = np.random.default_rng([config.seed, 1])  # its own stream: noise draws stay as they were
+        self._nominal_tick = 0.0
+        self._reference = None  # the last command's references (eq. 9)
         self._filtered_v: np.ndarray | None = None
         self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
         self.log: RunLog | None = None  # the log of the run in progress (or the last one): a `stop` may read it
+        # callables(t_s, solution) told of every plan as it is logged (a live viewer draws it)
+        self.solution_listeners: list[Callable] = []
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -158,11 +183,22 @@ class ClosedLoop:
         start, start_cpu = time.perf_counter(), time.thread_time()
         delay_s = 0.0 if first else self._expected_delay_s(log)
         # passed only when there is one: MPC stand-ins (benchmarks' recorders) take (q, v, commands, t)
-        solution = self.mpc.solve(q, v, command, t_s, **({"delay_s": delay_s} if delay_s else {}))
+        extra = {"delay_s": delay_s} if delay_s else {}
+        if self.config.touchdown_events:
+            from wbmpc.control.touchdown import measured_contacts
+
+            extra["measured_contact"] = measured_contacts(self.plant.contact_forces(), self.robot.mass_kg * 9.81)
+        solution = self.mpc.solve(q, v, command, t_s, **extra)
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
-        log.record_solution(t_s, command, solution)
+        self._record(log, t_s, command, solution)
         return solution
+
+    def _record(self, log: RunLog, t_s: float, command: Commands, solution: Solution) -> None:
+        """Log a plan and tell the solution listeners."""
+        log.record_solution(t_s, command, solution)
+        for listener in self.solution_listeners:
+            listener(t_s, solution)
 
     def _new_log(self) -> RunLog:
         log = self.log = RunLog(self.log_dir, self.log_chunk_rows)
@@ -172,19 +208,44 @@ class ClosedLoop:
     def _control_tick(self, log: RunLog, active: Solution, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The torques of this tick and the plant's true configuration (logged)."""
         q, v = self._measure()
-        reference = interpolate(active, t_s)
+        lead = 0.5 / self.config.control_rate_hz if self.config.sample_mid_hold else 0.0
+        reference = interpolate(active, t_s + lead)
+        self._reference = reference
         q_j = self.robot.joint_positions(q, near=reference.q_des)
         tau = pd_torque(reference, q_j, v[6:], self.kp, self.kd, self.robot.tau_max)
         q_true, v_true = self.plant.state()
         log.record_tick(t_s, q_true, v_true, tau, reference.tau_ff, reference.q_des, self.plant.contact_forces())
         return tau, q_true
 
+    def _motor_driver(self) -> np.ndarray:
+        """`motor_law` "continuous": eq. (10) with the last command's references and the joint readings of this
+        physics step (a motor driver's own loop between commands)."""
+        q, v = self.plant.state()
+        q_j = self.robot.joint_positions(q, near=self._reference.q_des)
+        return pd_torque(self._reference, q_j, v[6:], self.kp, self.kd, self.robot.tau_max)
+
+    def _start_ticks(self, t0: float) -> float:
+        """The joint loop's first tick (at t0, no jitter: the run starts on a command)."""
+        self._nominal_tick = t0
+        self._reference = None
+        return t0
+
+    def _next_tick(self) -> float:
+        """When the next command arrives: the next period of the joint loop, late by its jitter."""
+        cfg = self.config
+        self._nominal_tick += 1.0 / cfg.control_rate_hz
+        jitter = self._jitter_rng.uniform(0.0, cfg.joint_loop_jitter_ms) / 1e3 if cfg.joint_loop_jitter_ms else 0.0
+        return self._nominal_tick + jitter
+
     def _low_level(self, log, active, t_s, next_control, tau, t0, duration_s, progress, stop=None):
-        """The 500 Hz loop (eqs. 9-10) when due: returns (torques to hold, next tick, end the run)."""
+        """The joint loop (eqs. 9-10) when a command is due: returns (torques for this physics step, next tick, end
+        the run). Between commands the torque is held, or re-evaluated with the held references (`motor_law`)."""
         if t_s < next_control - 1e-9:
+            if self.config.motor_law == "continuous" and self._reference is not None:
+                tau = self._motor_driver()
             return tau, next_control, False
         tau, q_true = self._control_tick(log, active, t_s)
-        next_control += 1.0 / self.config.control_rate_hz
+        next_control = self._next_tick()
         if t_s - t0 >= len(log.rss_samples) * RSS_SAMPLE_PERIOD_S - 1e-9:
             log.rss_samples.append((t_s - t0, rss_mb()))
         if self._fallen(q_true):
@@ -214,7 +275,7 @@ class ClosedLoop:
         if not active.success:
             raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
         pending: list[tuple[float, Solution]] = []
-        next_mpc, next_control = t0 + mpc_period, t0
+        next_mpc, next_control = t0 + mpc_period, self._start_ticks(t0)
         solver_free_at = t0  # with a delay, the single solver is busy until its solution is out
         tau = np.zeros(self.robot.n_joints)
         while plant.time_s - t0 < duration_s - 1e-9:
@@ -284,7 +345,7 @@ class ClosedLoop:
         """The 500 Hz simulation on the wall clock: a request to the solver process at each free MPC tick,
         its answer taken as soon as it is ready, the last good plan interpolated meanwhile (eqs. 9-10)."""
         plant, mpc_period = self.plant, 1.0 / self.config.mpc_rate_hz
-        next_mpc, next_control = t0 + mpc_period, t0
+        next_mpc, next_control = t0 + mpc_period, self._start_ticks(t0)
         request = None  # (t, command, wall time) of the request being solved; None: the solver is free
         # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
         # solver's budget is the period less it, so that the answer is back before the next MPC tick
@@ -330,7 +391,7 @@ class ClosedLoop:
     def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
         plan's first tick, transport included); returns the updated transport estimate."""
-        log.record_solution(request[0], request[1], solution)
+        self._record(log, request[0], request[1], solution)
         delay = max(t_s - request[0], now - request[2])
         log.record_delay(delay * 1e3)
         self._note_delay(delay)

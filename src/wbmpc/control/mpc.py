@@ -25,6 +25,7 @@ from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
 from wbmpc.control.solution import Solution
+from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import Resampler, interp_rows
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
@@ -238,11 +239,13 @@ class MPC:
 
     # ------------------------------------------------------------------ solve
     def solve(self, q: np.ndarray, v: np.ndarray, commands: Commands | None = None, t_s: float = 0.0,
-              delay_s: float = 0.0, budget_s: float | None = None, *, t: float | None = None) -> Solution:
+              delay_s: float = 0.0, budget_s: float | None = None, *, t: float | None = None,
+              measured_contact=None) -> Solution:
         """The plan from the state (q, v) measured at `t_s`. `delay_s`: when the plan will reach the robot, after
         t_s; with `MpcConfig.delay_compensation` the plan starts there (state rolled forward, `Solution.t_s` =
         t_s + delay_s). `budget_s`: this step's time budget (overrides `MpcConfig.step_budget_s`) for a solver
-        with a deadline. (`t`: the name of `t_s` before, deprecated.)"""
+        with a deadline. `measured_contact` (one bool per foot: loaded now): with `ReferenceConfig.touchdown_events` the
+        schedule follows it (`control/touchdown.py`). (`t`: the name of `t_s` before, deprecated.)"""
         if t is not None:
             warnings.warn("MPC.solve(..., t=...) is deprecated; use t_s", DeprecationWarning, stacklevel=2)
             t_s = t
@@ -256,7 +259,8 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
             t = t + delay_s
-        step = self._step_data(q, v, commands, t)
+        self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
+        step = self._step_data(q, v, commands, t, measured_contact)
         result, solve_end = self._solve_step(step.p, step.bounds, step.soft_bounds, step.x0, t, budget_s, clock,
                                              clock_start)
         solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
@@ -270,7 +274,7 @@ class MPC:
         result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
         return solution
 
-    def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> _StepData:
+    def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:
         """This step's NLP data: parameters (targets, weights, schedule), bounds (hard, and with the soft rows free
         where a failed hard step retries them) and the initial guess."""
         problem, references = self.problem, self.references
@@ -279,6 +283,9 @@ class MPC:
         after_push = self.push_mode.update(v, rot, base_velocity_world, t, self._previous)
         self.push_mode.adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
+        if self.config.references.touchdown_events and measured_contact is not None:
+            contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
+                                                 self.config.swing.touchdown_velocity_m_s)
         sway = references.sway(commands)
         if sway:  # lean over the feet that will stand support_lead_s later
             dq_des = references.sway_towards_support(q, rot, dq_des, t, node_times, sway)
@@ -290,8 +297,7 @@ class MPC:
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
             swing_vxy_m_s=references.swing_velocities(q, v, rot, t, node_times, base_velocity_world),
-            ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
-                             else np.asarray(commands.ee_velocity_m_s, dtype=float)),
+            ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),

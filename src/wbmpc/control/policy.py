@@ -122,6 +122,12 @@ class MpcChoices:
         None, flag="--step-budget", metavar="MS", low=0.0, high=1e4, low_open=True, unit="ms",
         help="sqp: the MPC step's time budget", default_text="the MPC period (12.5 ms at 80 Hz) less 2.5 ms of "
         "transport, on CPU time with a simulated delay")
+    friction_mu: float | None = option(None, flag="--friction", metavar="MU", low=0.0, high=2.0, low_open=True,
+                                       help="the ground's friction coefficient the MPC plans with (the cone rows of "
+                                       "eq. 6)", default_text="the robot's tuning, `wbmpc info` shows it")
+    touchdown_events: bool = option(False, flag="--touchdown-events", help="the contact schedule follows the feet's "
+                                    "measured touch-down (foot forces): an early foot stays down, a late one keeps "
+                                    "reaching for the ground (control/touchdown.py)")
     identify_mass: bool = option(False, flag="--identify-mass", help="estimate the base CoM offset and a payload at "
                                  "the hand online from the measured motion and torques and plan with them (NLP "
                                  "parameters); reports base_com_offset_estimate_m and payload_estimate_kg")
@@ -220,12 +226,13 @@ def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -
     return MpcConfig(
         ocp=ocp, solver=solver, gait=task.gait, gait_period_s=tuning.gait_period_s, swing=tuning.swing,
         weights=collision_weights(task.weights(tuning.weights), soft_arm),
-        references=tuning.reference_config(base_tracking=choices.base_tracking),
+        references=tuning.reference_config(base_tracking=choices.base_tracking, touchdown_events=choices.touchdown_events),
         recovery=recovery_config(choices, flat_feet),
         push=tuning.push_config(gait_period_scale=push_cadence(choices), relaxed_rows=push_relaxed_rows(choices)),
         delay_compensation=(delay_compensation_default(choices, flat_feet) if choices.delay_compensation is None
                             else choices.delay_compensation),
-        step_budget_s=step_budget_s(choices), soft_rows_always=soft_arm)
+        step_budget_s=step_budget_s(choices), soft_rows_always=soft_arm,
+        friction_coefficient=tuning.friction_coefficient if choices.friction_mu is None else choices.friction_mu)
 
 
 def default_solver(compiled: bool, delay_mode: str, collision_avoidance: bool = False, object_model: bool = False,

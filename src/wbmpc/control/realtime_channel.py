@@ -26,22 +26,27 @@ STATS_SCALARS = ("t_s", "success", "held_previous", "iterations", "solve_time_s"
 DETAIL_KEYS = ("sqp_iterations", "primal_residual", "dual_residual", "budget_ms", "late")
 STATUS_BYTES = 2048
 REQUEST_SCALARS = ("t", "delay_s", "budget_s", "stop")
+INERTIAL_WIDTH = 5  # identified base CoM offset (3, m), hand payload, base payload (kg); NaN: none
 
 
-COMMAND_WIDTH = 11  # numbers in a `command_row`
+COMMAND_WIDTH = 12  # numbers in a `command_row`
 
 
 def command_row(command: Commands) -> np.ndarray:
-    """`Commands` as COMMAND_WIDTH = 11 numbers (base velocity 3, yaw rate, ee velocity 3, ee force 3, base height) (None as NaN), the inverse of `command_from_row`."""
+    """`Commands` as COMMAND_WIDTH = 12 numbers (base velocity 3, yaw rate, ee velocity 3, ee force 3, base height,
+    walking 1/0) (None as NaN), the inverse of `command_from_row`."""
     ee_velocity = np.full(3, np.nan) if command.ee_velocity_m_s is None else command.ee_velocity_m_s
     height = np.nan if command.base_height_m is None else command.base_height_m
-    return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height]
+    walking = np.nan if command.walking is None else float(command.walking)
+    return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height,
+                 walking]
 
 
 def command_from_row(row: np.ndarray) -> Commands:
     ee_velocity = None if np.isnan(row[4:7]).all() else row[4:7].copy()
     return Commands(base_velocity_m_s=row[0:3].copy(), base_yaw_rate_rad_s=float(row[3]), ee_velocity_m_s=ee_velocity,
-                    ee_force_n=row[7:10].copy(), base_height_m=None if np.isnan(row[10]) else float(row[10]))
+                    ee_force_n=row[7:10].copy(), base_height_m=None if np.isnan(row[10]) else float(row[10]),
+                    walking=None if np.isnan(row[11]) else bool(row[11] > 0.5))
 
 
 
@@ -62,7 +67,7 @@ class ChannelLayout:
     def fields(self) -> list[tuple[str, tuple[int, ...]]]:
         """(name, shape) of every float64 view, in the block's order."""
         out = [("req_q", (self.nq,)), ("req_v", (self.nv,)), ("req_command", (self.command_width,)),
-               ("req_scalars", (len(REQUEST_SCALARS),))]
+               ("req_scalars", (len(REQUEST_SCALARS),)), ("req_inertial", (INERTIAL_WIDTH,))]
         out += [(f"sol_{name}", shape) for name, shape in self.arrays]
         out += [("sol_scalars", (len(STATS_SCALARS),)), ("sol_details", (len(DETAIL_KEYS),))]
         return out
@@ -121,8 +126,10 @@ class SharedChannel:
             self.memory.unlink()
 
     # ------------------------------------------------------------------ simulation side
-    def send_request(self, q, v, command_row: np.ndarray, t_s: float, delay_s: float, budget_s: float | None) -> None:
+    def send_request(self, q, v, command_row: np.ndarray, t_s: float, delay_s: float, budget_s: float | None,
+                     inertial: np.ndarray | None = None) -> None:
         views = self.views
+        views["req_inertial"][:] = np.nan if inertial is None else inertial
         views["req_q"][:] = q
         views["req_v"][:] = v
         views["req_command"][:] = command_row
@@ -154,15 +161,17 @@ class SharedChannel:
 
     # ------------------------------------------------------------------ solver side
     def receive_request(self) -> tuple | None:
-        """Block until a request; None when asked to stop. Returns (q, v, command row, t, delay_s, budget_s)."""
+        """Block until a request; None when asked to stop. Returns (q, v, command row, t, delay_s, budget_s,
+        inertial parameters or None)."""
         self.request_ready.wait()
         self.request_ready.clear()
         views = self.views
         t, delay_s, budget_s, stop = views["req_scalars"].tolist()
         if stop:
             return None
+        inertial = views["req_inertial"].copy()
         return (views["req_q"].copy(), views["req_v"].copy(), views["req_command"].copy(), t, delay_s,
-                None if np.isnan(budget_s) else budget_s)
+                None if np.isnan(budget_s) else budget_s, None if np.isnan(inertial).any() else inertial)
 
     def send_solution(self, solution: Solution) -> None:
         views = self.views

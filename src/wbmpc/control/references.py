@@ -29,6 +29,7 @@ class References:
         self._difference = difference  # the MPC's buffered q (-) q over the nodes
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
+        self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._stance_reference = StanceReference(robot) if config.stance_posture else None
         self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
         # the base's position reference (`base_tracking` "position": the commanded velocity integrated from where the
@@ -45,6 +46,19 @@ class References:
     def ee_free(self, commands: Commands) -> bool:
         """The end-effector's velocity rows are dropped this step (`free_ee_without_command`, no command)."""
         return bool(self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None)
+
+    def ee_velocity(self, q: np.ndarray, commands: Commands, base_velocity_world: np.ndarray) -> np.ndarray:
+        """The end effector's world velocity reference of eq. (7): the command, else the hand carried with the
+        commanded base motion (the base's velocity plus, turning, the yaw rate about the base). Held still in the
+        world instead, the hand pinned a turn about itself: b1_z1 turning in place at 0.6 rad/s swung its base
+        sideways at 0.25 m/s."""
+        if commands.ee_velocity_m_s is not None:
+            return np.asarray(commands.ee_velocity_m_s, dtype=float)
+        if not commands.base_yaw_rate_rad_s or self._ee_id is None:
+            return base_velocity_world
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        lever = self._data.oMf[self._ee_id].translation - q[:3]
+        return base_velocity_world + np.cross([0.0, 0.0, commands.base_yaw_rate_rad_s], lever)
 
     def targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float, node_times: np.ndarray):
         """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the

@@ -13,10 +13,18 @@ from __future__ import annotations
 import os
 import time
 
+import numpy as np
+
 from wbmpc.control.commands import Commands
 from wbmpc.control.config import MpcConfig
 from wbmpc.control.mpc import MPC
-from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
+from wbmpc.control.realtime_channel import (
+    INERTIAL_WIDTH,
+    ChannelLayout,
+    SharedChannel,
+    command_from_row,
+    command_row,
+)
 from wbmpc.control.solution import Solution
 from wbmpc.errors import RunError, WbmpcError
 
@@ -93,13 +101,16 @@ class SolverProcess:
     def is_alive(self) -> bool:
         return self._process.is_alive()
 
-    def request(self, q, v, command: Commands, t_s: float, delay_s: float = 0.0, budget_s: float | None = None) -> None:
+    def request(self, q, v, command: Commands, t_s: float, delay_s: float = 0.0, budget_s: float | None = None,
+                inertial=None) -> None:
         """A plan from (q, v) at MPC time t; `delay_s`: when it will apply (delay compensation), `budget_s`:
-        the step's deadline for a solver that has one."""
+        the step's deadline for a solver that has one; `inertial`: an identified (base CoM offset x, y, z (m),
+        hand payload, base payload (kg)) the plan uses (`MPC.set_inertial_parameters`), None: the last ones."""
+        inertial = None if inertial is None else np.asarray(inertial, dtype=float).reshape(INERTIAL_WIDTH)
         if self.channel is None:
-            self._conn.send((q, v, command, t_s, delay_s, budget_s))
+            self._conn.send((q, v, command, t_s, delay_s, budget_s, inertial))
         else:
-            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s)
+            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s, inertial)
 
     def ready(self) -> bool:
         return self.channel.answer_ready.is_set() if self.channel is not None else self._conn.poll()
@@ -166,15 +177,18 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
         if isinstance(message[0], str) and message[0] == "channel":
             _serve_channel(mpc, SharedChannel.attach(message[1], message[2], events))
             return
-        q, v, command, t, delay_s, budget_s = message
+        q, v, command, t, delay_s, budget_s, inertial = message
         try:
-            conn.send(_solve(mpc, q, v, command, t, delay_s, budget_s))
+            conn.send(_solve(mpc, q, v, command, t, delay_s, budget_s, inertial))
         except WbmpcError as exc:  # e.g. a budget below one QP: the parent raises it with its message
             conn.send(exc)
             return
 
 
-def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget_s: float | None) -> Solution:
+def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget_s: float | None,
+           inertial=None) -> Solution:
+    if inertial is not None:
+        mpc.set_inertial_parameters(inertial[:3], inertial[3], inertial[4])
     start = time.perf_counter()
     # the step's budget reaches a solver with a deadline (the anytime SQP) only when the MPC has none of its own
     budget = budget_s if mpc.config.step_budget_s is not None else None
@@ -191,7 +205,7 @@ def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
             request = channel.receive_request()
             if request is None:
                 return
-            q, v, row, t, delay_s, budget_s = request
-            channel.send_solution(_solve(mpc, q, v, command_from_row(row), t, delay_s, budget_s))
+            q, v, row, t, delay_s, budget_s, inertial = request
+            channel.send_solution(_solve(mpc, q, v, command_from_row(row), t, delay_s, budget_s, inertial))
     finally:
         channel.close()

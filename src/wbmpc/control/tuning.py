@@ -17,9 +17,10 @@ taking B1 + Z1 as the point where the derived settings equal the paper robot's (
   shares of the weight (5 s trot in place: drift 1.75 cm/s against 0.06 kept);
 - the legs' damping gain Kd with sqrt(M) (`_leg_damping`), as a critical damping 2 sqrt(k m) at the
   same stiffness: 2.6 on a Go2, 5 on B1 + Z1 (Froude's M L^1.5 g^0.5 gives 0.6 on a Go2, where Kd 1
-  already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints), capped by the
-  stability of an explicit damper at the 500 Hz joint PD (`DAMPER_STABILITY`: a 2.5 kg Solo12 fell at
-  0.03 s on sqrt(M)'s Kd 1.0); the arm's gains with the mass it carries (the same Z1 gets the same gains on any base);
+  already drifts 9 cm/s on an A1, and 3.3, proportional to L, saturates its thigh joints); where the motor
+  law is held between commands, each Kd is capped by the held damper's stability at that hold (`gains_at`,
+  `wbmpc.control.joint_loop`: a 2.5 kg Solo12 fell at 0.03 s on sqrt(M)'s Kd 1.0 at the 500 Hz joint loop, a Go2
+  at 200 Hz on its 2.6); the arm's gains with the mass it carries (the same Z1 gets the same gains on any base);
 - the base's horizontal position weight (the anchor of `ReferenceConfig.base_tracking = "position"`) 10x on a
   robot without an arm (`ANCHOR_WITHOUT_ARM`): on B1 + Z1 the hand's world-frame velocity rows of eq. (7)
   hold the trunk in place too; the B1 alone walked off backwards at 12 cm/s on the paper's weight, 0.4
@@ -53,6 +54,7 @@ import pinocchio as pin
 from wbmpc.control.biped import BIPED_SOURCE, biped_overrides
 from wbmpc.control.config import MpcConfig, PushConfig, ReferenceConfig
 from wbmpc.control.interpolator import PdGains
+from wbmpc.control.joint_loop import held_gains, joint_mode_inertia
 from wbmpc.control.weights import CostWeights
 from wbmpc.gait import SwingProfile
 from wbmpc.robots import RobotModel
@@ -69,9 +71,10 @@ class RobotScale:
     arm_mass_kg: float | None  # mass carried by the arm joints (None: no arm)
     inertia_kg_m2: tuple[float, float, float]  # composite rotational inertia at the CoM, standing (reported)
     feet: int = 4  # number of feet (two: the biped rules of control/biped.py)
-    # smallest leg joint inertia: diagonal of the joint-space inertia matrix (CRBA at the nominal pose)
-    # plus the model's armature; None: no cap on the leg damping (`_leg_damping`)
+    # the lightest mode of the legs' and the arm's joint space (kg m^2, base fixed, with the model's armature, at
+    # the nominal pose): the bound of eq. (10)'s held damper (`wbmpc.control.joint_loop`); None: no such joints
     leg_joint_inertia_kg_m2: float | None = None
+    arm_joint_inertia_kg_m2: float | None = None
 
     @classmethod
     def of(cls, robot: RobotModel) -> RobotScale:
@@ -89,7 +92,6 @@ class RobotScale:
             origin = data.oMi[hip].translation if hip is not None else data.oMi[1].translation
             lengths.append(float(np.linalg.norm(data.oMf[frame].translation - origin)))
         legs = robot.leg_joint_mask
-        joint_inertia = np.diag(pin.crba(model, data, q))[6:] + np.asarray(robot.armature_kg_m2, dtype=float)
         pin.ccrba(model, data, q, np.zeros(model.nv))
         arm_joints = [model.getJointId(name) for name, leg in zip(robot.joint_names, legs) if not leg]
         carried = {j for joint in arm_joints for j in model.subtrees[joint]}
@@ -98,7 +100,8 @@ class RobotScale:
                    leg_torque_nm=float(np.mean(robot.tau_max[legs])),
                    arm_mass_kg=arm_mass if robot.arm_ee and arm_joints else None,
                    inertia_kg_m2=tuple(float(x) for x in np.diag(data.Ig.inertia)),
-                   leg_joint_inertia_kg_m2=float(joint_inertia[legs].min()), feet=len(robot.feet))
+                   leg_joint_inertia_kg_m2=joint_mode_inertia(robot, legs),
+                   arm_joint_inertia_kg_m2=joint_mode_inertia(robot, ~legs), feet=len(robot.feet))
 
 
 ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper included
@@ -106,7 +109,7 @@ ARM_MASS_KG = 4.74849502  # the Z1's links below its first joint, gripper includ
 # settings belong to this robot (a test checks that the preset still measures this).
 REFERENCE = RobotScale(mass_kg=60.90997083000001, leg_length_m=0.5038964968484939, leg_torque_nm=108.11116666666665,
                        arm_mass_kg=ARM_MASS_KG, inertia_kg_m2=(1.9978002757960795, 6.102540023768754, 5.734928234776217),
-                       leg_joint_inertia_kg_m2=0.056588263124257965)
+                       leg_joint_inertia_kg_m2=0.03734085573998684, arm_joint_inertia_kg_m2=0.007888212427344573)
 REFERENCE_GAIT_PERIOD_S = 0.8  # the paper's trot
 ANCHOR_WITHOUT_ARM = 10.0  # base x/y position weight factor on a robot without an arm (module docstring)
 LEG_POSTURE = 20.0  # leg joint posture weight factor over the paper's 50 (module docstring)
@@ -119,8 +122,7 @@ TUNED_REFERENCES = ("support_sway", "support_lead_s", "support_sway_free_ee", "f
 # settings renamed (old report name -> new): the report carries both for one release
 RENAMED_SETTINGS = {"support_sway_free_hands": "support_sway_free_ee",
                     "base_linear_velocity_hand_held": "base_linear_velocity_ee_commanded"}
-CONTROL_PERIOD_S = 1 / 500  # the joint PD's tick (`LoopConfig.control_rate_hz`, section V-B)
-DAMPER_STABILITY = 1.5  # largest Kd dt / I of the leg damper: |1 - Kd dt / I| <= 0.5 (`_leg_damping`)
+DEFAULT_HOLD_S = 1 / 500  # eq. (10) held one tick of the paper's 500 Hz joint loop (`LoopConfig.control_rate_hz`)
 
 
 @dataclass(frozen=True)
@@ -141,8 +143,18 @@ class RobotTuning:
     swing_placement: bool = ReferenceConfig.swing_placement  # bipeds: swing feet carried to a landing point
     # the base's linear velocity weight in tasks that hold a hand (`for_task`; g1's table); None: weights' own
     base_linear_velocity_ee_commanded: float | None = None
+    # the ground's friction coefficient the MPC plans with (eq. 6's cone rows; `--friction`)
+    friction_coefficient: float = MpcConfig.friction_coefficient
+    # the lightest joint-space modes (kg m^2, `RobotScale`): the held damper's bound (`gains_at`)
+    leg_joint_inertia_kg_m2: float | None = None
+    arm_joint_inertia_kg_m2: float | None = None
     note: str = ""
     sources: dict = field(default_factory=dict, compare=False)
+
+    def gains_at(self, hold_s: float = DEFAULT_HOLD_S) -> PdGains:
+        """The PD gains of eq. (10) for a motor law held `hold_s` seconds between evaluations
+        (`wbmpc.control.joint_loop.hold_s`): each Kd capped by the held damper's stability."""
+        return held_gains(self.gains, self.leg_joint_inertia_kg_m2, self.arm_joint_inertia_kg_m2, hold_s)
 
     def push_config(self, **settings) -> PushConfig:
         """Push recovery mode with these settings' detection and hold times (`settings`: the other fields)."""
@@ -156,14 +168,14 @@ class RobotTuning:
         """`config` with these settings (weights, swing, gait period, push detection, biped rules)."""
         return dataclasses.replace(
             config, weights=self.weights, swing=self.swing, gait_period_s=self.gait_period_s,
-            push=dataclasses.replace(config.push, **{key: getattr(self, name) for name, key in TUNED_PUSH.items()}),
+            friction_coefficient=self.friction_coefficient, push=dataclasses.replace(config.push, **{key: getattr(self, name) for name, key in TUNED_PUSH.items()}),
             references=dataclasses.replace(config.references, **{name: getattr(self, name) for name in TUNED_REFERENCES}))
 
     def as_used_in(self, config: MpcConfig) -> RobotTuning:
         """These settings as `config` holds them (a run's options or its task may have changed some)."""
         return dataclasses.replace(
             self, weights=config.weights, swing=config.swing, gait_period_s=config.gait_period_s,
-            **{name: getattr(config.push, key) for name, key in TUNED_PUSH.items()},
+            friction_coefficient=config.friction_coefficient, **{name: getattr(config.push, key) for name, key in TUNED_PUSH.items()},
             **{name: getattr(config.references, name) for name in TUNED_REFERENCES})
 
     def for_task(self, commands_ee: bool) -> RobotTuning:
@@ -175,20 +187,26 @@ class RobotTuning:
         return dataclasses.replace(self, weights=weights, sources={
             **self.sources, "weights.base_linear_velocity": self.sources.get("base_linear_velocity_ee_commanded", "default")})
 
-    def report(self, options: dict | None = None) -> dict:
+    def report(self, options: dict | None = None, hold_s: float = DEFAULT_HOLD_S) -> dict:
         """{setting: {"value", "source"}} for `wbmpc info` and a run's metrics; `options` ({name: value})
-        are settings given on the command line (source "option")."""
+        are settings given on the command line (source "option"); the gains are those for a motor law held
+        `hold_s` (the paper's 500 Hz joint loop by default)."""
+        held = self.gains_at(hold_s)
         flat = {"gait_period_s": self.gait_period_s,
                 **{f"swing.{k}": v for k, v in dataclasses.asdict(self.swing).items()},
-                **{f"gains.{k}": v for k, v in dataclasses.asdict(self.gains).items()},
+                **{f"gains.{k}": v for k, v in dataclasses.asdict(held).items()},
                 **{f"weights.{k}": (list(v) if isinstance(v, tuple) else v)
                    for k, v in dataclasses.asdict(self.weights).items()},
                 "push_velocity_error_m_s": self.push_velocity_error_m_s, "push_hold_s": self.push_hold_s,
                 "push_cadence_hold_s": self.push_cadence_hold_s, "support_sway": self.support_sway,
                 "support_lead_s": self.support_lead_s, "support_sway_free_ee": self.support_sway_free_ee,
                 "free_ee_without_command": self.free_ee_without_command, "swing_placement": self.swing_placement,
-                "base_linear_velocity_ee_commanded": self.base_linear_velocity_ee_commanded}
+                "base_linear_velocity_ee_commanded": self.base_linear_velocity_ee_commanded,
+                "friction_coefficient": self.friction_coefficient}
         out = {name: {"value": value, "source": self.sources.get(name, "default")} for name, value in flat.items()}
+        for key, value in dataclasses.asdict(held).items():
+            if value != getattr(self.gains, key):
+                out[f"gains.{key}"]["source"] = f"joint loop: {getattr(self.gains, key):.3g} capped, held {1e3 * hold_s:.3g} ms"
         for old_name, name in RENAMED_SETTINGS.items():  # the names of before, one release (CHANGELOG.md)
             out[old_name] = out[name]
         for name, value in (options or {}).items():
@@ -197,20 +215,13 @@ class RobotTuning:
 
 
 def _leg_damping(scale: RobotScale) -> float:
-    """Kd of the legs: 5 on B1 + Z1, times sqrt(M / M_ref) (2.6 on Go2, 2.4 on A1), at most
-    `DAMPER_STABILITY` I / dt with I the smallest leg joint inertia and dt the PD's tick.
+    """Kd of the legs: 5 on B1 + Z1, times sqrt(M / M_ref) (2.6 on Go2, 2.4 on A1): the damping the legs get
+    from a motor law evaluated continuously; a joint loop that holds the law's torque between commands caps
+    it by the stability of the held damper (`RobotTuning.gains_at`, `wbmpc.control.joint_loop`).
 
     A1, 2 s trot in place: Kd 1 drifts 9.4 cm/s, 3 holds, 5 (B1's) saturates the calves at touch-down;
-    Go2, 5 s: Kd 3.3 (proportional to L) saturates the thigh joints (torque ratio 1.0), 2.6 holds (0.55).
-    The cap: eq. (10)'s damper acts on the velocity measured at the last tick, so a joint of inertia I
-    alone sees v+ = (1 - Kd dt / I) v, unstable past Kd dt / I = 2; the cap keeps |1 - Kd dt / I| <= 0.5.
-    Solo12 (2.5 kg, knee I 5.4e-4 kg m^2, no armature): sqrt(M) gives Kd 1.01, Kd dt / I 3.7, and it fell at
-    0.03 s (torque at the limit, Fatrop 47 iterations); capped, 0.41. The preset quadrupeds keep sqrt(M)'s
-    Kd: Kd dt / I is 0.17 (B1 + Z1) to 1.19 (Go2 + Z1)."""
-    kd = PdGains().kd_leg * math.sqrt(scale.mass_kg / REFERENCE.mass_kg)
-    if scale.leg_joint_inertia_kg_m2 is not None:
-        kd = min(kd, DAMPER_STABILITY * scale.leg_joint_inertia_kg_m2 / CONTROL_PERIOD_S)
-    return kd
+    Go2, 5 s: Kd 3.3 (proportional to L) saturates the thigh joints (torque ratio 1.0), 2.6 holds (0.55)."""
+    return PdGains().kd_leg * math.sqrt(scale.mass_kg / REFERENCE.mass_kg)
 
 
 def derive(scale: RobotScale) -> RobotTuning:
@@ -243,7 +254,9 @@ def derive(scale: RobotScale) -> RobotTuning:
     push = PushConfig
     tuning = RobotTuning(weights=weights, gains=gains, swing=swing, gait_period_s=REFERENCE_GAIT_PERIOD_S * time,
                          push_velocity_error_m_s=push.velocity_error_m_s * speed, push_hold_s=push.hold_s * time,
-                         push_cadence_hold_s=push.cadence_hold_s * time, note="derived from the robot's size")
+                         push_cadence_hold_s=push.cadence_hold_s * time, note="derived from the robot's size",
+                         leg_joint_inertia_kg_m2=scale.leg_joint_inertia_kg_m2,
+                         arm_joint_inertia_kg_m2=scale.arm_joint_inertia_kg_m2)
     tuning = dataclasses.replace(tuning, sources={name: "derived" for name in tuning.report()})
     if scale.feet == 2:
         tuning = with_overrides(tuning, {**biped_overrides(scale.leg_length_m),

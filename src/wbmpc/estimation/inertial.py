@@ -258,11 +258,30 @@ class InertialIdentification:
         self._torque_steps = 0
         self._last_estimate: tuple[float, np.ndarray, np.ndarray] | None = None
 
+    @classmethod
+    def from_estimated_state(cls, robot: RobotModel, mpc=None) -> InertialIdentification:
+        """Fed by a state estimator's output (`on_estimate`) and the applied torques (`on_torque`), as on a robot
+        (`wbmpc deploy --identify-mass`); its MPC may be set later (`mpc`)."""
+        return cls(InertialEstimator(robot, ESTIMATED_STATE_CONFIG), mpc, from_estimate=True)
+
+    def on_torque(self, tau_joints: np.ndarray) -> None:
+        """`from_estimate`: the joint torques applied over one step since the last state estimate (a plant's step,
+        or on a robot the motor law of the command just sent with this tick's joint readings)."""
+        tau = np.asarray(tau_joints, dtype=float)
+        self._torque_sum = tau.copy() if self._torque_sum is None else self._torque_sum + tau
+        self._torque_steps += 1
+
+    def parameters(self) -> np.ndarray | None:
+        """(base CoM offset x, y, z (m), hand payload, base payload (kg)) once settled, else None: what a solver in
+        another process is sent with each request (`SolverProcess.request(inertial=...)`)."""
+        est = self.estimator
+        if not est.settled:
+            return None
+        return np.r_[est.base_com_offset_m, est.payload_kg, est.base_payload_kg]
+
     def before_step(self, plant) -> None:
         if self.from_estimate:
-            tau = plant.applied_torques()
-            self._torque_sum = tau.copy() if self._torque_sum is None else self._torque_sum + tau
-            self._torque_steps += 1
+            self.on_torque(plant.applied_torques())
             return
         self._steps += 1
         if self._steps % self._every == 0:

@@ -66,6 +66,17 @@ class SensorConfig:
             if part.dropout_probability >= 1:
                 raise ConfigError(f"{type(part).__name__}.dropout_probability must be < 1, got {part.dropout_probability}")
 
+    def scaled(self, factor: float) -> "SensorConfig":
+        """Every noise, bias and drift x `factor` (rates, quantisation and dropouts kept): a sensor set better or
+        worse than these defaults (the reality-gap campaign's `sensor_noise_scale`)."""
+        if not (np.isfinite(factor) and factor >= 0):
+            raise ConfigError(f"sensor noise factor must be a finite number >= 0, got {factor}")
+        noisy = ("noise", "bias", "drift")
+        parts = [dataclasses.replace(part, **{name: value * factor for name, value in vars(part).items()
+                                              if any(word in name for word in noisy)})
+                 for part in (self.imu, self.encoders)]
+        return dataclasses.replace(self, imu=parts[0], encoders=parts[1])
+
     @staticmethod
     def noiseless(rate_hz: float = 500.0) -> "SensorConfig":
         return SensorConfig(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 from dataclasses import dataclass
 from typing import Callable
@@ -55,6 +56,9 @@ def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: 
     add_declared(sim, ScenarioOptions, "push_speed_m_s", help="kick speed to the robot's left (world y)")
     add_declared(sim, RunConfig, "seed", help="seed of the sensor noise")
     add_declared(sim, RunConfig, "plant_model")
+    sim.add_argument("--plant-payload-kg", type=float, metavar="KG", help="a mass the model does not know, at the hand "
+                     "(a robot with an arm) or at the base origin (without): what deploy --identify-mass estimates")
+    sim.add_argument("--plant-com-offset", metavar="X,Y,Z", help="the plant's base CoM moved by this (base frame, m)")
     sim.add_argument("--drift-window", metavar="T0,T1", help="also report the true drift between these simulated "
                      "times (e.g. 2.5,22.5: the MPC phase of deploy after stand-up)")
     sim.add_argument("--sport-mode", default="normal", help="the motion switcher's mode at start (LowCmd is ignored "
@@ -71,6 +75,12 @@ def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: 
     sim.add_argument("--state-rate", type=float, metavar="HZ", help="LowState rate (default 500 Hz as a Unitree robot; "
                      "200 Hz with --robot-link sim, unitree_mujoco's 5 ms step)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    remote = sim.add_mutually_exclusive_group()
+    remote.add_argument("--remote-script", metavar="FILE.yaml", help="an operator's remote, scripted (sticks and keys "
+                        "at times after the first LowCmd; see docs/operator.md): published in LowState's "
+                        "wireless_remote and on rt/wirelesscontroller")
+    remote.add_argument("--remote-gamepad", metavar="DEVICE", nargs="?", const="auto", help="a gamepad on this machine "
+                        "as the robot's remote (evdev; without DEVICE the first gamepad found)")
     _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit, tasks))
 
@@ -86,8 +96,8 @@ def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: Tas
     add_robot_options(dep)
     _add_network_options(dep)
     dep.add_argument("--scenario", default="trot-in-place", help=f"one of: {', '.join(DEPLOY_SCENARIOS)}")
-    add_declared(dep, RunConfig, "duration_s", cli_default=10.0, default_text=None,
-                 help="seconds of MPC control (robot time)")
+    add_declared(dep, RunConfig, "duration_s", default_text="10 s; a command script's own duration; until the "
+                 "lie-down command with --remote, --keyboard or --gamepad", help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
     for name in ("compiled", "nodes", "mpc_rate_hz"):
@@ -95,6 +105,9 @@ def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: Tas
     add_declared(dep, ScenarioOptions, "speed_m_s", help="trot-forward / arm-track speed")
     add_declared(dep, MpcChoices, "solver", help="the MPC's solver as `wbmpc run --solver`, but auto: the anytime "
                  "SQP on the period's budget in real time, converged Fatrop in a compiled lock-step")
+    add_declared(dep, MpcChoices, "identify_mass", help="estimate the base CoM offset and a payload online from the "
+                 "estimated state and the motor law's torques and plan with them; the report gives "
+                 "base_com_offset_estimate_m and payload_estimate_kg")
     for name in ("kp_leg", "kd_leg"):  # sent in LowCmd
         add_declared(dep, PdGains, name, help=f"{declared_help(PdGains, name)}, sent in LowCmd")
     dep.add_argument("--no-sport-release", action="store_true", help="do not call the motion switcher (a robot "
@@ -106,7 +119,22 @@ def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: Tas
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    _add_operator_options(dep)
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit, tasks))
+
+
+def _add_operator_options(dep) -> None:
+    from wbmpc.operator.config import OperatorConfig
+    from wbmpc.options import add_declared
+
+    operator = dep.add_argument_group("an operator in the loop (docs/operator.md)")
+    operator.add_argument("--remote", action="store_true", help="drive the MPC phase from the robot's own remote "
+                          "(LowState wireless_remote and rt/wirelesscontroller): left stick moves, right stick turns, "
+                          "start walk/stand, B stop, L2+A lie down")
+    for name in ("commands_file", "keyboard", "gamepad", "max_accel_m_s2", "max_yaw_accel_rad_s2"):
+        add_declared(operator, OperatorConfig, name)
+    operator.add_argument("--meshcat", action="store_true", help="serve a live page (meshcat, localhost) with the "
+                          "estimated state and the MPC's plan at 25 Hz")
 
 
 def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
@@ -158,15 +186,19 @@ def _arm_settings(args) -> dict:
 
 
 def deploy_mpc_config(robot, task_needs, *, nodes: int, compiled: bool, solver: str, lockstep: bool,
-                      mpc_rate_hz: float | None = None):
+                      mpc_rate_hz: float | None = None, identify_mass: bool = False):
     """The MPC configuration of `wbmpc deploy`: the one `wbmpc run` builds for the same robot and task with an
-    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`)."""
+    estimated state (`--state estimated`) and, unless lock-step, in real time (`--delay-mode realtime`);
+    `identify_mass`: with the inertial parameters in the NLP (set from the identification with each request)."""
     from wbmpc.control.policy import MpcChoices, mpc_config
 
     rate = {} if mpc_rate_hz is None else {"mpc_rate_hz": mpc_rate_hz}
     choices = MpcChoices(nodes=nodes, compiled=compiled, solver=solver, estimated_state=True,
                          delay_mode="none" if lockstep else "realtime", **rate)
-    return mpc_config(robot, task_needs, choices)
+    config = mpc_config(robot, task_needs, choices)
+    if identify_mass:  # a real-time solver process too: the estimate goes with each request
+        config = dataclasses.replace(config, ocp=dataclasses.replace(config.ocp, inertial_parameters=True))
+    return config
 
 
 def _add_network_options(parser) -> None:
@@ -184,6 +216,23 @@ def _add_network_options(parser) -> None:
                             "0, 200 Hz, the motor law once per LowCmd and held, no checks, no watchdog)")
 
 
+def _plant_errors(args, robot):
+    """robot-sim's --plant-payload-kg / --plant-com-offset as `ModelErrors` (None without either)."""
+    from wbmpc.sim.model_errors import ModelErrors
+
+    payload, offset = args.plant_payload_kg, args.plant_com_offset
+    if payload is None and offset is None:
+        return None
+    try:
+        xyz = tuple(float(x) for x in offset.split(",")) if offset else (0.0, 0.0, 0.0)
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3:
+        raise ConfigError(f"--plant-com-offset takes X,Y,Z in metres (base frame), got {offset!r}")
+    payload = payload or 0.0
+    return ModelErrors(base_com_offset_m=xyz, **({"ee_payload_kg": payload} if robot.arm_ee else {"base_payload_kg": payload}))
+
+
 def _write(path, payload) -> None:
     if path:
         with open(path, "w") as fh:
@@ -198,8 +247,13 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLi
     tasks.task_options(push_speed_m_s=args.push_speed, push_time_s=args.push_time or 0.0)  # the declared ranges
     check_interface(args.network)
     robot = robot_from_args(args)
-    config = _robot_sim_config(args)
+    config = dataclasses.replace(_robot_sim_config(args), model_errors=_plant_errors(args, robot))
     sim = RobotSimulator(robot, config)
+    if args.remote_script or args.remote_gamepad:
+        from wbmpc.operator.remote_script import GamepadRemote, RemotePublisher, ScriptedRemote, read_remote_script
+
+        sim.remote = RemotePublisher(ScriptedRemote(read_remote_script(args.remote_script)) if args.remote_script
+                                     else GamepadRemote(None if args.remote_gamepad == "auto" else args.remote_gamepad))
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
             if config.robot_link == "sim" else f"sport mode '{config.sport_mode}'")
@@ -291,29 +345,55 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = tasks.make_task(args.scenario, robot, tasks.task_options(speed_m_s=args.speed))
+    operator = _deploy_operator(args, robot, scenario)  # sources checked before anything is built
+    if args.duration is None:  # a script's own length; live sources: until the operator lies the robot down
+        args.duration = operator.duration_s or (math.inf if operator.active and operator.script is None else 10.0)
     mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
-                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate)
+                                   solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate,
+                                   identify_mass=args.identify_mass)
     config = _deploy_config(args, robot, scenario)
     print(f"wbmpc deploy {args.scenario}: {robot.name} on {args.network} (DDS domain {args.domain}, robot link "
           f"{args.robot_link}), {'lock-step' if args.lockstep else 'real time'}, solver {args.solver}; building the MPC",
           file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
     failure = None
+    operator.attach(controller)
     try:
-        commands = scenario.commands(robot)
+        operator.start()
         ee_reference = scenario.ee_reference(robot) if args.scenario == "arm-track" else None
-        with ProgressBar(args.duration, f"deploy {args.scenario} ", unit="s") as bar:  # silent off a terminal
-            report = controller.run(commands, progress=lambda share: bar.update(share * args.duration),
-                                    ee_reference=ee_reference).summary()
+        bar_length = args.duration if math.isfinite(args.duration) else None  # silent off a terminal or unbounded
+        with ProgressBar(bar_length or 1.0, f"deploy {args.scenario} ", unit="s", enabled=None if bar_length else False) as bar:
+            report = controller.run(operator.commands, ee_reference=ee_reference, stop=operator.stop,
+                                    progress=(lambda share: bar.update(share * args.duration)) if bar_length else None
+                                    ).summary()
     except DeployFailure as exc:
         failure = exc
         report = controller.report.summary()
+    finally:
+        operator.close()
+    report.update(operator.metrics(controller))
     _write(args.out, report)
-    emit(args, report, "\n".join(_deploy_summary(report, args)))
+    emit(args, report, "\n".join(_deploy_summary(report, args) + operator.summary_lines(report.get("operator"))))
     if failure is not None:
         print(f"wbmpc: error: {failure}", file=sys.stderr)
         return 1
     return 0 if not report["fell"] else 1
+
+
+def _deploy_operator(args, robot, scenario):
+    """The deploy's operator sources (`--remote`, `--commands`, `--keyboard`, `--gamepad`) and live page; a standing
+    scenario moves onto the robot's walking gait when a source may start it walking."""
+    from wbmpc.gait import natural_gait
+    from wbmpc.operator.config import OperatorConfig
+    from wbmpc.operator.deploy import DeployOperator
+    from wbmpc.options import declared
+
+    given = {f.name: getattr(args, opt.dest) for f, opt in declared(OperatorConfig)  # deploy has no --viewer
+             if opt.flag and getattr(args, opt.dest, None) is not None}
+    operator = DeployOperator(robot, OperatorConfig(**given), scenario, remote=args.remote, meshcat=args.meshcat)
+    if operator.active and scenario.gait == "stand":
+        scenario.gait = natural_gait(len(robot.feet))
+    return operator
 
 
 def _deploy_config(args: argparse.Namespace, robot, scenario):
@@ -321,10 +401,16 @@ def _deploy_config(args: argparse.Namespace, robot, scenario):
     from wbmpc.hardware.deploy import DeployConfig
     from wbmpc.hardware.safety import SafetyConfig
 
-    gains = dataclasses.replace(tuning_for(robot).gains, **{k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd))
-                                                          if v is not None})
+    overrides = {k: v for k, v in (("kp_leg", args.kp), ("kd_leg", args.kd)) if v is not None}
+    tuning = tuning_for(robot)
+    gains = dataclasses.replace(tuning.gains, **overrides)
+
+    def joint_loop_gains(hold_s: float):  # the tuned gains for the link's hold; --kp/--kd as given
+        return scenario.pd_gains(dataclasses.replace(tuning.gains_at(hold_s), **overrides))
+
     return DeployConfig(network=args.network, domain_id=args.domain, duration_s=args.duration, lockstep=args.lockstep,
                         lie_down=not args.no_lie_down, gains=scenario.pd_gains(gains),
+                        joint_loop_gains=joint_loop_gains, identify_mass=args.identify_mass,
                         safety=SafetyConfig(state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0)),
                         sport_release=not args.no_sport_release, max_plan_age_s=args.max_plan_age_ms / 1e3,
                         arm_state_timeout_ms=args.state_timeout_ms or (3000.0 if args.lockstep else 100.0),

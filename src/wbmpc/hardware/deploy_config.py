@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.loop import MPC_RATE_HZ
@@ -48,6 +49,10 @@ class DeployConfig:
     first_solve_attempts: int = 3
     robot_link: str = "robot"  # robot (strict) | sim (Unitree's simulator: unset header, CRC, tick, temperatures)
     mpc_rate_hz: float = MPC_RATE_HZ  # MPC steps per second of robot time (the MPC config's step budget assumes it)
+    # the MPC phase's gains for the hold the link applies: `joint_loop_gains(hold_s) -> PdGains` (the robot's tuning
+    # capped for that hold, `RobotTuning.gains_at`); None: `gains` as given
+    joint_loop_gains: Callable[[float], PdGains] | None = None
+    identify_mass: bool = False  # base CoM offset and payload identified from the estimated state, fed to the MPC
 
     def __post_init__(self):
         check_link(self.robot_link)

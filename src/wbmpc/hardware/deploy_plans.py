@@ -16,8 +16,10 @@ from wbmpc.hardware.deploy_report import DeployReport
 class DeployPlans:
     """The plan in use (`active`) and the MPC steps that replace it, lock-step (`mpc`) or real time (`worker`)."""
 
-    def __init__(self, mpc, worker, period_s: float, report: DeployReport):
+    def __init__(self, mpc, worker, period_s: float, report: DeployReport, inertial=None):
+        """`inertial()`: the identified inertial parameters each real-time request carries (None: none)."""
         self.mpc, self.worker, self.period_s, self.report = mpc, worker, period_s, report
+        self.inertial = inertial
         self.active = None  # the plan in use
         self.next_s = 0.0  # MPC time of the next step
         self._busy = False  # a request is out to the solver process
@@ -71,10 +73,12 @@ class DeployPlans:
         return solution, solve_ms
 
     def _request(self, q, v, command, t_mpc: float, delay_s: float) -> None:
+        inertial = self.inertial() if self.inertial is not None else None
+        extra = {} if inertial is None else {"inertial": inertial}
         if delay_s:
-            self.worker.request(q, v, command, t_mpc, delay_s)
+            self.worker.request(q, v, command, t_mpc, delay_s, **extra)
         else:
-            self.worker.request(q, v, command, t_mpc)
+            self.worker.request(q, v, command, t_mpc, **extra)
         self._requested_at = time.perf_counter()
         self._busy = True
 

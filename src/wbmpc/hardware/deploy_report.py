@@ -28,6 +28,8 @@ class DeployReport:
     error: str | None = None
     estimated_xy_m: list = field(default_factory=list)
     link: dict = field(default_factory=dict)  # robot link, time source, accepted unset fields, mode_machine
+    joint_loop: dict | None = None  # the command period and hold measured before the MPC phase, the gains it took
+    inertial: dict | None = None  # --identify-mass: the estimate (`InertialIdentification.metrics`)
 
     def summary(self) -> dict:
         tick = np.array(self.tick_ms)
@@ -37,6 +39,8 @@ class DeployReport:
             "states_received": self.states_received,
             "states_rejected": dict(self.states_rejected),
             **self.link,
+            "joint_loop": self.joint_loop,
+            **(self.inertial or {}),
             "commands_sent": self.commands_sent,
             "arm": self.arm,
             "sport_mode": self.sport_mode,

@@ -96,6 +96,7 @@ class RobotSimConfig:
     mode_machine: int = G1_MODE_MACHINE  # unitree_hg robots report it in LowState and expect it back in LowCmd
     gantry: bool = False  # a safety strap above the base (humanoids), slack while standing
     plant_model: str | None = None  # MuJoCo simulates this file of the robot (wbmpc.sim.plant_model); None: the model
+    model_errors: object | None = None  # wbmpc.sim.model_errors.ModelErrors of the plant (a payload, a CoM offset)
 
     def __post_init__(self):
         check_link(self.robot_link)
@@ -210,8 +211,10 @@ class RobotSimulator:
         self.arm_map = z1_arm_map(robot) if z1 else None
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
-        self.plant = make_plant("mujoco", robot, MujocoPlantConfig(plant_model=config.plant_model)
-                                if config.plant_model else None)
+        plant_config = MujocoPlantConfig(plant_model=config.plant_model) if config.plant_model else None
+        if config.model_errors is not None and not config.model_errors.is_nominal:
+            plant_config = config.model_errors.plant_config(robot, plant_config)
+        self.plant = make_plant("mujoco", robot, plant_config)
         q0 = robot.q_nominal.copy()
         if config.start == "lying":
             q0[7:] = lying_joint_positions(robot)
@@ -241,6 +244,7 @@ class RobotSimulator:
         self._z1 = None
         # the leg joints' (q, dq) the sim link's motor law reads when a LowCmd arrives (updated every tick)
         self.joint_readings = (q0[7:][self._leg_index], np.zeros(len(self._leg_index)))
+        self.remote = None  # wbmpc.operator.remote_script.RemotePublisher: an operator's remote (scripted or a gamepad)
 
     def stop(self) -> None:
         self._stop.set()
@@ -342,6 +346,8 @@ class RobotSimulator:
         finally:
             subscriber.Close()
             publisher.Close()
+            if self.remote is not None:
+                self.remote.close()
             if self._z1 is not None:
                 self._z1.close()
         return self._final_report(run)
@@ -391,6 +397,8 @@ class RobotSimulator:
         legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
                                    joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
         message = encode_low_state(legs, self.motors, tick_ms, foot_force, cfg.mode_machine)
+        if self.remote is not None:  # the operator's remote: LowState's bytes and rt/wirelesscontroller
+            self.remote.write(message, None if run.started_at is None else t - run.started_at)
         if cfg.robot_link == "sim":
             leave_unset(message)
         with self._lock:

@@ -14,12 +14,15 @@ import numpy as np
 from wbmpc.control.config import MpcConfig
 from wbmpc.control.delay import delay_from_text, delay_text
 from wbmpc.control.interpolator import PdGains
-from wbmpc.control.loop import ClosedLoop, LoopConfig, Progress, RunLog
+from wbmpc.control.joint_loop import hold_s, unstable_gains
+from wbmpc.control.loop import MOTOR_LAWS, ClosedLoop, LoopConfig, Progress, RunLog
 from wbmpc.control.mpc import MPC
 from wbmpc.control.policy import IDENTIFY_MASS_NEEDS, MpcChoices, mpc_config
-from wbmpc.control.tuning import tuning_for
+from wbmpc.control.tuning import DEFAULT_HOLD_S, tuning_for
 from wbmpc.errors import ConfigError
 from wbmpc.interrupt import stop_flag
+from wbmpc.operator.config import OperatorConfig
+from wbmpc.operator.run import prepare
 from wbmpc.options import check_fields, declared, declared_field, option
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
@@ -60,6 +63,7 @@ class RunConfig:
     uniform_dt_ms: float | None = _mpc("uniform_dt_ms")
     gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
+    operator: OperatorConfig = field(default_factory=OperatorConfig)  # live commands, the viewer (wbmpc.operator)
     # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object or
     # collision avoidance is asked for
     solver: str | None = _mpc("solver")
@@ -69,6 +73,27 @@ class RunConfig:
     seed: int = option(0, flag="--seed", help="seed of the measurement noise", integer=True, low=0)
     collision_avoidance: bool | None = _mpc("collision_avoidance")  # capsule distance rows (robots/collision_model.py)
     collision_margin_m: float = _mpc("collision_margin_m")
+    friction_mu: float | None = _mpc("friction_mu")  # the ground friction the MPC plans with (eq. 6's cones)
+    touchdown_events: bool = _mpc("touchdown_events")  # the schedule follows measured touch-down (control/touchdown.py)
+    floor_friction_mu: float | None = option(None, flag="--floor-friction", metavar="MU", low=0.0, high=5.0,
+                                             help="the simulated floor's friction coefficient (the plant's, not the "
+                                             "MPC's --friction)", default_text="0.8, MuJoCo's scene")
+    # the plant's timing (issue 37): properties of the robot link and the simulator, not of the controller
+    joint_loop_hz: float = option(500.0, flag="--joint-loop-hz", metavar="HZ", low=20.0, high=10_000.0, unit="Hz",
+                                  help="the joint loop: commands (eq. 9's references) reach the motors and the motor "
+                                  "law (eq. 10) is evaluated with that moment's joint readings at this rate, its torque "
+                                  "held until the next (unitree_mujoco: 200 Hz at its default 5 ms step; a Go2's "
+                                  "LowCmd: 500 Hz)", default_text="500 = the paper's")
+    joint_loop_jitter_ms: float = option(0.0, flag="--joint-loop-jitter", metavar="MS", low=0.0, high=50.0, unit="ms",
+                                         help="each command arrives late by a uniform draw in [0, MS] (a LowCmd over "
+                                         "DDS); at most one joint-loop period")
+    motor_law: str = option("held", flag="--motor-law", choices=MOTOR_LAWS,
+                            help="held: eq. (10) evaluated once per command and its torque held (unitree_mujoco, the "
+                            "paper's PD); continuous: re-evaluated at every physics step with the last command's "
+                            "references (a real motor driver)")
+    physics_dt_ms: float | None = option(None, flag="--physics-dt", metavar="MS", low=0.0, high=20.0, low_open=True,
+                                         unit="ms", help="the simulator's step (unitree_mujoco: 5 ms by default)",
+                                         default_text="the plant's, 1 ms")
     plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
     plant_model: str | None = option(None, flag="--plant-model", metavar="FILE",
                                      help="MuJoCo simulates this file of the robot (MJCF or URDF; its own inertias, "
@@ -106,6 +131,16 @@ class RunConfig:
                               f"'{self.scenario}' has no object the MPC can model: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
         if self.identify_mass and self.plant != "mujoco":
             raise ConfigError(IDENTIFY_MASS_NEEDS)
+        if self.operator.viewer and self.plant != "mujoco":
+            raise ConfigError("--viewer shows MuJoCo's own viewer: use --plant mujoco (or leave --viewer out and open "
+                              "the replay afterwards)")
+        if self.joint_loop_jitter_ms > 1e3 / self.joint_loop_hz:
+            raise ConfigError.for_field("joint_loop_jitter_ms", f"must be at most one joint-loop period "
+                                        f"({1e3 / self.joint_loop_hz:g} ms at {self.joint_loop_hz:g} Hz), got "
+                                        f"{self.joint_loop_jitter_ms:g}")
+        if self.touchdown_events and (self.plant != "mujoco" or self.delay_mode == "realtime"):
+            raise ConfigError("--touchdown-events reads MuJoCo's foot forces in this process: use --plant mujoco and "
+                              "no --delay-mode realtime")
 
     def mpc_choices(self) -> MpcChoices:
         """The MPC options of this run (`wbmpc.control.policy.mpc_config` turns them into the MPC's settings)."""
@@ -163,7 +198,8 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     result keeps what was measured, with `metrics["interrupted"]`; `stop` replaces that flag."""
     config = config.for_robot(robot)
     scenario = make_scenario(config.scenario, robot, config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    operator = prepare(robot, config.operator, scenario)  # script, terminal, gamepad, display: checked first
+    duration = config.duration_s or operator.duration_s or scenario.default_duration_s
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
@@ -177,12 +213,12 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     with stop_flag(stop) as stop:
         if stop():  # Ctrl-C while building (CasADi's C++ build does not raise): stop before running
             raise KeyboardInterrupt
-        return _run(robot, config, scenario, scene, mpc, duration, progress, stop)
+        return _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator)
 
 
-def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
+def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator) -> ScenarioResult:
     mpc.reset()
-    plant = _plant(robot, config, scene)
+    plant = _plant(robot, config, scene, operator)
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
@@ -190,25 +226,36 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
         sole_monitor = SolePressureMonitor.for_robot(robot)
         plant.add_step_hook(sole_monitor)
     identification = _mass_identification(robot, config, mpc, plant) if config.identify_mass else None
-    gains = scenario.pd_gains(config.gains if config.gains is not None else tuning_for(robot).gains)
+    hold = joint_loop_hold_s(config, plant.dt_s)
+    gains = _joint_loop_gains(robot, config, scenario, hold)
     state_source = _estimated_state(plant, mpc, config) if config.state == "estimated" else None
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
         state_source.listeners.append(identification.on_estimate)
     loop_config = LoopConfig(mpc_rate_hz=config.mpc_rate_hz, delay_mode=config.delay_mode, delay_ms=config.delay_ms,
-                             gains=gains, seed=config.seed,
+                             gains=gains, seed=config.seed, control_rate_hz=config.joint_loop_hz,
+                             joint_loop_jitter_ms=config.joint_loop_jitter_ms, motor_law=config.motor_law,
+                             touchdown_events=config.touchdown_events,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
-    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
+    with operator:  # the scenario's commands, or the operator's sources on them
+        commands, until = operator.attach(mpc, plant, loop, stop)
+        operator.start()
+        log = loop.run(duration, commands, scenario.events(robot), progress, until)
     if not log.n_ticks:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
+    metrics.update(operator.finish(log, mpc))
     metrics["state"] = config.state
+    metrics["mass_kg"] = robot.mass_kg
+    metrics["plant_mass_kg"] = plant_mass_kg(plant)
+    metrics["model_errors"] = (config.model_errors.summary(robot) if config.model_errors is not None
+                               and not config.model_errors.is_nominal else None)
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
-    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm)
+    metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm, hold)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
     if state_source is not None:
@@ -220,9 +267,9 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                           estimation=state_source.log if state_source is not None else None)
 
 
-def _plant(robot: RobotModel, config: RunConfig, scene):
-    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors;
-    reset to the nominal pose."""
+def _plant(robot: RobotModel, config: RunConfig, scene, operator=None):
+    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors, the
+    viewer's hand target (`operator`, a `wbmpc.operator.run.OperatorRun`); reset to the nominal pose."""
     plant_config = config.plant_config
     if plant_config is None and config.plant_model is None:  # a preset's rotors (g1) are the plant's too
         plant_config = robot_plant_config(robot)
@@ -241,11 +288,44 @@ def _plant(robot: RobotModel, config: RunConfig, scene):
     # the log has the configurations at 500 Hz; the plant's own per-step recording is read by nothing
     # here and would grow by ~0.3 MB per simulated second
     plant_config = dataclasses.replace(plant_config or PlantConfig(), record_every_n_steps=0)
+    if config.floor_friction_mu is not None:
+        plant_config = dataclasses.replace(plant_config, friction_mu=config.floor_friction_mu)
+    if config.physics_dt_ms is not None:
+        plant_config = dataclasses.replace(plant_config, dt_s=config.physics_dt_ms / 1e3)
+    if operator is not None:
+        plant_config = operator.plant_config(plant_config)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     return plant
+
+
+def joint_loop_hold_s(config: RunConfig, physics_dt_s: float | None = None) -> float:
+    """The longest time the run's plant holds a motor torque (`wbmpc.control.joint_loop.hold_s`)."""
+    if physics_dt_s is None:
+        physics_dt_s = (config.physics_dt_ms / 1e3 if config.physics_dt_ms is not None else
+                        (config.plant_config or PlantConfig()).dt_s)
+    return hold_s(config.joint_loop_hz, config.joint_loop_jitter_ms, config.motor_law, physics_dt_s)
+
+
+def _joint_loop_gains(robot: RobotModel, config: RunConfig, scenario: Scenario, hold: float) -> PdGains:
+    """Eq. (10)'s gains of the run: the robot's tuned ones capped for the hold its plant applies
+    (`RobotTuning.gains_at`), or the ones given (warned about when their held damper is unstable)."""
+    tuning = tuning_for(robot)
+    gains = scenario.pd_gains(config.gains if config.gains is not None else tuning.gains_at(hold))
+    for problem in unstable_gains(gains, tuning.leg_joint_inertia_kg_m2, tuning.arm_joint_inertia_kg_m2, hold):
+        warnings.warn(f"the motor law's damper is unstable at this joint loop: {problem}; lower the gain or leave it "
+                      "to the robot's tuning", stacklevel=3)
+    return gains
+
+
+def plant_mass_kg(plant) -> float | None:
+    """The simulated robot's mass (its base's subtree in MuJoCo: payloads included, scene objects not)."""
+    model = getattr(plant, "model", None)
+    if model is None or not hasattr(model, "body_subtreemass"):
+        return None
+    return float(model.body_subtreemass[model.body(plant.body_name(1)).id])
 
 
 def _mass_identification(robot: RobotModel, config: RunConfig, mpc: MPC, plant):
@@ -263,7 +343,9 @@ def _run_summary(robot: RobotModel, config: RunConfig, mpc: MPC, plant, duration
     """The run's settings in its metrics: delay, plant, grid, base tracking, push cadence, solver, drive train."""
     return {"delay_mode": config.delay_mode, "delay_ms": config.delay_ms, "mpc_rate_target_hz": config.mpc_rate_hz,
             "delay": delay_text(config.delay_mode, config.delay_ms),  # the one-string form of before (one release)
-            "plant": config.plant, "nodes": config.nodes,
+            "plant": config.plant, "nodes": config.nodes, "joint_loop_hz": config.joint_loop_hz,
+            "joint_loop_jitter_ms": config.joint_loop_jitter_ms, "motor_law": config.motor_law,
+            "physics_dt_ms": 1e3 * plant.dt_s, "friction_coefficient": mpc.config.friction_coefficient,
             "time_steps": "geometric" if config.uniform_dt_ms is None else "uniform",
             "uniform_dt_ms": config.uniform_dt_ms, "base_tracking": mpc.config.references.base_tracking,
             "push_gait_period_scale": mpc.config.push.gait_period_scale,
@@ -295,13 +377,14 @@ def self_collision_metrics(plant, mpc: MPC, log: RunLog) -> dict:
     return out
 
 
-def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, commands_ee: bool = False) -> dict:
+def _settings_report(robot: RobotModel, mpc: MPC, gains: PdGains, commands_ee: bool = False,
+                     hold: float = DEFAULT_HOLD_S) -> dict:
     """{"values": {setting: value}, "sources": {setting: source}} of the run: derived / table as `wbmpc info`
     says, "option" where the run used another value (a command-line option, the scenario's own gains)."""
     tuning = tuning_for(robot).for_task(commands_ee)
     used = dataclasses.replace(tuning.as_used_in(mpc.config), gains=gains)
-    report = tuning.report()
-    used_report = used.report()
+    report = tuning.report(hold_s=hold)
+    used_report = used.report(hold_s=hold)
     out = {"values": {}, "sources": {}}
     for name, entry in used_report.items():
         out["values"][name] = entry["value"]

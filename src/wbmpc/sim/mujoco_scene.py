@@ -40,6 +40,7 @@ ROBOT_SELF_CONAFFINITY = ROBOT_CONAFFINITY | ROBOT_CONTYPE  # robot geoms that t
 ENV_CONTYPE, ENV_CONAFFINITY = 1, 3
 SELF_CONTACT_TOUCH_M = 0.005  # robot shapes this close at the nominal pose touch by design (excluded)
 SELF_CONTACT_SAMPLES = 200  # random joint configurations for the grandparent exclusions
+DEFAULT_CONTACT_TIMECONST_S = 0.005  # the floor contact's solref time constant on steps up to 2.5 ms
 MIN_MASS_KG = 1e-9
 MIN_INERTIA_KG_M2 = 1e-9
 _JOINT_AXES = {
@@ -52,11 +53,12 @@ _JOINT_AXES = {
 class MujocoPlantConfig(PlantConfig):
     """MuJoCo scene settings on top of `PlantConfig` (units in the names).
 
-    Contacts use MuJoCo's soft-constraint model: `contact_timeconst_s` (>= 2 dt for stability) and
-    `contact_dampratio` form `solref`; `contact_solimp` is MuJoCo's impedance tuple.
+    Contacts use MuJoCo's soft-constraint model: `contact_timeconst_s` (>= 2 dt for stability; None: 5 ms,
+    or 2 dt on a physics step longer than 2.5 ms) and `contact_dampratio` form `solref`; `contact_solimp` is
+    MuJoCo's impedance tuple.
     """
 
-    contact_timeconst_s: float = 0.005
+    contact_timeconst_s: float | None = None
     contact_dampratio: float = 1.0
     contact_solimp: tuple[float, float, float, float, float] = (0.95, 0.99, 0.001, 0.5, 2.0)
     torsional_friction_m: float = 0.0
@@ -85,10 +87,17 @@ class MujocoPlantConfig(PlantConfig):
         timeconst = self.joint_friction_timeconst_s
         if timeconst is not None and not (np.isfinite(timeconst) and timeconst >= 2 * self.dt_s):
             raise PlantInputError(f"joint_friction_timeconst_s ({timeconst}) must be >= 2 * dt_s ({2 * self.dt_s})")
-        if not self.contact_timeconst_s >= 2 * self.dt_s:
+        if self.contact_timeconst_s is not None and not self.contact_timeconst_s >= 2 * self.dt_s:
             raise PlantInputError(
                 f"contact_timeconst_s ({self.contact_timeconst_s}) must be >= 2 * dt_s ({2 * self.dt_s}) for a stable contact"
             )
+
+    @property
+    def contact_timeconst(self) -> float:
+        """The floor contact's time constant in use (s): `contact_timeconst_s`, or its default for `dt_s`."""
+        if self.contact_timeconst_s is not None:
+            return self.contact_timeconst_s
+        return max(DEFAULT_CONTACT_TIMECONST_S, 2 * self.dt_s)
 
 
 @dataclass(frozen=True)
@@ -319,7 +328,7 @@ def _defaults(root: ET.Element, config: MujocoPlantConfig) -> None:
         conaffinity=str(ENV_CONAFFINITY),
         condim="3",
         friction=friction,
-        solref=_v([config.contact_timeconst_s, config.contact_dampratio]),
+        solref=_v([config.contact_timeconst, config.contact_dampratio]),
         solimp=_v(config.contact_solimp),
     )
     robot_class = ET.SubElement(default, "default", attrib={"class": "robot"})

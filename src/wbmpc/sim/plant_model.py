@@ -346,7 +346,7 @@ def _add_environment(spec: mujoco.MjSpec, config: MujocoPlantConfig, root_body: 
     world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], rgba=[0.25, 0.35, 0.45, 1],
                    contype=ENV_CONTYPE, conaffinity=ENV_CONAFFINITY, condim=3, priority=0,
                    friction=[config.friction_mu, config.torsional_friction_m, 0.0001],
-                   solref=[config.contact_timeconst_s, config.contact_dampratio], solimp=list(config.contact_solimp))
+                   solref=[config.contact_timeconst, config.contact_dampratio], solimp=list(config.contact_solimp))
     if not any(c.name == "track" for c in spec.cameras):
         spec.body(root_body).add_camera(name="track", mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM, pos=[0, -2.5, 1.0],
                              quat=_camera_quat())
@@ -359,7 +359,7 @@ def _add_environment(spec: mujoco.MjSpec, config: MujocoPlantConfig, root_body: 
 
     default = (f'<default><geom contype="{ENV_CONTYPE}" conaffinity="{ENV_CONAFFINITY}" condim="3" '
                f'friction="{_v([config.friction_mu, config.torsional_friction_m, 0.0001])}" '
-               f'solref="{_f(config.contact_timeconst_s)} {_f(config.contact_dampratio)}" '
+               f'solref="{_f(config.contact_timeconst)} {_f(config.contact_dampratio)}" '
                f'solimp="{_v(config.contact_solimp)}"/></default>')
     for k, snippet in enumerate(config.extra_bodies_mjcf):
         try:
