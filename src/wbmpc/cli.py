@@ -440,7 +440,6 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
 
     from wbmpc.control.delay import delay_text
     from wbmpc.scenarios import (
-        SCENARIOS,
         check_output_dir,
         make_scenario,
         run_scenario,
@@ -465,7 +464,7 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
     from wbmpc.operator.script import script_duration
 
-    scenario = SCENARIOS[args.scenario](config.options)
+    scenario = make_scenario(args.scenario, robot, config.options)  # its default duration may follow the robot
     duration = config.duration_s or script_duration(config.operator.commands_file) or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
           f"{' (compiled)' if config.compiled else ''}, delay {delay_text(config.delay_mode, config.delay_ms)}"

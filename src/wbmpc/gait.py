@@ -91,6 +91,30 @@ class SwingProfile:
         return out
 
 
+def swing_between(progress: np.ndarray, swing_duration_s: float, lift_off_m, apex_m, touch_down_m,
+                  apex_share=0.5, liftoff_velocity_m_s: float = 0.0,
+                  touchdown_velocity_m_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Height and v_z of eq. (6)'s spline between unequal heights (terrain): from `lift_off_m` up to `apex_m` over
+    the first `apex_share` of the swing, down to `touch_down_m` over the rest, each a cubic with zero vertical
+    velocity at the apex and the lift-off / touch-down velocities at its ends. Every argument broadcasts against
+    `progress` (s in [0, 1]; s < 0, stance: height and velocity 0). With equal heights of 0 and apex_share 0.5
+    it is `SwingProfile`'s."""
+    s = np.asarray(progress, dtype=float)
+    h0, apex, h1, share = (np.broadcast_to(np.asarray(a, dtype=float), s.shape) for a in
+                           (lift_off_m, apex_m, touch_down_m, apex_share))
+    up = (s >= 0) & (s < share)
+    down = s >= share
+    t_up, t_down = share * swing_duration_s, (1.0 - share) * swing_duration_s
+    x_up = np.where(up, s / np.maximum(share, 1e-9), 0.0)
+    x_down = np.where(down, (s - share) / np.maximum(1.0 - share, 1e-9), 0.0)
+    m_up, m_down = liftoff_velocity_m_s * t_up, touchdown_velocity_m_s * t_down
+    height = np.where(up, _cubic_position(x_up, h0, apex, m_up, 0.0),
+                      np.where(down, _cubic_position(x_down, apex, h1, 0.0, m_down), 0.0))
+    velocity = np.where(up, _cubic_velocity(x_up, h0, apex, m_up, 0.0) / np.maximum(t_up, 1e-9),
+                        np.where(down, _cubic_velocity(x_down, apex, h1, 0.0, m_down) / np.maximum(t_down, 1e-9), 0.0))
+    return height, velocity
+
+
 class GaitClock(Gait):
     """A gait whose period can change while it runs, with every foot's phase continuous (`retime`), and
     that can stop and start on command (`follow`: stand <-> walk at a phase where the feet allow it).

@@ -29,6 +29,7 @@ from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import SCENARIOS, make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.scenarios.outputs import write_output_files
+from wbmpc.scenarios.terrain import check_terrain, contact_monitor
 from wbmpc.sim import PLANTS, PlantConfig, make_plant, robot_plant_config
 from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
 from wbmpc.sim.model_errors import ModelErrors
@@ -203,6 +204,7 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
+    check_terrain(robot, scenario, config.plant)
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     # the plant does not wait: recovery solvers must not be built mid-run (in real time the solver process
     # builds its own MPC and prepares it; this one only solves the first step, before the clock runs)
@@ -218,7 +220,9 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
 
 def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator) -> ScenarioResult:
     mpc.reset()
-    plant = _plant(robot, config, scene, operator)
+    terrain = scenario.terrain(robot)
+    plant = _plant(robot, config, scene, operator, terrain, scenario.start_pose(robot))
+    terrain_monitor = contact_monitor(robot, plant, terrain)
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
@@ -232,7 +236,7 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
         state_source.listeners.append(identification.on_estimate)
     loop_config = LoopConfig(mpc_rate_hz=config.mpc_rate_hz, delay_mode=config.delay_mode, delay_ms=config.delay_ms,
-                             gains=gains, seed=config.seed, control_rate_hz=config.joint_loop_hz,
+                             gains=gains, seed=config.seed, terrain=terrain, control_rate_hz=config.joint_loop_hz,
                              joint_loop_jitter_ms=config.joint_loop_jitter_ms, motor_law=config.motor_law,
                              touchdown_events=config.touchdown_events,
                              joint_position_noise_rad=config.joint_position_noise_rad,
@@ -255,6 +259,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
+    if terrain_monitor is not None:
+        metrics.update(terrain_monitor.metrics())
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm, hold)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
@@ -267,9 +273,11 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator
                           estimation=state_source.log if state_source is not None else None)
 
 
-def _plant(robot: RobotModel, config: RunConfig, scene, operator=None):
-    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors, the
-    viewer's hand target (`operator`, a `wbmpc.operator.run.OperatorRun`); reset to the nominal pose."""
+def _plant(robot: RobotModel, config: RunConfig, scene, operator=None, terrain=None,
+           start_q: np.ndarray | None = None):
+    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the terrain, the model
+    errors, the viewer's hand target (`operator`, a `wbmpc.operator.run.OperatorRun`); reset to the start pose
+    (the nominal one, on the terrain under it)."""
     plant_config = config.plant_config
     if plant_config is None and config.plant_model is None:  # a preset's rotors (g1) are the plant's too
         plant_config = robot_plant_config(robot)
@@ -281,6 +289,10 @@ def _plant(robot: RobotModel, config: RunConfig, scene, operator=None):
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
         plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
+    if terrain is not None:  # MuJoCo builds the terrain the MPC plans on
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = dataclasses.replace(specialised_config(plant_config, MujocoPlantConfig), terrain=terrain)
     if config.model_errors is not None and not config.model_errors.is_nominal:
         if config.plant != "mujoco":
             raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
@@ -297,7 +309,7 @@ def _plant(robot: RobotModel, config: RunConfig, scene, operator=None):
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
-    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    plant.reset(robot.q_nominal if start_q is None else start_q, np.zeros(robot.nv))
     return plant
 
 
@@ -425,7 +437,7 @@ def _estimated_state(plant, mpc: MPC, config: RunConfig):
     from wbmpc.estimation.source import EstimatedState
 
     sensors = config.sensors or SensorConfig(seed=config.seed)
-    return EstimatedState(plant, mpc.gait, sensors)
+    return EstimatedState(plant, mpc.gait, sensors, terrain=mpc.config.references.terrain)
 
 
 
@@ -447,6 +459,13 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         arrays = result.log.arrays(("t", "q"), every=every)
         paths += scenario.extra_plots(robot, result.log, folder)
         objects = result.scene.replay_objects() if result.scene is not None else None
+        terrain = scenario.terrain(robot)
+        if terrain is not None:  # the steps, ramps and heightmaps the robot walked on, drawn and as a file
+            from wbmpc.sim.terrain_geoms import replay_shapes
+            from wbmpc.terrain import save_terrain
+
+            objects = (objects or []) + replay_shapes(terrain)
+            paths.append(save_terrain(terrain, folder / "terrain.yaml"))
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
         if result.estimation is not None:
