@@ -36,8 +36,6 @@ def test_the_sixty_second_session(robot):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="measured up to 25 s within the numbers (walk, turn, strafe, stop: docs/operator.md); "
-                   "the whole walking session not yet measured on this branch", strict=False)
 def test_the_sixty_second_walking_session_on_a_humanoid():
     """The issue's "(walking) g1": the session without the hand's entries (standing with its hand 20 cm forward g1
     leans after it and falls: docs/operator.md)."""
