@@ -76,3 +76,24 @@ def test_bench_mpc_quick_smoke(capsys, tmp_path):
     assert same["adaptive_vs_uniform"]["uniform"]["grid"] == "uniform 40 ms"
     assert same["adaptive_vs_uniform"]["time_ratio"] > 0
     assert "%|" not in err and "\r" not in err  # stderr is no terminal here: no progress bar in logs
+
+
+def test_bench_scaling_sweeps_the_horizon_and_the_robots(capsys, tmp_path):
+    """Both sweeps on small uncompiled runs: one point per horizon and per robot, sizes growing with the horizon and
+    the degrees of freedom, the plot written."""
+    plot = tmp_path / "scaling.png"
+    code, report, _ = _run_json(capsys, ["bench", "scaling", "--robot", "a1", "--nodes-list", "4,6", "--robots",
+                                         "a1,go2", "--nodes", "4", "--steps", "2", "--solver", "fatrop", "--json",
+                                         "--plot", str(plot)])
+    assert code == 0 and plot.stat().st_size > 0 and report["plot"] == str(plot)
+    horizon, dof = report["horizon"]["points"], report["dof"]["points"]
+    assert [p["nodes"] for p in horizon] == [4, 6] and [p["robot"] for p in dof] == ["a1", "go2"]
+    assert horizon[0]["decision_variables"] < horizon[1]["decision_variables"]
+    assert all(p["failures"] == 0 and not p["fell"] and p["solve_ms"]["mean"] > 0 for p in horizon + dof)
+    assert dof[0]["nv"] == dof[1]["nv"] == 18 and {p["gait"] for p in dof} == {"trot"}
+
+
+def test_bench_mpc_threads_are_checked(capsys):
+    code = main(["bench", "mpc", "--steps", "2", "--solvers", "fatrop", "--threads", "1,2"])
+    assert code == 2
+    assert "fatrop-direct" in capsys.readouterr().err

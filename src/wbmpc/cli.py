@@ -640,7 +640,7 @@ def _add_run_parser(sub, formatter) -> None:
 
 
 def _add_bench_parsers(sub, formatter):
-    """`wbmpc bench dynamics|robots|mpc|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
+    """`wbmpc bench dynamics|robots|mpc|scaling|solvers|table1` (logic in wbmpc.bench, imported when a command runs);
     returns the bench subparsers (the hardware module adds `bench dds`)."""
     from wbmpc.control.loop import MPC_RATE_HZ
 
@@ -673,9 +673,30 @@ def _add_bench_parsers(sub, formatter):
     mpc.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
     mpc.add_argument("--collision-avoidance", action="store_true", help="also re-solve the same states with the "
                      "collision avoidance rows (their cost: same_states.collision_vs_plain)")
+    mpc.add_argument("--threads", metavar="N[,N...]", help="fatrop-direct's stage evaluation threads (default: 2 "
+                     "where two cores are free); several counts (e.g. 1,2) re-solve the same states on each and "
+                     "report the speed-up against the first")
     mpc.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
     mpc.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     mpc.set_defaults(func=lambda args: _bench_mpc().cli_bench_mpc(args, robot_from_args))
+
+    scaling = bench_sub.add_parser("scaling", help="MPC step time against the horizon's nodes and the robot's "
+                                                   "degrees of freedom (closed loop, plotted)")
+    scaling.add_argument("--robot", default="b1_z1", metavar="NAME", help="robot of the horizon sweep (default b1_z1)")
+    scaling.add_argument("--nodes-list", default="10,15,25,40", metavar="N,N", help="horizon nodes of the horizon "
+                         "sweep (default 10,15,25,40)")
+    scaling.add_argument("--robots", default="go2,b1_z1,g1,talos", metavar="NAME,NAME", help="presets of the robot "
+                         "sweep (default go2,b1_z1,g1,talos)")
+    scaling.add_argument("--nodes", type=int, default=15, help="horizon nodes of the robot sweep (default 15)")
+    scaling.add_argument("--steps", type=int, default=40, help="MPC steps at 80 Hz per point (default 40)")
+    scaling.add_argument("--solver", default="fatrop-direct", help="solver (default fatrop-direct)")
+    scaling.add_argument("--compiled", action="store_true", help="compiled solvers (C generated and cached)")
+    scaling.add_argument("--threads", type=int, help="fatrop-direct's stage evaluation threads (default: 2 where two "
+                         "cores are free)")
+    scaling.add_argument("--plot", metavar="FILE", help="draw both sweeps into FILE (PNG)")
+    scaling.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    scaling.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    scaling.set_defaults(func=lambda args: _bench_module("scaling").cli_bench_scaling(args, _load_preset))
 
     solvers = bench_sub.add_parser("solvers", help="Fatrop vs IPOPT, warm vs cold, adaptive vs uniform grid, "
                                                    "solve time vs number of nodes")
@@ -759,6 +780,12 @@ def _bench_module(name: str):
     import importlib
 
     return importlib.import_module(f"wbmpc.bench.{name}")
+
+
+def _load_preset(name: str):
+    from wbmpc.robots import load_robot
+
+    return load_robot(name)
 
 
 def _bench_mpc():

@@ -489,7 +489,7 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     # the plan: solved once, then a QP that fails (its iteration cap) leaves the last plan shifted, finite
     mpc = MPC(g1, realtime)
     mpc.prepare_fallback()
-    assert mpc.solver._recovery is None and mpc.solver.fallback_qp is None and not mpc.recovery.built()
+    assert mpc.solver.recovery_solver is None and mpc.solver.fallback_qp is None and not mpc.recovery.built()
     first = mpc.solve(g1.q_nominal, np.zeros(g1.nv), t_s=0.0)
     assert first.success, first.stats.status
     n = mpc.problem.n_variables
@@ -500,7 +500,7 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     assert not held.success and held.held_previous
     assert held.stats.status.startswith("QP_Maximum_Iterations_Exceeded; holding the last good plan")
     assert all(np.all(np.isfinite(part)) for part in (held.q, held.v, held.a, held.forces, held.tau))
-    assert mpc.solver._recovery is None and not mpc.recovery.built()  # nothing was built or run to rescue it
+    assert mpc.solver.recovery_solver is None and not mpc.recovery.built()  # nothing was built or run to rescue it
 
 
 def test_delay_compensation_is_off_by_default_on_flat_feet(g1):

@@ -58,7 +58,7 @@ def test_crc_matches_the_sdk_reference(go2):
     n = go2.n_joints
     msg = encode_low_cmd(MotorCommand(rng.normal(size=n), rng.normal(size=n), np.full(n, 20.0), np.ones(n),
                                       rng.normal(size=n)), motors, echo_tick=42)
-    assert msg.crc == _sdk_reference_crc(crc._words(crc.pack_low_cmd(msg)))
+    assert msg.crc == _sdk_reference_crc(crc.payload_words(crc.pack_low_cmd(msg)))
     assert len(crc.pack_low_cmd(msg)) == 812 and len(crc.pack_low_state(SDK.new_low_state())) == 1180
 
 
@@ -338,15 +338,15 @@ def test_robot_sim_imitating_unitree_simulator_holds_each_low_cmd_torque(go2):
     msg = encode_low_cmd(MotorCommand(target, np.zeros(n), np.full(n, 20.0), np.full(n, 0.5), np.full(n, 1.0)), motors)
     msg.crc ^= 1  # unchecked on this link
     q_now, dq_now = go2.q_nominal[7:].copy(), np.full(n, 0.2)
-    sim._joints_now = (q_now, dq_now)
-    sim._on_command(msg)
-    held = sim._command
+    sim.joint_readings = (q_now, dq_now)
+    sim.on_low_cmd(msg)
+    held = sim.held_command
     expected = 1.0 + 20.0 * (target - q_now) + 0.5 * (0.0 - dq_now)
     np.testing.assert_allclose(held.torque(q_now + 0.3, dq_now - 1.0), expected, atol=1e-5)  # held as the robot moves
-    assert sim.report.commands_received == 1 and sim._rejected == {}
+    assert sim.report.commands_received == 1 and sim.rejected_counts == {}
     strict = RobotSimulator(go2, RobotSimConfig())
-    strict._on_command(msg)
-    assert strict._command is None and dict(strict._rejected) == {"crc": 1}
+    strict.on_low_cmd(msg)
+    assert strict.held_command is None and strict.rejected_counts == {"crc": 1}
 
 
 def test_clamps_keep_targets_and_torques_in_limits(go2):

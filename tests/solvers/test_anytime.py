@@ -237,9 +237,14 @@ class FailingQp:
 def _failing(solver, clock, step):
     failing = FailingQp(solver.qp, clock, step)
     solver.qp = failing
-    solver._capped = {}  # every QP is the failing one
-    solver._recover = lambda *args, **kwargs: pytest.fail("a step with a deadline must not run the Fatrop recovery")
+    solver.capped_qps.clear()  # every QP is the failing one
     return failing
+
+
+def _assert_no_fatrop_recovery(solver, result):
+    """A step with a deadline never runs the converged Fatrop re-solve (built lazily at its first use)."""
+    assert solver.recovery_solver is None and "recovery_ms" not in solver.last_timing
+    assert "fatrop recovery" not in result.stats.status
 
 
 def test_a_failed_qp_under_a_deadline_returns_in_time_with_a_counted_status(fixed_state):
@@ -254,6 +259,7 @@ def test_a_failed_qp_under_a_deadline_returns_in_time_with_a_counted_status(fixe
     start = clock.now
     deadline = start + 3e-3  # shorter than the failing QP: no time for the fallback mode after it
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=deadline)
+    _assert_no_fatrop_recovery(solver, result)
     assert not result.stats.success and "QP_Maximum_Iterations_Exceeded" in result.stats.status
     assert "no time for balance" in result.stats.status and solver.fallback_qp.calls == 0
     assert failing.calls == 1 and result.stats.details["qp_failures"] == 1
@@ -270,6 +276,7 @@ def test_a_failed_qps_usable_iterate_is_taken_when_it_lowers_the_merit(fixed_sta
     solver.solve(p, lbx, ubx, lbg, ubg, x0)
     failing = _failing(solver, clock, step=None)
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=clock.now + 1.0)
+    _assert_no_fatrop_recovery(solver, result)
     assert result.stats.success and "inexact step taken" in result.stats.status, result.stats.status
     details = result.stats.details
     assert details["inexact_steps"] == 1 and details["qp_failures"] == 1 and details["sqp_iterations"] == 1
@@ -277,6 +284,7 @@ def test_a_failed_qps_usable_iterate_is_taken_when_it_lowers_the_merit(fixed_sta
     # a garbage iterate (a huge step) is rejected by the line search, not applied
     _failing(solver, clock, step=1e6)
     rejected = solver.solve(p, lbx, ubx, lbg, ubg, x0, warm_start=True, deadline=clock.now + 1.0)
+    _assert_no_fatrop_recovery(solver, rejected)
     assert not rejected.stats.success and "rejected by the line search" in rejected.stats.status
 
 
@@ -287,15 +295,15 @@ def test_the_qp_iteration_cap_follows_the_time_left(fixed_state):
 
     problem = fixed_state[0]
     solver = _solver(problem, clock=FakeClock(), min_qp_iterations=6)
-    assert solver._capped_qp(1.0) is solver.qp  # nothing measured yet
+    assert solver.qp_for(1.0) is solver.qp  # nothing measured yet
     for n, t in ((3, 2.65e-3), (10, 6.5e-3), (5, 3.75e-3)):  # 1 ms + 0.55 ms per iteration
-        solver._record_qp(t, n)
-    assert solver._qp_iteration_s == pytest.approx(0.55e-3, rel=1e-6)
-    per = solver.anytime.safety * solver._qp_iteration_s
-    assert solver._capped_qp(9.5 * per).config.max_iterations == 9
-    assert solver._capped_qp(1.0 * per).config.max_iterations == 6  # the floor
-    assert solver._capped_qp(1.0) is solver.qp
-    assert all(solver._capped[cap].config.max_iterations == cap for cap in QP_ITERATION_CAPS
+        solver.record_qp(t, n)
+    assert solver.qp_iteration_s == pytest.approx(0.55e-3, rel=1e-6)
+    per = solver.anytime.safety * solver.qp_iteration_s
+    assert solver.qp_for(9.5 * per).config.max_iterations == 9
+    assert solver.qp_for(1.0 * per).config.max_iterations == 6  # the floor
+    assert solver.qp_for(1.0) is solver.qp
+    assert all(solver.capped_qps[cap].config.max_iterations == cap for cap in QP_ITERATION_CAPS
                if cap < solver.qp.config.max_iterations)
 
 
@@ -307,8 +315,9 @@ def test_mpc_holds_the_last_good_plan_at_once_when_a_step_with_a_deadline_fails(
     first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
     assert first.success
     failing = FailingQp(mpc.solver.qp, FakeClock(), np.nan, cost_s=0.0)
-    mpc.solver.qp, mpc.solver._capped = failing, {}
-    monkeypatch.setattr(mpc, "_recover", lambda *a, **k: pytest.fail("no recovery ladder within a deadline"))
+    mpc.solver.qp = failing
+    mpc.solver.capped_qps.clear()
+    monkeypatch.setattr(mpc.recovery, "recover", lambda *a, **k: pytest.fail("no recovery ladder within a deadline"))
     second = mpc.solve(first.q[1], first.v[1], t_s=0.0125)
     assert not second.success and second.held_previous
     assert "no recovery re-solve past the step's deadline" in second.stats.status

@@ -1,12 +1,16 @@
 """Fast linear algebra under Fatrop (the AVX2 BLASFEO) and Fatrop options kept across contact switches."""
 
 import ctypes
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, StageBounds
 from wbmpc.robots import load_robot
@@ -22,11 +26,40 @@ def test_the_active_blasfeo_is_the_only_one_loaded():
     robot = load_robot("go2")
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="stand"))
     assert mpc.solve(robot.q_nominal, np.zeros(robot.nv)).success
-    loaded = blasfeo._loaded("libblasfeo")
+    loaded = blasfeo.loaded_libraries("libblasfeo")
     if status.active == "avx2":
         assert loaded == [status.library]
     else:
         assert len(loaded) == 1 and Path(loaded[0]).parent.name == "casadi"
+
+
+def test_importing_wbmpc_loads_no_blasfeo():
+    """No import-time side effects: importing the packages (solvers included) loads no BLASFEO; the first solver
+    made activates the one `status` names before Fatrop loads."""
+    code = """
+import json
+from pathlib import Path
+def loaded():
+    return sorted({l.split()[-1] for l in Path('/proc/self/maps').read_text().splitlines()
+                   if 'libblasfeo' in l.split()[-1]})
+import wbmpc.solvers, wbmpc.solvers.nlp, wbmpc.control, wbmpc.scenarios
+before = loaded()
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.robots import load_robot
+from wbmpc.solvers import blasfeo, make_solver
+from wbmpc.solvers.nlp import SolverConfig
+problem = OcpProblem(load_robot("a1"), OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02)))
+make_solver(problem, SolverConfig())
+print(json.dumps({"before": before, "after": loaded(), "library": blasfeo.status().library}))
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["before"] == []
+    assert len(report["after"]) == 1
+    if report["library"] is not None:
+        assert report["after"] == [report["library"]]
 
 
 @pytest.mark.skipif(not blasfeo.library_path().exists(), reason="the AVX2 BLASFEO is not installed (wbmpc setup)")
@@ -45,10 +78,11 @@ def test_verification_rejects_a_broken_library(tmp_path):
 
 
 def test_bad_mode_is_refused(monkeypatch):
-    monkeypatch.setattr(blasfeo, "_status", None)
+    monkeypatch.setenv("WBMPC_BLASFEO", " AVX2 ")
+    assert blasfeo.requested_mode() == "avx2"
     monkeypatch.setenv("WBMPC_BLASFEO", "fastest")
-    with pytest.raises(Exception, match="auto, generic or avx2"):
-        blasfeo.activate()
+    with pytest.raises(ConfigError, match="'fastest' is not a choice; use auto, generic or avx2"):
+        blasfeo.requested_mode()
 
 
 def test_cpu_flags_are_read():
@@ -96,7 +130,7 @@ def test_options_hold_after_contact_switches(switching):
         mpc.reset()
         mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
         assert mpc.solver.solver.stats()["iter_count"] <= 3, pattern
-    assert set(mpc.solver._by_structure) == set(keys.values())
+    assert set(mpc.solver.structure_keys) == set(keys.values())
 
 
 def test_buffered_function_matches_a_plain_call():

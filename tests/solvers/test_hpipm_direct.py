@@ -102,7 +102,7 @@ def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypa
     def unavailable(*args, **kwargs):
         raise HpipmUnavailable("no compiler")
 
-    monkeypatch.setattr(hd, "_library", unavailable)
+    monkeypatch.setattr(hd, "shim_library", unavailable)
     qp, error = make_qp(problem, data[0].sparsity(), data[2].sparsity(), QpConfig(mode="speed_abs"))
     # casadi's conic in the relative mode: its speed_abs returns no equality multipliers
     assert isinstance(qp, StructuredQp) and qp.config.mode == "speed" and "no compiler" in error
@@ -113,7 +113,7 @@ def test_the_sqp_solvers_use_it_and_fall_back_to_casadis_conic(qp_data, monkeypa
     robot = load_robot("go2")
     with pytest.warns(RuntimeWarning, match="direct binding is unavailable"):
         mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.05))
-    assert all(isinstance(q, StructuredQp) for q in (mpc.solver.qp, *mpc.solver._capped.values()))
+    assert all(isinstance(q, StructuredQp) for q in (mpc.solver.qp, *mpc.solver.capped_qps.values()))
     first = mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0)
     second = mpc.solve(first.q[1], first.v[1], t_s=0.0125)
     assert first.success and second.success, second.stats.status

@@ -106,7 +106,7 @@ def test_capped_recovery_is_built_ahead_and_stops_at_its_cap(fixed_state):
     problem, data, _ = fixed_state
     solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_max_iterations": 2}))
     solver.prepare_recovery()
-    assert solver._recovery is not None and solver._recovery.config.max_iterations == 2
+    assert solver.recovery_solver is not None and solver.recovery_solver.config.max_iterations == 2
     result = solver.solve(*data)
     assert not result.stats.success and "Maximum_Iterations_Exceeded (fatrop recovery after rti" in result.stats.status
     assert result.stats.iterations <= 2 + 3  # one QP iteration per HPIPM mode, then Fatrop stops after its cap (+1)

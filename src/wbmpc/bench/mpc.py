@@ -65,8 +65,10 @@ def check_names(formulation: str | None = None, gait: str | None = None, solvers
 
 
 def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str = "fatrop", nodes: int = 15,
-               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False, robot=None):
-    """The benchmarks' MPC settings; with `robot`, its own weights, gait period and swing (control/tuning.py)."""
+               uniform_dt_ms: float | None = None, warm_start: bool = True, compiled: bool = False, robot=None,
+               threads: int | None = None):
+    """The benchmarks' MPC settings; with `robot`, its own weights, gait period and swing (control/tuning.py);
+    `threads`: fatrop-direct's stage evaluation threads (None: its default)."""
     from wbmpc.control import MpcConfig
     from wbmpc.ocp.problem import OcpConfig
     from wbmpc.solvers.nlp import SolverConfig
@@ -77,7 +79,7 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
     # convergence) without their Fatrop recovery of failed QPs either
     extra = {"recovery_barrier_init": None} if solver in ("rti", "sqp") else {}
     config = MpcConfig(ocp=OcpConfig(formulation=formulation, grid=grid),
-                       solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra),
+                       solver=SolverConfig(name=solver, compiled=compiled, extra_options=extra, threads=threads),
                        gait=gait, warm_start=warm_start)
     # measure the requested solver alone: a failed step stays a failure (no recovery re-solve)
     config = replace(config, recovery=replace(config.recovery, fallback_solver=None, barrier_init=None))
@@ -282,10 +284,13 @@ def _ratio(numerator: float | None, denominator: float | None) -> float | None:
 
 def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocchio",
               solvers: tuple[str, ...] = ("fatrop", "ipopt"), nodes: int = 15, uniform_dt_ms: float | None = None,
-              show_progress: bool = True, compiled: bool = False, collision_avoidance: bool = False) -> dict:
+              show_progress: bool = True, compiled: bool = False, collision_avoidance: bool = False,
+              threads: tuple[int, ...] | None = None) -> dict:
     """Closed-loop receding-horizon benchmark plus same-state comparisons (see module docstring);
     `collision_avoidance` adds the reference solver with the collision rows (`OcpConfig.collision`) to the
-    same-state re-solves: the rows' cost on the very same states."""
+    same-state re-solves: the rows' cost on the very same states. `threads`: fatrop-direct's stage evaluation
+    threads, the first for the closed loops; each further count re-solves the same states with fatrop-direct on
+    that many threads (`same_states.threads`: times and the speed-up against the first count)."""
     from wbmpc.control import MPC
     from wbmpc.ocp.problem import OcpProblem
 
@@ -295,6 +300,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     if not isinstance(steps, int) or steps < 1:
         raise ConfigError(f"--steps must be an integer >= 1, got {steps}")
     check_names(gait=gait, solvers=list(solvers), plant=plant)
+    threads = _check_threads(threads, solvers)
     grid = grid_for(nodes)
     if uniform_dt_ms is None:
         # about the same horizon, in whole ms: 40 ms for the paper's 15 nodes (0.56 s)
@@ -304,7 +310,8 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
 
     machine_start = _machine()
     wall_start = time.perf_counter()
-    n_resolve = 3 + (len(solvers) - 1) + int(collision_avoidance)  # warm, cold, uniform, other solvers, collision
+    # warm, cold, uniform, other solvers, collision, other thread counts
+    n_resolve = 3 + (len(solvers) - 1) + int(collision_avoidance) + len(threads) - 1
     progress = ProgressBar(len(solvers) * steps + n_resolve * steps + 0.5 * (len(solvers) + 2), unit="solves",
                            enabled=None if show_progress else False)
     done = 0.0
@@ -318,7 +325,8 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     for name in solvers:
         progress.update(done, f"building {name}")
         start = time.perf_counter()
-        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled, robot=robot), problem=problem)
+        mpcs[name] = MPC(robot, mpc_config(gait=gait, solver=name, nodes=nodes, compiled=compiled, robot=robot,
+                                           threads=threads[0]), problem=problem)
         build[f"{name}_s"] = time.perf_counter() - start
         done += 0.5
 
@@ -342,13 +350,18 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     start = time.perf_counter()
     variants = {reference: mpcs[reference]}
     variants[f"{reference}_cold"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, warm_start=False, robot=robot,
-                                                                   compiled=compiled),
+                                                          compiled=compiled, threads=threads[0]),
                                         problem=problem)
     variants[f"{reference}_uniform"] = MPC(robot, mpc_config(gait=gait, solver=reference, nodes=nodes, robot=robot,
-                                                             uniform_dt_ms=uniform_dt_ms, compiled=compiled))
+                                                             uniform_dt_ms=uniform_dt_ms, compiled=compiled,
+                                                             threads=threads[0]))
     for name in solvers:
         if name != reference:
             variants[name] = mpcs[name]
+    for count in threads[1:]:
+        variants[f"fatrop-direct_threads{count}"] = MPC(robot, mpc_config(
+            gait=gait, solver="fatrop-direct", nodes=nodes, compiled=compiled, robot=robot, threads=count),
+            problem=problem)
     if collision_avoidance:
         from wbmpc.robots.collision_model import CollisionConfig
 
@@ -410,6 +423,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     return {
         "robot": robot.name,
         "gait": gait,
+        "threads": list(threads),
         "plant": plant,
         "compiled": compiled,
         "delay": "none",
@@ -425,6 +439,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
             "fatrop_vs_ipopt": fatrop_vs_ipopt,
             "rti_vs_fatrop": rti_vs_fatrop,
             "collision_vs_plain": collision_vs_plain,
+            "threads": _threads_summary(same, threads),
             "warm_vs_cold": {
                 "warm": {"solve_ms": warm["solve_ms"], "iterations_mean": warm["iterations"]["mean"],
                          "failures": warm["failures"]},
@@ -450,6 +465,36 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
         "machine": {"start": machine_start, "end": _machine()},
         "wall_s": time.perf_counter() - wall_start,
     }
+
+
+def _check_threads(threads, solvers) -> tuple:
+    """(None,) for the solvers' default; several counts need fatrop-direct among the solvers."""
+    if not threads:
+        return (None,)
+    threads = tuple(dict.fromkeys(threads))
+    for count in threads:
+        check_number("threads", count, low=1, high=64)
+    if len(threads) > 1 and "fatrop-direct" not in solvers:
+        raise ConfigError("--threads with several counts compares fatrop-direct's stage evaluations: add "
+                          "fatrop-direct to --solvers")
+    return threads
+
+
+def _threads_summary(same: dict, threads: tuple) -> dict | None:
+    """fatrop-direct on each thread count, same states: times and speed-ups against the first count."""
+    if len(threads) < 2:
+        return None
+    labels = {threads[0]: "fatrop-direct", **{t: f"fatrop-direct_threads{t}" for t in threads[1:]}}
+    runs = {str(t): {"solve_ms": same[label]["solve_ms"], "step_cpu_ms": same[label]["step_cpu_ms"],
+                     "function_eval_ms_mean": same[label]["function_eval_ms_mean"],
+                     "iterations_mean": same[label]["iterations"]["mean"], "failures": same[label]["failures"]}
+            for t, label in labels.items()}
+    first = runs[str(threads[0])]
+    return {"counts": list(threads), "runs": runs,
+            "speedup_vs_first": {str(t): _ratio(first["solve_ms"]["mean"], r["solve_ms"]["mean"])
+                                 for t, r in runs.items()},
+            "function_speedup_vs_first": {str(t): _ratio(first["function_eval_ms_mean"], r["function_eval_ms_mean"])
+                                          for t, r in runs.items()}}
 
 
 def _fmt(value, spec: str = ".1f") -> str:
@@ -504,6 +549,13 @@ def bench_markdown(report: dict) -> str:
                      f"plain solve time: {_fmt(cvp['time_ratio'], '.2f')}x, step CPU {_fmt(cvp['cpu_ratio'], '.2f')}x "
                      f"({_fmt(cvp['plain_iterations_mean'], '.2f')} -> {_fmt(cvp['collision_iterations_mean'], '.2f')} "
                      "iterations; goal <= 1.2x)")
+    th = same.get("threads")
+    if th:
+        parts = ", ".join(f"{t} threads {_fmt(r['solve_ms']['mean'])} ms (functions {_fmt(r['function_eval_ms_mean'])})"
+                          for t, r in th["runs"].items())
+        speedups = ", ".join(f"{t}: {_fmt(v, '.2f')}x" for t, v in th["speedup_vs_first"].items())
+        lines.append(f"- fatrop-direct's stage evaluations: {parts}; solve-time speed-up against {th['counts'][0]} "
+                     f"thread(s) {speedups} (same states, one run: a ratio, not an absolute time)")
     wc = same["warm_vs_cold"]
     lines.append(f"- warm start vs cold: {_fmt(wc['iteration_reduction_pct'])} % fewer iterations, "
                  f"{_fmt(wc['time_reduction_pct'])} % less solve time; paper: 15-20 % less time")
@@ -526,13 +578,23 @@ def cli_bench_mpc(args, robot_from_args) -> int:
     robot = robot_from_args(args)
     report = bench_mpc(robot, steps=args.steps, gait=args.gait, plant=args.plant, solvers=tuple(solvers),
                        nodes=args.nodes, uniform_dt_ms=args.uniform_dt, show_progress=not args.no_progress,
-                       compiled=args.compiled, collision_avoidance=getattr(args, "collision_avoidance", False))
+                       compiled=args.compiled, collision_avoidance=getattr(args, "collision_avoidance", False),
+                       threads=_parse_threads(getattr(args, "threads", None)))
     if args.out:
         path = Path(args.out)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(to_json(report, indent=2) + "\n")
     _output(args, report, bench_markdown(report))
     return 0
+
+
+def _parse_threads(text: str | None) -> tuple[int, ...] | None:
+    if not text:
+        return None
+    try:
+        return tuple(int(item) for item in text.split(",") if item.strip())
+    except ValueError:
+        raise ConfigError(f"--threads takes comma-separated counts such as 1,2; got {text!r}") from None
 
 
 def write_report(path: Path, report: dict, text: str) -> None:

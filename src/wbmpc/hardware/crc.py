@@ -35,12 +35,13 @@ def crc32_core(words: np.ndarray | list[int]) -> int:
     return int(f"{reflected:032b}"[::-1], 2)
 
 
-def _words(packed: bytes) -> np.ndarray:
+def payload_words(packed: bytes) -> np.ndarray:
+    """The 32-bit words a message's CRC covers: all of the packed message but its trailing CRC word."""
     return np.frombuffer(packed, dtype="<u4")[:-1]
 
 
 def _crc_of(packed: bytes) -> int:
-    words = _words(packed)
+    words = payload_words(packed)
     reflected = zlib.crc32(words.astype(">u4").tobytes().translate(_BIT_REVERSE)) ^ 0xFFFFFFFF
     return int(f"{reflected:032b}"[::-1], 2)
 

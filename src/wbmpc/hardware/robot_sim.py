@@ -242,13 +242,27 @@ class RobotSimulator:
         self._stop = threading.Event()
         self._switcher = None
         self._z1 = None
-        self._joints_now = (q0[7:][self._leg_index], np.zeros(len(self._leg_index)))  # sim link: the motor law's readings
+        # the leg joints' (q, dq) the sim link's motor law reads when a LowCmd arrives (updated every tick)
+        self.joint_readings = (q0[7:][self._leg_index], np.zeros(len(self._leg_index)))
 
     def stop(self) -> None:
         self._stop.set()
 
+    @property
+    def held_command(self) -> MotorCommand | None:
+        """The legs' command applied now: the last accepted LowCmd's (None before the first)."""
+        with self._lock:
+            return self._command
+
+    @property
+    def rejected_counts(self) -> dict[str, int]:
+        """LowCmds refused so far, by reason (e.g. {"crc": 3})."""
+        with self._lock:
+            return dict(self._rejected)
+
     # ------------------------------------------------------------------ DDS side
-    def _on_command(self, msg) -> None:
+    def on_low_cmd(self, msg) -> None:
+        """The LowCmd subscriber: check (robot link) or accept (sim link) the message and hold its command."""
         now = time.perf_counter()
         if self._switcher is not None and not self._switcher.released:
             with self._lock:
@@ -263,7 +277,7 @@ class RobotSimulator:
                 self._rejected.update(exc.reasons)
             return
         if sim_link:  # the motor law once, with the readings of this moment; its torque held until the next LowCmd
-            q, dq = self._joints_now
+            q, dq = self.joint_readings
             n = len(q)
             command = MotorCommand(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), command.torque(q, dq))
         echo = command_echo(msg)
@@ -323,7 +337,7 @@ class RobotSimulator:
         publisher = sdk.ChannelPublisher(LOW_STATE_TOPIC, idl.LowState_)
         publisher.Init()
         subscriber = sdk.ChannelSubscriber(LOW_CMD_TOPIC, idl.LowCmd_)
-        subscriber.Init(self._on_command, 0)
+        subscriber.Init(self.on_low_cmd, 0)
         run = _RunClock(wall_start=time.perf_counter(), deadline=time.perf_counter())
         try:
             while not self._stop.is_set() and self._tick(publisher, run, progress):
@@ -360,7 +374,7 @@ class RobotSimulator:
             run.pushed = True
         for _ in range(self._steps_per_tick):
             q, v = plant.state()
-            self._joints_now = (q[7:][self._leg_index], v[6:][self._leg_index])
+            self.joint_readings = (q[7:][self._leg_index], v[6:][self._leg_index])
             plant.step(command.torque(q[7:], v[6:]))
         self._record_tick(run)
         report.tick_cpu_ms.append(1e3 * (time.thread_time() - cpu_start))

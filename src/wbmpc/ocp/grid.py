@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -40,16 +41,21 @@ class TimeGrid:
             return 1.0
         return (self.dt_last_s / self.dt_first_s) ** (1.0 / (self.n_intervals - 1))
 
-    @property
+    @cached_property
     def dt_s(self) -> np.ndarray:
-        """Interval lengths dt_k, k = 0..N-1."""
-        return self.dt_first_s * self.gamma ** np.arange(self.n_intervals)
+        """Interval lengths dt_k, k = 0..N-1 (computed once, read-only: the MPC reads them every step)."""
+        return _read_only(self.dt_first_s * self.gamma ** np.arange(self.n_intervals))
 
-    @property
+    @cached_property
     def node_times_s(self) -> np.ndarray:
-        """Times of the N+1 nodes relative to the first."""
-        return np.concatenate([[0.0], np.cumsum(self.dt_s)])
+        """Times of the N+1 nodes relative to the first (computed once, read-only)."""
+        return _read_only(np.concatenate([[0.0], np.cumsum(self.dt_s)]))
 
     @property
     def horizon_s(self) -> float:
         return float(self.dt_s.sum())
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.setflags(write=False)
+    return array

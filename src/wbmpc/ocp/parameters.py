@@ -14,12 +14,14 @@ class ParameterPack:
     def __init__(self):
         self._symbols: dict[str, ca.SX] = {}
         self._slices: dict[str, slice] = {}
+        self._shapes: dict[str, tuple[int, int]] = {}  # (rows, cols) of each block, read by `pack` every step
         self._size = 0
 
     def add(self, name: str, rows: int, cols: int = 1) -> ca.SX:
         symbol = ca.SX.sym(name, rows, cols)
         self._symbols[name] = symbol
         self._slices[name] = slice(self._size, self._size + rows * cols)
+        self._shapes[name] = (rows, cols)
         self._size += rows * cols
         return symbol
 
@@ -31,7 +33,7 @@ class ParameterPack:
         return list(self._symbols)
 
     def shape(self, name: str) -> tuple[int, int]:
-        return self._symbols[name].shape
+        return self._shapes[name]
 
     def select(self, p, name: str, column: int | None = None):
         """Block `name` (flattened column-major) of a flat parameter vector `p` (SX or MX), or one
@@ -54,11 +56,11 @@ class ParameterPack:
     def pack(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """Flat numeric p; matrices are stored column-major like casadi.vec."""
         out = np.empty(self._size)
-        for name, symbol in self._symbols.items():
+        for name, shape in self._shapes.items():  # (shapes kept as numbers: CasADi's size queries cost microseconds)
             if name not in values:
                 raise ConfigError(f"parameter '{name}' has no value")
             value = np.asarray(values[name], dtype=float)
-            if value.size != symbol.numel():
-                raise ConfigError(f"parameter '{name}' needs {symbol.shape} values, got {value.shape}")
-            out[self._slices[name]] = value.reshape(symbol.shape).ravel(order="F")
+            if value.size != shape[0] * shape[1]:
+                raise ConfigError(f"parameter '{name}' needs {shape} values, got {value.shape}")
+            out[self._slices[name]] = value.ravel() if shape[1] == 1 else value.reshape(shape).ravel(order="F")
         return out

@@ -1,15 +1,11 @@
 """Solvers on the stage-wise OCP: `make_solver` picks Fatrop/IPOPT (`nlp.py`), RTI (`rti.py`) or Fatrop
 through its C interface (`fatrop_direct.py`).
 
-Importing this package first puts the fast BLASFEO under Fatrop and HPIPM where it is installed
-(`wbmpc setup`) and verified: see `blasfeo.py`.
+Each solver puts the fast BLASFEO under Fatrop and HPIPM (where `wbmpc setup` installed and verified it, see
+`blasfeo.py`) before it loads either; importing this package changes nothing.
 """
 
 from __future__ import annotations
-
-from wbmpc.solvers.blasfeo import activate as _activate_fast_blasfeo
-
-_activate_fast_blasfeo()
 
 
 def make_solver(problem, config):

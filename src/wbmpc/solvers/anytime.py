@@ -36,7 +36,7 @@ Only a call without a deadline (the cold first step, `--delay-mode none`) goes o
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -97,6 +97,38 @@ class AnytimeConfig(RtiConfig):
             raise ConfigError("line search needs 0 < backtrack < 1, 0 < min_step <= 1, 0 < armijo < 0.5")
 
 
+@dataclass
+class _SqpRun:
+    """The state of one `AnytimeSqpSolver.solve` call: the iterate, the merit penalty, counters and timings."""
+
+    x: np.ndarray
+    f: float
+    g: np.ndarray
+    deadline: float | None
+    nu: float = 0.0
+    lam_g: np.ndarray | None = None
+    lam_x: np.ndarray | None = None
+    H: object = None
+    status: str = "not_started"
+    success: bool = False
+    iterations: int = 0
+    qp_iterations: int = 0
+    qp_failures: int = 0
+    inexact_steps: int = 0
+    failure: str | None = None  # this iteration's QP failed: its description
+    primal: float = float("nan")
+    dual: float = float("nan")
+    alphas: list = field(default_factory=list)
+    linearize_s: float = 0.0
+    qp_s: float = 0.0
+    search_s: float = 0.0
+
+    def end(self, status: str, success: bool) -> bool:
+        """The call ends with this status; False (the iteration loop's stop)."""
+        self.status, self.success = status, success
+        return False
+
+
 class AnytimeSqpSolver(RtiSolver):
     """SQP with a merit line search, stopped by convergence or its deadline; `NlpSolver`'s interface
     plus `solve(..., deadline=t)` on `self.clock`."""
@@ -121,6 +153,25 @@ class AnytimeSqpSolver(RtiSolver):
         self._capped = {cap: self._new_qp(replace(self.qp.config, max_iterations=cap))
                         for cap in QP_ITERATION_CAPS if cap < self.qp.config.max_iterations}
 
+    @property
+    def capped_qps(self) -> dict:
+        """{HPIPM iteration cap: QP} of steps with a deadline (`QP_ITERATION_CAPS` below the full cap); the dict
+        itself: clearing it leaves every QP its full cap."""
+        return self._capped
+
+    @property
+    def qp_iteration_s(self) -> float | None:
+        """The estimated time of one HPIPM iteration on `clock` (None until a QP was measured)."""
+        return self._qp_iteration_s
+
+    def qp_for(self, remaining_s: float):
+        """The QP a step with `remaining_s` left on `clock` solves (see `_capped_qp`)."""
+        return self._capped_qp(remaining_s)
+
+    def record_qp(self, seconds: float, iterations: int) -> None:
+        """Count a solved QP of `iterations` HPIPM iterations that took `seconds` into the estimates."""
+        self._record_qp(seconds, iterations)
+
     def _merit(self, f: float, g: np.ndarray, x: np.ndarray, lbx, ubx, lbg, ubg, nu: float) -> tuple[float, float]:
         violation = float(np.sum(np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0))
                           + np.sum(np.maximum(lbx - x, 0) + np.maximum(x - ubx, 0)))
@@ -135,146 +186,179 @@ class AnytimeSqpSolver(RtiSolver):
         budget_s = None if deadline is None else deadline - clock_start
         if not warm_start:
             deadline = None  # a cold step (before the clock runs) converges and measures the iterations
-        lbx, ubx, lbg, ubg = (np.asarray(b, dtype=float) for b in (lbx, ubx, lbg, ubg))
+        bounds = tuple(np.asarray(b, dtype=float) for b in (lbx, ubx, lbg, ubg))
         x = np.asarray(x0, dtype=float).copy()
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x))):
             return self._failure(x0, "invalid_input_nan")
-        if np.any(lbx > ubx) or np.any(lbg > ubg):
+        if np.any(bounds[0] > bounds[1]) or np.any(bounds[2] > bounds[3]):
             return self._failure(x0, "invalid_bounds")
         f_out, g = self._nlp(x, p)
-        f, g = float(f_out[0]), g.copy()
-        nu, lam_g, lam_x = 0.0, None, None
-        status, success, qp_iterations, iterations, alphas = "not_started", False, 0, 0, []
-        qp_failures = inexact_steps = 0
-        primal = dual = float("nan")
-        H = None
-        linearize_s = qp_s = search_s = 0.0
+        run = _SqpRun(x=x, f=float(f_out[0]), g=g.copy(), deadline=deadline)
+        while self._iterate(run, p, bounds):
+            pass
+        result = self._finish(run, bounds, start, cpu_start, budget_s, warm_start)
+        # a converged Fatrop re-solve takes up to ~150 ms after a push on b1_z1: never for a step with a deadline
+        # (the MPC holds the last good plan instead and the next step tries again within its own deadline)
+        if not result.stats.success and run.iterations == 0 and self.rti.recovery_barrier_init is not None \
+                and deadline is None:
+            details = result.stats.details
+            result = self._recover(result, p, *bounds, x0)
+            result.stats.details = {**details, "primal_residual": result.stats.max_constraint_violation,
+                                    "dual_residual": None, "late": False}
+        return result
+
+    def _stop_reason(self, run: "_SqpRun") -> str | None:
+        """Why no further iteration starts (checked before linearising), or None."""
+        if run.iterations >= self.anytime.sqp_iterations:
+            return "Maximum_Iterations_Exceeded"
+        if run.iterations > 0 and run.deadline is not None and \
+                self.clock() + self.anytime.safety * self._predicted_iteration_s() > run.deadline:
+            return "Deadline"
+        return None
+
+    def _iterate(self, run: "_SqpRun", p, bounds) -> bool:
+        """One SQP iteration: linearise (and check convergence), solve the QP, search along its step; False when
+        the call ends (`run.status`, `run.success` say how)."""
+        cfg, lbx, ubx, lbg, ubg = self.anytime, *bounds
+        tic = self.clock()
+        stop = self._stop_reason(run)  # a step that ends here skips the next linearisation
+        if stop is not None and not cfg.kkt_at_exit:
+            return run.end(stop, run.iterations > 0)
+        linearization = self._linearize(run, p, bounds)
+        if linearization is None:
+            return False
+        if stop is not None:
+            return run.end(stop, run.iterations > 0)
+        gradient, grad, J = linearization
+        if run.H is None or self.hessian_depends_on_x:
+            run.H = self._hessian(run.x, p)
+        run.linearize_s += self.clock() - tic
+        result = self._qp_step(run, (run.H, gradient, J, lbg - run.g, ubg - run.g, lbx - run.x, ubx - run.x))
+        if result is None:
+            return False
+        step_tic = self.clock()
+        accepted, alpha, trial, f_trial, g_trial = self._line_search(run, result, grad, p, bounds)
+        run.search_s += self.clock() - step_tic
+        if not accepted:
+            if run.failure is not None:  # the failed QP's iterate does not lower the merit either
+                return run.end(f"{run.failure}; its inexact step rejected by the line search", run.iterations > 0)
+            return run.end("Line_Search_Failed", True)  # the iterate before this step is kept
+        return self._accept(run, result, alpha, trial, f_trial, g_trial, tic)
+
+    def _linearize(self, run: "_SqpRun", p, bounds):
+        """The Jacobian and cost gradient at the iterate, and the convergence check with the last QP's multipliers;
+        None when the call ends (non-finite values, converged)."""
+        cfg = self.anytime
+        g_lin, J = self._jacobian(run.x, p)
+        if not (np.all(np.isfinite(np.asarray(g_lin))) and self._regular(J)):
+            return run.end("invalid_input_nan_constraints", False) or None
+        gradient = self._gradient(run.x, p)
+        grad = np.asarray(gradient).ravel()
+        if run.lam_g is not None:
+            run.primal = bound_violation(run.x, run.g, *bounds)
+            residual = grad + self._jacobian_transpose_times(J, run.lam_g) + run.lam_x
+            run.dual = float(np.max(np.abs(residual), initial=0.0) / max(1.0, np.max(np.abs(grad), initial=0.0)))
+            if run.primal < cfg.primal_tolerance and run.dual < cfg.dual_tolerance:
+                return run.end("Converged", True) or None
+        return gradient, grad, J
+
+    def _qp_step(self, run: "_SqpRun", qp_data) -> QpResult | None:
+        """The QP's step; a QP HPIPM did not solve yields its last iterate where allowed (else None: the call ends)."""
+        qp_tic, qp_cpu = self.clock(), time.thread_time()
+        result, _, n_qp = self._solve_qp(qp_data, run.deadline)
+        run.qp_s += self.clock() - qp_tic
+        if result.success:  # on CPU time: the floor of any budget, whatever else the machine runs
+            one_qp_s = time.thread_time() - qp_cpu
+            self.min_qp_s = one_qp_s if self.min_qp_s is None else min(self.min_qp_s, one_qp_s)
+        run.qp_iterations += n_qp
+        run.failure = None
+        if not result.success:
+            run.qp_failures += 1
+            run.failure = f"{result.status} at SQP iteration {run.iterations + 1}"
+            if not (self.anytime.inexact_qp_steps and np.all(np.isfinite(result.step))
+                    and np.all(np.isfinite(result.lam_g)) and np.all(np.isfinite(result.lam_x))):
+                # an earlier iterate is kept; none yet: the step failed
+                return run.end(run.failure, run.iterations > 0) or None
+        return result
+
+    def _line_search(self, run: "_SqpRun", result: QpResult, grad: np.ndarray, p, bounds):
+        """Backtracking on the l1 merit function along the QP step (Armijo); the RTI's full step on a first
+        iteration whose search fails (a plan must come out of every step). (accepted, alpha, trial, f, g)."""
+        cfg, d = self.anytime, result.step
+        run.nu = max(run.nu, cfg.merit_margin * max(np.max(np.abs(result.lam_g), initial=0.0),
+                                                    np.max(np.abs(result.lam_x), initial=0.0)))
+        phi0, violation = self._merit(run.f, run.g, run.x, *bounds, run.nu)
+        slope = float(grad @ d) - run.nu * violation
+        alpha = 1.0
         while True:
-            tic = clock()
-            stop = None  # checked before linearising: a step that ends here skips the next linearisation
-            if iterations >= cfg.sqp_iterations:
-                stop = "Maximum_Iterations_Exceeded"
-            elif iterations > 0 and deadline is not None and \
-                    clock() + cfg.safety * self._predicted_iteration_s() > deadline:
-                stop = "Deadline"
-            if stop is not None and not cfg.kkt_at_exit:
-                status, success = stop, iterations > 0
+            trial = run.x + alpha * d
+            f_out, g_trial = self._nlp(trial, p)
+            f_trial = float(f_out[0])
+            phi, _ = self._merit(f_trial, g_trial, trial, *bounds, run.nu)
+            # (a roundoff allowance: near the solution phi changes below its last digits)
+            if np.isfinite(phi) and phi <= phi0 + cfg.armijo * alpha * min(slope, 0.0) + 1e-13 * max(1.0, abs(phi0)):
+                return True, alpha, trial, f_trial, g_trial
+            if alpha * cfg.backtrack < cfg.min_step:
                 break
-            g_lin, J = self._jacobian(x, p)
-            if not (np.all(np.isfinite(np.asarray(g_lin))) and self._regular(J)):
-                status = "invalid_input_nan_constraints"
-                break
-            gradient = self._gradient(x, p)
-            grad = np.asarray(gradient).ravel()
-            if lam_g is not None:
-                primal = bound_violation(x, g, lbx, ubx, lbg, ubg)
-                residual = grad + self._jacobian_transpose_times(J, lam_g) + lam_x
-                dual = float(np.max(np.abs(residual), initial=0.0) / max(1.0, np.max(np.abs(grad), initial=0.0)))
-                if primal < cfg.primal_tolerance and dual < cfg.dual_tolerance:
-                    status, success = "Converged", True
-                    break
-            if stop is not None:
-                status, success = stop, iterations > 0
-                break
-            if H is None or self.hessian_depends_on_x:
-                H = self._hessian(x, p)
-            linearize_s += clock() - tic
-            qp_tic, qp_cpu = clock(), time.thread_time()
-            result, _, n_qp = self._solve_qp((H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x), deadline)
-            qp_s += clock() - qp_tic
-            if result.success:  # on CPU time: the floor of any budget, whatever else the machine runs
-                one_qp_s = time.thread_time() - qp_cpu
-                self.min_qp_s = one_qp_s if self.min_qp_s is None else min(self.min_qp_s, one_qp_s)
-            qp_iterations += n_qp
-            inexact = not result.success
-            if inexact:
-                qp_failures += 1
-                failure = f"{result.status} at SQP iteration {iterations + 1}"
-                if not (cfg.inexact_qp_steps and np.all(np.isfinite(result.step))
-                        and np.all(np.isfinite(result.lam_g)) and np.all(np.isfinite(result.lam_x))):
-                    status = failure
-                    success = iterations > 0  # an earlier iterate is kept; none yet: the step failed
-                    break
-            step_tic = clock()
-            d = result.step
-            nu = max(nu, cfg.merit_margin * max(np.max(np.abs(result.lam_g), initial=0.0),
-                                                np.max(np.abs(result.lam_x), initial=0.0)))
-            phi0, violation = self._merit(f, g, x, lbx, ubx, lbg, ubg, nu)
-            slope = float(grad @ d) - nu * violation
-            alpha, accepted = 1.0, False
-            while True:
-                trial = x + alpha * d
-                f_out, g_trial = self._nlp(trial, p)
-                f_trial = float(f_out[0])
-                phi, _ = self._merit(f_trial, g_trial, trial, lbx, ubx, lbg, ubg, nu)
-                # (a roundoff allowance: near the solution phi changes below its last digits)
-                if np.isfinite(phi) and phi <= phi0 + cfg.armijo * alpha * min(slope, 0.0) + 1e-13 * max(1.0, abs(phi0)):
-                    accepted = True
-                    break
-                if alpha * cfg.backtrack < cfg.min_step:
-                    break
-                alpha *= cfg.backtrack
-            if not accepted and iterations == 0 and not inexact:  # the RTI's full step: a plan must come out of every step
-                alpha = 1.0
-                trial = x + d
-                f_out, g_trial = self._nlp(trial, p)
-                f_trial, accepted = float(f_out[0]), bool(np.all(np.isfinite(g_trial)))
-            search_s += clock() - step_tic
-            if not accepted:
-                if inexact:  # the failed QP's iterate does not lower the merit either
-                    status, success = f"{failure}; its inexact step rejected by the line search", iterations > 0
-                else:
-                    status, success = "Line_Search_Failed", True  # the iterate before this step is kept
-                break
-            x, f, g = trial, f_trial, g_trial.copy()
-            lam_g, lam_x = result.lam_g, result.lam_x
-            alphas.append(alpha)
-            iterations += 1
-            self._record_iteration(clock() - tic)
-            if inexact:
-                inexact_steps += 1
-                if deadline is not None:  # a QP that failed took its whole iteration cap: no time for another
-                    status, success = f"{failure}; its inexact step taken (merit lowered)", True
-                    break
-            if np.max(np.abs(alpha * d), initial=0.0) < cfg.step_tolerance:
-                status, success = "Converged_Step", True
-                break
+            alpha *= cfg.backtrack
+        if run.iterations == 0 and run.failure is None:
+            trial = run.x + d
+            f_out, g_trial = self._nlp(trial, p)
+            return bool(np.all(np.isfinite(g_trial))), 1.0, trial, float(f_out[0]), g_trial
+        return False, alpha, trial, f_trial, g_trial
+
+    def _accept(self, run: "_SqpRun", result: QpResult, alpha: float, trial, f_trial, g_trial, tic: float) -> bool:
+        run.x, run.f, run.g = trial, f_trial, g_trial.copy()
+        run.lam_g, run.lam_x = result.lam_g, result.lam_x
+        run.alphas.append(alpha)
+        run.iterations += 1
+        self._record_iteration(self.clock() - tic)
+        if run.failure is not None:
+            run.inexact_steps += 1
+            if run.deadline is not None:  # a QP that failed took its whole iteration cap: no time for another
+                return run.end(f"{run.failure}; its inexact step taken (merit lowered)", True)
+        if np.max(np.abs(alpha * result.step), initial=0.0) < self.anytime.step_tolerance:
+            return run.end("Converged_Step", True)
+        return True
+
+    def _check_budget(self, budget_s: float | None, warm_start: bool) -> None:
+        """The cold call's QPs start far from the solution and take up to ~2.7x a warm step's (b1_z1: 8.1 ms of CPU
+        against 3.0): a budget is refused only below half the shortest of them, where no warm QP fits either."""
+        if budget_s is None or warm_start or self.min_qp_s is None or budget_s >= COLD_QP_SHARE * self.min_qp_s:
+            return
+        raise DeadlineError(f"the solver's share of the MPC step's budget (the step budget less the MPC's own "
+                            f"work) is {1e3 * budget_s:.2f} ms, shorter than one QP of "
+                            f"the SQP (at least {1e3 * COLD_QP_SHARE * self.min_qp_s:.2f} ms of CPU, half the shortest "
+                            "on the cold first step): "
+                            "raise the budget (--step-budget or MpcConfig.step_budget_s, the anytime solver's budget_ms), "
+                            "lower the MPC rate, compile the solver (--compiled) or use a smaller horizon (--nodes)")
+
+    def _finish(self, run: "_SqpRun", bounds, start: float, cpu_start: float, budget_s: float | None,
+                warm_start: bool) -> NlpResult:
+        """The iterate returned (NaN where the call failed), its statistics and KKT residuals."""
+        x, f, g = run.x, run.f, run.g
         finite = bool(np.all(np.isfinite(g)) and np.isfinite(f))
-        primal = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")  # of the iterate returned
-        success = success and finite and iterations > 0
-        viol = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
+        primal = bound_violation(x, g, *bounds) if finite else float("inf")  # of the iterate returned
+        success = run.success and finite and run.iterations > 0
+        viol = primal
         if not success:
             x, f, viol = np.full_like(x, np.nan), float("nan"), float("inf")
         elapsed = time.perf_counter() - start
-        # the cold call's QPs start far from the solution and take up to ~2.7x a warm step's (b1_z1: 8.1 ms of CPU
-        # against 3.0): a budget is refused only below half the shortest of them, where no warm QP fits either
-        if budget_s is not None and not warm_start and self.min_qp_s is not None and budget_s < COLD_QP_SHARE * self.min_qp_s:
-            raise DeadlineError(f"the solver's share of the MPC step's budget (the step budget less the MPC's own "
-                                f"work) is {1e3 * budget_s:.2f} ms, shorter than one QP of "
-                                f"the SQP (at least {1e3 * COLD_QP_SHARE * self.min_qp_s:.2f} ms of CPU, half the shortest "
-                                "on the cold first step): "
-                                "raise the budget (--step-budget or MpcConfig.step_budget_s, the anytime solver's budget_ms), lower "
-                                "the MPC rate, compile the solver (--compiled) or use a smaller horizon (--nodes)")
-        late = deadline is not None and clock() > deadline
-        self.last_timing = {"linearize_ms": 1e3 * linearize_s, "qp_ms": 1e3 * qp_s, "line_search_ms": 1e3 * search_s,
-                            "cpu_ms": 1e3 * (time.process_time() - cpu_start)}
-        n = self.problem.n_constraints
-        stats = SolverStats(status=status, success=success, iterations=qp_iterations, solve_time_s=elapsed,
+        self._check_budget(budget_s, warm_start)
+        late = run.deadline is not None and self.clock() > run.deadline
+        self.last_timing = {"linearize_ms": 1e3 * run.linearize_s, "qp_ms": 1e3 * run.qp_s,
+                            "line_search_ms": 1e3 * run.search_s, "cpu_ms": 1e3 * (time.process_time() - cpu_start)}
+        stats = SolverStats(status=run.status, success=success, iterations=run.qp_iterations, solve_time_s=elapsed,
                             max_constraint_violation=viol, cost=f, cpu_time_s=self.last_timing["cpu_ms"] / 1e3,
-                            split_ms={"linearize": 1e3 * linearize_s, "qp": 1e3 * qp_s, "line_search": 1e3 * search_s})
-        stats.details = {"sqp_iterations": iterations, "primal_residual": primal, "dual_residual": dual,
-                         "step_lengths": alphas, "budget_ms": None if budget_s is None else 1e3 * budget_s,
-                         "late": bool(late), "merit_penalty": nu, "qp_failures": qp_failures,
-                         "inexact_steps": inexact_steps}
-        result = NlpResult(x=x, lam_g=lam_g if lam_g is not None else np.zeros(n),
-                           lam_x=lam_x if lam_x is not None else np.zeros_like(x), stats=stats)
-        # a converged Fatrop re-solve takes up to ~150 ms after a push on b1_z1: never for a step with a deadline
-        # (the MPC holds the last good plan instead and the next step tries again within its own deadline)
-        if not success and iterations == 0 and self.rti.recovery_barrier_init is not None and deadline is None:
-            result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
-            result.stats.details = {**stats.details, "primal_residual": result.stats.max_constraint_violation,
-                                    "dual_residual": None, "late": deadline is not None and clock() > deadline}
-        return result
+                            split_ms={"linearize": 1e3 * run.linearize_s, "qp": 1e3 * run.qp_s,
+                                      "line_search": 1e3 * run.search_s})
+        stats.details = {"sqp_iterations": run.iterations, "primal_residual": primal, "dual_residual": run.dual,
+                         "step_lengths": run.alphas, "budget_ms": None if budget_s is None else 1e3 * budget_s,
+                         "late": bool(late), "merit_penalty": run.nu, "qp_failures": run.qp_failures,
+                         "inexact_steps": run.inexact_steps}
+        n = self.problem.n_constraints
+        return NlpResult(x=x, lam_g=run.lam_g if run.lam_g is not None else np.zeros(n),
+                         lam_x=run.lam_x if run.lam_x is not None else np.zeros_like(x), stats=stats)
 
     def _solve_qp(self, qp_data, deadline: float | None = None) -> tuple[QpResult, float, int]:
         """The QP in the first HPIPM mode, its iteration cap lowered to what fits before `deadline` (on

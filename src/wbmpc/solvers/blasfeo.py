@@ -7,8 +7,8 @@ the same BLASFEO version (same headers, struct layout, panel size and symbols) i
 `comma-deps-acados` wheel. `wbmpc setup` (`install`) downloads that wheel with pip, takes only
 `libblasfeo.so` out of it (never installs it: the wheel would overwrite casadi), renames its SONAME to
 `libblasfeo.so.0` with patchelf, and verifies in two subprocesses that a small Fatrop problem gives the
-same solution with either library. `activate` (called when `wbmpc.solvers` is imported, before any
-Fatrop or HPIPM plugin is loaded) then loads it RTLD_GLOBAL: the dynamic linker resolves casadi's
+same solution with either library. `activate` (called by each solver before it loads Fatrop or HPIPM:
+casadi's plugins, our shims) then loads it RTLD_GLOBAL: the dynamic linker resolves casadi's
 `libblasfeo.so.0` dependency to the library already loaded under that SONAME.
 
 `WBMPC_BLASFEO=auto` (default: the fast one where the CPU has AVX2+FMA and setup verified it),
@@ -57,7 +57,7 @@ _status: BlasfeoStatus | None = None
 
 
 def _cache_root() -> Path:
-    from wbmpc.solvers.codegen import default_cache_dir
+    from wbmpc.cache import default_cache_dir
 
     return default_cache_dir() / "blasfeo"
 
@@ -98,6 +98,11 @@ def _verification_key(library: Path) -> str:
     return f"{digest[:16]}-casadi{casadi.__version__}-avx2fma{int(cpu_has_avx2_fma())}"
 
 
+def loaded_libraries(name: str = "libblasfeo") -> list[str]:
+    """Paths of the shared objects in this process whose file name starts with `name` (which BLASFEO is loaded)."""
+    return _loaded(name)
+
+
 def _loaded(name: str) -> list[str]:
     """Paths of the shared objects in this process whose file name starts with `name`."""
     try:
@@ -113,14 +118,20 @@ def status() -> BlasfeoStatus:
     return _status or activate()
 
 
+def requested_mode() -> str:
+    """The BLASFEO asked for by the environment variable WBMPC_BLASFEO: auto (default), generic or avx2."""
+    mode = os.environ.get("WBMPC_BLASFEO", "auto").strip().lower()
+    if mode not in ("auto", "generic", "avx2"):
+        raise ConfigError(f"WBMPC_BLASFEO={mode!r} is not a choice; use auto, generic or avx2")
+    return mode
+
+
 def activate() -> BlasfeoStatus:
     """Preload the verified AVX2 BLASFEO if possible; idempotent, never raises unless WBMPC_BLASFEO=avx2."""
     global _status
     if _status is not None:
         return _status
-    mode = os.environ.get("WBMPC_BLASFEO", "auto").strip().lower()
-    if mode not in ("auto", "generic", "avx2"):
-        raise ConfigError(f"WBMPC_BLASFEO={mode!r} is not a choice; use auto, generic or avx2")
+    mode = requested_mode()
     _status = _choose(mode)
     if _status.active == "generic" and "wbmpc setup" in _status.reason:
         warnings.warn(f"Fatrop runs on casadi's generic BLASFEO: {_status.reason}", RuntimeWarning, stacklevel=2)
@@ -139,7 +150,8 @@ def _choose(mode: str) -> BlasfeoStatus:
         return BlasfeoStatus("generic", None, "the AVX2 BLASFEO is not installed: run `wbmpc setup` (about 3x faster Fatrop)")
     loaded = [p for p in _loaded("libblasfeo") if Path(p) != library]
     if loaded:
-        return BlasfeoStatus("generic", None, f"casadi's BLASFEO was loaded before wbmpc.solvers ({loaded[0]})")
+        return BlasfeoStatus("generic", None, f"casadi's BLASFEO was loaded before the first wbmpc solver ({loaded[0]}): "
+                             "build a wbmpc solver before other code uses casadi's Fatrop or HPIPM")
     marker = _read_marker()
     key = _verification_key(library)
     if marker.get("key") != key:

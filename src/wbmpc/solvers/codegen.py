@@ -117,17 +117,12 @@ def _stage_derivatives(function: ca.Function) -> dict[str, ca.Function]:
     }
 
 
-def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Function]:
-    """The oracle functions casadi's `nlpsol` loads from a library, built from stage derivatives.
-
-    Signatures follow the solver plugin: Fatrop takes the full Hessian and `nlp_hess_l` also returns
-    the Lagrangian gradient; IPOPT takes its upper triangle and `nlp_grad_f` also returns f.
-    """
+def _stage_parts(problem: OcpProblem, x: ca.MX, p: ca.MX, lam_f: ca.MX, lam_g: ca.MX) -> dict:
+    """The NLP's pieces from each node's stage derivatives (one set per stage kind): cost, rows of g, cost
+    gradient blocks, Jacobian rows, Lagrangian gradient and Hessian blocks."""
     N, nx, n = problem.N, problem.nx, problem.n_variables
-    x, p = ca.MX.sym("x", n), ca.MX.sym("p", problem.params.size)
-    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", problem.n_constraints)
     derivatives: dict[str, dict[str, ca.Function]] = {}
-    cost, rows, cost_gradient, jacobian_rows, lagrangian_gradient, hessian_blocks = 0, [], [], [], [], []
+    out = {"cost": 0, "rows": [], "cost_gradient": [], "jacobian_rows": [], "lagrangian_gradient": [], "hessian": []}
     row, previous_lam_gap = 0, None
     for k in range(N + 1):
         function, _ = problem.stage_function(k)
@@ -137,7 +132,7 @@ def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Functi
         n_z, before, after = inputs.stop - state.start, state.start, n - inputs.stop
         p_k = problem.stage_parameters(p, k)
         next_state, path = d["value"](z, p_k)
-        stage_cost = d["cost"](z, p_k)
+        stage_cost = d["cost"](z, p_k)  # (the calls in this order: the generated code, its cache key, unchanged)
         n_gap, n_path = (nx if k < N else 0), path.shape[0]
         lam_gap, lam_path = lam_g[row : row + n_gap], lam_g[row + n_gap : row + n_gap + n_path]
         gradient, hessian = d["lagrangian"](z, p_k, lam_f, lam_gap, lam_path)
@@ -145,16 +140,31 @@ def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Functi
             gradient = gradient + ca.vertcat(previous_lam_gap, ca.MX(n_z - nx, 1))
         jac_next, jac_path = d["jacobian"](z, p_k)
         if k < N:
-            rows.append(x[problem.stage_slices[k + 1][0]] - next_state)
-            jacobian_rows.append(ca.horzcat(ca.MX(nx, before), -jac_next, ca.MX.eye(nx), ca.MX(nx, after - nx)))
-        rows.append(path)
-        jacobian_rows.append(ca.horzcat(ca.MX(n_path, before), jac_path, ca.MX(n_path, after)))
-        cost += stage_cost
-        cost_gradient.append(d["cost_gradient"](z, p_k)[1])
-        lagrangian_gradient.append(gradient)
-        hessian_blocks.append(hessian)
+            out["rows"].append(x[problem.stage_slices[k + 1][0]] - next_state)
+            out["jacobian_rows"].append(ca.horzcat(ca.MX(nx, before), -jac_next, ca.MX.eye(nx), ca.MX(nx, after - nx)))
+        out["rows"].append(path)
+        out["jacobian_rows"].append(ca.horzcat(ca.MX(n_path, before), jac_path, ca.MX(n_path, after)))
+        out["cost"] += stage_cost
+        out["cost_gradient"].append(d["cost_gradient"](z, p_k)[1])
+        out["lagrangian_gradient"].append(gradient)
+        out["hessian"].append(hessian)
         previous_lam_gap = lam_gap
         row += n_gap + n_path
+    return out
+
+
+def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Function]:
+    """The oracle functions casadi's `nlpsol` loads from a library, built from stage derivatives.
+
+    Signatures follow the solver plugin: Fatrop takes the full Hessian and `nlp_hess_l` also returns
+    the Lagrangian gradient; IPOPT takes its upper triangle and `nlp_grad_f` also returns f.
+    """
+    n = problem.n_variables
+    x, p = ca.MX.sym("x", n), ca.MX.sym("p", problem.params.size)
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", problem.n_constraints)
+    parts = _stage_parts(problem, x, p, lam_f, lam_g)
+    cost, rows, cost_gradient, jacobian_rows, lagrangian_gradient, hessian_blocks = (
+        parts[name] for name in ("cost", "rows", "cost_gradient", "jacobian_rows", "lagrangian_gradient", "hessian"))
     g = ca.vertcat(*rows)
     gamma = lam_f * cost + ca.dot(lam_g, g)
     hessian = ca.diagcat(*hessian_blocks)
@@ -180,14 +190,17 @@ def nlp_functions(problem: OcpProblem, solver: str = "fatrop") -> list[ca.Functi
     ]
 
 
-def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float, float]:
-    """Run the compiler with a time and memory limit; (seconds, peak resident MB)."""
+def _compile(source: Path | list[Path], library: Path, config: CodegenConfig,
+             link: tuple[str, ...] = ()) -> tuple[float, float]:
+    """Run the compiler on one or more sources (C or C++, by extension) with a time and memory limit, then `link`
+    (libraries after the sources); (seconds, peak resident MB)."""
     compiler = shutil.which(config.compiler)
     if compiler is None:
         raise CompileError(f"no C compiler '{config.compiler}' on PATH: install gcc (e.g. apt install gcc) "
                            "or run without --compiled")
     partial = library.with_suffix(f".{os.getpid()}.tmp")
-    command = [compiler, *config.flags, "-shared", "-fPIC", str(source), "-o", str(partial), "-lm"]
+    sources = [str(s) for s in (source if isinstance(source, (list, tuple)) else [source])]
+    command = [compiler, *config.flags, "-shared", "-fPIC", *sources, "-o", str(partial), *link, "-lm"]
     limit = None if config.memory_limit_mb is None else int(config.memory_limit_mb * 2**20)
 
     def limit_memory():  # runs in the child before exec
@@ -206,7 +219,7 @@ def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float,
             process.kill()
             os.wait4(process.pid, 0)
             partial.unlink(missing_ok=True)
-            raise CompileError(f"compiling {source.name} took over {config.timeout_s:.0f} s; raise "
+            raise CompileError(f"compiling {Path(sources[0]).name} took over {config.timeout_s:.0f} s; raise "
                                "CodegenConfig.timeout_s or use the non-compiled solver")
         time.sleep(0.05)
     elapsed = time.perf_counter() - start
@@ -219,7 +232,8 @@ def _compile(source: Path, library: Path, config: CodegenConfig) -> tuple[float,
         partial.unlink(missing_ok=True)
         message = stderr.decode(errors="replace").strip().splitlines()[-3:]
         memory_hint = " (out of memory? raise CodegenConfig.memory_limit_mb)" if "memory" in " ".join(message).lower() else ""
-        raise CompileError(f"{config.compiler} failed on {source.name}{memory_hint}: {' | '.join(message)}")
+        names = ", ".join(Path(name).name for name in sources)
+        raise CompileError(f"{config.compiler} failed on {names}{memory_hint}: {' | '.join(message)}")
     os.replace(partial, library)
     return elapsed, peak_mb
 

@@ -2,20 +2,21 @@
 
 casadi's Fatrop plugin builds a new Fatrop instance in every solve, evaluates whole-NLP functions and
 copies each stage block out of their sparse results (the `interface` and `outside_solver` parts of
-a solve's time split). Here a generated C shim (`fatrop_shim.py`) answers Fatrop's per-stage
-callbacks with one generated call each, Fatrop instances are kept per row-count pattern (like
-`NlpSolver`) and options such as mu_init and max_iter change between calls on the same instance.
+a solve's time split). Here a C shim (`fatrop_shim.py`) answers Fatrop's callbacks from the problem's compiled
+stage functions (`stage_library.py`), every stage's evaluation on a small thread pool (`SolverConfig.threads`;
+the same iterates on any thread count), Fatrop instances are kept per row-count pattern (like `NlpSolver`) and
+options such as mu_init and max_iter change between calls on the same instance.
 
 Same problem, same row split and multiplier signs as casadi's plugin: the two solve to the same
 KKT point (tests/solvers/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s contract, including its
-small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `fatrop_shim.DRIVER_SOURCE`):
+small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `csrc/fatrop_driver.cpp`):
 a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
 instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT
 factorisation; `extra_options={"warm_duals": False}` turns it off) and a time limit per call
 (`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
 Its own tolerances for MPC steps (`MPC_TOLERANCE`, `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps
-its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`fatrop_kernels.py`, same iterates;
+its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
 `extra_options={"fatrop_kernels": False}` leaves Fatrop's own).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
@@ -26,6 +27,7 @@ when the direct binding runs).
 from __future__ import annotations
 
 import ctypes
+import os
 import time
 import warnings
 from dataclasses import replace
@@ -33,10 +35,10 @@ from dataclasses import replace
 import numpy as np
 
 from wbmpc.errors import ConfigError
-from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers import blasfeo, stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
-from wbmpc.solvers.fatrop_shim import FatropUnavailable, build
+from wbmpc.solvers.fatrop_shim import FatropUnavailable, build_shim
 from wbmpc.solvers.nlp import (
     _FATROP_FLAGS,
     NlpResult,
@@ -46,6 +48,7 @@ from wbmpc.solvers.nlp import (
     bound_violation,
     failed_result,
 )
+from wbmpc.solvers.stage_library import StageLibrary
 
 NAME = "fatrop-direct"
 # The binding's own KKT and constraint tolerances, used while SolverConfig holds its defaults (1e-4 / 1e-6) and
@@ -59,13 +62,18 @@ _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
 
 class _Library:
-    """The compiled shim loaded with ctypes, shared by every solver on the same problem."""
+    """The compiled shim and the problem's stage library, loaded with ctypes, shared by every solver on the problem."""
 
-    def __init__(self, report: CompileReport, p_index: np.ndarray):
-        self.report, self.p_index = report, p_index
-        lib = ctypes.CDLL(str(report.library))
+    def __init__(self, shim: CompileReport, stages: StageLibrary):
+        self.report, self.shim_report, self.stages = stages.report, shim, stages
+        self.p_index = stages.p_index
+        blasfeo.activate()  # before libfatrop (and its BLASFEO) is loaded with the shim
+        lib = ctypes.CDLL(str(shim.library))
         lib.wb_ctx_new.restype = ctypes.c_void_p
+        lib.wb_ctx_new.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)] + [ctypes.c_int] * 5
         lib.wb_ctx_free.argtypes = [ctypes.c_void_p]
+        lib.wb_ctx_threads.argtypes = [ctypes.c_void_p]
+        lib.wb_sizes.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
         lib.wb_solver_new.restype = ctypes.c_void_p
         lib.wb_solver_new.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 4 + [ctypes.c_int]
         lib.wb_solver_free.argtypes = [ctypes.c_void_p]
@@ -73,15 +81,39 @@ class _Library:
                            ("wb_option_bool", ctypes.c_int)):
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
-        lib.wb_solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [_DOUBLE_P] * 10 + [ctypes.c_double, ctypes.c_int]
+        lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
+        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int]
         lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
         lib.wbd_fatrop_kernels.restype = ctypes.c_int
         lib.wb_warm_up.argtypes = [ctypes.c_void_p]
-        sizes = (ctypes.c_int * 4)()
-        lib.wb_sizes(sizes)
-        self.n_stages, self.n_stage_params, self.n_variables, self.n_constraints = list(sizes)
+        lib.wb_ctx_eliminate_fixed.argtypes = [ctypes.c_void_p, ctypes.c_int]
         self.lib = lib
-        self.warmed_up = False  # wb_warm_up ran (once per library: the first solver on it)
+        self.warmed_up: set[int] = set()  # thread counts whose first context ran wb_warm_up
+
+    def context(self, threads: int) -> ctypes.c_void_p:
+        """A new context (scratch and thread pool) evaluating on `threads` threads."""
+        stages = self.stages
+        layout = stages.layout.ctypes.data_as(ctypes.POINTER(ctypes.c_int))
+        ctx = ctypes.c_void_p(self.lib.wb_ctx_new(stages.kinds, layout, *stages.sizes, int(threads)))
+        if not ctx.value:
+            raise RuntimeError("the Fatrop shim could not allocate its context (out of memory, or the stage library "
+                               "was built for another shim: clear the cache directory)")
+        return ctx
+
+    def sizes(self, ctx) -> tuple[int, int, int, int]:
+        sizes = (ctypes.c_int * 4)()
+        self.lib.wb_sizes(ctx, sizes)
+        return tuple(sizes)
+
+
+def default_threads() -> int:
+    """Threads of the stage evaluations when SolverConfig.threads is None: two where this process may run on two
+    cores (the 15 stages' functions split well in two; more threads wait for the Riccati recursion in between)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return min(2, max(cores, 1))
 
 
 def _ptr(array: np.ndarray):
@@ -106,8 +138,7 @@ class FatropDirectSolver:
         self._library = library
         if library is None:
             try:
-                report, p_index = build(problem, config.codegen)
-                self._library = _Library(report, p_index)
+                self._library = _Library(build_shim(config.codegen), stage_library.build(problem, config.codegen))
             except (CompileError, FatropUnavailable, OSError) as exc:
                 self.direct_error = self.compile_error = str(exc)
                 warnings.warn(f"the direct Fatrop binding is unavailable, using casadi's Fatrop: {exc}",
@@ -115,17 +146,29 @@ class FatropDirectSolver:
                 self._fallback = NlpSolver(problem, replace(config, name="fatrop"))
                 return
         lib = self._library
-        if (lib.n_variables, lib.n_constraints) != (problem.n_variables, problem.n_constraints):
-            raise ConfigError("the compiled Fatrop shim belongs to another problem structure")
-        self._ctx = ctypes.c_void_p(lib.lib.wb_ctx_new())
+        self.threads = default_threads() if config.threads is None else config.threads
+        self._ctx = lib.context(self.threads)
+        # inputs with lb == ub eliminated (csrc/stage_layout.c); False: equality rows, as in casadi's plugin
+        self.eliminate_fixed_inputs = bool(config.extra_options.get("eliminate_fixed_inputs", True))
+        lib.lib.wb_ctx_eliminate_fixed(self._ctx, int(self.eliminate_fixed_inputs))
+        n_stages, _, n_variables, n_constraints = lib.sizes(self._ctx)
+        if (n_variables, n_constraints) != (problem.n_variables, problem.n_constraints):
+            raise ConfigError("the compiled stage library belongs to another problem structure")
         self._by_structure: dict[bytes, ctypes.c_void_p] = {}
         self._last_solver: ctypes.c_void_p | None = None
         self._stage_x_starts = np.array([state.start for state, _ in problem.stage_slices])
+        self._input_vars = np.concatenate([np.arange(inputs.start, inputs.stop) for _, inputs in problem.stage_slices])
+        self._input_starts = np.concatenate([[0], np.cumsum([i.stop - i.start for _, i in problem.stage_slices])])
         self._warm_pause = 0
         self._warm_failures = 0
-        self._x = np.zeros(problem.n_variables)
+        self._stage_p = np.zeros(lib.p_index.shape)
+        # x, lam_g, lam_x and the stats of the last call, written by the shim (results are copies of them)
+        self._out = (np.zeros(problem.n_variables), np.zeros(problem.n_constraints), np.zeros(problem.n_variables))
+        self._options: dict[int, tuple] = {}  # per Fatrop instance: the (mu_init, max_iter, print_level) set
         self._g = np.zeros(problem.n_constraints)
         self._stats = np.zeros(_N_STATS)
+        # addresses for wb_solve: stage parameters, then (after the bounds and x0) x, lam_g, lam_x, stats
+        self._out_addresses = tuple(a.ctypes.data for a in (self._stage_p, *self._out, self._stats))
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
@@ -134,13 +177,13 @@ class FatropDirectSolver:
             (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
         self.tolerance = MPC_TOLERANCE if own else config.tolerance
         self.constraint_tolerance = MPC_CONSTRAINT_TOLERANCE if own else config.constraint_tolerance
-        # Fatrop's equality elimination on our AVX2 kernels (fatrop_kernels.py; process-wide, same iterates)
+        # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp; process-wide, same iterates)
         self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
         # the first step's one-off costs now, before any clock runs (b1_z1, fresh processes on a loaded machine: first
         # closed-loop solve 24.0 -> 20.5 ms on average over 3 pairs; it stays the cold one: 5 iterations, least-squares duals)
-        if not lib.warmed_up:
+        if self.threads not in lib.warmed_up:
             lib.lib.wb_warm_up(self._ctx)
-            lib.warmed_up = True
+            lib.warmed_up.add(self.threads)
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property
@@ -154,6 +197,23 @@ class FatropDirectSolver:
     @property
     def is_direct(self) -> bool:
         return self._fallback is None
+
+    @property
+    def structure_keys(self) -> tuple[bytes, ...]:
+        """The row-count patterns (`structure_key`) a Fatrop instance was built for so far."""
+        return tuple(self._by_structure) if self._fallback is None else self._fallback.structure_keys
+
+    def set_elimination_kernels(self, enabled: bool) -> bool:
+        """Fatrop's equality elimination on our AVX2 kernels (True) or its own (False), process-wide; whether ours
+        are in place afterwards (False where they cannot be: no AVX2/FMA build, BLASFEO panels not 4 rows)."""
+        if self._fallback is not None:
+            return False
+        return self._library.lib.wbd_fatrop_kernels(int(bool(enabled))) > 0
+
+    @property
+    def evaluation_threads(self) -> int:
+        """Threads the shim's context evaluates the stages on (the caller and its pool)."""
+        return 1 if self._fallback is not None else int(self._library.lib.wb_ctx_threads(self._ctx))
 
     def recreated(self, **changes) -> "FatropDirectSolver | NlpSolver":
         """A fresh solver on the same problem and compiled shim with some settings changed."""
@@ -170,8 +230,8 @@ class FatropDirectSolver:
         lib.lib.wb_ctx_free(self._ctx)
 
     def stage_parameters(self, p) -> np.ndarray:
-        """(N+1, n_p) stage parameters, row k = `problem.stage_parameters(p, k)`."""
-        return np.ascontiguousarray(np.asarray(p, dtype=float).ravel()[self._library.p_index])
+        """(N+1, n_p) stage parameters, row k = `problem.stage_parameters(p, k)` (a buffer the next call reuses)."""
+        return np.take(np.asarray(p, dtype=float).ravel(), self._library.p_index, out=self._stage_p)
 
     def constraints(self, x, p) -> np.ndarray:
         """g(x) of the NLP, evaluated by the shim's compiled stage functions."""
@@ -181,11 +241,45 @@ class FatropDirectSolver:
         self._library.lib.wb_eval_g(self._ctx, _ptr(stage_p), _ptr(x), _ptr(self._g))
         return self._g.copy()
 
+    def stage_derivatives(self, x, p, lam_g, sigma: float = 1.0) -> list[dict[str, np.ndarray]]:
+        """Per stage, in Fatrop's (u_k, x_k) order: the cost gradient `grad`, the Hessian `hess` of the stage's
+        Lagrangian (sigma l and its rows' terms, lam_g with the NLP's signs) and the Jacobians `jac_next` (of f, the
+        next state) and `jac_rows` (of the path rows), evaluated by the shim on its threads."""
+        if self._fallback is not None:
+            raise ConfigError(f"the direct binding is unavailable ({self.direct_error}): no stage derivatives")
+        stage_p, x, lam_g = self.stage_parameters(p), _f64(x), _f64(lam_g)
+        problem = self.problem
+        shapes = []
+        for k, (state, inputs) in enumerate(problem.stage_slices):
+            n = inputs.stop - state.start
+            n_next = problem.nx if k < problem.N else 0
+            n_rows = (problem.stage_row_starts[k + 1] if k < problem.N else problem.n_constraints) - \
+                problem.stage_row_starts[k] - n_next
+            shapes.append({"grad": (n,), "hess": (n, n), "jac_next": (n_next, n), "jac_rows": (int(n_rows), n)})
+        out = np.empty(sum(int(np.prod(shape)) for block in shapes for shape in block.values()))
+        self._library.lib.wb_eval_derivatives(self._ctx, _ptr(stage_p), _ptr(x), float(sigma), _ptr(lam_g), _ptr(out))
+        blocks, offset = [], 0
+        for block in shapes:
+            stage = {}
+            for name, shape in block.items():  # the shim's column-major transposed blocks are row-major J
+                size = int(np.prod(shape))
+                stage[name] = out[offset:offset + size].reshape(shape).copy()
+                offset += size
+            blocks.append(stage)
+        return blocks
+
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         return bound_violation(x, self.constraints(x, p), lbx, ubx, lbg, ubg)
 
     def structure_key(self, lbx, ubx, lbg, ubg) -> bytes:
-        return NlpSolver.structure_key(self, lbx, ubx, lbg, ubg)  # same counting, same attributes
+        """NlpSolver's per-stage row counts and, per stage, the inputs with lb == ub: the shim eliminates them
+        (Fatrop's input dimension)."""
+        rows = NlpSolver.structure_key(self, lbx, ubx, lbg, ubg)  # same counting, same attributes
+        if not self.eliminate_fixed_inputs:
+            return rows
+        inputs = self._input_vars
+        fixed = np.concatenate([[0], np.cumsum(np.asarray(lbx)[inputs] == np.asarray(ubx)[inputs])])
+        return rows + (fixed[self._input_starts[1:]] - fixed[self._input_starts[:-1]]).astype(np.int32).tobytes()
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
               max_iterations: int | None = None, time_limit_s: float | None = None) -> NlpResult:
@@ -222,6 +316,12 @@ class FatropDirectSolver:
         return result
 
     # ---------------------------------------------------------------- internals
+    @staticmethod
+    def _cpu_s() -> float:
+        """CPU time of the process (s): this thread's and the pool's (time.thread_time and the pool's thread clocks
+        cost ~13 us each here, a system call; the process clock is read without one)."""
+        return time.process_time()
+
     def _solver_for(self, lbx, ubx, lbg, ubg) -> ctypes.c_void_p:
         key = self.structure_key(lbx, ubx, lbg, ubg)
         solver = self._by_structure.get(key)
@@ -244,52 +344,58 @@ class FatropDirectSolver:
                deadline: float | None = None, warm_duals: bool = False) -> NlpResult:
         problem = self.problem
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
-        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver)
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x0))):
+        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
+        # constraint values or derivatives at x0 end the solve at its first evaluation (code -4)
+        if not (np.isfinite(p).all() and np.isfinite(x0).all()):
             return failed_result(problem, x0, "invalid_input_nan")
-        if not np.all(np.isfinite(self.constraints(x0, p))):
-            return failed_result(problem, x0, "invalid_input_nan_constraints")
-        if np.any(lbx > ubx) or np.any(lbg > ubg):
+        if (lbx > ubx).any() or (lbg > ubg).any():
             return failed_result(problem, x0, "invalid_bounds")
-        lib = self._library.lib
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        stage_p = self.stage_parameters(p)
+        start, start_cpu = time.perf_counter(), self._cpu_s()
+        self.stage_parameters(p)
         # the driver maps the stored multipliers position by position within each stage: where a gait switch
         # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
         # requiring the same rows halved the warm starts used and cost 0.5-1 ms CPU per step on average)
         warm_duals = warm_duals and self.warm_duals
-        x = np.zeros(problem.n_variables)
-        lam_g, lam_x = np.zeros(problem.n_constraints), np.zeros(problem.n_variables)
-        stats = self._stats
         budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
-        # the last step's Fatrop instance first: the shim classifies the rows anyway and refuses (-2) another
-        # structure without solving, so the row-count key is computed only then (0.08 ms a step otherwise)
+        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, int(warm_duals))
+        elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
+        if code in (-4, -1, -2):
+            return failed_result(problem, x0, {
+                -4: "invalid_input_nan_constraints", -2: "solver_exception: row structure changed under the solver",
+                -1: "solver_exception: Fatrop raised (see its output with print_level > 0)"}[code])
+        stats = self._stats
+        x = self._out[0].copy()
+        flag = int(stats[1])
+        status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
+        finite = bool(np.isfinite(x).all())
+        viol = float(stats[12]) if finite else float("inf")  # bound_violation's, computed by the shim
+        return NlpResult(x=x, lam_g=self._out[1].copy(), lam_x=self._out[2].copy(), stats=SolverStats(
+            status=status, success=flag in (0, 2) and finite, iterations=int(stats[0]), solve_time_s=elapsed,
+            max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
+            split_ms=_time_split_ms(stats, elapsed)))
+
+    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int) -> int:
+        """wb_solve on the last step's Fatrop instance first (the shim classifies the rows anyway and refuses, -2,
+        another structure without solving, so the row-count key is computed only then: 0.08 ms a step otherwise),
+        else on the instance of this structure; results into the preallocated outputs."""
+        lib = self._library.lib
         solver = self._last_solver or self._solver_for(lbx, ubx, lbg, ubg)
         for attempt in range(2):
-            lib.wb_option_double(solver, b"mu_init", mu_init)
-            lib.wb_option_int(solver, b"max_iter", int(max_iterations))
-            lib.wb_option_int(solver, b"print_level", int(self.config.print_level))
-            with deliver_after():
-                code = lib.wb_solve(self._ctx, solver, _ptr(stage_p), _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
-                                    _ptr(x0), _ptr(x), _ptr(lam_g), _ptr(lam_x), _ptr(stats), budget_s,
-                                    int(warm_duals))
+            options = (mu_init, max_iterations, int(self.config.print_level))
+            if self._options.get(solver.value) != options:  # options hold between calls on an instance
+                lib.wb_option_double(solver, b"mu_init", mu_init)
+                lib.wb_option_int(solver, b"max_iter", max_iterations)
+                lib.wb_option_int(solver, b"print_level", options[2])
+                self._options[solver.value] = options
+            # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler)
+            code = lib.wb_solve(self._ctx, solver, self._out_addresses[0], lbx.ctypes.data, ubx.ctypes.data,
+                                lbg.ctypes.data, ubg.ctypes.data, x0.ctypes.data, *self._out_addresses[1:],
+                                budget_s, warm)
             if code != -2 or attempt:
                 break
             solver = self._solver_for(lbx, ubx, lbg, ubg)
         self._last_solver = solver if code != -2 else None
-        elapsed, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
-        if code == -1:
-            return failed_result(problem, x0, "solver_exception: Fatrop raised (see its output with print_level > 0)")
-        if code == -2:
-            return failed_result(problem, x0, "solver_exception: row structure changed under the solver")
-        flag = int(stats[1])
-        status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
-        success = flag in (0, 2) and bool(np.all(np.isfinite(x)))
-        viol = float(stats[12]) if np.all(np.isfinite(x)) else float("inf")  # bound_violation's, computed by the shim
-        return NlpResult(x=x, lam_g=lam_g, lam_x=lam_x, stats=SolverStats(
-            status=status, success=success, iterations=int(stats[0]), solve_time_s=elapsed,
-            max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
-            split_ms=_time_split_ms(stats, elapsed)))
+        return code
 
 
 def _time_split_ms(stats: np.ndarray, elapsed_s: float) -> dict:

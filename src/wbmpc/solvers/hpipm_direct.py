@@ -4,7 +4,7 @@ casadi's `conic('hpipm')` boxes every variable and keeps every constraint row, i
 +-1e8 (dummy inequalities the interior point iterates on), passes equality rows as two inequalities and
 allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks from the nonzeros of H and
 J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
-equalities, and keeps HPIPM's memory between calls (`hpipm_shim.py`, C compiled once against the HPIPM
+equalities, and keeps HPIPM's memory between calls (`csrc/hpipm_shim.c`, compiled once against the HPIPM
 and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
 as `StructuredQp` (tests/solvers/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
@@ -24,7 +24,6 @@ rows; HPIPM's dynamics multipliers pi_k are those of its form, casadi's of the g
 from __future__ import annotations
 
 import ctypes
-import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -34,8 +33,9 @@ import numpy as np
 
 from wbmpc.errors import WbmpcError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, _compile, cache_key, default_cache_dir
-from wbmpc.solvers.hpipm_shim import SOURCE
+from wbmpc.solvers import blasfeo
+from wbmpc.solvers.codegen import CodegenConfig, CompileError
+from wbmpc.solvers.native import build_native
 from wbmpc.solvers.qp import HPIPM_MODES, HPIPM_STATUS, QpConfig, QpResult, StructuredQp, stage_dimensions
 
 HPIPM_BINDINGS = ("direct", "casadi")  # RtiConfig.hpipm_binding
@@ -45,29 +45,20 @@ class HpipmUnavailable(WbmpcError, RuntimeError):
     """HPIPM's C interface cannot be built here (no headers or library in the casadi wheel, no compiler)."""
 
 
-def _library(config: CodegenConfig = CodegenConfig()) -> Path:
-    """The compiled shim (built on first use, cached under the hash of its source, flags and HPIPM's headers)."""
+def shim_library(config: CodegenConfig = CodegenConfig()) -> Path:
+    """The compiled shim (`csrc/hpipm_shim.c`, built on first use, cached under the hash of its source, flags and
+    HPIPM's headers' directory)."""
     directory = Path(ca.__file__).parent
     include = directory / "include"
     if not (include / "hpipm_d_ocp_qp_ipm.h").exists() or not list(directory.glob("libhpipm.so*")):
         raise HpipmUnavailable(f"HPIPM's headers or libhpipm are missing in {directory}: use casadi's hpipm conic")
-    source = SOURCE
-    flags = (*config.flags, "-O2", f"-I{include}", f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo",
-             f"-Wl,-rpath,{directory}")
-    link = replace(config, flags=flags)
-    cache = config.cache_dir or default_cache_dir()
-    library = Path(cache) / f"hpipm_shim_{cache_key(source + str(include), link)}.so"
-    if not library.exists():
-        library.parent.mkdir(parents=True, exist_ok=True)
-        staged = library.with_suffix(f".{os.getpid()}.c")  # per process: parallel builds never share a file
-        staged.write_text(source)
-        try:
-            _compile(staged, library, link)
-        except CompileError as exc:
-            raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
-        finally:
-            staged.unlink(missing_ok=True)
-    return library
+    blasfeo.activate()  # before libhpipm (and its BLASFEO) is loaded
+    flags = (*config.flags, "-O2", f"-I{include}")
+    link = (f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{directory}")
+    try:
+        return build_native("hpipm_shim", ("hpipm_shim.c",), config, flags, link, key_extra=str(include)).library
+    except CompileError as exc:
+        raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
 
 
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
@@ -80,7 +71,7 @@ class DirectQp:
                  declare_equalities: bool = False, codegen: CodegenConfig = CodegenConfig()):
         self.config = config
         self.hessian_sparsity, self.jacobian_sparsity = hessian, jacobian
-        self._lib = ctypes.CDLL(str(_library(codegen)))
+        self._lib = ctypes.CDLL(str(shim_library(codegen)))
         self._lib.wbqp_new.restype = ctypes.c_void_p
         self._lib.wbqp_new.argtypes = [ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 3, ctypes.c_int, ctypes.c_int,
                                        ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int]
@@ -108,10 +99,26 @@ class DirectQp:
     def _maps(self, problem, nx, nu, ng, hessian: ca.Sparsity, jacobian: ca.Sparsity) -> None:
         """Where each nonzero of J and H, each variable and each row goes in HPIPM's stage-major blocks."""
         N = self.N
-        n_var, n_row = problem.n_variables, problem.n_constraints
+        cols = self._column_layout(problem.n_variables, nx, nu)
+        rows = self._row_layout(problem.n_constraints, nx, ng)
+
+        def offsets(sizes):
+            return np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+
+        size = {"A": [nx[k + 1] * nx[k] for k in range(N)], "B": [nx[k + 1] * nu[k] for k in range(N)],
+                "Q": [nx[k] ** 2 for k in range(N + 1)], "S": [nu[k] * nx[k] for k in range(N + 1)],
+                "R": [nu[k] ** 2 for k in range(N + 1)], "C": [ng[k] * nx[k] for k in range(N + 1)],
+                "D": [ng[k] * nu[k] for k in range(N + 1)]}
+        off = {name: offsets(sizes) for name, sizes in size.items()}
+        self._jacobian_maps(jacobian, cols, rows, off, nx, nu, ng)
+        self._hessian_maps(hessian, cols, off, nx, nu)
+        self._allocate(off, problem.n_variables, problem.n_constraints)
+
+    def _column_layout(self, n_var: int, nx, nu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per NLP variable: its stage, part (0: x, 1: u) and position in the part; x_index, u_index."""
         col_stage, col_part, col_local = (np.full(n_var, -1) for _ in range(3))
         x_index, u_index, c = [], [], 0
-        for k in range(N + 1):
+        for k in range(self.N + 1):
             col_stage[c : c + nx[k] + nu[k]] = k
             col_part[c : c + nx[k]], col_part[c + nx[k] : c + nx[k] + nu[k]] = 0, 1
             col_local[c : c + nx[k]] = np.arange(nx[k])
@@ -121,6 +128,12 @@ class DirectQp:
             c += nx[k] + nu[k]
         if c != n_var:
             raise WbmpcError(f"HPIPM stage sizes cover {c} of {n_var} variables")
+        self.x_index, self.u_index = np.concatenate(x_index), np.concatenate(u_index)
+        return col_stage, col_part, col_local
+
+    def _row_layout(self, n_row: int, nx, ng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per NLP row: its stage, kind (0: gap, 1: path) and position; gap_index, path_index."""
+        N = self.N
         row_stage, row_kind, row_local = (np.full(n_row, -1) for _ in range(3))
         gap_index, path_index, r = [], [], 0
         for k in range(N + 1):
@@ -132,29 +145,25 @@ class DirectQp:
             row_stage[r : r + ng[k]], row_kind[r : r + ng[k]], row_local[r : r + ng[k]] = k, 1, np.arange(ng[k])
             path_index.append(np.arange(r, r + ng[k]))
             r += ng[k]
-        self.x_index, self.u_index = np.concatenate(x_index), np.concatenate(u_index)
         self.gap_index, self.path_index = np.concatenate(gap_index), np.concatenate(path_index)
+        return row_stage, row_kind, row_local
 
-        def offsets(sizes):
-            return np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-
-        size = {"A": [nx[k + 1] * nx[k] for k in range(N)], "B": [nx[k + 1] * nu[k] for k in range(N)],
-                "Q": [nx[k] ** 2 for k in range(N + 1)], "S": [nu[k] * nx[k] for k in range(N + 1)],
-                "R": [nu[k] ** 2 for k in range(N + 1)], "C": [ng[k] * nx[k] for k in range(N + 1)],
-                "D": [ng[k] * nu[k] for k in range(N + 1)]}
-        off = {name: offsets(sizes) for name, sizes in size.items()}
-        nx_arr, nu_arr, ng_arr = np.asarray(nx), np.asarray(nu), np.asarray(ng)
-        # J: nonzeros in CasADi's column-major order
+    def _jacobian_maps(self, jacobian: ca.Sparsity, cols, rows_layout, off, nx, nu, ng) -> None:
+        """J's nonzeros (CasADi's column-major order) into A, B, C, D; the gap rows' identity; the A/B scales."""
+        N = self.N
+        col_stage, col_part, col_local = cols
+        row_stage, row_kind, row_local = rows_layout
+        nx_arr, ng_arr = np.asarray(nx), np.asarray(ng)
         rows = np.asarray(jacobian.row())
-        cols = np.repeat(np.arange(jacobian.size2()), np.diff(np.asarray(jacobian.colind())))
+        columns = np.repeat(np.arange(jacobian.size2()), np.diff(np.asarray(jacobian.colind())))
         ks, kind, lr = row_stage[rows], row_kind[rows], row_local[rows]
-        cs, part, lc = col_stage[cols], col_part[cols], col_local[cols]
+        cs, part, lc = col_stage[columns], col_part[columns], col_local[columns]
         self._j_maps = {}
-        for name, mask, rows_of, dest in (
-                ("A", (kind == 0) & (cs == ks) & (part == 0), None, lambda: off["A"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
-                ("B", (kind == 0) & (cs == ks) & (part == 1), None, lambda: off["B"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
-                ("C", (kind == 1) & (cs == ks) & (part == 0), None, lambda: off["C"][ks] + lc * ng_arr[ks] + lr),
-                ("D", (kind == 1) & (cs == ks) & (part == 1), None, lambda: off["D"][ks] + lc * ng_arr[ks] + lr)):
+        for name, mask, dest in (
+                ("A", (kind == 0) & (cs == ks) & (part == 0), lambda: off["A"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
+                ("B", (kind == 0) & (cs == ks) & (part == 1), lambda: off["B"][ks] + lc * nx_arr[np.minimum(ks + 1, N)] + lr),
+                ("C", (kind == 1) & (cs == ks) & (part == 0), lambda: off["C"][ks] + lc * ng_arr[ks] + lr),
+                ("D", (kind == 1) & (cs == ks) & (part == 1), lambda: off["D"][ks] + lc * ng_arr[ks] + lr)):
             where = np.nonzero(mask)[0]
             self._j_maps[name] = (where, dest()[where])
         eye = (kind == 0) & (cs == ks + 1) & (part == 0)
@@ -167,7 +176,12 @@ class DirectQp:
         # the scale of each A / B entry: -1 / I of its row
         self._ab_scale_rows = {"A": self._gap_position_of(off, "A", nx, N)[self._j_maps["A"][1]],
                                "B": self._gap_position_of(off, "B", nx, N, nu)[self._j_maps["B"][1]]}
-        # H: both triangles written (a symmetric H stored whole writes each entry twice, the same value)
+
+    def _hessian_maps(self, hessian: ca.Sparsity, cols, off, nx, nu) -> None:
+        """H's nonzeros into Q, S, R; both triangles written (a symmetric H stored whole writes each entry twice, the
+        same value)."""
+        col_stage, col_part, col_local = cols
+        nx_arr, nu_arr = np.asarray(nx), np.asarray(nu)
         hrows = np.asarray(hessian.row())
         hcols = np.repeat(np.arange(hessian.size2()), np.diff(np.asarray(hessian.colind())))
         self._h_maps = []
@@ -181,16 +195,17 @@ class DirectQp:
                                      ("R", (pr == 1) & (pc == 1), off["R"][ks_r] + lc_ * nu_arr[ks_r] + lr_)):
                 where = np.nonzero(mask)[0]
                 self._h_maps.append((name, where, dest[where]))
-        n_gap = len(self.gap_index)
+
+    def _allocate(self, off, n_var: int, n_row: int) -> None:
+        """The blocks, vectors and results HPIPM reads and writes, bound once (`_buffers`, in wbqp_solve's order)."""
+        n_gap, n_u, n_x, n_path = len(self.gap_index), len(self.u_index), len(self.x_index), len(self.path_index)
         self._blocks = {name: np.zeros(int(off[name][-1])) for name in off}
         self._b = np.zeros(n_gap)
         self._eye_values = np.ones(n_gap)
-        self._q, self._r = np.zeros(len(self.x_index)), np.zeros(len(self.u_index))
-        self._bounds = [np.zeros(len(self.u_index)), np.zeros(len(self.u_index)), np.zeros(len(self.x_index)),
-                        np.zeros(len(self.x_index)), np.zeros(len(self.path_index)), np.zeros(len(self.path_index))]
-        self._u, self._x, self._pi = np.zeros(len(self.u_index)), np.zeros(len(self.x_index)), np.zeros(n_gap)
-        self._lam_u, self._lam_x, self._lam_g = (np.zeros(len(self.u_index)), np.zeros(len(self.x_index)),
-                                                 np.zeros(len(self.path_index)))
+        self._q, self._r = np.zeros(n_x), np.zeros(n_u)
+        self._bounds = [np.zeros(n_u), np.zeros(n_u), np.zeros(n_x), np.zeros(n_x), np.zeros(n_path), np.zeros(n_path)]
+        self._u, self._x, self._pi = np.zeros(n_u), np.zeros(n_x), np.zeros(n_gap)
+        self._lam_u, self._lam_x, self._lam_g = np.zeros(n_u), np.zeros(n_x), np.zeros(n_path)
         self._buffers = [self._blocks["A"], self._blocks["B"], self._b, self._blocks["Q"], self._blocks["S"],
                          self._blocks["R"], self._q, self._r, self._blocks["C"], self._blocks["D"], *self._bounds,
                          self._u, self._x, self._pi, self._lam_u, self._lam_x, self._lam_g]

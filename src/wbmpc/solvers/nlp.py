@@ -18,6 +18,7 @@ import numpy as np
 from wbmpc.errors import ConfigError
 from wbmpc.interrupt import deliver_after
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers import blasfeo
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import (
     CodegenConfig,
@@ -56,6 +57,9 @@ class SolverConfig:
     compiled: bool = False  # generate C, compile (cached) and load it; falls back to the VM on failure
     solver_per_structure: bool = True  # Fatrop: one nlpsol per row-count pattern keeps our options (see NlpSolver)
     codegen: CodegenConfig = field(default_factory=CodegenConfig)
+    # fatrop-direct: threads evaluating the stage functions (the caller and threads - 1 workers; the same iterates on
+    # any count); None: two where the process may use two cores (fatrop_direct.default_threads)
+    threads: int | None = None
 
     def __post_init__(self):
         if self.name not in SOLVERS:
@@ -68,6 +72,9 @@ class SolverConfig:
             raise ConfigError(f"max_iterations must be >= 1, got {self.max_iterations}")
         if self.warm_barrier_init is not None and not self.warm_barrier_init > 0:
             raise ConfigError(f"warm_barrier_init must be positive or None, got {self.warm_barrier_init}")
+        if self.threads is not None and (isinstance(self.threads, bool) or not isinstance(self.threads, int)
+                                         or not 1 <= self.threads <= 64):
+            raise ConfigError(f"threads must be an integer from 1 to 64 or None, got {self.threads!r}")
         if self.warm_max_iterations < 1 or self.warm_backoff_steps < 0:
             raise ConfigError(f"warm_max_iterations must be >= 1 and warm_backoff_steps >= 0, got "
                               f"{self.warm_max_iterations} and {self.warm_backoff_steps}")
@@ -81,7 +88,7 @@ class SolverStats:
     solve_time_s: float
     max_constraint_violation: float
     cost: float
-    cpu_time_s: float = 0.0  # CPU time of the solving thread: robust to other processes on the machine
+    cpu_time_s: float = 0.0  # CPU time of the solve (its thread, fatrop-direct: its process with the pool threads)
     split_ms: dict = field(default_factory=dict)  # where the solve time went (see `time_split_ms`)
     details: dict = field(default_factory=dict)  # solver-specific (anytime SQP: iterations, KKT residuals, budget)
 
@@ -231,6 +238,7 @@ class NlpSolver:
         if isinstance(self._source, str):  # a compiled library: its functions are already expanded
             options.pop("expand")
         suffix = "_compiled" if isinstance(self._source, str) else ""
+        blasfeo.activate()  # before casadi loads the Fatrop plugin (and its BLASFEO)
         return ca.nlpsol(f"ocp_{self.config.name}{suffix}", self.config.name, self._source, options)
 
     def structure_key(self, lbx, ubx, lbg, ubg) -> bytes:
@@ -284,8 +292,17 @@ class NlpSolver:
         self._source = str(self.compile_report.library)
         return self._new_nlpsol()
 
+    def constraints(self, x, p) -> np.ndarray:
+        """g(x) of the NLP (a copy)."""
+        return np.array(self._g(x, p)[0], dtype=float)
+
     def constraint_violation(self, x, p, lbx, ubx, lbg, ubg) -> float:
         return bound_violation(x, self._g(x, p)[0], lbx, ubx, lbg, ubg)
+
+    @property
+    def structure_keys(self) -> tuple[bytes, ...]:
+        """The row-count patterns (`structure_key`) a casadi nlpsol, each with its own Fatrop, was built for so far."""
+        return tuple(self._by_structure)
 
     def _failure(self, x0, status: str) -> NlpResult:
         return failed_result(self.problem, x0, status)

@@ -21,6 +21,7 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers import blasfeo
 
 HPIPM_MODES = ("speed_abs", "speed", "balance", "robust")
 HPIPM_STATUS = {0: "Solve_Succeeded", 1: "QP_Maximum_Iterations_Exceeded", 2: "QP_Minimum_Step_Length",
@@ -86,6 +87,7 @@ class StructuredQp:
                       "res_d_max": tol, "res_m_max": tol, "mu0": config.barrier_init,
                       "warm_start": int(config.warm_start), **config.hpipm_options},
         }
+        blasfeo.activate()  # before casadi loads the HPIPM plugin (and its BLASFEO)
         self.conic = ca.conic("ocp_qp_hpipm", "hpipm", {"h": hessian, "a": jacobian}, options)
         self.hessian_sparsity, self.jacobian_sparsity = hessian, jacobian
 

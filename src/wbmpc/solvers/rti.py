@@ -47,9 +47,12 @@ from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
 
 DIRECT_QP_BARRIER_INIT = 1e3  # HPIPM's mu0 on our binding (RtiConfig.qp_barrier_init)
 # ... where the OCP has flat feet (6D wrenches, hard wrench cone): g1's walk keeps 10-50 of its wrench cone rows
-# active (the CoP at a sole's edge) and HPIPM took 8.3 iterations from 1e3, 7.3 from 100, 7.0 from 10 on the same
-# 40 RTI QPs (b1_z1's trot: 3.3 from 1e3, 6.7 from 10)
-FLAT_FOOT_QP_BARRIER_INIT = 10.0
+# active (the CoP at a sole's edge). With the centre-of-pressure rows in units of the lever (hw f_z - tau_x) HPIPM
+# took 8.3 iterations from 1e3, 7.3 from 100, 7.0 from 10 on the same 40 RTI QPs (b1_z1's trot: 3.3 from 1e3, 6.7
+# from 10); with the rows divided by their lever (ocp/problem.py's wrench cone: f_z - tau_x / hw) g1's walk in place
+# (RTI, 1.5 s, MuJoCo, uncompiled) took 8.1 from 1, 6.0 from 10 and 5.0 from 100 (5.5 before from 10), same drift
+# and base velocity RMSE
+FLAT_FOOT_QP_BARRIER_INIT = 100.0
 QP_TOLERANCE = 1e-4  # RtiConfig.qp_tolerance
 # ... of one real-time iteration on flat feet: g1 walking in place (RTI, 4 s, MuJoCo, delay none) took 6.75 HPIPM
 # iterations per step with mu0 10 and 1e-3, 7.0 with mu0 100 and 1e-3, 7.8 with 100 and 1e-4, 10.0 with 1e3 and 1e-4,
@@ -269,6 +272,11 @@ class RtiSolver:
             self._recovery = NlpSolver(self.problem, config, compile_report=self.compile_report)
         return self._recovery
 
+    @property
+    def recovery_solver(self) -> NlpSolver | None:
+        """The Fatrop re-solve of failed QPs, once built (`prepare_recovery` or a first failure), else None."""
+        return self._recovery
+
     def prepare_recovery(self) -> None:
         """Build the Fatrop re-solve of failed QPs now rather than at the first failure."""
         if self.rti.recovery_barrier_init is not None:
@@ -317,7 +325,7 @@ class RtiSolver:
         if np.any(np.asarray(lbx) > np.asarray(ubx)) or np.any(np.asarray(lbg) > np.asarray(ubg)):
             return self._failure(x0, "invalid_bounds")
         start, cpu_start = time.perf_counter(), time.process_time()
-        linearize_s = qp_s = 0.0
+        timing = {"linearize": 0.0, "qp": 0.0}
         qp_iterations, lam_g, lam_x, status, success = 0, None, None, "not_started", False
         for _ in range(self.rti.sqp_iterations):
             tic = time.perf_counter()
@@ -327,10 +335,9 @@ class RtiSolver:
                 return self._failure(x0, "invalid_input_nan_constraints")
             gradient = self._gradient(x, p)
             H = self._weights_hessian(x, p)
-            linearize_s += time.perf_counter() - tic
-            qp_data = (H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x)
-            result, spent_s, iterations = self._solve_qp(qp_data)
-            qp_s += spent_s
+            timing["linearize"] += time.perf_counter() - tic
+            result, spent_s, iterations = self._solve_qp((H, gradient, J, lbg - g, ubg - g, lbx - x, ubx - x))
+            timing["qp"] += spent_s
             qp_iterations += iterations
             status, success = result.status, result.success
             if not success:
@@ -339,24 +346,34 @@ class RtiSolver:
             lam_g, lam_x = result.lam_g, result.lam_x
             if self.rti.sqp_iterations > 1 and np.max(np.abs(result.step), initial=0.0) < self.rti.step_tolerance:
                 break
+        result = self._result(x, p, (lbx, ubx, lbg, ubg), lam_g, lam_x, status, success, qp_iterations, timing,
+                              start, cpu_start)
+        if not result.stats.success and self.rti.recovery_barrier_init is not None:
+            result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
+        return result
+
+    def _result(self, x, p, bounds, lam_g, lam_x, status: str, success: bool, qp_iterations: int, timing: dict,
+                start: float, cpu_start: float) -> NlpResult:
+        """The step's result: cost and bound violation at the new iterate (NaN where the QP failed), timings."""
         tic = time.perf_counter()
         if success:
             f, g = self._nlp(x, p)
             cost = float(f[0])
             finite = bool(np.all(np.isfinite(g)))
-            viol = bound_violation(x, g, lbx, ubx, lbg, ubg) if finite else float("inf")
+            viol = bound_violation(x, g, *bounds) if finite else float("inf")
             success = finite
         else:
             x, cost, viol = np.full_like(x, np.nan), float("nan"), float("inf")
         evaluate_s = time.perf_counter() - tic
         elapsed = time.perf_counter() - start
+        linearize_s, qp_s = timing["linearize"], timing["qp"]
         self.last_timing = {"linearize_ms": 1e3 * linearize_s, "qp_ms": 1e3 * qp_s, "evaluate_ms": 1e3 * evaluate_s,
                             "other_ms": 1e3 * (elapsed - linearize_s - qp_s - evaluate_s),
                             "cpu_ms": 1e3 * (time.process_time() - cpu_start)}  # this process's CPU time (load-independent)
         if success and self.config.time_limit_s and elapsed > self.config.time_limit_s:
             status = "time_limit_exceeded"  # as NlpSolver: flagged, the step itself is fine
         n = self.problem.n_constraints
-        result = NlpResult(
+        return NlpResult(
             x=x,
             lam_g=lam_g if lam_g is not None else np.zeros(n),
             lam_x=lam_x if lam_x is not None else np.zeros_like(x),
@@ -366,9 +383,6 @@ class RtiSolver:
                                         "evaluate": self.last_timing["evaluate_ms"],
                                         "outside_solver": self.last_timing["other_ms"]}),
         )
-        if not success and self.rti.recovery_barrier_init is not None:
-            result = self._recover(result, p, lbx, ubx, lbg, ubg, x0)
-        return result
 
 
 def _first_output(function: BufferedFunction):

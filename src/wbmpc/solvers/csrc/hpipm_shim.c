@@ -1,6 +1,4 @@
-"""C source of the thin layer between `hpipm_direct.DirectQp` and HPIPM's OCP QP interface (compiled once, cached)."""
-
-SOURCE = r"""/* A thin C layer between our stage-wise QP (solvers/hpipm_direct.py) and HPIPM's OCP QP interface.
+/* A thin C layer between our stage-wise QP (solvers/hpipm_direct.py) and HPIPM's OCP QP interface.
  *
  * casadi's conic('hpipm') boxes every variable and keeps every row with infinite bounds replaced by
  * +-1e8 (dummy constraints the interior point iterates on), passes equality rows as two inequalities
@@ -132,98 +130,80 @@ static void build(wbqp *s) {
     s->built = 1;
 }
 
-/* Solve. Blocks flat in stage order, column-major: A_k (nx[k+1] x nx[k]), B_k (nx[k+1] x nu[k]), b_k, Q_k (nx x nx),
- * S_k (nu x nx), R_k (nu x nu), q_k, r_k, C_k (ng x nx), D_k (ng x nu); bounds lbu/ubu, lbx/ubx, lg/ug per stage
- * (+-inf or beyond `inf`: absent). Outputs u, x, pi (nx[k+1] per k < N), lam = (upper - lower) multipliers of
- * u, x and g per stage. Returns HPIPM's status (0 solved, 1 iteration cap, 2 minimum step, 3 NaN). */
-int wbqp_solve(void *handle, const double *A, const double *B, const double *b, const double *Q, const double *S,
-               const double *R, const double *q, const double *r, const double *C, const double *D,
-               const double *lbu, const double *ubu, const double *lbx, const double *ubx,
-               const double *lg, const double *ug, double *u, double *x, double *pi, double *lam_u, double *lam_x,
-               double *lam_g) {
-    wbqp *s = handle;
-    int N = s->N, k, i, changed = !s->built, offset = 0;
-    const double inf = s->inf;
-    /* equality pattern */
-    {
-        const double *pl[3] = {lbu, lbx, lg}, *pu[3] = {ubu, ubx, ug};
-        int o[3] = {0, 0, 0};
-        for (k = 0; k <= N; k++) {
-            int sizes[3] = {s->nu[k], s->nx[k], s->ng[k]}, part, j = 0;
-            for (part = 0; part < 3; part++) {
-                for (i = 0; i < sizes[part]; i++, j++) {
-                    double lo = pl[part][o[part] + i], hi = pu[part][o[part] + i];
-                    char eq = s->declare_equalities && lo == hi && fabs(lo) < inf;
-                    if (s->eq_pattern[offset + j] != eq) { s->eq_pattern[offset + j] = eq; changed = 1; }
-                }
-                o[part] += sizes[part];
+/* whether the equality pattern of these bounds differs from the one HPIPM was built for (it is updated) */
+static int update_pattern(wbqp *s, const double *lbu, const double *ubu, const double *lbx, const double *ubx,
+                          const double *lg, const double *ug) {
+    const double *pl[3] = {lbu, lbx, lg}, *pu[3] = {ubu, ubx, ug};
+    int o[3] = {0, 0, 0}, k, i, offset = 0, changed = !s->built;
+    for (k = 0; k <= s->N; k++) {
+        int sizes[3] = {s->nu[k], s->nx[k], s->ng[k]}, part, j = 0;
+        for (part = 0; part < 3; part++) {
+            for (i = 0; i < sizes[part]; i++, j++) {
+                double lo = pl[part][o[part] + i], hi = pu[part][o[part] + i];
+                char eq = s->declare_equalities && lo == hi && fabs(lo) < s->inf;
+                if (s->eq_pattern[offset + j] != eq) { s->eq_pattern[offset + j] = eq; changed = 1; }
             }
-            offset += j;
+            o[part] += sizes[part];
         }
+        offset += j;
     }
-    if (changed) build(s);
-    /* data */
-    {
-        const double *pA = A, *pB = B, *pb = b, *pQ = Q, *pS = S, *pR = R, *pq = q, *pr = r, *pC = C, *pD = D;
-        const double *plu = lbu, *puu = ubu, *plx = lbx, *pux = ubx, *plg = lg, *pug = ug;
-        offset = 0;
-        for (k = 0; k <= N; k++) {
-            int nx = s->nx[k], nu = s->nu[k], ng = s->ng[k], ne = 0, j;
-            if (k < N) {
-                int nx1 = s->nx[k + 1];
-                d_ocp_qp_set_A(k, (double *) pA, &s->qp); pA += nx1 * nx;
-                d_ocp_qp_set_B(k, (double *) pB, &s->qp); pB += nx1 * nu;
-                d_ocp_qp_set_b(k, (double *) pb, &s->qp); pb += nx1;
-            }
-            d_ocp_qp_set_Q(k, (double *) pQ, &s->qp); pQ += nx * nx;
-            d_ocp_qp_set_S(k, (double *) pS, &s->qp); pS += nu * nx;
-            d_ocp_qp_set_R(k, (double *) pR, &s->qp); pR += nu * nu;
-            d_ocp_qp_set_q(k, (double *) pq, &s->qp); pq += nx;
-            d_ocp_qp_set_r(k, (double *) pr, &s->qp); pr += nu;
-            d_ocp_qp_set_C(k, (double *) pC, &s->qp); pC += ng * nx;
-            d_ocp_qp_set_D(k, (double *) pD, &s->qp); pD += ng * nu;
-            d_ocp_qp_set_idxbu(k, s->idxbu[k], &s->qp);
-            d_ocp_qp_set_idxbx(k, s->idxbx[k], &s->qp);
-            /* bounds clipped to +-inf, with masks: 0 where a side is absent */
+    return changed;
+}
+
+/* the QP's data, read stage after stage (each pointer moves past its stage's block) */
+typedef struct {
+    const double *A, *B, *b, *Q, *S, *R, *q, *r, *C, *D, *lbu, *ubu, *lbx, *ubx, *lg, *ug;
+} qp_data;
+
+/* bounds clipped to +-inf, with masks: 0 where a side is absent */
 #define BOUNDS(n, lo, hi, set_lo, set_hi, set_lo_mask, set_hi_mask) \
-            for (j = 0; j < (n); j++) { \
-                double l = (lo)[j], h = (hi)[j]; \
-                s->mask[j] = l > -inf; s->mask[(n) + j] = h < inf; \
-                s->lb[j] = s->mask[j] ? l : -inf; s->ub[j] = s->mask[(n) + j] ? h : inf; \
-            } \
-            set_lo(k, s->lb, &s->qp); set_hi(k, s->ub, &s->qp); \
-            set_lo_mask(k, s->mask, &s->qp); set_hi_mask(k, s->mask + (n), &s->qp);
-            BOUNDS(nu, plu, puu, d_ocp_qp_set_lbu, d_ocp_qp_set_ubu, d_ocp_qp_set_lbu_mask, d_ocp_qp_set_ubu_mask)
-            BOUNDS(nx, plx, pux, d_ocp_qp_set_lbx, d_ocp_qp_set_ubx, d_ocp_qp_set_lbx_mask, d_ocp_qp_set_ubx_mask)
-            if (ng > 0) {
-                BOUNDS(ng, plg, pug, d_ocp_qp_set_lg, d_ocp_qp_set_ug, d_ocp_qp_set_lg_mask, d_ocp_qp_set_ug_mask)
-            }
+    for (j = 0; j < (n); j++) { \
+        double l = (lo)[j], h = (hi)[j]; \
+        s->mask[j] = l > -inf; s->mask[(n) + j] = h < inf; \
+        s->lb[j] = s->mask[j] ? l : -inf; s->ub[j] = s->mask[(n) + j] ? h : inf; \
+    } \
+    set_lo(k, s->lb, &s->qp); set_hi(k, s->ub, &s->qp); \
+    set_lo_mask(k, s->mask, &s->qp); set_hi_mask(k, s->mask + (n), &s->qp);
+
+/* stage k's blocks, bounds and equalities into HPIPM's QP; `offset`: the stage's start in eq_pattern */
+static void set_stage(wbqp *s, int k, qp_data *d, int offset) {
+    int nx = s->nx[k], nu = s->nu[k], ng = s->ng[k], ne = 0, j;
+    const double inf = s->inf;
+    if (k < s->N) {
+        int nx1 = s->nx[k + 1];
+        d_ocp_qp_set_A(k, (double *) d->A, &s->qp); d->A += nx1 * nx;
+        d_ocp_qp_set_B(k, (double *) d->B, &s->qp); d->B += nx1 * nu;
+        d_ocp_qp_set_b(k, (double *) d->b, &s->qp); d->b += nx1;
+    }
+    d_ocp_qp_set_Q(k, (double *) d->Q, &s->qp); d->Q += nx * nx;
+    d_ocp_qp_set_S(k, (double *) d->S, &s->qp); d->S += nu * nx;
+    d_ocp_qp_set_R(k, (double *) d->R, &s->qp); d->R += nu * nu;
+    d_ocp_qp_set_q(k, (double *) d->q, &s->qp); d->q += nx;
+    d_ocp_qp_set_r(k, (double *) d->r, &s->qp); d->r += nu;
+    d_ocp_qp_set_C(k, (double *) d->C, &s->qp); d->C += ng * nx;
+    d_ocp_qp_set_D(k, (double *) d->D, &s->qp); d->D += ng * nu;
+    d_ocp_qp_set_idxbu(k, s->idxbu[k], &s->qp);
+    d_ocp_qp_set_idxbx(k, s->idxbx[k], &s->qp);
+    BOUNDS(nu, d->lbu, d->ubu, d_ocp_qp_set_lbu, d_ocp_qp_set_ubu, d_ocp_qp_set_lbu_mask, d_ocp_qp_set_ubu_mask)
+    BOUNDS(nx, d->lbx, d->ubx, d_ocp_qp_set_lbx, d_ocp_qp_set_ubx, d_ocp_qp_set_lbx_mask, d_ocp_qp_set_ubx_mask)
+    if (ng > 0) {
+        BOUNDS(ng, d->lg, d->ug, d_ocp_qp_set_lg, d_ocp_qp_set_ug, d_ocp_qp_set_lg_mask, d_ocp_qp_set_ug_mask)
+    }
+    for (j = 0; j < nu + nx + ng; j++)
+        if (s->eq_pattern[offset + j]) s->idxe[k][ne++] = j;
+    if (ne > 0) d_ocp_qp_set_idxe(k, s->idxe[k], &s->qp);
+    d->lbu += nu; d->ubu += nu; d->lbx += nx; d->ubx += nx; d->lg += ng; d->ug += ng;
+}
 #undef BOUNDS
-            for (j = 0; j < nu + nx + ng; j++)
-                if (s->eq_pattern[offset + j]) s->idxe[k][ne++] = j;
-            if (ne > 0) d_ocp_qp_set_idxe(k, s->idxe[k], &s->qp);
-            offset += nu + nx + ng;
-            plu += nu; puu += nu; plx += nx; pux += nx; plg += ng; pug += ng;
-        }
-    }
-    /* primal guess: zero (the linearisation point) */
-    for (k = 0; k <= N; k++) {
-        d_ocp_qp_sol_set_u(k, s->zeros, &s->sol);
-        d_ocp_qp_sol_set_x(k, s->zeros, &s->sol);
-    }
-    d_ocp_qp_ipm_solve(&s->qp, &s->sol, &s->arg, &s->ws);
-    d_ocp_qp_ipm_get_status(&s->ws, &s->status);
-    d_ocp_qp_ipm_get_iter(&s->ws, &s->iter);
-    d_ocp_qp_ipm_get_max_res_stat(&s->ws, &s->res[0]);
-    d_ocp_qp_ipm_get_max_res_eq(&s->ws, &s->res[1]);
-    d_ocp_qp_ipm_get_max_res_ineq(&s->ws, &s->res[2]);
-    d_ocp_qp_ipm_get_max_res_comp(&s->ws, &s->res[3]);
-    /* solution */
-    for (k = 0; k <= N; k++) {
-        int nx = s->nx[k], nu = s->nu[k], ng = s->ng[k], j;
+
+/* the solution: u, x, pi (nx[k+1] per k < N) and the (upper - lower) multipliers of u, x and g per stage */
+static void get_solution(wbqp *s, double *u, double *x, double *pi, double *lam_u, double *lam_x, double *lam_g) {
+    int k, j;
+    for (k = 0; k <= s->N; k++) {
+        int nx = s->nx[k], nu = s->nu[k], ng = s->ng[k];
         d_ocp_qp_sol_get_u(k, &s->sol, u); u += nu;
         d_ocp_qp_sol_get_x(k, &s->sol, x); x += nx;
-        if (k < N) { d_ocp_qp_sol_get_pi(k, &s->sol, pi); pi += s->nx[k + 1]; }
+        if (k < s->N) { d_ocp_qp_sol_get_pi(k, &s->sol, pi); pi += s->nx[k + 1]; }
         d_ocp_qp_sol_get_lam_lbu(k, &s->sol, s->lb); d_ocp_qp_sol_get_lam_ubu(k, &s->sol, s->ub);
         for (j = 0; j < nu; j++) lam_u[j] = s->ub[j] - s->lb[j];
         lam_u += nu;
@@ -236,9 +216,40 @@ int wbqp_solve(void *handle, const double *A, const double *B, const double *b, 
             lam_g += ng;
         }
     }
+}
+
+/* Solve. Blocks flat in stage order, column-major: A_k (nx[k+1] x nx[k]), B_k (nx[k+1] x nu[k]), b_k, Q_k (nx x nx),
+ * S_k (nu x nx), R_k (nu x nu), q_k, r_k, C_k (ng x nx), D_k (ng x nu); bounds lbu/ubu, lbx/ubx, lg/ug per stage
+ * (+-inf or beyond `inf`: absent). Outputs u, x, pi (nx[k+1] per k < N), lam = (upper - lower) multipliers of
+ * u, x and g per stage. Returns HPIPM's status (0 solved, 1 iteration cap, 2 minimum step, 3 NaN). */
+int wbqp_solve(void *handle, const double *A, const double *B, const double *b, const double *Q, const double *S,
+               const double *R, const double *q, const double *r, const double *C, const double *D,
+               const double *lbu, const double *ubu, const double *lbx, const double *ubx,
+               const double *lg, const double *ug, double *u, double *x, double *pi, double *lam_u, double *lam_x,
+               double *lam_g) {
+    wbqp *s = handle;
+    qp_data d = {A, B, b, Q, S, R, q, r, C, D, lbu, ubu, lbx, ubx, lg, ug};
+    int k, offset = 0;
+    if (update_pattern(s, lbu, ubu, lbx, ubx, lg, ug)) build(s);
+    for (k = 0; k <= s->N; k++) {
+        set_stage(s, k, &d, offset);
+        offset += s->nu[k] + s->nx[k] + s->ng[k];
+    }
+    /* primal guess: zero (the linearisation point) */
+    for (k = 0; k <= s->N; k++) {
+        d_ocp_qp_sol_set_u(k, s->zeros, &s->sol);
+        d_ocp_qp_sol_set_x(k, s->zeros, &s->sol);
+    }
+    d_ocp_qp_ipm_solve(&s->qp, &s->sol, &s->arg, &s->ws);
+    d_ocp_qp_ipm_get_status(&s->ws, &s->status);
+    d_ocp_qp_ipm_get_iter(&s->ws, &s->iter);
+    d_ocp_qp_ipm_get_max_res_stat(&s->ws, &s->res[0]);
+    d_ocp_qp_ipm_get_max_res_eq(&s->ws, &s->res[1]);
+    d_ocp_qp_ipm_get_max_res_ineq(&s->ws, &s->res[2]);
+    d_ocp_qp_ipm_get_max_res_comp(&s->ws, &s->res[3]);
+    get_solution(s, u, x, pi, lam_u, lam_x, lam_g);
     return s->status;
 }
 
 int wbqp_iterations(void *handle) { return ((wbqp *) handle)->iter; }
 void wbqp_residuals(void *handle, double *out) { memcpy(out, ((wbqp *) handle)->res, 4 * sizeof(double)); }
-"""

@@ -1,23 +1,12 @@
-"""Faster kernels under Fatrop's equality elimination, swapped into the loaded libfatrop (`--solver fatrop-direct`).
-
-Fatrop eliminates each stage's equality rows with a fully pivoted LU of their transposed Jacobian
-(`fatrop_lu_fact_transposed`, scalar loops over BLASFEO's panel-major storage) followed by a triangular
-solve (`blasfeo_dtrsm_rlnn`, which the AVX2 BLASFEO only has as its reference C code). On b1_z1's
-wb_inverse OCP (37 columns, 82 rows, rank 26 per stage) these two took ~40 % of a converged solve's CPU,
-more than the Riccati recursion itself. `KERNELS_SOURCE` holds the same two operations written for
-panel-major storage with AVX2/FMA: the same pivots (the first largest |a| in column-major order, as
-Fatrop's search) and the same eliminations rounded the same way (the LU's factors and the triangular solve's
-result are bitwise BLASFEO's and Fatrop's on 3000 random shapes, ranks and ties), so the iterates are Fatrop's own (tests/solvers/test_fatrop_direct.py compares both).
-
-They reach Fatrop through its procedure linkage table: `wbd_fatrop_kernels(1)` writes their addresses
-into libfatrop's GOT slots for those two symbols (found through its dynamic section), `(0)` puts the
-saved entries back. The swap is process-wide (casadi's Fatrop plugin uses the same libfatrop) and only
-made when the shim was compiled with AVX2/FMA and BLASFEO's panel height is 4; otherwise Fatrop keeps
-its own kernels. `SolverConfig.extra_options={"fatrop_kernels": False}` leaves Fatrop untouched.
-"""
-
-KERNELS_SOURCE = r"""
-/* ---- wbmpc: AVX2 kernels for Fatrop's equality elimination (fatrop_kernels.py) ---- */
+/* AVX2 kernels for Fatrop's equality elimination, swapped into the loaded libfatrop (see solvers/fatrop_kernels.py).
+ *
+ * Fatrop eliminates each stage's equality rows with a fully pivoted LU of their transposed Jacobian
+ * (fatrop_lu_fact_transposed, scalar loops over BLASFEO's panel-major storage) followed by a triangular solve
+ * (blasfeo_dtrsm_rlnn, which the AVX2 BLASFEO only has as its reference C code). These are the same two operations
+ * for panel-major storage with AVX2/FMA: the same pivots (the first largest |a| in column-major order, as Fatrop's
+ * search) and the same eliminations rounded the same way, so the iterates are Fatrop's own (tests/solvers/test_fatrop_direct.py compares both). They reach Fatrop
+ * through its procedure linkage table: wbd_fatrop_kernels(1) writes their addresses into libfatrop's GOT slots for
+ * those two symbols (found through its dynamic section), (0) puts the saved entries back. */
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -248,4 +237,3 @@ extern "C" int wbd_fatrop_kernels(int enable) {
 #else
 extern "C" int wbd_fatrop_kernels(int) { return -1; }
 #endif
-"""

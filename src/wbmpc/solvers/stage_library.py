@@ -1,0 +1,162 @@
+"""The OCP's stage functions as one compiled library for the direct Fatrop binding (`fatrop_direct.py`).
+
+Fatrop asks an OCP for per-stage blocks: the transposed dynamics Jacobian BAbt, the Lagrangian Hessian RSQrqt,
+the equality and inequality Jacobians Ggt / Ggt_ineq, constraint values, cost gradients and bounds. Each stage
+kind's blocks are generated here directly in Fatrop's (u_k, x_k) order and dense (`stage_kind_functions`), so each
+block is one generated call and one BLASFEO pack. The generated C and a table of the stage kinds
+(`csrc/wbmpc_stages.h`: their functions and work sizes) compile into one library per set of stage kinds (the
+horizon's length does not enter: 10 or 40 nodes of one formulation share it); the shim that answers Fatrop
+(`fatrop_shim.py`) is compiled once per machine and gets the stages' layout (kinds, sizes, offsets) from Python.
+Stage parameters are rows of a (N+1, n_p) array (`p_index` maps them into the NLP's p).
+
+The library lands in the cache directory of `codegen.py` as `<formulation>_stages_<key>.so`, the key hashing the
+generated C, the table's header, compiler and flags.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.cache import default_cache_dir
+from wbmpc.ocp.problem import OcpProblem
+from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, for_source
+from wbmpc.solvers.native import source_dir, source_text
+
+FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
+KINDS_VERSION = 1  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
+O2_MAX_SOURCE_MB = 10.0  # generated C up to this size compiles at -O2 instead of CodegenConfig's -O1 (see build)
+
+
+def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
+    """The five C functions of one stage kind, inputs (u_k, x_k, p_k) in Fatrop's order, dense outputs.
+
+    hess: Hessian in (u, x) of sigma l + lam_dyn' f + lam_rows' r (Fatrop's stage Lagrangian, the
+    x_{k+1} term of the dynamics being linear); jac: d f/d(u, x) transposed and d r/d(u, x) transposed;
+    val: f and r; grad: d l/d(u, x); cost: l.
+    """
+    n_x, n_u, n_p = function.size1_in(0), function.size1_in(1), function.size1_in(2)
+    u, x, p = ca.SX.sym("u", n_u), ca.SX.sym("x", n_x), ca.SX.sym("p", n_p)
+    z = ca.vertcat(u, x)
+    next_state, rows, cost = function(x, u, p)
+    sigma = ca.SX.sym("sigma")
+    lam_dyn, lam_rows = ca.SX.sym("lam_dyn", next_state.shape[0]), ca.SX.sym("lam_rows", rows.shape[0])
+    lagrangian = sigma * cost + ca.dot(lam_dyn, next_state) + ca.dot(lam_rows, rows)
+    hessian = ca.hessian(lagrangian, z)[0]
+    dense = ca.densify
+    return [
+        ca.Function(f"{tag}_hess", [u, x, p, sigma, lam_dyn, lam_rows], [dense(hessian)]),
+        ca.Function(f"{tag}_jac", [u, x, p], [dense(ca.jacobian(next_state, z).T), dense(ca.jacobian(rows, z).T)]),
+        ca.Function(f"{tag}_val", [u, x, p], [dense(next_state), dense(rows)]),
+        ca.Function(f"{tag}_grad", [u, x, p], [dense(ca.gradient(cost, z))]),
+        ca.Function(f"{tag}_cost", [u, x, p], [dense(cost)]),
+    ]
+
+
+LAYOUT_ROWS = ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")  # wbmpc_stages.h's WB_L_*
+
+
+def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], np.ndarray]:
+    """The generated functions of each stage kind (in order of first appearance) and the stages' layout
+    (LAYOUT_ROWS x (N+1) ints)."""
+    N, nx = problem.N, problem.nx
+    kinds: dict[str, int] = {}
+    functions: list[ca.Function] = []
+    layout = np.zeros((len(LAYOUT_ROWS), N + 1), dtype=np.int32)
+    for k in range(N + 1):
+        function, _ = problem.stage_function(k)
+        if function.name() not in kinds:
+            kinds[function.name()] = len(kinds)
+            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}")
+        state, inputs = problem.stage_slices[k]
+        gap = int(problem.stage_row_starts[k])
+        layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
+                        gap + (nx if k < N else 0), gap if k < N else -1)
+    return functions, layout
+
+
+def _kinds_table(functions: list[ca.Function]) -> str:
+    """The C table of the stage kinds (`wb_kinds`), compiled beside the generated functions."""
+    sizes = np.array([[f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()] for f in functions]).max(axis=0)
+    n_kinds = len(functions) // len(FUNCTION_KINDS)
+    pointers = ", ".join(f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS)
+    fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes]
+    return "".join([
+        '\n/* ---- wbmpc: the table of the stage kinds (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
+        f"static const wb_fn wb_functions[] = {{{pointers}}};\n",
+        f"static const wb_kinds wb_stage_kinds = {{{', '.join(str(f) for f in fields)}}};\n",
+        "const wb_kinds* wbmpc_stage_kinds(void) { return &wb_stage_kinds; }\n",
+    ])
+
+
+def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray, np.ndarray]:
+    """The C source of the stage library for `problem`, the (N+1, n_p) index map of the stage parameters into p and
+    the stages' layout for the shim (LAYOUT_ROWS x (N+1)). The source depends on the kinds of stages only: another
+    horizon length with the same kinds reuses the library."""
+    functions, layout = _stage_kinds(problem)
+    n_p = functions[0].size1_in(2)
+    p_index = np.array([np.asarray(ca.evalf(problem.stage_parameters(ca.DM(np.arange(problem.params.size)), k)))
+                        .ravel() for k in range(problem.N + 1)]).round().astype(np.int64)
+    assert p_index.shape == (problem.N + 1, n_p)
+    generator = ca.CodeGenerator("wbmpc_stages.c", {"with_header": False})
+    for function in functions:
+        generator.add(function)
+    return generator.dump() + _kinds_table(functions), p_index, layout
+
+
+def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfig, tuple[str, ...]]:
+    """The settings a stage library of this size compiles with. CodegenConfig's default -O1 (chosen for the
+    whole-NLP library's compile time) becomes -O2 up to O2_MAX_SOURCE_MB: b1_z1's stage functions evaluate 2.63 ->
+    1.60 ms per closed-loop step for one longer, cached compile (7.6 MB of C, load ~4: 80 s and 0.86 GB at -O1,
+    254 s and 0.96 GB at -O2); larger sources follow `codegen.for_source` (TALOS-sized at -O0)."""
+    config = for_source(config, source_mb)
+    optimize = source_mb <= O2_MAX_SOURCE_MB
+    return config, tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)
+
+
+def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> "StageLibrary":
+    """Generate, compile (unless cached) and load the stage library of `problem`."""
+    start = time.perf_counter()
+    code, p_index, layout = generate_source(problem)
+    generate_s = time.perf_counter() - start
+    source_mb = len(code) / 1e6
+    config, flags = compile_flags(config, source_mb)
+    key = cache_key(code + source_text("wbmpc_stages.h"), replace(config, flags=flags))
+    cache = Path(config.cache_dir or default_cache_dir())
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CompileError(f"cannot create the cache directory {cache}: {exc.strerror}; set WBMPC_CACHE_DIR") from exc
+    library = cache / f"{problem.config.formulation}_stages_{key}.so"
+    if library.exists():
+        report = CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s)
+        return StageLibrary(report, problem, p_index, layout)
+    source = cache / f"{library.stem}.{os.getpid()}.c"  # per process: parallel builds of one key never share a file
+    source.write_text(code)
+    try:
+        compile_s, peak_mb = _compile(source, library, replace(config, flags=(*flags, f"-I{source_dir()}")))
+    finally:
+        source.unlink(missing_ok=True)
+    report = CompileReport(library, cached=False, source_mb=source_mb, compile_s=compile_s, peak_memory_mb=peak_mb,
+                           generate_s=generate_s)
+    return StageLibrary(report, problem, p_index, layout)
+
+
+class StageLibrary:
+    """A compiled stage library loaded with ctypes and the problem's stage layout: `kinds` is the library's
+    `wb_kinds*`, `layout` the stages' table (LAYOUT_ROWS x (N+1) int32) and `sizes` (stages, parameters per
+    stage, variables, constraints), what the shim's `wb_ctx_new` takes."""
+
+    def __init__(self, report: CompileReport, problem: OcpProblem, p_index: np.ndarray, layout: np.ndarray):
+        self.report, self.p_index = report, p_index
+        self.layout = np.ascontiguousarray(layout, dtype=np.int32)
+        self.sizes = (problem.N + 1, p_index.shape[1], problem.n_variables, problem.n_constraints)
+        self.lib = ctypes.CDLL(str(report.library))
+        self.lib.wbmpc_stage_kinds.restype = ctypes.c_void_p
+        self.kinds = ctypes.c_void_p(self.lib.wbmpc_stage_kinds())

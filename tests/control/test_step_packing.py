@@ -1,0 +1,125 @@
+"""The MPC step's data prepared the fast way (parameters packed from kept shapes, the warm start re-sampled with
+weights computed once, the plan's configurations integrated in the same call as its trajectories) against the
+straightforward computation, on the states of a short closed loop."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control.trajectory import Resampler, interp_rows
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.problem import OcpConfig
+from wbmpc.robots import load_robot
+
+SMALL = OcpConfig(grid=TimeGrid(n_intervals=5, dt_first_s=0.01, dt_last_s=0.05))
+
+
+def reference_interp_rows(new_times, old_times, values):
+    """The re-sampling as it was written first (np.clip)."""
+    out = np.empty((len(new_times), values.shape[1]))
+    if len(old_times) < 2:
+        out[:] = values[0]
+        return out
+    pos = np.clip(np.searchsorted(old_times, new_times) - 1, 0, len(old_times) - 2)
+    t0, t1 = old_times[pos], old_times[pos + 1]
+    w = np.clip((new_times - t0) / np.maximum(t1 - t0, 1e-12), 0.0, 1.0)[:, None]
+    out[:] = (1 - w) * values[pos] + w * values[pos + 1]
+    return out
+
+
+def reference_pack(params, values) -> np.ndarray:
+    """Parameters laid out block after block in `names` order, matrices column-major."""
+    blocks = []
+    for name in params.names:
+        shape = params.shape(name)
+        blocks.append(np.asarray(values[name], dtype=float).reshape(shape).ravel(order="F"))
+    return np.concatenate(blocks)
+
+
+@pytest.fixture(scope="module")
+def steps():
+    """Each step of a short trot (moving base, contact changes): the parameter values handed to `pack`, the
+    packed p, the previous plan, the warm start and the new plan."""
+    robot = load_robot("go2")
+    mpc = MPC(robot, MpcConfig(ocp=SMALL))
+    records, current = [], {}
+    pack = mpc.problem.params.pack
+
+    def spy(values):
+        current["values"], current["p"] = dict(values), pack(values)
+        return current["p"]
+
+    mpc.problem.params.pack = spy
+    solve = mpc.solver.solve
+
+    def solver_spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
+        current["x0"] = x0.copy()
+        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
+
+    mpc.solver.solve = solver_spy
+    q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
+    v[:2] = [0.2, -0.05]
+    for k in range(5):
+        previous = mpc.last_plan
+        solution = mpc.solve(q, v, Commands(base_velocity_m_s=np.array([0.2, 0.0, 0.0])), t_s=0.0125 * k)
+        assert solution.success
+        records.append({**current, "previous": previous, "solution": solution, "q": q.copy()})
+        q, v = solution.q[1].copy(), solution.v[1].copy()
+    return robot, mpc, records
+
+
+def test_resampling_equals_the_straightforward_one_bitwise():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        old = np.sort(rng.uniform(0, 1, 9))
+        new = np.sort(rng.uniform(-0.2, 1.3, 9))
+        resample = Resampler(new, old)
+        for n in (9, 8, 3, 1):
+            values = rng.normal(size=(n, 4))
+            expected = reference_interp_rows(new[:n], old[:n], values)
+            assert np.array_equal(resample(values), expected)
+            assert np.array_equal(interp_rows(new[:n], old[:n], values), expected)
+
+
+def test_parameters_equal_the_straightforward_packing(steps):
+    _, mpc, records = steps
+    for record in records:
+        assert np.array_equal(record["p"], reference_pack(mpc.problem.params, record["values"]))
+
+
+def test_the_plan_is_its_trajectories_and_their_integrated_configurations(steps):
+    """v, a, F, tau bit for bit those of `OcpProblem.trajectory_function`; q = q_ref (+) dq as pinocchio
+    integrates it."""
+    robot, mpc, records = steps
+    trajectories = mpc.problem.trajectory_function()
+    for record in records:
+        solution = record["solution"]
+        dq, v, a, forces, tau = (np.asarray(m).T for m in trajectories(solution.x, record["p"]))
+        for got, expected in ((solution.v, v), (solution.a, a), (solution.forces, forces), (solution.tau, tau)):
+            assert np.array_equal(got, expected)
+        q = np.array([pin.integrate(robot.model, record["q"], step) for step in dq])
+        np.testing.assert_allclose(solution.q, q, atol=1e-12)
+
+
+def test_the_warm_start_is_the_last_plan_resampled(steps):
+    """Each step's initial guess: the previous plan's variables at the new node times (configurations as increments
+    on the new measurement), node 0 at the measurement, forces re-initialised; from public data alone."""
+    robot, mpc, records = steps
+    problem = mpc.problem
+    for record in records[1:]:
+        previous, solution = record["previous"], record["solution"]
+        guess = problem.unpack(record["x0"])
+        new_times, old_times = solution.t_s + solution.node_times_s, previous.t_s + previous.node_times_s
+        parts = problem.unpack(previous.x)
+        parts["dq"] = np.array([pin.difference(robot.model, record["q"], q) for q in previous.q])
+        for name, values in parts.items():
+            if name in ("F", "dq"):
+                continue
+            expected = reference_interp_rows(new_times[: len(values)], old_times[: len(values)], values)
+            if name in problem.state_names:
+                expected[0] = guess[name][0]  # the measurement
+            np.testing.assert_allclose(guess[name], expected, atol=1e-12)
+        expected_dq = reference_interp_rows(new_times, old_times, parts["dq"])
+        np.testing.assert_allclose(guess["dq"][1:], expected_dq[1:], atol=1e-9)
+        assert np.all(guess["dq"][0] == 0.0)
