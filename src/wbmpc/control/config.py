@@ -63,7 +63,7 @@ class ReferenceConfig:
     # its pelvis sways over the stance foot drives the arm into its limits and stalls the solver
     free_ee_without_command: bool = False
     # the contact schedule follows measured touch-down (control/touchdown.py): `MPC.solve(..., measured_contact=...)`
-    # keeps an early foot down and a late one reaching; off by default (docs/robots.md: measured no better)
+    # keeps an early foot down and a late one reaching; off by default (docs/design/reality-gap.md: measured no better)
     touchdown_events: bool = False
 
     def __post_init__(self):
