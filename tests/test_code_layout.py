@@ -13,7 +13,7 @@ from wbmpc.control import MpcConfig
 
 SRC = Path(wbmpc.__file__).parent
 # packages held to the limits (solvers/: its Python and the C of its shims, solvers/csrc/)
-LIMITED = ("control", "scenarios", "hardware", "solvers")
+LIMITED = ("control", "scenarios", "hardware", "solvers", "operator")
 MAX_FILE_LINES, MAX_FUNCTION_LINES = 500, 60
 
 

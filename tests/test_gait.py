@@ -75,3 +75,83 @@ def test_gait_clock_changes_its_period_with_every_phase_continuous():
     np.testing.assert_array_equal(clock.contact(times), gait.contact(times))
     with pytest.raises(ConfigError, match="period_s"):
         clock.retime(2.0, 0.0)
+
+
+def _swing_runs(swinging: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index runs where `swinging` is True."""
+    padded = np.r_[False, swinging, False].astype(int)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+@pytest.mark.parametrize("gait_name,n_feet", [("trot", 4), ("walk", 4), ("walk", 2)])
+def test_stand_walk_switches_never_cut_a_swing(gait_name, n_feet):
+    """Commanded stand <-> walk at random MPC steps (80 Hz), with a push cadence retime among them: in the schedule
+    as executed every swing lasts its full duration (no foot asked to swing and stand at once), each step's plan on
+    the MPC's node times holds every swing it starts until it lands, and a stop stands within one swing."""
+    from wbmpc.gait import GaitClock
+
+    rng = np.random.default_rng(3)
+    clock = GaitClock(make_gait(gait_name, n_feet, leg_length_m=0.65))
+    grid = TimeGrid().node_times_s
+    dt, fine = 1 / 80, 5e-4
+    steps = np.arange(0.0, 12.0, dt)
+    walking, switches = False, []
+    executed = []
+    for k, t in enumerate(steps):
+        if k == 0 or rng.random() < 0.02:
+            walking = not walking if k else False
+            switches.append((t, walking))
+        if k == 400:
+            clock.retime(t, 0.5625 * clock.nominal_period_s)
+        clock.follow(t, walking)
+        # this step's plan: a swing in the horizon runs on until its landing (progress rises continuously)
+        times = t + grid
+        progress = clock.swing_phase(times)
+        for foot in range(n_feet):
+            for start, end in _swing_runs(progress[:, foot] >= 0):
+                p = progress[start:end, foot]
+                assert np.all(np.diff(p) > 0), (t, foot, p)  # one swing per run, never reset mid-way
+                if end < len(times):  # it lands inside the horizon: at its full duration
+                    assert p[-1] + (times[end] - times[end - 1]) / clock.swing_duration_s >= 1 - 1e-6
+        executed.append(clock.contact(np.arange(t, t + dt - 1e-12, fine)))
+    contact = np.concatenate(executed)
+    swing_samples = clock.swing_duration_s / fine
+    for foot in range(n_feet):
+        runs = _swing_runs(contact[:, foot] < 0.5)
+        retimed = round(steps[400] / fine)  # the swing in progress there changes pace: excluded
+        inner = [(a, b) for a, b in runs if a > 0 and b < len(contact) and not a <= retimed < b]
+        assert inner, "the feet stepped"
+        lengths = np.array([b - a for a, b in inner])
+        nominal = clock.nominal_period_s * (1 - clock.duty_factor) / fine
+        assert np.all((np.abs(lengths - swing_samples) <= 2) | (np.abs(lengths - nominal) <= 2)), lengths
+    # each stop: all feet down within one swing duration (+ one MPC step) of the request
+    for (t_request, t_switch, mode), later in zip(clock.transitions, clock.transitions[1:] + [(np.inf, np.inf, "")]):
+        if mode == "stand":
+            assert t_request <= t_switch <= t_request + clock.nominal_period_s * (1 - clock.duty_factor) + 1e-6
+            standing = np.arange(t_switch, min(t_switch + 0.3, later[1] - fine / 2), fine)
+            assert np.all(clock.contact(standing) == 1)
+        else:
+            assert t_switch == pytest.approx(t_request + clock.start_lead_s)
+
+
+def test_walk_starts_at_the_patterns_first_lift_off_and_stands_at_a_landing():
+    from wbmpc.gait import GaitClock
+
+    clock = GaitClock(make_gait("trot", 4))
+    clock.follow(0.0, False)
+    assert np.all(clock.contact(np.linspace(0, 5, 50)) == 1)  # standing until told
+    clock.follow(1.0, True)
+    assert clock.start_lead_s == 0.0  # a trot has no moment with all feet down: it starts with a lift-off
+    np.testing.assert_array_equal(clock.contact(np.array([0.999, 1.0 + 1e-6])), [[1, 1, 1, 1], [1, 0, 0, 1]])
+    clock.follow(1.5, False)  # FL+RR swing from 1.4 to 1.8: the stop waits for their landing
+    assert clock.transitions[-1] == (1.5, pytest.approx(1.8), "stand")
+    np.testing.assert_array_equal(clock.contact(np.array([1.79, 1.81, 3.0])), [[0, 1, 1, 0], [1, 1, 1, 1], [1, 1, 1, 1]])
+    biped = GaitClock(make_gait("walk", 2, leg_length_m=0.65))
+    assert biped.start_lead_s == pytest.approx(0.2 * biped.period_s)  # its double support: the CoM moves first
+    biped.follow(0.0, False)
+    biped.follow(2.0, True)
+    start = 2.0 + biped.start_lead_s
+    np.testing.assert_array_equal(biped.contact(np.array([start - 1e-6, start + 1e-6])), [[1, 1], [0, 1]])
+    with pytest.raises(ConfigError, match="gait has no swing"):
+        GaitClock(make_gait("stand", 4)).walk_from(0.0)

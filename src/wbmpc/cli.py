@@ -369,6 +369,7 @@ def cmd_bench_robots(args: argparse.Namespace) -> int:
 def run_config_from_args(args: argparse.Namespace):
     """Every run option checked (config dataclasses) before a robot or an OCP is built."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.operator.config import OperatorConfig
     from wbmpc.options import values_from_args
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
@@ -382,7 +383,8 @@ def run_config_from_args(args: argparse.Namespace):
         print("wbmpc: warning: --delay is deprecated; use --delay-mode none|measured|measured-wall|realtime or "
               "--delay-ms MS", file=sys.stderr)
     return RunConfig(scenario=args.scenario, options=ScenarioOptions(**values_from_args(ScenarioOptions, args)),
-                     gains=PdGains(**values_from_args(PdGains, args)), **values)
+                     gains=PdGains(**values_from_args(PdGains, args)),
+                     operator=OperatorConfig(**values_from_args(OperatorConfig, args)), **values)
 
 
 def ignored_scenario_options(args: argparse.Namespace) -> list[tuple[str, tuple[str, ...]]]:
@@ -438,7 +440,6 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
 
     from wbmpc.control.delay import delay_text
     from wbmpc.scenarios import (
-        SCENARIOS,
         check_output_dir,
         make_scenario,
         run_scenario,
@@ -461,8 +462,10 @@ def _run(args: argparse.Namespace, config, loads, stop) -> int:
     config = dataclasses.replace(config, gains=gains_from_args(args, robot, joint_loop_hold_s(config))).for_robot(robot)
     if loads is not None:
         return _run_sweep(args, robot, config, loads, out_dir, stop)
-    scenario = SCENARIOS[args.scenario](config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    from wbmpc.operator.script import script_duration
+
+    scenario = make_scenario(args.scenario, robot, config.options)  # its default duration may follow the robot
+    duration = config.duration_s or script_duration(config.operator.commands_file) or scenario.default_duration_s
     print(f"wbmpc run {args.scenario}: robot {robot.name}, {duration:g} s simulated, solver {config.solver}"
           f"{' (compiled)' if config.compiled else ''}, delay {delay_text(config.delay_mode, config.delay_ms)}"
           f"{' ms' if config.delay_mode == 'fixed' else ''}, plant {args.plant}"
@@ -602,7 +605,8 @@ def _scenario_list() -> str:
 
 
 def _add_run_parser(sub, formatter) -> None:
-    """`wbmpc run`: its options come from the fields of RunConfig, PdGains and ScenarioOptions (`wbmpc.options`),
+    """`wbmpc run`: its options come from the fields of RunConfig, PdGains, OperatorConfig and ScenarioOptions
+    (`wbmpc.options`),
     the scenario options grouped by the scenarios that read them."""
     from wbmpc.control.interpolator import PdGains
     from wbmpc.control.loop import MPC_RATE_HZ
@@ -623,6 +627,10 @@ def _add_run_parser(sub, formatter) -> None:
     loop.add_argument("--delay", metavar="DELAY", help="deprecated, the old form of --delay-mode / --delay-ms: "
                       "none | measured | measured-wall | realtime | a fixed delay in ms")
     add_arguments(loop, PdGains)
+    from wbmpc.operator.config import OperatorConfig
+
+    operator = run.add_argument_group("an operator in the loop: live commands and the viewer (docs/operator.md)")
+    add_arguments(operator, OperatorConfig)
     plant_drive = run.add_argument_group(
         "drive train of the simulated robot, independent of the model's; VALUE or JOINT=VALUE,... (others 0)")
     plant_drive.add_argument("--plant-armature", metavar="KG_M2", help="rotor inertia (MuJoCo joint armature), kg m^2")
@@ -807,10 +815,11 @@ def _dispatch(args: argparse.Namespace) -> int:
 def field_flags_of_commands() -> dict[str, str]:
     """{config field: flag} of every command: the run options' from their declarations (`wbmpc.options`)."""
     from wbmpc.control.interpolator import PdGains
+    from wbmpc.operator.config import OperatorConfig
     from wbmpc.options import field_flags
     from wbmpc.scenarios import RunConfig, ScenarioOptions
 
-    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains)}
+    return {**OTHER_FIELD_FLAGS, **field_flags(RunConfig, ScenarioOptions, PdGains, OperatorConfig)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -91,35 +91,198 @@ class SwingProfile:
         return out
 
 
+def swing_between(progress: np.ndarray, swing_duration_s: float, lift_off_m, apex_m, touch_down_m,
+                  apex_share=0.5, liftoff_velocity_m_s: float = 0.0,
+                  touchdown_velocity_m_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Height and v_z of eq. (6)'s spline between unequal heights (terrain): from `lift_off_m` up to `apex_m` over
+    the first `apex_share` of the swing, down to `touch_down_m` over the rest, each a cubic with zero vertical
+    velocity at the apex and the lift-off / touch-down velocities at its ends. Every argument broadcasts against
+    `progress` (s in [0, 1]; s < 0, stance: height and velocity 0). With equal heights of 0 and apex_share 0.5
+    it is `SwingProfile`'s."""
+    s = np.asarray(progress, dtype=float)
+    h0, apex, h1, share = (np.broadcast_to(np.asarray(a, dtype=float), s.shape) for a in
+                           (lift_off_m, apex_m, touch_down_m, apex_share))
+    up = (s >= 0) & (s < share)
+    down = s >= share
+    t_up, t_down = share * swing_duration_s, (1.0 - share) * swing_duration_s
+    x_up = np.where(up, s / np.maximum(share, 1e-9), 0.0)
+    x_down = np.where(down, (s - share) / np.maximum(1.0 - share, 1e-9), 0.0)
+    m_up, m_down = liftoff_velocity_m_s * t_up, touchdown_velocity_m_s * t_down
+    height = np.where(up, _cubic_position(x_up, h0, apex, m_up, 0.0),
+                      np.where(down, _cubic_position(x_down, apex, h1, 0.0, m_down), 0.0))
+    velocity = np.where(up, _cubic_velocity(x_up, h0, apex, m_up, 0.0) / np.maximum(t_up, 1e-9),
+                        np.where(down, _cubic_velocity(x_down, apex, h1, 0.0, m_down) / np.maximum(t_down, 1e-9), 0.0))
+    return height, velocity
+
+
 class GaitClock(Gait):
-    """A gait whose period can change while it runs, with every foot's phase continuous (`retime`).
+    """A gait whose period can change while it runs, with every foot's phase continuous (`retime`), and
+    that can stop and start on command (`follow`: stand <-> walk at a phase where the feet allow it).
 
     The MPC shortens the period after a push (faster steps, more foot placements within the
     horizon) and restores it later; the state estimator reads the same clock for its stance feet.
+    Standing is a set of time intervals in which every foot is in stance (its phase held at mid-stance,
+    so foot-placement and estimator code reading `phase` sees a planted foot); a stop starts at the
+    first time no foot is past lift-off (`next_all_stance_time`: the swings in progress land first),
+    a start ends the interval `start_lead_s` after the request with the pattern resuming at its first
+    lift-off. The clock is piecewise in time (one anchor per retime or start), so past times keep the
+    phases they had.
     """
 
-    def __init__(self, gait: Gait):
+    def __init__(self, gait: Gait, start_lead_s: float | None = None):
         super().__init__(gait.name, gait.period_s, gait.duty_factor, gait.phase_offsets)
         object.__setattr__(self, "nominal_period_s", gait.period_s)
+        if start_lead_s is None:
+            start_lead_s = self.double_support_s
+        check_number("start_lead_s", start_lead_s, low=0.0, high=10.0, unit="s")
+        object.__setattr__(self, "start_lead_s", float(start_lead_s))
         self.reset()
 
     def reset(self) -> None:
-        """The nominal period, in phase with t = 0."""
+        """The nominal period, in phase with t = 0, walking (no standing interval)."""
         object.__setattr__(self, "period_s", self.nominal_period_s)
-        object.__setattr__(self, "_anchor_t_s", 0.0)
-        object.__setattr__(self, "_anchor_cycles", 0.0)
+        object.__setattr__(self, "_anchors", [(0.0, 0.0, self.nominal_period_s)])  # (from t, cycles there, period)
+        object.__setattr__(self, "_stand", [])  # [start, end) intervals with every foot in stance
+        object.__setattr__(self, "walking", True)  # the mode last asked for (`follow`)
+        object.__setattr__(self, "transitions", [])  # (t requested, t switched, "stand" | "walk")
 
+    # ------------------------------------------------------------------ time -> cycles
     def cycles(self, times_s: np.ndarray) -> np.ndarray:
-        return self._anchor_cycles + (np.asarray(times_s, dtype=float) - self._anchor_t_s) / self.period_s
+        times = np.asarray(times_s, dtype=float)
+        anchors = self._anchors
+        if len(anchors) == 1:
+            t0, c0, period = anchors[0]
+            return c0 + (times - t0) / period
+        starts = np.array([a[0] for a in anchors])
+        k = np.clip(np.searchsorted(starts, times, side="right") - 1, 0, len(anchors) - 1)
+        t0, c0, period = (np.array([a[i] for a in anchors])[k] for i in range(3))
+        return c0 + (times - t0) / period
+
+    def _insert_anchor(self, t_s: float, cycles: float, period_s: float) -> None:
+        anchors = [a for a in self._anchors if a[0] != t_s]
+        anchors.append((float(t_s), float(cycles), float(period_s)))
+        anchors.sort(key=lambda a: a[0])
+        object.__setattr__(self, "_anchors", anchors)
 
     def retime(self, t_s: float, period_s: float) -> None:
         """From time t_s on, cycle with `period_s`; the phases at t_s are kept (a swing in progress
-        goes on from where it is, at the new pace)."""
+        goes on from where it is, at the new pace). A start already scheduled later keeps its phase there;
+        a stop scheduled later is moved to where the retimed swings land."""
         check_number("period_s", period_s, low=0.0, high=10.0, low_open=True, unit="s")
-        cycles_now = float(self.cycles(t_s))
-        object.__setattr__(self, "_anchor_t_s", float(t_s))
-        object.__setattr__(self, "_anchor_cycles", cycles_now)
+        self._insert_anchor(t_s, float(self.cycles(t_s)), period_s)
+        object.__setattr__(self, "_anchors", [a if a[0] <= t_s else (a[0], a[1], float(period_s))
+                                              for a in self._anchors])
         object.__setattr__(self, "period_s", float(period_s))
+        for interval in self._stand:
+            if interval[0] > t_s:  # a stop not started yet, timed on the old pace
+                interval[0] = np.inf
+                interval[0] = self._landing_time(t_s)
+
+    # ------------------------------------------------------------------ standing intervals
+    def standing_at(self, times_s: np.ndarray) -> np.ndarray:
+        """Whether each time lies in a standing interval (every foot in stance by command)."""
+        times = np.atleast_1d(np.asarray(times_s, dtype=float))
+        out = np.zeros(times.shape, dtype=bool)
+        for start, end in self._stand:  # a start computed as a landing time may carry rounding: 1 ns of slack
+            out |= (times >= start - 1e-9) & (times < end - 1e-9)
+        return out
+
+    def phase(self, times_s: np.ndarray) -> np.ndarray:
+        phase = super().phase(times_s)
+        if self._stand:
+            phase[self.standing_at(times_s)] = 0.5 * min(self.duty_factor, 1.0)  # planted: mid-stance
+        return phase
+
+    @property
+    def double_support_s(self) -> float:
+        """The longest stretch of the pattern with every foot in stance (a biped's double support; 0 for a trot)."""
+        if self.duty_factor >= 1:
+            return 0.0
+        offsets = np.asarray(self.phase_offsets)
+        bounds = np.unique(np.mod(np.r_[-offsets, self.duty_factor - offsets], 1.0))  # lift-offs and landings
+        pieces = np.diff(np.r_[bounds, bounds[0] + 1.0])
+        middles = bounds + 0.5 * pieces
+        down = np.all(np.mod(middles[:, None] + offsets[None, :], 1.0) < self.duty_factor, axis=1)
+        longest = run = 0.0
+        for is_down, length in zip(np.r_[down, down], np.r_[pieces, pieces]):  # around the cycle's end
+            run = run + length if is_down else 0.0
+            longest = max(longest, run)
+        return float(min(longest, 1.0) * self.nominal_period_s)
+
+    def _first_lift_cycle(self) -> float:
+        """The cycle value (in [0, 1)) of the pattern's first lift-off: every foot in stance just before it."""
+        lifts = np.mod(self.duty_factor - np.asarray(self.phase_offsets), 1.0)
+        for lift in np.sort(lifts):  # a lift-off with no other foot in swing at that instant
+            phases = np.mod(lift - 1e-9 + np.asarray(self.phase_offsets), 1.0)
+            if np.all(phases < self.duty_factor):
+                return float(lift)
+        return float(np.min(lifts))
+
+    def _landing_time(self, t_s: float) -> float:
+        """The first time >= t_s at which no foot is past lift-off: every swing in progress has landed."""
+        t = float(t_s)
+        for _ in range(4 * len(self.phase_offsets) + 4):
+            progress = self.swing_phase(np.array([t]))[0]
+            swinging = (progress > 1e-6) & (progress < 1.0 - 1e-6)  # lifted and not yet landed
+            if not swinging.any():
+                return t
+            # the swings in progress land (at the current pace) before any new one starts
+            t += float(np.max(1.0 - progress[swinging])) * self.swing_duration_s
+        return t
+
+    def next_all_stance_time(self, t_s: float) -> float:
+        """When a stop asked for at t_s can start: `t_s` if no foot is past lift-off, else the landing of the
+        swings in progress."""
+        if self.duty_factor >= 1 or self.standing_at(t_s)[0]:
+            return float(t_s)
+        return self._landing_time(t_s)
+
+    def stand_from(self, t_s: float) -> float:
+        """Stop walking: every foot in stance from the first time >= t_s the feet allow; returns that time."""
+        open_interval = next((i for i in self._stand if i[1] == np.inf), None)
+        pending_start = next((i for i in self._stand if i[1] != np.inf and i[1] > t_s and i[0] <= t_s), None)
+        if open_interval is not None:
+            return open_interval[0]
+        if pending_start is not None:  # a start not reached yet: cancel it, keep standing
+            object.__setattr__(self, "_anchors", [a for a in self._anchors if a[0] <= t_s] or self._anchors[:1])
+            pending_start[1] = np.inf
+            self.transitions.append((float(t_s), float(t_s), "stand"))
+            return float(t_s)
+        start = self.next_all_stance_time(t_s)
+        self._stand.append([start, np.inf])
+        self._stand[:] = [i for i in self._stand if i[1] > t_s - 60.0]  # keep the last minute
+        self.transitions.append((float(t_s), float(start), "stand"))
+        return start
+
+    def walk_from(self, t_s: float) -> float:
+        """Start walking: the standing interval ends `start_lead_s` after t_s and the pattern resumes at its
+        first lift-off; a stop not started yet is cancelled. Returns the switch time."""
+        if self.duty_factor >= 1:
+            raise ConfigError(f"the '{self.name}' gait has no swing: build the MPC with a walking gait "
+                              f"(trot on four feet, walk on two) to start walking on command")
+        open_interval = next((i for i in self._stand if i[1] == np.inf), None)
+        if open_interval is None:
+            return float(t_s)
+        if open_interval[0] > t_s:  # the stop has not started: keep walking
+            self._stand.remove(open_interval)
+            self.transitions.append((float(t_s), float(t_s), "walk"))
+            return float(t_s)
+        end = float(t_s) + self.start_lead_s
+        open_interval[1] = end
+        cycles = float(np.floor(self.cycles(end))) + 1.0 + self._first_lift_cycle()
+        self._insert_anchor(end, cycles, self.period_s)
+        self.transitions.append((float(t_s), end, "walk"))
+        return end
+
+    def follow(self, t_s: float, walking: bool | None) -> None:
+        """The mode commanded at t_s (None: no change): switch when it differs from the last one asked for."""
+        if walking is None or bool(walking) == self.walking:
+            return
+        if walking:
+            self.walk_from(t_s)
+        else:
+            self.stand_from(t_s)
+        object.__setattr__(self, "walking", bool(walking))
 
 
 def _hermite(x, p0, p1, m0, m1):

@@ -95,13 +95,14 @@ def test_run_log_memory_stays_bounded_however_many_ticks():
 def test_commands_round_trip_through_their_numbers():
     for command in (Commands(), Commands(base_velocity_m_s=np.array([0.3, -0.1, 0.0]), base_yaw_rate_rad_s=0.2,
                                          ee_velocity_m_s=np.array([0.0, 0.1, -0.2]), ee_force_n=np.array([5.0, 0, 0]),
-                                         base_height_m=0.4)):
+                                         base_height_m=0.4, walking=False), Commands(walking=True)):
         assert command_row(command).shape == (COMMAND_WIDTH,)  # also the width of an empty log's command array
         back = command_from_row(command_row(command))
         for name in ("base_velocity_m_s", "ee_force_n"):
             np.testing.assert_array_equal(getattr(back, name), getattr(command, name))
         assert back.base_yaw_rate_rad_s == command.base_yaw_rate_rad_s
         assert back.base_height_m == command.base_height_m
+        assert back.walking is command.walking
         assert (back.ee_velocity_m_s is None) == (command.ee_velocity_m_s is None)
         if command.ee_velocity_m_s is not None:
             np.testing.assert_array_equal(back.ee_velocity_m_s, command.ee_velocity_m_s)

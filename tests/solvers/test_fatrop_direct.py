@@ -211,6 +211,18 @@ def test_a_new_row_structure_gets_its_own_fatrop(direct, step_data):
     np.testing.assert_allclose(again.x, first.x, atol=1e-6)
 
 
+def test_fatrop_options_pass_through_and_an_unknown_one_is_named(direct, step_data):
+    """extra_options["fatrop"] reach Fatrop (a loose tolerance stops the solve earlier); a misspelt option or one
+    of the wrong type is refused by name instead of silently ignored."""
+    loose = direct.recreated(extra_options={"fatrop": {"tolerance": 1e-1, "constr_viol_tol": 1e-1}})
+    assert loose.solve(**step_data).stats.iterations < direct.solve(**step_data).stats.iterations
+    from wbmpc.errors import ConfigError
+
+    for options in ({"bound_pish": 1e-2}, {"bound_push": 1}):
+        with pytest.raises(ConfigError, match=f"Fatrop has no .*option '{next(iter(options))}'"):
+            direct.recreated(extra_options={"fatrop": options}).solve(**step_data)
+
+
 def test_nan_guess_is_refused(direct, step_data):
     data = {**step_data, "x0": np.full_like(step_data["x0"], np.nan)}
     assert direct.solve(**data).stats.status == "invalid_input_nan"

@@ -28,6 +28,9 @@ class Commands:
     # with an object model in the OCP (OcpConfig.object_model): the object's measured state and its path; the
     # arm force is then the OCP's (ee_force_n and ee_velocity_m_s are not used)
     object_command: ObjectCommand | None = None
+    # walk in the MPC's gait (True) or stand on every foot (False), switched where the feet allow it
+    # (`GaitClock.follow`); None: the gait as scheduled
+    walking: bool | None = None
 
     def __post_init__(self):
         """Refuse NaN/inf and wrong shapes here: a NaN command would give NaN torques."""

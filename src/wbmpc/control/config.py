@@ -19,6 +19,7 @@ from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import SwingProfile
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.solvers.nlp import SolverConfig
+from wbmpc.terrain import FootholdConfig, Terrain
 
 BASE_TRACKING_MODES = ("position", "velocity")
 RELAXABLE_ROWS = ("ee_vel", "foot_vel")
@@ -62,6 +63,11 @@ class ReferenceConfig:
     # holds the arm) instead of carrying the hand with the base: a humanoid's hand pinned in the world while
     # its pelvis sways over the stance foot drives the arm into its limits and stalls the solver
     free_ee_without_command: bool = False
+    # the ground (issue 35, `wbmpc.terrain`): footholds, swing splines, cone normals and base targets follow it
+    # (control/terrain_references.py); None or a flat one: the flat floor at 0. Per-step data only: the OCP and
+    # its (compiled) solver are the same on any terrain
+    terrain: Terrain | None = None
+    footholds: FootholdConfig | None = None  # the keep-out band at edges (None: from the feet's size)
     # the contact schedule follows measured touch-down (control/touchdown.py): `MPC.solve(..., measured_contact=...)`
     # keeps an early foot down and a late one reaching; off by default (docs/design/reality-gap.md: measured no better)
     touchdown_events: bool = False

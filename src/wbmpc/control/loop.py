@@ -63,6 +63,8 @@ class LoopConfig:
     joint_velocity_noise_rad_s: float = 0.0
     velocity_filter_hz: float | None = None  # first-order low-pass on joint velocities (paper: 50 Hz)
     fall_height_ratio: float = 0.5  # fell when the base drops below this share of its nominal height
+    # the ground (`wbmpc.terrain.Terrain`): the fall check measures the base's height from its support there
+    terrain: object | None = None
     seed: int = 0
 
     def __post_init__(self):
@@ -119,6 +121,13 @@ class ClosedLoop:
         self._filtered_v: np.ndarray | None = None
         self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
         self.log: RunLog | None = None  # the log of the run in progress (or the last one): a `stop` may read it
+        self._support = None  # the terrain's support plane under the base (the fall check's ground)
+        if config.terrain is not None and not config.terrain.is_flat:
+            from wbmpc.control.terrain_references import support_footprint
+
+            self._support = support_footprint(self.robot, config.terrain)
+        # callables(t_s, solution) told of every plan as it is logged (a live viewer draws it)
+        self.solution_listeners: list[Callable] = []
 
     # ------------------------------------------------------------------ measurement
     def _measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -144,8 +153,9 @@ class ClosedLoop:
         return q, v
 
     def _fallen(self, q: np.ndarray) -> bool:
-        height_ok = q[2] > self.config.fall_height_ratio * self.robot.q_nominal[2]
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
+        ground = 0.0 if self._support is None else float(self._support.height(q[:2], np.arctan2(rot[1, 0], rot[0, 0])))
+        height_ok = q[2] - ground > self.config.fall_height_ratio * self.robot.q_nominal[2]
         upright = rot[2, 2] > 0.5  # tilted less than 60 degrees
         return not (height_ok and upright)
 
@@ -189,8 +199,14 @@ class ClosedLoop:
         solution = self.mpc.solve(q, v, command, t_s, **extra)
         solution.wall_time_s = time.perf_counter() - start
         solution.cpu_time_s = time.thread_time() - start_cpu
-        log.record_solution(t_s, command, solution)
+        self._record(log, t_s, command, solution)
         return solution
+
+    def _record(self, log: RunLog, t_s: float, command: Commands, solution: Solution) -> None:
+        """Log a plan and tell the solution listeners."""
+        log.record_solution(t_s, command, solution)
+        for listener in self.solution_listeners:
+            listener(t_s, solution)
 
     def _new_log(self) -> RunLog:
         log = self.log = RunLog(self.log_dir, self.log_chunk_rows)
@@ -383,7 +399,7 @@ class ClosedLoop:
     def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
         plan's first tick, transport included); returns the updated transport estimate."""
-        log.record_solution(request[0], request[1], solution)
+        self._record(log, request[0], request[1], solution)
         delay = max(t_s - request[0], now - request[2])
         log.record_delay(delay * 1e3)
         self._note_delay(delay)

@@ -75,7 +75,8 @@ class MPC:
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
-        self.references = References(robot, config.references, self.gait, self._difference)
+        self.references = References(robot, config.references, self.gait, self._difference, config.swing)
+        self._flat_normals = np.tile([0.0, 0.0, 1.0], (N, len(robot.feet))).T.copy()  # (3 n_feet, N): world z
         self.push_mode = PushMode(config.push, self.gait)
         self.recovery = Recovery(self.problem, self.solver, config.recovery)
         self._previous: Solution | None = None
@@ -259,6 +260,7 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
             t = t + delay_s
+        self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
         result, solve_end = self._solve_step(step.p, step.bounds, step.soft_bounds, step.x0, t, budget_s, clock,
                                              clock_start)
@@ -282,22 +284,26 @@ class MPC:
         after_push = self.push_mode.update(v, rot, base_velocity_world, t, self._previous)
         self.push_mode.adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
-        if self.config.references.touchdown_events and measured_contact is not None:
-            contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
-                                                 self.config.swing.touchdown_velocity_m_s)
         sway = references.sway(commands)
         if sway:  # lean over the feet that will stand support_lead_s later
             dq_des = references.sway_towards_support(q, rot, dq_des, t, node_times, sway)
+        swing_vxy = references.swing_velocities(q, v, rot, t, node_times, base_velocity_world)
+        # on a terrain: footholds, eq. (6) between its heights and the cones' normals (control/terrain_references.py)
+        terrain = references.terrain_step(q, v, rot, t, node_times, base_velocity_world)
+        if terrain is not None:
+            swing_vz, swing_vxy = terrain.swing_vz_m_s, terrain.swing_vxy_m_s
+        if self.config.references.touchdown_events and measured_contact is not None:  # (on the terrain's splines too)
+            contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
+                                                 self.config.swing.touchdown_velocity_m_s)
         forces = self._force_guess(contact, commands)
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
         p = problem.params.pack({"q_ref": q, "rot_ref": rot, "dt": problem.config.grid.dt_s, "dq_des": dq_des,
                                  "v_des": v_des, "F_des": forces.T, "mu": [self.config.friction_coefficient],
+                                 "contact_normal": self._flat_normals if terrain is None else terrain.contact_normal,
                                  **self._weights, **self._inertial, **object_values})
         stage_bounds = StageBounds(
-            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz,
-            swing_vxy_m_s=references.swing_velocities(q, v, rot, t, node_times, base_velocity_world),
-            ee_velocity_m_s=(base_velocity_world if commands.ee_velocity_m_s is None
-                             else np.asarray(commands.ee_velocity_m_s, dtype=float)),
+            v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
+            ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),

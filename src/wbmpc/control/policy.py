@@ -55,6 +55,7 @@ class TaskNeeds:
     sweeps_ee: bool = False  # the hand sweeps the workspace (collision avoidance on by default with an arm)
     obstacles: tuple = ()  # boxes fixed in the world that collision avoidance keeps the robot off
     object_model: object | None = None  # the manipulated object inside the OCP (`wbmpc.ocp.objects`), or None
+    terrain: object | None = None  # the ground (`wbmpc.terrain.Terrain`) the task walks on; None: the flat floor
     # the task's cost weights given the robot's (None: the robot's)
     adjust_weights: Callable[[CostWeights], CostWeights] | None = field(default=None, compare=False)
 
@@ -226,7 +227,8 @@ def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -
     return MpcConfig(
         ocp=ocp, solver=solver, gait=task.gait, gait_period_s=tuning.gait_period_s, swing=tuning.swing,
         weights=collision_weights(task.weights(tuning.weights), soft_arm),
-        references=tuning.reference_config(base_tracking=choices.base_tracking, touchdown_events=choices.touchdown_events),
+        references=tuning.reference_config(base_tracking=choices.base_tracking, terrain=task.terrain,
+                                           touchdown_events=choices.touchdown_events),
         recovery=recovery_config(choices, flat_feet),
         push=tuning.push_config(gait_period_scale=push_cadence(choices), relaxed_rows=push_relaxed_rows(choices)),
         delay_compensation=(delay_compensation_default(choices, flat_feet) if choices.delay_compensation is None

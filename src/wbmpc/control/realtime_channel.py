@@ -29,20 +29,24 @@ REQUEST_SCALARS = ("t", "delay_s", "budget_s", "stop")
 INERTIAL_WIDTH = 5  # identified base CoM offset (3, m), hand payload, base payload (kg); NaN: none
 
 
-COMMAND_WIDTH = 11  # numbers in a `command_row`
+COMMAND_WIDTH = 12  # numbers in a `command_row`
 
 
 def command_row(command: Commands) -> np.ndarray:
-    """`Commands` as COMMAND_WIDTH = 11 numbers (base velocity 3, yaw rate, ee velocity 3, ee force 3, base height) (None as NaN), the inverse of `command_from_row`."""
+    """`Commands` as COMMAND_WIDTH = 12 numbers (base velocity 3, yaw rate, ee velocity 3, ee force 3, base height,
+    walking 1/0) (None as NaN), the inverse of `command_from_row`."""
     ee_velocity = np.full(3, np.nan) if command.ee_velocity_m_s is None else command.ee_velocity_m_s
     height = np.nan if command.base_height_m is None else command.base_height_m
-    return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height]
+    walking = np.nan if command.walking is None else float(command.walking)
+    return np.r_[command.base_velocity_m_s, command.base_yaw_rate_rad_s, ee_velocity, command.ee_force_n, height,
+                 walking]
 
 
 def command_from_row(row: np.ndarray) -> Commands:
     ee_velocity = None if np.isnan(row[4:7]).all() else row[4:7].copy()
     return Commands(base_velocity_m_s=row[0:3].copy(), base_yaw_rate_rad_s=float(row[3]), ee_velocity_m_s=ee_velocity,
-                    ee_force_n=row[7:10].copy(), base_height_m=None if np.isnan(row[10]) else float(row[10]))
+                    ee_force_n=row[7:10].copy(), base_height_m=None if np.isnan(row[10]) else float(row[10]),
+                    walking=None if np.isnan(row[11]) else bool(row[11] > 0.5))
 
 
 

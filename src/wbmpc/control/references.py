@@ -3,6 +3,8 @@
 The base follows the commanded velocity from a position reference (`ReferenceConfig.base_tracking`), the
 joints a nominal posture moved with the feet (`foot_placement.StanceReference`); bipeds lean over their
 next stance foot (`sway_towards_support`) and carry their swing feet to a landing point (`swing_velocities`).
+On a terrain (`ReferenceConfig.terrain`) the base rides over its support and the feet land on it
+(`terrain_step`, control/terrain_references.py).
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ import pinocchio as pin
 from wbmpc.control.commands import Commands
 from wbmpc.control.config import ReferenceConfig
 from wbmpc.control.foot_placement import StanceReference, SwingPlacement
-from wbmpc.gait import GaitClock
+from wbmpc.control.terrain_references import TerrainReferences, TerrainStep
+from wbmpc.gait import GaitClock, SwingProfile
 from wbmpc.robots import RobotModel
 
 MAX_ANCHOR_OFFSET_M = 0.3  # the base's position reference stays this close to the measured base (no wind-up)
@@ -22,15 +25,20 @@ MAX_ANCHOR_OFFSET_M = 0.3  # the base's position reference stays this close to t
 class References:
     """Targets of one robot's steps; keeps the base's position reference between steps (`reset` forgets it)."""
 
-    def __init__(self, robot: RobotModel, config: ReferenceConfig, gait: GaitClock, difference):
+    def __init__(self, robot: RobotModel, config: ReferenceConfig, gait: GaitClock, difference,
+                 swing: SwingProfile | None = None):
         self.robot = robot
         self.config = config
         self.gait = gait
         self._difference = difference  # the MPC's buffered q (-) q over the nodes
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
+        self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._stance_reference = StanceReference(robot) if config.stance_posture else None
         self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
+        # on a terrain (not the flat floor): its footholds, swing splines, cone normals and base targets
+        self.terrain = TerrainReferences(robot, config.terrain, swing or SwingProfile(), config.footholds) \
+            if config.terrain is not None and not config.terrain.is_flat else None
         # the base's position reference (`base_tracking` "position": the commanded velocity integrated from where the
         # run started; "velocity": the measured base of the last step), world x/y and yaw; None before a step
         self.anchor_xy_m: np.ndarray | None = None
@@ -41,10 +49,25 @@ class References:
         self.anchor_xy_m = None
         self.anchor_yaw_rad = None
         self.last_t_s = None
+        if self.terrain is not None:
+            self.terrain.reset()
 
     def ee_free(self, commands: Commands) -> bool:
         """The end-effector's velocity rows are dropped this step (`free_ee_without_command`, no command)."""
         return bool(self.config.free_ee_without_command and self.robot.arm_ee and commands.ee_velocity_m_s is None)
+
+    def ee_velocity(self, q: np.ndarray, commands: Commands, base_velocity_world: np.ndarray) -> np.ndarray:
+        """The end effector's world velocity reference of eq. (7): the command, else the hand carried with the
+        commanded base motion (the base's velocity plus, turning, the yaw rate about the base). Held still in the
+        world instead, the hand pinned a turn about itself: b1_z1 turning in place at 0.6 rad/s swung its base
+        sideways at 0.25 m/s."""
+        if commands.ee_velocity_m_s is not None:
+            return np.asarray(commands.ee_velocity_m_s, dtype=float)
+        if not commands.base_yaw_rate_rad_s or self._ee_id is None:
+            return base_velocity_world
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        lever = self._data.oMf[self._ee_id].translation - q[:3]
+        return base_velocity_world + np.cross([0.0, 0.0, commands.base_yaw_rate_rad_s], lever)
 
     def targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float, node_times: np.ndarray):
         """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the
@@ -75,6 +98,8 @@ class References:
             targets[:, 2] = commands.base_height_m
         yaws = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * node_times
         targets[:, 3:7] = np.column_stack([np.zeros_like(yaws), np.zeros_like(yaws), np.sin(yaws / 2), np.cos(yaws / 2)])
+        if self.terrain is not None:  # height over the terrain's support, its pitch
+            self.terrain.shape_base_targets(targets, yaws)
         dq_des = self._difference(np.tile(q, (len(node_times), 1)).T, targets.T, shaped=True)[0].copy()
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
@@ -109,3 +134,12 @@ class References:
         feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
         yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
         return self._swing_placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world, yaw, feet)
+
+    def terrain_step(self, q, v, rot, t_s, node_times, command_world) -> TerrainStep | None:
+        """On a terrain, this step's swing references, footholds and cone normals (`TerrainReferences.step`)."""
+        if self.terrain is None:
+            return None
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
+        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        return self.terrain.step(self.gait, t_s, node_times, q, rot @ v[:3], command_world, yaw, feet)

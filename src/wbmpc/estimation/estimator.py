@@ -8,7 +8,7 @@ angular velocity is the gyro's. Stage 2, a linear Kalman filter (the formulation
     update, per foot i, trusted where the gait schedule (or a contact switch) says stance:
         p_foot_i - p = R r_i(q_j)                  (leg kinematics)
         v = -R (omega x r_i + J_i(q_j) dq_j)       (a stance foot does not slide)
-        p_foot_i,z = ground height + foot radius   (flat ground)
+        p_foot_i,z = ground height + foot radius   (the terrain's height under the foot, issue 35)
 
 Swing feet get a large noise, so they follow the base and re-anchor at touch-down; the trust of
 a stance foot ramps over the first and last `contact_ramp` share of its stance phase. Joint
@@ -69,12 +69,16 @@ def contact_trust(gait: Gait, t_s: float, ramp: float) -> np.ndarray:
 class StateEstimator:
     """IMU + encoders (+ gait schedule) -> (q, v) in pinocchio layout, like the simulator's state."""
 
-    def __init__(self, robot: RobotModel, gait: Gait | None, config: EstimatorConfig = EstimatorConfig()):
+    def __init__(self, robot: RobotModel, gait: Gait | None, config: EstimatorConfig = EstimatorConfig(),
+                 terrain=None):
+        """`terrain` (`wbmpc.terrain.Terrain`, None: the flat floor at `config.ground_height_m`): a stance foot's
+        height is the terrain's under its estimated position."""
         if gait is None and not config.use_contact_sensors:
             raise ConfigError("the estimator needs the gait schedule or use_contact_sensors=True to know the stance feet")
         if gait is not None and len(gait.phase_offsets) != len(robot.feet):
             raise ConfigError(f"the gait has {len(gait.phase_offsets)} feet, the robot {len(robot.feet)}")
         self.robot, self.gait, self.config = robot, gait, config
+        self.terrain = terrain if terrain is not None and not terrain.is_flat else None
         self._data = robot.model.createData()
         # stance kinematics at each foot's contact frame: the sole centre of a flat foot (on the ground), the
         # foot frame of a point foot (a radius above it); the filter's states are translational, the soles'
@@ -113,9 +117,12 @@ class StateEstimator:
             dr[k] = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
         return r, dr
 
+    def _ground(self, feet_xy: np.ndarray) -> np.ndarray | float:
+        """Ground height under each foot: the terrain's, or the flat floor's."""
+        return self.config.ground_height_m if self.terrain is None else self.terrain.height(feet_xy)
+
     def _initialise(self, reading: SensorReadings, rot: np.ndarray, r: np.ndarray, start_xy: np.ndarray) -> None:
-        cfg = self.config
-        foot_z = cfg.ground_height_m + self._contact_height_m
+        foot_z = self._ground(start_xy + (r @ rot.T)[:, :2]) + self._contact_height_m
         p = np.array([start_xy[0], start_xy[1], np.mean(foot_z - (r @ rot.T)[:, 2])])
         feet = p + r @ rot.T
         self.x = np.concatenate([p, np.zeros(3), feet.ravel()])
@@ -175,7 +182,7 @@ class StateEstimator:
         H = np.zeros((rows, n))
         z = np.zeros(rows)
         noise = np.zeros(rows)
-        foot_z = cfg.ground_height_m + self._contact_height_m
+        foot_z = self._ground(self.x[6:].reshape(nf, 3)[:, :2]) + self._contact_height_m
         for i in range(nf):
             scale = 1.0 + (1.0 - trust[i]) * cfg.untrusted_noise_scale
             k = 3 * i

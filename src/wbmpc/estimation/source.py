@@ -45,10 +45,10 @@ class EstimatedState:
     """State source of `ClosedLoop`: sensors of `plant` -> `StateEstimator` -> (q, v)."""
 
     def __init__(self, plant, gait: Gait, sensor_config: SensorConfig = SensorConfig(),
-                 estimator_config: EstimatorConfig = EstimatorConfig()):
+                 estimator_config: EstimatorConfig = EstimatorConfig(), terrain=None):
         self.plant = plant
         self.sensors = Sensors(plant, sensor_config)
-        self.estimator = StateEstimator(plant.robot, gait, estimator_config)
+        self.estimator = StateEstimator(plant.robot, gait, estimator_config, terrain=terrain)
         self.log = EstimationLog()
         self._time_s: float | None = None
         self._start_xy = plant.state()[0][:2].copy()  # the estimate starts where the robot is placed

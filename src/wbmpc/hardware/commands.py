@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 from dataclasses import dataclass
 from typing import Callable
@@ -74,6 +75,12 @@ def _add_robot_sim_parser(sub, add_robot_options, robot_from_args, emit, tasks: 
     sim.add_argument("--state-rate", type=float, metavar="HZ", help="LowState rate (default 500 Hz as a Unitree robot; "
                      "200 Hz with --robot-link sim, unitree_mujoco's 5 ms step)")
     sim.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    remote = sim.add_mutually_exclusive_group()
+    remote.add_argument("--remote-script", metavar="FILE.yaml", help="an operator's remote, scripted (sticks and keys "
+                        "at times after the first LowCmd; see docs/operator.md): published in LowState's "
+                        "wireless_remote and on rt/wirelesscontroller")
+    remote.add_argument("--remote-gamepad", metavar="DEVICE", nargs="?", const="auto", help="a gamepad on this machine "
+                        "as the robot's remote (evdev; without DEVICE the first gamepad found)")
     _add_arm_options(sim)
     sim.set_defaults(func=lambda args: cmd_robot_sim(args, robot_from_args, emit, tasks))
 
@@ -89,8 +96,8 @@ def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: Tas
     add_robot_options(dep)
     _add_network_options(dep)
     dep.add_argument("--scenario", default="trot-in-place", help=f"one of: {', '.join(DEPLOY_SCENARIOS)}")
-    add_declared(dep, RunConfig, "duration_s", cli_default=10.0, default_text=None,
-                 help="seconds of MPC control (robot time)")
+    add_declared(dep, RunConfig, "duration_s", default_text="10 s; a command script's own duration; until the "
+                 "lie-down command with --remote, --keyboard or --gamepad", help="seconds of MPC control (robot time)")
     dep.add_argument("--lockstep", action="store_true", help="solve each MPC step before answering (robot-sim "
                                                               "--mode lockstep); default: MPC in its own process")
     for name in ("compiled", "nodes", "mpc_rate_hz"):
@@ -112,7 +119,22 @@ def _add_deploy_parser(sub, add_robot_options, robot_from_args, emit, tasks: Tas
     dep.add_argument("--state-timeout-ms", type=float, help="no LowState (or Z1 state) for this long -> damping, exit 1 (default "
                      "100 ms; 3000 ms with --lockstep, where the robot process may stall on a loaded machine)")
     dep.add_argument("--out", metavar="FILE", help="also write the JSON report to FILE")
+    _add_operator_options(dep)
     dep.set_defaults(func=lambda args: cmd_deploy(args, robot_from_args, emit, tasks))
+
+
+def _add_operator_options(dep) -> None:
+    from wbmpc.operator.config import OperatorConfig
+    from wbmpc.options import add_declared
+
+    operator = dep.add_argument_group("an operator in the loop (docs/operator.md)")
+    operator.add_argument("--remote", action="store_true", help="drive the MPC phase from the robot's own remote "
+                          "(LowState wireless_remote and rt/wirelesscontroller): left stick moves, right stick turns, "
+                          "start walk/stand, B stop, L2+A lie down")
+    for name in ("commands_file", "keyboard", "gamepad", "max_accel_m_s2", "max_yaw_accel_rad_s2"):
+        add_declared(operator, OperatorConfig, name)
+    operator.add_argument("--meshcat", action="store_true", help="serve a live page (meshcat, localhost) with the "
+                          "estimated state and the MPC's plan at 25 Hz")
 
 
 def add_bench_dds(bench_sub, add_robot_options, robot_from_args, emit) -> None:
@@ -227,6 +249,11 @@ def cmd_robot_sim(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLi
     robot = robot_from_args(args)
     config = dataclasses.replace(_robot_sim_config(args), model_errors=_plant_errors(args, robot))
     sim = RobotSimulator(robot, config)
+    if args.remote_script or args.remote_gamepad:
+        from wbmpc.operator.remote_script import GamepadRemote, RemotePublisher, ScriptedRemote, read_remote_script
+
+        sim.remote = RemotePublisher(ScriptedRemote(read_remote_script(args.remote_script)) if args.remote_script
+                                     else GamepadRemote(None if args.remote_gamepad == "auto" else args.remote_gamepad))
     arm = (f"; Z1 arm on UDP {config.z1_ports[0]} ({sim.arm_map.describe()})" if sim.arm_map is not None else "")
     link = (f"imitating Unitree's simulator (unset header, CRC, tick, temperatures; {config.state_rate_hz:.0f} Hz)"
             if config.robot_link == "sim" else f"sport mode '{config.sport_mode}'")
@@ -318,6 +345,9 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
     check_interface(args.network)
     robot = robot_from_args(args)
     scenario = tasks.make_task(args.scenario, robot, tasks.task_options(speed_m_s=args.speed))
+    operator = _deploy_operator(args, robot, scenario)  # sources checked before anything is built
+    if args.duration is None:  # a script's own length; live sources: until the operator lies the robot down
+        args.duration = operator.duration_s or (math.inf if operator.active and operator.script is None else 10.0)
     mpc_config = deploy_mpc_config(robot, scenario.needs(robot), nodes=args.nodes, compiled=args.compiled,
                                    solver=args.solver, lockstep=args.lockstep, mpc_rate_hz=args.mpc_rate,
                                    identify_mass=args.identify_mass)
@@ -327,21 +357,43 @@ def cmd_deploy(args: argparse.Namespace, robot_from_args, emit, tasks: TaskLibra
           file=sys.stderr, flush=True)
     controller = Controller(robot, mpc_config, config)
     failure = None
+    operator.attach(controller)
     try:
-        commands = scenario.commands(robot)
+        operator.start()
         ee_reference = scenario.ee_reference(robot) if args.scenario == "arm-track" else None
-        with ProgressBar(args.duration, f"deploy {args.scenario} ", unit="s") as bar:  # silent off a terminal
-            report = controller.run(commands, progress=lambda share: bar.update(share * args.duration),
-                                    ee_reference=ee_reference).summary()
+        bar_length = args.duration if math.isfinite(args.duration) else None  # silent off a terminal or unbounded
+        with ProgressBar(bar_length or 1.0, f"deploy {args.scenario} ", unit="s", enabled=None if bar_length else False) as bar:
+            report = controller.run(operator.commands, ee_reference=ee_reference, stop=operator.stop,
+                                    progress=(lambda share: bar.update(share * args.duration)) if bar_length else None
+                                    ).summary()
     except DeployFailure as exc:
         failure = exc
         report = controller.report.summary()
+    finally:
+        operator.close()
+    report.update(operator.metrics(controller))
     _write(args.out, report)
-    emit(args, report, "\n".join(_deploy_summary(report, args)))
+    emit(args, report, "\n".join(_deploy_summary(report, args) + operator.summary_lines(report.get("operator"))))
     if failure is not None:
         print(f"wbmpc: error: {failure}", file=sys.stderr)
         return 1
     return 0 if not report["fell"] else 1
+
+
+def _deploy_operator(args, robot, scenario):
+    """The deploy's operator sources (`--remote`, `--commands`, `--keyboard`, `--gamepad`) and live page; a standing
+    scenario moves onto the robot's walking gait when a source may start it walking."""
+    from wbmpc.gait import natural_gait
+    from wbmpc.operator.config import OperatorConfig
+    from wbmpc.operator.deploy import DeployOperator
+    from wbmpc.options import declared
+
+    given = {f.name: getattr(args, opt.dest) for f, opt in declared(OperatorConfig)  # deploy has no --viewer
+             if opt.flag and getattr(args, opt.dest, None) is not None}
+    operator = DeployOperator(robot, OperatorConfig(**given), scenario, remote=args.remote, meshcat=args.meshcat)
+    if operator.active and scenario.gait == "stand":
+        scenario.gait = natural_gait(len(robot.feet))
+    return operator
 
 
 def _deploy_config(args: argparse.Namespace, robot, scenario):

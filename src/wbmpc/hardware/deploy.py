@@ -35,7 +35,7 @@ import dataclasses
 import signal
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -44,27 +44,18 @@ from wbmpc.control.interpolator import interpolate
 from wbmpc.errors import ConfigError, WbmpcError
 from wbmpc.estimation.estimator import StateEstimator
 from wbmpc.estimation.inertial import InertialIdentification
-from wbmpc.gait import make_gait
+from wbmpc.gait import GaitClock, make_gait
 from wbmpc.hardware.deploy_config import DeployConfig, DeployFailure, LinkMismatchError, NoRobotStateError
 from wbmpc.hardware.deploy_plans import DeployPlans
 from wbmpc.hardware.deploy_report import DeployReport
+from wbmpc.hardware.deploy_tick import DeployPhase, DeployTick
 from wbmpc.hardware.link import LowStateLink
 from wbmpc.hardware.link_timing import LinkTiming
 from wbmpc.hardware.mapping import has_z1_arm, unitree_motor_map, z1_arm_map
-from wbmpc.hardware.messages import (
-    MessageError,
-    MotorCommand,
-    encode_low_cmd,
-)
+from wbmpc.hardware.messages import MessageError, MotorCommand, encode_low_cmd
 from wbmpc.hardware.network import check_interface
 from wbmpc.hardware.robot_sim import LOW_CMD_TOPIC, LOW_STATE_TOPIC
-from wbmpc.hardware.safety import (
-    Posture,
-    clamp_command,
-    fallen,
-    lying_joint_positions,
-    posture_command,
-)
+from wbmpc.hardware.safety import Posture, clamp_command, fallen, lying_joint_positions, posture_command
 from wbmpc.hardware.sdk import load_sdk
 from wbmpc.hardware.z1_messages import (
     DEFAULT_KD_UNITS,
@@ -108,7 +99,10 @@ class Controller:
                               f"{self.motors.describe()}; Z1 over UDP {'on' if self.arm_map else 'off'}); pass --arm z1 "
                               "for a Z1 arm")
         self.mpc = mpc  # lock-step: built once the robot answers (a missing robot is reported in 2 s, not after a build)
-        self.gait = make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s)
+        # the estimator's gait in real time (the MPC's own in lock-step); stand <-> walk commands switch it too
+        self.gait = GaitClock(make_gait(mpc_config.gait, len(robot.feet), mpc_config.gait_period_s,
+                                        leg_length_m=float(robot.q_nominal[2])))
+        self.tick_listeners: list = []  # callables(DeployTick) after each valid LowState (remote, live view)
         self.estimator = StateEstimator(robot, make_gait("stand", len(robot.feet)), config.estimator)
         self.kp, self.kd = config.gains.vectors(~robot.leg_joint_mask)
         self.timing = LinkTiming(config.robot_link)  # the link's command period and hold, before the MPC phase
@@ -118,6 +112,7 @@ class Controller:
         self._latest = None
         self._fresh = False
         self._interrupts = 0
+        self._stop = None  # the operator's lie-down (`run(stop=...)`)
         self._publisher = None
         self._z1 = None
         self._solver_process = solver_process or _solver_process
@@ -191,9 +186,10 @@ class Controller:
             pass
 
     # ------------------------------------------------------------------ loop
-    def run(self, commands=None, progress=None, ee_reference=None) -> DeployReport:
+    def run(self, commands=None, progress=None, ee_reference=None, stop=None) -> DeployReport:
         """`commands(t, q, v)`: the task's commands at MPC time t; `ee_reference(t)`: the end effector's target
-        (world, MPC time) whose error is reported, if given."""
+        (world, MPC time) whose error is reported, if given; `stop()`: true when the operator asks to lie down
+        (checked every tick while standing or in the MPC phase)."""
         sdk = load_sdk()
         cfg, report = self.config, self.report
         commands = commands or (lambda t, q, v: Commands())
@@ -207,6 +203,7 @@ class Controller:
         if threading.current_thread() is threading.main_thread():
             previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
         self._worker = self._sport = self._arm_link = None
+        self._stop = stop
         try:
             latest = self._start()
             self._publisher, self._z1 = publisher, self._arm_link  # from here on, every exit goes through damping
@@ -329,7 +326,7 @@ class Controller:
 
     def _loop(self, state, commands, worker, progress, ee_reference=None) -> None:
         """Answer every LowState until the damping phase (or a fault): one `_tick` each."""
-        self._phase = _Phase()
+        self._phase = DeployPhase()
         self._plans = DeployPlans(self.mpc, worker, 1.0 / self.config.mpc_rate_hz, self.report,
                                   inertial=self.identification.parameters if self.identification is not None else None)
         self._t_last = self.link.last_time_s or 0.0
@@ -353,6 +350,9 @@ class Controller:
         report.states_received += 1
         t = self._t_last = reading.time_s
         q, v = self.estimator.update(reading)
+        for listener in self.tick_listeners:  # before the phase events: an operator's lie-down acts this tick
+            listener(DeployTick(t, t - self._mpc_t0 if phase.name == "mpc" else None, state[0], q, v,
+                                self._plans.active, phase.name))
         if phase.name in (None, "stand-up", "hold"):
             self.timing.note(t)
         self._phase_events(q, t, reading.joint_position_rad)
@@ -394,7 +394,8 @@ class Controller:
         self.report.phases.append((round(t, 4), name))
 
     def _phase_events(self, q, t: float, q_joints) -> None:
-        """The start, a fall (damping) and Ctrl-C (lie down; a second one: damping) change the phase."""
+        """The start, a fall (damping), the operator's lie-down and Ctrl-C (lie down; a second one: damping) change
+        the phase."""
         cfg, phase, report = self.config, self._phase, self.report
         if phase.name is None:
             self._enter("stand-up", t, q_joints)
@@ -403,6 +404,9 @@ class Controller:
                                                                             check_height=standing):
             report.fell, report.stopped_by = True, "fall"
             self._enter("damping", t, q_joints)
+        if self._stop is not None and phase.name in ("hold", "mpc") and self._stop():
+            report.stopped_by = "operator"
+            self._enter("lie-down" if cfg.lie_down else "damping", t, q_joints)
         if self._interrupts and phase.name in ("stand-up", "hold", "mpc"):
             report.stopped_by = "ctrl-c"
             self._enter("lie-down" if cfg.lie_down else "damping", t, q_joints)
@@ -481,16 +485,6 @@ class Controller:
         if elapsed >= safety.lie_down_s + 0.3:
             self._enter("damping", t, q_joints)
         return command
-
-
-@dataclass
-class _Phase:
-    """The deploy loop's phase (stand-up, hold, mpc, lie-down, damping), when it started and the pose it started
-    from."""
-
-    name: str | None = None
-    t0: float = 0.0
-    pose_start: np.ndarray | None = None
 
 
 def _solver_process(robot: RobotModel, mpc_config: MpcConfig):

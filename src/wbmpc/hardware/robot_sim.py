@@ -244,6 +244,7 @@ class RobotSimulator:
         self._z1 = None
         # the leg joints' (q, dq) the sim link's motor law reads when a LowCmd arrives (updated every tick)
         self.joint_readings = (q0[7:][self._leg_index], np.zeros(len(self._leg_index)))
+        self.remote = None  # wbmpc.operator.remote_script.RemotePublisher: an operator's remote (scripted or a gamepad)
 
     def stop(self) -> None:
         self._stop.set()
@@ -345,6 +346,8 @@ class RobotSimulator:
         finally:
             subscriber.Close()
             publisher.Close()
+            if self.remote is not None:
+                self.remote.close()
             if self._z1 is not None:
                 self._z1.close()
         return self._final_report(run)
@@ -394,6 +397,8 @@ class RobotSimulator:
         legs = dataclasses.replace(reading, joint_position_rad=reading.joint_position_rad[self._leg_index],
                                    joint_velocity_rad_s=reading.joint_velocity_rad_s[self._leg_index])
         message = encode_low_state(legs, self.motors, tick_ms, foot_force, cfg.mode_machine)
+        if self.remote is not None:  # the operator's remote: LowState's bytes and rt/wirelesscontroller
+            self.remote.write(message, None if run.started_at is None else t - run.started_at)
         if cfg.robot_link == "sim":
             leave_unset(message)
         with self._lock:

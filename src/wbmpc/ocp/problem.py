@@ -233,6 +233,9 @@ class OcpProblem:
         params.add("w_F", nf)
         params.add("w_tau", self.nj)
         params.add("mu", 1)
+        # unit normal of the ground under each foot per input node (terrain: `control/terrain_references.py`;
+        # world z on a flat floor): the friction and wrench cones of eq. (6) are taken about it
+        params.add("contact_normal", 3 * self.n_feet, N)
         params.add("w_slack", 1)  # L1 weight of the soft rows' slacks
         params.add("w_slack_sq", 1)  # ... and their quadratic weight (CostWeights.soft_constraint_quadratic)
         if self.config.inertial_parameters:
@@ -352,7 +355,7 @@ class OcpProblem:
         """The slice of the global parameter vector stage k reads (its own dt, targets and forces)."""
         N, params = self.N, self.params
         names = params.names
-        columns = {"dt": min(k, N - 1), "dq_des": k, "F_des": min(k, N - 1), "obj_ref": k}
+        columns = {"dt": min(k, N - 1), "dq_des": k, "F_des": min(k, N - 1), "obj_ref": k, "contact_normal": min(k, N - 1)}
         return ca.vertcat(*[params.select(p, name, columns.get(name)) for name in names])
 
     def stage_function(self, k: int) -> tuple[ca.Function, list[tuple[str, int]]]:
@@ -433,14 +436,22 @@ class OcpProblem:
             # cone mu F_z >= sqrt(F_x^2 + F_y^2 + eps^2) - eps: same set up to eps^2 / (2 |F_t|), but
             # its gradient never vanishes (the squared form is degenerate at F = 0, where unloaded
             # stance feet sit, and stalled Fatrop after pushes)
+            # about the ground's normal n (a parameter, world z on a flat floor): normal force n.F, tangential F - (n.F) n
+            # (with n = e_z the same numbers as mu F_z and F_x^2 + F_y^2, bit for bit)
             unit = parts["F"][: 3 * nf] / scales["F"][: 3 * nf]
+            normals = local["contact_normal"]
             eps = CONE_SMOOTHING
-            cone = [mu * unit[3 * i + 2] - ca.sqrt(unit[3 * i] ** 2 + unit[3 * i + 1] ** 2 + eps**2) + eps
-                    for i in self.point_feet]
+            cone = []
+            for i in self.point_feet:
+                force, normal = unit[3 * i : 3 * i + 3], normals[3 * i : 3 * i + 3]
+                pressing = ca.dot(normal, force)
+                tangential = force - pressing * normal
+                cone.append(mu * pressing - ca.sqrt(ca.sumsqr(tangential) + eps**2) + eps)
             if cone:
                 rows.append(("cone", ca.vertcat(*cone)))
             if self.surface_feet:
-                rows.append(("wrench_cone", ca.vertcat(*[self._wrench_cone(parts["F"], i, mu, scales["F"][3 * i + 2])
+                rows.append(("wrench_cone", ca.vertcat(*[self._wrench_cone(parts["F"], i, mu, scales["F"][3 * i + 2],
+                                                                           normals[3 * i : 3 * i + 3])
                                                           for i in self.surface_feet])))
 
         # eq. (3): diagonal tracking cost; the terminal cost is the stage cost on the state
@@ -482,14 +493,21 @@ class OcpProblem:
         """The node's dynamics use the mass distribution of these parameters."""
         node.config.inertial = InertialParameters(base_com_offset, payload_kg, base_payload_kg)
 
-    def _wrench_cone(self, forces: ca.SX, i: int, mu: ca.SX, scale: float) -> ca.SX:
-        """The linear wrench cone rows (>= 0 in stance) of flat foot i, in units of the force scale: each row is
-        f_z minus a force (the moment rows divided by their lever, the sole's half size), so all rows and their
-        multipliers have the force's scale. With the moment rows in N m x lever (hw f_z - tau_x: 3-10x smaller than
-        the friction rows) Fatrop took 13.7 iterations per step on g1's walk in place (compiled, closed loop, 1 s),
-        10.0 with them divided by the lever: the same set, the same plans (drift, velocity RMSE to 3 digits)."""
+    def _wrench_cone(self, forces: ca.SX, i: int, mu: ca.SX, scale: float, normal: ca.SX) -> ca.SX:
+        """The linear wrench cone rows (>= 0 in stance) of flat foot i, in units of the force scale, about the ground's
+        normal n: the friction pyramid along the tangents t1 = (n_z, 0, -n_x) / |.| and t2 = n x t1 (world x and y
+        on a flat floor, exactly), the centre of pressure and the yaw moment of the sole's own moments (the sole
+        lies on the ground: its z axis is n). Each row is f_n minus a force (the moment rows divided by their
+        lever, the sole's half size), so all rows and their multipliers have the force's scale. With the moment
+        rows in N m x lever (hw f_z - tau_x: 3-10x smaller than the friction rows) Fatrop took 13.7 iterations per
+        step on g1's walk in place (compiled, closed loop, 1 s), 10.0 with them divided by the lever: the same set,
+        the same plans (drift, velocity RMSE to 3 digits)."""
         sole = self.robot.soles[self.robot.feet[i]]
-        fx, fy, fz = (forces[3 * i + k] / scale for k in range(3))
+        force = forces[3 * i : 3 * i + 3] / scale
+        length = ca.sqrt(normal[2] ** 2 + normal[0] ** 2)
+        first = ca.vertcat(normal[2], 0, -normal[0]) / length
+        second = ca.cross(normal, first)
+        fx, fy, fz = ca.dot(first, force), ca.dot(second, force), ca.dot(normal, force)
         tx, ty, tz = (forces[self.dyn.moment_slice(i)][k] / scale for k in range(3))
         yaw_arm = min(sole.half_length_m, sole.half_width_m)  # torsional friction's lever (times mu)
         return ca.vertcat(

@@ -39,8 +39,28 @@ class ArmTrack(Scenario):
         self._start: np.ndarray | None = None
         self._base_start: np.ndarray | None = None
         self._scene = None
+        self._terrain_hand = None  # on a terrain: the lift of the reference (scenarios/terrain.TerrainHand)
+
+    def terrain(self, robot):
+        """--terrain FILE, or a ramp up along the path (--slope-deg), else the flat floor."""
+        if not hasattr(self, "_terrain"):
+            from wbmpc.scenarios.terrain import file_terrain, ramp_along_path
+
+            self._terrain = file_terrain(self.options) or (
+                ramp_along_path(robot, self.options.slope_deg, backwards=self.base_speed_m_s < 0)
+                if self.options.slope_deg is not None and self.base_speed_m_s != 0 else None)
+        return self._terrain
 
     def _reference(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The path's reference, raised on a terrain with the support under the base's path (`TerrainHand`)."""
+        position, velocity = self._flat_reference(t_s)
+        if self._terrain_hand is None:
+            return position, velocity
+        lifted, carried = self._terrain_hand.reference(t_s)
+        return position + np.array([0.0, 0.0, lifted[2] - self._terrain_hand.start[2]]), \
+            velocity + np.array([0.0, 0.0, carried[2]])
+
+    def _flat_reference(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         o = self.options
         start = self._start
         drift = np.array([o.speed_m_s * t_s, 0.0, 0.0])
@@ -72,8 +92,14 @@ class ArmTrack(Scenario):
 
     def ee_reference(self, robot):
         if self._start is None:
-            self._start = robot.frame_trajectories(robot.q_nominal, [robot.arm_ee])[robot.arm_ee][0]
-            self._base_start = np.asarray(robot.q_nominal[:3], dtype=float)
+            start_q = self.start_pose(robot)
+            self._start = robot.frame_trajectories(start_q, [robot.arm_ee])[robot.arm_ee][0]
+            self._base_start = np.asarray(start_q[:3], dtype=float)
+            terrain = self.terrain(robot)
+            if terrain is not None:
+                from wbmpc.scenarios.terrain import TerrainHand
+
+                self._terrain_hand = TerrainHand(robot, terrain, start_q, self.base_speed_m_s, self.default_duration_s)
         return lambda t_s: self._reference(t_s)[0]
 
     def reachable(self, robot, t_s: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ from wbmpc.options import check_fields, option
 from wbmpc.robots import RobotModel
 
 PUSH, ARM_TRACK, PULL, WIPE, COMPLIANT = ("push",), ("arm-track",), ("pull",), ("wipe",), ("compliant",)
+TERRAIN_COURSES = ("stairs", "slope", "stepping-stones")  # scenarios/terrain.py
 
 
 @dataclass
@@ -26,7 +27,7 @@ class ScenarioOptions:
     scenario's default."""
 
     speed_m_s: float = option(0.2, flag="--speed", help="forward speed", low=-1.5, high=1.5, unit="m/s",
-                              scenarios=("trot-forward", "walk-forward", "arm-track"))
+                              scenarios=("trot-forward", "walk-forward", "arm-track") + TERRAIN_COURSES)
     push_speed_m_s: float = option(0.8, flag="--push-speed", help="base velocity kick", low=0.0, high=5.0, unit="m/s",
                                    scenarios=PUSH)
     push_direction_deg: float = option(90.0, flag="--push-direction", help="direction of the kick in the heading "
@@ -97,6 +98,32 @@ class ScenarioOptions:
     wipe_integral_gain_1_s2: float = option(30.0, flag="--wipe-integral", metavar="1/S2", help="integral gain on the "
                                             "in-plane path error (0: proportional feedback only)", low=0.0,
                                             high=1e4, unit="1/s^2", scenarios=WIPE)
+    # issue 35: off the flat floor (wbmpc.terrain, scenarios/terrain.py)
+    terrain_file: str | None = option(None, flag="--terrain", metavar="FILE", help="walk on the terrain of a YAML "
+                                      "file (boxes, ramps, heightmaps; docs/terrain.md): MuJoCo builds it, the MPC "
+                                      "plans on it", scenarios=("trot-forward", "walk-forward", "arm-track", "pull"))
+    steps: int = option(5, flag="--steps", metavar="N", help="risers of the staircase", integer=True, low=1, high=50,
+                        scenarios=("stairs",))
+    step_rise_m: float | None = option(None, flag="--step-rise", help="height of each step", low=0.0, high=0.5,
+                                       low_open=True, unit="m", scenarios=("stairs",),
+                                       default_text="the robot's: 23 percent of its standing height on four feet (12 "
+                                       "cm on b1_z1, 8 on go2), 10 cm on two")
+    step_tread_m: float | None = option(None, flag="--step-tread", help="depth of each step", low=0.1, high=3.0,
+                                        unit="m", scenarios=("stairs",),
+                                        default_text="the robot's: 57 percent of its standing height, at least 25 cm "
+                                        "(30 cm on b1_z1, 25 on go2); 30 cm on two feet")
+    stairs_direction: str = option("up-down", flag="--stairs", choices=("up-down", "up", "down"),
+                                   help="up (to a landing), down (from a landing, where the robot starts) or up-down "
+                                   "(up, across the landing, down)", scenarios=("stairs",))
+    slope_deg: float | None = option(None, flag="--slope-deg", metavar="DEG", help="slope: a ramp up at this angle, a "
+                                     "plateau and a ramp down; arm-track, pull: a ramp up along the robot's path",
+                                     low=0.0, high=35.0, low_open=True, unit="deg",
+                                     scenarios=("slope", "arm-track", "pull"),
+                                     default_text="slope: 15; arm-track and pull: the flat floor")
+    gap_m: float = option(0.1, flag="--gap", help="gap between stepping stones, along and across the path", low=0.0,
+                          high=0.5, unit="m", scenarios=("stepping-stones",))
+    stone_size_m: float = option(0.25, flag="--stone-size", help="side of the square stepping stones", low=0.1,
+                                 high=1.0, unit="m", scenarios=("stepping-stones",))
     hand_force_n: float = option(30.0, flag="--hand-force", help="peak force of the external hand", low=0.0,
                                  high=1e3, unit="N", scenarios=COMPLIANT)
     compliant_kp_arm: float = option(2.0, flag="--compliant-kp-arm", help="arm joint Kp", low=0.0, high=1e4,
@@ -134,7 +161,8 @@ class Scenario:
         return TaskNeeds(gait=self.gait, commands_ee=self.needs_arm, sweeps_ee=self.sweeps_ee,
                          obstacles=tuple(self.obstacles(robot)) if robot is not None else (),
                          object_model=self.object_model(robot) if self.options.object_model and robot is not None
-                         else None, adjust_weights=self.cost_weights)
+                         else None, adjust_weights=self.cost_weights,
+                         terrain=self.terrain(robot) if robot is not None else None)
 
     def commands(self, robot: RobotModel):
         return lambda t_s, q, v: Commands()
@@ -160,6 +188,20 @@ class Scenario:
     def scene(self, robot: RobotModel):
         """`wbmpc.sim.objects.Scene` with the objects of the task, or None (robot on a flat floor)."""
         return None
+
+    def terrain(self, robot: RobotModel):
+        """The ground (`wbmpc.terrain.Terrain`: MuJoCo builds it, the MPC plans on it), or None: the flat floor."""
+        return None
+
+    def start_pose(self, robot: RobotModel) -> np.ndarray:
+        """The configuration the run starts from: the nominal pose, raised onto the terrain under it."""
+        terrain = self.terrain(robot)
+        q = robot.q_nominal.copy()
+        if terrain is not None:
+            from wbmpc.control.terrain_references import support_footprint
+
+            q[2] += float(support_footprint(robot, terrain).height(q[:2], 0.0))
+        return q
 
     def object_model(self, robot: RobotModel):
         """The OCP's model of the manipulated object (`wbmpc.ocp.objects.ObjectModel`, `--object-model`), or None."""

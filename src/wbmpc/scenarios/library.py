@@ -1,7 +1,8 @@
 """The named closed-loop scenarios (`SCENARIOS`) and `make_scenario`, which fits one to a robot.
 
 Locomotion (`scenarios/locomotion.py`), arm tracking (`scenarios/arm_track.py`) and the loco-manipulation tasks of
-section VI-C (`pull`, `push-box`, `wipe`, `compliant`, one module each).
+section VI-C (`pull`, `push-box`, `wipe`, `compliant`, one module each), the terrain courses (`stairs`, `slope`,
+`stepping-stones`: `scenarios/terrain.py`).
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ from wbmpc.scenarios.compliant import Compliant
 from wbmpc.scenarios.locomotion import Push, Stand, TrotForward, TrotInPlace, WalkForward, WalkInPlace
 from wbmpc.scenarios.pull import Pull
 from wbmpc.scenarios.push_box import PushBox
+from wbmpc.scenarios.terrain import Slope, Stairs, SteppingStones
 from wbmpc.scenarios.wipe import Wipe
 
 SCENARIOS = {cls(ScenarioOptions()).name: cls for cls in (Stand, TrotInPlace, TrotForward, WalkInPlace, WalkForward,
-                                                                 Push, ArmTrack, Pull, PushBox, Wipe, Compliant)}
+                                                                 Push, ArmTrack, Pull, PushBox, Wipe, Compliant, Stairs,
+                                                                 Slope, SteppingStones)}
 TROT_SCENARIOS = ("trot-in-place", "trot-forward")  # trot by name: refused on robots without a trot
 
 

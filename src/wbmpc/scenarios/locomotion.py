@@ -29,8 +29,22 @@ class TrotForward(Scenario):
     def __init__(self, options: ScenarioOptions):
         super().__init__("trot-forward", "trot forward at the commanded speed", "trot", 6.0, options=options)
 
+    def terrain(self, robot):
+        """--terrain FILE, else the flat floor."""
+        if not hasattr(self, "_file_terrain"):
+            from wbmpc.scenarios.terrain import file_terrain
+
+            self._file_terrain = file_terrain(self.options)
+        return self._file_terrain
+
     def commands(self, robot):
+        from wbmpc.scenarios.terrain import TerrainHand, carries_hand
+
         velocity = np.array([self.options.speed_m_s, 0.0, 0.0])
+        terrain = self.terrain(robot)
+        if terrain is not None and carries_hand(robot):  # the hand carried over the terrain
+            return TerrainHand(robot, terrain, self.start_pose(robot), self.options.speed_m_s,
+                               self.default_duration_s).command(velocity)
         return lambda t_s, q, v: Commands(base_velocity_m_s=velocity)
 
     def extra_metrics(self, robot, log):

@@ -110,6 +110,17 @@ class Pull(ForceTask):
     def walking(self) -> bool:
         return self.gait != "stand"
 
+    def terrain(self, robot):
+        """--terrain FILE, or a ramp up behind the robot that it pulls the load walking up backwards (--slope-deg),
+        else the flat floor."""
+        if not hasattr(self, "_terrain"):
+            from wbmpc.scenarios.terrain import file_terrain, ramp_along_path
+
+            self._terrain = file_terrain(self.options) or (
+                ramp_along_path(robot, self.options.slope_deg, backwards=True)
+                if self.options.slope_deg is not None and self.walking else None)
+        return self._terrain
+
     def commands(self, robot):
         """Walking: base backwards at the pull speed, the end-effector held at its place on the base.
         Stance: the body leans back by STANCE_BASE_SHIFT_M while the arm retracts STANCE_RETRACT_M

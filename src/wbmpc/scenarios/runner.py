@@ -21,12 +21,15 @@ from wbmpc.control.policy import IDENTIFY_MASS_NEEDS, MpcChoices, mpc_config
 from wbmpc.control.tuning import DEFAULT_HOLD_S, tuning_for
 from wbmpc.errors import ConfigError
 from wbmpc.interrupt import stop_flag
+from wbmpc.operator.config import OperatorConfig
+from wbmpc.operator.run import prepare
 from wbmpc.options import check_fields, declared, declared_field, option
 from wbmpc.robots import RobotModel
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
 from wbmpc.scenarios.library import SCENARIOS, make_scenario
 from wbmpc.scenarios.metrics import common_metrics
 from wbmpc.scenarios.outputs import write_output_files
+from wbmpc.scenarios.terrain import check_terrain, contact_monitor
 from wbmpc.sim import PLANTS, PlantConfig, make_plant, robot_plant_config
 from wbmpc.sim.base import DRIVE_TRAIN_FIELDS, specialised_config
 from wbmpc.sim.model_errors import ModelErrors
@@ -61,6 +64,7 @@ class RunConfig:
     uniform_dt_ms: float | None = _mpc("uniform_dt_ms")
     gains: PdGains | None = None  # None: the robot's tuning (wbmpc.control.tuning); --kp/--kd are PdGains'
     options: ScenarioOptions = field(default_factory=ScenarioOptions)
+    operator: OperatorConfig = field(default_factory=OperatorConfig)  # live commands, the viewer (wbmpc.operator)
     # None (the Python API's default): `default_solver(..., api=True)`, fatrop unless the OCP carries the object or
     # collision avoidance is asked for
     solver: str | None = _mpc("solver")
@@ -128,6 +132,9 @@ class RunConfig:
                               f"'{self.scenario}' has no object the MPC can model: use {' or '.join(OBJECT_MODEL_SCENARIOS)}")
         if self.identify_mass and self.plant != "mujoco":
             raise ConfigError(IDENTIFY_MASS_NEEDS)
+        if self.operator.viewer and self.plant != "mujoco":
+            raise ConfigError("--viewer shows MuJoCo's own viewer: use --plant mujoco (or leave --viewer out and open "
+                              "the replay afterwards)")
         if self.joint_loop_jitter_ms > 1e3 / self.joint_loop_hz:
             raise ConfigError.for_field("joint_loop_jitter_ms", f"must be at most one joint-loop period "
                                         f"({1e3 / self.joint_loop_hz:g} ms at {self.joint_loop_hz:g} Hz), got "
@@ -192,10 +199,12 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     result keeps what was measured, with `metrics["interrupted"]`; `stop` replaces that flag."""
     config = config.for_robot(robot)
     scenario = make_scenario(config.scenario, robot, config.options)
-    duration = config.duration_s or scenario.default_duration_s
+    operator = prepare(robot, config.operator, scenario)  # script, terminal, gamepad, display: checked first
+    duration = config.duration_s or operator.duration_s or scenario.default_duration_s
     scene = scenario.scene(robot)
     if scene is not None and config.plant != "mujoco":
         raise ConfigError(f"scenario '{scenario.name}' has scene objects and needs --plant mujoco")
+    check_terrain(robot, scenario, config.plant)
     mpc = mpc or MPC(robot, mpc_config_for(scenario, config, robot))
     # the plant does not wait: recovery solvers must not be built mid-run (in real time the solver process
     # builds its own MPC and prepares it; this one only solves the first step, before the clock runs)
@@ -206,12 +215,14 @@ def run_scenario(robot: RobotModel, config: RunConfig, progress: Progress | None
     with stop_flag(stop) as stop:
         if stop():  # Ctrl-C while building (CasADi's C++ build does not raise): stop before running
             raise KeyboardInterrupt
-        return _run(robot, config, scenario, scene, mpc, duration, progress, stop)
+        return _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator)
 
 
-def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> ScenarioResult:
+def _run(robot, config, scenario, scene, mpc, duration, progress, stop, operator) -> ScenarioResult:
     mpc.reset()
-    plant = _plant(robot, config, scene)
+    terrain = scenario.terrain(robot)
+    plant = _plant(robot, config, scene, operator, terrain, scenario.start_pose(robot))
+    terrain_monitor = contact_monitor(robot, plant, terrain)
     sole_monitor = None
     if robot.soles and hasattr(plant, "sole_pressure"):  # flat feet in MuJoCo: the measured CoP on every tick
         from wbmpc.sim.sole_pressure import SolePressureMonitor
@@ -225,17 +236,21 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if identification is not None and state_source is not None:  # the estimate is what the robot would know
         state_source.listeners.append(identification.on_estimate)
     loop_config = LoopConfig(mpc_rate_hz=config.mpc_rate_hz, delay_mode=config.delay_mode, delay_ms=config.delay_ms,
-                             gains=gains, seed=config.seed, control_rate_hz=config.joint_loop_hz,
+                             gains=gains, seed=config.seed, terrain=terrain, control_rate_hz=config.joint_loop_hz,
                              joint_loop_jitter_ms=config.joint_loop_jitter_ms, motor_law=config.motor_law,
                              touchdown_events=config.touchdown_events,
                              joint_position_noise_rad=config.joint_position_noise_rad,
                              joint_velocity_noise_rad_s=config.joint_velocity_noise_rad_s)
     loop = ClosedLoop(mpc, plant, loop_config, state_source)
-    log = loop.run(duration, scenario.commands(robot), scenario.events(robot), progress, stop)
+    with operator:  # the scenario's commands, or the operator's sources on them
+        commands, until = operator.attach(mpc, plant, loop, stop)
+        operator.start()
+        log = loop.run(duration, commands, scenario.events(robot), progress, until)
     if not log.n_ticks:  # interrupted before the first control tick: nothing was measured
         raise KeyboardInterrupt
     metrics = common_metrics(robot, log, scenario.name)
     metrics.update(scenario.extra_metrics(robot, log))
+    metrics.update(operator.finish(log, mpc))
     metrics["state"] = config.state
     metrics["mass_kg"] = robot.mass_kg
     metrics["plant_mass_kg"] = plant_mass_kg(plant)
@@ -244,6 +259,8 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
     if sole_monitor is not None:
         metrics.update(sole_monitor.metrics())
     metrics.update(self_collision_metrics(plant, mpc, log))
+    if terrain_monitor is not None:
+        metrics.update(terrain_monitor.metrics())
     metrics["settings"] = _settings_report(robot, mpc, loop_config.gains, scenario.needs_arm, hold)
     if identification is not None:
         metrics.update(identification.metrics(config.model_errors))
@@ -256,9 +273,11 @@ def _run(robot, config, scenario, scene, mpc, duration, progress, stop) -> Scena
                           estimation=state_source.log if state_source is not None else None)
 
 
-def _plant(robot: RobotModel, config: RunConfig, scene):
-    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the model errors;
-    reset to the nominal pose."""
+def _plant(robot: RobotModel, config: RunConfig, scene, operator=None, terrain=None,
+           start_q: np.ndarray | None = None):
+    """The run's simulator: its drive train (a preset's rotors too), the scene's objects, the terrain, the model
+    errors, the viewer's hand target (`operator`, a `wbmpc.operator.run.OperatorRun`); reset to the start pose
+    (the nominal one, on the terrain under it)."""
     plant_config = config.plant_config
     if plant_config is None and config.plant_model is None:  # a preset's rotors (g1) are the plant's too
         plant_config = robot_plant_config(robot)
@@ -270,6 +289,10 @@ def _plant(robot: RobotModel, config: RunConfig, scene):
         from wbmpc.sim.mujoco_scene import MujocoPlantConfig
 
         plant_config = scene.plant_config(specialised_config(plant_config, MujocoPlantConfig))
+    if terrain is not None:  # MuJoCo builds the terrain the MPC plans on
+        from wbmpc.sim.mujoco_scene import MujocoPlantConfig
+
+        plant_config = dataclasses.replace(specialised_config(plant_config, MujocoPlantConfig), terrain=terrain)
     if config.model_errors is not None and not config.model_errors.is_nominal:
         if config.plant != "mujoco":
             raise ConfigError("model errors (CoM offset, masses, payload, armature, floor friction) need --plant mujoco")
@@ -281,10 +304,12 @@ def _plant(robot: RobotModel, config: RunConfig, scene):
         plant_config = dataclasses.replace(plant_config, friction_mu=config.floor_friction_mu)
     if config.physics_dt_ms is not None:
         plant_config = dataclasses.replace(plant_config, dt_s=config.physics_dt_ms / 1e3)
+    if operator is not None:
+        plant_config = operator.plant_config(plant_config)
     plant = make_plant(config.plant, robot, plant_config)
     if scene is not None:
         scene.attach(plant)
-    plant.reset(robot.q_nominal, np.zeros(robot.nv))
+    plant.reset(robot.q_nominal if start_q is None else start_q, np.zeros(robot.nv))
     return plant
 
 
@@ -412,7 +437,7 @@ def _estimated_state(plant, mpc: MPC, config: RunConfig):
     from wbmpc.estimation.source import EstimatedState
 
     sensors = config.sensors or SensorConfig(seed=config.seed)
-    return EstimatedState(plant, mpc.gait, sensors)
+    return EstimatedState(plant, mpc.gait, sensors, terrain=mpc.config.references.terrain)
 
 
 
@@ -434,6 +459,13 @@ def write_outputs(robot: RobotModel, result: ScenarioResult, out_dir: Path) -> l
         arrays = result.log.arrays(("t", "q"), every=every)
         paths += scenario.extra_plots(robot, result.log, folder)
         objects = result.scene.replay_objects() if result.scene is not None else None
+        terrain = scenario.terrain(robot)
+        if terrain is not None:  # the steps, ramps and heightmaps the robot walked on, drawn and as a file
+            from wbmpc.sim.terrain_geoms import replay_shapes
+            from wbmpc.terrain import save_terrain
+
+            objects = (objects or []) + replay_shapes(terrain)
+            paths.append(save_terrain(terrain, folder / "terrain.yaml"))
         paths.append(save_replay(robot, arrays["t"], arrays["q"], folder / "replay.html", objects=objects,
                                  scenario=scenario.name))
         if result.estimation is not None:

@@ -34,6 +34,8 @@ import pinocchio as pin
 from wbmpc.robots import RobotModel
 from wbmpc.sim.base import PlantConfig, PlantInputError
 from wbmpc.sim.shapes import CollisionShape, robot_collision_shapes
+from wbmpc.sim.terrain_geoms import add_terrain
+from wbmpc.terrain import Terrain
 
 ROBOT_CONTYPE, ROBOT_CONAFFINITY = 2, 1
 ROBOT_SELF_CONAFFINITY = ROBOT_CONAFFINITY | ROBOT_CONTYPE  # robot geoms that touch the robot too
@@ -73,6 +75,7 @@ class MujocoPlantConfig(PlantConfig):
     ee_sphere_radius_m: float | None = 0.03
     extra_bodies_mjcf: tuple[str, ...] = ()
     spec_callback: Callable[[mujoco.MjSpec], None] | None = None
+    terrain: Terrain | None = None  # boxes, ramps, heightmaps and the floor's height (sim/terrain_geoms.py)
     self_collision: bool = True  # robot-robot contacts (see the module docstring); counted by the plant
     # another file of the same robot (MJCF or URDF) that MuJoCo simulates instead of the controller's model
     # (`wbmpc.sim.plant_model`); None: the scene is built from the controller's `RobotModel`
@@ -246,6 +249,8 @@ def build_mjcf(robot: RobotModel, config: MujocoPlantConfig | None = None) -> st
     ET.SubElement(world, "light", name="sun", pos="0 0 5", dir="0 0 -1", directional="true")
     ET.SubElement(world, "geom", name="floor", type="plane", size="0 0 0.05", material="grid", priority="1")
     shapes = robot_collision_shapes(robot, config.use_urdf_collision_primitives, config.ee_sphere_radius_m)
+    if config.terrain is not None:
+        add_terrain(root, asset, world, config.terrain)
     _add_bodies(world, robot, shapes, body_names(robot), _drive_train(robot, config))
     for k, snippet in enumerate(config.extra_bodies_mjcf):
         try:

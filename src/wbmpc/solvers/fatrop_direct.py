@@ -331,14 +331,22 @@ class FatropDirectSolver:
                                                        int(self.config.print_level > 0)))
             if not solver.value:
                 raise RuntimeError("Fatrop could not create a solver for this structure")
-            cfg = self.config
-            lib.wb_option_double(solver, b"tolerance", self.tolerance)
-            lib.wb_option_double(solver, b"constr_viol_tol", self.constraint_tolerance)
-            for key_, value in cfg.extra_options.get("fatrop", {}).items():
-                setter = {float: lib.wb_option_double, int: lib.wb_option_int, bool: lib.wb_option_bool}[type(value)]
-                setter(solver, key_.encode(), value)
+            self._set_options(solver)
             self._by_structure[key] = solver
         return solver
+
+    def _set_options(self, solver: ctypes.c_void_p) -> None:
+        """The tolerances and `extra_options["fatrop"]` on a new Fatrop instance; an option Fatrop does not know
+        (or of another type) is refused by name rather than ignored."""
+        lib = self._library.lib
+        options = {"tolerance": self.tolerance, "constr_viol_tol": self.constraint_tolerance,
+                   **self.config.extra_options.get("fatrop", {})}
+        for name, value in options.items():
+            setter = {float: lib.wb_option_double, int: lib.wb_option_int, bool: lib.wb_option_bool}.get(type(value))
+            if setter is None or setter(solver, name.encode(), value) != 0:
+                lib.wb_solver_free(solver)
+                raise ConfigError(f"Fatrop has no {type(value).__name__} option {name!r} (SolverConfig.extra_options"
+                                  "['fatrop']): check its name and type, e.g. 1e-2 rather than 1 for a real")
 
     def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
                deadline: float | None = None, warm_duals: bool = False) -> NlpResult:

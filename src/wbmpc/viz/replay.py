@@ -343,7 +343,8 @@ def _import_meshcat():
     return meshcat
 
 
-def _viewer_class():
+def viewer_class():
+    """pinocchio's MeshcatVisualizer with flat-shaded materials (the decimated meshes need no normals)."""
     _import_meshcat()
     import meshcat.geometry as mg
     from pinocchio.visualize import MeshcatVisualizer
@@ -512,7 +513,7 @@ def _record(robot, time_s, q, fps: float, extras, objects) -> tuple[_Recorder, d
     geometry, source = robot_geometry(robot)
     recorder = _Recorder()
     viewer = meshcat.Visualizer(window=recorder)
-    viz = _viewer_class()(robot.model, None, geometry)
+    viz = viewer_class()(robot.model, None, geometry)
     viz.initViewer(viewer=viewer)
     viz.loadViewerModel(rootNodeName=f"{_ROOT}/robot")
     span = float(time_s[-1] - time_s[0]) if time_s.size > 1 else 0.0
