@@ -69,7 +69,7 @@ class ReferenceConfig:
     terrain: Terrain | None = None
     footholds: FootholdConfig | None = None  # the keep-out band at edges (None: from the feet's size)
     # the contact schedule follows measured touch-down (control/touchdown.py): `MPC.solve(..., measured_contact=...)`
-    # keeps an early foot down and a late one reaching; off by default (docs/robots.md: measured no better)
+    # keeps an early foot down and a late one reaching; off by default (docs/design/reality-gap.md: measured no better)
     touchdown_events: bool = False
 
     def __post_init__(self):

@@ -48,7 +48,7 @@ class LoopConfig:
     driver). `joint_loop_jitter_ms`: each command arrives late by a uniform draw in [0, MS] (a LowCmd over DDS).
     `sample_mid_hold`: eq. (9) is sampled half a joint-loop period ahead, at the middle of the time its command is
     held, so that the held feed-forward torque is the plan's mean over the hold instead of lagging it by half a
-    period (docs/robots.md: the plant's timing)."""
+    period (docs/design/reality-gap.md)."""
 
     mpc_rate_hz: float = MPC_RATE_HZ
     control_rate_hz: float = 500.0

@@ -11,7 +11,7 @@ corrects the schedule of one MPC step before the OCP is built:
   stays in swing on the nodes within that window, reaching down at the touch-down velocity of the swing
   profile (at least `min_reach_m_s`) until it finds the ground; later nodes keep the gait's stance.
 
-Off by default (`ReferenceConfig.touchdown_events`): it is switched on where it measured better (docs/robots.md).
+Off by default (`ReferenceConfig.touchdown_events`): it is switched on where it measured better (docs/design/reality-gap.md).
 """
 
 from __future__ import annotations
