@@ -1,4 +1,4 @@
-"""Real-time push map: `wbmpc campaign --delay realtime` runs one case at a time and reports each case's
+"""Real-time push map: `wbmpc campaign --delay-mode realtime` runs one case at a time and reports each case's
 achieved MPC rate and late share (the runs themselves are in tests/control/test_loop.py and tests/solvers/test_anytime.py)."""
 
 import json
@@ -37,3 +37,24 @@ def test_summary_lists_rate_and_late_share_per_case():
     timing = case_timing(rows)
     assert len(timing) == 1 and timing[0]["mpc_rate_hz"] == 79.6 and timing[0]["late_solution_share"] == 0.01
     assert case_timing(rows[1:]) is None
+
+
+def test_campaign_delay_options_as_in_run(capsys):
+    """--delay-mode/--delay-ms as `wbmpc run` names them; the one-string --delay of before still works, with a
+    warning, and mixing the two forms is refused."""
+    import argparse
+
+    from wbmpc.campaign.command import delay_from_args
+
+    def parsed(**given):
+        return argparse.Namespace(**{"delay": None, "delay_mode": None, "delay_ms": None, **given})
+
+    assert delay_from_args(parsed()) is None  # the spec's own
+    assert delay_from_args(parsed(delay_mode="realtime")) == "realtime"
+    assert delay_from_args(parsed(delay_ms=12.5)) == "12.5" and delay_from_args(parsed(delay_mode="fixed", delay_ms=5.0)) == "5"
+    assert delay_from_args(parsed(delay="realtime")) == "realtime" and "deprecated" in capsys.readouterr().err
+    for bad, match in ((parsed(delay="10", delay_mode="realtime"), "one or the other"),
+                       (parsed(delay_mode="realtime", delay_ms=5.0), "--delay-mode fixed"),
+                       (parsed(delay_mode="fixed"), "needs --delay-ms")):
+        with pytest.raises(ConfigError, match=match):
+            delay_from_args(bad)

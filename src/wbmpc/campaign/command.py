@@ -19,9 +19,12 @@ def add_parser(sub) -> None:
     p.add_argument("--duration", type=float, help="simulated seconds per case (default 4)")
     p.add_argument("--nodes", type=int, help="horizon nodes (default 15)")
     p.add_argument("--compiled", action="store_true", default=None, help="compiled solver (C, cached)")
-    p.add_argument("--delay", help="none (default) | a fixed delay in ms | realtime (one case at a time beside its "
-                                   "solver process, wall-clock paced; the summary lists each case's MPC rate and late share)")
-    p.add_argument("--solver", help="solver of every case (default fatrop; with --delay realtime: the run's default)")
+    p.add_argument("--delay-mode", choices=("none", "fixed", "realtime"),
+                   help="none (default) | fixed (--delay-ms) | realtime (one case at a time beside its solver process, "
+                   "wall-clock paced; the summary lists each case's MPC rate and late share)")
+    p.add_argument("--delay-ms", type=float, metavar="MS", help="a fixed solver delay of every case (ms)")
+    p.add_argument("--delay", help="deprecated, the old form of --delay-mode / --delay-ms: none | MS | realtime")
+    p.add_argument("--solver", help="solver of every case (default fatrop; with --delay-mode realtime: the run's default)")
     p.add_argument("--grid", action="append", metavar="AXIS=V1,V2|START:STOP:STEP",
                    help="add a grid axis (repeatable); `--list-axes` shows the axes")
     p.add_argument("--set", action="append", metavar="AXIS=VALUE", help="fixed axis value for every case (repeatable)")
@@ -88,7 +91,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if not args.report_only:
         seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else None
         spec = load_spec(args.spec, scenario=args.scenario, robot=args.robot, duration_s=args.duration,
-                         nodes=args.nodes, compiled=args.compiled, seeds=seeds, delay=args.delay, solver=args.solver,
+                         nodes=args.nodes, compiled=args.compiled, seeds=seeds, delay=delay_from_args(args), solver=args.solver,
                          grid=_pairs(args.grid, "grid"), fixed=_pairs(args.set, "set"), randomize=args.randomize,
                          random=_random(args.spec, args.samples))
         cases = expand(spec)
@@ -136,3 +139,25 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     else:
         print(text)
     return 0
+
+
+def delay_from_args(args) -> str | None:
+    """The spec's delay text from --delay-mode/--delay-ms (or the deprecated --delay); None: the spec's own."""
+    import sys
+
+    from wbmpc.control.delay import delay_text
+    from wbmpc.errors import ConfigError
+
+    if args.delay is not None:
+        if args.delay_mode is not None or args.delay_ms is not None:
+            raise ConfigError("--delay is the old form of --delay-mode / --delay-ms: give one or the other")
+        print("wbmpc: warning: --delay is deprecated; use --delay-mode none|fixed|realtime or --delay-ms MS",
+              file=sys.stderr)
+        return args.delay
+    if args.delay_ms is not None:
+        if args.delay_mode not in (None, "fixed"):
+            raise ConfigError(f"--delay-ms is a fixed delay: drop it or use --delay-mode fixed (got {args.delay_mode})")
+        return delay_text("fixed", args.delay_ms)
+    if args.delay_mode == "fixed":
+        raise ConfigError("--delay-mode fixed needs --delay-ms MS")
+    return args.delay_mode

@@ -187,7 +187,7 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, workers: int | None
     start = time.perf_counter()
     if spec.delay == "realtime" and client is None and scheduler is None:
         if workers not in (None, 1):
-            raise ConfigError(f"--delay realtime runs one case at a time (the two cores are the solver's and the "
+            raise ConfigError(f"--delay-mode realtime runs one case at a time (the two cores are the solver's and the "
                               f"simulation's); drop --workers {workers} or set it to 1")
         run.workers = 1
         run = _run_here(todo, table, run, runner, progress)
