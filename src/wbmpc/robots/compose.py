@@ -172,19 +172,7 @@ def compose(base_urdf: Path, arm: ArmMount, cache_dir: Path | None = None) -> Co
 
     moving = tuple(j.get("name") for j in arm_joints if j.get("type") not in ("fixed", "floating", "planar"))
     ee = _arm_ee(arm, arm_links, arm_joints, renamed)
-    text = ET.tostring(base, encoding="unicode")
-    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    if cache_dir is None:
-        from wbmpc.cache import default_cache_dir
-
-        cache_dir = default_cache_dir()
-    folder = Path(cache_dir) / "composed"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{Path(base_urdf).stem}+{Path(arm.urdf).stem}-{digest}.urdf"
-    if not path.is_file():
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text('<?xml version="1.0" ?>\n' + text)
-        tmp.replace(path)
+    path = _cached_urdf(base, f"{Path(base_urdf).stem}+{Path(arm.urdf).stem}", cache_dir)
     return Composition(urdf=path, renamed=renamed, arm_ee=ee, arm_joints=moving)
 
 
@@ -279,19 +267,7 @@ def compose_on_mjcf(base_mjcf: Path, arm: ArmMount, cache_dir: Path | None = Non
         roots = [link for link in links if link.get("name") == new_root]
     moving = tuple(j.get("name") for j in joints if j.get("type") not in ("fixed", "floating", "planar"))
     ee = _arm_ee(arm, links, joints, renamed)
-    text = ET.tostring(root, encoding="unicode")
-    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    if cache_dir is None:
-        from wbmpc.cache import default_cache_dir
-
-        cache_dir = default_cache_dir()
-    folder = Path(cache_dir) / "composed"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{Path(base_mjcf).stem}+{Path(arm.urdf).stem}-{digest}.urdf"
-    if not path.is_file():
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text('<?xml version="1.0" ?>\n' + text)
-        tmp.replace(path)
+    path = _cached_urdf(root, f"{Path(base_mjcf).stem}+{Path(arm.urdf).stem}", cache_dir)
     placement = (*map(float, mount.translation), *map(float, pin.rpy.matrixToRpy(mount.rotation)))
     return Composition(urdf=path, renamed=renamed, arm_ee=ee, arm_joints=moving), placement
 
@@ -319,3 +295,21 @@ def append_model(base: pin.Model, arm: pin.Model, frame_id: int, placement: pin.
         frames[k] = model.addFrame(pin.Frame(f.name, joints[f.parentJoint], frames.get(f.parentFrame, frame_id),
                                              frame_placement, f.type, f.inertia), False)  # inertias are in the joints
     return model
+
+
+def _cached_urdf(root: ET.Element, stem: str, cache_dir) -> Path:
+    """The composed URDF in the cache (`<cache>/composed/<stem>-<content hash>.urdf`), written once, atomically."""
+    text = ET.tostring(root, encoding="unicode")
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    if cache_dir is None:
+        from wbmpc.cache import default_cache_dir
+
+        cache_dir = default_cache_dir()
+    folder = Path(cache_dir) / "composed"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{stem}-{digest}.urdf"
+    if not path.is_file():
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text('<?xml version="1.0" ?>\n' + text)
+        tmp.replace(path)
+    return path
