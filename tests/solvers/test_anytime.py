@@ -5,7 +5,7 @@ than one iteration, and never hands the loop NaN."""
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.control import MPC, MpcConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
@@ -25,28 +25,6 @@ class FakeClock:
     def __call__(self) -> float:
         self.now += self.tick
         return self.now
-
-
-@pytest.fixture(scope="module")
-def fixed_state():
-    """go2's trot OCP from a moving state and Fatrop's solution of it (tolerance 1e-10)."""
-    robot = load_robot("go2")
-    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
-                               solver=SolverConfig(tolerance=1e-10, max_iterations=300)))
-    calls = []
-    solve = mpc.solver.solve
-
-    def recording(*args, **kwargs):
-        result = solve(*args, **kwargs)
-        calls.append((args, result))
-        return result
-
-    mpc.solver.solve = recording
-    v0 = np.zeros(robot.nv)
-    v0[:3] = [0.1, -0.05, 0.0]
-    assert mpc.solve(robot.q_nominal, v0, t_s=0.0).success
-    (data, reference), = calls
-    return mpc.problem, data, reference
 
 
 def _solver(problem, clock=None, **options):

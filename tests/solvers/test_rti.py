@@ -29,30 +29,6 @@ from wbmpc.solvers.rti import (
 SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
 
 
-@pytest.fixture(scope="module")
-def fixed_state():
-    """go2's trot OCP from a moving state, solved by Fatrop to 1e-10, with the NLP data of that solve."""
-    robot = load_robot("go2")
-    mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
-                               solver=SolverConfig(tolerance=1e-10, max_iterations=300)))
-    calls = []
-    solve = mpc.solver.solve
-
-    def recording(*args, **kwargs):
-        result = solve(*args, **kwargs)
-        calls.append((args, result))
-        return result
-
-    mpc.solver.solve = recording
-    v0 = np.zeros(robot.nv)
-    v0[:3] = [0.1, -0.05, 0.0]
-    solution = mpc.solve(robot.q_nominal, v0, t_s=0.0)
-    assert solution.success, solution.stats.status
-    (data, reference), = calls
-    assert reference.stats.status == "Solve_Succeeded"
-    return mpc.problem, data, reference
-
-
 @pytest.mark.parametrize("binding", ["direct", "casadi"])
 def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state, binding):
     """On our HPIPM binding and on casadi's conic alike: Fatrop's KKT point, a feasible plan."""
