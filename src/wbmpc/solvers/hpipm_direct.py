@@ -5,7 +5,10 @@ casadi's `conic('hpipm')` boxes every variable and keeps every constraint row, i
 allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks from the nonzeros of H and
 J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
 equalities, and keeps HPIPM's memory between calls (`csrc/hpipm_shim.c`, compiled once against the HPIPM
-and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
+and BLASFEO that ship in the casadi wheel, cached beside the generated code). Inputs with lb == ub (swing feet's
+forces, the arm's commanded force) and x_0 (fixed by the initial-state rows) are left out of HPIPM's QP
+(`csrc/hpipm_reduce.c`, `QpConfig.eliminate_fixed`): the same QP on smaller Riccati blocks, their multipliers
+recovered from the stage's stationarity; HPIPM instances are kept per pattern of reduced sizes. Same QP, same solution
 as `StructuredQp` (tests/solvers/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
 In HPIPM's absolute mode (speed_abs) the equality multipliers are computed on exit (comp_dual_sol_eq): the SQP's
@@ -56,7 +59,8 @@ def shim_library(config: CodegenConfig = CodegenConfig()) -> Path:
     flags = (*config.flags, "-O2", f"-I{include}")
     link = (f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{directory}")
     try:
-        return build_native("hpipm_shim", ("hpipm_shim.c",), config, flags, link, key_extra=str(include)).library
+        return build_native("hpipm_shim", ("hpipm_shim.c", "hpipm_reduce.c"), config, flags, link, key_extra=str(include),
+                            headers=("hpipm_shim.h",)).library
     except CompileError as exc:
         raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
 
@@ -74,20 +78,29 @@ class DirectQp:
         self._lib = ctypes.CDLL(str(shim_library(codegen)))
         self._lib.wbqp_new.restype = ctypes.c_void_p
         self._lib.wbqp_new.argtypes = [ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 3, ctypes.c_int, ctypes.c_int,
-                                       ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int]
+                                       ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int,
+                                       ctypes.c_int, ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 2]
         self._lib.wbqp_solve.restype = ctypes.c_int
         self._lib.wbqp_solve.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 22
         self._lib.wbqp_iterations.restype = ctypes.c_int
         self._lib.wbqp_iterations.argtypes = [ctypes.c_void_p]
         self._lib.wbqp_free.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_rebuilds.restype = ctypes.c_int
+        self._lib.wbqp_rebuilds.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_sizes.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
         dims = stage_dimensions(problem)
         N, nx, nu, ng = dims["N"], dims["nx"], dims["nu"], dims["ng"]
         self.N = N
         self._maps(problem, nx, nu, ng, hessian, jacobian)
         ints = [(ctypes.c_int * (N + 1))(*values) for values in (nx, nu, ng)]
+        x0_rows, x0_cols = self._x0_rows
         self._handle = self._lib.wbqp_new(N, *ints, HPIPM_MODES.index(config.mode), config.max_iterations,
                                           config.barrier_init, config.tolerance, int(config.warm_start),
-                                          config.infinity, int(declare_equalities))
+                                          config.infinity, int(declare_equalities), int(config.eliminate_fixed),
+                                          len(x0_rows), (ctypes.c_int * max(len(x0_rows), 1))(*x0_rows),
+                                          (ctypes.c_int * max(len(x0_cols), 1))(*x0_cols))
+        if not self._handle:
+            raise MemoryError("HPIPM's shim could not allocate its QP")
         self._pointers = [a.ctypes.data_as(_DOUBLE_P) for a in self._buffers]
 
     def __del__(self):
@@ -111,8 +124,39 @@ class DirectQp:
                 "D": [ng[k] * nu[k] for k in range(N + 1)]}
         off = {name: offsets(sizes) for name, sizes in size.items()}
         self._jacobian_maps(jacobian, cols, rows, off, nx, nu, ng)
+        self._initial_state_rows(problem, jacobian, cols, rows)
         self._hessian_maps(hessian, cols, off, nx, nu)
         self._allocate(off, problem.n_variables, problem.n_constraints)
+
+    @property
+    def rebuilds(self) -> int:
+        """HPIPM instances built so far: one per pattern of QP sizes (fixed inputs left out) not in the shim's cache."""
+        return int(self._lib.wbqp_rebuilds(self._handle))
+
+    @property
+    def solved_sizes(self) -> dict[str, list[int]]:
+        """nx, nu, ng per stage of the last QP as HPIPM solved it (fixed inputs and x_0 left out); zeros before."""
+        sizes = (ctypes.c_int * (3 * (self.N + 1)))()
+        self._lib.wbqp_sizes(self._handle, sizes)
+        values = list(sizes)
+        return {name: values[i * (self.N + 1):(i + 1) * (self.N + 1)] for i, name in enumerate(("nx", "nu", "ng"))}
+
+    def _initial_state_rows(self, problem, jacobian: ca.Sparsity, cols, rows_layout) -> None:
+        """Stage 0's initial-state rows (`problem.rows["x0"]`) as (row among stage 0's rows, state component) where each
+        has one Jacobian nonzero, on x_0 (the shim then leaves x_0 out of HPIPM's QP); none otherwise."""
+        self._x0_rows: tuple[list[int], list[int]] = ([], [])
+        rows = np.asarray(problem.rows.get("x0", np.zeros(0)), dtype=int).ravel()
+        row_stage, row_kind, row_local = rows_layout
+        col_stage, col_part, col_local = cols
+        nz_rows, nz_cols = (np.asarray(v) for v in jacobian.get_triplet())
+        in_rows = np.isin(nz_rows, rows)
+        if rows.size == 0 or np.any((row_stage[rows] != 0) | (row_kind[rows] != 1)) or \
+                np.count_nonzero(in_rows) != rows.size or np.unique(nz_rows[in_rows]).size != rows.size:
+            return
+        on_x0 = (col_stage[nz_cols[in_rows]] == 0) & (col_part[nz_cols[in_rows]] == 0)
+        if on_x0.all():
+            self._x0_rows = ([int(v) for v in row_local[nz_rows[in_rows]]],
+                             [int(v) for v in col_local[nz_cols[in_rows]]])
 
     def _column_layout(self, n_var: int, nx, nu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per NLP variable: its stage, part (0: x, 1: u) and position in the part; x_index, u_index."""
