@@ -202,9 +202,12 @@ static void reduce_rows(wbqp_reduction *r, int k, const wbqp_stage *f, wbqp_stag
         if (drop_x) r->kept_g[m] = i;
         lg[m] = f->lg[i] > -r->inf ? f->lg[i] - shift[i] : f->lg[i];
         ug[m] = f->ug[i] < r->inf ? f->ug[i] - shift[i] : f->ug[i];
-        for (j = 0; j < n; j++) D[m + j * rows] = f->D[i + kept[j] * ng];
+        if (drop_x)
+            for (j = 0; j < n; j++) D[m + j * rows] = f->D[i + kept[j] * ng];
         m++;
     }
+    if (!drop_x)  /* all rows kept: whole columns */
+        for (j = 0; j < n; j++) memcpy(D + j * ng, f->D + kept[j] * ng, ng * sizeof(double));
     r->rng[k] = m;
     o->D = D; o->lg = lg; o->ug = ug;
 }
