@@ -208,3 +208,17 @@ def test_the_rti_leaves_fixed_inputs_out_and_takes_the_same_step(qp_data):
         if eliminate:
             assert sum(mpc.solver.qp.solved_sizes["nu"]) < sum(stage_dimensions(mpc.problem)["nu"])
     np.testing.assert_allclose(steps[0], steps[1], atol=1e-7)
+
+
+def test_malformed_qp_data_is_refused_by_name(qp_data):
+    """The shim reads the data by index: data of another size, or gap rows that are no equalities, raise before HPIPM."""
+    from wbmpc.errors import WbmpcError
+
+    problem, data = qp_data
+    qp = _direct(problem, data, QpConfig(mode="speed_abs"))
+    with pytest.raises(ValueError, match="QP data of sizes"):
+        qp.solve(data[0], data[1], np.asarray(data[2].nonzeros())[:-1], *data[3:])
+    lbg = np.asarray(data[3], dtype=float).copy()
+    lbg[qp.gap_index[0]] -= 1.0
+    with pytest.raises(WbmpcError, match="dynamics rows must be equalities"):
+        qp.solve(data[0], data[1], data[2], lbg, *data[4:])
