@@ -565,7 +565,7 @@ def test_deploy_identifies_a_payload_the_model_does_not_know(dds):
 
 
 @pytest.mark.slow
-def test_ctrl_c_lies_the_robot_down_then_damps(dds):
+def test_ctrl_c_lies_the_robot_down_then_damps(go2, dds):
     heard = dds
     heard.clear()
     sim = _robot_sim("--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "8",
@@ -588,6 +588,7 @@ def test_ctrl_c_lies_the_robot_down_then_damps(dds):
     assert deploy["stopped_by"] == "ctrl-c", c_err
     assert [p for _, p in deploy["phases"]][-2:] == ["lie-down", "damping"]
     assert max(row[4] for row in robot["trajectory"]) < 30  # lay down, did not tip over
+    assert not robot["fell"] and robot["base_height_min_m"] < 0.6 * go2.q_nominal[2]  # low on purpose is no fall
 
 
 @pytest.mark.slow
