@@ -222,7 +222,8 @@ def _function_eval_ms(solution) -> float:
 
 
 def _split_summary(splits: list[dict]) -> dict:
-    """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`, plus `python` around the solver)."""
+    """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`; `python`: the rest of the step, with the
+    solver's `outside_solver`, see `wbmpc.control.mpc`)."""
     keys = dict.fromkeys(k for split in splits for k in split)
     means = {k: float(np.mean([split.get(k, 0.0) for split in splits])) for k in keys}
     return {"parts_ms_mean": means, "step_ms_mean": float(sum(means.values())) if means else None}
@@ -514,8 +515,9 @@ def bench_markdown(report: dict) -> str:
                      f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
                      f"{_fmt(cpu.get('mean'))} | {_fmt(cpu.get('max'))} | "
                      f"{_fmt(it['mean'], '.2f')} | {_fmt(it['max'], 'd')} | {r['failures']} | {r['fell']} |")
-    lines += ["", "Where a closed-loop step's time goes (mean ms; `python`: parameters, bounds, warm start and "
-                  "unpacking around the solver):", ""]
+    lines += ["", "Where a closed-loop step's time goes (mean ms; `python`: everything outside the solver's own work: "
+                  "input checks, references, parameters, bounds, warm start, the solver wrapper's packing and "
+                  "unpacking):", ""]
     for name, r in report["solvers"].items():
         split = r.get("split") or {}
         parts = ", ".join(f"{k} {v:.1f}" for k, v in (split.get("parts_ms_mean") or {}).items())

@@ -252,7 +252,9 @@ class DirectQp:
         lbu[:], ubu[:] = lbx[self.u_index], ubx[self.u_index]
         lbx_[:], ubx_[:] = lbx[self.x_index], ubx[self.x_index]
         lg[:], ug[:] = lbg[self.path_index], ubg[self.path_index]
+        tic = time.perf_counter()
         flag = self._lib.wbqp_solve(self._handle, *self._pointers)
+        hpipm_s = time.perf_counter() - tic
         step = np.empty(self._n_var)
         step[self.u_index], step[self.x_index] = self._u, self._x
         lam_x = np.empty(self._n_var)
@@ -263,7 +265,7 @@ class DirectQp:
         success = flag == 0 and bool(np.all(np.isfinite(step)))
         return QpResult(step=step, lam_g=lam_g, lam_x=lam_x, status=HPIPM_STATUS.get(flag, f"hpipm_flag_{flag}"),
                         success=success, iterations=int(self._lib.wbqp_iterations(self._handle)),
-                        solve_time_s=time.perf_counter() - start)
+                        solve_time_s=time.perf_counter() - start, pack_s=time.perf_counter() - start - hpipm_s)
 
 
 def conic_config(config: QpConfig) -> QpConfig:
