@@ -149,3 +149,25 @@ def test_the_warm_start_is_the_last_plan_resampled(steps):
         expected_dq = reference_interp_rows(new_times, old_times, parts["dq"])
         np.testing.assert_allclose(guess["dq"][1:], expected_dq[1:], atol=1e-9)
         assert np.all(guess["dq"][0] == 0.0)
+
+
+def reference_vertical_velocity(profile, progress, swing_duration_s):
+    """The swing spline's v_z piece by piece on masked subsets, as it was written first."""
+    from wbmpc.gait import _cubic_velocity
+
+    s, T, h = np.asarray(progress, dtype=float), swing_duration_s / 2, profile.apex_height_m
+    out = np.zeros_like(s)
+    up, down = (s >= 0) & (s < 0.5), s >= 0.5
+    out[up] = _cubic_velocity(s[up] / 0.5, 0.0, h, profile.liftoff_velocity_m_s * T, 0.0) / T
+    out[down] = _cubic_velocity((s[down] - 0.5) / 0.5, h, 0.0, 0.0, profile.touchdown_velocity_m_s * T) / T
+    return out
+
+
+def test_swing_velocity_in_one_pass_equals_the_piecewise_spline_bitwise():
+    from wbmpc.gait import SwingProfile
+
+    rng = np.random.default_rng(2)
+    for profile in (SwingProfile(), SwingProfile(0.12, 0.3, -0.25)):
+        progress = np.where(rng.uniform(size=(15, 4)) < 0.4, -1.0, rng.uniform(size=(15, 4)))
+        progress[0, :3] = (0.0, 0.5, 0.999)
+        assert np.array_equal(profile.vertical_velocity(progress, 0.3), reference_vertical_velocity(profile, progress, 0.3))
