@@ -12,6 +12,7 @@ from wbmpc.control import MPC, Commands, MpcConfig
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import (
+    BLEND_TIME_S,
     EARLY_NODES,
     INF,
     SWING_YAW_RATE_BAND_RAD_S,
@@ -23,6 +24,16 @@ from wbmpc.ocp.problem import (
 from wbmpc.robots import load_robot
 
 GRID = TimeGrid(n_intervals=5, dt_first_s=0.01, dt_last_s=0.05)
+
+
+def reference_blend(self, lbg, ubg, rows, nodes, target, measured, mask=None) -> None:
+    """`OcpProblem._blend_from_measurement` as it was (its decay computed per call from the nodes)."""
+    decay = np.minimum(np.maximum(1.0 - self.config.grid.node_times_s[nodes] / BLEND_TIME_S, 0.0), 1.0)
+    shape = (len(nodes),) + np.shape(target)[1:]
+    path = np.broadcast_to(target + decay.reshape((-1,) + (1,) * (len(shape) - 1)) * (measured - target), shape)
+    path = (path[mask] if mask is not None else path).ravel()
+    lbg[rows] = path
+    ubg[rows] = path
 
 
 def reference_bounds(self, data: StageBounds):
@@ -116,7 +127,7 @@ def reference_bounds(self, data: StageBounds):
         ubg[foot_rows[..., :2][placed]] = vxy[placed]
     if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
         stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
-        self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
+        reference_blend(self, lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
                                      np.asarray(data.foot_velocity_m_s)[None], stance)
     if self.surface_feet:  # flat feet: no rotation in stance, roll and pitch rates zero in swing
         ang_rows = rows["foot_ang"].reshape(len(row_nodes["foot_ang"]), len(self.surface_feet), 3)
@@ -134,7 +145,7 @@ def reference_bounds(self, data: StageBounds):
         if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
             stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
             measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
-            self._blend_from_measurement(lbg, ubg, ang_rows[stance_ang], row_nodes["foot_ang"],
+            reference_blend(self, lbg, ubg, ang_rows[stance_ang], row_nodes["foot_ang"],
                                          np.zeros((1, len(self.surface_feet), 3)), measured[None], stance_ang)
     if self.has_arm:
         velocity = np.zeros(3) if data.ee_velocity_m_s is None else data.ee_velocity_m_s
@@ -142,7 +153,7 @@ def reference_bounds(self, data: StageBounds):
         ubg[rows["ee_vel"]] = velocity
         if data.ee_velocity_measured_m_s is not None:
             ee_rows = rows["ee_vel"]
-            self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), row_nodes["ee_vel"], velocity[None],
+            reference_blend(self, lbg, ubg, ee_rows.ravel(), row_nodes["ee_vel"], velocity[None],
                                          np.asarray(data.ee_velocity_measured_m_s)[None])
     if self.collision is not None:
         self._collision_bounds(lbg, ubg, data)

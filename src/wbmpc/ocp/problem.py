@@ -190,6 +190,7 @@ class OcpProblem:
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
         self._bounds_template: BoundsTemplate | None = None  # built at the first `bounds`
+        self._blend_decays: dict[str, np.ndarray] = {}  # `_blend_from_measurement`'s per row tag
 
     @property
     def nlp(self) -> dict:
@@ -618,7 +619,7 @@ class OcpProblem:
         """lbx, ubx, lbg, ubg for one step: the constant and contact-dependent entries from `BoundsTemplate`
         (one copy and one gather), then the measurement's."""
         robot, nf = self.robot, self.n_feet
-        rows, row_nodes, idx = self.rows, self.row_nodes, self.idx  # (properties: read once)
+        rows, idx = self.rows, self.idx  # (properties: read once)
         if self._bounds_template is None:
             self._bounds_template = BoundsTemplate(self)
         contact = np.asarray(data.contact, dtype=bool)
@@ -670,7 +671,7 @@ class OcpProblem:
             ubg[rows["ee_vel"]] = velocity
             if data.ee_velocity_measured_m_s is not None:
                 ee_rows = rows["ee_vel"]
-                self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), row_nodes["ee_vel"], velocity[None],
+                self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), "ee_vel", velocity[None],
                                              np.asarray(data.ee_velocity_measured_m_s)[None])
         if self.collision is not None:
             self._collision_bounds(lbg, ubg, data)
@@ -702,7 +703,7 @@ class OcpProblem:
             ubg[foot_rows[..., :2][placed]] = vxy[placed]
         if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
             stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
-            self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
+            self._blend_from_measurement(lbg, ubg, foot_rows[stance], "foot_vel", np.zeros((1, nf, 3)),
                                          np.asarray(data.foot_velocity_m_s)[None], stance)
         if not self.surface_feet:
             return
@@ -717,7 +718,7 @@ class OcpProblem:
         if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
             stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
             measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
-            self._blend_from_measurement(lbg, ubg, ang_rows[stance_ang], row_nodes["foot_ang"],
+            self._blend_from_measurement(lbg, ubg, ang_rows[stance_ang], "foot_ang",
                                          np.zeros((1, len(self.surface_feet), 3)), measured[None], stance_ang)
 
     def _object_bounds(self, lbg, ubg, data: StageBounds) -> None:
@@ -763,7 +764,7 @@ class OcpProblem:
         lbg[rows] = lower
         ubg[rows] = INF
 
-    def _blend_from_measurement(self, lbg, ubg, rows, nodes, target, measured, mask=None) -> None:
+    def _blend_from_measurement(self, lbg, ubg, rows, tag: str, target, measured, mask=None) -> None:
         """Move the targets of equality rows "velocity = target" on the first nodes onto the path that
         goes linearly from the measured velocity to the target over BLEND_TIME_S.
 
@@ -772,9 +773,13 @@ class OcpProblem:
         torque limits; requiring it makes the OCP infeasible. The rows stay equalities (Fatrop's
         stage structure is unchanged) and later nodes keep eqs. (6)-(7) exactly.
         """
-        decay = np.minimum(np.maximum(1.0 - self.config.grid.node_times_s[nodes] / BLEND_TIME_S, 0.0), 1.0)
-        shape = (len(nodes),) + np.shape(target)[1:]
-        path = np.broadcast_to(target + decay.reshape((-1,) + (1,) * (len(shape) - 1)) * (measured - target), shape)
+        decay = self._blend_decays.get(tag)
+        if decay is None:  # per row tag, its nodes' share of the way left (constant: computed on first use)
+            nodes = self.row_nodes[tag]
+            decay = np.minimum(np.maximum(1.0 - self.config.grid.node_times_s[nodes] / BLEND_TIME_S, 0.0), 1.0)
+            decay = self._blend_decays[tag] = decay.reshape((-1,) + (1,) * (np.ndim(target) - 1))
+        shape = (len(decay),) + np.shape(target)[1:]
+        path = np.broadcast_to(target + decay * (measured - target), shape)
         path = (path[mask] if mask is not None else path).ravel()
         lbg[rows] = path
         ubg[rows] = path
