@@ -80,7 +80,8 @@ class SwingProfile:
         x2 = x**2
         up_velocity = (3 * x2 - 4 * x + 1) * (self.liftoff_velocity_m_s * T) + (-6 * x2 + 6 * x) * h
         down_velocity = (6 * x2 - 6 * x) * h + (3 * x2 - 2 * x) * (self.touchdown_velocity_m_s * T)
-        return np.where(s < 0, 0.0, np.where(down, down_velocity, up_velocity)) / T
+        # divided where a foot swings only: a standing gait (no swing, T = 0) gives zeros, not 0 / 0
+        return np.divide(np.where(down, down_velocity, up_velocity), T, out=np.zeros_like(s), where=s >= 0)
 
     def height(self, progress: np.ndarray) -> np.ndarray:
         """Reference swing height above the ground at swing progress s (for plots)."""

@@ -171,3 +171,6 @@ def test_swing_velocity_in_one_pass_equals_the_piecewise_spline_bitwise():
         progress = np.where(rng.uniform(size=(15, 4)) < 0.4, -1.0, rng.uniform(size=(15, 4)))
         progress[0, :3] = (0.0, 0.5, 0.999)
         assert np.array_equal(profile.vertical_velocity(progress, 0.3), reference_vertical_velocity(profile, progress, 0.3))
+    standing = -np.ones((15, 4))  # no swing: zeros, even with a swing duration of 0
+    with np.errstate(all="raise"):
+        assert np.array_equal(SwingProfile().vertical_velocity(standing, 0.0), np.zeros((15, 4)))
