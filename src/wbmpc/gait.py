@@ -28,6 +28,7 @@ class Gait:
         check_number("period_s", self.period_s, low=0.0, high=10.0, low_open=True, unit="s")
         if not 0 < self.duty_factor <= 1:
             raise ConfigError(f"gait duty factor must be in (0, 1], got {self.duty_factor}")
+        object.__setattr__(self, "_offsets", np.asarray(self.phase_offsets, dtype=float)[None, :])  # (read by `phase`)
 
     @property
     def swing_duration_s(self) -> float:
@@ -40,7 +41,7 @@ class Gait:
     def phase(self, times_s: np.ndarray) -> np.ndarray:
         """(len(times), n_feet) phase of each foot in [0, 1): stance below the duty factor."""
         cycles = np.atleast_1d(self.cycles(times_s))[:, None]
-        return np.mod(cycles + np.asarray(self.phase_offsets)[None, :], 1.0)
+        return np.mod(cycles + self._offsets, 1.0)
 
     def swing_phase(self, times_s: np.ndarray) -> np.ndarray:
         """(len(times), n_feet) progress through swing in [0, 1), or -1 where the foot is in stance."""
@@ -72,12 +73,15 @@ class SwingProfile:
         s = np.asarray(progress, dtype=float)
         T = swing_duration_s / 2  # duration of one piece
         h = self.apex_height_m
-        out = np.zeros_like(s)
-        up = (s >= 0) & (s < 0.5)
+        # both pieces in one pass over the array (the MPC samples this every step): x in [0, 1) on each piece, and
+        # _cubic_velocity's terms that are not zero on it (up: lift-off slope and apex; down: apex and touch-down)
         down = s >= 0.5
-        out[up] = _cubic_velocity(s[up] / 0.5, 0.0, h, self.liftoff_velocity_m_s * T, 0.0) / T
-        out[down] = _cubic_velocity((s[down] - 0.5) / 0.5, h, 0.0, 0.0, self.touchdown_velocity_m_s * T) / T
-        return out
+        x = np.where(down, (s - 0.5) / 0.5, s / 0.5)
+        x2 = x**2
+        up_velocity = (3 * x2 - 4 * x + 1) * (self.liftoff_velocity_m_s * T) + (-6 * x2 + 6 * x) * h
+        down_velocity = (6 * x2 - 6 * x) * h + (3 * x2 - 2 * x) * (self.touchdown_velocity_m_s * T)
+        # divided where a foot swings only: a standing gait (no swing, T = 0) gives zeros, not 0 / 0
+        return np.divide(np.where(down, down_velocity, up_velocity), T, out=np.zeros_like(s), where=s >= 0)
 
     def height(self, progress: np.ndarray) -> np.ndarray:
         """Reference swing height above the ground at swing progress s (for plots)."""

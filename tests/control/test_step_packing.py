@@ -2,6 +2,8 @@
 weights computed once, the plan's configurations integrated in the same call as its trajectories) against the
 straightforward computation, on the states of a short closed loop."""
 
+import math
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -39,22 +41,22 @@ def reference_pack(params, values) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def steps():
-    """Each step of a short trot (moving base, contact changes): the parameter values handed to `pack`, the
-    packed p, the previous plan, the warm start and the new plan."""
+    """Each step of a short trot (moving base, contact changes): its targets, the p and the warm start handed to
+    the solver, the previous plan and the new plan."""
     robot = load_robot("go2")
     mpc = MPC(robot, MpcConfig(ocp=SMALL))
     records, current = [], {}
-    pack = mpc.problem.params.pack
+    targets = mpc.references.targets
 
-    def spy(values):
-        current["values"], current["p"] = dict(values), pack(values)
-        return current["p"]
+    def targets_spy(*args, **kwargs):
+        current["targets"] = targets(*args, **kwargs)
+        return current["targets"]
 
-    mpc.problem.params.pack = spy
+    mpc.references.targets = targets_spy
     solve = mpc.solver.solve
 
     def solver_spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
-        current["x0"] = x0.copy()
+        current["p"], current["x0"] = p.copy(), x0.copy()
         return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
 
     mpc.solver.solve = solver_spy
@@ -67,6 +69,20 @@ def steps():
         records.append({**current, "previous": previous, "solution": solution, "q": q.copy()})
         q, v = solution.q[1].copy(), solution.v[1].copy()
     return robot, mpc, records
+
+
+def step_values(robot, mpc, record) -> dict:
+    """Every parameter block of a step from public data: the measurement, the weights and friction of the
+    configuration, the flat ground, the step's targets and its force guess (the warm start's forces)."""
+    problem = mpc.problem
+    q = record["q"].copy()
+    q[3:7] /= math.sqrt(float(q[3:7] @ q[3:7]))
+    dq_des, v_des, _ = record["targets"]
+    return {"q_ref": q, "rot_ref": pin.Quaternion(q[3:7]).toRotationMatrix(), "dt": problem.config.grid.dt_s,
+            "dq_des": dq_des, "v_des": v_des, "F_des": problem.unpack(record["x0"])["F"].T,
+            "mu": [mpc.config.friction_coefficient],
+            "contact_normal": np.tile([0.0, 0.0, 1.0], (problem.N, len(robot.feet))).T,
+            **mpc.config.weights.vectors(robot, problem.nf)}
 
 
 def test_resampling_equals_the_straightforward_one_bitwise():
@@ -83,9 +99,19 @@ def test_resampling_equals_the_straightforward_one_bitwise():
 
 
 def test_parameters_equal_the_straightforward_packing(steps):
-    _, mpc, records = steps
+    """The p each step hands the solver (a template's constant blocks, this step's written into a copy) is every
+    block packed anew: bit for bit but the force guess, read back from the scaled warm start (rounding)."""
+    robot, mpc, records = steps
+    params = mpc.problem.params
+    forces = params.block("F_des")
     for record in records:
-        assert np.array_equal(record["p"], reference_pack(mpc.problem.params, record["values"]))
+        expected = reference_pack(params, step_values(robot, mpc, record))
+        rest = np.ones(params.size, dtype=bool)
+        rest[forces] = False
+        assert np.array_equal(record["p"][rest], expected[rest])
+        np.testing.assert_allclose(record["p"][forces], expected[forces], rtol=1e-14, atol=1e-12)
+        assert np.array_equal(params.pack(step_values(robot, mpc, record)), reference_pack(params, step_values(
+            robot, mpc, record)))
 
 
 def test_the_plan_is_its_trajectories_and_their_integrated_configurations(steps):
@@ -123,3 +149,28 @@ def test_the_warm_start_is_the_last_plan_resampled(steps):
         expected_dq = reference_interp_rows(new_times, old_times, parts["dq"])
         np.testing.assert_allclose(guess["dq"][1:], expected_dq[1:], atol=1e-9)
         assert np.all(guess["dq"][0] == 0.0)
+
+
+def reference_vertical_velocity(profile, progress, swing_duration_s):
+    """The swing spline's v_z piece by piece on masked subsets, as it was written first."""
+    from wbmpc.gait import _cubic_velocity
+
+    s, T, h = np.asarray(progress, dtype=float), swing_duration_s / 2, profile.apex_height_m
+    out = np.zeros_like(s)
+    up, down = (s >= 0) & (s < 0.5), s >= 0.5
+    out[up] = _cubic_velocity(s[up] / 0.5, 0.0, h, profile.liftoff_velocity_m_s * T, 0.0) / T
+    out[down] = _cubic_velocity((s[down] - 0.5) / 0.5, h, 0.0, 0.0, profile.touchdown_velocity_m_s * T) / T
+    return out
+
+
+def test_swing_velocity_in_one_pass_equals_the_piecewise_spline_bitwise():
+    from wbmpc.gait import SwingProfile
+
+    rng = np.random.default_rng(2)
+    for profile in (SwingProfile(), SwingProfile(0.12, 0.3, -0.25)):
+        progress = np.where(rng.uniform(size=(15, 4)) < 0.4, -1.0, rng.uniform(size=(15, 4)))
+        progress[0, :3] = (0.0, 0.5, 0.999)
+        assert np.array_equal(profile.vertical_velocity(progress, 0.3), reference_vertical_velocity(profile, progress, 0.3))
+    standing = -np.ones((15, 4))  # no swing: zeros, even with a swing duration of 0
+    with np.errstate(all="raise"):
+        assert np.array_equal(SwingProfile().vertical_velocity(standing, 0.0), np.zeros((15, 4)))

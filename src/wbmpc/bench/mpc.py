@@ -184,16 +184,28 @@ class _Recorder:
     eval_ms: list = field(default_factory=list)
     cpu_ms: list = field(default_factory=list)
     splits: list = field(default_factory=list)
+    commands_ms: float = 0.0  # the loop's command source of the step being solved (`commands`)
 
     @property
     def robot(self):
         return self.mpc.robot
 
+    def commands(self, t_s, q, v):
+        """The loop's command source (the benchmark's constant commands), timed: its Python is part of the step's."""
+        from wbmpc.control import Commands
+
+        start = time.perf_counter()
+        commands = Commands()
+        self.commands_ms = 1e3 * (time.perf_counter() - start)
+        return commands
+
     def solve(self, q, v, commands=None, t_s=0.0):
         self.states.append((np.array(q, dtype=float), np.array(v, dtype=float), commands, float(t_s)))
         solution, cpu_ms = _timed_solve(self.mpc, q, v, commands, t_s)
         self.eval_ms.append(_function_eval_ms(solution))
-        self.splits.append(dict(solution.stats.split_ms))
+        split = dict(solution.stats.split_ms)
+        split["python"] = split.get("python", 0.0) + self.commands_ms
+        self.splits.append(split)
         self.cpu_ms.append(cpu_ms)
         return solution
 
@@ -222,7 +234,8 @@ def _function_eval_ms(solution) -> float:
 
 
 def _split_summary(splits: list[dict]) -> dict:
-    """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`, plus `python` around the solver)."""
+    """Mean ms per part of a step (see `wbmpc.solvers.nlp.time_split_ms`; `python`: the rest of the step, with the
+    solver's `outside_solver`, see `wbmpc.control.mpc`)."""
     keys = dict.fromkeys(k for split in splits for k in split)
     means = {k: float(np.mean([split.get(k, 0.0) for split in splits])) for k in keys}
     return {"parts_ms_mean": means, "step_ms_mean": float(sum(means.values())) if means else None}
@@ -260,7 +273,7 @@ def _closed_loop(robot, mpc, plant_kind: str, steps: int, on_progress: Callable[
 
     gains = tuning_for(robot).gains  # the robot's own PD (B1's Kd 5 saturates a Go2's legs)
     log = ClosedLoop(recorder, plant, LoopConfig(mpc_rate_hz=MPC_RATE_HZ, gains=gains)).run(
-        duration, progress=lambda share, _recoveries: on_progress(share))
+        duration, commands=recorder.commands, progress=lambda share, _recoveries: on_progress(share))
     arrays = log.arrays()
     n = min(steps, len(arrays["solve_ms"]))
     summary = _run_summary(arrays["solve_ms"][:n], arrays["iterations"][:n], arrays["success"][:n],
@@ -514,8 +527,9 @@ def bench_markdown(report: dict) -> str:
                      f"{_fmt(r['function_eval_ms_mean'])} | {_fmt(r['solver_only_ms_mean'])} | "
                      f"{_fmt(cpu.get('mean'))} | {_fmt(cpu.get('max'))} | "
                      f"{_fmt(it['mean'], '.2f')} | {_fmt(it['max'], 'd')} | {r['failures']} | {r['fell']} |")
-    lines += ["", "Where a closed-loop step's time goes (mean ms; `python`: parameters, bounds, warm start and "
-                  "unpacking around the solver):", ""]
+    lines += ["", "Where a closed-loop step's time goes (mean ms; `python`: everything outside the solver's own work: "
+                  "input checks, references, parameters, bounds, warm start, the solver wrapper's packing and "
+                  "unpacking):", ""]
     for name, r in report["solvers"].items():
         split = r.get("split") or {}
         parts = ", ".join(f"{k} {v:.1f}" for k, v in (split.get("parts_ms_mean") or {}).items())

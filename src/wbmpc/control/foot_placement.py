@@ -74,6 +74,12 @@ class StanceReference:
             self._inverse.append(np.linalg.pinv(jacobian)[:, :2])
             self._hip_m.append(data.oMf[frame].translation[:2] - base[:2])
         self._n_coordinates = model.nq - 7
+        # the same, stacked for all feet at once (`joint_offsets`, every MPC step): foot i's horizontal displacement
+        # -> its leg's joint offsets, and the direction a yaw rate moves its hip
+        self._displacement_to_joints = np.zeros((len(self._frames), 2, self._n_coordinates))
+        for i, (columns, inverse) in enumerate(zip(self._columns, self._inverse)):
+            self._displacement_to_joints[i][:, columns] = inverse.T
+        self._hip_turn = np.array([[-hip[1], hip[0]] for hip in self._hip_m]).reshape(-1, 2)
 
     def _feet(self, q: np.ndarray) -> np.ndarray:
         pin.framesForwardKinematics(self._model, self._data, q)
@@ -107,10 +113,9 @@ class StanceReference:
         phase = gait.phase(times_s)  # (n, feet)
         swing = phase >= duty
         lever = np.where(swing, (phase - duty) / (1 - duty) - 0.5, 0.5 - phase / duty)  # (n, feet)
-        for i, (columns, inverse, hip) in enumerate(zip(self._columns, self._inverse, self._hip_m)):
-            v_hip = np.asarray(velocity_m_s[:2], dtype=float) + yaw_rate_rad_s * np.array([-hip[1], hip[0]])
-            out[:, columns] += np.outer(lever[:, i] * stance_s, v_hip) @ inverse.T
-        return out
+        v_hip = np.asarray(velocity_m_s[:2], dtype=float) + yaw_rate_rad_s * self._hip_turn  # (feet, 2)
+        per_foot = np.einsum("fk,fkc->fc", v_hip, self._displacement_to_joints)  # joint offsets per unit lever
+        return out + (lever * stance_s) @ per_foot
 
 
 CAPTURE_GAIN = 1.0  # capture-point feedback: the foot lands (v - v_cmd) sqrt(h / g) further along the error

@@ -21,12 +21,14 @@ import pinocchio as pin
 from wbmpc.control.commands import Commands, object_reference
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import roll_forward
+from wbmpc.control.inputs import checked_state
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
 from wbmpc.control.solution import Solution
 from wbmpc.control.touchdown import follow_touchdown
-from wbmpc.control.trajectory import Resampler, interp_rows
+from wbmpc.control.trajectory import interp_rows
+from wbmpc.control.warm_start import ShiftedGuess
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, make_gait
@@ -34,6 +36,7 @@ from wbmpc.ocp.problem import OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.buffered import BufferedFunction
+from wbmpc.solvers.codegen import CompileError, compile_functions
 from wbmpc.solvers.nlp import NlpSolver
 
 __all__ = ["MPC", "BASE_TRACKING_MODES", "Commands", "CostWeights", "MpcConfig"]
@@ -45,7 +48,7 @@ class _StepData:
 
     p: np.ndarray
     bounds: tuple
-    soft_bounds: tuple | None
+    soft_rows: StageBounds | None  # a failed hard step's retry with the soft rows free (bounds built on need)
     x0: np.ndarray
     node_times: np.ndarray
     contact: np.ndarray
@@ -67,30 +70,56 @@ class MPC:
         dyn, N = self.problem.dyn, self.problem.N
         q, q1 = ca.SX.sym("q", robot.nq), ca.SX.sym("q1", robot.nq)
         # called on NumPy buffers every step (no DM conversions); outputs are reused: copy what is kept
-        self._difference = BufferedFunction(ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1))
+        difference, plan = self._step_functions(
+            ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1, [True, False], [False]),
+            self._plan_function())  # q (-) q1 over the nodes, one q for all of them
+        self._difference, self._plan = BufferedFunction(difference), BufferedFunction(plan)
         self._weights = config.weights.vectors(robot, self.problem.nf)
         # the model's mass distribution (OcpConfig.inertial_parameters): NLP parameters, set between steps
         self._inertial = self._nominal_inertial()
-        self._plan = BufferedFunction(self._plan_function())
+        self._p_template: np.ndarray | None = None  # p's blocks that stay between steps (`_parameters`)
+        self._p_blocks = tuple(self.problem.params.block(name) for name in ("q_ref", "rot_ref", "dq_des", "v_des", "F_des"))
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
+        self._joints_are_coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()
         self.references = References(robot, config.references, self.gait, self._difference, config.swing)
         self._flat_normals = np.tile([0.0, 0.0, 1.0], (N, len(robot.feet))).T.copy()  # (3 n_feet, N): world z
         self.push_mode = PushMode(config.push, self.gait)
         self.recovery = Recovery(self.problem, self.solver, config.recovery)
+        self._shift = ShiftedGuess(self.problem)  # the warm start's re-sampling (forces: re-initialised)
+        states = self.problem.state_names  # node 0's state variables and their entries of the measured x0
+        self._measured_entries = (np.concatenate([self.problem.idx[name][0] for name in states]),
+                                  np.concatenate([np.arange(self.problem.state_offsets[name].start,
+                                                            self.problem.state_offsets[name].stop) for name in states]))
         self._previous: Solution | None = None
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
 
     def _plan_function(self) -> ca.Function:
-        """(x, p) -> q (nq, N+1), v, a, F, tau: the plan's trajectories (`OcpProblem.trajectory_function`) with the
-        configurations q_ref (+) dq integrated in the same call (one evaluation per step instead of two)."""
+        """(x, p) -> the plan's trajectories (`OcpProblem.trajectory_function`) with the configurations q_ref (+) dq
+        integrated in the same call (one evaluation per step instead of two), as one vector: q, v, a, F, tau each
+        column by column, i.e. node by node (`_unpack` reads them as row-major (nodes, size) views of one copy)."""
         problem = self.problem
         x, p = ca.SX.sym("x", problem.n_variables), ca.SX.sym("p", problem.params.size)
         dq, v, a, forces, tau = problem.trajectory_function()(x, p)
         q_ref = problem.params.select(p, "q_ref")
         q = ca.horzcat(*[problem.dyn.integrate(q_ref, dq[:, k]) for k in range(dq.shape[1])])
-        return ca.Function("plan", [x, p], [q, v, a, forces, tau], ["x", "p"], ["q", "v", "a", "F", "tau"])
+        parts = (q, v, a, forces, tau)
+        self._plan_shapes = [(part.shape[1], part.shape[0]) for part in parts]  # (nodes, size), row-major
+        return ca.Function("plan", [x, p], [ca.vertcat(*[ca.vec(part) for part in parts])], ["x", "p"], ["plan"])
+
+    def _step_functions(self, *functions: ca.Function) -> list[ca.Function]:
+        """The MPC's own functions of every step, compiled with the solver's (`SolverConfig.compiled`; cached):
+        b1_z1's plan unpacking and q (-) q over the nodes take 3.5 and 2.4 us compiled against 26 and 10 us in
+        CasADi's virtual machine. Where they cannot be compiled, the virtual machine's (the solver's warning says why)."""
+        if not self.config.solver.compiled:
+            return list(functions)
+        try:
+            report = compile_functions(list(functions), f"{self.problem.config.formulation}_mpc",
+                                       self.config.solver.codegen)
+        except CompileError:
+            return list(functions)
+        return [ca.external(function.name(), str(report.library)) for function in functions]
 
     def _nominal_inertial(self) -> dict[str, np.ndarray]:
         names = [n for n in ("base_com_offset", "payload_kg", "base_payload_kg") if n in self.problem.params.names]
@@ -108,6 +137,7 @@ class MPC:
                               f"and base payload {base_payload_kg} kg")
         if base_payload_kg and "base_payload_kg" not in self._inertial:
             raise ConfigError(f"{self.robot.name} has no arm: its payload_kg already sits at the base origin")
+        self._p_template = None
         self._inertial = {"base_com_offset": offset, "payload_kg": np.array([float(payload_kg)]),
                           **({"base_payload_kg": np.array([float(base_payload_kg)])} if "base_payload_kg" in self._inertial
                              else {})}
@@ -120,6 +150,7 @@ class MPC:
         self.push_mode.reset()
         self.gait.reset()
         self._inertial = self._nominal_inertial()  # until an estimator sets it again
+        self._p_template = None
 
     @property
     def last_plan(self) -> Solution | None:
@@ -140,51 +171,6 @@ class MPC:
     def prepare_fallback(self) -> None:
         """Build the recovery solvers now (`Recovery.prepare`): before the clock runs, not at the first failed step."""
         self.recovery.prepare()
-
-    # ------------------------------------------------------------------ input checks
-    def _check(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float) -> tuple[np.ndarray, np.ndarray]:
-        q = np.asarray(q, dtype=float).ravel()
-        v = np.asarray(v, dtype=float).ravel()
-        if q.size != self.robot.nq:
-            raise ConfigError(f"state q has {q.size} entries; {self.robot.name} needs nq = {self.robot.nq}")
-        if v.size != self.robot.nv:
-            raise ConfigError(f"state v has {v.size} entries; {self.robot.name} needs nv = {self.robot.nv}")
-        if not (np.isfinite(q).all() and np.isfinite(v).all() and np.isfinite(t)):
-            raise ConfigError("state or time contains NaN/inf; pass a finite measured state")
-        norm = math.sqrt(float(q[3:7] @ q[3:7]))  # (np.linalg.norm: ~5x the time on 4 numbers)
-        if abs(norm - 1) > 1e-3:
-            raise ConfigError(f"base quaternion q[3:7] must be unit (norm {norm:.4f}); normalise the estimate")
-        q = q.copy()
-        q[3:7] /= norm
-        limits = self.config.limits
-        speed = math.hypot(*commands.base_velocity_m_s[:2])
-        if speed > limits.base_speed_m_s:
-            raise ConfigError(f"base velocity command {speed:.2f} m/s exceeds limits.base_speed_m_s = {limits.base_speed_m_s}")
-        if abs(commands.base_yaw_rate_rad_s) > limits.yaw_rate_rad_s:
-            raise ConfigError(f"yaw rate command exceeds limits.yaw_rate_rad_s = {limits.yaw_rate_rad_s}")
-        if self.robot.arm_ee and commands.ee_velocity_m_s is not None and \
-                np.linalg.norm(commands.ee_velocity_m_s) > limits.ee_speed_m_s:
-            raise ConfigError(f"end-effector velocity command exceeds limits.ee_speed_m_s = {limits.ee_speed_m_s}")
-        for name in ("base_velocity_m_s", "ee_velocity_m_s", "ee_force_n"):
-            if getattr(commands, name) is None:
-                continue
-            value = np.asarray(getattr(commands, name), dtype=float)
-            if value.shape != (3,) or not np.isfinite(value).all():
-                raise ConfigError(f"command {name} must be 3 finite numbers, got {value}")
-        if not np.isfinite(commands.base_yaw_rate_rad_s):
-            raise ConfigError(f"command base_yaw_rate_rad_s must be finite, got {commands.base_yaw_rate_rad_s}")
-        force = math.hypot(*commands.ee_force_n)
-        limit = limits.ee_force_n or self.robot.mass_kg * GRAVITY_M_S2
-        if force > limit:
-            raise ConfigError(f"end-effector force command {force:.4g} N exceeds {limit:.0f} N (the robot's weight unless "
-                              "MpcConfig.limits.ee_force_n says otherwise): the robot cannot apply it; lower the force")
-        if commands.base_height_m is not None:
-            nominal = self.robot.q_nominal[2]
-            if not 0.4 * nominal <= commands.base_height_m <= 1.3 * nominal:
-                raise ConfigError(f"base height command {commands.base_height_m:g} m is outside "
-                                  f"{0.4 * nominal:.2f}-{1.3 * nominal:.2f} m (40-130 % of the nominal "
-                                  f"{nominal:.2f} m of {self.robot.name})")
-        return q, v
 
     def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
         """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
@@ -255,14 +241,14 @@ class MPC:
         clock = getattr(self.solver, "clock", None)
         clock_start = clock() if clock is not None else None
         commands = commands or Commands()
-        q, v = self._check(q, v, commands, t)
+        q, v = checked_state(self.robot, self.config.limits, q, v, commands, t)
         check_number("delay_s", delay_s, low=0.0, high=1.0, unit="s")
         if self.config.delay_compensation and delay_s > 0:
             q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
             t = t + delay_s
         self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
-        result, solve_end = self._solve_step(step.p, step.bounds, step.soft_bounds, step.x0, t, budget_s, clock,
+        result, solve_end = self._solve_step(step.p, step.bounds, step.soft_rows, step.x0, t, budget_s, clock,
                                              clock_start)
         solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
         if solution.success:
@@ -271,8 +257,7 @@ class MPC:
             solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
-        # parameters, bounds, warm start and unpacking around the solver (NumPy and CasADi calls)
-        result.stats.split_ms["python"] = max(1e3 * (time.perf_counter() - start - result.stats.solve_time_s), 0.0)
+        _python_share(result.stats, 1e3 * (time.perf_counter() - start))
         return solution
 
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:
@@ -297,10 +282,7 @@ class MPC:
                                                  self.config.swing.touchdown_velocity_m_s)
         forces = self._force_guess(contact, commands)
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
-        p = problem.params.pack({"q_ref": q, "rot_ref": rot, "dt": problem.config.grid.dt_s, "dq_des": dq_des,
-                                 "v_des": v_des, "F_des": forces.T, "mu": [self.config.friction_coefficient],
-                                 "contact_normal": self._flat_normals if terrain is None else terrain.contact_normal,
-                                 **self._weights, **self._inertial, **object_values})
+        p = self._parameters(q, rot, dq_des, v_des, forces, terrain, object_values)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
             swing_yaw_rate_rad_s=references.swing_yaw_rates(q, rot, t, node_times, commands.base_yaw_rate_rad_s),
@@ -318,11 +300,30 @@ class MPC:
             x0[problem.slack_index] = 0.0  # pinned: the hard OCP
         bounds = problem.bounds(stage_bounds)
         # with soft rows, a hard step that fails is re-solved with the slacks free first (it may be infeasible)
-        soft_bounds = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else \
-            problem.bounds(replace(stage_bounds, soft=True, relaxed_rows=self.config.push.relaxed_rows))
-        return _StepData(p, bounds, soft_bounds, x0, node_times, contact)
+        soft_rows = None if after_push or self.config.soft_rows_always or not problem.n_slack_variables else \
+            replace(stage_bounds, soft=True, relaxed_rows=self.config.push.relaxed_rows)
+        return _StepData(p, bounds, soft_rows, x0, node_times, contact)
 
-    def _solve_step(self, p, bounds, soft_bounds, x0, t: float, budget_s: float | None, clock, clock_start):
+    def _parameters(self, q, rot, dq_des, v_des, forces, terrain, object_values: dict) -> np.ndarray:
+        """p of this step: the blocks that stay (time steps, friction, weights, the flat ground's normals, inertial
+        parameters) from a template packed once, this step's targets and force guess written into a copy."""
+        params = self.problem.params
+        if self._p_template is None:
+            self._p_template = params.template({
+                "dt": self.problem.config.grid.dt_s, "mu": [self.config.friction_coefficient],
+                "contact_normal": self._flat_normals, **self._weights, **self._inertial})
+        p = self._p_template.copy()
+        q_ref, rot_ref, dq_block, v_block, force_block = self._p_blocks
+        p[q_ref], p[v_block] = q, v_des
+        p[rot_ref], p[dq_block] = rot.ravel(order="F"), dq_des.ravel(order="F")  # (column-major, as `pack`)
+        p[force_block] = forces.ravel()  # F_des = forces.T
+        if terrain is not None:
+            params.write(p, "contact_normal", terrain.contact_normal)
+        for name, value in object_values.items():
+            params.write(p, name, value)
+        return p
+
+    def _solve_step(self, p, bounds, soft_rows, x0, t: float, budget_s: float | None, clock, clock_start):
         """One step's solve: the push fallback solver first in the wake of a push, else the solver on this
         step's deadline, then the recovery ladder unless a deadline forbids it. Returns the result and the
         solver clock's time at the end of a deadline-bound solve (None otherwise)."""
@@ -332,7 +333,7 @@ class MPC:
             result = self.recovery.fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
             result.stats.status = f"{result.stats.status} (recovery: {cfg.recovery.fallback_solver} first after a push)"
             if not result.stats.success:
-                result = self._recover(result, p, bounds, x0, t, fallback_tried=True, soft_bounds=soft_bounds)
+                result = self._recover(result, p, bounds, x0, t, fallback_tried=True, soft_rows=soft_rows)
         else:
             budget = budget_s if budget_s is not None else cfg.step_budget_s
             # the cold first step's deadline only checks that the budget fits a QP (its solve converges): it counts
@@ -349,11 +350,13 @@ class MPC:
                 # holds the last good plan instead and the next step, one period later, tries again
                 result.stats.status = f"{result.stats.status}; no recovery re-solve past the step's deadline"
             elif not result.stats.success:
-                result = self._recover(result, p, bounds, x0, t, soft_bounds=soft_bounds)
+                result = self._recover(result, p, bounds, x0, t, soft_rows=soft_rows)
         return result, solve_end
 
-    def _recover(self, failed, p, bounds, x0, t: float, fallback_tried: bool = False, soft_bounds=None):
-        """The recovery ladder (`Recovery.recover`); a rescue with the soft rows free enters push recovery mode."""
+    def _recover(self, failed, p, bounds, x0, t: float, fallback_tried: bool = False, soft_rows=None):
+        """The recovery ladder (`Recovery.recover`; `soft_rows`: the step's data with the soft rows free, whose
+        bounds are built here, on a failure only); a rescue with the soft rows free enters push recovery mode."""
+        soft_bounds = None if soft_rows is None else self.problem.bounds(soft_rows)
         rescue = self.recovery.recover(failed, p, bounds, x0, t, has_plan=self._previous is not None,
                                        fallback_tried=fallback_tried, soft_bounds=soft_bounds)
         if rescue.soft_rows_succeeded:
@@ -386,38 +389,36 @@ class MPC:
 
     def _initial_guess(self, q, v, t, node_times, forces, object_state=None) -> np.ndarray:
         """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous
-        solution's variables shifted to the new node times (any formulation), forces re-initialised (the arm's
-        shifted, where an object model makes it a variable of the plan)."""
+        solution's variables shifted to the new node times (any formulation, `ShiftedGuess`), forces re-initialised
+        (the arm's shifted, where an object model makes it a variable of the plan)."""
         problem, idx = self.problem, self.problem.idx
         x0 = problem.initial_state(q, v, object_state)
-        guess = {}
-        for name in problem.state_names:
-            guess[name] = np.tile(x0[problem.state_offsets[name]], (len(idx[name]), 1))
-        if problem.object is not None:
-            guess["obj_u"] = np.tile(problem.object.input_guess(object_state), (len(idx["obj_u"]), 1))
-        for name, value in (("v", v), ("vj", v[6:])):
-            if name in idx and name not in problem.state_names:
-                guess[name] = np.tile(value, (len(idx[name]), 1))
         previous = self._previous if self.config.warm_start else None
-        if previous is not None:
-            new_times, old_times = t + node_times, previous.t_s + previous.node_times_s
-            parts = problem.unpack(previous.x)
-            # the previous configurations re-expressed as increments on the new reference q
-            parts["dq"] = self._difference(np.tile(q, (len(node_times), 1)).T, previous.q.T, shaped=True)[0].T.copy()
-            resample = Resampler(new_times, old_times)
-            for name, values in parts.items():
-                if name != "F":
-                    guess[name] = resample(values)
-            for name in problem.state_names:  # node 0 is the measurement
-                guess[name][0] = x0[problem.state_offsets[name]]
-            if problem.object is not None:  # the arm force is the plan's: shifted like the motion
-                arm = slice(3 * len(self.robot.feet), 3 * len(self.robot.feet) + 3)
-                forces = forces.copy()
-                forces[:, arm] = interp_rows(new_times[:-1], old_times[:-1], previous.forces[:, arm])
-            if problem.surface_feet:
-                forces = self._shifted_sole_wrenches(forces, previous, new_times[:-1], old_times[:-1])
-        guess["F"] = forces
-        return problem.pack(guess)
+        if previous is None:
+            guess = {name: np.tile(x0[problem.state_offsets[name]], (len(idx[name]), 1)) for name in problem.state_names}
+            if problem.object is not None:
+                guess["obj_u"] = np.tile(problem.object.input_guess(object_state), (len(idx["obj_u"]), 1))
+            for name, value in (("v", v), ("vj", v[6:])):
+                if name in idx and name not in problem.state_names:
+                    guess[name] = np.tile(value, (len(idx[name]), 1))
+            guess["F"] = forces
+            return problem.pack(guess)
+        new_times, old_times = t + node_times, previous.t_s + previous.node_times_s
+        old_x, scale = previous.x.copy(), problem.x_scale
+        # the previous configurations re-expressed as increments on the new reference q
+        dq = self._difference(q, previous.q.T, shaped=True)[0].T
+        old_x[idx["dq"]] = dq / scale[idx["dq"]]
+        x = self._shift(old_x, new_times, old_times)
+        state0, x0_entries = self._measured_entries
+        x[state0] = x0[x0_entries] / scale[state0]  # node 0 is the measurement
+        if problem.object is not None:  # the arm force is the plan's: shifted like the motion
+            arm = slice(3 * len(self.robot.feet), 3 * len(self.robot.feet) + 3)
+            forces = forces.copy()
+            forces[:, arm] = interp_rows(new_times[:-1], old_times[:-1], previous.forces[:, arm])
+        if problem.surface_feet:
+            forces = self._shifted_sole_wrenches(forces, previous, new_times[:-1], old_times[:-1])
+        x[idx["F"]] = forces / scale[idx["F"]]
+        return x
 
     def _shifted_sole_wrenches(self, forces: np.ndarray, previous: Solution, new_times: np.ndarray,
                                old_times: np.ndarray) -> np.ndarray:
@@ -446,8 +447,12 @@ class MPC:
         return positions
 
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        q_traj, v, a, forces, tau = (m.T.copy() for m in self._plan(x, p, shaped=True))
-        finite = np.isfinite(x).all() and np.isfinite(tau).all()
+        plan, parts, start = self._plan(x, p)[0].copy(), [], 0
+        for rows, cols in self._plan_shapes:
+            parts.append(plan[start : start + rows * cols].reshape(rows, cols))
+            start += rows * cols
+        q_traj, v, a, forces, tau = parts
+        finite = math.isfinite(float(np.vdot(x, x)) + float(np.vdot(tau, tau)))  # (no NaN or inf in either: two reductions, not four)
         return Solution(
             t_s=t,
             node_times_s=node_times.copy(),
@@ -460,5 +465,18 @@ class MPC:
             stats=stats,
             success=bool(stats.success and finite),
             x=np.asarray(x, dtype=float),
-            q_joints=self._joint_trajectory(q_traj),
+            # one coordinate per joint, none continuous: the joint positions are q[:, 7:] (Solution's own view)
+            q_joints=None if self._joints_are_coordinates else self._joint_trajectory(q_traj),
         )
+
+
+def _python_share(stats, step_ms: float) -> None:
+    """`split_ms["python"]`: the step's wall time outside the solver's own work (its split's parts other than
+    `outside_solver`; without a split, its solve time): input checks, references, parameters, bounds, warm start,
+    the solver wrapper's packing and calls (its `outside_solver`, folded in here) and unpacking. The parts then
+    add up to the step."""
+    split = stats.split_ms
+    split.pop("python", None)
+    outside = split.pop("outside_solver", 0.0)
+    inside = sum(split.values()) if split else 1e3 * stats.solve_time_s
+    split["python"] = max(step_ms - inside, outside, 0.0)

@@ -7,11 +7,12 @@ the gait's period is scaled by `PushConfig.gait_period_scale` (phases continuous
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from wbmpc.control.config import PushConfig
 from wbmpc.control.solution import Solution
-from wbmpc.control.trajectory import interp_rows
 from wbmpc.gait import GaitClock
 
 
@@ -46,8 +47,8 @@ class PushMode:
         pushed = (self.active(t_s) or previous is None) and \
             np.linalg.norm(rot @ v[:3] - commanded_world) > cfg.velocity_error_m_s
         if previous is not None and not pushed:
-            planned = interp_rows(np.array([t_s]), previous.t_s + previous.node_times_s, previous.v[:, :3])[0]
-            pushed = np.linalg.norm(v[:3] - planned) > cfg.velocity_error_m_s
+            error = v[:3] - _planned_at(previous, t_s)
+            pushed = math.sqrt(error @ error) > cfg.velocity_error_m_s
         if pushed:
             self.until_t_s = t_s + cfg.hold_s
         return self.active(t_s)
@@ -66,3 +67,13 @@ class PushMode:
         elif self.fast_cadence_until_t_s is not None and t_s >= self.fast_cadence_until_t_s:
             gait.retime(t_s, gait.nominal_period_s)
             self.fast_cadence_until_t_s = None
+
+
+def _planned_at(plan: Solution, t_s: float) -> np.ndarray:
+    """The plan's base velocity (v[:3]) at t_s: `interp_rows` at one time, in scalar arithmetic (every MPC step)."""
+    times = plan.t_s + plan.node_times_s
+    if len(times) < 2:
+        return plan.v[0, :3]
+    k = min(max(int(np.searchsorted(times, t_s)) - 1, 0), len(times) - 2)
+    w = min(max((t_s - times[k]) / max(times[k + 1] - times[k], 1e-12), 0.0), 1.0)
+    return (1 - w) * plan.v[k, :3] + w * plan.v[k + 1, :3]

@@ -9,6 +9,8 @@ On a terrain (`ReferenceConfig.terrain`) the base rides over its support and the
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -30,7 +32,8 @@ class References:
         self.robot = robot
         self.config = config
         self.gait = gait
-        self._difference = difference  # the MPC's buffered q (-) q over the nodes
+        self._difference = difference  # the MPC's buffered q (-) q_k over the nodes
+        self._nominal_targets = None  # q_nominal on every node, copied by each step's `targets`
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
@@ -73,37 +76,40 @@ class References:
         """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the
         commanded base velocity in world coordinates."""
         robot = self.robot
-        yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
         dt_since = 0.0 if self.last_t_s is None else max(0.0, t_s - self.last_t_s)
         self.last_t_s = t_s
         velocity_only = self.config.base_tracking == "velocity"
         if self.anchor_xy_m is None or velocity_only:
             self.anchor_xy_m, self.anchor_yaw_rad = q[:2].copy(), yaw
-        cos_y, sin_y = np.cos(self.anchor_yaw_rad), np.sin(self.anchor_yaw_rad)
-        heading = np.array([[cos_y, -sin_y, 0], [sin_y, cos_y, 0], [0, 0, 1]])
-        v_world = heading @ np.asarray(commands.base_velocity_m_s, dtype=float)
+        command = np.asarray(commands.base_velocity_m_s, dtype=float)
+        cos_y, sin_y = math.cos(self.anchor_yaw_rad), math.sin(self.anchor_yaw_rad)
+        v_world = np.array([cos_y * command[0] - sin_y * command[1], sin_y * command[0] + cos_y * command[1], command[2]])
         if not velocity_only:
             self.anchor_xy_m = self.anchor_xy_m + v_world[:2] * dt_since
             self.anchor_yaw_rad = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * dt_since
         offset = self.anchor_xy_m - q[:2]
-        if np.linalg.norm(offset) > MAX_ANCHOR_OFFSET_M:
-            self.anchor_xy_m = q[:2] + MAX_ANCHOR_OFFSET_M * offset / np.linalg.norm(offset)
-        targets = np.tile(robot.q_nominal, (len(node_times), 1))
+        distance = math.hypot(offset[0], offset[1])
+        if distance > MAX_ANCHOR_OFFSET_M:
+            self.anchor_xy_m = q[:2] + MAX_ANCHOR_OFFSET_M * offset / distance
+        if self._nominal_targets is None or len(self._nominal_targets) != len(node_times):
+            self._nominal_targets = np.tile(robot.q_nominal, (len(node_times), 1))
+        targets = self._nominal_targets.copy()
         if self._stance_reference is not None:
-            targets[:, 7:] += self._stance_reference.joint_offsets(
-                self.gait, t_s + node_times, np.asarray(commands.base_velocity_m_s, dtype=float),
-                commands.base_yaw_rate_rad_s)
-        targets[:, :2] = self.anchor_xy_m + np.outer(node_times, v_world[:2])
+            targets[:, 7:] += self._stance_reference.joint_offsets(self.gait, t_s + node_times, command,
+                                                                   commands.base_yaw_rate_rad_s)
+        targets[:, :2] = self.anchor_xy_m + node_times[:, None] * v_world[:2]  # (np.outer, without its Python)
         if commands.base_height_m is not None:
             targets[:, 2] = commands.base_height_m
         yaws = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * node_times
-        targets[:, 3:7] = np.column_stack([np.zeros_like(yaws), np.zeros_like(yaws), np.sin(yaws / 2), np.cos(yaws / 2)])
+        targets[:, 3:5] = 0.0
+        targets[:, 5], targets[:, 6] = np.sin(yaws / 2), np.cos(yaws / 2)
         if self.terrain is not None:  # height over the terrain's support, its pitch
             self.terrain.shape_base_targets(targets, yaws)
-        dq_des = self._difference(np.tile(q, (len(node_times), 1)).T, targets.T, shaped=True)[0].copy()
+        dq_des = self._difference(q, targets.T, shaped=True)[0].copy()
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
-        v_des[3:6] = rot.T @ np.array([0.0, 0.0, commands.base_yaw_rate_rad_s])
+        v_des[3:6] = commands.base_yaw_rate_rad_s * rot[2]  # rot.T (0, 0, yaw rate)
         return dq_des, v_des, v_world
 
     def sway(self, commands: Commands) -> float:

@@ -53,6 +53,26 @@ class ParameterPack:
     def vector(self) -> ca.SX:
         return ca.vertcat(*[ca.vec(s) for s in self._symbols.values()])
 
+    def block(self, name: str) -> slice:
+        """Where block `name` sits in p (its values column-major, as `pack` writes them)."""
+        return self._slices[name]
+
+    def write(self, p: np.ndarray, name: str, value) -> None:
+        """Block `name` of `p` set to `value` in place (as `pack` lays it out)."""
+        rows, cols = self._shapes[name]
+        value = np.asarray(value, dtype=float)
+        if value.size != rows * cols:
+            raise ConfigError(f"parameter '{name}' needs {(rows, cols)} values, got {value.shape}")
+        p[self._slices[name]] = value.ravel() if cols == 1 else value.reshape(rows, cols).ravel(order="F")
+
+    def template(self, constant: dict[str, np.ndarray]) -> np.ndarray:
+        """p with the `constant` blocks packed and every other block zero, for a caller that writes those each step
+        (`write`, or `block`'s slices on its hot path) instead of packing every block again."""
+        out = np.zeros(self._size)
+        for name, value in constant.items():
+            self.write(out, name, value)
+        return out
+
     def pack(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """Flat numeric p; matrices are stored column-major like casadi.vec."""
         out = np.empty(self._size)

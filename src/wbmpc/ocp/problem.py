@@ -63,6 +63,7 @@ import casadi as ca
 import numpy as np
 
 from wbmpc.errors import ConfigError
+from wbmpc.ocp.bounds_template import BoundsTemplate
 from wbmpc.ocp.formulations import Formulation, Node, make_formulation
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.objects import OBJECT_ROW_TAGS, ObjectModel
@@ -188,6 +189,8 @@ class OcpProblem:
         self._layout()
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
+        self._bounds_template: BoundsTemplate | None = None  # built at the first `bounds`
+        self._blend_decays: dict[str, np.ndarray] = {}  # `_blend_from_measurement`'s per row tag
 
     @property
     def nlp(self) -> dict:
@@ -613,123 +616,62 @@ class OcpProblem:
 
     # ------------------------------------------------------------------ per-step data
     def bounds(self, data: StageBounds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """lbx, ubx, lbg, ubg for one step (vectorised, no rebuild)."""
-        robot, N, nf = self.robot, self.N, self.n_feet
-        rows, row_nodes = self.rows, self.row_nodes  # (properties: read once)
-        lbx = np.full(self.n_variables, -INF)
-        ubx = np.full(self.n_variables, INF)
-        lbg = np.zeros(self.n_constraints)
-        ubg = np.zeros(self.n_constraints)
+        """lbx, ubx, lbg, ubg for one step: the constant and contact-dependent entries from `BoundsTemplate`
+        (one copy and one gather), then the measurement's."""
+        robot, nf = self.robot, self.n_feet
+        rows, idx = self.rows, self.idx  # (properties: read once)
+        if self._bounds_template is None:
+            self._bounds_template = BoundsTemplate(self)
         contact = np.asarray(data.contact, dtype=bool)
-        # eq. (8): joint position / velocity limits on nodes 1..N, torque limits on k < 3
+        buffer, lbx, ubx, lbg, ubg = self._bounds_template.start(contact, data.soft)
+        # eq. (8): joint position / velocity limits on nodes 1..N, torque limits on k < 3 (the template's)
         # The first nodes follow from the measurement (dq_1 = v_0 dt_0; velocities change only by
         # a dt): over the first EARLY_NODES nodes the limits are widened to contain the coasting
         # extrapolation of the measured state, or a state past a limit (e.g. after a push) would
         # make the whole OCP infeasible. Later nodes keep the true limits (eq. 8).
         early = slice(0, min(EARLY_NODES, self.N))
-        if "dq" in self.idx:
-            joint_dq = self.idx["dq"][1:, 6:]
+        if "dq" in idx:
+            joint_dq = idx["dq"][1:, 6:]
             q_joints = robot.joint_positions(data.q_ref)
             lbx[joint_dq] = robot.q_min - q_joints
             ubx[joint_dq] = robot.q_max - q_joints
             if "v" in self.state_names:  # Euler: dq_{k+1} = dq_k + v_k dt_k
-                coasting = np.outer(self.config.grid.node_times_s[1:], data.v0[6:])[early]
+                coasting = self.config.grid.node_times_s[1:][early, None] * data.v0[6:]
                 early_dq = joint_dq[early]
                 lbx[early_dq] = np.minimum(lbx[early_dq], np.minimum(coasting, 0.0) - 1e-6)
                 ubx[early_dq] = np.maximum(ubx[early_dq], np.maximum(coasting, 0.0) + 1e-6)
-        # joint velocities: states from node 1 on, inputs (velocity-level formulations) on every node
+        # joint velocities (states from node 1 on, inputs on every node) over the first nodes: the measured overspeed
         for name, columns in (("v", slice(6, None)), ("vj", slice(None))):
-            if name in self.idx:
-                joint_v = self.idx[name][1:, columns] if name in self.state_names else self.idx[name][:, columns]
-                lbx[joint_v] = -robot.v_max
-                ubx[joint_v] = robot.v_max
+            if name in idx:
+                joint_v = idx[name][1:, columns] if name in self.state_names else idx[name][:, columns]
                 overspeed = np.maximum(robot.v_max, np.abs(data.v0[6:]))
                 lbx[joint_v[early]] = -overspeed
                 ubx[joint_v[early]] = overspeed
         # velocity-level formulations: the first input's joint velocities are the measured ones (the
         # base velocity follows from the measured momentum), so the plan starts from the robot's motion
         for name, columns in (("v", slice(6, None)), ("vj", slice(None))):
-            if name in self.idx and name not in self.state_names:
-                lbx[self.idx[name][0, columns]] = data.v0[6:]
-                ubx[self.idx[name][0, columns]] = data.v0[6:]
-        slacks = self.slack_index
-        lbx[slacks] = 0.0
-        ubx[slacks] = INF if data.soft else 0.0
-        n_tau = self.config.n_torque_nodes
-        if "tau" in self.idx and not rows["torque_limit"].size:
-            lbx[self.idx["tau"][:n_tau]] = -robot.tau_max
-            ubx[self.idx["tau"][:n_tau]] = robot.tau_max
-        if rows["torque_limit"].size:  # the torque limits as (soft) rows
-            lbg[rows["torque_limit"]] = -1.0
-            ubg[rows["torque_limit"]] = 1.0
-        for tag in ("torque", "implied_torque"):  # estimated / implied torques, in their limits
-            if rows[tag].size:
-                lbg[rows[tag]] = -1.0
-                ubg[rows[tag]] = 1.0
-        # eq. (6) forces: stance F_z >= 0, swing F = 0; eq. (7): arm force fixed to the command
-        if "F" in self.idx:
-            feet_f = self.idx["F"][:, : 3 * nf].reshape(N, nf, 3)
-            stance = contact[:N]
-            lbx[feet_f[..., 2]] = 0.0
-            ubx[feet_f] = np.where(stance[..., None], INF, 0.0)
-            lbx[feet_f[..., :2]] = np.where(stance[..., None], -INF, 0.0)
-            for i in self.surface_feet:  # a flat foot's moments: free in stance (wrench cone rows), zero in swing
-                moments = self.idx["F"][:, self.dyn.moment_slice(i)]
-                lbx[moments] = np.where(stance[:, i : i + 1], -INF, 0.0)
-                ubx[moments] = np.where(stance[:, i : i + 1], INF, 0.0)
-            if self.has_arm:
-                arm_f = self.idx["F"][:, 3 * nf : 3 * nf + 3]
-                force = np.zeros(3) if data.ee_force_on_robot_n is None else data.ee_force_on_robot_n
-                lower, upper = (force, force) if self.object is None else self.object.arm_force_bounds()
-                lbx[arm_f] = lower
-                ubx[arm_f] = upper
+            if name in idx and name not in self.state_names:
+                lbx[idx[name][0, columns]] = data.v0[6:]
+                ubx[idx[name][0, columns]] = data.v0[6:]
+        # eq. (6) forces (the template's: stance F_z >= 0, swing F = 0); eq. (7): arm force fixed to the command
+        if "F" in idx and self.has_arm:
+            arm_f = idx["F"][:, 3 * nf : 3 * nf + 3]
+            force = np.zeros(3) if data.ee_force_on_robot_n is None else data.ee_force_on_robot_n
+            lower, upper = (force, force) if self.object is None else self.object.arm_force_bounds()
+            lbx[arm_f] = lower
+            ubx[arm_f] = upper
         # node 0 = measured state
         x0 = self.initial_state(data.q_ref, data.v0, data.object_state)
         lbg[rows["x0"][0]] = x0
         ubg[rows["x0"][0]] = x0
-        # eq. (6) foot velocities on nodes 1..N: stance 0, swing v_z = reference, v_xy free
-        foot_nodes = row_nodes["foot_vel"]
-        foot_rows = rows["foot_vel"].reshape(len(foot_nodes), nf, 3)
-        swing = ~contact[foot_nodes]
-        vz = np.where(swing, data.swing_vz_m_s[foot_nodes], 0.0)
-        lbg[foot_rows[..., 2]] = vz
-        ubg[foot_rows[..., 2]] = vz
-        lbg[foot_rows[..., :2]] = np.where(swing[..., None], -INF, 0.0)
-        ubg[foot_rows[..., :2]] = np.where(swing[..., None], INF, 0.0)
-        if data.swing_vxy_m_s is not None:  # swing feet carried to their placement
-            vxy = np.asarray(data.swing_vxy_m_s, dtype=float)[foot_nodes]
-            placed = swing[..., None] & np.isfinite(vxy)
-            lbg[foot_rows[..., :2][placed]] = vxy[placed]
-            ubg[foot_rows[..., :2][placed]] = vxy[placed]
-        if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
-            stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
-            self._blend_from_measurement(lbg, ubg, foot_rows[stance], foot_nodes, np.zeros((1, nf, 3)),
-                                         np.asarray(data.foot_velocity_m_s)[None], stance)
-        if self.surface_feet:  # flat feet: no rotation in stance, roll and pitch rates zero in swing
-            ang_rows = rows["foot_ang"].reshape(len(row_nodes["foot_ang"]), len(self.surface_feet), 3)
-            swing_ang = ~contact[row_nodes["foot_ang"]][:, self.surface_feet]
-            lbg[ang_rows] = 0.0
-            ubg[ang_rows] = 0.0
-            lbg[ang_rows[..., 2]] = np.where(swing_ang, -INF, 0.0)
-            ubg[ang_rows[..., 2]] = np.where(swing_ang, INF, 0.0)
-            if data.swing_yaw_rate_rad_s is not None:  # swing soles turned to their landing heading
-                yaw_rate = np.asarray(data.swing_yaw_rate_rad_s, dtype=float)[self.row_nodes["foot_ang"]]
-                yaw_rate = yaw_rate[:, self.surface_feet]
-                turned = swing_ang & np.isfinite(yaw_rate)
-                lbg[ang_rows[..., 2][turned]] = yaw_rate[turned] - SWING_YAW_RATE_BAND_RAD_S
-                ubg[ang_rows[..., 2][turned]] = yaw_rate[turned] + SWING_YAW_RATE_BAND_RAD_S
-            if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
-                stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
-                measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
-                self._blend_from_measurement(lbg, ubg, ang_rows[stance_ang], row_nodes["foot_ang"],
-                                             np.zeros((1, len(self.surface_feet), 3)), measured[None], stance_ang)
-        if self.has_arm:
+        self._foot_bounds(lbg, ubg, data, contact)
+        if self.has_arm and "ee_vel" not in data.relaxed_rows:  # (relaxed rows are free whatever they held)
             velocity = np.zeros(3) if data.ee_velocity_m_s is None else data.ee_velocity_m_s
             lbg[rows["ee_vel"]] = velocity
             ubg[rows["ee_vel"]] = velocity
             if data.ee_velocity_measured_m_s is not None:
                 ee_rows = rows["ee_vel"]
-                self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), row_nodes["ee_vel"], velocity[None],
+                self._blend_from_measurement(lbg, ubg, ee_rows.ravel(), "ee_vel", velocity[None],
                                              np.asarray(data.ee_velocity_measured_m_s)[None])
         if self.collision is not None:
             self._collision_bounds(lbg, ubg, data)
@@ -740,15 +682,44 @@ class OcpProblem:
                 raise ConfigError(f"relaxed_rows: only ee_vel and foot_vel rows can be relaxed, got {tag!r}")
             lbg[rows[tag]] = -INF
             ubg[rows[tag]] = INF
-        # friction cone: active in stance, free in swing
-        if rows["cone"].size:
-            ubg[rows["cone"]] = INF
-            lbg[rows["cone"]] = np.where(contact[:N][:, self.point_feet], 0.0, -INF)
-        if rows["wrench_cone"].size:
-            wrench_rows = rows["wrench_cone"].reshape(N, len(self.surface_feet), WRENCH_CONE_ROWS)
-            ubg[wrench_rows] = INF
-            lbg[wrench_rows] = np.where(contact[:N][:, self.surface_feet, None], 0.0, -INF)
-        return lbx / self.x_scale, ubx / self.x_scale, lbg, ubg
+        # friction cones: the template's (active in stance, free in swing)
+        return self._bounds_template.finish(buffer)
+
+    def _foot_bounds(self, lbg, ubg, data: StageBounds, contact: np.ndarray) -> None:
+        """Eq. (6) foot velocities on nodes 1..N: stance 0, swing v_z = reference, v_xy free (the template's) or
+        carried to a placement; flat feet: no rotation in stance, roll and pitch rates zero in swing (the template's),
+        yaw to a landing heading; stance feet measured moving blend from the measurement."""
+        rows, row_nodes, nf = self.rows, self.row_nodes, self.n_feet
+        foot_nodes = row_nodes["foot_vel"]
+        foot_rows = rows["foot_vel"].reshape(len(foot_nodes), nf, 3)
+        swing = ~contact[foot_nodes]
+        vz = np.where(swing, data.swing_vz_m_s[foot_nodes], 0.0)
+        lbg[foot_rows[..., 2]] = vz
+        ubg[foot_rows[..., 2]] = vz
+        if data.swing_vxy_m_s is not None:  # swing feet carried to their placement
+            vxy = np.asarray(data.swing_vxy_m_s, dtype=float)[foot_nodes]
+            placed = swing[..., None] & np.isfinite(vxy)
+            lbg[foot_rows[..., :2][placed]] = vxy[placed]
+            ubg[foot_rows[..., :2][placed]] = vxy[placed]
+        if data.foot_velocity_m_s is not None:  # stance feet measured sliding (right after a push)
+            stance = np.broadcast_to(~swing[..., None], foot_rows.shape)
+            self._blend_from_measurement(lbg, ubg, foot_rows[stance], "foot_vel", np.zeros((1, nf, 3)),
+                                         np.asarray(data.foot_velocity_m_s)[None], stance)
+        if not self.surface_feet:
+            return
+        ang_rows = rows["foot_ang"].reshape(len(row_nodes["foot_ang"]), len(self.surface_feet), 3)
+        swing_ang = ~contact[row_nodes["foot_ang"]][:, self.surface_feet]
+        if data.swing_yaw_rate_rad_s is not None:  # swing soles turned to their landing heading
+            yaw_rate = np.asarray(data.swing_yaw_rate_rad_s, dtype=float)[row_nodes["foot_ang"]]
+            yaw_rate = yaw_rate[:, self.surface_feet]
+            turned = swing_ang & np.isfinite(yaw_rate)
+            lbg[ang_rows[..., 2][turned]] = yaw_rate[turned] - SWING_YAW_RATE_BAND_RAD_S
+            ubg[ang_rows[..., 2][turned]] = yaw_rate[turned] + SWING_YAW_RATE_BAND_RAD_S
+        if data.foot_angular_velocity_rad_s is not None:  # stance soles measured rotating (after a push)
+            stance_ang = np.broadcast_to(~swing_ang[..., None], ang_rows.shape)
+            measured = np.asarray(data.foot_angular_velocity_rad_s)[self.surface_feet]
+            self._blend_from_measurement(lbg, ubg, ang_rows[stance_ang], "foot_ang",
+                                         np.zeros((1, len(self.surface_feet), 3)), measured[None], stance_ang)
 
     def _object_bounds(self, lbg, ubg, data: StageBounds) -> None:
         """Object rows: dynamics = 0, cone >= 0 (no force while the hand is still planned off the object), contact
@@ -793,7 +764,7 @@ class OcpProblem:
         lbg[rows] = lower
         ubg[rows] = INF
 
-    def _blend_from_measurement(self, lbg, ubg, rows, nodes, target, measured, mask=None) -> None:
+    def _blend_from_measurement(self, lbg, ubg, rows, tag: str, target, measured, mask=None) -> None:
         """Move the targets of equality rows "velocity = target" on the first nodes onto the path that
         goes linearly from the measured velocity to the target over BLEND_TIME_S.
 
@@ -802,9 +773,13 @@ class OcpProblem:
         torque limits; requiring it makes the OCP infeasible. The rows stay equalities (Fatrop's
         stage structure is unchanged) and later nodes keep eqs. (6)-(7) exactly.
         """
-        decay = np.minimum(np.maximum(1.0 - self.config.grid.node_times_s[nodes] / BLEND_TIME_S, 0.0), 1.0)
-        shape = (len(nodes),) + np.shape(target)[1:]
-        path = np.broadcast_to(target + decay.reshape((-1,) + (1,) * (len(shape) - 1)) * (measured - target), shape)
+        decay = self._blend_decays.get(tag)
+        if decay is None:  # per row tag, its nodes' share of the way left (constant: computed on first use)
+            nodes = self.row_nodes[tag]
+            decay = np.minimum(np.maximum(1.0 - self.config.grid.node_times_s[nodes] / BLEND_TIME_S, 0.0), 1.0)
+            decay = self._blend_decays[tag] = decay.reshape((-1,) + (1,) * (np.ndim(target) - 1))
+        shape = (len(decay),) + np.shape(target)[1:]
+        path = np.broadcast_to(target + decay * (measured - target), shape)
         path = (path[mask] if mask is not None else path).ravel()
         lbg[rows] = path
         ubg[rows] = path

@@ -245,8 +245,22 @@ def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConf
     generator = ca.CodeGenerator("wbmpc_nlp.c", {"with_header": False})
     for function in functions:
         generator.add(function)
-    code = generator.dump()
-    generate_s = time.perf_counter() - start
+    return _build(generator.dump(), f"{problem.config.formulation}_{solver}", config, time.perf_counter() - start)
+
+
+def compile_functions(functions: list[ca.Function], stem: str, config: CodegenConfig = CodegenConfig()
+                      ) -> CompileReport:
+    """Other functions evaluated every MPC step (not the NLP's: e.g. the MPC's plan unpacking) compiled into one
+    cached library named `stem`_<key>.so, as `compile_nlp` does; load them with `casadi.external(name, library)`."""
+    start = time.perf_counter()
+    generator = ca.CodeGenerator(f"{stem}.c", {"with_header": False})
+    for function in functions:
+        generator.add(function)
+    return _build(generator.dump(), stem, config, time.perf_counter() - start)
+
+
+def _build(code: str, stem: str, config: CodegenConfig, generate_s: float) -> CompileReport:
+    """The library of this generated C from the cache, compiled into it first where it is not there yet."""
     source_mb = len(code) / 1e6
     config = for_source(config, source_mb)
     key = cache_key(code, config)
@@ -255,7 +269,7 @@ def compile_nlp(problem: OcpProblem, solver: str = "fatrop", config: CodegenConf
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CompileError(f"cannot create the cache directory {cache}: {exc.strerror}; set WBMPC_CACHE_DIR") from exc
-    stem = f"{problem.config.formulation}_{solver}_{key}"
+    stem = f"{stem}_{key}"
     library = cache / f"{stem}.so"
     if library.exists():
         return CompileReport(library, cached=True, source_mb=source_mb, generate_s=generate_s)

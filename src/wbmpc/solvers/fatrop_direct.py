@@ -410,8 +410,9 @@ def _time_split_ms(stats: np.ndarray, elapsed_s: float) -> dict:
     """The solve's time split in `nlp.time_split_ms`'s parts: functions (the generated code, timed by the
     shim), linear algebra, initialization, interface (Fatrop's evaluation timers beyond the functions:
     packing into BLASFEO), the rest inside Fatrop, and outside the solver (Python, ctypes, unpacking)."""
-    total, search_dir, init, callbacks, functions = (1e3 * float(v) for v in (stats[2], stats[3], stats[4],
-                                                                            np.sum(stats[5:10]), stats[10]))
+    values = stats[2:11].tolist()  # Python floats: the arithmetic below without NumPy scalars (every MPC step)
+    total, search_dir, init, functions = 1e3 * values[0], 1e3 * values[1], 1e3 * values[2], 1e3 * values[8]
+    callbacks = 1e3 * sum(values[3:8])
     return {"functions": functions, "linear_algebra": search_dir, "initialization": init,
             "interface": max(callbacks - functions, 0.0),
             "line_search_and_rest": max(total - search_dir - init - max(callbacks, functions), 0.0),
