@@ -187,15 +187,16 @@ def test_each_pattern_of_fixed_inputs_has_its_hpipm_instance(qp_data):
 
 
 def test_the_rti_leaves_fixed_inputs_out_and_takes_the_same_step(qp_data):
-    """RtiSolver's default QP eliminates; `qp_eliminate_fixed=False` keeps them: the same RTI steps (QPs solved to 1e-9;
-    at the RTI's own QP tolerance, 1e-4, they differ by up to 4e-4)."""
+    """RtiSolver's default QP eliminates; `qp_eliminate_fixed=False` keeps them: the same RTI steps (QPs solved to 1e-8;
+    at the RTI's own QP tolerance, 1e-4, they differ by up to 4e-4; at 1e-9 the full QP of the second step sits at
+    HPIPM's limits, a round-off change in its data sent it to max iterations)."""
     problem, _ = qp_data
     robot = load_robot("go2")
     steps = []
     for eliminate in (True, False):
         mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
                                    solver=SolverConfig(name="rti", extra_options={
-                                       "qp_eliminate_fixed": eliminate, "qp_tolerance": 1e-9, "qp_mode": "balance"})))
+                                       "qp_eliminate_fixed": eliminate, "qp_tolerance": 1e-8, "qp_mode": "balance"})))
         if mpc.solver.direct_error is not None:
             pytest.skip(f"no HPIPM binding here: {mpc.solver.direct_error}")
         assert mpc.solver.qp.config.eliminate_fixed is eliminate
