@@ -12,7 +12,8 @@ KKT point (tests/solvers/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s
 small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `csrc/fatrop_driver.cpp`):
 a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
 instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT
-factorisation; `extra_options={"warm_duals": False}` turns it off) and a time limit per call
+factorisation; `extra_options={"warm_duals": False}` turns it off; on flat feet the MPC hands the last plan's
+multipliers moved by constraint identity instead, `takes_multipliers`) and a time limit per call
 (`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
 Its own tolerances for MPC steps (`MPC_TOLERANCE`, `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps
@@ -57,6 +58,11 @@ NAME = "fatrop-direct"
 # digits (drift, base velocity RMSE, EE RMSE); 1e-2 / 1e-3 (2.08 iterations) moved arm-track's 4th digit
 MPC_TOLERANCE = 1e-3
 MPC_CONSTRAINT_TOLERANCE = 1e-4
+# the warm attempt from given multipliers (`takes_multipliers`): its barrier and iteration cap. g1 walking in place
+# (replayed steps, this step's own solution's multipliers at the shifted primal start): 2.97 iterations from 1e-4,
+# 3.03 from 1e-5 but 22-31 on the steps whose reduced Hessian needs regularisation, 4.8 from 1e-3
+MULTIPLIER_BARRIER_INIT = 1e-4
+MULTIPLIER_MAX_ITERATIONS = 12
 _N_STATS = 13
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
@@ -82,7 +88,8 @@ class _Library:
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
         lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
-        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int]
+        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
+                                                           ctypes.c_double]
         lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
         lib.wbd_fatrop_kernels.restype = ctypes.c_int
         lib.wb_warm_up.argtypes = [ctypes.c_void_p]
@@ -172,6 +179,7 @@ class FatropDirectSolver:
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
+        self._set_multiplier_start(config, problem)
         defaults = SolverConfig()
         own = config.extra_options.get("mpc_tolerances", True) and \
             (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
@@ -184,6 +192,16 @@ class FatropDirectSolver:
         if self.threads not in lib.warmed_up:
             lib.lib.wb_warm_up(self._ctx)
             lib.warmed_up.add(self.threads)
+
+    def _set_multiplier_start(self, config: SolverConfig, problem: OcpProblem) -> None:
+        """The MPC's warm starts give the last plan's multipliers moved by constraint identity (ocp/multipliers.py),
+        used instead of this Fatrop instance's by position (a stage's rows change places with the contacts): on flat
+        feet by default (`extra_options["shifted_multipliers"]`), from `multiplier_barrier_init` for at most
+        `multiplier_max_iterations` (the warm attempt's)."""
+        options = config.extra_options
+        self.takes_multipliers = bool(options.get("shifted_multipliers", bool(problem.surface_feet)))
+        self.multiplier_barrier_init = float(options.get("multiplier_barrier_init", MULTIPLIER_BARRIER_INIT))
+        self.multiplier_max_iterations = int(options.get("multiplier_max_iterations", MULTIPLIER_MAX_ITERATIONS))
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property
@@ -298,8 +316,11 @@ class FatropDirectSolver:
         if self._warm_pause > 0:
             self._warm_pause -= 1
             return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
-        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.warm_barrier_init, min(cfg.warm_max_iterations, cap),
-                              deadline, warm_duals=True)
+        given = (lam_g0, lam_x0) if self.takes_multipliers and lam_g0 is not None and lam_x0 is not None else None
+        mu_warm, cap_warm = (cfg.warm_barrier_init, cfg.warm_max_iterations) if given is None else \
+            (self.multiplier_barrier_init, self.multiplier_max_iterations)
+        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, mu_warm, min(cap_warm, cap), deadline, warm_duals=True,
+                              given=given)
         if attempt.stats.success or attempt.stats.status == "time_limit_reached":
             self._warm_failures = 0 if attempt.stats.success else self._warm_failures
             return attempt
@@ -312,7 +333,7 @@ class FatropDirectSolver:
         stats.cpu_time_s += attempt.stats.cpu_time_s
         stats.split_ms = {k: stats.split_ms.get(k, 0.0) + attempt.stats.split_ms.get(k, 0.0)
                           for k in {**stats.split_ms, **attempt.stats.split_ms}}
-        stats.status = f"{stats.status} (after mu_init {cfg.warm_barrier_init:g}: {attempt.stats.status})"
+        stats.status = f"{stats.status} (after mu_init {mu_warm:g}: {attempt.stats.status})"
         return result
 
     # ---------------------------------------------------------------- internals
@@ -349,7 +370,7 @@ class FatropDirectSolver:
                                   "['fatrop']): check its name and type, e.g. 1e-2 rather than 1 for a real")
 
     def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
-               deadline: float | None = None, warm_duals: bool = False) -> NlpResult:
+               deadline: float | None = None, warm_duals: bool = False, given=None) -> NlpResult:
         problem = self.problem
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
@@ -363,9 +384,12 @@ class FatropDirectSolver:
         # the driver maps the stored multipliers position by position within each stage: where a gait switch
         # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
         # requiring the same rows halved the warm starts used and cost 0.5-1 ms CPU per step on average)
-        warm_duals = warm_duals and self.warm_duals
+        warm = int(warm_duals and self.warm_duals)
+        if given is not None:
+            given = _f64(given[0]), _f64(given[1])
+            warm = 2
         budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
-        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, int(warm_duals))
+        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, warm, given)
         elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
         if code in (-4, -1, -2):
             return failed_result(problem, x0, {
@@ -382,7 +406,8 @@ class FatropDirectSolver:
             max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
             split_ms=_time_split_ms(stats, elapsed)))
 
-    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int) -> int:
+    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int,
+              given=None) -> int:
         """wb_solve on the last step's Fatrop instance first (the shim classifies the rows anyway and refuses, -2,
         another structure without solving, so the row-count key is computed only then: 0.08 ms a step otherwise),
         else on the instance of this structure; results into the preallocated outputs."""
@@ -398,7 +423,8 @@ class FatropDirectSolver:
             # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler)
             code = lib.wb_solve(self._ctx, solver, self._out_addresses[0], lbx.ctypes.data, ubx.ctypes.data,
                                 lbg.ctypes.data, ubg.ctypes.data, x0.ctypes.data, *self._out_addresses[1:],
-                                budget_s, warm)
+                                budget_s, warm, *((given[0].ctypes.data, given[1].ctypes.data) if given else (None, None)),
+                                mu_init)
             if code != -2 or attempt:
                 break
             solver = self._solver_for(lbx, ubx, lbg, ubg)
