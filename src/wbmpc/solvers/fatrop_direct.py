@@ -16,8 +16,8 @@ factorisation; `extra_options={"warm_duals": False}` turns it off; on flat feet 
 multipliers moved by constraint identity instead, `takes_multipliers`) and a time limit per call
 (`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
-Its own tolerances for MPC steps (`MPC_TOLERANCE`, `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps
-its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
+Its own tolerances for MPC steps (`MPC_TOLERANCE` or on flat feet `FLAT_FEET_MPC_TOLERANCE`,
+`MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
 `extra_options={"fatrop_kernels": False}` leaves Fatrop's own).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
@@ -58,10 +58,17 @@ NAME = "fatrop-direct"
 # digits (drift, base velocity RMSE, EE RMSE); 1e-2 / 1e-3 (2.08 iterations) moved arm-track's 4th digit
 MPC_TOLERANCE = 1e-3
 MPC_CONSTRAINT_TOLERANCE = 1e-4
-# the warm attempt from given multipliers (`takes_multipliers`): its barrier and iteration cap. g1 walking in place
-# (replayed steps, this step's own solution's multipliers at the shifted primal start): 2.97 iterations from 1e-4,
-# 3.03 from 1e-5 but 22-31 on the steps whose reduced Hessian needs regularisation, 4.8 from 1e-3
-MULTIPLIER_BARRIER_INIT = 1e-4
+# Flat feet's KKT tolerance (the constraint tolerance stays): a biped's plan keeps a sole's centre-of-pressure row
+# active over single stance (g1 walking in place: the lateral edge at nearly every stance node), and reaching 1e-3
+# means driving the barrier below 1e-3 around that active set, 2-3 more iterations per step. At 1e-2 a plan stops
+# with the barrier at its start value: its active rows then sit mu / z inside their bound (< 1e-3 of the force
+# scale, ~0.1 N on g1). g1 walk-in-place (compiled, 2 s, plant waiting): 9.22 -> 5.41 iterations per step with the
+# warm start below, drift 0.351 / 0.345 cm/s and base velocity RMSE 0.0187 / 0.0185 m/s
+FLAT_FEET_MPC_TOLERANCE = 1e-2
+# the warm attempt from given multipliers (`takes_multipliers`): its barrier and iteration cap. g1 walk-in-place,
+# 2 s at FLAT_FEET_MPC_TOLERANCE: 5.94 iterations per step from 1e-3, 5.41 from 3e-3, 6.98 from 1e-2 (Fatrop's own
+# start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98)
+MULTIPLIER_BARRIER_INIT = 3e-3
 MULTIPLIER_MAX_ITERATIONS = 12
 _N_STATS = 13
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
@@ -183,7 +190,8 @@ class FatropDirectSolver:
         defaults = SolverConfig()
         own = config.extra_options.get("mpc_tolerances", True) and \
             (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
-        self.tolerance = MPC_TOLERANCE if own else config.tolerance
+        mpc_tolerance = FLAT_FEET_MPC_TOLERANCE if problem.surface_feet else MPC_TOLERANCE
+        self.tolerance = mpc_tolerance if own else config.tolerance
         self.constraint_tolerance = MPC_CONSTRAINT_TOLERANCE if own else config.constraint_tolerance
         # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp; process-wide, same iterates)
         self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
