@@ -13,7 +13,7 @@ from wbmpc.robots import load_robot
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
-from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+from wbmpc.solvers.fatrop_direct import FatropDirectSolver, mpc_tolerances, multiplier_start
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
 
 TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
@@ -173,10 +173,11 @@ def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
 
 def test_given_multipliers_restart_a_solution(direct, step_data, codegen, problem):
     """Multipliers in the NLP's layout handed to the shim (`takes_multipliers`) land on their own rows: a solution's
-    own multipliers restart it at its primal in at most two iterations, fewer than from zeros or from the negated
-    ones (a row's multiplier on another row, or of the wrong sign, is a worse start)."""
+    own multipliers restart it at its primal (from a barrier below the tolerance) in at most two iterations, fewer
+    than from zeros or from the negated ones (a row's multiplier on another row, or of the wrong sign, is a worse
+    start)."""
     solver = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, extra_options={
-        "shifted_multipliers": True, "mpc_tolerances": False}))
+        "shifted_multipliers": True, "mpc_tolerances": False, "multiplier_barrier_init": 1e-4}))
     assert solver.takes_multipliers and not direct.takes_multipliers  # go2's point feet: off by default
     data = step_data
     solution = solver.solve(**data)
@@ -232,6 +233,29 @@ def test_mpc_tolerances(robot, problem, codegen):
     assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
     kept = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-6))
     assert (kept.tolerance, kept.constraint_tolerance) == (1e-6, SolverConfig().constraint_tolerance)
+
+
+def test_flat_feet_defaults():
+    """Flat feet: the KKT tolerance FLAT_FEET_MPC_TOLERANCE and warm attempts from the MPC's multipliers; point feet
+    keep MPC_TOLERANCE and the instance's multipliers; set values win."""
+    from wbmpc.solvers.fatrop_direct import (
+        FLAT_FEET_MPC_TOLERANCE,
+        MPC_CONSTRAINT_TOLERANCE,
+        MPC_TOLERANCE,
+        MULTIPLIER_BARRIER_INIT,
+        MULTIPLIER_MAX_ITERATIONS,
+    )
+
+    config = SolverConfig(name="fatrop-direct")
+    assert mpc_tolerances(config, flat_feet=True) == (FLAT_FEET_MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE) == (1e-2, 1e-4)
+    assert mpc_tolerances(config, flat_feet=False) == (MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE) == (1e-3, 1e-4)
+    assert mpc_tolerances(replace(config, tolerance=1e-6), flat_feet=True) == (1e-6, SolverConfig().constraint_tolerance)
+    assert mpc_tolerances(replace(config, extra_options={"mpc_tolerances": False}), flat_feet=True) == (1e-4, 1e-6)
+    assert multiplier_start(config, flat_feet=True) == (True, MULTIPLIER_BARRIER_INIT, MULTIPLIER_MAX_ITERATIONS)
+    assert not multiplier_start(config, flat_feet=False)[0]
+    assert multiplier_start(replace(config, extra_options={"shifted_multipliers": False, "multiplier_barrier_init": 1e-4,
+                                                           "multiplier_max_iterations": 5}), flat_feet=True) == \
+        (False, 1e-4, 5)
 
 
 def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):

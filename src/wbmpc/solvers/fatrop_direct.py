@@ -130,6 +130,27 @@ def default_threads() -> int:
     return min(2, max(cores, 1))
 
 
+def mpc_tolerances(config: SolverConfig, flat_feet: bool) -> tuple[float, float]:
+    """(KKT, constraint) tolerances of the binding: its MPC ones (flat feet: FLAT_FEET_MPC_TOLERANCE) while
+    SolverConfig keeps its defaults and `extra_options["mpc_tolerances"]` is not False, else SolverConfig's."""
+    defaults = SolverConfig()
+    own = config.extra_options.get("mpc_tolerances", True) and \
+        (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
+    if not own:
+        return config.tolerance, config.constraint_tolerance
+    return FLAT_FEET_MPC_TOLERANCE if flat_feet else MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE
+
+
+def multiplier_start(config: SolverConfig, flat_feet: bool) -> tuple[bool, float, int]:
+    """Whether warm attempts start from the multipliers the MPC gives (`extra_options["shifted_multipliers"]`, by
+    default on flat feet), and that attempt's barrier and iteration cap (`multiplier_barrier_init`,
+    `multiplier_max_iterations`)."""
+    options = config.extra_options
+    return (bool(options.get("shifted_multipliers", flat_feet)),
+            float(options.get("multiplier_barrier_init", MULTIPLIER_BARRIER_INIT)),
+            int(options.get("multiplier_max_iterations", MULTIPLIER_MAX_ITERATIONS)))
+
+
 def _ptr(array: np.ndarray):
     return array.ctypes.data_as(_DOUBLE_P)
 
@@ -186,13 +207,11 @@ class FatropDirectSolver:
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
-        self._set_multiplier_start(config, problem)
-        defaults = SolverConfig()
-        own = config.extra_options.get("mpc_tolerances", True) and \
-            (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
-        mpc_tolerance = FLAT_FEET_MPC_TOLERANCE if problem.surface_feet else MPC_TOLERANCE
-        self.tolerance = mpc_tolerance if own else config.tolerance
-        self.constraint_tolerance = MPC_CONSTRAINT_TOLERANCE if own else config.constraint_tolerance
+        # warm attempts from the multipliers the MPC moves by constraint identity (ocp/multipliers.py) instead of this
+        # instance's by position (a stage's rows change places with the contacts): on flat feet by default
+        self.takes_multipliers, self.multiplier_barrier_init, self.multiplier_max_iterations = \
+            multiplier_start(config, bool(problem.surface_feet))
+        self.tolerance, self.constraint_tolerance = mpc_tolerances(config, bool(problem.surface_feet))
         # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp; process-wide, same iterates)
         self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
         # the first step's one-off costs now, before any clock runs (b1_z1, fresh processes on a loaded machine: first
@@ -200,16 +219,6 @@ class FatropDirectSolver:
         if self.threads not in lib.warmed_up:
             lib.lib.wb_warm_up(self._ctx)
             lib.warmed_up.add(self.threads)
-
-    def _set_multiplier_start(self, config: SolverConfig, problem: OcpProblem) -> None:
-        """The MPC's warm starts give the last plan's multipliers moved by constraint identity (ocp/multipliers.py),
-        used instead of this Fatrop instance's by position (a stage's rows change places with the contacts): on flat
-        feet by default (`extra_options["shifted_multipliers"]`), from `multiplier_barrier_init` for at most
-        `multiplier_max_iterations` (the warm attempt's)."""
-        options = config.extra_options
-        self.takes_multipliers = bool(options.get("shifted_multipliers", bool(problem.surface_feet)))
-        self.multiplier_barrier_init = float(options.get("multiplier_barrier_init", MULTIPLIER_BARRIER_INIT))
-        self.multiplier_max_iterations = int(options.get("multiplier_max_iterations", MULTIPLIER_MAX_ITERATIONS))
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property
