@@ -185,11 +185,24 @@ def test_given_multipliers_restart_a_solution(direct, step_data, codegen, proble
     bounds = (data["p"], data["lbx"], data["ubx"], data["lbg"], data["ubg"])
     iterations = {}
     for name, sign in (("own", 1.0), ("zeros", 0.0), ("negated", -1.0)):
-        restart = solver.solve(*bounds, solution.x, sign * solution.lam_g, sign * solution.lam_x, warm_start=True)
+        restart = solver.recreated().solve(*bounds, solution.x, sign * solution.lam_g, sign * solution.lam_x,
+                                           warm_start=True)
         assert restart.stats.success, (name, restart.stats)
         np.testing.assert_allclose(restart.x, solution.x, atol=1e-3)
         iterations[name] = restart.stats.iterations
     assert iterations["own"] <= 2 and iterations["own"] < min(iterations["zeros"], iterations["negated"]), iterations
+    # a warm step that converged within QUIET_ITERATIONS (a plan standing still) hands the next one to the instance's
+    # multipliers; a longer one keeps the given ones
+    steps = solver.recreated()
+    steps.solve(*bounds, solution.x, solution.lam_g, solution.lam_x, warm_start=True)
+    assert steps.last_start == "given"
+    steps.solve(*bounds, solution.x, solution.lam_g, solution.lam_x, warm_start=True)
+    assert steps.last_start == "instance"
+    steps = solver.recreated()
+    far = steps.solve(*bounds, data["x0"], solution.lam_g, solution.lam_x, warm_start=True)  # from the MPC's guess
+    assert steps.last_start == "given" and far.stats.success and far.stats.iterations > 2, far.stats
+    steps.solve(*bounds, data["x0"], solution.lam_g, solution.lam_x, warm_start=True)
+    assert steps.last_start == "given"
 
 
 def test_the_mpc_hands_its_shifted_multipliers_to_a_solver_that_takes_them(robot, problem, codegen):

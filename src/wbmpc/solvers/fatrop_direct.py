@@ -70,6 +70,10 @@ FLAT_FEET_MPC_TOLERANCE = 1e-2
 # start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98)
 MULTIPLIER_BARRIER_INIT = 3e-3
 MULTIPLIER_MAX_ITERATIONS = 12
+# after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
+# starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
+# g1 standing 2 s 1.71 -> 1.01 iterations per step; walking never gets there (5.41 either way)
+QUIET_ITERATIONS = 2
 _N_STATS = 13
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
@@ -195,6 +199,8 @@ class FatropDirectSolver:
         self._input_vars = np.concatenate([np.arange(inputs.start, inputs.stop) for _, inputs in problem.stage_slices])
         self._input_starts = np.concatenate([[0], np.cumsum([i.stop - i.start for _, i in problem.stage_slices])])
         self._warm_pause = 0
+        self._quiet = False  # the last warm attempt converged within QUIET_ITERATIONS
+        self.last_start = "cold"  # the last call's first attempt: "cold", "instance" or "given" multipliers
         self._warm_failures = 0
         self._stage_p = np.zeros(lib.p_index.shape)
         # x, lam_g, lam_x and the stats of the last call, written by the shim (results are copies of them)
@@ -318,8 +324,8 @@ class FatropDirectSolver:
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
               max_iterations: int | None = None, time_limit_s: float | None = None) -> NlpResult:
-        """Solve from x0 (lam_g0 / lam_x0 are accepted and, like casadi's Fatrop, not used). `warm_start`:
-        first the small-barrier attempt (`SolverConfig.warm_barrier_init`). `max_iterations` caps this call;
+        """Solve from x0. `warm_start`: first the small-barrier attempt (`SolverConfig.warm_barrier_init`), or with
+        `takes_multipliers` one from lam_g0 / lam_x0 (the last plan's, moved by the MPC; not used otherwise). `max_iterations` caps this call;
         `time_limit_s` (default `SolverConfig.time_limit_s`) stops it at the first evaluation after that
         long, returning the last accepted iterate with status `time_limit_reached` (not a success)."""
         if self._fallback is not None:
@@ -328,21 +334,27 @@ class FatropDirectSolver:
         cap = cfg.max_iterations if max_iterations is None else max_iterations
         limit = cfg.time_limit_s if time_limit_s is None else time_limit_s
         deadline = time.perf_counter() + limit if limit else None
+        self.last_start = "cold"
         if not warm_start or cfg.warm_barrier_init is None:
             return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         if self._warm_pause > 0:
             self._warm_pause -= 1
             return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
-        given = (lam_g0, lam_x0) if self.takes_multipliers and lam_g0 is not None and lam_x0 is not None else None
+        offered = self.takes_multipliers and lam_g0 is not None and lam_x0 is not None
+        # after a step that converged within QUIET_ITERATIONS (standing) the instance's multipliers, else the given
+        given = (lam_g0, lam_x0) if offered and not self._quiet else None
+        self.last_start = "instance" if given is None else "given"
         mu_warm, cap_warm = (cfg.warm_barrier_init, cfg.warm_max_iterations) if given is None else \
             (self.multiplier_barrier_init, self.multiplier_max_iterations)
         attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, mu_warm, min(cap_warm, cap), deadline, warm_duals=True,
                               given=given)
+        self._quiet = attempt.stats.success and attempt.stats.iterations <= QUIET_ITERATIONS
         if attempt.stats.success or attempt.stats.status == "time_limit_reached":
             self._warm_failures = 0 if attempt.stats.success else self._warm_failures
             return attempt
-        self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
-        self._warm_failures += 1
+        if given is not None or not offered:  # (a quiet step's failed attempt: the given multipliers next step)
+            self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
+            self._warm_failures += 1
         result = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         stats = result.stats
         stats.iterations += max(attempt.stats.iterations, 0)
