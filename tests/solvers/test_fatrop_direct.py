@@ -13,7 +13,7 @@ from wbmpc.robots import load_robot
 from wbmpc.solvers import make_solver
 from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
-from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+from wbmpc.solvers.fatrop_direct import FatropDirectSolver, mpc_tolerances, multiplier_start
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
 
 TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
@@ -171,6 +171,65 @@ def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
     assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
 
 
+def test_given_multipliers_restart_a_solution(direct, step_data, codegen, problem):
+    """Multipliers in the NLP's layout handed to the shim (`takes_multipliers`) land on their own rows: a solution's
+    own multipliers restart it at its primal (from a barrier below the tolerance) in at most two iterations, fewer
+    than from zeros or from the negated ones (a row's multiplier on another row, or of the wrong sign, is a worse
+    start)."""
+    solver = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, extra_options={
+        "shifted_multipliers": True, "mpc_tolerances": False, "multiplier_barrier_init": 1e-4}))
+    assert solver.takes_multipliers and not direct.takes_multipliers  # go2's point feet: off by default
+    data = step_data
+    solution = solver.solve(**data)
+    assert solution.stats.success
+    bounds = (data["p"], data["lbx"], data["ubx"], data["lbg"], data["ubg"])
+    iterations = {}
+    for name, sign in (("own", 1.0), ("zeros", 0.0), ("negated", -1.0)):
+        restart = solver.recreated().solve(*bounds, solution.x, sign * solution.lam_g, sign * solution.lam_x,
+                                           warm_start=True)
+        assert restart.stats.success, (name, restart.stats)
+        np.testing.assert_allclose(restart.x, solution.x, atol=1e-3)
+        iterations[name] = restart.stats.iterations
+    assert iterations["own"] <= 2 and iterations["own"] < min(iterations["zeros"], iterations["negated"]), iterations
+    # a warm step that converged within QUIET_ITERATIONS (a plan standing still) hands the next one to the instance's
+    # multipliers; a longer one keeps the given ones
+    steps = solver.recreated()
+    steps.solve(*bounds, solution.x, solution.lam_g, solution.lam_x, warm_start=True)
+    assert steps.last_start == "given"
+    steps.solve(*bounds, solution.x, solution.lam_g, solution.lam_x, warm_start=True)
+    assert steps.last_start == "instance"
+    steps = solver.recreated()
+    far = steps.solve(*bounds, data["x0"], solution.lam_g, solution.lam_x, warm_start=True)  # from the MPC's guess
+    assert steps.last_start == "given" and far.stats.success and far.stats.iterations > 2, far.stats
+    steps.solve(*bounds, data["x0"], solution.lam_g, solution.lam_x, warm_start=True)
+    assert steps.last_start == "given"
+
+
+def test_the_mpc_hands_its_shifted_multipliers_to_a_solver_that_takes_them(robot, problem, codegen):
+    """With `shifted_multipliers` the MPC's warm steps give the solver the last plan's multipliers moved by
+    constraint identity (ocp/multipliers.py); the plans stay those of the default warm start within the MPC
+    tolerances."""
+    config = SolverConfig(name="fatrop-direct", codegen=codegen)
+    _, expected = _trot_steps(robot, problem, config)
+    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None), solver=replace(
+        config, extra_options={"shifted_multipliers": True})), problem=problem)
+    handed = []
+    solve = mpc.solver.solve
+
+    def spy(p, lbx, ubx, lbg, ubg, x0, *multipliers, **kwargs):
+        handed.append(tuple(np.shape(m) for m in multipliers))
+        return solve(p, lbx, ubx, lbg, ubg, x0, *multipliers, **kwargs)
+
+    mpc.solver.solve = spy
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    got = [mpc.solve(robot.q_nominal, v0, t_s=t) for t in (0.1, 0.1125, 0.125, 0.2)]
+    assert handed[0] == () and all(h == ((problem.n_constraints,), (problem.n_variables,)) for h in handed[1:])
+    for e, g in zip(expected, got):
+        assert g.success, g.stats
+        np.testing.assert_allclose(g.x, e.x, atol=1e-2)
+
+
 def test_mpc_tolerances(robot, problem, codegen):
     """By default the binding stops at its own MPC tolerances (fatrop_direct.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
     the plans stay within them of casadi's Fatrop at SolverConfig's tolerances, in no more iterations;
@@ -187,6 +246,29 @@ def test_mpc_tolerances(robot, problem, codegen):
     assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
     kept = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen, tolerance=1e-6))
     assert (kept.tolerance, kept.constraint_tolerance) == (1e-6, SolverConfig().constraint_tolerance)
+
+
+def test_flat_feet_defaults():
+    """Flat feet: the KKT tolerance FLAT_FEET_MPC_TOLERANCE and warm attempts from the MPC's multipliers; point feet
+    keep MPC_TOLERANCE and the instance's multipliers; set values win."""
+    from wbmpc.solvers.fatrop_direct import (
+        FLAT_FEET_MPC_TOLERANCE,
+        MPC_CONSTRAINT_TOLERANCE,
+        MPC_TOLERANCE,
+        MULTIPLIER_BARRIER_INIT,
+        MULTIPLIER_MAX_ITERATIONS,
+    )
+
+    config = SolverConfig(name="fatrop-direct")
+    assert mpc_tolerances(config, flat_feet=True) == (FLAT_FEET_MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE) == (1e-2, 1e-4)
+    assert mpc_tolerances(config, flat_feet=False) == (MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE) == (1e-3, 1e-4)
+    assert mpc_tolerances(replace(config, tolerance=1e-6), flat_feet=True) == (1e-6, SolverConfig().constraint_tolerance)
+    assert mpc_tolerances(replace(config, extra_options={"mpc_tolerances": False}), flat_feet=True) == (1e-4, 1e-6)
+    assert multiplier_start(config, flat_feet=True) == (True, MULTIPLIER_BARRIER_INIT, MULTIPLIER_MAX_ITERATIONS)
+    assert not multiplier_start(config, flat_feet=False)[0]
+    assert multiplier_start(replace(config, extra_options={"shifted_multipliers": False, "multiplier_barrier_init": 1e-4,
+                                                           "multiplier_max_iterations": 5}), flat_feet=True) == \
+        (False, 1e-4, 5)
 
 
 def test_iteration_cap_per_call_returns_its_iterate(direct, step_data):

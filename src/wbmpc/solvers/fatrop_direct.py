@@ -12,11 +12,12 @@ KKT point (tests/solvers/test_fatrop_direct.py). `solve` has `NlpSolver.solve`'s
 small-barrier warm attempt. Two things casadi's Fatrop cannot do (see `csrc/fatrop_driver.cpp`):
 a multiplier warm start (warm-started MPC calls start the equality multipliers from the Fatrop
 instance's last converged solution instead of Fatrop's least-squares estimate, which costs one KKT
-factorisation; `extra_options={"warm_duals": False}` turns it off) and a time limit per call
+factorisation; `extra_options={"warm_duals": False}` turns it off; on flat feet the MPC hands the last plan's
+multipliers moved by constraint identity instead, `takes_multipliers`) and a time limit per call
 (`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
-Its own tolerances for MPC steps (`MPC_TOLERANCE`, `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps
-its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
+Its own tolerances for MPC steps (`MPC_TOLERANCE` or on flat feet `FLAT_FEET_MPC_TOLERANCE`,
+`MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
 `extra_options={"fatrop_kernels": False}` leaves Fatrop's own).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
@@ -57,6 +58,22 @@ NAME = "fatrop-direct"
 # digits (drift, base velocity RMSE, EE RMSE); 1e-2 / 1e-3 (2.08 iterations) moved arm-track's 4th digit
 MPC_TOLERANCE = 1e-3
 MPC_CONSTRAINT_TOLERANCE = 1e-4
+# Flat feet's KKT tolerance (the constraint tolerance stays): a biped's plan keeps a sole's centre-of-pressure row
+# active over single stance (g1 walking in place: the lateral edge at nearly every stance node), and reaching 1e-3
+# means driving the barrier below 1e-3 around that active set, 2-3 more iterations per step. At 1e-2 a plan stops
+# with the barrier at its start value: its active rows then sit mu / z inside their bound (< 1e-3 of the force
+# scale, ~0.1 N on g1). g1 walk-in-place (compiled, 2 s, plant waiting): 9.22 -> 5.41 iterations per step with the
+# warm start below, drift 0.351 / 0.345 cm/s and base velocity RMSE 0.0187 / 0.0185 m/s
+FLAT_FEET_MPC_TOLERANCE = 1e-2
+# the warm attempt from given multipliers (`takes_multipliers`): its barrier and iteration cap. g1 walk-in-place,
+# 2 s at FLAT_FEET_MPC_TOLERANCE: 5.94 iterations per step from 1e-3, 5.41 from 3e-3, 6.98 from 1e-2 (Fatrop's own
+# start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98)
+MULTIPLIER_BARRIER_INIT = 3e-3
+MULTIPLIER_MAX_ITERATIONS = 12
+# after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
+# starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
+# g1 standing 2 s 1.71 -> 1.01 iterations per step; walking never gets there (5.41 either way)
+QUIET_ITERATIONS = 2
 _N_STATS = 13
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
@@ -82,7 +99,8 @@ class _Library:
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
         lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
-        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int]
+        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
+                                                           ctypes.c_double]
         lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
         lib.wbd_fatrop_kernels.restype = ctypes.c_int
         lib.wb_warm_up.argtypes = [ctypes.c_void_p]
@@ -114,6 +132,27 @@ def default_threads() -> int:
     except (AttributeError, OSError):
         cores = os.cpu_count() or 1
     return min(2, max(cores, 1))
+
+
+def mpc_tolerances(config: SolverConfig, flat_feet: bool) -> tuple[float, float]:
+    """(KKT, constraint) tolerances of the binding: its MPC ones (flat feet: FLAT_FEET_MPC_TOLERANCE) while
+    SolverConfig keeps its defaults and `extra_options["mpc_tolerances"]` is not False, else SolverConfig's."""
+    defaults = SolverConfig()
+    own = config.extra_options.get("mpc_tolerances", True) and \
+        (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
+    if not own:
+        return config.tolerance, config.constraint_tolerance
+    return FLAT_FEET_MPC_TOLERANCE if flat_feet else MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE
+
+
+def multiplier_start(config: SolverConfig, flat_feet: bool) -> tuple[bool, float, int]:
+    """Whether warm attempts start from the multipliers the MPC gives (`extra_options["shifted_multipliers"]`, by
+    default on flat feet), and that attempt's barrier and iteration cap (`multiplier_barrier_init`,
+    `multiplier_max_iterations`)."""
+    options = config.extra_options
+    return (bool(options.get("shifted_multipliers", flat_feet)),
+            float(options.get("multiplier_barrier_init", MULTIPLIER_BARRIER_INIT)),
+            int(options.get("multiplier_max_iterations", MULTIPLIER_MAX_ITERATIONS)))
 
 
 def _ptr(array: np.ndarray):
@@ -160,6 +199,8 @@ class FatropDirectSolver:
         self._input_vars = np.concatenate([np.arange(inputs.start, inputs.stop) for _, inputs in problem.stage_slices])
         self._input_starts = np.concatenate([[0], np.cumsum([i.stop - i.start for _, i in problem.stage_slices])])
         self._warm_pause = 0
+        self._quiet = False  # the last warm attempt converged within QUIET_ITERATIONS
+        self.last_start = "cold"  # the last call's first attempt: "cold", "instance" or "given" multipliers
         self._warm_failures = 0
         self._stage_p = np.zeros(lib.p_index.shape)
         # x, lam_g, lam_x and the stats of the last call, written by the shim (results are copies of them)
@@ -172,11 +213,11 @@ class FatropDirectSolver:
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
-        defaults = SolverConfig()
-        own = config.extra_options.get("mpc_tolerances", True) and \
-            (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
-        self.tolerance = MPC_TOLERANCE if own else config.tolerance
-        self.constraint_tolerance = MPC_CONSTRAINT_TOLERANCE if own else config.constraint_tolerance
+        # warm attempts from the multipliers the MPC moves by constraint identity (ocp/multipliers.py) instead of this
+        # instance's by position (a stage's rows change places with the contacts): on flat feet by default
+        self.takes_multipliers, self.multiplier_barrier_init, self.multiplier_max_iterations = \
+            multiplier_start(config, bool(problem.surface_feet))
+        self.tolerance, self.constraint_tolerance = mpc_tolerances(config, bool(problem.surface_feet))
         # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp; process-wide, same iterates)
         self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
         # the first step's one-off costs now, before any clock runs (b1_z1, fresh processes on a loaded machine: first
@@ -283,8 +324,8 @@ class FatropDirectSolver:
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
               max_iterations: int | None = None, time_limit_s: float | None = None) -> NlpResult:
-        """Solve from x0 (lam_g0 / lam_x0 are accepted and, like casadi's Fatrop, not used). `warm_start`:
-        first the small-barrier attempt (`SolverConfig.warm_barrier_init`). `max_iterations` caps this call;
+        """Solve from x0. `warm_start`: first the small-barrier attempt (`SolverConfig.warm_barrier_init`), or with
+        `takes_multipliers` one from lam_g0 / lam_x0 (the last plan's, moved by the MPC; not used otherwise). `max_iterations` caps this call;
         `time_limit_s` (default `SolverConfig.time_limit_s`) stops it at the first evaluation after that
         long, returning the last accepted iterate with status `time_limit_reached` (not a success)."""
         if self._fallback is not None:
@@ -293,18 +334,27 @@ class FatropDirectSolver:
         cap = cfg.max_iterations if max_iterations is None else max_iterations
         limit = cfg.time_limit_s if time_limit_s is None else time_limit_s
         deadline = time.perf_counter() + limit if limit else None
+        self.last_start = "cold"
         if not warm_start or cfg.warm_barrier_init is None:
             return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         if self._warm_pause > 0:
             self._warm_pause -= 1
             return self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
-        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.warm_barrier_init, min(cfg.warm_max_iterations, cap),
-                              deadline, warm_duals=True)
+        offered = self.takes_multipliers and lam_g0 is not None and lam_x0 is not None
+        # after a step that converged within QUIET_ITERATIONS (standing) the instance's multipliers, else the given
+        given = (lam_g0, lam_x0) if offered and not self._quiet else None
+        self.last_start = "instance" if given is None else "given"
+        mu_warm, cap_warm = (cfg.warm_barrier_init, cfg.warm_max_iterations) if given is None else \
+            (self.multiplier_barrier_init, self.multiplier_max_iterations)
+        attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, mu_warm, min(cap_warm, cap), deadline, warm_duals=True,
+                              given=given)
+        self._quiet = attempt.stats.success and attempt.stats.iterations <= QUIET_ITERATIONS
         if attempt.stats.success or attempt.stats.status == "time_limit_reached":
             self._warm_failures = 0 if attempt.stats.success else self._warm_failures
             return attempt
-        self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
-        self._warm_failures += 1
+        if given is not None or not offered:  # (a quiet step's failed attempt: the given multipliers next step)
+            self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
+            self._warm_failures += 1
         result = self._solve(p, lbx, ubx, lbg, ubg, x0, cfg.barrier_init, cap, deadline)
         stats = result.stats
         stats.iterations += max(attempt.stats.iterations, 0)
@@ -312,7 +362,7 @@ class FatropDirectSolver:
         stats.cpu_time_s += attempt.stats.cpu_time_s
         stats.split_ms = {k: stats.split_ms.get(k, 0.0) + attempt.stats.split_ms.get(k, 0.0)
                           for k in {**stats.split_ms, **attempt.stats.split_ms}}
-        stats.status = f"{stats.status} (after mu_init {cfg.warm_barrier_init:g}: {attempt.stats.status})"
+        stats.status = f"{stats.status} (after mu_init {mu_warm:g}: {attempt.stats.status})"
         return result
 
     # ---------------------------------------------------------------- internals
@@ -349,7 +399,7 @@ class FatropDirectSolver:
                                   "['fatrop']): check its name and type, e.g. 1e-2 rather than 1 for a real")
 
     def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
-               deadline: float | None = None, warm_duals: bool = False) -> NlpResult:
+               deadline: float | None = None, warm_duals: bool = False, given=None) -> NlpResult:
         problem = self.problem
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
@@ -363,9 +413,12 @@ class FatropDirectSolver:
         # the driver maps the stored multipliers position by position within each stage: where a gait switch
         # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
         # requiring the same rows halved the warm starts used and cost 0.5-1 ms CPU per step on average)
-        warm_duals = warm_duals and self.warm_duals
+        warm = int(warm_duals and self.warm_duals)
+        if given is not None:
+            given = _f64(given[0]), _f64(given[1])
+            warm = 2
         budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
-        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, int(warm_duals))
+        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, warm, given)
         elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
         if code in (-4, -1, -2):
             return failed_result(problem, x0, {
@@ -382,7 +435,8 @@ class FatropDirectSolver:
             max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
             split_ms=_time_split_ms(stats, elapsed)))
 
-    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int) -> int:
+    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int,
+              given=None) -> int:
         """wb_solve on the last step's Fatrop instance first (the shim classifies the rows anyway and refuses, -2,
         another structure without solving, so the row-count key is computed only then: 0.08 ms a step otherwise),
         else on the instance of this structure; results into the preallocated outputs."""
@@ -398,7 +452,8 @@ class FatropDirectSolver:
             # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler)
             code = lib.wb_solve(self._ctx, solver, self._out_addresses[0], lbx.ctypes.data, ubx.ctypes.data,
                                 lbg.ctypes.data, ubg.ctypes.data, x0.ctypes.data, *self._out_addresses[1:],
-                                budget_s, warm)
+                                budget_s, warm, *((given[0].ctypes.data, given[1].ctypes.data) if given else (None, None)),
+                                mu_init)
             if code != -2 or attempt:
                 break
             solver = self._solver_for(lbx, ubx, lbg, ubg)

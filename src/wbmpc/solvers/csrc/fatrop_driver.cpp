@@ -49,9 +49,10 @@ class WarmEqMult : public IpEqMultInitializerBase {
   /* runs last in Fatrop's initializer: the warm start replaces its slacks, bound multipliers (z = 1) and
      equality multipliers (least squares) by the last converged solution's, slacks kept inside the bounds */
   void initialize_eq_mult(bool trial_it) override {
-    if (!use_ || trial_it) { base_->initialize_eq_mult(trial_it); return; }
+    if (trial_it || !(use_ || given_)) { base_->initialize_eq_mult(trial_it); return; }
     IpIterate<OcpType>& it = data_->current_iterate();
     const Index m = slacks_.m();
+    if (given_) { start_from_given(it); return; }
     const double *lower = it.lower_bounds().data(), *upper = it.upper_bounds().data();
     for (Index i = 0; i < m; ++i) {
       const bool has_l = it.lower_bounded()[i], has_u = it.upper_bounded()[i];
@@ -72,6 +73,22 @@ class WarmEqMult : public IpEqMultInitializerBase {
     it.set_dual_bounds_u(zu_);
     it.set_dual_eq(duals_);
   }
+  /* multipliers given by the caller (the last solution's, mapped row by row to this call, wb_solve): the slacks stay
+     Fatrop's (g(x0) pushed inside the bounds), each bound multiplier at least z_floor_ / its slack's distance to
+     the bound (complementarity z s >= z_floor_, the barrier parameter the solve starts from) */
+  void start_from_given(IpIterate<OcpType>& it) {
+    const Index m = slacks_.m();
+    const double *lower = it.lower_bounds().data(), *upper = it.upper_bounds().data();
+    for (Index i = 0; i < m; ++i) {
+      const double s = it.primal_s()(i);
+      const bool has_l = it.lower_bounded()[i], has_u = it.upper_bounded()[i];
+      zl_(i) = has_l ? std::max(given_zl_(i), z_floor_ / std::max(s - lower[i], 1e-12)) : 0.0;
+      zu_(i) = has_u ? std::max(given_zu_(i), z_floor_ / std::max(upper[i] - s, 1e-12)) : 0.0;
+    }
+    it.set_dual_bounds_l(zl_);
+    it.set_dual_bounds_u(zu_);
+    it.set_dual_eq(given_duals_);
+  }
   void store(const IpIterate<OcpType>& it) {
     duals_ = it.dual_eq();
     slacks_ = it.primal_s();
@@ -84,7 +101,9 @@ class WarmEqMult : public IpEqMultInitializerBase {
   std::shared_ptr<IpData<OcpType>> data_;
   std::shared_ptr<IpEqMultInitializer<OcpType>> base_;
   VecRealAllocated duals_, slacks_, z_l_, z_u_, s_, zl_, zu_;
-  bool use_ = false, valid_ = false;
+  VecRealAllocated given_duals_{duals_.m()}, given_zl_{slacks_.m()}, given_zu_{slacks_.m()};
+  double z_floor_ = 0.0;
+  bool use_ = false, valid_ = false, given_ = false;
 };
 
 struct Driver {
@@ -138,10 +157,20 @@ int wbd_option_int(void* d, const char* name, int value) {
 int wbd_option_bool(void* d, const char* name, int value) {
   try { static_cast<Driver*>(d)->options.set_option<bool>(name, value != 0); return 0; } catch (const std::exception&) { return 1; }
 }
-/* warm: start the equality multipliers from this instance's last converged solution (if it has one) */
-int wbd_solve(void* handle, int warm) {
+/* the buffers wb_solve fills with given multipliers in Fatrop's order: equality rows (dual_eq), then the lower and
+   upper bound multipliers of the slacks; sizes[0] = number of equality rows, sizes[1] = number of slacks */
+double* wbd_given(void* handle, int which, int* sizes) {
+  WarmEqMult& w = *static_cast<Driver*>(handle)->warm;
+  sizes[0] = w.given_duals_.m(); sizes[1] = w.given_zl_.m();
+  return which == 0 ? w.given_duals_.data() : which == 1 ? w.given_zl_.data() : w.given_zu_.data();
+}
+/* warm: 1 start the equality multipliers from this instance's last converged solution (if it has one); 2 from the
+   given ones (wbd_given), bound multipliers at least z_floor / distance */
+int wbd_solve(void* handle, int warm, double z_floor) {
   Driver* d = static_cast<Driver*>(handle);
-  d->warm->use_ = warm && d->warm->valid_;
+  d->warm->use_ = warm == 1 && d->warm->valid_;
+  d->warm->given_ = warm == 2;
+  d->warm->z_floor_ = z_floor;
   int ret;
   d->flag = IpSolverReturnFlag::Unknown;
   try {

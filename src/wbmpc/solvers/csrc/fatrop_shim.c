@@ -279,6 +279,32 @@ static void wb_unpack_stage(wb_ctx* c, int k, const double* primal, const double
     for (i = 0; i < st->nx[k + 1]; ++i) lam_g_out[st->gap_offset[k] + i] = -dual[dims->dyn_eq_offs[k] + i];
 }
 
+/* multipliers in the NLP's layout (lam_g, lam_x: casadi's signs) into the driver's given-start buffers in Fatrop's
+   order, wb_unpack_stage's map backwards: equality rows' multipliers, and per inequality (row or bounded variable,
+   a slack for Fatrop) lam > 0 as its upper bound's multiplier, -lam as its lower bound's */
+static void wb_pack_given(const wb_ctx* c, void* solver, const double* lam_g, const double* lam_x) {
+  const wb_stages* st = c->st;
+  const struct FatropOcpCDims* dims = (const struct FatropOcpCDims*) wbd_dims(solver);
+  int sizes[2], k, i, col;
+  double *dual = wbd_given(solver, 0, sizes), *zl = wbd_given(solver, 1, sizes), *zu = wbd_given(solver, 2, sizes);
+  const int slack0 = dims->g_ineq_offs[0];
+  double lam;
+  memset(dual, 0, sizeof(double) * sizes[0]);
+  for (k = 0; k < st->n_stages; ++k) {
+    for (col = 0, i = c->a_eq_i[k]; i < c->a_eq_i[k + 1]; ++i, ++col) dual[dims->g_offs[k] + col] = lam_g[c->a_eq[i]];
+    for (i = c->x_eq_i[k]; i < c->x_eq_i[k + 1]; ++i, ++col) dual[dims->g_offs[k] + col] = lam_x[c->x_eq[i]];
+    for (col = 0, i = c->a_ineq_i[k]; i < c->a_ineq_i[k + 1] + (c->x_ineq_i[k + 1] - c->x_ineq_i[k]); ++i, ++col) {
+      const int row = dims->g_ineq_offs[k] + col;
+      lam = i < c->a_ineq_i[k + 1] ? lam_g[c->a_ineq[i]] : lam_x[c->x_ineq[c->x_ineq_i[k] + i - c->a_ineq_i[k + 1]]];
+      dual[row] = lam;
+      zu[row - slack0] = lam > 0 ? lam : 0.0;
+      zl[row - slack0] = lam < 0 ? -lam : 0.0;
+    }
+    if (k < st->n_stages - 1)
+      for (i = 0; i < st->nx[k + 1]; ++i) dual[dims->dyn_eq_offs[k] + i] = -lam_g[st->gap_offset[k] + i];
+  }
+}
+
 static int wb_same_point(const wb_ctx* c, int valid, const double* stored, const double* primal) {
   return valid && memcmp(stored, primal, sizeof(double) * c->n_fatrop) == 0;
 }
@@ -331,10 +357,13 @@ static void wb_fill_stats(const wb_ctx* c, void* solver, double* stats) {
 /* stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s), stage
    evaluations (s), cost, largest bound violation at the solution. budget_s > 0: stop at the first evaluation after
    that many seconds with the last accepted iterate (return 3, flag -3). Returns 0 converged, 1 not, -1 Fatrop raised,
-   -2 another row structure than the solver's, -4 non-finite constraint values or derivatives at x0 */
+   -2 another row structure than the solver's, -4 non-finite constraint values or derivatives at x0. warm_duals: 0
+   Fatrop's own start (bound multipliers 1, least-squares equality multipliers), 1 this instance's last solution's,
+   2 the given lam_g0 / lam_x0 (NLP layout), bound multipliers at least z_floor / their slack's distance */
 int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const double* ubx, const double* lbg,
              const double* ubg, const double* x0, double* x_out, double* lam_g_out, double* lam_x_out,
-             double* stats, double budget_s, int warm_duals) {
+             double* stats, double budget_s, int warm_duals, const double* lam_g0, const double* lam_x0,
+             double z_floor) {
   wb_ctx* c = (wb_ctx*) ctx;
   wb_solver* s = (wb_solver*) solver;
   int k, ret;
@@ -345,7 +374,8 @@ int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const 
   c->t_functions = 0;
   c->deadline_hit = c->nonfinite_hit = c->checked = c->has_last = c->has_jac = c->has_grad = 0;
   c->deadline = budget_s > 0 ? wb_now() + budget_s : 0;
-  ret = wbd_solve(s->solver, warm_duals);
+  if (warm_duals == 2) wb_pack_given(c, s->solver, lam_g0, lam_x0);
+  ret = wbd_solve(s->solver, warm_duals, z_floor);
   c->deadline = 0;
   wb_fill_stats(c, s->solver, stats);
   if (c->nonfinite_hit) return -4;

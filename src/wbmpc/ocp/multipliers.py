@@ -1,0 +1,91 @@
+"""The last MPC step's multipliers moved to the next step by constraint identity, for a primal-dual warm start.
+
+A row (or variable) is named by its tag, node and place within that node (`OcpProblem.rows`, `row_nodes`, `idx`),
+not by its position among a stage's equality or inequality rows: a gait switch changes which rows of a stage are
+equalities, inequalities or free, and a solver's own ordering of them with it (a multiplier copied by position lands
+on another foot's or another kind of row). Like the primal warm start, each multiplier is re-sampled at the new node
+times (linear between the two old nodes around a new node's time, held beyond the old horizon); a row whose bound
+kind (free, lower, upper, range, equality) differs from its source's, e.g. a foot's rows at touchdown or lift-off,
+starts from 0, the solver's bound multipliers then from the barrier's floor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbmpc.ocp.problem import OcpProblem
+
+
+def bound_kind(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Per row: 0 free, 1 lower bound only, 2 upper only, 3 both, 4 equality."""
+    return np.where(lower == upper, 4, np.isfinite(lower) * 1 + np.isfinite(upper) * 2)
+
+
+def _identity_table(groups: list[tuple[np.ndarray, np.ndarray]], n_nodes: int, n_items: int):
+    """(table[group, node, place] = item index or -1; per item its group, node and place; which items have one)
+    from each group's (items, nodes): items (n_blocks, size) with one node per block, or flat with one node each."""
+    entries = []
+    for g, (items, nodes) in enumerate(groups):
+        items, nodes = np.asarray(items, dtype=int), np.asarray(nodes, dtype=int)
+        if items.ndim == 2:
+            nodes = np.repeat(nodes, items.shape[1])
+        items = items.ravel()
+        if not items.size:
+            continue
+        order = np.argsort(nodes, kind="stable")
+        sorted_nodes = nodes[order]
+        first = np.searchsorted(sorted_nodes, sorted_nodes)
+        place = np.empty(items.size, dtype=int)
+        place[order] = np.arange(items.size) - first
+        entries.append((np.full(items.size, g), nodes, place, items))
+    group, node, place, item = (np.concatenate(parts) for parts in zip(*entries))
+    table = np.full((len(groups), n_nodes + 1, place.max() + 1), -1, dtype=int)
+    table[group, node, place] = item
+    of_item = np.zeros((3, n_items), dtype=int)
+    of_item[:, item] = group, node, place
+    covered = np.zeros(n_items, dtype=bool)
+    covered[item] = True
+    # each item's group's first and last node: a source node is clamped to them (the x0 rows exist at node 0 only)
+    first_node, last_node = np.zeros(len(groups), dtype=int), np.zeros(len(groups), dtype=int)
+    first_node[:] = [node[group == g].min() if (group == g).any() else 0 for g in range(len(groups))]
+    last_node[:] = [node[group == g].max() if (group == g).any() else 0 for g in range(len(groups))]
+    return table, of_item, covered, (first_node[of_item[0]], last_node[of_item[0]])
+
+
+class MultiplierShift:
+    """`shift(lam, kind_old, kind_new, dt_s)`: the multipliers of rows (or variables) one step later (see the
+    module docstring), built once per problem."""
+
+    def __init__(self, problem: OcpProblem):
+        self.node_times_s = np.asarray(problem.config.grid.node_times_s, dtype=float)
+        n_nodes = len(self.node_times_s) - 1
+        starts = np.asarray(problem.stage_row_starts)  # a stage's rows are contiguous; some tags' are ragged (dynamics)
+        self.rows = _identity_table([(rows, np.searchsorted(starts, rows, side="right") - 1) for rows in
+                                     (np.asarray(problem.rows[tag], dtype=int).ravel() for tag in problem.rows)],
+                                    n_nodes, problem.n_constraints)
+        self.variables = _identity_table([(np.atleast_2d(idx), np.arange(len(idx))) for idx in problem.idx.values()],
+                                         n_nodes, problem.n_variables)
+
+    def _sources(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per new node: the old node before its time and the weight of the one after."""
+        times = self.node_times_s
+        shifted = np.minimum(times + dt_s, times[-1])
+        before = np.clip(np.searchsorted(times, shifted, side="right") - 1, 0, len(times) - 2)
+        weight = np.clip((shifted - times[before]) / (times[before + 1] - times[before]), 0.0, 1.0)
+        return before, weight
+
+    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
+              rows: bool = True) -> np.ndarray:
+        """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
+        `dt_s` the time from the last step to this one."""
+        table, (group, node, place), covered, (first, last) = self.rows if rows else self.variables
+        before, weight = self._sources(dt_s)
+        node0 = np.clip(before[node], first, last)
+        src0 = table[group, node0, place]
+        src1 = table[group, np.minimum(node0 + 1, last), place]
+        w = np.where(node0 < last, weight[node], 0.0)
+        w = np.where(src1 < 0, 0.0, np.where(src0 < 0, 1.0, w))
+        src0, src1 = np.where(src0 < 0, src1, src0), np.where(src1 < 0, src0, src1)
+        lam = np.asarray(lam, dtype=float)
+        same = (kind_old[src0] == kind_new) & ((w == 0) | (kind_old[src1] == kind_new)) & (src0 >= 0) & covered
+        return np.where(same, (1 - w) * lam[src0] + w * lam[src1], 0.0)

@@ -1,0 +1,57 @@
+"""The last step's multipliers moved to the next step by constraint identity (ocp/multipliers.py)."""
+
+import numpy as np
+import pytest
+
+from wbmpc.ocp.grid import TimeGrid
+from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
+from wbmpc.robots import load_robot
+
+DT_S = 0.02
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return OcpProblem(load_robot("go2"), OcpConfig(grid=TimeGrid.uniform_steps(3, DT_S)))
+
+
+def test_bound_kind():
+    inf = np.inf
+    kinds = bound_kind(np.array([-inf, 0.0, -inf, 0.0, 1.0]), np.array([inf, inf, 0.0, 1.0, 1.0]))
+    np.testing.assert_array_equal(kinds, [0, 1, 2, 3, 4])
+
+
+def test_rows_follow_their_identity_one_node_later(problem):
+    """On a uniform grid one node later: every row takes the multiplier of the same tag and place at the next
+    node (held at the last), whatever its position among its stage's rows; a row whose bound kind changed (a
+    foot's rows at touchdown) starts from 0; no shift returns the multipliers unchanged."""
+    shift = MultiplierShift(problem)
+    lam = np.arange(1.0, problem.n_constraints + 1)
+    kinds = np.full(problem.n_constraints, 4)
+    np.testing.assert_array_equal(shift.shift(lam, kinds, kinds, 0.0), lam)
+    moved = shift.shift(lam, kinds, kinds, DT_S)
+    gap, foot_vel = problem.rows["gap"], problem.rows["foot_vel"]
+    np.testing.assert_array_equal(moved[gap[:-1]], lam[gap[1:]])
+    np.testing.assert_array_equal(moved[gap[-1]], lam[gap[-1]])
+    np.testing.assert_array_equal(moved[problem.rows["x0"]], lam[problem.rows["x0"]])  # node 0 only: its own
+    half = shift.shift(lam, kinds, kinds, DT_S / 2)
+    np.testing.assert_allclose(half[gap[0]], 0.5 * (lam[gap[0]] + lam[gap[1]]))
+    touchdown = kinds.copy()
+    touchdown[foot_vel[0]] = 1  # the source rows (node 2 of foot_vel's nodes 1..3) were of another kind
+    changed = shift.shift(lam, touchdown, kinds, DT_S)
+    assert np.all(changed[foot_vel[0]] == lam[foot_vel[1]]) and np.all(changed[foot_vel[-1]] == lam[foot_vel[-1]])
+    touchdown[foot_vel[1]] = 1
+    changed = shift.shift(lam, touchdown, kinds, DT_S)
+    assert np.all(changed[foot_vel[0]] == 0.0)
+    np.testing.assert_array_equal(changed[gap[:-1]], lam[gap[1:]])
+
+
+def test_variables_follow_their_identity(problem):
+    shift = MultiplierShift(problem)
+    lam = np.arange(1.0, problem.n_variables + 1)
+    kinds = np.full(problem.n_variables, 1)
+    moved = shift.shift(lam, kinds, kinds, DT_S, rows=False)
+    forces = np.atleast_2d(problem.idx["F"])
+    np.testing.assert_array_equal(moved[forces[:-1]], lam[forces[1:]])
+    np.testing.assert_array_equal(moved[forces[-1]], lam[forces[-1]])
