@@ -1,6 +1,7 @@
 """`arm-track` (Fig. 3): trot forward while the end-effector tracks a low/high reference; the position error becomes a
 velocity command by feedback. Also `--target-path behind-base` (through the trunk's rear: self-collisions) and
-`around-obstacle` (through a post in front of the robot).
+`around-obstacle` (through a post in front of the robot). The feedback has integral action (`--arm-integral`): the
+MPC plans with its model, and an arm heavier than it sags by a steady offset under proportional feedback alone.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import pinocchio as pin
 
 from wbmpc.control.commands import Commands
 from wbmpc.scenarios.base import Scenario, ScenarioOptions
+from wbmpc.scenarios.feedback import EeIntegral
 
 # --target-path behind-base: (time s, hand position relative to the base at the start, in its heading frame;
 # None: the nominal hand position). Behind the trunk's rear face (-0.32 m on b1_z1) at its mid height: the
@@ -28,6 +30,10 @@ AROUND_POST_CENTRE_M = (0.75, 0.0)  # x, y relative to the base at the start; it
 AROUND_POST_HALF_M = (0.05, 0.05)  # half sizes along x, y
 AROUND_POST_TOP_M = 0.47  # above the base's start height
 AROUND_ARM_POSTURE_SCALE = 0.05
+# the integral's anti-windup (`--arm-integral`): its velocity term at most this, integrated while the error is within
+# INTEGRAL_WITHIN_M (the behind-base and around-obstacle paths leave the collision-free reach: P feedback alone there)
+INTEGRAL_MAX_SPEED_M_S = 0.1
+INTEGRAL_WITHIN_M = 0.02
 
 
 class ArmTrack(Scenario):
@@ -158,11 +164,14 @@ class ArmTrack(Scenario):
         fid = robot.frame_id(robot.arm_ee)
         base = np.array([self.base_speed_m_s, 0.0, 0.0])
         gain = self.options.arm_feedback_gain_1_s
+        integral = EeIntegral(self.options.arm_integral_gain_1_s2, max_speed_m_s=INTEGRAL_MAX_SPEED_M_S,
+                              within_m=INTEGRAL_WITHIN_M)
 
         def command(t_s, q, v):
             pin.framesForwardKinematics(robot.model, data, q)
             position, velocity = self._reference(t_s)
-            ee_velocity = velocity + gain * (position - data.oMf[fid].translation)
+            error = position - data.oMf[fid].translation
+            ee_velocity = velocity + gain * error + integral.update(t_s, error)
             speed = np.linalg.norm(ee_velocity)
             if speed > 0.9:  # stay inside the MPC's command limit
                 ee_velocity *= 0.9 / speed

@@ -42,6 +42,10 @@ class ScenarioOptions:
                                  low_open=True, unit="s", scenarios=ARM_TRACK)
     arm_feedback_gain_1_s: float = option(4.0, help="feedback gain on the end-effector position error", low=0.0,
                                           high=100.0, unit="1/s", scenarios=ARM_TRACK)
+    arm_integral_gain_1_s2: float = option(8.0, flag="--arm-integral", metavar="1/S2", help="integral gain on the "
+                                           "end-effector position error (0: proportional feedback only): removes "
+                                           "the steady offset of an arm heavier than the model", low=0.0,
+                                           high=1e4, unit="1/s^2", scenarios=ARM_TRACK)
     arm_target_path: str = option("sine", flag="--target-path", choices=("sine", "behind-base", "around-obstacle"),
                                   help="sine: the low/high reference of Fig. 3; behind-base: from the nominal hand "
                                   "position straight to behind the base at trunk height, through the trunk's rear "
