@@ -49,12 +49,13 @@ SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length 
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
 # a swing's landing point and heights are planned again when what they depend on (Raibert's point, the lift-off point,
-# the base's place at touch-down and its height, the heading as a move of the foot's extent) moved by more than this
-# since they were planned: half the foothold raster's 1 cm cell. Planned on every step, they took 4.3 ms of the 12 ms
-# of b1_z1's MPC step on the stairs (flat floor: 7.9 ms), and 7 % of its steps were late in real time.
-# The base's measured place at touch-down and its height (the hip the shin check assumes, a 3 cm sag below the
-# measured base, `_hips`) bounce by more than that in a trot: 1 cm, a quarter of the shin's clearance.
-REPLAN_M = np.r_[np.full(5, 0.005), np.full(3, 0.01)]
+# the heading as a move of the foot's extent, the base's place at touch-down and its height) moved by more than this
+# since they were planned: a cell of the foothold raster (the landing stays on a safe cell). Planned on every step,
+# they took 3.6 ms of thread CPU of b1_z1's 9.6 ms MPC step on the stairs (flat trot-forward: 5.3 ms in the same
+# sitting), the cause of 7 % late plans in real time. (Half a cell: Raibert's point moves that much with the
+# capture point's feedback on a trot's velocity ripple, and 1.6 of the ~5 swings in the horizon were planned again.)
+# A swing to come is not planned again for the base's measured place: that guess moves with the velocity's ripple.
+REPLAN_M = 0.01
 RIDE_GAIN = 2.0  # the base rides this many RMS of the terrain about its support plane higher (`ride_height`)
 RIDE_LEAN = 0.8  # ... at most until the shins lean this much (`ride_limit_m`)
 SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
@@ -151,6 +152,8 @@ class TerrainReferences:
         vxy = np.full((n, n_feet, 2), np.nan)
         apex_plan = np.full((n, n_feet), np.nan)
         stand = np.repeat(feet_m[None, :, :2], n, axis=0)  # where each foot stands per node
+        points = list(feet_m[:, :2])  # ... the few points it takes: the feet and the swings' landings
+        which = np.tile(np.arange(n_feet), (n, 1))  # ... the index of each node's and foot's among them
         duty = gait.duty_factor
         if duty < 1:
             swing_s, stance_s = gait.swing_duration_s, duty * gait.period_s
@@ -175,7 +178,8 @@ class TerrainReferences:
                 inputs = np.r_[raw, lift_off_xy, yaw * self._foot_extent, measured_xy, q[2]]
                 key = (foot, round(lift_off_t, 4), in_progress)
                 plan = self._plans.get(key)
-                if plan is None or np.any(np.abs(inputs - plan[0]) > REPLAN_M):
+                # (a swing to come: its hips from the measured velocity are a guess, planned again at lift-off)
+                if plan is None or np.any(np.abs(inputs - plan[0])[:None if in_progress else 5] > REPLAN_M):
                     hips = self._hips(foot, q, base_xy, measured_xy, yaw)
                     target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips,
                                            s_now if in_progress else 0.0)
@@ -190,13 +194,13 @@ class TerrainReferences:
                 left = max(1 - 3 * s0**2 + 2 * s0**3, PLACEMENT_END_SHARE)
                 vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
                 stand[nodes[0]:, foot] = target
+                which[nodes[0]:, foot] = len(points)
+                points.append(target)
                 segments.append((foot, nodes, s, heights, s0, feet_m[foot, 2] if in_progress else np.nan))
             if segments:  # eq. (6)'s splines of all the swings at once
                 apex_plan, vz = self._swing_plans(segments, swing_s, apex_plan, vz)
             self._plans = {key: plan for key, plan in self._plans.items() if key[1] + swing_s >= t}  # swings to come
-        unique, inverse = np.unique(stand.reshape(-1, 2), axis=0, return_inverse=True)  # a few footholds: exact
-        heights, normals = (values[inverse.ravel()].reshape(stand.shape[:-1] + values.shape[1:])
-                            for values in self.terrain.height_normal(unique))
+        heights, normals = (values[which] for values in self.terrain.height_normal(np.array(points)))  # exact
         footholds = np.concatenate([stand, (heights + self._contact_height)[..., None]], axis=-1)
         N = n - 1
         return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
