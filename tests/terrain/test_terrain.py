@@ -200,6 +200,41 @@ def test_swing_references_land_on_the_step_and_cones_tilt_with_the_ramp(go2):
                                terrain.height(step.footholds_m[-1, :, :2]) + go2.foot_radius_m)
 
 
+def test_swing_plans_are_kept_within_a_raster_cell_and_planned_again_beyond(go2):
+    """go2 trotting towards stairs: a base moved 4 mm keeps the swings' landings and heights of the step before (the
+    landings on safe cells); moved 3 cm, every swing is planned again: the same data as a fresh plan (no kept ones)."""
+    import copy
+
+    terrain = stairs(3, 0.08, 0.25, 0.45)
+    gait = make_gait("trot", 4, 0.65)
+    references = TerrainReferences(go2, terrain, SwingProfile(apex_height_m=0.05))
+    q = go2.q_nominal.copy()
+    q[0] = 0.1
+    node_times = np.linspace(0.0, 0.56, 15)
+    velocity = np.array([0.3, 0.0, 0.0])
+
+    def step(refs, dx):
+        moved = q.copy()
+        moved[0] += dx
+        feet = np.array([go2.frame_trajectories(moved, [f])[f][0] for f in go2.feet])
+        return refs.step(gait, 0.3, node_times, moved, velocity, velocity, 0.0, feet)
+
+    first = step(references, 0.0)
+    kept = step(references, 0.004)
+    swinging = np.isfinite(first.apex_m)
+    assert swinging.any(axis=0).sum() >= 2
+    np.testing.assert_array_equal(kept.footholds_m[-1, :, :2][swinging.any(axis=0)],
+                                  first.footholds_m[-1, :, :2][swinging.any(axis=0)])
+    np.testing.assert_array_equal(kept.apex_m[swinging], first.apex_m[swinging])
+    assert np.all(references.footholds.is_safe(kept.footholds_m[-1, :, :2]))
+    fresh = copy.deepcopy(references)
+    fresh._plans.clear()
+    again, new = step(references, 0.03), step(fresh, 0.03)
+    assert np.abs(again.footholds_m[-1, :, 0] - first.footholds_m[-1, :, 0]).max() > 0.01
+    np.testing.assert_array_equal(again.footholds_m, new.footholds_m)
+    np.testing.assert_array_equal(again.swing_vz_m_s, new.swing_vz_m_s)
+
+
 def cone_rows(robot, normal, force, mu=0.5):
     """The friction / wrench cone rows of a first-node stage with every foot's force `force` (world, N) and the
     ground normal `normal` for every foot."""
