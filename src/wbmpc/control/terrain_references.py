@@ -24,6 +24,8 @@ The OCP is the same on any ground (`ocp/problem.py`): the terrain enters through
   once). A biped keeps its pelvis upright.
 
 Everything is vectorised over nodes; the loops run over feet and the (one or two) swings of each in the horizon.
+A swing's landing point and heights are kept from step to step while what they depend on moves less than a cell of
+the foothold raster (`REPLAN_M`); the splines of all swings are evaluated at once.
 """
 
 from __future__ import annotations
