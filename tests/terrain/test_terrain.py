@@ -235,6 +235,43 @@ def test_swing_plans_are_kept_within_a_raster_cell_and_planned_again_beyond(go2)
     np.testing.assert_array_equal(again.swing_vz_m_s, new.swing_vz_m_s)
 
 
+def test_a_bipeds_base_target_moves_with_a_landing_moved_onto_a_step():
+    """g1 walking up to a step whose near edge is where Raibert's point would land: the landings move onto the tread's
+    safe band (against the same walk before a box far away), and the base's xy target ramps forward with them, by at
+    least half the first one's move and at most the largest; the walk on a terrain is 1.4 times slower than on
+    the floor. A quadruped's base is left on its path."""
+    from wbmpc.control.biped import BIPED_TERRAIN_PERIOD_SCALE
+    from wbmpc.control.policy import MpcChoices, TaskNeeds, mpc_config
+
+    g1 = load_robot("g1")
+    terrain = stairs(1, 0.1, 0.3, 0.2, landing_m=1.0, direction="up")
+    flat = mpc_config(g1, TaskNeeds(gait="walk"), MpcChoices())
+    on_stairs = mpc_config(g1, TaskNeeds(gait="walk", terrain=terrain), MpcChoices())
+    assert on_stairs.gait_period_s == pytest.approx(BIPED_TERRAIN_PERIOD_SCALE * flat.gait_period_s)
+    gait = make_gait("walk", 2, on_stairs.gait_period_s)
+    feet = np.array([g1.frame_trajectories(g1.q_nominal, [f])[f][0] for f in g1.feet])
+    node_times = np.linspace(0.0, 1.2, 25)
+    velocity = np.array([0.2, 0.0, 0.0])
+
+    def step(ground):
+        references = TerrainReferences(g1, ground, on_stairs.swing, support_lead_s=on_stairs.references.support_lead_s)
+        return references, references.step(gait, 0.0, node_times, g1.q_nominal, velocity, velocity, 0.0, feet)
+
+    references, up = step(terrain)
+    _, far = step(Terrain((Box((5.0, 0.0), (0.5, 0.5), 0.1, name="far"),)))
+    moves = up.footholds_m[-1, :, 0] - far.footholds_m[-1, :, 0]
+    assert moves.min() >= -1e-9 and moves.max() > 0.05 and np.all(up.footholds_m[-1, :, 2] > 0.05)  # up, forward
+    assert np.all(references.footholds.is_safe(up.footholds_m[-1, :, :2]))
+    assert np.allclose(far.support_shift_m, 0.0)
+    shift_x = up.support_shift_m[:, 0]
+    assert shift_x[0] == pytest.approx(0.0) and 0.5 * moves[0] <= shift_x.max() <= moves.max() + 1e-9
+    assert np.all(np.diff(shift_x[: np.argmax(shift_x) + 1]) >= -1e-12)  # ramped in (then back as the other lands)
+    a1 = load_robot("a1")
+    assert TerrainReferences(a1, terrain, SwingProfile()).step(
+        make_gait("trot", 4, 0.5), 0.0, node_times, a1.q_nominal, velocity, velocity, 0.0,
+        np.array([a1.frame_trajectories(a1.q_nominal, [f])[f][0] for f in a1.feet])).support_shift_m is None
+
+
 def cone_rows(robot, normal, force, mu=0.5):
     """The friction / wrench cone rows of a first-node stage with every foot's force `force` (world, N) and the
     ground normal `normal` for every foot."""

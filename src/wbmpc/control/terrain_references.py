@@ -50,6 +50,7 @@ SOLE_MARGIN_M = 0.02  # ... plus this for a flat foot (g1: 11 cm, leaving 8 cm o
 SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length ahead of and behind each foot
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
+SUPPORT_RAMP_SAMPLES = 9  # a biped's support weights averaged at this many times over two double supports
 # a swing's landing point and heights are planned again when what they depend on (Raibert's point, the lift-off point,
 # the heading as a move of the foot's extent, the base's place at touch-down and its height) moved by more than this
 # since they were planned: a cell of the foothold raster (the landing stays on a safe cell). Planned on every step,
@@ -92,14 +93,18 @@ class TerrainStep:
     contact_normal: np.ndarray  # (3 n_feet, N): the OCP parameter
     footholds_m: np.ndarray  # (nodes, n_feet, 3) where each foot stands (or will land) at each node
     apex_m: np.ndarray  # (nodes, n_feet) planned swing heights (NaN in stance), for plots and tests
+    # (nodes, 2) world xy: a biped's base target moved with the footholds of its support (`support_shift`); None: not
+    support_shift_m: np.ndarray | None = None
 
 
 class TerrainReferences:
     """The terrain's per-step data for the MPC of `robot` (see the module docstring)."""
 
     def __init__(self, robot: RobotModel, terrain: Terrain, swing: SwingProfile,
-                 footholds: FootholdConfig | None = None):
+                 footholds: FootholdConfig | None = None, support_lead_s: float = 0.0):
         self.robot, self.terrain, self.swing = robot, terrain, swing
+        self.support_lead_s = support_lead_s  # a biped's base leans over the feet that stand this much later
+        self.follows_footholds = len(robot.feet) == 2  # (`support_shift`)
         self.footholds = FootholdMap(terrain, footholds or default_footholds(robot))
         self.raster = self.footholds.raster
         self._placement = SwingPlacement(robot)
@@ -120,6 +125,8 @@ class TerrainReferences:
         self._stance_xy: np.ndarray | None = None  # where each foot last stood (a swing's lift-off point)
         self._committed: dict[int, tuple[float, np.ndarray, float]] = {}  # foot -> (lift-off t, landing, its height)
         # (foot, lift-off t, in the air) -> (the inputs it was planned from, landing point, swing heights)
+        self._moved_m = np.zeros((len(self.robot.feet), 2))  # each foot's landing less its Raibert point
+        self._moved_since: dict[int, tuple[float, np.ndarray]] = {}  # ... taken at (the swing's lift-off t, landing)
         self._plans: dict[tuple[int, float, bool], tuple[np.ndarray, np.ndarray, tuple]] = {}
 
     # ------------------------------------------------------------------ base
@@ -154,6 +161,7 @@ class TerrainReferences:
         vxy = np.full((n, n_feet, 2), np.nan)
         apex_plan = np.full((n, n_feet), np.nan)
         stand = np.repeat(feet_m[None, :, :2], n, axis=0)  # where each foot stands per node
+        moved = np.repeat(self._moved_m[None], n, axis=0)  # ... less Raibert's point there
         points = list(feet_m[:, :2])  # ... the few points it takes: the feet and the swings' landings
         which = np.tile(np.arange(n_feet), (n, 1))  # ... the index of each node's and foot's among them
         duty = gait.duty_factor
@@ -196,6 +204,8 @@ class TerrainReferences:
                 left = max(1 - 3 * s0**2 + 2 * s0**3, PLACEMENT_END_SHARE)
                 vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
                 stand[nodes[0]:, foot] = target
+                moved[nodes[0]:, foot] = self._moved(foot, target - raw, target, lift_off_t) if in_progress \
+                    else target - raw
                 which[nodes[0]:, foot] = len(points)
                 points.append(target)
                 segments.append((foot, nodes, s, heights, s0, feet_m[foot, 2] if in_progress else np.nan))
@@ -205,7 +215,30 @@ class TerrainReferences:
         heights, normals = (values[which] for values in self.terrain.height_normal(np.array(points)))  # exact
         footholds = np.concatenate([stand, (heights + self._contact_height)[..., None]], axis=-1)
         N = n - 1
-        return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
+        return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan,
+                           self.support_shift(gait, times, moved) if self.follows_footholds else None)
+
+    def _moved(self, foot: int, moved_m: np.ndarray, target: np.ndarray, lift_off_t: float) -> np.ndarray:
+        """How far a swing in the air lands from Raibert's point, as at its first step in the air (Raibert's point
+        follows the base: a base moving ahead over a landing moved forward took the move back) unless its landing
+        moved by more than the keep-out band since (another tread)."""
+        since = self._moved_since.get(foot)
+        if since is None or abs(since[0] - lift_off_t) > 1e-3 or \
+                np.linalg.norm(since[1] - target) > self.footholds.config.keep_out_m:
+            self._moved_m[foot], self._moved_since[foot] = moved_m, (lift_off_t, target)
+        return self._moved_m[foot]
+
+    def support_shift(self, gait: Gait, times: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """(nodes, 2) world: the mean move from Raibert's points of the footholds of each node's support, each foot
+        weighted by its contact averaged over the next two `support_lead_s` (a ramp over a double support centred
+        a double support later, as `support_sway` leans). The footholds move off step edges by up to half a tread;
+        a biped's base kept on its commanded path left g1's CoM 1-6 cm behind the heel of a foot moved 10 cm up
+        onto a step when the other foot lifted, and it fell; moved at once (not ramped) its target jumped 11 cm
+        ahead of the base, the solves failed and it fell too."""
+        ramp = np.linspace(0.0, 2.0, SUPPORT_RAMP_SAMPLES)
+        support = np.mean([gait.contact(times + a * self.support_lead_s) for a in ramp], axis=0)
+        support[support.sum(axis=1) == 0] = 1.0
+        return np.einsum("nf,nfk->nk", support, moved) / support.sum(axis=1, keepdims=True)
 
     def _swing_plans(self, segments: list, swing_s: float, apex_plan: np.ndarray, vz: np.ndarray):
         """Heights and vertical velocities of eq. (6)'s splines between (lift-off, apex, touch-down heights, apex
