@@ -7,7 +7,6 @@ import signal
 import struct
 import subprocess
 import sys
-import tempfile
 import time
 
 import numpy as np
@@ -18,6 +17,8 @@ try:
     SDK = sdk_mod.load_sdk()
 except Exception as exc:  # noqa: BLE001
     pytest.skip(f"Unitree SDK2 not installed: {exc}", allow_module_level=True)
+
+from cli_process import WbmpcProcess  # noqa: E402
 
 from wbmpc.estimation import SensorConfig, Sensors  # noqa: E402
 from wbmpc.hardware import crc  # noqa: E402
@@ -360,32 +361,8 @@ def test_clamps_keep_targets_and_torques_in_limits(go2):
 
 
 # ---------------------------------------------------------------------------- loopback DDS
-class _Cli(subprocess.Popen):
-    """A `wbmpc` child whose output goes to temporary files, not pipes: a pipe this test reads only at
-    the end can fill (robot-sim's report holds its trajectory), block the child and, through its
-    stalled DDS reader, this process's DataWriter.write; the suite hung on that once."""
-
-    def __init__(self, *args):
-        env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self._stdout_file, self._stderr_file = tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")
-        super().__init__([sys.executable, "-m", "wbmpc.cli", *args], env=env, stdout=self._stdout_file, stderr=self._stderr_file,
-                         text=True)
-
-    def communicate(self, input=None, timeout=None):
-        self.wait(timeout)
-        return self.read_output(), self.read_errors()
-
-    def read_output(self) -> str:
-        self._stdout_file.seek(0)
-        return self._stdout_file.read()
-
-    def read_errors(self) -> str:
-        self._stderr_file.seek(0)
-        return self._stderr_file.read()
-
-
 def _cli(*args):
-    return _Cli(*args)
+    return WbmpcProcess(*args)
 
 
 def _robot_sim(*args, family: str = "unitree_go", timeout_s: float = 300.0):
@@ -588,7 +565,7 @@ def test_deploy_identifies_a_payload_the_model_does_not_know(dds):
 
 
 @pytest.mark.slow
-def test_ctrl_c_lies_the_robot_down_then_damps(dds):
+def test_ctrl_c_lies_the_robot_down_then_damps(go2, dds):
     heard = dds
     heard.clear()
     sim = _robot_sim("--robot", "go2", "--domain", str(DOMAIN), "--mode", "lockstep", "--duration", "8",
@@ -611,6 +588,7 @@ def test_ctrl_c_lies_the_robot_down_then_damps(dds):
     assert deploy["stopped_by"] == "ctrl-c", c_err
     assert [p for _, p in deploy["phases"]][-2:] == ["lie-down", "damping"]
     assert max(row[4] for row in robot["trajectory"]) < 30  # lay down, did not tip over
+    assert not robot["fell"] and robot["base_height_min_m"] < 0.6 * go2.q_nominal[2]  # low on purpose is no fall
 
 
 @pytest.mark.slow

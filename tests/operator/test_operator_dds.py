@@ -4,9 +4,6 @@ rt/wirelesscontroller; deploy decodes it and the MPC walks, turns, stops and lie
 import json
 import os
 import signal
-import subprocess
-import sys
-import tempfile
 
 import numpy as np
 import pytest
@@ -17,6 +14,8 @@ try:
 except Exception as exc:  # noqa: BLE001
     pytest.skip(f"Unitree SDK2 not installed: {exc}", allow_module_level=True)
 
+from cli_process import WbmpcProcess  # noqa: E402
+
 from wbmpc.estimation import SensorConfig, Sensors  # noqa: E402
 from wbmpc.hardware.mapping import unitree_motor_map  # noqa: E402
 from wbmpc.hardware.messages import decode_low_state, encode_low_state  # noqa: E402
@@ -26,7 +25,6 @@ from wbmpc.robots import load_robot  # noqa: E402
 from wbmpc.sim import make_plant  # noqa: E402
 
 DOMAIN = 150 + (os.getpid() + 37) % 80
-SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
 EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "..", "examples")
 
 
@@ -54,26 +52,10 @@ def test_robot_sim_writes_the_scripted_remote_into_low_state_with_a_valid_crc(tm
     assert np.isclose(read_remote_script(os.path.join(EXAMPLES, "remote_session.yaml"))[-1].at_s, 16.0)
 
 
-class _Cli(subprocess.Popen):
-    """A `wbmpc` child writing to temporary files (a full pipe would stall its DDS writer)."""
-
-    def __init__(self, *args):
-        env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self._out, self._err = tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")
-        super().__init__([sys.executable, "-m", "wbmpc.cli", *args], env=env, stdout=self._out, stderr=self._err,
-                         text=True)
-
-    def communicate(self, input=None, timeout=None):
-        self.wait(timeout)
-        self._out.seek(0)
-        self._err.seek(0)
-        return self._out.read(), self._err.read()
-
-
 def _deploy_with_remote(remote_yaml: str, *deploy_args, sim_args=()):
-    sim = _Cli("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--idle-exit", "600", "--watchdog-ms", "500",
+    sim = WbmpcProcess("robot-sim", "--robot", "go2", "--domain", str(DOMAIN), "--idle-exit", "600", "--watchdog-ms", "500",
                "--remote-script", remote_yaml, "--json", *sim_args)
-    controller = _Cli("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--remote",
+    controller = WbmpcProcess("deploy", "--robot", "go2", "--domain", str(DOMAIN), "--scenario", "stand", "--remote",
                       "--state-timeout-ms", "500", "--max-plan-age-ms", "1000", "--json", *deploy_args)
     try:
         c_out, c_err = controller.communicate(timeout=1500)

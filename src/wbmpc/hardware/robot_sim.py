@@ -231,6 +231,7 @@ class RobotSimulator:
             self.gantry = Gantry(self.plant, robot)
             self.plant.add_step_hook(self.gantry)
         self.sensors = Sensors(self.plant, config.sensors)
+        self._lying_pose = lying_joint_positions(robot)
         self._steps_per_tick = max(1, int(round(1.0 / (config.state_rate_hz * self.plant.dt_s))))
         self._lock = threading.Condition()
         self._command: MotorCommand | None = None
@@ -379,7 +380,7 @@ class RobotSimulator:
             q, v = plant.state()
             self.joint_readings = (q[7:][self._leg_index], v[6:][self._leg_index])
             plant.step(command.torque(q[7:], v[6:]))
-        self._record_tick(run)
+        self._record_tick(run, command)
         report.tick_cpu_ms.append(1e3 * (time.thread_time() - cpu_start))
         self._pace(run)
         if progress and cfg.duration_s:
@@ -429,19 +430,29 @@ class RobotSimulator:
                                     timeout=cfg.lockstep_timeout_ms / 1e3)
             return "go", self._command, self._command_wall
 
-    def _record_tick(self, run: _RunClock) -> None:
+    def _record_tick(self, run: _RunClock, command: MotorCommand) -> None:
         """The lowest base, a fall (once the robot stood), every 25th tick's base pose and tilt."""
         report, plant = self.report, self.plant
         q, _ = plant.state()
         report.base_height_min_m = float(q[2] if report.base_height_min_m is None else min(q[2], report.base_height_min_m))
         run.stood = run.stood or q[2] > 0.8 * self.robot.q_nominal[2]  # a lying start has not fallen
-        if run.stood and not report.fell and fallen(self.robot, q, self.config.safety):
+        low_on_purpose = self._commands_lying(command)  # a commanded lie-down or damping: only a tilt is a fall
+        if run.stood and not report.fell and fallen(self.robot, q, self.config.safety, check_height=not low_on_purpose):
             report.fell, report.fell_at_s = True, plant.time_s - run.started_at
         if report.ticks % 25 == 0:
             tilt_deg = np.degrees(np.arccos(np.clip(1 - 2 * (q[3] ** 2 + q[4] ** 2), -1, 1)))
             report.trajectory.append([round(plant.time_s - run.started_at, 4), *np.round(q[:3], 5).tolist(),
                                       round(float(tilt_deg), 2)])
         report.ticks += 1
+
+    def _commands_lying(self, command: MotorCommand) -> bool:
+        """The command lets the base down on purpose: damping (no stiffness) or joint targets nearer the lying
+        pose than the standing one (the controller's lie-down, as deploy commands it)."""
+        if not np.any(command.kp[self._leg_index] > 0):
+            return True
+        targets = command.q_rad[self._leg_index]
+        nominal, lying = self.robot.q_nominal[7:][self._leg_index], self._lying_pose[self._leg_index]
+        return bool(np.linalg.norm(targets - lying) < np.linalg.norm(targets - nominal))
 
     def _pace(self, run: _RunClock) -> None:
         """Real time: sleep until the next tick's wall time (counted on time when there was slack); lock-step: on
