@@ -36,6 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.foot_placement import CAPTURE_GAIN, PLACEMENT_END_SHARE, SwingPlacement
+from wbmpc.control.leg_shins import LegShins, shin_radius_m
 from wbmpc.gait import Gait, SwingProfile, swing_between
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.terrain import FootholdConfig, FootholdMap, Terrain
@@ -61,9 +62,7 @@ SUPPORT_RAMP_SAMPLES = 9  # a biped's support weights averaged at this many time
 REPLAN_M = 0.01
 RIDE_GAIN = 2.0  # the base rides this many RMS of the terrain about its support plane higher (`ride_height`)
 RIDE_LEAN = 0.8  # ... at most until the shins lean this much (`ride_limit_m`)
-SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
 HIP_SAG_M = 0.03  # the hip may come this much lower than the measured base's height predicts (`_hips`)
-SHIN_RADIUS_M = 0.02  # a shin's half thickness where the robot's description has no primitive for it
 SHIN_CLEARANCE_M = 0.04  # room kept between a shin's surface and the terrain (its axis: plus `shin_radius_m`)
 SHIN_FROM = 0.2  # the shin's points checked: from this share of the way from the foot to the knee (below: the foot)
 SHIN_POINTS = 9
@@ -170,12 +169,7 @@ class TerrainReferences:
             placement = self._placement
             heading = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
             command = np.asarray(command_world, dtype=float)[:2]
-            capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(
-                placement._height_m / GRAVITY_M_S2)
-            step = command * stance_s / 2 + capture
-            reach = np.linalg.norm(step)
-            if reach > placement._reach_m:
-                step = step * placement._reach_m / reach
+            step = self._raibert_step(command, np.asarray(v_world, dtype=float)[:2], stance_s)
             segments = []  # (foot, nodes, progress, heights, progress now, measured height in the air or NaN)
             for foot, nodes, s, lift_off_t, touch_down_t, s_now in _swings(gait, t, times):
                 in_progress = lift_off_t <= t
@@ -183,20 +177,9 @@ class TerrainReferences:
                     else feet_m[foot, :2]
                 base_xy = q[:2] + (touch_down_t - t) * command
                 raw = base_xy + heading @ placement._foot_offsets_m[foot] + step
-                measured_xy = q[:2] + (touch_down_t - t) * np.asarray(v_world)[:2]
-                # what the landing and the swing's heights depend on: kept while it moves less than REPLAN_M
-                inputs = np.r_[raw, lift_off_xy, yaw * self._foot_extent, measured_xy, q[2]]
-                key = (foot, round(lift_off_t, 4), in_progress)
-                plan = self._plans.get(key)
-                # (a swing to come: its hips from the measured velocity are a guess, planned again at lift-off)
-                if plan is None or np.any(np.abs(inputs - plan[0])[:None if in_progress else 5] > REPLAN_M):
-                    hips = self._hips(foot, q, base_xy, measured_xy, yaw)
-                    target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips,
-                                           s_now if in_progress else 0.0)
-                    plan = self._plans[key] = (inputs, target, self._swing_heights(foot, lift_off_xy, target, heading,
-                                                                                   hips))
-                _, target, heights = plan
                 s0 = s_now if in_progress else 0.0
+                target, heights = self._plan(foot, lift_off_t, s0, in_progress, raw, lift_off_xy, base_xy,
+                                             q[:2] + (touch_down_t - t) * np.asarray(v_world)[:2], q, yaw, heading)
                 start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
                 # the 6 s (1 - s) profile over what is left of the path (at least PLACEMENT_END_SHARE of it, so that
                 # the rescaling stays bounded); unlike a biped's step on the floor the end is not left free: a foot
@@ -239,6 +222,30 @@ class TerrainReferences:
         support = np.mean([gait.contact(times + a * self.support_lead_s) for a in ramp], axis=0)
         support[support.sum(axis=1) == 0] = 1.0
         return np.einsum("nf,nfk->nk", support, moved) / support.sum(axis=1, keepdims=True)
+
+    def _raibert_step(self, command_xy: np.ndarray, velocity_xy: np.ndarray, stance_s: float) -> np.ndarray:
+        """Raibert's landing point ahead of the hip (half a stance of commanded motion, capture-point feedback),
+        at most the placement's reach."""
+        placement = self._placement
+        step = command_xy * stance_s / 2 + CAPTURE_GAIN * (velocity_xy - command_xy) * np.sqrt(
+            placement._height_m / GRAVITY_M_S2)
+        reach = np.linalg.norm(step)
+        return step * placement._reach_m / reach if reach > placement._reach_m else step
+
+    def _plan(self, foot: int, lift_off_t: float, s0: float, in_progress: bool, raw: np.ndarray,
+              lift_off_xy: np.ndarray, base_xy: np.ndarray, measured_xy: np.ndarray, q: np.ndarray, yaw: float,
+              heading: np.ndarray) -> tuple[np.ndarray, tuple]:
+        """(landing point, swing heights) of a swing: kept from an earlier step while what they depend on moved
+        less than REPLAN_M (a swing to come: its hips from the measured velocity are a guess, planned again at
+        lift-off), else planned again."""
+        inputs = np.r_[raw, lift_off_xy, yaw * self._foot_extent, measured_xy, q[2]]
+        key = (foot, round(lift_off_t, 4), in_progress)
+        plan = self._plans.get(key)
+        if plan is None or np.any(np.abs(inputs - plan[0])[:None if in_progress else 5] > REPLAN_M):
+            hips = self._hips(foot, q, base_xy, measured_xy, yaw)
+            target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips, s0)
+            plan = self._plans[key] = (inputs, target, self._swing_heights(foot, lift_off_xy, target, heading, hips))
+        return plan[1], plan[2]
 
     def _swing_plans(self, segments: list, swing_s: float, apex_plan: np.ndarray, vz: np.ndarray):
         """Heights and vertical velocities of eq. (6)'s splines between (lift-off, apex, touch-down heights, apex
@@ -392,58 +399,6 @@ class TerrainReferences:
         return h0, apex, h1, float(APEX_SHARES[clears[0]]) if clears.size else 0.5
 
 
-class LegShins:
-    """The shins of a robot's legs in their sagittal planes: each leg as two links, hip (the joint above the knee) ->
-    knee (the first joint up the leg at least SHIN_MIN_HEIGHT standing heights above the contact point) -> contact
-    point, with the knee on the side it is in the nominal pose. `knees` places the knee for a hip and a foot (planar
-    inverse kinematics), `clearance` measures how far the shin (knee -> foot) keeps over the terrain."""
-
-    def __init__(self, robot: RobotModel):
-        model, data = robot.model, robot.model.createData()
-        pin.framesForwardKinematics(model, data, robot.q_nominal)
-        rotation = data.oMi[1].rotation
-        base = data.oMi[1].translation
-        hips, lengths, sides, legged = [], [], [], []
-        self.shin_joints: set[int] = set()  # the joints from the knees down (their links make the shins)
-        for foot in robot.feet:
-            frame = robot.frame_id(robot.contact_frame(foot))
-            contact = data.oMf[frame].translation
-            joint = model.frames[frame].parentJoint
-            knee = None
-            while joint > 1:
-                self.shin_joints.add(joint)
-                if (rotation.T @ (data.oMi[joint].translation - contact))[2] >= SHIN_MIN_HEIGHT * robot.q_nominal[2]:
-                    knee = joint
-                    break
-                joint = model.parents[joint]
-            if knee is None or model.parents[knee] <= 1:
-                hips.append(np.zeros(3)), lengths.append((1.0, 1.0)), sides.append(0.0), legged.append(False)
-                continue
-            k, h = data.oMi[knee].translation, data.oMi[model.parents[knee]].translation
-            hips.append(rotation.T @ (h - base))
-            lengths.append((float(np.linalg.norm(k - h)), float(np.linalg.norm(contact - k))))
-            # the knee's side of the hip -> foot line in the sagittal plane (x forward, z up): the cross product's sign
-            (hx, hz), (kx, kz), (fx, fz) = ((rotation.T @ (v - base))[[0, 2]] for v in (h, k, contact))
-            sides.append(float(np.sign((fx - hx) * (kz - hz) - (fz - hz) * (kx - hx))))
-            legged.append(True)
-        self.hip_offsets_m = np.array(hips)  # hips in the base frame
-        self.lengths_m = np.array(lengths)  # (thigh, shin) per leg
-        self.sides = np.array(sides)
-        self.legged = np.array(legged)
-
-    def knees(self, foot: int, hip_sz: np.ndarray, feet_sz: np.ndarray) -> np.ndarray:
-        """Knee positions (..., 2) in a sagittal plane (along the heading, up) for hips and feet (..., 2)."""
-        thigh, shin = self.lengths_m[foot]
-        d = feet_sz - hip_sz
-        distance = np.clip(np.linalg.norm(d, axis=-1), abs(thigh - shin) + 1e-6, thigh + shin - 1e-6)
-        angle = np.arccos(np.clip((thigh**2 + distance**2 - shin**2) / (2 * thigh * distance), -1.0, 1.0))
-        unit = d / np.linalg.norm(d, axis=-1, keepdims=True)
-        turn = self.sides[foot] * angle  # rotate the hip -> foot direction towards the knee's side
-        c, s = np.cos(turn)[..., None], np.sin(turn)[..., None]
-        rotated = np.concatenate([c * unit[..., :1] - s * unit[..., 1:], s * unit[..., :1] + c * unit[..., 1:]], axis=-1)
-        return hip_sz + thigh * rotated
-
-
 def ride_height(plane: np.ndarray, ride_max_m: float) -> np.ndarray:
     """The base target's height over the nominal one: the support plane's height under the base, raised on rough
     ground by RIDE_GAIN times the terrain's RMS about the plane, at most `ride_max_m` (`ride_limit_m`)."""
@@ -467,20 +422,6 @@ def ride_limit_m(robot: RobotModel) -> float:
         straighter = 2 * length / np.sqrt(1 + RIDE_LEAN**2)  # hip -> foot distance at which the shin leans RIDE_LEAN
         raises.append(max(0.0, straighter - reach))
     return float(np.mean(raises)) if raises else 0.0
-
-
-def shin_radius_m(robot: RobotModel) -> float:
-    """The shins' half thickness: of the URDF's collision primitives on the links from the knees down (a box's middle
-    half size, a capsule's or cylinder's radius), the largest; SHIN_RADIUS_M where the robot has none (meshes, no
-    URDF)."""
-    from wbmpc.robots.urdf_geometry import collision_primitives
-
-    shins = LegShins(robot)
-    urdf = getattr(robot.spec, "urdf", None)
-    primitives = collision_primitives(robot.model, urdf) if urdf else []
-    sizes = [sorted(p.size)[1] if p.kind == "box" else p.size[0] for p in primitives
-             if p.joint_id in shins.shin_joints and p.kind in ("box", "capsule", "cylinder")]
-    return float(max(sizes, default=SHIN_RADIUS_M))
 
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:
