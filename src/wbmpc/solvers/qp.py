@@ -42,6 +42,9 @@ class QpConfig:
     barrier_init: float = 100.0
     warm_start: bool = True
     hpipm_options: dict = field(default_factory=dict)  # further HPIPM arguments (mu0, warm_start, ...)
+    # our binding (solvers/hpipm_direct.py) leaves inputs with lb == ub and the initial state out of HPIPM's QP
+    # (csrc/hpipm_reduce.c: same QP, smaller Riccati blocks); casadi's conic keeps them
+    eliminate_fixed: bool = True
 
     def __post_init__(self):
         if self.mode not in HPIPM_MODES:
