@@ -125,6 +125,20 @@ def test_whole_courses(capsys, tmp_path, robot, scenario, extra):
         assert m["ee_pos_rmse_course_m"] < 0.02
 
 
+@pytest.mark.slow
+def test_g1_walks_up_three_steps_of_10_cm(capsys, tmp_path):
+    """The issue's humanoid number: g1 (flat feet) walks up 3 steps of 10 cm / 30 cm, compiled converged Fatrop: on
+    the landing without a fall, every step under both feet, no shin or knee on a step, few failed solves (the base
+    ramped over its support's footholds, the walk 1.4 times slower off the floor). A foot's touch near a nose is
+    allowed twice: the trailing heel, 1-2 cm from the nose of its tread, touched once as it lifted."""
+    code, m, err = run_json(capsys, "stairs", "--robot", "g1", "--stairs", "up", "--steps", "3", "--step-rise", "0.10",
+                            "--compiled", "--out", str(tmp_path / "run"))
+    assert code == 0 and m["course_completed"] and not m["fell"], err[-2000:]
+    assert m["steps_climbed"] == m["steps_total"] == 3
+    assert m["body_terrain_contacts"] == 0 and m["edge_contacts"] <= 2
+    assert m["mpc_failures"] <= 0.05 * m["mpc_solves"]
+
+
 @pytest.mark.parametrize("robot_name", ["go2", "g1"])
 def test_stairs_up_end_with_the_whole_robot_on_the_landing(robot_name):
     """`stairs --stairs up` runs until the rear feet are past the last riser: where the base is by then at the

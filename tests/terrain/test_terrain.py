@@ -200,6 +200,78 @@ def test_swing_references_land_on_the_step_and_cones_tilt_with_the_ramp(go2):
                                terrain.height(step.footholds_m[-1, :, :2]) + go2.foot_radius_m)
 
 
+def test_swing_plans_are_kept_within_a_raster_cell_and_planned_again_beyond(go2):
+    """go2 trotting towards stairs: a base moved 4 mm keeps the swings' landings and heights of the step before (the
+    landings on safe cells); moved 3 cm, every swing is planned again: the same data as a fresh plan (no kept ones)."""
+    import copy
+
+    terrain = stairs(3, 0.08, 0.25, 0.45)
+    gait = make_gait("trot", 4, 0.65)
+    references = TerrainReferences(go2, terrain, SwingProfile(apex_height_m=0.05))
+    q = go2.q_nominal.copy()
+    q[0] = 0.1
+    node_times = np.linspace(0.0, 0.56, 15)
+    velocity = np.array([0.3, 0.0, 0.0])
+
+    def step(refs, dx):
+        moved = q.copy()
+        moved[0] += dx
+        feet = np.array([go2.frame_trajectories(moved, [f])[f][0] for f in go2.feet])
+        return refs.step(gait, 0.3, node_times, moved, velocity, velocity, 0.0, feet)
+
+    first = step(references, 0.0)
+    kept = step(references, 0.004)
+    swinging = np.isfinite(first.apex_m)
+    assert swinging.any(axis=0).sum() >= 2
+    np.testing.assert_array_equal(kept.footholds_m[-1, :, :2][swinging.any(axis=0)],
+                                  first.footholds_m[-1, :, :2][swinging.any(axis=0)])
+    np.testing.assert_array_equal(kept.apex_m[swinging], first.apex_m[swinging])
+    assert np.all(references.footholds.is_safe(kept.footholds_m[-1, :, :2]))
+    fresh = copy.deepcopy(references)
+    fresh._plans.clear()
+    again, new = step(references, 0.03), step(fresh, 0.03)
+    assert np.abs(again.footholds_m[-1, :, 0] - first.footholds_m[-1, :, 0]).max() > 0.01
+    np.testing.assert_array_equal(again.footholds_m, new.footholds_m)
+    np.testing.assert_array_equal(again.swing_vz_m_s, new.swing_vz_m_s)
+
+
+def test_a_bipeds_base_target_moves_with_a_landing_moved_onto_a_step():
+    """g1 walking up to a step whose near edge is where Raibert's point would land: the landings move onto the tread's
+    safe band (against the same walk before a box far away), and the base's xy target ramps forward with them, by at
+    least half the first one's move and at most the largest; the walk on a terrain is 1.4 times slower than on
+    the floor. A quadruped's base is left on its path."""
+    from wbmpc.control.biped import BIPED_TERRAIN_PERIOD_SCALE
+    from wbmpc.control.policy import MpcChoices, TaskNeeds, mpc_config
+
+    g1 = load_robot("g1")
+    terrain = stairs(1, 0.1, 0.3, 0.2, landing_m=1.0, direction="up")
+    flat = mpc_config(g1, TaskNeeds(gait="walk"), MpcChoices())
+    on_stairs = mpc_config(g1, TaskNeeds(gait="walk", terrain=terrain), MpcChoices())
+    assert on_stairs.gait_period_s == pytest.approx(BIPED_TERRAIN_PERIOD_SCALE * flat.gait_period_s)
+    gait = make_gait("walk", 2, on_stairs.gait_period_s)
+    feet = np.array([g1.frame_trajectories(g1.q_nominal, [f])[f][0] for f in g1.feet])
+    node_times = np.linspace(0.0, 1.2, 25)
+    velocity = np.array([0.2, 0.0, 0.0])
+
+    def step(ground):
+        references = TerrainReferences(g1, ground, on_stairs.swing, support_lead_s=on_stairs.references.support_lead_s)
+        return references, references.step(gait, 0.0, node_times, g1.q_nominal, velocity, velocity, 0.0, feet)
+
+    references, up = step(terrain)
+    _, far = step(Terrain((Box((5.0, 0.0), (0.5, 0.5), 0.1, name="far"),)))
+    moves = up.footholds_m[-1, :, 0] - far.footholds_m[-1, :, 0]
+    assert moves.min() >= -1e-9 and moves.max() > 0.05 and np.all(up.footholds_m[-1, :, 2] > 0.05)  # up, forward
+    assert np.all(references.footholds.is_safe(up.footholds_m[-1, :, :2]))
+    assert np.allclose(far.support_shift_m, 0.0)
+    shift_x = up.support_shift_m[:, 0]
+    assert shift_x[0] == pytest.approx(0.0) and 0.5 * moves[0] <= shift_x.max() <= moves.max() + 1e-9
+    assert np.all(np.diff(shift_x[: np.argmax(shift_x) + 1]) >= -1e-12)  # ramped in (then back as the other lands)
+    a1 = load_robot("a1")
+    assert TerrainReferences(a1, terrain, SwingProfile()).step(
+        make_gait("trot", 4, 0.5), 0.0, node_times, a1.q_nominal, velocity, velocity, 0.0,
+        np.array([a1.frame_trajectories(a1.q_nominal, [f])[f][0] for f in a1.feet])).support_shift_m is None
+
+
 def cone_rows(robot, normal, force, mu=0.5):
     """The friction / wrench cone rows of a first-node stage with every foot's force `force` (world, N) and the
     ground normal `normal` for every foot."""

@@ -35,6 +35,8 @@ pelvis' sway. So on two feet:
 
 from __future__ import annotations
 
+import dataclasses
+
 from wbmpc.gait import biped_walk_timing
 
 BIPED_SOURCE = "derived: biped"
@@ -43,6 +45,10 @@ BIPED_APEX_PER_LEG = 0.075  # swing apex / leg length: 4.9 cm on g1 (the trot's 
 BIPED_BASE_LINEAR_VELOCITY_WEIGHT = 5.0
 BIPED_LEG_JOINT_WEIGHT = 2.0
 BIPED_CONTACT_FORCE_WEIGHT = 1e-5
+# off the flat floor the walk's period (and the lean's lead) this much longer: a step up onto a tread's safe band
+# lands a foot 22 cm or more ahead of the other (the band's gap and a sole's length), and the CoM must cross to
+# it before the trailing foot lifts; in the 0.2 s of g1's double support it stayed 1-6 cm behind that heel
+BIPED_TERRAIN_PERIOD_SCALE = 1.4
 
 
 def biped_overrides(leg_length_m: float) -> dict:
@@ -59,3 +65,9 @@ def biped_overrides(leg_length_m: float) -> dict:
         "free_ee_without_command": True,
         "swing_placement": True,
     }
+
+
+def biped_on_terrain(gait_period_s: float, references):
+    """(gait period, `ReferenceConfig`) of a biped walking on a terrain: both slower by BIPED_TERRAIN_PERIOD_SCALE."""
+    return (gait_period_s * BIPED_TERRAIN_PERIOD_SCALE,
+            dataclasses.replace(references, support_lead_s=references.support_lead_s * BIPED_TERRAIN_PERIOD_SCALE))

@@ -34,6 +34,7 @@ MPC_RATE_HZ = 80.0  # the paper's MPC rate (section V-B)
 
 
 MOTOR_LAWS = ("held", "continuous")
+FALL_GROUND_CELL_M = 0.01  # the fall check's ground on a terrain: fitted again per cm of base motion (or 0.01 rad)
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,7 @@ class ClosedLoop:
         self._delay_mean_s = 0.0  # running mean of the measured delays (delay compensation's guess)
         self.log: RunLog | None = None  # the log of the run in progress (or the last one): a `stop` may read it
         self._support = None  # the terrain's support plane under the base (the fall check's ground)
+        self._ground_key, self._ground_m = None, 0.0  # ... where it was fitted last, and its height there
         if config.terrain is not None and not config.terrain.is_flat:
             from wbmpc.control.terrain_references import support_footprint
 
@@ -152,9 +154,18 @@ class ClosedLoop:
             v[6:] = self._filtered_v[6:]
         return q, v
 
+    def _ground(self, xy: np.ndarray, yaw: float) -> float:
+        """The support plane's height under the base for the fall check, fitted again when the base has moved a
+        FALL_GROUND_CELL_M cell or turned FALL_GROUND_CELL_M per metre: on every control tick the fit cost seven
+        times the flat floor's fall check."""
+        key = (*np.round(np.asarray(xy) / FALL_GROUND_CELL_M).astype(int).tolist(), round(yaw / FALL_GROUND_CELL_M))
+        if key != self._ground_key:
+            self._ground_key, self._ground_m = key, float(self._support.height(xy, yaw))
+        return self._ground_m
+
     def _fallen(self, q: np.ndarray) -> bool:
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
-        ground = 0.0 if self._support is None else float(self._support.height(q[:2], np.arctan2(rot[1, 0], rot[0, 0])))
+        ground = 0.0 if self._support is None else self._ground(q[:2], float(np.arctan2(rot[1, 0], rot[0, 0])))
         height_ok = q[2] - ground > self.config.fall_height_ratio * self.robot.q_nominal[2]
         upright = rot[2, 2] > 0.5  # tilted less than 60 degrees
         return not (height_ok and upright)

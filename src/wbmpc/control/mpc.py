@@ -285,6 +285,7 @@ class MPC:
         terrain = references.terrain_step(q, v, rot, t, node_times, base_velocity_world)
         if terrain is not None:
             swing_vz, swing_vxy = terrain.swing_vz_m_s, terrain.swing_vxy_m_s
+            dq_des = references.follow_support(rot, dq_des, terrain)  # a biped's base over its footholds
         if self.config.references.touchdown_events and measured_contact is not None:  # (on the terrain's splines too)
             contact, swing_vz = follow_touchdown(self.gait, t, node_times, contact, swing_vz, measured_contact,
                                                  self.config.swing.touchdown_velocity_m_s)

@@ -15,6 +15,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable
 
+from wbmpc.control.biped import biped_on_terrain
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig, PushConfig, RecoveryConfig
 from wbmpc.control.delay import DELAY_MODES, MAX_FIXED_DELAY_MS, check_delay
 from wbmpc.control.loop import MPC_RATE_HZ
@@ -224,11 +225,14 @@ def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -
                     object_model=task.object_model if robot is not None else None)
     solver = SolverConfig(name=choices.solver, compiled=choices.compiled, max_iterations=MAX_ITERATIONS,
                           extra_options=solver_options(choices, flat_feet))
+    gait_period_s = tuning.gait_period_s
+    references = tuning.reference_config(base_tracking=choices.base_tracking, terrain=task.terrain,
+                                         touchdown_events=choices.touchdown_events)
+    if robot is not None and len(robot.feet) == 2 and task.terrain is not None and not task.terrain.is_flat:
+        gait_period_s, references = biped_on_terrain(gait_period_s, references)
     return MpcConfig(
-        ocp=ocp, solver=solver, gait=task.gait, gait_period_s=tuning.gait_period_s, swing=tuning.swing,
-        weights=collision_weights(task.weights(tuning.weights), soft_arm),
-        references=tuning.reference_config(base_tracking=choices.base_tracking, terrain=task.terrain,
-                                           touchdown_events=choices.touchdown_events),
+        ocp=ocp, solver=solver, gait=task.gait, gait_period_s=gait_period_s, swing=tuning.swing,
+        weights=collision_weights(task.weights(tuning.weights), soft_arm), references=references,
         recovery=recovery_config(choices, flat_feet),
         push=tuning.push_config(gait_period_scale=push_cadence(choices), relaxed_rows=push_relaxed_rows(choices)),
         delay_compensation=(delay_compensation_default(choices, flat_feet) if choices.delay_compensation is None

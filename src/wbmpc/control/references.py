@@ -40,8 +40,8 @@ class References:
         self._stance_reference = StanceReference(robot) if config.stance_posture else None
         self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
         # on a terrain (not the flat floor): its footholds, swing splines, cone normals and base targets
-        self.terrain = TerrainReferences(robot, config.terrain, swing or SwingProfile(), config.footholds) \
-            if config.terrain is not None and not config.terrain.is_flat else None
+        self.terrain = TerrainReferences(robot, config.terrain, swing or SwingProfile(), config.footholds,
+                                         config.support_lead_s) if config.terrain is not None and not config.terrain.is_flat else None
         # the base's position reference (`base_tracking` "position": the commanded velocity integrated from where the
         # run started; "velocity": the measured base of the last step), world x/y and yaw; None before a step
         self.anchor_xy_m: np.ndarray | None = None
@@ -150,6 +150,15 @@ class References:
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         feet_yaw = np.array([heading_of(self._data.oMf[i].rotation) for i in self._foot_ids])
         return self._swing_placement.yaw_rates(self.gait, t_s, node_times, heading_of(rot), yaw_rate_rad_s, feet_yaw)
+
+    def follow_support(self, rot: np.ndarray, dq_des: np.ndarray, terrain: TerrainStep) -> np.ndarray:
+        """Base xy targets moved with the footholds of a biped's support on a terrain
+        (`TerrainReferences.support_shift`)."""
+        if terrain.support_shift_m is None:
+            return dq_des
+        dq_des = dq_des.copy()  # (nv, nodes); its base position part is (nearly) in the base frame
+        dq_des[:3] += rot.T[:, :2] @ terrain.support_shift_m.T
+        return dq_des
 
     def terrain_step(self, q, v, rot, t_s, node_times, command_world) -> TerrainStep | None:
         """On a terrain, this step's swing references, footholds and cone normals (`TerrainReferences.step`)."""

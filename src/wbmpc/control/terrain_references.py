@@ -24,6 +24,8 @@ The OCP is the same on any ground (`ocp/problem.py`): the terrain enters through
   once). A biped keeps its pelvis upright.
 
 Everything is vectorised over nodes; the loops run over feet and the (one or two) swings of each in the horizon.
+A swing's landing point and heights are kept from step to step while what they depend on moves less than a cell of
+the foothold raster (`REPLAN_M`); the splines of all swings are evaluated at once.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.foot_placement import CAPTURE_GAIN, PLACEMENT_END_SHARE, SwingPlacement
+from wbmpc.control.leg_shins import LegShins, shin_radius_m
 from wbmpc.gait import Gait, SwingProfile, swing_between
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.terrain import FootholdConfig, FootholdMap, Terrain
@@ -48,11 +51,18 @@ SOLE_MARGIN_M = 0.02  # ... plus this for a flat foot (g1: 11 cm, leaving 8 cm o
 SUPPORT_REACH = 0.3  # support plane samples reach this share of the leg length ahead of and behind each foot
 PITCH_TABLE_RAD = np.deg2rad(np.arange(-40.0, 40.1, 2.0))  # base pitches of the leg posture table
 IK_ITERATIONS = 30
+SUPPORT_RAMP_SAMPLES = 9  # a biped's support weights averaged at this many times over two double supports
+# a swing's landing point and heights are planned again when what they depend on (Raibert's point, the lift-off point,
+# the heading as a move of the foot's extent, the base's place at touch-down and its height) moved by more than this
+# since they were planned: a cell of the foothold raster (the landing stays on a safe cell). Planned on every step,
+# they took 3.6 ms of thread CPU of b1_z1's 9.6 ms MPC step on the stairs (flat trot-forward: 5.3 ms in the same
+# sitting), the cause of 7 % late plans in real time. (Half a cell: Raibert's point moves that much with the
+# capture point's feedback on a trot's velocity ripple, and 1.6 of the ~5 swings in the horizon were planned again.)
+# A swing to come is not planned again for the base's measured place: that guess moves with the velocity's ripple.
+REPLAN_M = 0.01
 RIDE_GAIN = 2.0  # the base rides this many RMS of the terrain about its support plane higher (`ride_height`)
 RIDE_LEAN = 0.8  # ... at most until the shins lean this much (`ride_limit_m`)
-SHIN_MIN_HEIGHT = 0.3  # the shin's top: the first joint up the leg this share of the standing height above the foot
 HIP_SAG_M = 0.03  # the hip may come this much lower than the measured base's height predicts (`_hips`)
-SHIN_RADIUS_M = 0.02  # a shin's half thickness where the robot's description has no primitive for it
 SHIN_CLEARANCE_M = 0.04  # room kept between a shin's surface and the terrain (its axis: plus `shin_radius_m`)
 SHIN_FROM = 0.2  # the shin's points checked: from this share of the way from the foot to the knee (below: the foot)
 SHIN_POINTS = 9
@@ -82,14 +92,18 @@ class TerrainStep:
     contact_normal: np.ndarray  # (3 n_feet, N): the OCP parameter
     footholds_m: np.ndarray  # (nodes, n_feet, 3) where each foot stands (or will land) at each node
     apex_m: np.ndarray  # (nodes, n_feet) planned swing heights (NaN in stance), for plots and tests
+    # (nodes, 2) world xy: a biped's base target moved with the footholds of its support (`support_shift`); None: not
+    support_shift_m: np.ndarray | None = None
 
 
 class TerrainReferences:
     """The terrain's per-step data for the MPC of `robot` (see the module docstring)."""
 
     def __init__(self, robot: RobotModel, terrain: Terrain, swing: SwingProfile,
-                 footholds: FootholdConfig | None = None):
+                 footholds: FootholdConfig | None = None, support_lead_s: float = 0.0):
         self.robot, self.terrain, self.swing = robot, terrain, swing
+        self.support_lead_s = support_lead_s  # a biped's base leans over the feet that stand this much later
+        self.follows_footholds = len(robot.feet) == 2  # (`support_shift`)
         self.footholds = FootholdMap(terrain, footholds or default_footholds(robot))
         self.raster = self.footholds.raster
         self._placement = SwingPlacement(robot)
@@ -109,6 +123,10 @@ class TerrainReferences:
     def reset(self) -> None:
         self._stance_xy: np.ndarray | None = None  # where each foot last stood (a swing's lift-off point)
         self._committed: dict[int, tuple[float, np.ndarray, float]] = {}  # foot -> (lift-off t, landing, its height)
+        # (foot, lift-off t, in the air) -> (the inputs it was planned from, landing point, swing heights)
+        self._moved_m = np.zeros((len(self.robot.feet), 2))  # each foot's landing less its Raibert point
+        self._moved_since: dict[int, tuple[float, np.ndarray]] = {}  # ... taken at (the swing's lift-off t, landing)
+        self._plans: dict[tuple[int, float, bool], tuple[np.ndarray, np.ndarray, tuple]] = {}
 
     # ------------------------------------------------------------------ base
     def shape_base_targets(self, targets: np.ndarray, yaws: np.ndarray) -> None:
@@ -142,27 +160,26 @@ class TerrainReferences:
         vxy = np.full((n, n_feet, 2), np.nan)
         apex_plan = np.full((n, n_feet), np.nan)
         stand = np.repeat(feet_m[None, :, :2], n, axis=0)  # where each foot stands per node
+        moved = np.repeat(self._moved_m[None], n, axis=0)  # ... less Raibert's point there
+        points = list(feet_m[:, :2])  # ... the few points it takes: the feet and the swings' landings
+        which = np.tile(np.arange(n_feet), (n, 1))  # ... the index of each node's and foot's among them
         duty = gait.duty_factor
         if duty < 1:
             swing_s, stance_s = gait.swing_duration_s, duty * gait.period_s
             placement = self._placement
             heading = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
             command = np.asarray(command_world, dtype=float)[:2]
-            capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(
-                placement._height_m / GRAVITY_M_S2)
-            step = command * stance_s / 2 + capture
-            reach = np.linalg.norm(step)
-            if reach > placement._reach_m:
-                step = step * placement._reach_m / reach
+            step = self._raibert_step(command, np.asarray(v_world, dtype=float)[:2], stance_s)
+            segments = []  # (foot, nodes, progress, heights, progress now, measured height in the air or NaN)
             for foot, nodes, s, lift_off_t, touch_down_t, s_now in _swings(gait, t, times):
                 in_progress = lift_off_t <= t
                 lift_off_xy = self._stance_xy[foot] if in_progress else stand[nodes[0] - 1, foot] if nodes[0] > 0 \
                     else feet_m[foot, :2]
                 base_xy = q[:2] + (touch_down_t - t) * command
                 raw = base_xy + heading @ placement._foot_offsets_m[foot] + step
-                hips = self._hips(foot, q, base_xy, q[:2] + (touch_down_t - t) * np.asarray(v_world)[:2], yaw)
-                target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips, s_now if in_progress else 0.0)
                 s0 = s_now if in_progress else 0.0
+                target, heights = self._plan(foot, lift_off_t, s0, in_progress, raw, lift_off_xy, base_xy,
+                                             q[:2] + (touch_down_t - t) * np.asarray(v_world)[:2], q, yaw, heading)
                 start_xy = feet_m[foot, :2] if in_progress else lift_off_xy
                 # the 6 s (1 - s) profile over what is left of the path (at least PLACEMENT_END_SHARE of it, so that
                 # the rescaling stays bounded); unlike a biped's step on the floor the end is not left free: a foot
@@ -170,30 +187,91 @@ class TerrainReferences:
                 left = max(1 - 3 * s0**2 + 2 * s0**3, PLACEMENT_END_SHARE)
                 vxy[nodes, foot] = np.outer(6 * s * (1 - s) / (swing_s * left), target - start_xy)
                 stand[nodes[0]:, foot] = target
-                heights = self._swing_heights(foot, lift_off_xy, target, heading, hips)
-                apex_plan[nodes, foot], vz[nodes, foot] = self._swing_plan(
-                    heights, s, swing_s, s0, feet_m[foot, 2] if in_progress else None)
-        unique, inverse = np.unique(stand.reshape(-1, 2), axis=0, return_inverse=True)  # a few footholds: exact
-        heights, normals = (values[inverse.ravel()].reshape(stand.shape[:-1] + values.shape[1:])
-                            for values in self.terrain.height_normal(unique))
+                moved[nodes[0]:, foot] = self._moved(foot, target - raw, target, lift_off_t) if in_progress \
+                    else target - raw
+                which[nodes[0]:, foot] = len(points)
+                points.append(target)
+                segments.append((foot, nodes, s, heights, s0, feet_m[foot, 2] if in_progress else np.nan))
+            if segments:  # eq. (6)'s splines of all the swings at once
+                apex_plan, vz = self._swing_plans(segments, swing_s, apex_plan, vz)
+            self._plans = {key: plan for key, plan in self._plans.items() if key[1] + swing_s >= t}  # swings to come
+        heights, normals = (values[which] for values in self.terrain.height_normal(np.array(points)))  # exact
         footholds = np.concatenate([stand, (heights + self._contact_height)[..., None]], axis=-1)
         N = n - 1
-        return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan)
+        return TerrainStep(vz, vxy, normals[:N].reshape(N, 3 * n_feet).T.copy(), footholds, apex_plan,
+                           self.support_shift(gait, times, moved) if self.follows_footholds else None)
 
-    def _swing_plan(self, heights: tuple, s: np.ndarray, swing_s: float, s0: float,
-                    measured_z: float | None) -> tuple[np.ndarray, np.ndarray]:
-        """(heights, vertical velocities) of eq. (6)'s spline between (lift-off, apex, touch-down heights, apex share)
-        at swing progress s; a swing in progress (`measured_z`: its foot's height, at progress s0) planned from the
-        measured height, its error taken out linearly until touch-down."""
-        h0, apex, h1, share = heights
+    def _moved(self, foot: int, moved_m: np.ndarray, target: np.ndarray, lift_off_t: float) -> np.ndarray:
+        """How far a swing in the air lands from Raibert's point, as at its first step in the air (Raibert's point
+        follows the base: a base moving ahead over a landing moved forward took the move back) unless its landing
+        moved by more than the keep-out band since (another tread)."""
+        since = self._moved_since.get(foot)
+        if since is None or abs(since[0] - lift_off_t) > 1e-3 or \
+                np.linalg.norm(since[1] - target) > self.footholds.config.keep_out_m:
+            self._moved_m[foot], self._moved_since[foot] = moved_m, (lift_off_t, target)
+        return self._moved_m[foot]
+
+    def support_shift(self, gait: Gait, times: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """(nodes, 2) world: the mean move from Raibert's points of the footholds of each node's support, each foot
+        weighted by its contact averaged over the next two `support_lead_s` (a ramp over a double support centred
+        a double support later, as `support_sway` leans). The footholds move off step edges by up to half a tread;
+        a biped's base kept on its commanded path left g1's CoM 1-6 cm behind the heel of a foot moved 10 cm up
+        onto a step when the other foot lifted, and it fell; moved at once (not ramped) its target jumped 11 cm
+        ahead of the base, the solves failed and it fell too."""
+        ramp = np.linspace(0.0, 2.0, SUPPORT_RAMP_SAMPLES)
+        support = np.mean([gait.contact(times + a * self.support_lead_s) for a in ramp], axis=0)
+        support[support.sum(axis=1) == 0] = 1.0
+        return np.einsum("nf,nfk->nk", support, moved) / support.sum(axis=1, keepdims=True)
+
+    def _raibert_step(self, command_xy: np.ndarray, velocity_xy: np.ndarray, stance_s: float) -> np.ndarray:
+        """Raibert's landing point ahead of the hip (half a stance of commanded motion, capture-point feedback),
+        at most the placement's reach."""
+        placement = self._placement
+        step = command_xy * stance_s / 2 + CAPTURE_GAIN * (velocity_xy - command_xy) * np.sqrt(
+            placement._height_m / GRAVITY_M_S2)
+        reach = np.linalg.norm(step)
+        return step * placement._reach_m / reach if reach > placement._reach_m else step
+
+    def _plan(self, foot: int, lift_off_t: float, s0: float, in_progress: bool, raw: np.ndarray,
+              lift_off_xy: np.ndarray, base_xy: np.ndarray, measured_xy: np.ndarray, q: np.ndarray, yaw: float,
+              heading: np.ndarray) -> tuple[np.ndarray, tuple]:
+        """(landing point, swing heights) of a swing: kept from an earlier step while what they depend on moved
+        less than REPLAN_M (a swing to come: its hips from the measured velocity are a guess, planned again at
+        lift-off), else planned again."""
+        inputs = np.r_[raw, lift_off_xy, yaw * self._foot_extent, measured_xy, q[2]]
+        key = (foot, round(lift_off_t, 4), in_progress)
+        plan = self._plans.get(key)
+        if plan is None or np.any(np.abs(inputs - plan[0])[:None if in_progress else 5] > REPLAN_M):
+            hips = self._hips(foot, q, base_xy, measured_xy, yaw)
+            target = self._landing(foot, raw, in_progress, lift_off_t, heading, hips, s0)
+            plan = self._plans[key] = (inputs, target, self._swing_heights(foot, lift_off_xy, target, heading, hips))
+        return plan[1], plan[2]
+
+    def _swing_plans(self, segments: list, swing_s: float, apex_plan: np.ndarray, vz: np.ndarray):
+        """Heights and vertical velocities of eq. (6)'s splines between (lift-off, apex, touch-down heights, apex
+        share) at each swing's progress, written into the (nodes, feet) arrays; a swing in progress (its measured
+        height, at progress s0; NaN: to come) planned from the measured height, its error taken out linearly until
+        touch-down. All swings (foot, nodes, progress, heights, progress now, measured height) in one pass."""
+        lengths = [len(seg[1]) for seg in segments]
+        s = np.concatenate([seg[2] for seg in segments])
+        heights = np.array([seg[3] for seg in segments])  # (swings, 4): lift-off, apex, touch-down, apex share
+        s0, measured = np.array([seg[4] for seg in segments]), np.array([seg[5] for seg in segments])
         lift_off, touch_down = self.swing.liftoff_velocity_m_s, self.swing.touchdown_velocity_m_s
-        height, velocity = swing_between(s, swing_s, h0, apex, h1, share, lift_off, touch_down)
-        if measured_z is None:
-            return height, velocity
-        planned_now, _ = swing_between(np.array([s0]), swing_s, h0, apex, h1, share, lift_off, touch_down)
-        error = measured_z - planned_now[0]
-        correction = np.clip(error / max((1 - s0) * swing_s, 1e-3), -MAX_HEIGHT_CORRECTION_M_S, MAX_HEIGHT_CORRECTION_M_S)
-        return height + error * (1 - s) / max(1 - s0, 1e-3), velocity - correction
+        each = np.repeat(heights, lengths, axis=0)
+        height, velocity = swing_between(s, swing_s, *each.T, lift_off, touch_down)
+        flying = np.isfinite(measured)
+        error, correction = np.zeros(len(segments)), np.zeros(len(segments))
+        if flying.any():  # swings in progress: planned from the measured height (its error out until touch-down)
+            planned_now, _ = swing_between(s0[flying], swing_s, *heights[flying].T, lift_off, touch_down)
+            error[flying] = measured[flying] - planned_now
+            correction[flying] = np.clip(error[flying] / np.maximum((1 - s0[flying]) * swing_s, 1e-3),
+                                         -MAX_HEIGHT_CORRECTION_M_S, MAX_HEIGHT_CORRECTION_M_S)
+        height = height + np.repeat(error, lengths) * (1 - s) / np.repeat(np.maximum(1 - s0, 1e-3), lengths)
+        velocity = velocity - np.repeat(correction, lengths)
+        rows = np.concatenate([seg[1] for seg in segments])
+        columns = np.repeat([seg[0] for seg in segments], lengths)
+        apex_plan[rows, columns], vz[rows, columns] = height, velocity
+        return apex_plan, vz
 
     def _shin_clearance(self, foot: int, hips: np.ndarray, heading: np.ndarray, feet_xy: np.ndarray) -> np.ndarray:
         """For landing points feet_xy (n, 2): the smallest height (m) of the shin (knee -> foot, from the planar leg
@@ -321,58 +399,6 @@ class TerrainReferences:
         return h0, apex, h1, float(APEX_SHARES[clears[0]]) if clears.size else 0.5
 
 
-class LegShins:
-    """The shins of a robot's legs in their sagittal planes: each leg as two links, hip (the joint above the knee) ->
-    knee (the first joint up the leg at least SHIN_MIN_HEIGHT standing heights above the contact point) -> contact
-    point, with the knee on the side it is in the nominal pose. `knees` places the knee for a hip and a foot (planar
-    inverse kinematics), `clearance` measures how far the shin (knee -> foot) keeps over the terrain."""
-
-    def __init__(self, robot: RobotModel):
-        model, data = robot.model, robot.model.createData()
-        pin.framesForwardKinematics(model, data, robot.q_nominal)
-        rotation = data.oMi[1].rotation
-        base = data.oMi[1].translation
-        hips, lengths, sides, legged = [], [], [], []
-        self.shin_joints: set[int] = set()  # the joints from the knees down (their links make the shins)
-        for foot in robot.feet:
-            frame = robot.frame_id(robot.contact_frame(foot))
-            contact = data.oMf[frame].translation
-            joint = model.frames[frame].parentJoint
-            knee = None
-            while joint > 1:
-                self.shin_joints.add(joint)
-                if (rotation.T @ (data.oMi[joint].translation - contact))[2] >= SHIN_MIN_HEIGHT * robot.q_nominal[2]:
-                    knee = joint
-                    break
-                joint = model.parents[joint]
-            if knee is None or model.parents[knee] <= 1:
-                hips.append(np.zeros(3)), lengths.append((1.0, 1.0)), sides.append(0.0), legged.append(False)
-                continue
-            k, h = data.oMi[knee].translation, data.oMi[model.parents[knee]].translation
-            hips.append(rotation.T @ (h - base))
-            lengths.append((float(np.linalg.norm(k - h)), float(np.linalg.norm(contact - k))))
-            # the knee's side of the hip -> foot line in the sagittal plane (x forward, z up): the cross product's sign
-            (hx, hz), (kx, kz), (fx, fz) = ((rotation.T @ (v - base))[[0, 2]] for v in (h, k, contact))
-            sides.append(float(np.sign((fx - hx) * (kz - hz) - (fz - hz) * (kx - hx))))
-            legged.append(True)
-        self.hip_offsets_m = np.array(hips)  # hips in the base frame
-        self.lengths_m = np.array(lengths)  # (thigh, shin) per leg
-        self.sides = np.array(sides)
-        self.legged = np.array(legged)
-
-    def knees(self, foot: int, hip_sz: np.ndarray, feet_sz: np.ndarray) -> np.ndarray:
-        """Knee positions (..., 2) in a sagittal plane (along the heading, up) for hips and feet (..., 2)."""
-        thigh, shin = self.lengths_m[foot]
-        d = feet_sz - hip_sz
-        distance = np.clip(np.linalg.norm(d, axis=-1), abs(thigh - shin) + 1e-6, thigh + shin - 1e-6)
-        angle = np.arccos(np.clip((thigh**2 + distance**2 - shin**2) / (2 * thigh * distance), -1.0, 1.0))
-        unit = d / np.linalg.norm(d, axis=-1, keepdims=True)
-        turn = self.sides[foot] * angle  # rotate the hip -> foot direction towards the knee's side
-        c, s = np.cos(turn)[..., None], np.sin(turn)[..., None]
-        rotated = np.concatenate([c * unit[..., :1] - s * unit[..., 1:], s * unit[..., :1] + c * unit[..., 1:]], axis=-1)
-        return hip_sz + thigh * rotated
-
-
 def ride_height(plane: np.ndarray, ride_max_m: float) -> np.ndarray:
     """The base target's height over the nominal one: the support plane's height under the base, raised on rough
     ground by RIDE_GAIN times the terrain's RMS about the plane, at most `ride_max_m` (`ride_limit_m`)."""
@@ -396,20 +422,6 @@ def ride_limit_m(robot: RobotModel) -> float:
         straighter = 2 * length / np.sqrt(1 + RIDE_LEAN**2)  # hip -> foot distance at which the shin leans RIDE_LEAN
         raises.append(max(0.0, straighter - reach))
     return float(np.mean(raises)) if raises else 0.0
-
-
-def shin_radius_m(robot: RobotModel) -> float:
-    """The shins' half thickness: of the URDF's collision primitives on the links from the knees down (a box's middle
-    half size, a capsule's or cylinder's radius), the largest; SHIN_RADIUS_M where the robot has none (meshes, no
-    URDF)."""
-    from wbmpc.robots.urdf_geometry import collision_primitives
-
-    shins = LegShins(robot)
-    urdf = getattr(robot.spec, "urdf", None)
-    primitives = collision_primitives(robot.model, urdf) if urdf else []
-    sizes = [sorted(p.size)[1] if p.kind == "box" else p.size[0] for p in primitives
-             if p.joint_id in shins.shin_joints and p.kind in ("box", "capsule", "cylinder")]
-    return float(max(sizes, default=SHIN_RADIUS_M))
 
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:

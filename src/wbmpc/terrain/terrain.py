@@ -28,6 +28,7 @@ class Terrain:
     name: str = "flat"
     source: str | None = None  # the file it was read from (error messages name it)
     _raster_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _boxes: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)  # (pieces, 4) see below
 
     def __post_init__(self):
         pieces = tuple(self.pieces)
@@ -47,6 +48,11 @@ class Terrain:
         if duplicates:
             raise TerrainError(self._where(f"terrain pieces need unique names; repeated: {', '.join(duplicates)}"))
         object.__setattr__(self, "pieces", tuple(named))
+        # each piece's footprint's bounding box (x min, y min, x max, y max): a query tests only the pieces whose box
+        # holds one of its points (the MPC asks for its footholds on every step)
+        corners = [piece.corners() for piece in named]
+        object.__setattr__(self, "_boxes", np.array([np.r_[c.min(axis=0), c.max(axis=0)] for c in corners])
+                           .reshape(-1, 4) + np.array([-1e-9, -1e-9, 1e-9, 1e-9]))
         for piece in named:
             self._check_above_floor(piece)
         self._check_overlaps()
@@ -98,7 +104,11 @@ class Terrain:
         height = np.full(shape, float(self.floor_m))
         normal = np.zeros(shape + (3,))
         normal[..., 2] = 1.0
-        for piece in self.pieces:
+        flat = xy.reshape(-1, 2)
+        boxes = self._boxes
+        near = np.flatnonzero(((flat[:, None, 0] >= boxes[:, 0]) & (flat[:, None, 1] >= boxes[:, 1])
+                               & (flat[:, None, 0] <= boxes[:, 2]) & (flat[:, None, 1] <= boxes[:, 3])).any(axis=0))
+        for piece in (self.pieces[k] for k in near):
             inside = piece.contains(xy)
             if not np.any(inside):
                 continue
