@@ -12,7 +12,7 @@ from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
 from wbmpc.solvers.hpipm_direct import DirectQp, HpipmUnavailable, make_qp
 from wbmpc.solvers.nlp import SolverConfig
-from wbmpc.solvers.qp import QpConfig, StructuredQp
+from wbmpc.solvers.qp import QpConfig, StructuredQp, stage_dimensions
 from wbmpc.solvers.rti import RtiSolver
 
 SMALL = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
@@ -131,3 +131,94 @@ def test_casadis_conic_on_request_and_bad_binding_names_the_fix(qp_data):
     assert not conic.direct_qp and isinstance(conic.qp, StructuredQp) and conic.qp.config.mode == "speed"
     with pytest.raises(ConfigError, match="unknown hpipm_binding 'ctypes'; available: direct, casadi"):
         RtiSolver(problem, SolverConfig(name="rti", extra_options={"hpipm_binding": "ctypes"}))
+
+
+def _tight(mode="balance", eliminate=True):
+    return QpConfig(mode=mode, tolerance=1e-9, max_iterations=200, eliminate_fixed=eliminate)
+
+
+def _assert_same_solution(result, reference, atol, lam_atol=1e-4):
+    """Same step to atol; same multipliers to lam_atol relative to the largest (a few rows' are less well determined:
+    one go2 row's differs by 7e-6 of the largest between two 1e-9 solutions)."""
+    scale = max(1.0, np.abs(reference.step).max())
+    np.testing.assert_allclose(result.step / scale, reference.step / scale, atol=atol)
+    lam_scale = max(1.0, np.abs(reference.lam_g).max(), np.abs(reference.lam_x).max())
+    np.testing.assert_allclose(result.lam_g / lam_scale, reference.lam_g / lam_scale, atol=lam_atol)
+    np.testing.assert_allclose(result.lam_x / lam_scale, reference.lam_x / lam_scale, atol=lam_atol)
+
+
+def test_fixed_inputs_and_the_initial_state_left_out_give_the_same_solution(qp_data):
+    """HPIPM solves the QP without the inputs with lb == ub and without x_0 (fixed by its rows): smaller stages, the same
+    step, and the left-out bounds' and initial-state rows' multipliers (from stationarity) those of the full QP."""
+    problem, data = qp_data
+    lbx, ubx = data[5], data[6]
+    full, reduced = _direct(problem, data, _tight(eliminate=False)), _direct(problem, data, _tight())
+    reference, result = full.solve(*data), reduced.solve(*data)
+    assert reference.success and result.success, (reference.status, result.status)
+    fixed = (lbx == ubx)[reduced.u_index]
+    assert fixed.any() and not (lbx == ubx)[reduced.x_index].any()  # the swing feet's forces; x_0 by rows
+    sizes, full_sizes = reduced.solved_sizes, full.solved_sizes
+    assert sizes["nx"][0] == 0 and full_sizes["nx"][0] == problem.nx
+    assert sum(full_sizes["nu"]) - sum(sizes["nu"]) == fixed.sum()
+    assert sum(full_sizes["ng"]) - sum(sizes["ng"]) == np.asarray(problem.rows["x0"]).size
+    _assert_same_solution(result, reference, atol=1e-7)
+    np.testing.assert_array_equal(result.step[reduced.u_index[fixed]],
+                                  lbx[reduced.u_index[fixed]])
+    # the eliminated inputs' and the initial-state rows' multipliers are not trivially zero
+    assert np.abs(reference.lam_x[reduced.u_index[fixed]]).max() > 1e-3
+    assert np.abs(reference.lam_g[np.asarray(problem.rows["x0"]).ravel()]).max() > 1e-3
+
+
+def test_each_pattern_of_fixed_inputs_has_its_hpipm_instance(qp_data):
+    """Freeing some fixed inputs (another contact pattern) builds a second HPIPM instance; the first pattern's is reused
+    when it comes back; every pattern's solution is the full QP's."""
+    problem, data = qp_data
+    lbx, ubx = data[5].copy(), data[6].copy()
+    full, reduced = _direct(problem, data, _tight(eliminate=False)), _direct(problem, data, _tight())
+    fixed = np.nonzero(lbx == ubx)[0]
+    freed_lbx, freed_ubx = lbx.copy(), ubx.copy()
+    freed_lbx[fixed[:3]] -= 10.0
+    freed_ubx[fixed[:3]] += 10.0
+    freed = (*data[:5], freed_lbx, freed_ubx)
+    for qp_data_k, rebuilds in ((data, 1), (freed, 2), (data, 2)):
+        result = reduced.solve(*qp_data_k)
+        assert result.success and reduced.rebuilds == rebuilds
+        _assert_same_solution(result, full.solve(*qp_data_k), atol=1e-7)
+
+
+def test_the_rti_leaves_fixed_inputs_out_and_takes_the_same_step(qp_data):
+    """RtiSolver's default QP eliminates; `qp_eliminate_fixed=False` keeps them: the same RTI steps (QPs solved to 1e-9;
+    at the RTI's own QP tolerance, 1e-4, they differ by up to 4e-4)."""
+    problem, _ = qp_data
+    robot = load_robot("go2")
+    steps = []
+    for eliminate in (True, False):
+        mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None),
+                                   solver=SolverConfig(name="rti", extra_options={
+                                       "qp_eliminate_fixed": eliminate, "qp_tolerance": 1e-9, "qp_mode": "balance"})))
+        if mpc.solver.direct_error is not None:
+            pytest.skip(f"no HPIPM binding here: {mpc.solver.direct_error}")
+        assert mpc.solver.qp.config.eliminate_fixed is eliminate
+        v0 = np.zeros(robot.nv)
+        v0[:3] = [0.4, -0.2, 0.0]
+        first = mpc.solve(robot.q_nominal, v0, t_s=0.0)
+        second = mpc.solve(first.q[1], first.v[1], t_s=0.0125)
+        assert first.success and second.success
+        steps.append(np.concatenate([second.q.ravel(), second.v.ravel()]))
+        if eliminate:
+            assert sum(mpc.solver.qp.solved_sizes["nu"]) < sum(stage_dimensions(mpc.problem)["nu"])
+    np.testing.assert_allclose(steps[0], steps[1], atol=1e-7)
+
+
+def test_malformed_qp_data_is_refused_by_name(qp_data):
+    """The shim reads the data by index: data of another size, or gap rows that are no equalities, raise before HPIPM."""
+    from wbmpc.errors import WbmpcError
+
+    problem, data = qp_data
+    qp = _direct(problem, data, QpConfig(mode="speed_abs"))
+    with pytest.raises(ValueError, match="QP data of sizes"):
+        qp.solve(data[0], data[1], np.asarray(data[2].nonzeros())[:-1], *data[3:])
+    lbg = np.asarray(data[3], dtype=float).copy()
+    lbg[qp.gap_index[0]] -= 1.0
+    with pytest.raises(WbmpcError, match="dynamics rows must be equalities"):
+        qp.solve(data[0], data[1], data[2], lbg, *data[4:])

@@ -5,7 +5,10 @@ casadi's `conic('hpipm')` boxes every variable and keeps every constraint row, i
 allocates HPIPM's memory in each call. `DirectQp` fills HPIPM's stage blocks from the nonzeros of H and
 J with index maps computed once, masks infinite bound sides out, declares rows and bounds with lb == ub
 equalities, and keeps HPIPM's memory between calls (`csrc/hpipm_shim.c`, compiled once against the HPIPM
-and BLASFEO that ship in the casadi wheel, cached beside the generated code). Same QP, same solution
+and BLASFEO that ship in the casadi wheel, cached beside the generated code). Inputs with lb == ub (swing feet's
+forces, the arm's commanded force) and x_0 (fixed by the initial-state rows) are left out of HPIPM's QP
+(`csrc/hpipm_reduce.c`, `QpConfig.eliminate_fixed`): the same QP on smaller Riccati blocks, their multipliers
+recovered from the stage's stationarity; HPIPM instances are kept per pattern of reduced sizes. Same QP, same solution
 as `StructuredQp` (tests/solvers/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
 In HPIPM's absolute mode (speed_abs) the equality multipliers are computed on exit (comp_dual_sol_eq): the SQP's
@@ -56,7 +59,8 @@ def shim_library(config: CodegenConfig = CodegenConfig()) -> Path:
     flags = (*config.flags, "-O2", f"-I{include}")
     link = (f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{directory}")
     try:
-        return build_native("hpipm_shim", ("hpipm_shim.c",), config, flags, link, key_extra=str(include)).library
+        return build_native("hpipm_shim", ("hpipm_shim.c", "hpipm_reduce.c", "hpipm_load.c"), config, flags, link, key_extra=str(include),
+                            headers=("hpipm_shim.h",)).library
     except CompileError as exc:
         raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
 
@@ -74,27 +78,43 @@ class DirectQp:
         self._lib = ctypes.CDLL(str(shim_library(codegen)))
         self._lib.wbqp_new.restype = ctypes.c_void_p
         self._lib.wbqp_new.argtypes = [ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 3, ctypes.c_int, ctypes.c_int,
-                                       ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int]
+                                       ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_int,
+                                       ctypes.c_int, ctypes.c_int, *[ctypes.POINTER(ctypes.c_int)] * 2]
         self._lib.wbqp_solve.restype = ctypes.c_int
         self._lib.wbqp_solve.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 22
         self._lib.wbqp_iterations.restype = ctypes.c_int
         self._lib.wbqp_iterations.argtypes = [ctypes.c_void_p]
         self._lib.wbqp_free.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_rebuilds.restype = ctypes.c_int
+        self._lib.wbqp_rebuilds.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_sizes.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
+        self._lib.wbqp_nlp_new.restype = ctypes.c_void_p
+        self._lib.wbqp_nlp_new.argtypes = [ctypes.POINTER(ctypes.c_int), ctypes.c_void_p, ctypes.c_void_p]
+        self._lib.wbqp_nlp_solve.restype = ctypes.c_int
+        self._lib.wbqp_nlp_solve.argtypes = [ctypes.c_void_p] * 12
+        self._lib.wbqp_nlp_free.argtypes = [ctypes.c_void_p]
         dims = stage_dimensions(problem)
         N, nx, nu, ng = dims["N"], dims["nx"], dims["nu"], dims["ng"]
         self.N = N
         self._maps(problem, nx, nu, ng, hessian, jacobian)
         ints = [(ctypes.c_int * (N + 1))(*values) for values in (nx, nu, ng)]
+        x0_rows, x0_cols = self._x0_rows
         self._handle = self._lib.wbqp_new(N, *ints, HPIPM_MODES.index(config.mode), config.max_iterations,
                                           config.barrier_init, config.tolerance, int(config.warm_start),
-                                          config.infinity, int(declare_equalities))
-        self._pointers = [a.ctypes.data_as(_DOUBLE_P) for a in self._buffers]
+                                          config.infinity, int(declare_equalities), int(config.eliminate_fixed),
+                                          len(x0_rows), (ctypes.c_int * max(len(x0_rows), 1))(*x0_rows),
+                                          (ctypes.c_int * max(len(x0_cols), 1))(*x0_cols))
+        if not self._handle:
+            raise MemoryError("HPIPM's shim could not allocate its QP")
 
     def __del__(self):
         handle = getattr(self, "_handle", None)
         if handle:
             self._lib.wbqp_free(handle)
             self._handle = None
+        if getattr(self, "_nlp_handle", None):
+            self._lib.wbqp_nlp_free(self._nlp_handle)
+            self._nlp_handle = None
 
     def _maps(self, problem, nx, nu, ng, hessian: ca.Sparsity, jacobian: ca.Sparsity) -> None:
         """Where each nonzero of J and H, each variable and each row goes in HPIPM's stage-major blocks."""
@@ -111,8 +131,39 @@ class DirectQp:
                 "D": [ng[k] * nu[k] for k in range(N + 1)]}
         off = {name: offsets(sizes) for name, sizes in size.items()}
         self._jacobian_maps(jacobian, cols, rows, off, nx, nu, ng)
+        self._initial_state_rows(problem, jacobian, cols, rows)
         self._hessian_maps(hessian, cols, off, nx, nu)
         self._allocate(off, problem.n_variables, problem.n_constraints)
+
+    @property
+    def rebuilds(self) -> int:
+        """HPIPM instances built so far: one per pattern of QP sizes (fixed inputs left out) not in the shim's cache."""
+        return int(self._lib.wbqp_rebuilds(self._handle))
+
+    @property
+    def solved_sizes(self) -> dict[str, list[int]]:
+        """nx, nu, ng per stage of the last QP as HPIPM solved it (fixed inputs and x_0 left out); zeros before."""
+        sizes = (ctypes.c_int * (3 * (self.N + 1)))()
+        self._lib.wbqp_sizes(self._handle, sizes)
+        values = list(sizes)
+        return {name: values[i * (self.N + 1):(i + 1) * (self.N + 1)] for i, name in enumerate(("nx", "nu", "ng"))}
+
+    def _initial_state_rows(self, problem, jacobian: ca.Sparsity, cols, rows_layout) -> None:
+        """Stage 0's initial-state rows (`problem.rows["x0"]`) as (row among stage 0's rows, state component) where each
+        has one Jacobian nonzero, on x_0 (the shim then leaves x_0 out of HPIPM's QP); none otherwise."""
+        self._x0_rows: tuple[list[int], list[int]] = ([], [])
+        rows = np.asarray(problem.rows.get("x0", np.zeros(0)), dtype=int).ravel()
+        row_stage, row_kind, row_local = rows_layout
+        col_stage, col_part, col_local = cols
+        nz_rows, nz_cols = (np.asarray(v) for v in jacobian.get_triplet())
+        in_rows = np.isin(nz_rows, rows)
+        if rows.size == 0 or np.any((row_stage[rows] != 0) | (row_kind[rows] != 1)) or \
+                np.count_nonzero(in_rows) != rows.size or np.unique(nz_rows[in_rows]).size != rows.size:
+            return
+        on_x0 = (col_stage[nz_cols[in_rows]] == 0) & (col_part[nz_cols[in_rows]] == 0)
+        if on_x0.all():
+            self._x0_rows = ([int(v) for v in row_local[nz_rows[in_rows]]],
+                             [int(v) for v in col_local[nz_cols[in_rows]]])
 
     def _column_layout(self, n_var: int, nx, nu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per NLP variable: its stage, part (0: x, 1: u) and position in the part; x_index, u_index."""
@@ -197,19 +248,34 @@ class DirectQp:
                 self._h_maps.append((name, where, dest[where]))
 
     def _allocate(self, off, n_var: int, n_row: int) -> None:
-        """The blocks, vectors and results HPIPM reads and writes, bound once (`_buffers`, in wbqp_solve's order)."""
+        """The blocks (one store, A first), vectors and results HPIPM reads and writes; the index maps of
+        `csrc/hpipm_load.c` (J's and H's nonzeros into the store, the NLP's order into the stages' and back)."""
         n_gap, n_u, n_x, n_path = len(self.gap_index), len(self.u_index), len(self.x_index), len(self.path_index)
-        self._blocks = {name: np.zeros(int(off[name][-1])) for name in off}
-        self._b = np.zeros(n_gap)
-        self._eye_values = np.ones(n_gap)
-        self._q, self._r = np.zeros(n_x), np.zeros(n_u)
-        self._bounds = [np.zeros(n_u), np.zeros(n_u), np.zeros(n_x), np.zeros(n_x), np.zeros(n_path), np.zeros(n_path)]
-        self._u, self._x, self._pi = np.zeros(n_u), np.zeros(n_x), np.zeros(n_gap)
-        self._lam_u, self._lam_x, self._lam_g = np.zeros(n_u), np.zeros(n_x), np.zeros(n_path)
-        self._buffers = [self._blocks["A"], self._blocks["B"], self._b, self._blocks["Q"], self._blocks["S"],
-                         self._blocks["R"], self._q, self._r, self._blocks["C"], self._blocks["D"], *self._bounds,
-                         self._u, self._x, self._pi, self._lam_u, self._lam_x, self._lam_g]
+        base = dict(zip(off, np.concatenate([[0], np.cumsum([int(off[name][-1]) for name in off])])))
+        self._store = np.zeros(sum(int(off[name][-1]) for name in off))
+        self._blocks = {name: self._store[base[name]:base[name] + int(off[name][-1])] for name in off}
+        vectors = [np.zeros(n) for n in (n_gap, n_x, n_u, n_u, n_u, n_x, n_x, n_path, n_path, n_u, n_x, n_gap, n_u, n_x,
+                                         n_path, n_gap)]
+        self._b, self._q, self._r, *self._bounds = vectors[:9]
+        self._u, self._x, self._pi, self._lam_u, self._lam_x, self._lam_g, self._scale = vectors[9:]
+        names = ("A", "B", "C", "D")
+        eye_where, eye_position = self._eye
+        eye_src = np.full(n_gap, -1)
+        eye_src[eye_position] = eye_where
+        i32 = [np.ascontiguousarray(v, dtype=np.int32) for v in (
+            np.concatenate([self._j_maps[n][0] for n in names]),
+            np.concatenate([base[n] + self._j_maps[n][1] for n in names]),
+            np.concatenate([self._ab_scale_rows.get(n, np.full(len(self._j_maps[n][0]), -1)) for n in names]),
+            np.concatenate([where for _, where, _ in self._h_maps]),
+            np.concatenate([base[name] + dest for name, _, dest in self._h_maps]),
+            eye_src, self.gap_index, self.x_index, self.u_index, self.path_index)]
+        counts = (ctypes.c_int * 6)(len(i32[0]), len(i32[3]), n_gap, n_x, n_u, n_path)
+        buffers = [self._blocks[n] for n in ("A", "B", "Q", "S", "R", "C", "D")] + vectors
+        self._map_arrays = i32, buffers  # alive while the shim's handle points at them
+        self._nlp_handle = self._lib.wbqp_nlp_new(counts, (ctypes.c_void_p * len(i32))(*[a.ctypes.data for a in i32]),
+                                                  (ctypes.c_void_p * len(buffers))(*[a.ctypes.data for a in buffers]))
         self._n_var, self._n_row = n_var, n_row
+        self._sizes = (self.hessian_sparsity.nnz(), n_var, self.jacobian_sparsity.nnz(), n_row, n_row, n_var, n_var)
 
     def _gap_position(self, rows: np.ndarray) -> np.ndarray:
         """Position of gap rows (NLP row numbers) among all gap rows."""
@@ -232,36 +298,17 @@ class DirectQp:
         j = np.asarray(J.nonzeros() if isinstance(J, ca.DM) else J, dtype=float)
         g = np.asarray(gradient, dtype=float).ravel() if not isinstance(gradient, ca.DM) else \
             np.asarray(gradient.full()).ravel()
-        lbg, ubg, lbx, ubx = (np.asarray(v, dtype=float).ravel() for v in (lbg, ubg, lbx, ubx))
-        blocks = self._blocks
-        eye_where, eye_position = self._eye
-        self._eye_values[eye_position] = j[eye_where]
-        scale = -1.0 / self._eye_values
-        # A and B scaled by -1 / (x_{k+1}'s coefficient) of their row at their nonzeros alone (the rest of the
-        # dense blocks stays zero): scaling the whole blocks took 0.09 ms of a 2.6 ms RTI step
-        for name, (where, dest) in self._j_maps.items():
-            rows = self._ab_scale_rows.get(name)
-            blocks[name][dest] = j[where] if rows is None else j[where] * scale[rows]
-        if np.any(lbg[self.gap_index] != ubg[self.gap_index]):
-            raise WbmpcError("HPIPM's dynamics rows must be equalities (lbg == ubg on the gap rows)")
-        self._b[:] = -lbg[self.gap_index] * scale
-        for name, where, dest in self._h_maps:
-            blocks[name][dest] = h[where]
-        self._q[:], self._r[:] = g[self.x_index], g[self.u_index]
-        lbu, ubu, lbx_, ubx_, lg, ug = self._bounds
-        lbu[:], ubu[:] = lbx[self.u_index], ubx[self.u_index]
-        lbx_[:], ubx_[:] = lbx[self.x_index], ubx[self.x_index]
-        lg[:], ug[:] = lbg[self.path_index], ubg[self.path_index]
+        h, g, j, lbg, ubg, lbx, ubx = (np.ascontiguousarray(v, dtype=float).ravel() for v in (h, g, j, lbg, ubg, lbx, ubx))
+        sizes = (h.size, g.size, j.size, lbg.size, ubg.size, lbx.size, ubx.size)
+        if sizes != self._sizes:  # the shim reads them by index
+            raise ValueError(f"QP data of sizes {sizes} (H, gradient, J nonzeros, lbg, ubg, lbx, ubx), expected {self._sizes}")
+        step, lam_x, lam_g = np.empty(self._n_var), np.empty(self._n_var), np.empty(self._n_row)
+        addresses = [a.ctypes.data for a in (h, g, j, lbg, ubg, lbx, ubx, step, lam_g, lam_x)]
         tic = time.perf_counter()
-        flag = self._lib.wbqp_solve(self._handle, *self._pointers)
-        hpipm_s = time.perf_counter() - tic
-        step = np.empty(self._n_var)
-        step[self.u_index], step[self.x_index] = self._u, self._x
-        lam_x = np.empty(self._n_var)
-        lam_x[self.u_index], lam_x[self.x_index] = self._lam_u, self._lam_x
-        lam_g = np.empty(self._n_row)
-        lam_g[self.path_index] = self._lam_g
-        lam_g[self.gap_index] = self._pi * scale
+        flag = self._lib.wbqp_nlp_solve(self._handle, self._nlp_handle, *addresses)
+        hpipm_s = time.perf_counter() - tic  # (the shim's C loads the QP, solves and unpacks it)
+        if flag == -10:
+            raise WbmpcError("HPIPM's dynamics rows must be equalities (lbg == ubg on the gap rows)")
         success = flag == 0 and bool(np.all(np.isfinite(step)))
         return QpResult(step=step, lam_g=lam_g, lam_x=lam_x, status=HPIPM_STATUS.get(flag, f"hpipm_flag_{flag}"),
                         success=success, iterations=int(self._lib.wbqp_iterations(self._handle)),

@@ -42,6 +42,9 @@ class QpConfig:
     barrier_init: float = 100.0
     warm_start: bool = True
     hpipm_options: dict = field(default_factory=dict)  # further HPIPM arguments (mu0, warm_start, ...)
+    # our binding (solvers/hpipm_direct.py) leaves inputs with lb == ub and the initial state out of HPIPM's QP
+    # (csrc/hpipm_reduce.c: same QP, smaller Riccati blocks); casadi's conic keeps them
+    eliminate_fixed: bool = True
 
     def __post_init__(self):
         if self.mode not in HPIPM_MODES:
@@ -61,7 +64,7 @@ class QpResult:
     success: bool
     iterations: int
     solve_time_s: float
-    pack_s: float = 0.0  # of solve_time_s, the binding's NumPy packing and unpacking around HPIPM's own solve
+    pack_s: float = 0.0  # of solve_time_s, the binding's Python around its C call (which loads, solves, unpacks)
 
 
 def stage_dimensions(problem: OcpProblem) -> dict[str, list[int]]:

@@ -6,6 +6,9 @@
  * (HPIPM's constraint masks), rows and bounds with lb == ub are declared equalities (idxe), the
  * memory is kept between calls and rebuilt only when the pattern of equalities changes (contact
  * switches). Data are dense column-major blocks per stage, flat in stage order (sizes in `wbqp_new`).
+ * Inputs with lb == ub and x_0 fixed by its initial-state rows are left out of HPIPM's QP (hpipm_reduce.c): the
+ * reduced QP's sizes change with the contact schedule, so HPIPM's instances are kept per size pattern (a small cache,
+ * the least recently used one rebuilt; gaits are periodic).
  */
 #include <stdlib.h>
 #include <string.h>
@@ -16,144 +19,183 @@
 #include "hpipm_d_ocp_qp_sol.h"
 #include "hpipm_d_ocp_qp_ipm.h"
 
+#include "hpipm_shim.h"
+
+#define WBQP_CACHE 48  /* HPIPM instances kept (b1_z1's trot at 80 Hz: ~40 size patterns a gait cycle) */
+
+/* one HPIPM instance, for the reduced sizes (rnx, rnu, rng) and equality flags it was built for */
 typedef struct {
-    int N, *nx, *nu, *ng;
-    int mode, iter_max, warm_start, declare_equalities;
-    double mu0, tol, inf;
-    /* current HPIPM instance and the equality pattern it was built for (per stage: nbue, nbxe, nge + flags) */
-    int built;
-    char *eq_pattern;  /* length n_all: 1 where [u, x, g] of a stage is an equality */
-    int n_all;
+    int *dims;
+    char *eq;  /* per stage, 1 where [u, x, g] of the reduced stage is a declared equality */
+    unsigned long used;
     void *dim_mem, *qp_mem, *sol_mem, *arg_mem, *ws_mem;
     struct d_ocp_qp_dim dim;
     struct d_ocp_qp qp;
     struct d_ocp_qp_sol sol;
     struct d_ocp_qp_ipm_arg arg;
     struct d_ocp_qp_ipm_ws ws;
-    int **idxbu, **idxbx, **idxe;
-    int *idx_store;
-    double *mask, *zeros, *lb, *ub;  /* work vectors */
+} wbqp_inst;
+
+typedef struct {
+    wbqp_reduction red;
+    int N, mode, iter_max, warm_start, declare_equalities, n_all, n_cached, rebuilds;
+    double mu0, tol, inf;
+    unsigned long clock;
+    wbqp_inst cache[WBQP_CACHE];
+    int *key_dims;  /* this call's reduced sizes (rnx, rnu, rng) and equality flags */
+    char *key_eq;
+    int **idxbu, **idxbx, **idxe, *idx_store;
+    double *mask, *zeros, *lb, *ub;
+    wbqp_stage *stages;
+    wbqp_stage_sol *reduced;
     double res[4];
     int iter, status;
 } wbqp;
 
-static void release(wbqp *s) {
-    free(s->dim_mem); free(s->qp_mem); free(s->sol_mem); free(s->arg_mem); free(s->ws_mem);
-    s->dim_mem = s->qp_mem = s->sol_mem = s->arg_mem = s->ws_mem = NULL;
-    s->built = 0;
+static void release(wbqp_inst *i) {
+    free(i->dim_mem); free(i->qp_mem); free(i->sol_mem); free(i->arg_mem); free(i->ws_mem); free(i->dims); free(i->eq);
+    memset(i, 0, sizeof(*i));
 }
 
+static void index_lists(wbqp *s, const int *nx, const int *nu, const int *ng) {
+    int k, i, *p = s->idx_store;
+    for (k = 0; k <= s->N; k++) {
+        s->idxbu[k] = p; for (i = 0; i < nu[k]; i++) p[i] = i; p += nu[k];
+        s->idxbx[k] = p; for (i = 0; i < nx[k]; i++) p[i] = i; p += nx[k];
+        s->idxe[k] = p; p += nu[k] + nx[k] + ng[k];
+    }
+}
+
+/* x0_row / x0_col: stage 0's rows fixing x_0 (row among stage 0's rows, component), n_x0 of them (0: none);
+ * eliminate: leave inputs with lb == ub and such an x_0 out of HPIPM's QP */
 void *wbqp_new(int N, const int *nx, const int *nu, const int *ng, int mode, int iter_max, double mu0,
-               double tol, int warm_start, double inf, int declare_equalities) {
+               double tol, int warm_start, double inf, int declare_equalities, int eliminate, int n_x0,
+               const int *x0_row, const int *x0_col) {
     wbqp *s = calloc(1, sizeof(wbqp));
     int k, total = 0, widest = 0;
-    s->N = N;
-    s->nx = malloc((N + 1) * sizeof(int)); s->nu = malloc((N + 1) * sizeof(int)); s->ng = malloc((N + 1) * sizeof(int));
-    memcpy(s->nx, nx, (N + 1) * sizeof(int)); memcpy(s->nu, nu, (N + 1) * sizeof(int)); memcpy(s->ng, ng, (N + 1) * sizeof(int));
-    s->mode = mode; s->iter_max = iter_max; s->mu0 = mu0; s->tol = tol; s->warm_start = warm_start; s->inf = inf;
-    s->declare_equalities = declare_equalities;
+    if (!s || !wbqp_reduction_init(&s->red, N, nx, nu, ng, inf, eliminate, n_x0, x0_row, x0_col)) { free(s); return NULL; }
+    s->N = N; s->mode = mode; s->iter_max = iter_max; s->mu0 = mu0; s->tol = tol; s->warm_start = warm_start;
+    s->inf = inf; s->declare_equalities = declare_equalities;
     for (k = 0; k <= N; k++) {
         int n = nu[k] + nx[k] + ng[k];
         total += n;
         if (n > widest) widest = n;
     }
     s->n_all = total;
-    s->eq_pattern = calloc(total, 1);
-    s->idxbu = malloc((N + 1) * sizeof(int *)); s->idxbx = malloc((N + 1) * sizeof(int *)); s->idxe = malloc((N + 1) * sizeof(int *));
-    s->idx_store = malloc(3 * total * sizeof(int));
-    {
-        int *p = s->idx_store;
-        for (k = 0; k <= N; k++) {
-            int i;
-            s->idxbu[k] = p; for (i = 0; i < nu[k]; i++) p[i] = i; p += nu[k];
-            s->idxbx[k] = p; for (i = 0; i < nx[k]; i++) p[i] = i; p += nx[k];
-            s->idxe[k] = p; p += nu[k] + nx[k] + ng[k];
-        }
-    }
+    s->key_dims = calloc(3 * (N + 1), sizeof(int));
+    s->key_eq = calloc(total + 1, 1);
+    s->idxbu = malloc(3 * (N + 1) * sizeof(int *)); s->idxbx = s->idxbu + N + 1; s->idxe = s->idxbx + N + 1;
+    s->idx_store = malloc((3 * total + 1) * sizeof(int));
+    index_lists(s, nx, nu, ng);
     s->mask = malloc(2 * widest * sizeof(double));
-    s->zeros = calloc(widest, sizeof(double));
+    s->zeros = calloc(widest + 1, sizeof(double));
     s->lb = malloc(widest * sizeof(double));
     s->ub = malloc(widest * sizeof(double));
+    s->stages = malloc((N + 1) * sizeof(wbqp_stage));
+    s->reduced = malloc((N + 1) * sizeof(wbqp_stage_sol));
     return s;
 }
 
 void wbqp_free(void *handle) {
     wbqp *s = handle;
+    int i;
     if (!s) return;
-    release(s);
-    free(s->nx); free(s->nu); free(s->ng); free(s->eq_pattern); free(s->idxbu); free(s->idxbx); free(s->idxe);
-    free(s->idx_store); free(s->mask); free(s->zeros); free(s->lb); free(s->ub);
+    for (i = 0; i < s->n_cached; i++) release(&s->cache[i]);
+    wbqp_reduction_free(&s->red);
+    free(s->key_dims); free(s->key_eq); free(s->idxbu); free(s->idx_store); free(s->mask); free(s->zeros);
+    free(s->lb); free(s->ub); free(s->stages); free(s->reduced);
     free(s);
 }
 
-static void build(wbqp *s) {
-    int N = s->N, k, offset = 0;
-    int *nbu = malloc((N + 1) * sizeof(int)), *nbx = malloc((N + 1) * sizeof(int)), *ns = calloc(N + 1, sizeof(int));
-    release(s);
-    for (k = 0; k <= N; k++) { nbu[k] = s->nu[k]; nbx[k] = s->nx[k]; }
-    s->dim_mem = malloc(d_ocp_qp_dim_memsize(N));
-    d_ocp_qp_dim_create(N, &s->dim, s->dim_mem);
-    d_ocp_qp_dim_set_all(s->nx, s->nu, nbx, nbu, s->ng, ns, &s->dim);
+static int n_flags(const wbqp *s, const int *dims) {
+    int k, n = 0;
+    for (k = 0; k < 3 * (s->N + 1); k++) n += dims[k];
+    return n;
+}
+
+static void set_arguments(wbqp *s, wbqp_inst *i) {
+    int one = 1;
+    d_ocp_qp_ipm_arg_set_default((enum hpipm_mode) s->mode, &i->arg);
+    d_ocp_qp_ipm_arg_set_iter_max(&s->iter_max, &i->arg);
+    d_ocp_qp_ipm_arg_set_mu0(&s->mu0, &i->arg);
+    d_ocp_qp_ipm_arg_set_tol_stat(&s->tol, &i->arg);
+    d_ocp_qp_ipm_arg_set_tol_eq(&s->tol, &i->arg);
+    d_ocp_qp_ipm_arg_set_tol_ineq(&s->tol, &i->arg);
+    d_ocp_qp_ipm_arg_set_tol_comp(&s->tol, &i->arg);
+    d_ocp_qp_ipm_arg_set_warm_start(&s->warm_start, &i->arg);
+    /* the absolute formulation (speed_abs) skips the equality multipliers unless asked: the SQP needs them */
+    d_ocp_qp_ipm_arg_set_comp_dual_sol_eq(&one, &i->arg);
+    d_ocp_qp_ipm_arg_set_comp_res_exit(&one, &i->arg);
+}
+
+/* an HPIPM instance for this call's key (sizes and equality flags) into `i` */
+static void build(wbqp *s, wbqp_inst *i) {
+    int N = s->N, k, offset = 0, n = n_flags(s, s->key_dims);
+    int *nx = s->key_dims, *nu = nx + N + 1, *ng = nu + N + 1, *ns = calloc(N + 1, sizeof(int));
+    i->dims = malloc(3 * (N + 1) * sizeof(int)); memcpy(i->dims, s->key_dims, 3 * (N + 1) * sizeof(int));
+    i->eq = malloc(n + 1); memcpy(i->eq, s->key_eq, n);
+    i->dim_mem = malloc(d_ocp_qp_dim_memsize(N));
+    d_ocp_qp_dim_create(N, &i->dim, i->dim_mem);
+    d_ocp_qp_dim_set_all(nx, nu, nx, nu, ng, ns, &i->dim);
     for (k = 0; k <= N; k++) {
-        int i, nbue = 0, nbxe = 0, nge = 0, n = s->nu[k] + s->nx[k] + s->ng[k];
-        for (i = 0; i < n; i++) {
-            if (!s->eq_pattern[offset + i]) continue;
-            if (i < s->nu[k]) nbue++; else if (i < s->nu[k] + s->nx[k]) nbxe++; else nge++;
-        }
-        d_ocp_qp_dim_set_nbue(k, nbue, &s->dim);
-        d_ocp_qp_dim_set_nbxe(k, nbxe, &s->dim);
-        d_ocp_qp_dim_set_nge(k, nge, &s->dim);
-        offset += n;
+        int j, counts[3] = {0, 0, 0};
+        for (j = 0; j < nu[k] + nx[k] + ng[k]; j++)
+            if (i->eq[offset + j]) counts[j < nu[k] ? 0 : j < nu[k] + nx[k] ? 1 : 2]++;
+        d_ocp_qp_dim_set_nbue(k, counts[0], &i->dim);
+        d_ocp_qp_dim_set_nbxe(k, counts[1], &i->dim);
+        d_ocp_qp_dim_set_nge(k, counts[2], &i->dim);
+        offset += nu[k] + nx[k] + ng[k];
     }
-    s->qp_mem = malloc(d_ocp_qp_memsize(&s->dim));
-    d_ocp_qp_create(&s->dim, &s->qp, s->qp_mem);
-    s->sol_mem = malloc(d_ocp_qp_sol_memsize(&s->dim));
-    d_ocp_qp_sol_create(&s->dim, &s->sol, s->sol_mem);
-    s->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(&s->dim));
-    d_ocp_qp_ipm_arg_create(&s->dim, &s->arg, s->arg_mem);
-    d_ocp_qp_ipm_arg_set_default((enum hpipm_mode) s->mode, &s->arg);
-    d_ocp_qp_ipm_arg_set_iter_max(&s->iter_max, &s->arg);
-    d_ocp_qp_ipm_arg_set_mu0(&s->mu0, &s->arg);
-    d_ocp_qp_ipm_arg_set_tol_stat(&s->tol, &s->arg);
-    d_ocp_qp_ipm_arg_set_tol_eq(&s->tol, &s->arg);
-    d_ocp_qp_ipm_arg_set_tol_ineq(&s->tol, &s->arg);
-    d_ocp_qp_ipm_arg_set_tol_comp(&s->tol, &s->arg);
-    d_ocp_qp_ipm_arg_set_warm_start(&s->warm_start, &s->arg);
-    {   /* the absolute formulation (speed_abs) skips the equality multipliers unless asked: the SQP needs them */
-        int one = 1;
-        d_ocp_qp_ipm_arg_set_comp_dual_sol_eq(&one, &s->arg);
-        d_ocp_qp_ipm_arg_set_comp_res_exit(&one, &s->arg);
-    }
-    s->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(&s->dim, &s->arg));
-    d_ocp_qp_ipm_ws_create(&s->dim, &s->arg, &s->ws, s->ws_mem);
-    free(nbu); free(nbx); free(ns);
-    s->built = 1;
+    i->qp_mem = malloc(d_ocp_qp_memsize(&i->dim));
+    d_ocp_qp_create(&i->dim, &i->qp, i->qp_mem);
+    i->sol_mem = malloc(d_ocp_qp_sol_memsize(&i->dim));
+    d_ocp_qp_sol_create(&i->dim, &i->sol, i->sol_mem);
+    i->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(&i->dim));
+    d_ocp_qp_ipm_arg_create(&i->dim, &i->arg, i->arg_mem);
+    set_arguments(s, i);
+    i->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(&i->dim, &i->arg));
+    d_ocp_qp_ipm_ws_create(&i->dim, &i->arg, &i->ws, i->ws_mem);
+    free(ns);
+    s->rebuilds++;
 }
 
-/* whether the equality pattern of these bounds differs from the one HPIPM was built for (it is updated) */
-static int update_pattern(wbqp *s, const double *lbu, const double *ubu, const double *lbx, const double *ubx,
-                          const double *lg, const double *ug) {
-    const double *pl[3] = {lbu, lbx, lg}, *pu[3] = {ubu, ubx, ug};
-    int o[3] = {0, 0, 0}, k, i, offset = 0, changed = !s->built;
-    for (k = 0; k <= s->N; k++) {
-        int sizes[3] = {s->nu[k], s->nx[k], s->ng[k]}, part, j = 0;
-        for (part = 0; part < 3; part++) {
-            for (i = 0; i < sizes[part]; i++, j++) {
-                double lo = pl[part][o[part] + i], hi = pu[part][o[part] + i];
-                char eq = s->declare_equalities && lo == hi && fabs(lo) < s->inf;
-                if (s->eq_pattern[offset + j] != eq) { s->eq_pattern[offset + j] = eq; changed = 1; }
-            }
-            o[part] += sizes[part];
-        }
-        offset += j;
+/* this call's key: the reduced sizes and, where equalities are declared, which bounds and rows have lb == ub */
+static void make_key(wbqp *s) {
+    int N = s->N, k, i, offset = 0;
+    const wbqp_reduction *r = &s->red;
+    memcpy(s->key_dims, r->rnx, (N + 1) * sizeof(int));
+    memcpy(s->key_dims + N + 1, r->rnu, (N + 1) * sizeof(int));
+    memcpy(s->key_dims + 2 * (N + 1), r->rng, (N + 1) * sizeof(int));
+    for (k = 0; k <= N; k++) {
+        const wbqp_stage *d = &s->stages[k];
+        const double *lower[3] = {d->lbu, d->lbx, d->lg}, *upper[3] = {d->ubu, d->ubx, d->ug};
+        int sizes[3] = {r->rnu[k], r->rnx[k], r->rng[k]}, part;
+        for (part = 0; part < 3; part++)
+            for (i = 0; i < sizes[part]; i++, offset++)
+                s->key_eq[offset] = s->declare_equalities && lower[part][i] == upper[part][i] &&
+                                    fabs(lower[part][i]) < s->inf;
     }
-    return changed;
 }
 
-/* the QP's data, read stage after stage (each pointer moves past its stage's block) */
-typedef struct {
-    const double *A, *B, *b, *Q, *S, *R, *q, *r, *C, *D, *lbu, *ubu, *lbx, *ubx, *lg, *ug;
-} qp_data;
+/* the cached instance of this call's key, else a new one (in place of the least recently used one) */
+static wbqp_inst *instance(wbqp *s) {
+    int i, n_dims = 3 * (s->N + 1), n, oldest = 0;
+    make_key(s);
+    n = n_flags(s, s->key_dims);
+    for (i = 0; i < s->n_cached; i++) {
+        wbqp_inst *c = &s->cache[i];
+        if (!memcmp(c->dims, s->key_dims, n_dims * sizeof(int)) && !memcmp(c->eq, s->key_eq, n)) {
+            c->used = ++s->clock;
+            return c;
+        }
+        if (c->used < s->cache[oldest].used) oldest = i;
+    }
+    i = s->n_cached < WBQP_CACHE ? s->n_cached++ : oldest;
+    release(&s->cache[i]);
+    build(s, &s->cache[i]);
+    s->cache[i].used = ++s->clock;
+    return &s->cache[i];
+}
 
 /* bounds clipped to +-inf, with masks: 0 where a side is absent */
 #define BOUNDS(n, lo, hi, set_lo, set_hi, set_lo_mask, set_hi_mask) \
@@ -162,60 +204,63 @@ typedef struct {
         s->mask[j] = l > -inf; s->mask[(n) + j] = h < inf; \
         s->lb[j] = s->mask[j] ? l : -inf; s->ub[j] = s->mask[(n) + j] ? h : inf; \
     } \
-    set_lo(k, s->lb, &s->qp); set_hi(k, s->ub, &s->qp); \
-    set_lo_mask(k, s->mask, &s->qp); set_hi_mask(k, s->mask + (n), &s->qp);
+    set_lo(k, s->lb, qp); set_hi(k, s->ub, qp); \
+    set_lo_mask(k, s->mask, qp); set_hi_mask(k, s->mask + (n), qp);
 
-/* stage k's blocks, bounds and equalities into HPIPM's QP; `offset`: the stage's start in eq_pattern */
-static void set_stage(wbqp *s, int k, qp_data *d, int offset) {
-    int nx = s->nx[k], nu = s->nu[k], ng = s->ng[k], ne = 0, j;
+/* stage k's blocks, bounds and equalities into the instance's QP; `offset`: the stage's start in its flags */
+static void set_stage(wbqp *s, wbqp_inst *in, int k, const wbqp_stage *d, int offset) {
+    int N = s->N, nx = in->dims[k], nu = in->dims[N + 1 + k], ng = in->dims[2 * (N + 1) + k], ne = 0, j;
+    struct d_ocp_qp *qp = &in->qp;
     const double inf = s->inf;
-    if (k < s->N) {
-        int nx1 = s->nx[k + 1];
-        d_ocp_qp_set_A(k, (double *) d->A, &s->qp); d->A += nx1 * nx;
-        d_ocp_qp_set_B(k, (double *) d->B, &s->qp); d->B += nx1 * nu;
-        d_ocp_qp_set_b(k, (double *) d->b, &s->qp); d->b += nx1;
+    if (k < N) {
+        d_ocp_qp_set_A(k, (double *) d->A, qp);
+        d_ocp_qp_set_B(k, (double *) d->B, qp);
+        d_ocp_qp_set_b(k, (double *) d->b, qp);
     }
-    d_ocp_qp_set_Q(k, (double *) d->Q, &s->qp); d->Q += nx * nx;
-    d_ocp_qp_set_S(k, (double *) d->S, &s->qp); d->S += nu * nx;
-    d_ocp_qp_set_R(k, (double *) d->R, &s->qp); d->R += nu * nu;
-    d_ocp_qp_set_q(k, (double *) d->q, &s->qp); d->q += nx;
-    d_ocp_qp_set_r(k, (double *) d->r, &s->qp); d->r += nu;
-    d_ocp_qp_set_C(k, (double *) d->C, &s->qp); d->C += ng * nx;
-    d_ocp_qp_set_D(k, (double *) d->D, &s->qp); d->D += ng * nu;
-    d_ocp_qp_set_idxbu(k, s->idxbu[k], &s->qp);
-    d_ocp_qp_set_idxbx(k, s->idxbx[k], &s->qp);
+    d_ocp_qp_set_Q(k, (double *) d->Q, qp);
+    d_ocp_qp_set_S(k, (double *) d->S, qp);
+    d_ocp_qp_set_R(k, (double *) d->R, qp);
+    d_ocp_qp_set_q(k, (double *) d->q, qp);
+    d_ocp_qp_set_r(k, (double *) d->r, qp);
+    d_ocp_qp_set_C(k, (double *) d->C, qp);
+    d_ocp_qp_set_D(k, (double *) d->D, qp);
+    d_ocp_qp_set_idxbu(k, s->idxbu[k], qp);
+    d_ocp_qp_set_idxbx(k, s->idxbx[k], qp);
     BOUNDS(nu, d->lbu, d->ubu, d_ocp_qp_set_lbu, d_ocp_qp_set_ubu, d_ocp_qp_set_lbu_mask, d_ocp_qp_set_ubu_mask)
     BOUNDS(nx, d->lbx, d->ubx, d_ocp_qp_set_lbx, d_ocp_qp_set_ubx, d_ocp_qp_set_lbx_mask, d_ocp_qp_set_ubx_mask)
     if (ng > 0) {
         BOUNDS(ng, d->lg, d->ug, d_ocp_qp_set_lg, d_ocp_qp_set_ug, d_ocp_qp_set_lg_mask, d_ocp_qp_set_ug_mask)
     }
     for (j = 0; j < nu + nx + ng; j++)
-        if (s->eq_pattern[offset + j]) s->idxe[k][ne++] = j;
-    if (ne > 0) d_ocp_qp_set_idxe(k, s->idxe[k], &s->qp);
-    d->lbu += nu; d->ubu += nu; d->lbx += nx; d->ubx += nx; d->lg += ng; d->ug += ng;
+        if (in->eq[offset + j]) s->idxe[k][ne++] = j;
+    if (ne > 0) d_ocp_qp_set_idxe(k, s->idxe[k], qp);
 }
 #undef BOUNDS
 
-/* the solution: u, x, pi (nx[k+1] per k < N) and the (upper - lower) multipliers of u, x and g per stage */
-static void get_solution(wbqp *s, double *u, double *x, double *pi, double *lam_u, double *lam_x, double *lam_g) {
-    int k, j;
-    for (k = 0; k <= s->N; k++) {
-        int nx = s->nx[k], nu = s->nu[k], ng = s->ng[k];
-        d_ocp_qp_sol_get_u(k, &s->sol, u); u += nu;
-        d_ocp_qp_sol_get_x(k, &s->sol, x); x += nx;
-        if (k < s->N) { d_ocp_qp_sol_get_pi(k, &s->sol, pi); pi += s->nx[k + 1]; }
-        d_ocp_qp_sol_get_lam_lbu(k, &s->sol, s->lb); d_ocp_qp_sol_get_lam_ubu(k, &s->sol, s->ub);
-        for (j = 0; j < nu; j++) lam_u[j] = s->ub[j] - s->lb[j];
-        lam_u += nu;
-        d_ocp_qp_sol_get_lam_lbx(k, &s->sol, s->lb); d_ocp_qp_sol_get_lam_ubx(k, &s->sol, s->ub);
-        for (j = 0; j < nx; j++) lam_x[j] = s->ub[j] - s->lb[j];
-        lam_x += nx;
-        if (ng > 0) {
-            d_ocp_qp_sol_get_lam_lg(k, &s->sol, s->lb); d_ocp_qp_sol_get_lam_ug(k, &s->sol, s->ub);
-            for (j = 0; j < ng; j++) lam_g[j] = s->ub[j] - s->lb[j];
-            lam_g += ng;
-        }
+/* the instance's solution into stage k's reduced solution (wbqp_stage_sol) */
+static void get_solution(wbqp *s, wbqp_inst *in, int k, wbqp_stage_sol *o) {
+    int N = s->N, nx = in->dims[k], nu = in->dims[N + 1 + k], ng = in->dims[2 * (N + 1) + k], j;
+    struct d_ocp_qp_sol *sol = &in->sol;
+    d_ocp_qp_sol_get_u(k, sol, o->u);
+    d_ocp_qp_sol_get_x(k, sol, o->x);
+    if (k < N) d_ocp_qp_sol_get_pi(k, sol, o->pi);
+    d_ocp_qp_sol_get_lam_lbu(k, sol, s->lb); d_ocp_qp_sol_get_lam_ubu(k, sol, s->ub);
+    for (j = 0; j < nu; j++) o->lam_u[j] = s->ub[j] - s->lb[j];
+    d_ocp_qp_sol_get_lam_lbx(k, sol, s->lb); d_ocp_qp_sol_get_lam_ubx(k, sol, s->ub);
+    for (j = 0; j < nx; j++) o->lam_x[j] = s->ub[j] - s->lb[j];
+    if (ng > 0) {
+        d_ocp_qp_sol_get_lam_lg(k, sol, s->lb); d_ocp_qp_sol_get_lam_ug(k, sol, s->ub);
+        for (j = 0; j < ng; j++) o->lam_g[j] = s->ub[j] - s->lb[j];
     }
+}
+
+static void read_status(wbqp *s, wbqp_inst *in) {
+    d_ocp_qp_ipm_get_status(&in->ws, &s->status);
+    d_ocp_qp_ipm_get_iter(&in->ws, &s->iter);
+    d_ocp_qp_ipm_get_max_res_stat(&in->ws, &s->res[0]);
+    d_ocp_qp_ipm_get_max_res_eq(&in->ws, &s->res[1]);
+    d_ocp_qp_ipm_get_max_res_ineq(&in->ws, &s->res[2]);
+    d_ocp_qp_ipm_get_max_res_comp(&in->ws, &s->res[3]);
 }
 
 /* Solve. Blocks flat in stage order, column-major: A_k (nx[k+1] x nx[k]), B_k (nx[k+1] x nu[k]), b_k, Q_k (nx x nx),
@@ -228,28 +273,37 @@ int wbqp_solve(void *handle, const double *A, const double *B, const double *b, 
                const double *lg, const double *ug, double *u, double *x, double *pi, double *lam_u, double *lam_x,
                double *lam_g) {
     wbqp *s = handle;
-    qp_data d = {A, B, b, Q, S, R, q, r, C, D, lbu, ubu, lbx, ubx, lg, ug};
-    int k, offset = 0;
-    if (update_pattern(s, lbu, ubu, lbx, ubx, lg, ug)) build(s);
-    for (k = 0; k <= s->N; k++) {
-        set_stage(s, k, &d, offset);
-        offset += s->nu[k] + s->nx[k] + s->ng[k];
+    const double *full[WBQP_BLOCKS] = {A, B, b, Q, S, R, q, r, C, D, lbu, ubu, lbx, ubx, lg, ug};
+    double *sol[WBQP_SOLS] = {u, x, pi, lam_u, lam_x, lam_g};
+    wbqp_inst *in;
+    int k, offset = 0, N = s->N;
+    wbqp_reduce(&s->red, full, s->stages);
+    in = instance(s);
+    for (k = 0; k <= N; k++) {
+        set_stage(s, in, k, &s->stages[k], offset);
+        offset += in->dims[k] + in->dims[N + 1 + k] + in->dims[2 * (N + 1) + k];
     }
     /* primal guess: zero (the linearisation point) */
-    for (k = 0; k <= s->N; k++) {
-        d_ocp_qp_sol_set_u(k, s->zeros, &s->sol);
-        d_ocp_qp_sol_set_x(k, s->zeros, &s->sol);
+    for (k = 0; k <= N; k++) {
+        d_ocp_qp_sol_set_u(k, s->zeros, &in->sol);
+        d_ocp_qp_sol_set_x(k, s->zeros, &in->sol);
     }
-    d_ocp_qp_ipm_solve(&s->qp, &s->sol, &s->arg, &s->ws);
-    d_ocp_qp_ipm_get_status(&s->ws, &s->status);
-    d_ocp_qp_ipm_get_iter(&s->ws, &s->iter);
-    d_ocp_qp_ipm_get_max_res_stat(&s->ws, &s->res[0]);
-    d_ocp_qp_ipm_get_max_res_eq(&s->ws, &s->res[1]);
-    d_ocp_qp_ipm_get_max_res_ineq(&s->ws, &s->res[2]);
-    d_ocp_qp_ipm_get_max_res_comp(&s->ws, &s->res[3]);
-    get_solution(s, u, x, pi, lam_u, lam_x, lam_g);
+    d_ocp_qp_ipm_solve(&in->qp, &in->sol, &in->arg, &in->ws);
+    read_status(s, in);
+    for (k = 0; k <= N; k++) {
+        s->reduced[k] = wbqp_sol_at(&s->red, s->red.sols, k);
+        get_solution(s, in, k, &s->reduced[k]);
+    }
+    wbqp_expand(&s->red, full, s->reduced, sol);
     return s->status;
 }
 
 int wbqp_iterations(void *handle) { return ((wbqp *) handle)->iter; }
 void wbqp_residuals(void *handle, double *out) { memcpy(out, ((wbqp *) handle)->res, 4 * sizeof(double)); }
+/* the sizes of the last call's QP as HPIPM solved it: nx, nu, ng per stage (3 (N + 1) ints) */
+void wbqp_sizes(void *handle, int *out) {
+    wbqp *s = handle;
+    memcpy(out, s->key_dims, 3 * (s->N + 1) * sizeof(int));
+}
+/* HPIPM instances built so far (a new size or equality pattern not in the cache) */
+int wbqp_rebuilds(void *handle) { return ((wbqp *) handle)->rebuilds; }
