@@ -3,8 +3,8 @@
 Each part of the NLP vector (configuration increments, velocities, accelerations, torques, slacks...) is linear
 interpolation over its own nodes (`control/trajectory.py`'s `Resampler`, values held beyond the last old node).
 `ShiftedGuess` lays every re-sampled variable out once as (node, column) of one table, so a step re-samples the
-whole vector in a few gathers, in the NLP's scaled variables (the same interpolation up to rounding), instead of
-unpacking, re-sampling and packing it part by part.
+whole vector in a few gathers (the same arithmetic, bit for bit), instead of unpacking, re-sampling and packing it
+part by part.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ class ShiftedGuess:
         self._size = problem.n_variables
 
     def __call__(self, old_x: np.ndarray, new_times: np.ndarray, old_times: np.ndarray) -> np.ndarray:
-        """The NLP vector (scaled, as `old_x`) at `new_times`: each variable of node k linearly interpolated
+        """The vector `old_x` (NLP layout) at `new_times`: each variable of node k linearly interpolated
         between the old nodes around new_times[k] (among its part's own nodes), held beyond them."""
         lengths = self._lengths[:, None]
         after = np.searchsorted(old_times, new_times)[None, :]

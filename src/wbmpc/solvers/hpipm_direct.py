@@ -303,10 +303,10 @@ class DirectQp:
         if sizes != self._sizes:  # the shim reads them by index
             raise ValueError(f"QP data of sizes {sizes} (H, gradient, J nonzeros, lbg, ubg, lbx, ubx), expected {self._sizes}")
         step, lam_x, lam_g = np.empty(self._n_var), np.empty(self._n_var), np.empty(self._n_row)
+        addresses = [a.ctypes.data for a in (h, g, j, lbg, ubg, lbx, ubx, step, lam_g, lam_x)]
         tic = time.perf_counter()
-        flag = self._lib.wbqp_nlp_solve(self._handle, self._nlp_handle, *(a.ctypes.data for a in (
-            h, g, j, lbg, ubg, lbx, ubx, step, lam_g, lam_x)))
-        hpipm_s = time.perf_counter() - tic  # with the C loading and unloading: the binding's Python is the rest
+        flag = self._lib.wbqp_nlp_solve(self._handle, self._nlp_handle, *addresses)
+        hpipm_s = time.perf_counter() - tic  # (the shim's C loads the QP, solves and unpacks it)
         if flag == -10:
             raise WbmpcError("HPIPM's dynamics rows must be equalities (lbg == ubg on the gap rows)")
         success = flag == 0 and bool(np.all(np.isfinite(step)))

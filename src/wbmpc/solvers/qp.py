@@ -64,7 +64,7 @@ class QpResult:
     success: bool
     iterations: int
     solve_time_s: float
-    pack_s: float = 0.0  # of solve_time_s, the binding's NumPy packing and unpacking around HPIPM's own solve
+    pack_s: float = 0.0  # of solve_time_s, the binding's Python around its C call (which loads, solves, unpacks)
 
 
 def stage_dimensions(problem: OcpProblem) -> dict[str, list[int]]:
