@@ -28,11 +28,10 @@ from wbmpc.control.references import References
 from wbmpc.control.solution import Solution
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
-from wbmpc.control.warm_start import ShiftedGuess
+from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, make_gait
-from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
 from wbmpc.ocp.problem import OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
 from wbmpc.solvers import make_solver
@@ -96,9 +95,8 @@ class MPC:
         self._previous: Solution | None = None
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
         # a solver that starts from given multipliers (fatrop-direct on flat feet) gets the last plan's, moved by
-        # constraint identity (ocp/multipliers.py); (t_s, lam_g, lam_x, row kinds, variable kinds) of the last plan
-        self._multiplier_shift = MultiplierShift(self.problem) if getattr(self.solver, "takes_multipliers", False) else None
-        self._previous_duals: tuple | None = None
+        # constraint identity (ocp/multipliers.py)
+        self._duals = ShiftedDuals(self.problem) if getattr(self.solver, "takes_multipliers", False) else None
 
     def _plan_function(self) -> ca.Function:
         """(x, p) -> the plan's trajectories (`OcpProblem.trajectory_function`) with the configurations q_ref (+) dq
@@ -149,7 +147,9 @@ class MPC:
 
     def reset(self) -> None:
         """Forget the warm start and the position references (e.g. after a reset of the plant)."""
-        self._previous = self._previous_duals = None
+        self._previous = None
+        if self._duals is not None:
+            self._duals.reset()
         self.references.reset()
         self.recovery.reset()
         self.push_mode.reset()
@@ -258,9 +258,8 @@ class MPC:
         solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
         if solution.success:
             self._previous = solution
-            if self._multiplier_shift is not None:
-                lbx, ubx, lbg, ubg = step.bounds
-                self._previous_duals = (t, result.lam_g, result.lam_x, bound_kind(lbg, ubg), bound_kind(lbx, ubx))
+            if self._duals is not None:
+                self._duals.record(t, result, step.bounds)
         elif self.config.recovery.hold_previous and self._previous is not None:
             solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
@@ -363,15 +362,10 @@ class MPC:
         return result, solve_end
 
     def _shifted_duals(self, t: float, bounds) -> tuple:
-        """(lam_g0, lam_x0): the last plan's multipliers at this step's rows (ocp/multipliers.py), for a solver that
-        takes them; () otherwise."""
-        last = self._previous_duals
-        if last is None or self._previous is None or last[0] != self._previous.t_s or not self.config.warm_start:
+        """The last plan's multipliers at this step's rows for a solver that takes them (`ShiftedDuals`); () otherwise."""
+        if self._duals is None or self._previous is None or not self.config.warm_start:
             return ()
-        lbx, ubx, lbg, ubg = bounds
-        dt_s = t - last[0]
-        return (self._multiplier_shift.shift(last[1], last[3], bound_kind(lbg, ubg), dt_s),
-                self._multiplier_shift.shift(last[2], last[4], bound_kind(lbx, ubx), dt_s, rows=False))
+        return self._duals.at(t, bounds, self._previous.t_s)
 
     def _recover(self, failed, p, bounds, x0, t: float, fallback_tried: bool = False, soft_rows=None):
         """The recovery ladder (`Recovery.recover`; `soft_rows`: the step's data with the soft rows free, whose

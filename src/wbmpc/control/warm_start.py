@@ -4,12 +4,14 @@ Each part of the NLP vector (configuration increments, velocities, accelerations
 interpolation over its own nodes (`control/trajectory.py`'s `Resampler`, values held beyond the last old node).
 `ShiftedGuess` lays every re-sampled variable out once as (node, column) of one table, so a step re-samples the
 whole vector in a few gathers (the same arithmetic, bit for bit), instead of unpacking, re-sampling and packing it
-part by part.
+part by part. `ShiftedDuals` does the same for the last plan's multipliers, for a solver that takes them.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
 
 
 class ShiftedGuess:
@@ -57,3 +59,31 @@ class ShiftedGuess:
         out = np.zeros(self._size)
         out[self._target] = (1 - w_v) * before + w_v * after_
         return out
+
+
+class ShiftedDuals:
+    """The last plan's multipliers moved to this step's rows by constraint identity (`ocp/multipliers.py`), for a
+    solver that starts from given multipliers (fatrop-direct on flat feet)."""
+
+    def __init__(self, problem):
+        self._shift = MultiplierShift(problem)
+        self._last: tuple | None = None  # (t_s, lam_g, lam_x, row kinds, variable kinds) of the last plan
+
+    def reset(self) -> None:
+        self._last = None
+
+    def record(self, t_s: float, result, bounds) -> None:
+        """Keep a successful step's multipliers with the kinds of its rows' and variables' bounds."""
+        lbx, ubx, lbg, ubg = bounds
+        self._last = (t_s, result.lam_g, result.lam_x, bound_kind(lbg, ubg), bound_kind(lbx, ubx))
+
+    def at(self, t_s: float, bounds, previous_t_s: float | None) -> tuple:
+        """(lam_g0, lam_x0) for the step at `t_s` with `bounds`, when the kept multipliers are the plan's at
+        `previous_t_s` (the last good plan); () otherwise."""
+        last = self._last
+        if last is None or previous_t_s is None or last[0] != previous_t_s:
+            return ()
+        lbx, ubx, lbg, ubg = bounds
+        dt_s = t_s - last[0]
+        return (self._shift.shift(last[1], last[3], bound_kind(lbg, ubg), dt_s),
+                self._shift.shift(last[2], last[4], bound_kind(lbx, ubx), dt_s, rows=False))
