@@ -157,10 +157,10 @@ class SwingPlacement:
         q[3:7] = (0.0, 0.0, 0.0, 1.0)
         pin.framesForwardKinematics(model, self._data, q)
         base = q[:2]
-        self._foot_offsets_m = np.array([self._data.oMf[f].translation[:2] - base for f in self._frames])
+        self.foot_offsets_m = np.array([self._data.oMf[f].translation[:2] - base for f in self._frames])
         self._foot_yaws_rad = np.array([heading_of(self._data.oMf[f].rotation) for f in self._frames])
-        self._height_m = float(robot.q_nominal[2])
-        self._reach_m = MAX_STEP_PER_LEG * self._height_m
+        self.height_m = float(robot.q_nominal[2])
+        self.reach_m = MAX_STEP_PER_LEG * self.height_m
 
     def velocities(self, gait: Gait, t_s: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
                    command_world: np.ndarray, yaw: float, feet_m: np.ndarray, yaw_rate_rad_s: float = 0.0) -> np.ndarray:
@@ -170,16 +170,16 @@ class SwingPlacement:
         `yaw_rate_rad_s`: the commanded yaw rate."""
         out = np.full((len(node_times_s), len(self._frames), 2), np.nan)
         command = np.asarray(command_world, dtype=float)[:2]
-        capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self._height_m / 9.81)
+        capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self.height_m / 9.81)
         stance_s = gait.duty_factor * gait.period_s
         starts = [np.asarray(foot[:2], dtype=float) for foot in feet_m]
-        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s, len(self._frames)):
-            lever = _rotation(yaw + yaw_rate_rad_s * ahead_s) @ self._foot_offsets_m[i]
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s):
+            lever = _rotation(yaw + yaw_rate_rad_s * ahead_s) @ self.foot_offsets_m[i]
             under_hip = q[:2] + ahead_s * command + lever
             step = (command + yaw_rate_rad_s * np.array([-lever[1], lever[0]])) * stance_s / 2 + capture
             reach = np.linalg.norm(step)
-            if reach > self._reach_m:
-                step *= self._reach_m / reach
+            if reach > self.reach_m:
+                step *= self.reach_m / reach
             target = under_hip + step
             if shape is not None:
                 out[nodes, i] = np.outer(shape, target - starts[i])
@@ -194,7 +194,7 @@ class SwingPlacement:
         out = np.full((len(node_times_s), len(self._frames)), np.nan)
         stance_s = gait.duty_factor * gait.period_s
         starts = np.asarray(feet_yaw_rad, dtype=float).copy()
-        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s, len(self._frames)):
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s):
             target = yaw + yaw_rate_rad_s * (ahead_s + stance_s / 2) + self._foot_yaws_rad[i]
             turn = _wrap(target - starts[i])
             if shape is not None:
@@ -203,33 +203,41 @@ class SwingPlacement:
         return out
 
 
-def _swings(gait: Gait, t_s: float, node_times_s: np.ndarray, n_feet: int):
-    """The swings within the horizon, in time order per foot: (foot, its nodes, the profile 6 s (1 - s) rescaled to
-    the swing left (None: in the free end), time from t_s to its touch-down)."""
-    times = t_s + np.asarray(node_times_s, dtype=float)
+def swings_in_horizon(gait: Gait, t_s: float, times_s: np.ndarray):
+    """(foot, its nodes, swing progress s at those nodes, lift-off time, touch-down time, progress now) of every
+    swing at the absolute node times `times_s`, in time order per foot; a new swing starts where progress drops
+    (or at the first swing node). Nothing for a gait without swings."""
     duty = gait.duty_factor
     if duty >= 1:
         return
-    swing_s = (1 - duty) * gait.period_s
-    phase = gait.phase(times)  # (n, feet)
+    swing_s = gait.swing_duration_s
+    phase = gait.phase(times_s)  # (n, feet)
     progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
     now_phase = gait.phase(np.array([t_s]))[0]
-    for i in range(n_feet):
-        swinging = progress[:, i] >= 0
+    for foot in range(phase.shape[1]):
+        swinging = progress[:, foot] >= 0
         if not swinging.any():
             continue
-        # swings in the horizon, in order: a new one starts where progress drops (or at the first swing node)
-        previous = np.r_[-1.0, progress[:-1, i]]
-        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, i] < previous))) * swinging
-        s_now = (now_phase[i] - duty) / (1 - duty) if now_phase[i] >= duty else 0.0
+        previous = np.r_[-1.0, progress[:-1, foot]]
+        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, foot] < previous))) * swinging
+        s_now = (now_phase[foot] - duty) / (1 - duty) if now_phase[foot] >= duty else 0.0
         for label in np.unique(labels[labels > 0]):
             nodes = np.flatnonzero(labels == label)
-            s = progress[nodes, i]
-            lift_off_t = times[nodes[0]] - s[0] * swing_s
-            s0 = s_now if lift_off_t <= t_s else 0.0
-            left = 1 - 3 * s0**2 + 2 * s0**3  # integral of 6 s (1 - s) from s0 to 1
-            shape = 6 * s * (1 - s) / (swing_s * left) if left > PLACEMENT_END_SHARE else None
-            yield i, nodes, shape, lift_off_t + swing_s - t_s
+            s = progress[nodes, foot]
+            lift_off_t = times_s[nodes[0]] - s[0] * swing_s
+            yield foot, nodes, s, lift_off_t, lift_off_t + swing_s, s_now
+
+
+def _swings(gait: Gait, t_s: float, node_times_s: np.ndarray):
+    """The swings within the horizon (`swings_in_horizon`) as the placement uses them: (foot, its nodes, the
+    profile 6 s (1 - s) rescaled to the swing left (None: in the free end), time from t_s to its touch-down)."""
+    swing_s = gait.swing_duration_s
+    times_s = t_s + np.asarray(node_times_s, dtype=float)
+    for i, nodes, s, lift_off_t, touch_down_t, s_now in swings_in_horizon(gait, t_s, times_s):
+        s0 = s_now if lift_off_t <= t_s else 0.0
+        left = 1 - 3 * s0**2 + 2 * s0**3  # integral of 6 s (1 - s) from s0 to 1
+        shape = 6 * s * (1 - s) / (swing_s * left) if left > PLACEMENT_END_SHARE else None
+        yield i, nodes, shape, touch_down_t - t_s
 
 
 def _rotation(yaw: float) -> np.ndarray:

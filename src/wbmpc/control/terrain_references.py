@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.foot_placement import CAPTURE_GAIN, PLACEMENT_END_SHARE, SwingPlacement
+from wbmpc.control.foot_placement import CAPTURE_GAIN, PLACEMENT_END_SHARE, SwingPlacement, swings_in_horizon
 from wbmpc.control.leg_shins import LegShins, shin_radius_m
 from wbmpc.gait import Gait, SwingProfile, swing_between
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
@@ -171,12 +171,12 @@ class TerrainReferences:
             command = np.asarray(command_world, dtype=float)[:2]
             step = self._raibert_step(command, np.asarray(v_world, dtype=float)[:2], stance_s)
             segments = []  # (foot, nodes, progress, heights, progress now, measured height in the air or NaN)
-            for foot, nodes, s, lift_off_t, touch_down_t, s_now in _swings(gait, t, times):
+            for foot, nodes, s, lift_off_t, touch_down_t, s_now in swings_in_horizon(gait, t, times):
                 in_progress = lift_off_t <= t
                 lift_off_xy = self._stance_xy[foot] if in_progress else stand[nodes[0] - 1, foot] if nodes[0] > 0 \
                     else feet_m[foot, :2]
                 base_xy = q[:2] + (touch_down_t - t) * command
-                raw = base_xy + heading @ placement._foot_offsets_m[foot] + step
+                raw = base_xy + heading @ placement.foot_offsets_m[foot] + step
                 s0 = s_now if in_progress else 0.0
                 target, heights = self._plan(foot, lift_off_t, s0, in_progress, raw, lift_off_xy, base_xy,
                                              q[:2] + (touch_down_t - t) * np.asarray(v_world)[:2], q, yaw, heading)
@@ -228,9 +228,9 @@ class TerrainReferences:
         at most the placement's reach."""
         placement = self._placement
         step = command_xy * stance_s / 2 + CAPTURE_GAIN * (velocity_xy - command_xy) * np.sqrt(
-            placement._height_m / GRAVITY_M_S2)
+            placement.height_m / GRAVITY_M_S2)
         reach = np.linalg.norm(step)
-        return step * placement._reach_m / reach if reach > placement._reach_m else step
+        return step * placement.reach_m / reach if reach > placement.reach_m else step
 
     def _plan(self, foot: int, lift_off_t: float, s0: float, in_progress: bool, raw: np.ndarray,
               lift_off_xy: np.ndarray, base_xy: np.ndarray, measured_xy: np.ndarray, q: np.ndarray, yaw: float,
@@ -426,29 +426,7 @@ def ride_limit_m(robot: RobotModel) -> float:
 
 def support_footprint(robot: RobotModel, terrain: Terrain) -> SupportFootprint:
     """The terrain's support plane under `robot` (its feet's nominal places, SUPPORT_REACH leg lengths either way)."""
-    return SupportFootprint(terrain, SwingPlacement(robot)._foot_offsets_m, SUPPORT_REACH * float(robot.q_nominal[2]))
-
-
-def _swings(gait: Gait, t: float, times: np.ndarray):
-    """(foot, nodes, progress at those nodes, lift-off time, touch-down time, progress now) of every swing in the
-    horizon, in order per foot (as `SwingPlacement` segments them)."""
-    duty = gait.duty_factor
-    swing_s = gait.swing_duration_s
-    phase = gait.phase(times)
-    progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
-    now_phase = gait.phase(np.array([t]))[0]
-    for foot in range(phase.shape[1]):
-        swinging = progress[:, foot] >= 0
-        if not swinging.any():
-            continue
-        previous = np.r_[-1.0, progress[:-1, foot]]
-        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, foot] < previous))) * swinging
-        s_now = (now_phase[foot] - duty) / (1 - duty) if now_phase[foot] >= duty else 0.0
-        for label in np.unique(labels[labels > 0]):
-            nodes = np.flatnonzero(labels == label)
-            s = progress[nodes, foot]
-            lift_off_t = times[nodes[0]] - s[0] * swing_s
-            yield foot, nodes, s, lift_off_t, lift_off_t + swing_s, s_now
+    return SupportFootprint(terrain, SwingPlacement(robot).foot_offsets_m, SUPPORT_REACH * float(robot.q_nominal[2]))
 
 
 def _yaw_pitch_quaternions(yaw: np.ndarray, pitch: np.ndarray) -> np.ndarray:
