@@ -7,6 +7,7 @@ import pytest
 
 from wbmpc.control import MPC, Commands, MpcConfig, RecoveryConfig
 from wbmpc.control.interpolator import interpolate
+from wbmpc.control.policy import DELAYED_RECOVERY_PERIODS, MpcChoices, TaskNeeds, mpc_config
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
@@ -69,3 +70,16 @@ def test_no_recovery_attempt_starts_once_the_step_has_spent_its_cpu_budget(a1_mp
         if recovered:
             assert "fatrop mu_init" in held.stats.status and "ipopt:" in held.stats.status
         assert held.stats.cpu_time_s > 0
+
+
+def test_a_waiting_run_caps_its_recovery_by_iterations_only_and_a_delayed_run_by_time():
+    """A run whose plant waits for the solver must not depend on the machine's load: no CPU or wall budget
+    (IPOPT would get `max_wall_time`); with a delay the plant runs on, so the re-solves get a few periods."""
+    robot = load_robot("a1")
+    waiting = mpc_config(robot, TaskNeeds(gait="trot"), MpcChoices(delay_mode="none"))
+    delayed = mpc_config(robot, TaskNeeds(gait="trot"), MpcChoices(delay_mode="measured"))
+    assert waiting.recovery.budget_s is None
+    assert waiting.recovery.fallback_max_iterations > 0 and waiting.recovery.fatrop_max_iterations > 0
+    assert delayed.recovery.budget_s == pytest.approx(DELAYED_RECOVERY_PERIODS / MpcChoices().mpc_rate_hz)
+    fallback = MPC(robot, replace(waiting, ocp=SMALL)).recovery.fallback_solver()
+    assert fallback.config.name == "ipopt" and fallback.config.time_limit_s is None

@@ -302,14 +302,16 @@ def solver_options(choices: MpcChoices, flat_feet: bool = False) -> dict:
 
 def recovery_config(choices: MpcChoices, flat_feet: bool) -> RecoveryConfig:
     """Failed steps: with a delay the plant does not wait, so a long recovery leaves the robot on a stale plan:
-    it is cut shorter (DELAYED_RECOVERY_PERIODS) and the last good plan, shifted in time, is held instead. The
+    it is cut shorter (DELAYED_RECOVERY_PERIODS) and the last good plan, shifted in time, is held instead. When
+    the plant waits (delay mode "none") the re-solves are capped by iterations only: a CPU or wall-time budget
+    would make a run's outcome depend on the machine's load, and a waiting run must be reproducible. The
     anytime SQP continues from its own best iterate: no converged solver first after a rescue (an uncompiled
     IPOPT step takes 100+ ms)."""
     default = RecoveryConfig()
     return RecoveryConfig(
         fallback_first_s=0.0 if choices.solver == "sqp" else default.fallback_first_s,
         fallback_solver=None if hold_on_failure(choices, flat_feet) else default.fallback_solver,
-        budget_s=default.budget_s if choices.delay_mode == "none" else DELAYED_RECOVERY_PERIODS / choices.mpc_rate_hz)
+        budget_s=None if choices.delay_mode == "none" else DELAYED_RECOVERY_PERIODS / choices.mpc_rate_hz)
 
 
 def step_budget_s(choices: MpcChoices) -> float | None:
