@@ -120,6 +120,19 @@ def test_spec_files_and_grid_flags(tmp_path):
         load_spec(tmp_path / "bad.json")
 
 
+def test_text_and_whole_number_scenario_options_are_campaign_axes():
+    """Scenario options declared as text (arm_target_path, stairs_direction, ...) take names, whole numbers
+    (steps) reach the scenario as int; a number for a text axis names the problem."""
+    spec = CampaignSpec(scenario="arm-track", grid={"arm_target_path": ["sine", "behind-base"]}, fixed={"steps": 3.0})
+    options = [case.run_config().options for case in expand(spec)]
+    assert sorted(o.arm_target_path for o in options) == ["behind-base", "sine"]
+    assert all(o.steps == 3 and isinstance(o.steps, int) for o in options)
+    stairs = expand(CampaignSpec(scenario="stairs", fixed={"stairs_direction": "up"}))[0].run_config()
+    assert stairs.options.stairs_direction == "up"
+    with pytest.raises(ConfigError, match="axis arm_target_path takes names"):
+        expand(CampaignSpec(scenario="arm-track", fixed={"arm_target_path": 2.0}))
+
+
 def test_push_map_takes_the_largest_speed_recovered_in_every_phase():
     rows = [{"push_direction_deg": 90.0, "push_speed_m_s": s, "recovered": ok}
             for s, ok in ((0.2, True), (0.2, True), (0.4, True), (0.4, False), (0.6, True), (0.6, True))]

@@ -66,8 +66,11 @@ _OTHER_AXES = {
 _SCENARIO_AXES = {f.name: f"scenario option: {help_text(f, opt)}" + (f" [{opt.flag}]" if opt.flag else "")
                   for f, opt in declared(ScenarioOptions)}
 AXES: dict[str, str] = {**_SCENARIO_AXES, **_MODEL_AXES, **_LOOP_AXES, **_OTHER_AXES}
-STRING_AXES = {"robot", "gait", "board", "wipe_pattern", "state", "motor_law", "plant_model"}
-INTEGER_AXES = {"plant_seed"}
+_SCENARIO_TYPES = {f.name: str(f.type) for f, _ in declared(ScenarioOptions)}  # "float", "str | None", "int", ...
+# axes whose values are names or paths: the loop's and the scenario options declared as text (arm_target_path, ...)
+STRING_AXES = {"robot", "state", "motor_law", "plant_model"} | {
+    name for name, kind in _SCENARIO_TYPES.items() if kind.split(" |")[0] == "str"}
+INTEGER_AXES = {"plant_seed"} | {name for name, kind in _SCENARIO_TYPES.items() if kind.split(" |")[0] == "int"}
 
 
 def check_axes(spec) -> None:
@@ -150,8 +153,7 @@ class Case:
         from wbmpc.scenarios.library import SCENARIOS
 
         v = self.values
-        options = ScenarioOptions(**{k: (float(x) if k not in STRING_AXES else x) for k, x in v.items()
-                                     if k in _SCENARIO_AXES})
+        options = ScenarioOptions(**{k: _scenario_value(k, x) for k, x in v.items() if k in _SCENARIO_AXES})
         if "gait_phase" in v:
             gait = options.gait or SCENARIOS[self.scenario](ScenarioOptions()).gait
             period = make_gait(gait, 4, tuning_for(self.robot).gait_period_s).period_s  # a1: 0.6 s
@@ -214,6 +216,16 @@ def expand(spec) -> list[Case]:
                 cases.append(Case(spec.scenario, robot, float(spec.duration_s), int(spec.nodes), bool(spec.compiled),
                                   spec.formulation, params, int(seed), spec.delay, spec.solver))
     return cases
+
+
+def _scenario_value(name: str, value):
+    """A scenario option's axis value as its declared type (text, whole number, flag or number)."""
+    kind = _SCENARIO_TYPES[name].split(" |")[0]
+    if kind == "str":
+        return value
+    if kind == "int":
+        return int(round(float(value)))
+    return bool(float(value)) if kind == "bool" else float(value)
 
 
 def _draw(rng, name: str, low: float, high: float):
