@@ -34,7 +34,7 @@ from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, make_gait
 from wbmpc.ocp.problem import OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
-from wbmpc.solvers import make_solver
+from wbmpc.solvers import make_solver, step_pack
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, compile_functions
 from wbmpc.solvers.nlp import NlpSolver
@@ -87,7 +87,9 @@ class MPC:
         self._flat_normals = np.tile([0.0, 0.0, 1.0], (N, len(robot.feet))).T.copy()  # (3 n_feet, N): world z
         self.push_mode = PushMode(config.push, self.gait)
         self.recovery = Recovery(self.problem, self.solver, config.recovery)
-        self._shift = ShiftedGuess(self.problem)  # the warm start's re-sampling (forces: re-initialised)
+        # the warm start's re-sampling (forces: re-initialised) and the bounds' template, compiled with the solver
+        packer = step_pack.library(config.solver.codegen) if config.solver.compiled else None  # (solvers/step_pack.py)
+        self._shift, self.problem.bounds_packer = ShiftedGuess(self.problem, packer=packer), packer
         states = self.problem.state_names  # node 0's state variables and their entries of the measured x0
         self._measured_entries = (np.concatenate([self.problem.idx[name][0] for name in states]),
                                   np.concatenate([np.arange(self.problem.state_offsets[name].start,

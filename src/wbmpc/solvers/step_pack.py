@@ -1,0 +1,70 @@
+"""The per-step packing of an MPC step in C (`csrc/step_pack.c`): the warm start's re-sampling (`ShiftedGuess`), the
+bounds' contact-dependent entries (`BoundsTemplate`) and the solvers' input checks (`invalid_input`).
+
+Each C function is the NumPy code it replaces, operation for operation and compiled without fused multiply-adds, so
+results are the same bit for bit (tests/solvers/test_step_pack.py). Why C: right after the solver's call the
+interpreter's caches are cold and each of the step's ~250 small NumPy calls costs 2-4 us; one C call replaces 5-20
+of them. The library is shipped source, compiled once per machine into the cache (`native.build_native`); without
+a compiler `library()` is None and the callers keep their NumPy code (the same results, slower).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import warnings
+
+import numpy as np
+
+from wbmpc.solvers.codegen import CodegenConfig, CompileError
+from wbmpc.solvers.native import build_native
+
+_libraries: dict[tuple, ctypes.CDLL | None] = {}
+
+
+def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
+    """The compiled packer (built on first use, one per process and compiler), or None where it cannot be built
+    (a RuntimeWarning says why once; the callers then run their NumPy code)."""
+    config = config or CodegenConfig()
+    key = (config.compiler, config.cache_dir)
+    if key not in _libraries:
+        try:
+            # -O2 -ffp-contract=off: no fused multiply-adds, the NumPy arithmetic bit for bit (and no -march=native:
+            # nothing here needs it)
+            report = build_native("step_pack", ("step_pack.c",), config, ("-O2", "-ffp-contract=off"))
+            lib = ctypes.CDLL(str(report.library))
+        except (CompileError, OSError) as exc:
+            warnings.warn(f"the compiled step packer is unavailable, packing with NumPy (slower): {exc}",
+                          RuntimeWarning, stacklevel=2)
+            lib = None
+        if lib is not None:
+            pointer = ctypes.c_void_p
+            lib.wbsp_shift.argtypes = [ctypes.c_int, pointer, ctypes.c_int, pointer, ctypes.c_int, pointer,
+                                       ctypes.c_int, pointer, pointer, pointer, pointer, pointer, ctypes.c_int,
+                                       pointer, pointer, pointer]
+            lib.wbsp_bounds_start.argtypes = [pointer, ctypes.c_int, pointer, pointer, pointer, pointer, ctypes.c_int,
+                                              pointer, pointer, ctypes.c_int, ctypes.c_int, pointer]
+            lib.wbsp_bounds_measured.argtypes = [pointer] * 6 + [ctypes.c_int, ctypes.c_int]
+            lib.wbsp_check.argtypes = [pointer, ctypes.c_int, pointer, ctypes.c_int, pointer, pointer, pointer,
+                                       pointer, ctypes.c_int]
+        _libraries[key] = lib
+    return _libraries[key]
+
+
+def _numpy_check(p, x0, lbx, ubx, lbg, ubg) -> int:
+    if not (np.isfinite(p).all() and np.isfinite(x0).all()):
+        return 1
+    return 2 if (lbx > ubx).any() or (lbg > ubg).any() else 0
+
+
+def invalid_input(lib: ctypes.CDLL | None, p: np.ndarray, x0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray,
+                  lbg: np.ndarray, ubg: np.ndarray) -> str | None:
+    """A solver's refusal of its inputs: "invalid_input_nan" when p or x0 holds a NaN or an infinity,
+    "invalid_bounds" when a lower bound exceeds its upper bound, None when they are fine. In C with the packer `lib`
+    (`library()`; one call instead of eight NumPy ones) for float64 vectors of matching sizes, else NumPy."""
+    arrays = tuple(np.asarray(a, dtype=float) for a in (p, x0, lbx, ubx, lbg, ubg))
+    p, x0, lbx, ubx, lbg, ubg = arrays
+    usable = lib is not None and all(a.dtype == np.float64 and a.ndim == 1 and a.flags.c_contiguous for a in arrays) \
+        and lbx.size == ubx.size == x0.size and lbg.size == ubg.size
+    code = lib.wbsp_check(p.ctypes.data, p.size, x0.ctypes.data, x0.size, lbx.ctypes.data, ubx.ctypes.data,
+                          lbg.ctypes.data, ubg.ctypes.data, lbg.size) if usable else _numpy_check(*arrays)
+    return (None, "invalid_input_nan", "invalid_bounds")[code]
