@@ -44,6 +44,7 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
             lib.wbsp_bounds_start.argtypes = [pointer, ctypes.c_int, pointer, pointer, pointer, pointer, ctypes.c_int,
                                               pointer, pointer, ctypes.c_int, ctypes.c_int, pointer]
             lib.wbsp_bounds_measured.argtypes = [pointer] * 6 + [ctypes.c_int, ctypes.c_int]
+            lib.wbsp_swing_vz.argtypes = [ctypes.c_int, pointer] + [ctypes.c_double] * 4 + [pointer]
             lib.wbsp_check.argtypes = [pointer, ctypes.c_int, pointer, ctypes.c_int, pointer, pointer, pointer,
                                        pointer, ctypes.c_int]
         _libraries[key] = lib
@@ -68,3 +69,24 @@ def invalid_input(lib: ctypes.CDLL | None, p: np.ndarray, x0: np.ndarray, lbx: n
     code = lib.wbsp_check(p.ctypes.data, p.size, x0.ctypes.data, x0.size, lbx.ctypes.data, ubx.ctypes.data,
                           lbg.ctypes.data, ubg.ctypes.data, lbg.size) if usable else _numpy_check(*arrays)
     return (None, "invalid_input_nan", "invalid_bounds")[code]
+
+
+class SwingVelocity:
+    """`SwingProfile.vertical_velocity(progress, swing_duration_s)` for progress arrays of one shape, in one C call
+    with the packer `lib` (inputs and output kept: their addresses taken once), else the profile's NumPy code."""
+
+    def __init__(self, profile, lib: ctypes.CDLL | None, shape: tuple[int, ...]):
+        self._profile, self._lib = profile, lib
+        self._progress, self._out = np.zeros(shape), np.zeros(shape)
+        self._addresses = (self._progress.ctypes.data, self._out.ctypes.data)
+
+    def __call__(self, progress: np.ndarray, swing_duration_s: float) -> np.ndarray:
+        profile = self._profile
+        if self._lib is None or np.shape(progress) != self._out.shape:
+            return profile.vertical_velocity(progress, swing_duration_s)
+        piece_s = swing_duration_s / 2  # (the profile's arithmetic, term by term)
+        self._progress[...] = progress
+        self._lib.wbsp_swing_vz(self._out.size, self._addresses[0], piece_s, profile.apex_height_m,
+                                profile.liftoff_velocity_m_s * piece_s, profile.touchdown_velocity_m_s * piece_s,
+                                self._addresses[1])
+        return self._out.copy()

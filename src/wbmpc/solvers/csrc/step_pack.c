@@ -172,3 +172,20 @@ int wbsp_bounds_measured(double *buf, const int64_t *m, const int64_t *const *t,
   for (r = 0; r < 2 * m[M_NX]; ++r) buf[r] /= c[C_X_SCALE][r];
   return 0;
 }
+
+/* `SwingProfile.vertical_velocity` (gait.py): v_z^ref at swing progress s (< 0: stance, 0), two cubic pieces of
+ * duration T each (liftoff_t, touchdown_t: the lift-off and touch-down velocities times T) */
+int wbsp_swing_vz(int n, const double *progress, double piece_s, double apex_m, double liftoff_t, double touchdown_t,
+                  double *out) {
+  int i;
+  for (i = 0; i < n; ++i) {
+    double s = progress[i];
+    int down = s >= 0.5;
+    double x = down ? (s - 0.5) / 0.5 : s / 0.5;
+    double x2 = x * x;
+    double up = (3.0 * x2 - 4.0 * x + 1.0) * liftoff_t + (-6.0 * x2 + 6.0 * x) * apex_m;
+    double descent = (6.0 * x2 - 6.0 * x) * apex_m + (3.0 * x2 - 2.0 * x) * touchdown_t;
+    out[i] = s >= 0 ? (down ? descent : up) / piece_s : 0.0;
+  }
+  return 0;
+}
