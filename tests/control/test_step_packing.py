@@ -11,6 +11,7 @@ import pytest
 from wbmpc.control import MPC, Commands, MpcConfig
 from wbmpc.control.trajectory import Resampler, interp_rows
 from wbmpc.control.warm_start import ShiftedGuess
+from wbmpc.gait import SwingProfile
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
@@ -207,3 +208,22 @@ def test_the_mpc_packs_with_numpy_without_a_compiler(tmp_path):
     x = np.arange(problem.n_variables, dtype=float)
     times = problem.config.grid.node_times_s
     assert np.array_equal(shift(x, times, times), ShiftedGuess(problem)(x, times, times))
+
+
+def test_the_compiled_swing_velocity_equals_the_profiles_bitwise():
+    """`SwingVelocity` (C) against `SwingProfile.vertical_velocity` (NumPy): stance, both cubic pieces and their
+    joint, lift-off and touch-down velocities, a standing gait (no swing time)."""
+    packer = step_pack.library()
+    if packer is None:
+        pytest.skip("no C compiler")
+    rng = np.random.default_rng(2)
+    for profile in (SwingProfile(), SwingProfile(apex_height_m=0.11, liftoff_velocity_m_s=0.3, touchdown_velocity_m_s=-0.2)):
+        compiled = step_pack.SwingVelocity(profile, packer, (16, 4))
+        for duration in (0.25, 0.1 / 3, 0.0):
+            progress = np.where(rng.uniform(size=(16, 4)) < 0.4, -1.0, rng.uniform(size=(16, 4)))
+            progress[0, :3] = [0.0, 0.5, np.nextafter(0.5, 0)]
+            if duration == 0.0:  # a standing gait: every foot in stance
+                progress[:] = -1.0
+            expected, got = profile.vertical_velocity(progress, duration), compiled(progress, duration)
+            assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+        assert np.array_equal(compiled(progress[:3], 0.25), profile.vertical_velocity(progress[:3], 0.25))  # other shape

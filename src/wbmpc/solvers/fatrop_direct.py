@@ -37,7 +37,7 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers import blasfeo, stage_library, step_pack
+from wbmpc.solvers import blasfeo, stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
 from wbmpc.solvers.fatrop_shim import FatropUnavailable, build_shim
 from wbmpc.solvers.nlp import (
@@ -50,7 +50,6 @@ from wbmpc.solvers.nlp import (
     failed_result,
 )
 from wbmpc.solvers.stage_library import StageLibrary
-from wbmpc.solvers.step_pack import invalid_input
 
 NAME = "fatrop-direct"
 # The binding's own KKT and constraint tolerances, used while SolverConfig holds its defaults (1e-4 / 1e-6) and
@@ -186,7 +185,6 @@ class FatropDirectSolver:
                 self._fallback = NlpSolver(problem, replace(config, name="fatrop"))
                 return
         lib = self._library
-        self._packer = step_pack.library(config.codegen)
         self.threads = default_threads() if config.threads is None else config.threads
         self._ctx = lib.context(self.threads)
         # inputs with lb == ub eliminated (csrc/stage_layout.c); False: equality rows, as in casadi's plugin
@@ -406,9 +404,10 @@ class FatropDirectSolver:
         lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
         # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
         # constraint values or derivatives at x0 end the solve at its first evaluation (code -4)
-        refused = invalid_input(self._packer, p, x0, lbx, ubx, lbg, ubg)  # (one C call: solvers/step_pack.py)
-        if refused:
-            return failed_result(problem, x0, refused)
+        if not (np.isfinite(p).all() and np.isfinite(x0).all()):
+            return failed_result(problem, x0, "invalid_input_nan")
+        if (lbx > ubx).any() or (lbg > ubg).any():
+            return failed_result(problem, x0, "invalid_bounds")
         start, start_cpu = time.perf_counter(), self._cpu_s()
         self.stage_parameters(p)
         # the driver maps the stored multipliers position by position within each stage: where a gait switch

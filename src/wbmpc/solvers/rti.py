@@ -32,7 +32,6 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers import step_pack
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, CompileReport, compile_nlp
 from wbmpc.solvers.hpipm_direct import HPIPM_BINDINGS, conic_config, make_qp
@@ -45,7 +44,6 @@ from wbmpc.solvers.nlp import (
     failed_result,
 )
 from wbmpc.solvers.qp import HPIPM_MODES, QpConfig, QpResult, StructuredQp
-from wbmpc.solvers.step_pack import invalid_input
 
 DIRECT_QP_BARRIER_INIT = 1e3  # HPIPM's mu0 on our binding (RtiConfig.qp_barrier_init)
 # ... where the OCP has flat feet (6D wrenches, hard wrench cone): g1's walk keeps 10-50 of its wrench cone rows
@@ -168,7 +166,6 @@ class RtiSolver:
         self.compile_error: str | None = None
         self.last_timing: dict[str, float] = {}
         self._recovery: NlpSolver | None = None
-        self._packer = step_pack.library(config.codegen) if config.compiled else None  # the input checks in C
         self._fallback_first = 0  # calls left that start with the fallback QP mode
         nlp = problem.nlp
         x, p = nlp["x"], nlp["p"]
@@ -329,9 +326,10 @@ class RtiSolver:
         `stats.iterations` counts HPIPM's interior-point iterations of all QPs of the call.
         """
         x = np.asarray(x0, dtype=float).copy()
-        refused = invalid_input(self._packer, p, x, lbx, ubx, lbg, ubg)  # (one C call: solvers/step_pack.py)
-        if refused:
-            return self._failure(x0, refused)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(x))):
+            return self._failure(x0, "invalid_input_nan")
+        if np.any(np.asarray(lbx) > np.asarray(ubx)) or np.any(np.asarray(lbg) > np.asarray(ubg)):
+            return self._failure(x0, "invalid_bounds")
         start, cpu_start = time.perf_counter(), time.process_time()
         timing = {"linearize": 0.0, "qp": 0.0}
         qp_iterations, lam_g, lam_x, status, success = 0, None, None, "not_started", False

@@ -1,8 +1,8 @@
 """The per-step packing of an MPC step in C (`csrc/step_pack.c`): the warm start's re-sampling (`ShiftedGuess`), the
-bounds' contact-dependent entries (`BoundsTemplate`) and the solvers' input checks (`invalid_input`).
+bounds (`BoundsTemplate`, `CompiledMeasuredBounds`) and the swing feet's v_z references (`SwingVelocity`).
 
 Each C function is the NumPy code it replaces, operation for operation and compiled without fused multiply-adds, so
-results are the same bit for bit (tests/solvers/test_step_pack.py). Why C: right after the solver's call the
+results are the same bit for bit (tests/control/test_step_packing.py, tests/ocp/test_bounds_template.py). Why C: right after the solver's call the
 interpreter's caches are cold and each of the step's ~250 small NumPy calls costs 2-4 us; one C call replaces 5-20
 of them. The library is shipped source, compiled once per machine into the cache (`native.build_native`); without
 a compiler `library()` is None and the callers keep their NumPy code (the same results, slower).
@@ -45,30 +45,8 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
                                               pointer, pointer, ctypes.c_int, ctypes.c_int, pointer]
             lib.wbsp_bounds_measured.argtypes = [pointer] * 6 + [ctypes.c_int, ctypes.c_int]
             lib.wbsp_swing_vz.argtypes = [ctypes.c_int, pointer] + [ctypes.c_double] * 4 + [pointer]
-            lib.wbsp_check.argtypes = [pointer, ctypes.c_int, pointer, ctypes.c_int, pointer, pointer, pointer,
-                                       pointer, ctypes.c_int]
         _libraries[key] = lib
     return _libraries[key]
-
-
-def _numpy_check(p, x0, lbx, ubx, lbg, ubg) -> int:
-    if not (np.isfinite(p).all() and np.isfinite(x0).all()):
-        return 1
-    return 2 if (lbx > ubx).any() or (lbg > ubg).any() else 0
-
-
-def invalid_input(lib: ctypes.CDLL | None, p: np.ndarray, x0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray,
-                  lbg: np.ndarray, ubg: np.ndarray) -> str | None:
-    """A solver's refusal of its inputs: "invalid_input_nan" when p or x0 holds a NaN or an infinity,
-    "invalid_bounds" when a lower bound exceeds its upper bound, None when they are fine. In C with the packer `lib`
-    (`library()`; one call instead of eight NumPy ones) for float64 vectors of matching sizes, else NumPy."""
-    arrays = tuple(np.asarray(a, dtype=float) for a in (p, x0, lbx, ubx, lbg, ubg))
-    p, x0, lbx, ubx, lbg, ubg = arrays
-    usable = lib is not None and all(a.dtype == np.float64 and a.ndim == 1 and a.flags.c_contiguous for a in arrays) \
-        and lbx.size == ubx.size == x0.size and lbg.size == ubg.size
-    code = lib.wbsp_check(p.ctypes.data, p.size, x0.ctypes.data, x0.size, lbx.ctypes.data, ubx.ctypes.data,
-                          lbg.ctypes.data, ubg.ctypes.data, lbg.size) if usable else _numpy_check(*arrays)
-    return (None, "invalid_input_nan", "invalid_bounds")[code]
 
 
 class SwingVelocity:

@@ -1,5 +1,5 @@
-/* The per-step packing of an MPC step in C (`solvers/step_pack.py`): the warm start's re-sampling, the bounds'
- * contact-dependent entries, the solvers' input checks. Each is the NumPy code it replaces, operation for
+/* The per-step packing of an MPC step in C (`solvers/step_pack.py`): the warm start's re-sampling, the bounds, the
+ * swing feet's v_z references. Each is the NumPy code it replaces, operation for
  * operation (built with -ffp-contract=off: no fused multiply-adds), so the results are the same bit for bit; the
  * NumPy code stays the fallback without a compiler and the tests' oracle. One call here replaces 5-20 NumPy calls,
  * each ~2-4 us right after the solver has evicted the interpreter's caches. */
@@ -66,19 +66,6 @@ int wbsp_bounds_start(const double *template_, int n, const int64_t *entries, co
   if (soft)
     for (i = 0; i < n_slack; ++i) out[slack_entries[i]] = INFINITY;
   return 0;
-}
-
-/* A solver's input checks (`solvers/step_pack.py` `invalid_input`): 1 when p or x0 holds a NaN or an infinity,
- * 2 when a lower bound exceeds its upper bound (NaN bounds compare false, as NumPy's), 0 otherwise. */
-int wbsp_check(const double *p, int n_p, const double *x0, int n_x, const double *lbx, const double *ubx,
-               const double *lbg, const double *ubg, int n_g) {
-  int i, finite = 1, ordered = 1;
-  for (i = 0; i < n_p; ++i) finite &= isfinite(p[i]) != 0;
-  for (i = 0; i < n_x; ++i) finite &= isfinite(x0[i]) != 0;
-  if (!finite) return 1;
-  for (i = 0; i < n_x; ++i) ordered &= !(lbx[i] > ubx[i]);
-  for (i = 0; i < n_g; ++i) ordered &= !(lbg[i] > ubg[i]);
-  return ordered ? 0 : 2;
 }
 
 /* ---- `OcpProblem.bounds`' measured entries (`BoundsTemplate.measured`), in its order. The buffer is
