@@ -185,6 +185,8 @@ class CompiledMeasuredBounds:
         self._offsets = np.concatenate([[0], np.cumsum([np.prod(shape) for shape in self._shapes])]).tolist()
         self._inputs = np.zeros(self._offsets[-1])
         self._input_addresses = [self._inputs.ctypes.data + 8 * offset for offset in self._offsets[:-1]]
+        self._input_views = [self._inputs[start:stop].reshape(shape) for start, stop, shape in
+                             zip(self._offsets[:-1], self._offsets[1:], self._shapes)]
         self._step_pointers = (ctypes.c_void_p * len(self._shapes))(*self._input_addresses)
         self._contact = np.zeros((N + 1, nf), dtype=bool)
         self._call_head = (self._meta.ctypes.data, self._table_pointers, self._constant_pointers, self._step_pointers,
@@ -203,14 +205,14 @@ class CompiledMeasuredBounds:
                   problem.initial_state(data.q_ref, data.v0, None), data.swing_vz_m_s, data.swing_vxy_m_s,
                   data.foot_velocity_m_s, data.ee_velocity_m_s if data.ee_velocity_m_s is not None else _ZERO3,
                   data.ee_velocity_measured_m_s)
-        inputs, offsets, pointers = self._inputs, self._offsets, self._step_pointers
+        pointers, views = self._step_pointers, self._input_views
         for k, value in enumerate(values):
             if value is None:
                 pointers[k] = None
                 continue
-            if np.shape(value) != self._shapes[k]:
+            if (value.shape if type(value) is np.ndarray else np.shape(value)) != self._shapes[k]:
                 return False
-            inputs[offsets[k] : offsets[k + 1]] = np.ravel(value)
+            views[k][...] = value
             pointers[k] = self._input_addresses[k]
         self._contact[...] = contact
         self._packer.wbsp_bounds_measured(address, *self._call_head, int("ee_vel" in relaxed),
