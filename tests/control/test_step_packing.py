@@ -10,9 +10,13 @@ import pytest
 
 from wbmpc.control import MPC, Commands, MpcConfig
 from wbmpc.control.trajectory import Resampler, interp_rows
+from wbmpc.control.warm_start import ShiftedGuess
+from wbmpc.gait import SwingProfile
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
+from wbmpc.solvers import step_pack
+from wbmpc.solvers.codegen import CodegenConfig
 
 SMALL = OcpConfig(grid=TimeGrid(n_intervals=5, dt_first_s=0.01, dt_last_s=0.05))
 
@@ -174,3 +178,52 @@ def test_swing_velocity_in_one_pass_equals_the_piecewise_spline_bitwise():
     standing = -np.ones((15, 4))  # no swing: zeros, even with a swing duration of 0
     with np.errstate(all="raise"):
         assert np.array_equal(SwingProfile().vertical_velocity(standing, 0.0), np.zeros((15, 4)))
+
+
+def test_the_compiled_warm_start_resampling_equals_numpys_bitwise(steps):
+    """`ShiftedGuess` in C (`solvers/step_pack.py`) against its NumPy code: random vectors and node times, the old
+    horizon ahead of, behind and around the new one (held values, one-node parts)."""
+    packer = step_pack.library()
+    if packer is None:
+        pytest.skip("no C compiler: the NumPy re-sampling runs")
+    problem = steps[1].problem
+    numpy_shift, compiled_shift = ShiftedGuess(problem), ShiftedGuess(problem, packer=packer)
+    rng = np.random.default_rng(3)
+    node_times = problem.config.grid.node_times_s
+    for shift in (0.0, 0.004, 0.0125, 0.03, 0.2, -0.01):
+        old_x = rng.normal(size=problem.n_variables)
+        new_times, old_times = 1.0 + shift + node_times, 1.0 + node_times
+        expected = numpy_shift(old_x, new_times, old_times)
+        got = compiled_shift(old_x, new_times, old_times)
+        assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+
+
+def test_the_mpc_packs_with_numpy_without_a_compiler(tmp_path):
+    """Without a compiler the step packer is None (a RuntimeWarning says so) and the warm start re-samples with NumPy."""
+    with pytest.warns(RuntimeWarning, match="step packer is unavailable"):
+        packer = step_pack.library(CodegenConfig(compiler="no-such-cc", cache_dir=tmp_path))
+    assert packer is None
+    problem = MPC(load_robot("go2"), MpcConfig(ocp=SMALL)).problem
+    shift = ShiftedGuess(problem, packer=packer)
+    x = np.arange(problem.n_variables, dtype=float)
+    times = problem.config.grid.node_times_s
+    assert np.array_equal(shift(x, times, times), ShiftedGuess(problem)(x, times, times))
+
+
+def test_the_compiled_swing_velocity_equals_the_profiles_bitwise():
+    """`SwingVelocity` (C) against `SwingProfile.vertical_velocity` (NumPy): stance, both cubic pieces and their
+    joint, lift-off and touch-down velocities, a standing gait (no swing time)."""
+    packer = step_pack.library()
+    if packer is None:
+        pytest.skip("no C compiler")
+    rng = np.random.default_rng(2)
+    for profile in (SwingProfile(), SwingProfile(apex_height_m=0.11, liftoff_velocity_m_s=0.3, touchdown_velocity_m_s=-0.2)):
+        compiled = step_pack.SwingVelocity(profile, packer, (16, 4))
+        for duration in (0.25, 0.1 / 3, 0.0):
+            progress = np.where(rng.uniform(size=(16, 4)) < 0.4, -1.0, rng.uniform(size=(16, 4)))
+            progress[0, :3] = [0.0, 0.5, np.nextafter(0.5, 0)]
+            if duration == 0.0:  # a standing gait: every foot in stance
+                progress[:] = -1.0
+            expected, got = profile.vertical_velocity(progress, duration), compiled(progress, duration)
+            assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+        assert np.array_equal(compiled(progress[:3], 0.25), profile.vertical_velocity(progress[:3], 0.25))  # other shape

@@ -1,7 +1,7 @@
 """`OcpProblem.bounds` from its template (constant entries, contact table) against the straightforward computation
 it replaced, bit for bit: on the states of a short closed loop and on varied step data (contacts, soft and relaxed
 rows, swing placements, measured foot and hand velocities) for point feet with an arm (b1_z1), flat feet (g1) and
-a velocity-level formulation."""
+a velocity-level formulation; with NumPy and with the compiled step packer (`solvers/step_pack.py`)."""
 
 from dataclasses import replace
 
@@ -22,6 +22,7 @@ from wbmpc.ocp.problem import (
     StageBounds,
 )
 from wbmpc.robots import load_robot
+from wbmpc.solvers import step_pack
 
 GRID = TimeGrid(n_intervals=5, dt_first_s=0.01, dt_last_s=0.05)
 
@@ -176,9 +177,15 @@ def reference_bounds(self, data: StageBounds):
 
 
 def _assert_same(problem, data):
-    got, expected = problem.bounds(data), reference_bounds(problem, data)
-    for name, a, b in zip(("lbx", "ubx", "lbg", "ubg"), got, expected):
-        assert np.array_equal(a, b), f"{name} differs at {np.flatnonzero(a != b)[:10]}"
+    """NumPy's bounds and, where the step packer compiles, C's (`OcpProblem.bounds_packer`) equal the reference."""
+    expected = reference_bounds(problem, data)
+    for packer in (None, step_pack.library()) if step_pack.library() is not None else (None,):
+        problem.bounds_packer = packer
+        got = problem.bounds(data)
+        for name, a, b in zip(("lbx", "ubx", "lbg", "ubg"), got, expected):
+            assert np.array_equal(a, b) and np.array_equal(np.signbit(a), np.signbit(b)), \
+                f"{name} differs at {np.flatnonzero(a != b)[:10]} (packer {packer})"
+    problem.bounds_packer = None
 
 
 def _varied(problem, robot, rng, base: StageBounds | None = None) -> list[StageBounds]:

@@ -25,16 +25,16 @@ from wbmpc.control.inputs import checked_state
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
-from wbmpc.control.solution import Solution
+from wbmpc.control.solution import Solution, python_share
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
 from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
-from wbmpc.gait import GaitClock, make_gait
+from wbmpc.gait import GaitClock, SwingProfile, make_gait
 from wbmpc.ocp.problem import OcpProblem, StageBounds
 from wbmpc.robots import GRAVITY_M_S2, RobotModel
-from wbmpc.solvers import make_solver
+from wbmpc.solvers import make_solver, step_pack
 from wbmpc.solvers.buffered import BufferedFunction
 from wbmpc.solvers.codegen import CompileError, compile_functions
 from wbmpc.solvers.nlp import NlpSolver
@@ -87,7 +87,12 @@ class MPC:
         self._flat_normals = np.tile([0.0, 0.0, 1.0], (N, len(robot.feet))).T.copy()  # (3 n_feet, N): world z
         self.push_mode = PushMode(config.push, self.gait)
         self.recovery = Recovery(self.problem, self.solver, config.recovery)
-        self._shift = ShiftedGuess(self.problem)  # the warm start's re-sampling (forces: re-initialised)
+        # the warm start's re-sampling (forces: re-initialised), the bounds and the swing v_z references in C with the
+        # solver's compiled code (solvers/step_pack.py; NumPy without it: the same numbers)
+        packer = step_pack.library(config.solver.codegen) if config.solver.compiled else None
+        self._shift, self.problem.bounds_packer = ShiftedGuess(self.problem, packer=packer), packer
+        self._swing_vz = step_pack.SwingVelocity(config.swing, packer if type(config.swing) is SwingProfile else None,
+                                                 (N + 1, len(robot.feet)))
         states = self.problem.state_names  # node 0's state variables and their entries of the measured x0
         self._measured_entries = (np.concatenate([self.problem.idx[name][0] for name in states]),
                                   np.concatenate([np.arange(self.problem.state_offsets[name].start,
@@ -226,7 +231,7 @@ class MPC:
         times = t_s + node_times
         progress = self.gait.swing_phase(times)
         contact = (progress < 0).astype(float)  # gait.contact's, from the same phases
-        swing_vz = self.config.swing.vertical_velocity(progress, self.gait.swing_duration_s)
+        swing_vz = self._swing_vz(progress, self.gait.swing_duration_s)
         return node_times, contact, swing_vz
 
     # ------------------------------------------------------------------ solve
@@ -264,7 +269,7 @@ class MPC:
             solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
-        _python_share(result.stats, 1e3 * (time.perf_counter() - start))
+        python_share(result.stats, 1e3 * (time.perf_counter() - start))
         return solution
 
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:
@@ -485,14 +490,3 @@ class MPC:
             q_joints=None if self._joints_are_coordinates else self._joint_trajectory(q_traj),
         )
 
-
-def _python_share(stats, step_ms: float) -> None:
-    """`split_ms["python"]`: the step's wall time outside the solver's own work (its split's parts other than
-    `outside_solver`; without a split, its solve time): input checks, references, parameters, bounds, warm start,
-    the solver wrapper's packing and calls (its `outside_solver`, folded in here) and unpacking. The parts then
-    add up to the step."""
-    split = stats.split_ms
-    split.pop("python", None)
-    outside = split.pop("outside_solver", 0.0)
-    inside = sum(split.values()) if split else 1e3 * stats.solve_time_s
-    split["python"] = max(step_ms - inside, outside, 0.0)

@@ -84,7 +84,8 @@ class References:
             self.anchor_xy_m, self.anchor_yaw_rad = q[:2].copy(), yaw
         command = np.asarray(commands.base_velocity_m_s, dtype=float)
         cos_y, sin_y = math.cos(self.anchor_yaw_rad), math.sin(self.anchor_yaw_rad)
-        v_world = np.array([cos_y * command[0] - sin_y * command[1], sin_y * command[0] + cos_y * command[1], command[2]])
+        cx, cy, cz = command.tolist()  # (Python floats: the same products, without NumPy scalars)
+        v_world = np.array([cos_y * cx - sin_y * cy, sin_y * cx + cos_y * cy, cz])
         if not velocity_only:
             self.anchor_xy_m = self.anchor_xy_m + v_world[:2] * dt_since
             self.anchor_yaw_rad = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * dt_since
@@ -103,7 +104,8 @@ class References:
             targets[:, 2] = commands.base_height_m
         yaws = self.anchor_yaw_rad + commands.base_yaw_rate_rad_s * node_times
         targets[:, 3:5] = 0.0
-        targets[:, 5], targets[:, 6] = np.sin(yaws / 2), np.cos(yaws / 2)
+        half_yaws = yaws / 2
+        targets[:, 5], targets[:, 6] = np.sin(half_yaws), np.cos(half_yaws)
         if self.terrain is not None:  # height over the terrain's support, its pitch
             self.terrain.shape_base_targets(targets, yaws)
         dq_des = self._difference(q, targets.T, shaped=True)[0].copy()

@@ -58,3 +58,15 @@ class Solution:
             "solve_ms": self.stats.solve_time_s * 1e3,
             "max_constraint_violation": self.stats.max_constraint_violation,
         }
+
+
+def python_share(stats, step_ms: float) -> None:
+    """`split_ms["python"]`: the step's wall time outside the solver's own work (its split's parts other than
+    `outside_solver`; without a split, its solve time): input checks, references, parameters, bounds, warm start,
+    the solver wrapper's packing and calls (its `outside_solver`, folded in here) and unpacking. The parts then
+    add up to the step."""
+    split = stats.split_ms
+    split.pop("python", None)
+    outside = split.pop("outside_solver", 0.0)
+    inside = sum(split.values()) if split else 1e3 * stats.solve_time_s
+    split["python"] = max(step_ms - inside, outside, 0.0)

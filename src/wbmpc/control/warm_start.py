@@ -16,9 +16,10 @@ from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
 
 class ShiftedGuess:
     """Re-samples an NLP vector of `problem` from old to new node times (`__call__`); parts in `exclude` are left
-    zero (the MPC sets them: the contact forces it re-initialises)."""
+    zero (the MPC sets them: the contact forces it re-initialises). With `packer` (`solvers.step_pack.library()`)
+    the same arithmetic runs in one C call."""
 
-    def __init__(self, problem, exclude: tuple[str, ...] = ("F",)):
+    def __init__(self, problem, exclude: tuple[str, ...] = ("F",), packer=None):
         parts = [(name, index) for name, index in problem.idx.items() if name not in exclude]
         n_nodes = problem.N + 1
         columns = sum(index.shape[1] for _, index in parts)
@@ -43,10 +44,27 @@ class ShiftedGuess:
         self._column_start = column * n_nodes
         self._column_next = self._column_start + 1
         self._size = problem.n_variables
+        self._packer = packer
+        if packer is not None:  # the C call's tables (int64), its inputs, output and scratch, kept with their addresses
+            tables = (self._lengths, self._group_node, self._by_column, self._column_start, self._target)
+            self._tables = tuple(np.ascontiguousarray(table, dtype=np.int64) for table in tables)
+            groups = len(self._lengths)
+            self._buffers = (np.zeros(self._size), np.zeros(2 * n_nodes), np.zeros(self._size),
+                             np.zeros(groups * n_nodes, dtype=np.int64), np.zeros(groups * n_nodes))
+            old_x, times, out, pos, weight = (a.ctypes.data for a in self._buffers)
+            lengths, group_node, by_column, column_start, target = (a.ctypes.data for a in self._tables)
+            self._call = (groups, lengths, n_nodes, times + 8 * n_nodes, n_nodes, times, len(self._target), group_node,
+                          by_column, column_start, target, old_x, self._size, out, pos, weight)
+        self._n_nodes = n_nodes
 
     def __call__(self, old_x: np.ndarray, new_times: np.ndarray, old_times: np.ndarray) -> np.ndarray:
         """The vector `old_x` (NLP layout) at `new_times`: each variable of node k linearly interpolated
         between the old nodes around new_times[k] (among its part's own nodes), held beyond them."""
+        if self._packer is not None and len(new_times) == len(old_times) == self._n_nodes and old_x.size == self._size:
+            old_buffer, times, out = self._buffers[:3]
+            old_buffer[:], times[: self._n_nodes], times[self._n_nodes :] = old_x, new_times, old_times
+            self._packer.wbsp_shift(*self._call)
+            return out.copy()
         lengths = self._lengths[:, None]
         after = np.searchsorted(old_times, new_times)[None, :]
         pos = np.minimum(np.maximum(after - 1, 0), np.maximum(lengths - 2, 0))  # (part lengths, nodes)

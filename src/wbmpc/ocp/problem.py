@@ -190,6 +190,7 @@ class OcpProblem:
         self._stage_functions: dict[tuple, tuple[ca.Function, list[tuple[str, int]]]] = {}
         self._nlp: dict | None = None
         self._bounds_template: BoundsTemplate | None = None  # built at the first `bounds`
+        self.bounds_packer = None  # the compiled step packer for `bounds` (solvers/step_pack.py; the MPC sets it)
         self._blend_decays: dict[str, np.ndarray] = {}  # `_blend_from_measurement`'s per row tag
 
     @property
@@ -620,10 +621,13 @@ class OcpProblem:
         (one copy and one gather), then the measurement's."""
         robot, nf = self.robot, self.n_feet
         rows, idx = self.rows, self.idx  # (properties: read once)
-        if self._bounds_template is None:
-            self._bounds_template = BoundsTemplate(self)
+        template = self._bounds_template
+        if template is None or template.packer is not self.bounds_packer:
+            template = self._bounds_template = BoundsTemplate(self, self.bounds_packer, EARLY_NODES, BLEND_TIME_S)
         contact = np.asarray(data.contact, dtype=bool)
-        buffer, lbx, ubx, lbg, ubg = self._bounds_template.start(contact, data.soft)
+        buffer, lbx, ubx, lbg, ubg = template.start(contact, data.soft)
+        if template.measured is not None and template.measured.write(template.last_address, data, contact):
+            return template.views(buffer)  # the entries below, in C (bounds_template.py)
         # eq. (8): joint position / velocity limits on nodes 1..N, torque limits on k < 3 (the template's)
         # The first nodes follow from the measurement (dq_1 = v_0 dt_0; velocities change only by
         # a dt): over the first EARLY_NODES nodes the limits are widened to contain the coasting
