@@ -59,7 +59,7 @@ def shim_library(config: CodegenConfig = CodegenConfig()) -> Path:
     flags = (*config.flags, "-O2", f"-I{include}")
     link = (f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{directory}")
     try:
-        return build_native("hpipm_shim", ("hpipm_shim.c", "hpipm_reduce.c", "hpipm_load.c"), config, flags, link, key_extra=str(include),
+        return build_native("hpipm_shim", ("hpipm_shim.c", "hpipm_reduce.c", "hpipm_load.c", "hpipm_eqelim.c"), config, flags, link, key_extra=str(include),
                             headers=("hpipm_shim.h",)).library
     except CompileError as exc:
         raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
@@ -93,6 +93,9 @@ class DirectQp:
         self._lib.wbqp_nlp_solve.restype = ctypes.c_int
         self._lib.wbqp_nlp_solve.argtypes = [ctypes.c_void_p] * 12
         self._lib.wbqp_nlp_free.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_set_guess.restype = ctypes.c_int
+        self._lib.wbqp_set_guess.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        self._lib.wbqp_guess_stats.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
         dims = stage_dimensions(problem)
         N, nx, nu, ng = dims["N"], dims["nx"], dims["nu"], dims["ng"]
         self.N = N
@@ -106,6 +109,8 @@ class DirectQp:
                                           (ctypes.c_int * max(len(x0_cols), 1))(*x0_cols))
         if not self._handle:
             raise MemoryError("HPIPM's shim could not allocate its QP")
+        if config.active_set_guess and not self._lib.wbqp_set_guess(self._handle, 1):
+            raise MemoryError("HPIPM's shim could not allocate the active-set guess")
 
     def __del__(self):
         handle = getattr(self, "_handle", None)
@@ -139,6 +144,14 @@ class DirectQp:
     def rebuilds(self) -> int:
         """HPIPM instances built so far: one per pattern of QP sizes (fixed inputs left out) not in the shim's cache."""
         return int(self._lib.wbqp_rebuilds(self._handle))
+
+    @property
+    def guess_stats(self) -> dict[str, int]:
+        """The active-set guess (`QpConfig.active_set_guess`): QPs it was tried on, QPs it solved, and the last call's
+        outcome (-1 not tried, 0 solved, 1 an inequality active, 2 rows it does not handle, 3 numerical failure)."""
+        out = (ctypes.c_int * 3)()
+        self._lib.wbqp_guess_stats(self._handle, out)
+        return {"tries": out[0], "hits": out[1], "last": out[2]}
 
     @property
     def solved_sizes(self) -> dict[str, list[int]]:
