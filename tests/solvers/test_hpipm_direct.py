@@ -87,7 +87,8 @@ def test_direct_hpipm_returns_casadis_solution(qp_data, mode):
 
 def test_a_failed_direct_qp_reports_hpipms_status(qp_data):
     problem, data = qp_data
-    result = _direct(problem, data, QpConfig(mode="speed_abs", tolerance=1e-10, max_iterations=1)).solve(*data)
+    capped = QpConfig(mode="speed_abs", tolerance=1e-10, max_iterations=1, active_set_guess=False)
+    result = _direct(problem, data, capped).solve(*data)
     assert not result.success and result.status == "QP_Maximum_Iterations_Exceeded" and result.iterations == 1
 
 

@@ -54,7 +54,9 @@ def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state, binding):
 
 def test_failed_qp_is_reported_not_raised(fixed_state):
     problem, (p, lbx, ubx, lbg, ubg, x0), _ = fixed_state
-    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_barrier_init": None}))
+    # (a QP capped at one interior-point iteration fails; the active-set guess, off here, would solve this one)
+    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={
+        "recovery_barrier_init": None, "qp_active_set_guess": False}))
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0)
     assert not result.stats.success
     assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed_abs: "
@@ -70,7 +72,8 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
 
 def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
     problem, data, reference = fixed_state
-    result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1)).solve(*data)
+    result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1,
+                                             extra_options={"qp_active_set_guess": False})).solve(*data)
     assert result.stats.success
     assert result.stats.status.endswith("(fatrop recovery after rti: QP_Maximum_Iterations_Exceeded (balance after "
                                         "speed_abs: QP_Maximum_Iterations_Exceeded))")
@@ -80,7 +83,8 @@ def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
 def test_capped_recovery_is_built_ahead_and_stops_at_its_cap(fixed_state):
     """Real-time runs cap the re-solve (`recovery_max_iterations`) and build it before the clock runs."""
     problem, data, _ = fixed_state
-    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_max_iterations": 2}))
+    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={
+        "recovery_max_iterations": 2, "qp_active_set_guess": False}))
     solver.prepare_recovery()
     assert solver.recovery_solver is not None and solver.recovery_solver.config.max_iterations == 2
     result = solver.solve(*data)

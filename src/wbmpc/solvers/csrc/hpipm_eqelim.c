@@ -15,7 +15,7 @@
  *     G_u' lam = -(R u + S x + r + B' pi_known), solved on the pivot columns (G_P' lam = rhs_P, G_P^{-1} kept).
  * Stage 0 must have no rows on its state alone unless x_0 is out of the QP (then they are constants, checked).
  */
-#pragma GCC optimize("O3")  /* the transforms' axpys vectorised (the project's flags stop at -O2) */
+#pragma GCC optimize("O3,associative-math,no-signed-zeros,no-trapping-math")  /* the transforms' axpys vectorised (the project's flags stop at -O2) */
 #include <stdlib.h>
 #include <string.h>
 #include <math.h>
@@ -24,6 +24,8 @@
 #include "hpipm_d_ocp_qp.h"
 #include "hpipm_d_ocp_qp_sol.h"
 #include "hpipm_d_ocp_qp_ipm.h"
+#include "blasfeo_d_aux.h"
+#include "blasfeo_d_blas.h"
 
 #include "hpipm_shim.h"
 
@@ -55,6 +57,9 @@ struct wbqp_eqelim {
     eq_inst cache[EQ_CACHE];
     double *G, *work, *work2, *pi_known;
     char *pure;  /* per stage and row: an equality row on the state alone */
+    void *blasfeo_mem;  /* BLASFEO's panel-major matrices of the two large products in `transform` */
+    struct blasfeo_dmat sRP, sX, sS, sA2, sB2, sQ, sC1, sAB, sPr, sY, sSF;
+    double *gather;
 };
 
 static void release(eq_inst *i) {
@@ -87,6 +92,32 @@ wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r) {
     e->work2 = e->work + 2 * (w + mmax + 1) * w;
     e->pi_known = malloc((w + 1) * sizeof(double));
     {
+        int nmax = 1, pmax = 1, k2;
+        size_t size;
+        char *mem;
+        for (k2 = 0; k2 <= N; k2++) { if (r->nx[k2] > nmax) nmax = r->nx[k2]; if (r->nu[k2] > pmax) pmax = r->nu[k2]; }
+        if (mmax < 1) mmax = 1;
+        size = blasfeo_memsize_dmat(pmax, mmax) + blasfeo_memsize_dmat(mmax, nmax) + blasfeo_memsize_dmat(pmax, nmax) +
+               2 * blasfeo_memsize_dmat(2 * mmax, nmax) + blasfeo_memsize_dmat(nmax, nmax) +
+               blasfeo_memsize_dmat(mmax, nmax) + blasfeo_memsize_dmat(nmax, nmax + pmax + 1) +
+               blasfeo_memsize_dmat(mmax, nmax + pmax + 1) + blasfeo_memsize_dmat(mmax, pmax) +
+               blasfeo_memsize_dmat(pmax, nmax);
+        e->blasfeo_mem = aligned_alloc(64, (size + 63) / 64 * 64);
+        mem = e->blasfeo_mem;
+        blasfeo_create_dmat(pmax, mmax, &e->sRP, mem); mem += blasfeo_memsize_dmat(pmax, mmax);
+        blasfeo_create_dmat(mmax, nmax, &e->sX, mem); mem += blasfeo_memsize_dmat(mmax, nmax);
+        blasfeo_create_dmat(pmax, nmax, &e->sS, mem); mem += blasfeo_memsize_dmat(pmax, nmax);
+        blasfeo_create_dmat(2 * mmax, nmax, &e->sA2, mem); mem += blasfeo_memsize_dmat(2 * mmax, nmax);
+        blasfeo_create_dmat(2 * mmax, nmax, &e->sB2, mem); mem += blasfeo_memsize_dmat(2 * mmax, nmax);
+        blasfeo_create_dmat(nmax, nmax, &e->sQ, mem); mem += blasfeo_memsize_dmat(nmax, nmax);
+        blasfeo_create_dmat(mmax, nmax, &e->sC1, mem); mem += blasfeo_memsize_dmat(mmax, nmax);
+        blasfeo_create_dmat(nmax, nmax + pmax + 1, &e->sAB, mem); mem += blasfeo_memsize_dmat(nmax, nmax + pmax + 1);
+        blasfeo_create_dmat(mmax, nmax + pmax + 1, &e->sPr, mem); mem += blasfeo_memsize_dmat(mmax, nmax + pmax + 1);
+        blasfeo_create_dmat(mmax, pmax, &e->sY, mem); mem += blasfeo_memsize_dmat(mmax, pmax);
+        blasfeo_create_dmat(pmax, nmax, &e->sSF, mem);
+        e->gather = malloc((pmax * mmax + 2 * mmax * nmax + mmax * (nmax + pmax + 1) + 1) * sizeof(double));
+    }
+    {
         int total = 0;
         for (k = 0; k <= N; k++) total += r->ng[k];
         e->pure = calloc(total + 1, 1);
@@ -100,6 +131,7 @@ void wbqp_eqelim_free(wbqp_eqelim *e) {
     for (k = 0; k < e->n_cached; k++) release(&e->cache[k]);
     for (k = 0; k <= e->N; k++) { free(e->st[k].rows); free(e->st[k].X); }
     free(e->st); free(e->key); free(e->G); free(e->work); free(e->pi_known); free(e->pure);
+    free(e->blasfeo_mem); free(e->gather);
     free(e);
 }
 
@@ -127,11 +159,12 @@ static void classify_rows(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_st
  * place; 0 where G_u has no full row rank */
 static int eliminate(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, const wbqp_stage *d1, int k) {
     eq_stage *s = &e->st[k];
-    int n = r->rnx[k], p = r->rnu[k], g = r->rng[k], n1 = r->rnx[k + 1], g1 = r->rng[k + 1], m = 0, i, j, l, c;
+    int n = r->rnx[k], p = r->rnu[k], g = r->rng[k], n1 = r->rnx[k + 1], g1 = r->rng[k + 1], m = 0, m1, i, j, l, c;
     int width = n + p + 1;
     const char *pure = pure_at(e, r, k), *pure1 = pure_at(e, r, k + 1);
     double *G, big = 0.0;
     for (i = 0; i < g; i++) if (is_equality(r, d->lg[i], d->ug[i]) && !pure[i]) s->rows[m++] = i;
+    m1 = m;
     for (i = 0; i < g1; i++) if (pure1[i]) s->rows[m++] = -1 - i;
     s->m = m;
     if (m > p) return 0;
@@ -145,34 +178,37 @@ static int eliminate(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *
             for (j = 0; j < n; j++) Gc[j] = d->C[row + j * g];
             for (j = 0; j < p; j++) Gc[n + j] = d->D[row + j * g];
             Gc[n + p] = d->lg[row];
-        } else {
-            const double *C1 = d1->C;
-            double rhs = d1->lg[-1 - row];
-            row = -1 - row;
-            for (l = 0; l < n1; l++) {
-                double cl = C1[row + l * g1];
-                if (cl == 0.0) continue;
-                for (j = 0; j < n; j++) Gc[j] += cl * d->A[l + j * n1];
-                for (j = 0; j < p; j++) Gc[n + j] += cl * d->B[l + j * n1];
-                rhs -= cl * d->b[l];
-            }
-            Gc[n + p] = rhs;
         }
         Gc[n + p + 1 + c] = 1.0;
-        for (j = 0; j < p; j++) if (fabs(Gc[n + j]) > big) big = fabs(Gc[n + j]);
     }
+    if (m > m1) {  /* stage k+1's rows on its state, c' (A x + B u + b) = d: [G_x | G_u | c' b] = C1 [A | B | b] (BLASFEO) */
+        int m2 = m - m1;
+        double *C1 = e->gather, *prod = C1 + m2 * n1;
+        for (c = 0; c < m2; c++)
+            for (l = 0; l < n1; l++) C1[c + l * m2] = d1->C[(-1 - s->rows[m1 + c]) + l * g1];
+        blasfeo_pack_dmat(m2, n1, C1, m2, &e->sC1, 0, 0);
+        if (n > 0) blasfeo_pack_dmat(n1, n, (double *) d->A, n1, &e->sAB, 0, 0);
+        blasfeo_pack_dmat(n1, p, (double *) d->B, n1, &e->sAB, 0, n);
+        blasfeo_pack_dmat(n1, 1, (double *) d->b, n1, &e->sAB, 0, n + p);
+        blasfeo_dgemm_nn(m2, n + p + 1, n1, 1.0, &e->sC1, 0, 0, &e->sAB, 0, 0, 0.0, &e->sPr, 0, 0, &e->sPr, 0, 0);
+        blasfeo_unpack_dmat(m2, n + p + 1, &e->sPr, 0, 0, prod, m2);
+        for (c = 0; c < m2; c++) {
+            double *Gc = G + (m1 + c) * width;
+            for (j = 0; j < n + p; j++) Gc[j] = prod[c + j * m2];
+            Gc[n + p] = d1->lg[-1 - s->rows[m1 + c]] - prod[c + (n + p) * m2];
+        }
+    }
+    for (c = 0; c < m; c++)
+        for (j = 0; j < p; j++) if (fabs(G[c * width + n + j]) > big) big = fabs(G[c * width + n + j]);
     for (j = 0; j < p; j++) s->free[j] = 1;  /* 1: not a pivot yet */
-    for (c = 0; c < m; c++) {  /* pivot c: the largest remaining entry of G_u among rows c.. and free columns */
-        int pr = -1, pc = -1;
-        double best = 0.0, *Gc;
-        for (i = c; i < m; i++)
-            for (j = 0; j < p; j++)
-                if (s->free[j] && fabs(G[i * width + n + j]) > best) { best = fabs(G[i * width + n + j]); pr = i; pc = j; }
+    for (c = 0; c < m; c++) {  /* pivot c: row c's largest entry among the free columns of G_u (LU of G_u' with
+                                * partial pivoting: the rows have full rank or the elimination stops) */
+        int pc = -1;
+        double best = 0.0, *Gc = G + c * width;
+        for (j = 0; j < p; j++)
+            if (s->free[j] && fabs(Gc[n + j]) > best) { best = fabs(Gc[n + j]); pc = j; }
         if (pc < 0 || best <= PIVOT_RATIO * big) return 0;
-        if (pr != c)
-            for (j = 0; j < width; j++) { double t = G[c * width + j]; G[c * width + j] = G[pr * width + j]; G[pr * width + j] = t; }
         s->free[pc] = 0; s->piv[c] = pc;
-        Gc = G + c * width;
         {
             double inv = 1.0 / Gc[n + pc];
             for (j = 0; j < width; j++) Gc[j] *= inv;
@@ -202,13 +238,16 @@ static void transform(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage 
     int n = r->rnx[k], p = r->rnu[k], n1 = k < r->N ? r->rnx[k + 1] : 0, m = s->m, nf = s->nf, i, j, l;
     const int *P = s->piv, *F = s->free;
     double *RTx = e->work, *RTw = RTx + p * n, *Rt = RTw + p * nf;  /* R T_x + S, R T_w, R t + r (p rows) */
-    for (j = 0; j < n; j++) {
-        memcpy(RTx + j * p, d->S + j * p, p * sizeof(double));
-        for (l = 0; l < m; l++) {
-            double x = s->X[l + j * m];
-            const double *Rc = d->R + P[l] * p;
-            if (x != 0.0) for (i = 0; i < p; i++) RTx[i + j * p] += Rc[i] * x;
-        }
+    if (m > 0 && n > 0) {  /* R T_x + S = S + R_{:,P} X (BLASFEO) */
+        double *RP = e->gather;
+        for (l = 0; l < m; l++) memcpy(RP + l * p, d->R + P[l] * p, p * sizeof(double));
+        blasfeo_pack_dmat(p, m, RP, p, &e->sRP, 0, 0);
+        blasfeo_pack_dmat(m, n, s->X, m, &e->sX, 0, 0);
+        blasfeo_pack_dmat(p, n, (double *) d->S, p, &e->sS, 0, 0);
+        blasfeo_dgemm_nn(p, n, m, 1.0, &e->sRP, 0, 0, &e->sX, 0, 0, 1.0, &e->sS, 0, 0, &e->sS, 0, 0);
+        blasfeo_unpack_dmat(p, n, &e->sS, 0, 0, RTx, p);
+    } else {
+        memcpy(RTx, d->S, p * n * sizeof(double));
     }
     for (j = 0; j < nf; j++) {
         memcpy(RTw + j * p, d->R + F[j] * p, p * sizeof(double));
@@ -220,45 +259,54 @@ static void transform(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage 
     }
     memcpy(Rt, d->r, p * sizeof(double));
     for (l = 0; l < m; l++) for (i = 0; i < p; i++) Rt[i] += d->R[i + P[l] * p] * s->z[l];
-    /* R' = T_w' R T_w, S' = T_w' (R T_x + S), r' = T_w' (R t + r) */
-    for (j = 0; j < nf; j++)
-        for (i = 0; i < nf; i++) {
-            double v = RTw[F[i] + j * p];
-            for (l = 0; l < m; l++) v += s->Y[l + i * m] * RTw[P[l] + j * p];
-            s->R[i + j * nf] = v;
-        }
-    for (j = 0; j < n; j++)
-        for (i = 0; i < nf; i++) {
-            double v = RTx[F[i] + j * p];
-            for (l = 0; l < m; l++) v += s->Y[l + i * m] * RTx[P[l] + j * p];
-            s->S[i + j * nf] = v;
-        }
-    for (i = 0; i < nf; i++) {
-        double v = Rt[F[i]];
-        for (l = 0; l < m; l++) v += s->Y[l + i * m] * Rt[P[l]];
-        s->r[i] = v;
-    }
-    /* Q' = Q + X' (R T_x + S)_P + S_P' X, q' = q + X' (R t + r)_P + S_P' z: axpys over contiguous columns of
-     * X' and S_P' (Xt, SPt: n x m) */
+    /* R' = T_w' R T_w, S' = T_w' (R T_x + S), r' = T_w' (R t + r): axpys over the columns of Y' (Yt: nf x m) */
     {
-        double *Xt = Rt + p, *SPt = Xt + n * m;
-        for (l = 0; l < m; l++)
-            for (i = 0; i < n; i++) { Xt[i + l * n] = s->X[l + i * m]; SPt[i + l * n] = d->S[P[l] + i * p]; }
-        memcpy(s->Q, d->Q, n * n * sizeof(double));
-        memcpy(s->q, d->q, n * sizeof(double));
-        for (j = 0; j < n; j++) {
-            double *Qj = s->Q + j * n;
+        double *Yt = Rt + p;
+        for (l = 0; l < m; l++) for (i = 0; i < nf; i++) Yt[i + l * nf] = s->Y[l + i * m];
+        for (j = 0; j < nf; j++) {
+            double *Rj = s->R + j * nf;
+            for (i = 0; i < nf; i++) Rj[i] = RTw[F[i] + j * p];
             for (l = 0; l < m; l++) {
-                double a = RTx[P[l] + j * p], b = s->X[l + j * m];
-                const double *xl = Xt + l * n, *sl = SPt + l * n;
-                for (i = 0; i < n; i++) Qj[i] += xl[i] * a + sl[i] * b;
+                double a = RTw[P[l] + j * p];
+                const double *yl = Yt + l * nf;
+                for (i = 0; i < nf; i++) Rj[i] += yl[i] * a;
             }
         }
+        for (j = 0; j < n; j++)  /* S' = (R T_x + S)_F, Y' (R T_x + S)_P added with Q' below */
+            for (i = 0; i < nf; i++) s->S[i + j * nf] = RTx[F[i] + j * p];
+        for (i = 0; i < nf; i++) s->r[i] = Rt[F[i]];
         for (l = 0; l < m; l++) {
-            double a = Rt[P[l]], b = s->z[l];
-            const double *xl = Xt + l * n, *sl = SPt + l * n;
-            for (i = 0; i < n; i++) s->q[i] += xl[i] * a + sl[i] * b;
+            double a = Rt[P[l]];
+            const double *yl = Yt + l * nf;
+            for (i = 0; i < nf; i++) s->r[i] += yl[i] * a;
         }
+    }
+    /* Q' = Q + X' (R T_x + S)_P + S_P' X = Q + [X; S_P]' [(R T_x + S)_P; X] (BLASFEO), q' = q + X' (R t + r)_P + S_P' z */
+    memcpy(s->q, d->q, n * sizeof(double));
+    if (m > 0 && n > 0) {
+        double *SP = e->gather, *RTxP = SP + m * n;
+        for (j = 0; j < n; j++)
+            for (l = 0; l < m; l++) { SP[l + j * m] = d->S[P[l] + j * p]; RTxP[l + j * m] = RTx[P[l] + j * p]; }
+        blasfeo_pack_dmat(m, n, s->X, m, &e->sA2, 0, 0);
+        blasfeo_pack_dmat(m, n, SP, m, &e->sA2, m, 0);
+        blasfeo_pack_dmat(m, n, RTxP, m, &e->sB2, 0, 0);
+        blasfeo_pack_dmat(m, n, s->X, m, &e->sB2, m, 0);
+        blasfeo_pack_dmat(n, n, (double *) d->Q, n, &e->sQ, 0, 0);
+        blasfeo_dgemm_tn(n, n, 2 * m, 1.0, &e->sA2, 0, 0, &e->sB2, 0, 0, 1.0, &e->sQ, 0, 0, &e->sQ, 0, 0);
+        blasfeo_unpack_dmat(n, n, &e->sQ, 0, 0, s->Q, n);
+        if (nf > 0) {  /* S' += Y' (R T_x + S)_P, (R T_x + S)_P in sB2's first m rows */
+            blasfeo_pack_dmat(m, nf, s->Y, m, &e->sY, 0, 0);
+            blasfeo_pack_dmat(nf, n, s->S, nf, &e->sSF, 0, 0);
+            blasfeo_dgemm_tn(nf, n, m, 1.0, &e->sY, 0, 0, &e->sB2, 0, 0, 1.0, &e->sSF, 0, 0, &e->sSF, 0, 0);
+            blasfeo_unpack_dmat(nf, n, &e->sSF, 0, 0, s->S, nf);
+        }
+        for (j = 0; j < n; j++) {
+            double v = 0.0;
+            for (l = 0; l < m; l++) v += s->X[l + j * m] * Rt[P[l]] + SP[l + j * m] * s->z[l];
+            s->q[j] += v;
+        }
+    } else {
+        memcpy(s->Q, d->Q, n * n * sizeof(double));
     }
     /* A' = A + B_P X, B' = B_F + B_P Y, b' = b + B_P z */
     memcpy(s->A, d->A, n1 * n * sizeof(double));
