@@ -8,7 +8,10 @@ equalities, and keeps HPIPM's memory between calls (`csrc/hpipm_shim.c`, compile
 and BLASFEO that ship in the casadi wheel, cached beside the generated code). Inputs with lb == ub (swing feet's
 forces, the arm's commanded force) and x_0 (fixed by the initial-state rows) are left out of HPIPM's QP
 (`csrc/hpipm_reduce.c`, `QpConfig.eliminate_fixed`): the same QP on smaller Riccati blocks, their multipliers
-recovered from the stage's stationarity; HPIPM instances are kept per pattern of reduced sizes. Same QP, same solution
+recovered from the stage's stationarity; HPIPM instances are kept per pattern of reduced sizes. Where no inequality is
+active (b1_z1's trot: every QP), one Riccati factorisation solves the QP: the inequalities dropped, the equality rows
+eliminated (`csrc/hpipm_eqelim.c`, `QpConfig.active_set_guess`), the dropped rows checked, the interior point where one
+is violated (docs/design/rti.md). Same QP, same solution
 as `StructuredQp` (tests/solvers/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
 In HPIPM's absolute mode (speed_abs) the equality multipliers are computed on exit (comp_dual_sol_eq): the SQP's

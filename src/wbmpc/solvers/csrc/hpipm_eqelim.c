@@ -1,21 +1,15 @@
-/* The active-set guess of the RTI's QP: no inequality active (hpipm_shim.h's wbqp_eqelim_solve).
- *
- * In b1_z1's trot none of the QP's inequalities (joint and torque bounds, friction cones) is active at its solution
- * (200 of 200 recorded QPs), yet HPIPM's interior point takes ~3 iterations, one Riccati factorisation each: its
- * equality rows (the base's RNEA rows, the stance feet's and the hand's velocity rows) are inequalities with lb == ub
- * to it. Here the inequalities are dropped and the equality rows eliminated, so that one factorisation solves the QP:
- *   - per stage k the equality rows with inputs (D != 0: the RNEA rows) and stage k+1's rows on the state alone
- *     (the velocity rows), moved onto stage k through the dynamics (c' x_{k+1} = c' (A x + B u + b)), form
- *     G_x x + G_u u = e; Gauss-Jordan elimination with complete pivoting on G_u picks m pivot inputs u_P, and
- *     u_P = X x + Y w + z with the other inputs w free (b1_z1: 28 -> 11 inputs a stage);
- *   - A, B, b, Q, S, R, q, r become those of (x, w); HPIPM without constraints solves it (one factorisation);
- *   - the inputs follow; the dropped inequalities are checked (any violated: the guess was wrong, the caller runs the
- *     interior point); the equality rows' multipliers follow backwards from the stationarity of u_k, with
- *     pi_{k-1} = Q x + S' u + q + C' lam + A' pi_k (the inactive inequalities' multipliers are 0):
- *     G_u' lam = -(R u + S x + r + B' pi_known), solved on the pivot columns (G_P' lam = rhs_P, G_P^{-1} kept).
- * Stage 0 must have no rows on its state alone unless x_0 is out of the QP (then they are constants, checked).
- */
-#pragma GCC optimize("O3,associative-math,no-signed-zeros,no-trapping-math")  /* the transforms' axpys vectorised (the project's flags stop at -O2) */
+/* The active-set guess of the RTI's QP: no inequality active (hpipm_shim.h's wbqp_eqelim_solve; docs/design/rti.md).
+ * HPIPM's interior point iterates on the equality rows (inequalities with lb == ub to it) even where no inequality is
+ * active (b1_z1's trot: every QP). Here the inequalities are dropped and the equality rows eliminated:
+ *   - stage k's equality rows with inputs and stage k+1's rows on the state alone, moved onto stage k through the
+ *     dynamics (c' x_{k+1} = c' (A x + B u + b)), form G_x x + G_u u = e; Gauss-Jordan elimination with partial pivoting
+ *     picks pivot inputs, u_P = X x + Y w + z, the other inputs w free (b1_z1: 28 -> 11 a stage);
+ *   - HPIPM without constraints solves the QP of (x, w): one factorisation; the inputs follow;
+ *   - the dropped inequalities are checked (one violated: the guess is wrong, the caller runs the interior point);
+ *   - the equality rows' multipliers follow backwards from u_k's stationarity, with pi_{k-1} = Q x + S' u + q + C' lam
+ *     + A' pi_k: G_u' lam = -(R u + S x + r + B' pi_known), solved on the pivots (G_P' lam = rhs_P).
+ * Rows on x_0 alone are refused unless x_0 is out of the QP (then they are constants, checked). */
+#pragma GCC optimize("O3,associative-math,no-signed-zeros,no-trapping-math")  /* the project's flags stop at -O2 */
 #include <stdlib.h>
 #include <string.h>
 #include <math.h>
@@ -26,7 +20,6 @@
 #include "hpipm_d_ocp_qp_ipm.h"
 #include "blasfeo_d_aux.h"
 #include "blasfeo_d_blas.h"
-
 #include "hpipm_shim.h"
 
 #define EQ_CACHE 48
@@ -91,30 +84,25 @@ wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r) {
     e->work = malloc(4 * (w + mmax + 1) * w * sizeof(double));
     e->work2 = e->work + 2 * (w + mmax + 1) * w;
     e->pi_known = malloc((w + 1) * sizeof(double));
-    {
-        int nmax = 1, pmax = 1, k2;
-        size_t size;
+    {  /* the BLASFEO matrices, at their largest sizes, in one aligned allocation */
+        int nmax = 1, pmax = 1, k2, wide;
+        size_t size = 0;
         char *mem;
+        struct blasfeo_dmat *mats[11] = {&e->sRP, &e->sX, &e->sS, &e->sA2, &e->sB2, &e->sQ, &e->sC1, &e->sAB, &e->sPr,
+                                         &e->sY, &e->sSF};
         for (k2 = 0; k2 <= N; k2++) { if (r->nx[k2] > nmax) nmax = r->nx[k2]; if (r->nu[k2] > pmax) pmax = r->nu[k2]; }
         if (mmax < 1) mmax = 1;
-        size = blasfeo_memsize_dmat(pmax, mmax) + blasfeo_memsize_dmat(mmax, nmax) + blasfeo_memsize_dmat(pmax, nmax) +
-               2 * blasfeo_memsize_dmat(2 * mmax, nmax) + blasfeo_memsize_dmat(nmax, nmax) +
-               blasfeo_memsize_dmat(mmax, nmax) + blasfeo_memsize_dmat(nmax, nmax + pmax + 1) +
-               blasfeo_memsize_dmat(mmax, nmax + pmax + 1) + blasfeo_memsize_dmat(mmax, pmax) +
-               blasfeo_memsize_dmat(pmax, nmax);
-        e->blasfeo_mem = aligned_alloc(64, (size + 63) / 64 * 64);
-        mem = e->blasfeo_mem;
-        blasfeo_create_dmat(pmax, mmax, &e->sRP, mem); mem += blasfeo_memsize_dmat(pmax, mmax);
-        blasfeo_create_dmat(mmax, nmax, &e->sX, mem); mem += blasfeo_memsize_dmat(mmax, nmax);
-        blasfeo_create_dmat(pmax, nmax, &e->sS, mem); mem += blasfeo_memsize_dmat(pmax, nmax);
-        blasfeo_create_dmat(2 * mmax, nmax, &e->sA2, mem); mem += blasfeo_memsize_dmat(2 * mmax, nmax);
-        blasfeo_create_dmat(2 * mmax, nmax, &e->sB2, mem); mem += blasfeo_memsize_dmat(2 * mmax, nmax);
-        blasfeo_create_dmat(nmax, nmax, &e->sQ, mem); mem += blasfeo_memsize_dmat(nmax, nmax);
-        blasfeo_create_dmat(mmax, nmax, &e->sC1, mem); mem += blasfeo_memsize_dmat(mmax, nmax);
-        blasfeo_create_dmat(nmax, nmax + pmax + 1, &e->sAB, mem); mem += blasfeo_memsize_dmat(nmax, nmax + pmax + 1);
-        blasfeo_create_dmat(mmax, nmax + pmax + 1, &e->sPr, mem); mem += blasfeo_memsize_dmat(mmax, nmax + pmax + 1);
-        blasfeo_create_dmat(mmax, pmax, &e->sY, mem); mem += blasfeo_memsize_dmat(mmax, pmax);
-        blasfeo_create_dmat(pmax, nmax, &e->sSF, mem);
+        wide = nmax + pmax + 1;
+        {
+            int rows[11] = {pmax, mmax, pmax, 2 * mmax, 2 * mmax, nmax, mmax, nmax, mmax, mmax, pmax};
+            int cols[11] = {mmax, nmax, nmax, nmax, nmax, nmax, nmax, wide, wide, pmax, nmax};
+            for (k2 = 0; k2 < 11; k2++) size += blasfeo_memsize_dmat(rows[k2], cols[k2]);
+            e->blasfeo_mem = mem = aligned_alloc(64, (size + 63) / 64 * 64);
+            for (k2 = 0; k2 < 11; k2++) {
+                blasfeo_create_dmat(rows[k2], cols[k2], mats[k2], mem);
+                mem += blasfeo_memsize_dmat(rows[k2], cols[k2]);
+            }
+        }
         e->gather = malloc((pmax * mmax + 2 * mmax * nmax + mmax * (nmax + pmax + 1) + 1) * sizeof(double));
     }
     {
@@ -155,14 +143,13 @@ static void classify_rows(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_st
 }
 
 /* stage k's G = [G_x | G_u | e] (m rows, row-major, width n + p + 1 + m with an identity appended) from its mixed
- * rows and stage k+1's pure ones; Gauss-Jordan with complete pivoting on G_u, G_P^{-1} accumulated in the identity's
- * place; 0 where G_u has no full row rank */
-static int eliminate(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, const wbqp_stage *d1, int k) {
+ * rows and stage k+1's pure ones (into e->G); 0 where there are more rows than inputs */
+static int build_rows(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, const wbqp_stage *d1, int k) {
     eq_stage *s = &e->st[k];
     int n = r->rnx[k], p = r->rnu[k], g = r->rng[k], n1 = r->rnx[k + 1], g1 = r->rng[k + 1], m = 0, m1, i, j, l, c;
     int width = n + p + 1;
     const char *pure = pure_at(e, r, k), *pure1 = pure_at(e, r, k + 1);
-    double *G, big = 0.0;
+    double *G;
     for (i = 0; i < g; i++) if (is_equality(r, d->lg[i], d->ug[i]) && !pure[i]) s->rows[m++] = i;
     m1 = m;
     for (i = 0; i < g1; i++) if (pure1[i]) s->rows[m++] = -1 - i;
@@ -198,6 +185,17 @@ static int eliminate(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *
             Gc[n + p] = d1->lg[-1 - s->rows[m1 + c]] - prod[c + (n + p) * m2];
         }
     }
+    return 1;
+}
+
+/* Gauss-Jordan elimination of e->G with partial pivoting on G_u, G_P^{-1} accumulated in the identity's place; X, Y, z,
+ * G_P^{-1}, the pivots and the free inputs into stage k; 0 where G_u has no full row rank */
+static int eliminate(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, const wbqp_stage *d1, int k) {
+    eq_stage *s = &e->st[k];
+    int n = r->rnx[k], p = r->rnu[k], m, width, i, j, c;
+    double *G = e->G, big = 0.0;
+    if (!build_rows(e, r, d, d1, k)) return 0;
+    m = s->m; width = n + p + 1 + m;
     for (c = 0; c < m; c++)
         for (j = 0; j < p; j++) if (fabs(G[c * width + n + j]) > big) big = fabs(G[c * width + n + j]);
     for (j = 0; j < p; j++) s->free[j] = 1;  /* 1: not a pivot yet */
@@ -232,12 +230,13 @@ static int eliminate(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *
     return 1;
 }
 
-/* stage k's (x, w) blocks from u = T_x x + T_w w + t (rows P: X, Y, z; rows F: 0, I, 0) */
-static void transform(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, int k) {
+/* stage k's input blocks of (x, w) from u = T_x x + T_w w + t (rows P: X, Y, z; rows F: 0, I, 0): R', r', S's rows F
+ * of R T_x + S; R T_x + S and R t + r (p rows) stay in e->work for `transform_states` */
+static void transform_inputs(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, int k) {
     eq_stage *s = &e->st[k];
-    int n = r->rnx[k], p = r->rnu[k], n1 = k < r->N ? r->rnx[k + 1] : 0, m = s->m, nf = s->nf, i, j, l;
+    int n = r->rnx[k], p = r->rnu[k], m = s->m, nf = s->nf, i, j, l;
     const int *P = s->piv, *F = s->free;
-    double *RTx = e->work, *RTw = RTx + p * n, *Rt = RTw + p * nf;  /* R T_x + S, R T_w, R t + r (p rows) */
+    double *RTx = e->work, *Rt = RTx + p * n, *RTw = Rt + p;  /* R T_x + S, R t + r, R T_w (p rows) */
     if (m > 0 && n > 0) {  /* R T_x + S = S + R_{:,P} X (BLASFEO) */
         double *RP = e->gather;
         for (l = 0; l < m; l++) memcpy(RP + l * p, d->R + P[l] * p, p * sizeof(double));
@@ -261,7 +260,7 @@ static void transform(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage 
     for (l = 0; l < m; l++) for (i = 0; i < p; i++) Rt[i] += d->R[i + P[l] * p] * s->z[l];
     /* R' = T_w' R T_w, S' = T_w' (R T_x + S), r' = T_w' (R t + r): axpys over the columns of Y' (Yt: nf x m) */
     {
-        double *Yt = Rt + p;
+        double *Yt = RTw + p * nf;
         for (l = 0; l < m; l++) for (i = 0; i < nf; i++) Yt[i + l * nf] = s->Y[l + i * m];
         for (j = 0; j < nf; j++) {
             double *Rj = s->R + j * nf;
@@ -281,7 +280,15 @@ static void transform(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage 
             for (i = 0; i < nf; i++) s->r[i] += yl[i] * a;
         }
     }
-    /* Q' = Q + X' (R T_x + S)_P + S_P' X = Q + [X; S_P]' [(R T_x + S)_P; X] (BLASFEO), q' = q + X' (R t + r)_P + S_P' z */
+}
+
+/* stage k's Q' = Q + X' (R T_x + S)_P + S_P' X = Q + [X; S_P]' [(R T_x + S)_P; X] (BLASFEO), S' += Y' (R T_x + S)_P,
+ * q' = q + X' (R t + r)_P + S_P' z */
+static void transform_states(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, int k) {
+    eq_stage *s = &e->st[k];
+    int n = r->rnx[k], p = r->rnu[k], m = s->m, nf = s->nf, j, l;
+    const int *P = s->piv;
+    double *RTx = e->work, *Rt = RTx + p * n;
     memcpy(s->q, d->q, n * sizeof(double));
     if (m > 0 && n > 0) {
         double *SP = e->gather, *RTxP = SP + m * n;
@@ -308,7 +315,13 @@ static void transform(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage 
     } else {
         memcpy(s->Q, d->Q, n * n * sizeof(double));
     }
-    /* A' = A + B_P X, B' = B_F + B_P Y, b' = b + B_P z */
+}
+
+/* stage k's A' = A + B_P X, B' = B_F + B_P Y, b' = b + B_P z (B_P's zeros skipped: B is mostly the integrator's) */
+static void transform_dynamics(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, int k) {
+    eq_stage *s = &e->st[k];
+    int n = r->rnx[k], n1 = r->rnx[k + 1], m = s->m, nf = s->nf, i, j, l;
+    const int *P = s->piv, *F = s->free;
     memcpy(s->A, d->A, n1 * n * sizeof(double));
     memcpy(s->b, d->b, n1 * sizeof(double));
     for (j = 0; j < nf; j++) memcpy(s->B + j * n1, d->B + F[j] * n1, n1 * sizeof(double));
@@ -442,7 +455,11 @@ int wbqp_eqelim_solve(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage 
     for (k = 0; k <= N; k++) {
         e->key[k] = r->rnx[k];
         e->key[N + 1 + k] = k < N ? e->st[k].nf : 0;
-        if (k < N) transform(e, r, &d[k], k);
+        if (k < N) {
+            transform_inputs(e, r, &d[k], k);
+            transform_states(e, r, &d[k], k);
+            transform_dynamics(e, r, &d[k], k);
+        }
     }
     in = instance(e);
     for (k = 0; k <= N; k++) {
