@@ -67,6 +67,7 @@ wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r) {
     e->N = N;
     e->st = calloc(N + 1, sizeof(eq_stage));
     e->key = calloc(2 * (N + 1), sizeof(int));
+    if (!e->st || !e->key) { free(e->st); free(e->key); free(e); return NULL; }
     for (k = 0; k <= N; k++) {
         int nx = r->nx[k], nu = r->nu[k], nx1 = k < N ? r->nx[k + 1] : 0, m = r->ng[k] + (k < N ? r->ng[k + 1] : 0);
         eq_stage *s = &e->st[k];
@@ -110,6 +111,11 @@ wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r) {
         for (k = 0; k <= N; k++) total += r->ng[k];
         e->pure = calloc(total + 1, 1);
     }
+    for (k = 0; k <= N; k++) if (!e->st[k].rows || !e->st[k].X) w = -1;
+    if (w < 0 || !e->G || !e->work || !e->pi_known || !e->blasfeo_mem || !e->gather || !e->pure) {
+        wbqp_eqelim_free(e);
+        return NULL;
+    }
     return e;
 }
 
@@ -119,8 +125,7 @@ void wbqp_eqelim_free(wbqp_eqelim *e) {
     for (k = 0; k < e->n_cached; k++) release(&e->cache[k]);
     for (k = 0; k <= e->N; k++) { free(e->st[k].rows); free(e->st[k].X); }
     free(e->st); free(e->key); free(e->G); free(e->work); free(e->pi_known); free(e->pure);
-    free(e->blasfeo_mem); free(e->gather);
-    free(e);
+    free(e->blasfeo_mem); free(e->gather); free(e);
 }
 
 static int is_equality(const wbqp_reduction *r, double l, double u) { return l == u && fabs(l) < r->inf; }
@@ -338,8 +343,7 @@ static void transform_dynamics(wbqp_eqelim *e, const wbqp_reduction *r, const wb
 }
 
 static void build(wbqp_eqelim *e, eq_inst *in) {
-    int N = e->N, *zeros = calloc(N + 1, sizeof(int)), one = 1, iter_max = 1;
-    double mu0 = 1.0, tol = 1e-8;
+    int N = e->N, *zeros = calloc(N + 1, sizeof(int));  /* no bounds, rows or slacks: HPIPM's one factorisation */
     in->dims = malloc(2 * (N + 1) * sizeof(int)); memcpy(in->dims, e->key, 2 * (N + 1) * sizeof(int));
     in->dim_mem = malloc(d_ocp_qp_dim_memsize(N));
     d_ocp_qp_dim_create(N, &in->dim, in->dim_mem);
@@ -348,10 +352,6 @@ static void build(wbqp_eqelim *e, eq_inst *in) {
     in->sol_mem = malloc(d_ocp_qp_sol_memsize(&in->dim)); d_ocp_qp_sol_create(&in->dim, &in->sol, in->sol_mem);
     in->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(&in->dim)); d_ocp_qp_ipm_arg_create(&in->dim, &in->arg, in->arg_mem);
     d_ocp_qp_ipm_arg_set_default(SPEED, &in->arg);
-    d_ocp_qp_ipm_arg_set_iter_max(&iter_max, &in->arg);
-    d_ocp_qp_ipm_arg_set_mu0(&mu0, &in->arg);
-    d_ocp_qp_ipm_arg_set_tol_stat(&tol, &in->arg);
-    d_ocp_qp_ipm_arg_set_comp_res_exit(&one, &in->arg);
     in->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(&in->dim, &in->arg));
     d_ocp_qp_ipm_ws_create(&in->dim, &in->arg, &in->ws, in->ws_mem);
     free(zeros);
