@@ -2,6 +2,8 @@
 multipliers (CasADi's sign convention) on go2's trot QP, in every HPIPM mode including speed_abs, whose
 equality multipliers casadi's conic does not return; the RTI and anytime SQP use it where it builds."""
 
+from dataclasses import replace
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -85,7 +87,8 @@ def test_direct_hpipm_returns_casadis_solution(qp_data, mode):
 
 def test_a_failed_direct_qp_reports_hpipms_status(qp_data):
     problem, data = qp_data
-    result = _direct(problem, data, QpConfig(mode="speed_abs", tolerance=1e-10, max_iterations=1)).solve(*data)
+    capped = QpConfig(mode="speed_abs", tolerance=1e-10, max_iterations=1, active_set_guess=False)
+    result = _direct(problem, data, capped).solve(*data)
     assert not result.success and result.status == "QP_Maximum_Iterations_Exceeded" and result.iterations == 1
 
 
@@ -223,3 +226,40 @@ def test_malformed_qp_data_is_refused_by_name(qp_data):
     lbg[qp.gap_index[0]] -= 1.0
     with pytest.raises(WbmpcError, match="dynamics rows must be equalities"):
         qp.solve(data[0], data[1], data[2], lbg, *data[4:])
+
+
+def _inactive(data, margin=10.0):
+    """The QP with every inequality (rows and bounds with lb < ub) widened by `margin` on its finite sides: none active."""
+    lbg, ubg, lbx, ubx = (np.asarray(v, dtype=float).copy() for v in data[3:])
+    for lower, upper in ((lbg, ubg), (lbx, ubx)):
+        inequality = lower < upper
+        lower[inequality & np.isfinite(lower)] -= margin
+        upper[inequality & np.isfinite(upper)] += margin
+    return (*data[:3], lbg, ubg, lbx, ubx)
+
+
+def test_the_active_set_guess_solves_a_qp_with_no_active_inequality_in_one_factorisation(qp_data):
+    """Where no inequality is active, eliminating the equality rows and dropping the inequalities gives the interior
+    point's solution (step and multipliers, the equality rows' from stationarity) at one factorisation."""
+    problem, data = qp_data
+    data = _inactive(data)
+    guessed, interior = (_direct(problem, data, replace(_tight(), active_set_guess=on)) for on in (True, False))
+    reference, result = interior.solve(*data), guessed.solve(*data)
+    assert reference.success and result.success, (reference.status, result.status)
+    assert guessed.guess_stats == {"tries": 1, "hits": 1, "last": 0} and interior.guess_stats["tries"] == 0
+    assert result.iterations == 1 < reference.iterations
+    _assert_same_solution(result, reference, atol=1e-7, lam_atol=1e-7)
+    assert np.abs(reference.lam_g).max() > 1.0  # the equality rows' multipliers are not trivially zero
+
+
+def test_a_wrong_active_set_guess_falls_back_to_the_interior_point(qp_data):
+    """go2's QP from a moving state has active bounds: the guess violates them, the interior point solves the QP (the
+    same solution as without the guess), and the next calls skip the guess for a while."""
+    problem, data = qp_data
+    guessed, interior = (_direct(problem, data, replace(_tight(), active_set_guess=on)) for on in (True, False))
+    reference, result = interior.solve(*data), guessed.solve(*data)
+    assert reference.success and result.success, (reference.status, result.status)
+    assert guessed.guess_stats == {"tries": 1, "hits": 0, "last": 1}
+    np.testing.assert_array_equal(result.step, reference.step)
+    guessed.solve(*_inactive(data))  # skipped although it would be right
+    assert guessed.guess_stats == {"tries": 1, "hits": 0, "last": -1}

@@ -52,9 +52,34 @@ def test_iterated_rti_converges_to_the_fatrop_solution(fixed_state, binding):
     assert set(iterated.last_timing) >= {"linearize_ms", "qp_ms", "evaluate_ms", "cpu_ms"}
 
 
+def test_the_active_set_guess_takes_the_interior_points_step(fixed_state):
+    """The RTI's QP at a state whose plan touches no inequality is solved by the active-set guess (one factorisation,
+    `stats.iterations` 1): the step of the interior point (guess off) at a tight QP tolerance, to 1e-7; iterated, the
+    same KKT point."""
+    problem, data, reference = fixed_state
+    results = {}
+    for guess in (True, False):
+        solver = RtiSolver(problem, SolverConfig(name="rti", extra_options={
+            "qp_active_set_guess": guess, "qp_tolerance": 1e-9, "qp_mode": "balance", "sqp_iterations": 3,
+            "step_tolerance": 0.0}))
+        if not solver.direct_qp:
+            pytest.skip(f"no HPIPM binding here: {solver.direct_error}")
+        results[guess] = solver.solve(*data)
+        assert results[guess].stats.success, results[guess].stats.status
+        assert solver.qp.config.active_set_guess is guess
+        if guess:
+            assert solver.qp.guess_stats["hits"] == 3 and results[guess].stats.iterations == 3
+    assert results[False].stats.iterations > 3 * 2
+    np.testing.assert_allclose(results[True].x, results[False].x, atol=1e-7)
+    scale = max(1.0, np.abs(results[False].lam_g).max())
+    np.testing.assert_allclose(results[True].lam_g / scale, results[False].lam_g / scale, atol=1e-7)
+
+
 def test_failed_qp_is_reported_not_raised(fixed_state):
     problem, (p, lbx, ubx, lbg, ubg, x0), _ = fixed_state
-    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_barrier_init": None}))
+    # (a QP capped at one interior-point iteration fails; the active-set guess, off here, would solve this one)
+    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={
+        "recovery_barrier_init": None, "qp_active_set_guess": False}))
     result = solver.solve(p, lbx, ubx, lbg, ubg, x0)
     assert not result.stats.success
     assert result.stats.status == ("QP_Maximum_Iterations_Exceeded (balance after speed_abs: "
@@ -70,7 +95,8 @@ def test_failed_qp_is_reported_not_raised(fixed_state):
 
 def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
     problem, data, reference = fixed_state
-    result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1)).solve(*data)
+    result = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1,
+                                             extra_options={"qp_active_set_guess": False})).solve(*data)
     assert result.stats.success
     assert result.stats.status.endswith("(fatrop recovery after rti: QP_Maximum_Iterations_Exceeded (balance after "
                                         "speed_abs: QP_Maximum_Iterations_Exceeded))")
@@ -80,7 +106,8 @@ def test_failed_qp_is_recovered_by_a_converged_fatrop_solve(fixed_state):
 def test_capped_recovery_is_built_ahead_and_stops_at_its_cap(fixed_state):
     """Real-time runs cap the re-solve (`recovery_max_iterations`) and build it before the clock runs."""
     problem, data, _ = fixed_state
-    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={"recovery_max_iterations": 2}))
+    solver = RtiSolver(problem, SolverConfig(name="rti", max_iterations=1, extra_options={
+        "recovery_max_iterations": 2, "qp_active_set_guess": False}))
     solver.prepare_recovery()
     assert solver.recovery_solver is not None and solver.recovery_solver.config.max_iterations == 2
     result = solver.solve(*data)

@@ -8,7 +8,10 @@ equalities, and keeps HPIPM's memory between calls (`csrc/hpipm_shim.c`, compile
 and BLASFEO that ship in the casadi wheel, cached beside the generated code). Inputs with lb == ub (swing feet's
 forces, the arm's commanded force) and x_0 (fixed by the initial-state rows) are left out of HPIPM's QP
 (`csrc/hpipm_reduce.c`, `QpConfig.eliminate_fixed`): the same QP on smaller Riccati blocks, their multipliers
-recovered from the stage's stationarity; HPIPM instances are kept per pattern of reduced sizes. Same QP, same solution
+recovered from the stage's stationarity; HPIPM instances are kept per pattern of reduced sizes. Where no inequality is
+active (b1_z1's trot: every QP), one Riccati factorisation solves the QP: the inequalities dropped, the equality rows
+eliminated (`csrc/hpipm_eqelim.c`, `QpConfig.active_set_guess`), the dropped rows checked, the interior point where one
+is violated (docs/design/rti.md). Same QP, same solution
 as `StructuredQp` (tests/solvers/test_hpipm_direct.py); `solve` has its interface. Declaring the equalities (idxe) changed
 neither the iterations nor the solutions on 60 post-push b1_z1 QPs: off by default (no rebuilds at contact switches).
 In HPIPM's absolute mode (speed_abs) the equality multipliers are computed on exit (comp_dual_sol_eq): the SQP's
@@ -59,7 +62,7 @@ def shim_library(config: CodegenConfig = CodegenConfig()) -> Path:
     flags = (*config.flags, "-O2", f"-I{include}")
     link = (f"-L{directory}", "-Wl,--no-as-needed", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{directory}")
     try:
-        return build_native("hpipm_shim", ("hpipm_shim.c", "hpipm_reduce.c", "hpipm_load.c"), config, flags, link, key_extra=str(include),
+        return build_native("hpipm_shim", ("hpipm_shim.c", "hpipm_reduce.c", "hpipm_load.c", "hpipm_eqelim.c"), config, flags, link, key_extra=str(include),
                             headers=("hpipm_shim.h",)).library
     except CompileError as exc:
         raise HpipmUnavailable(f"the HPIPM shim did not compile: {exc}") from exc
@@ -93,6 +96,9 @@ class DirectQp:
         self._lib.wbqp_nlp_solve.restype = ctypes.c_int
         self._lib.wbqp_nlp_solve.argtypes = [ctypes.c_void_p] * 12
         self._lib.wbqp_nlp_free.argtypes = [ctypes.c_void_p]
+        self._lib.wbqp_set_guess.restype = ctypes.c_int
+        self._lib.wbqp_set_guess.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        self._lib.wbqp_guess_stats.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
         dims = stage_dimensions(problem)
         N, nx, nu, ng = dims["N"], dims["nx"], dims["nu"], dims["ng"]
         self.N = N
@@ -106,6 +112,8 @@ class DirectQp:
                                           (ctypes.c_int * max(len(x0_cols), 1))(*x0_cols))
         if not self._handle:
             raise MemoryError("HPIPM's shim could not allocate its QP")
+        if config.active_set_guess and not self._lib.wbqp_set_guess(self._handle, 1):
+            raise MemoryError("HPIPM's shim could not allocate the active-set guess")
 
     def __del__(self):
         handle = getattr(self, "_handle", None)
@@ -139,6 +147,14 @@ class DirectQp:
     def rebuilds(self) -> int:
         """HPIPM instances built so far: one per pattern of QP sizes (fixed inputs left out) not in the shim's cache."""
         return int(self._lib.wbqp_rebuilds(self._handle))
+
+    @property
+    def guess_stats(self) -> dict[str, int]:
+        """The active-set guess (`QpConfig.active_set_guess`): QPs it was tried on, QPs it solved, and the last call's
+        outcome (-1 not tried, 0 solved, 1 an inequality active, 2 rows it does not handle, 3 numerical failure)."""
+        out = (ctypes.c_int * 3)()
+        self._lib.wbqp_guess_stats(self._handle, out)
+        return {"tries": out[0], "hits": out[1], "last": out[2]}
 
     @property
     def solved_sizes(self) -> dict[str, list[int]]:

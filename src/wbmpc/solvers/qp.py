@@ -45,6 +45,9 @@ class QpConfig:
     # our binding (solvers/hpipm_direct.py) leaves inputs with lb == ub and the initial state out of HPIPM's QP
     # (csrc/hpipm_reduce.c: same QP, smaller Riccati blocks); casadi's conic keeps them
     eliminate_fixed: bool = True
+    # our binding first tries the active-set guess "no inequality active": the equality rows eliminated, one Riccati
+    # factorisation, the dropped inequalities checked (csrc/hpipm_eqelim.c); HPIPM's interior point where one is violated
+    active_set_guess: bool = True
 
     def __post_init__(self):
         if self.mode not in HPIPM_MODES:

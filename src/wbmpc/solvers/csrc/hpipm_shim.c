@@ -22,6 +22,7 @@
 #include "hpipm_shim.h"
 
 #define WBQP_CACHE 48  /* HPIPM instances kept (b1_z1's trot at 80 Hz: ~40 size patterns a gait cycle) */
+#define GUESS_SKIP 8   /* calls without the active-set guess after it failed (an active set persists for a while) */
 
 /* one HPIPM instance, for the reduced sizes (rnx, rnu, rng) and equality flags it was built for */
 typedef struct {
@@ -50,6 +51,8 @@ typedef struct {
     wbqp_stage_sol *reduced;
     double res[4];
     int iter, status;
+    wbqp_eqelim *eq;           /* the active-set guess (hpipm_eqelim.c), NULL: off */
+    int guess_skip, guess_tries, guess_hits, guess_last;
 } wbqp;
 
 static void release(wbqp_inst *i) {
@@ -102,6 +105,7 @@ void wbqp_free(void *handle) {
     if (!s) return;
     for (i = 0; i < s->n_cached; i++) release(&s->cache[i]);
     wbqp_reduction_free(&s->red);
+    wbqp_eqelim_free(s->eq);
     free(s->key_dims); free(s->key_eq); free(s->idxbu); free(s->idx_store); free(s->mask); free(s->zeros);
     free(s->lb); free(s->ub); free(s->stages); free(s->reduced);
     free(s);
@@ -278,6 +282,20 @@ int wbqp_solve(void *handle, const double *A, const double *B, const double *b, 
     wbqp_inst *in;
     int k, offset = 0, N = s->N;
     wbqp_reduce(&s->red, full, s->stages);
+    s->guess_last = -1;
+    if (s->eq && s->guess_skip > 0) s->guess_skip--;
+    else if (s->eq) {  /* one factorisation where no inequality is active; the interior point where one is */
+        for (k = 0; k <= N; k++) s->reduced[k] = wbqp_sol_at(&s->red, s->red.sols, k);
+        s->guess_tries++;
+        s->guess_last = wbqp_eqelim_solve(s->eq, &s->red, s->stages, s->reduced, s->tol);
+        if (s->guess_last == 0) {
+            s->guess_hits++;
+            s->status = 0; s->iter = 1; memset(s->res, 0, sizeof(s->res));
+            wbqp_expand(&s->red, full, s->reduced, sol);
+            return 0;
+        }
+        s->guess_skip = GUESS_SKIP;
+    }
     in = instance(s);
     for (k = 0; k <= N; k++) {
         set_stage(s, in, k, &s->stages[k], offset);
@@ -299,6 +317,19 @@ int wbqp_solve(void *handle, const double *A, const double *B, const double *b, 
 }
 
 int wbqp_iterations(void *handle) { return ((wbqp *) handle)->iter; }
+/* the active-set guess on (1) or off (0) */
+int wbqp_set_guess(void *handle, int on) {
+    wbqp *s = handle;
+    if (on && !s->eq) s->eq = wbqp_eqelim_new(&s->red);
+    if (!on && s->eq) { wbqp_eqelim_free(s->eq); s->eq = NULL; }
+    s->guess_skip = 0;
+    return on ? s->eq != NULL : 1;
+}
+/* tries, hits and the last call's outcome (-1: not tried, else wbqp_eqelim_solve's code) of the guess */
+void wbqp_guess_stats(void *handle, int *out) {
+    wbqp *s = handle;
+    out[0] = s->guess_tries; out[1] = s->guess_hits; out[2] = s->guess_last;
+}
 void wbqp_residuals(void *handle, double *out) { memcpy(out, ((wbqp *) handle)->res, 4 * sizeof(double)); }
 /* the sizes of the last call's QP as HPIPM solved it: nx, nu, ng per stage (3 (N + 1) ints) */
 void wbqp_sizes(void *handle, int *out) {

@@ -48,4 +48,13 @@ void wbqp_reduce(wbqp_reduction *r, const double *const *full, wbqp_stage *out);
 /* the full solution from the reduced one (`reduced[k]`), the fixed inputs' and x_0 rows' multipliers from stationarity */
 void wbqp_expand(wbqp_reduction *r, const double *const *full, const wbqp_stage_sol *reduced, double *const *sol);
 
+/* The active-set guess "no inequality active" (hpipm_eqelim.c): the reduced QP's inequalities dropped, its equality
+ * rows eliminated, one Riccati factorisation. 0: solved (reduced solution, multipliers included, in sol[k]); 1: an
+ * inequality is violated (the guess is wrong); 2: rows the elimination does not handle; 3: HPIPM or the equality
+ * residual (> tol) failed. */
+typedef struct wbqp_eqelim wbqp_eqelim;
+wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r);
+void wbqp_eqelim_free(wbqp_eqelim *e);
+int wbqp_eqelim_solve(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, wbqp_stage_sol *sol, double tol);
+
 #endif
