@@ -329,3 +329,29 @@ def test_deadline_returns_the_last_iterate_and_the_solver_stays_usable(direct, s
     again = direct.solve(**step_data)
     assert again.stats.success and again.stats.iterations == expected.stats.iterations
     np.testing.assert_allclose(again.x, expected.x, atol=1e-12)
+
+
+def test_the_mpc_builds_its_instances_before_the_clock_and_then_plans_as_before(robot, problem, codegen, step_data):
+    """`MPC.prepare_structures` builds the Fatrop instances of the row patterns that steps meet in the first two gait
+    cycles (g1 walking meets ~30, each ~11 ms to build); the steps then build none and give the plans, bit for bit, of
+    an MPC that built each instance at the first step that needed it. `prepare_structure` builds one instance per
+    pattern, once."""
+    config = MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None),
+                       solver=SolverConfig(name="fatrop-direct", codegen=codegen))
+    lazy, prepared = MPC(robot, config, problem=problem), MPC(robot, config, problem=problem)
+    prepared.prepare_structures(rate_hz=80.0)
+    built = set(prepared.solver.structure_keys)
+    assert built and not lazy.solver.structure_keys
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    for t_s in (0.1, 0.1125, 0.125, 0.2, 0.5, 0.9):
+        expected, got = lazy.solve(robot.q_nominal, v0, t_s=t_s), prepared.solve(robot.q_nominal, v0, t_s=t_s)
+        assert got.success, got.stats
+        np.testing.assert_array_equal(got.x, expected.x)
+    assert set(prepared.solver.structure_keys) == built and set(lazy.solver.structure_keys) <= built
+    bounds = tuple(step_data[name].copy() for name in ("lbx", "ubx", "lbg", "ubg"))
+    bounds[2][-1], bounds[3][-1] = -np.inf, np.inf  # the last row dropped: another pattern
+    fresh = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    for _ in range(2):
+        fresh.prepare_structure(*bounds)
+        assert fresh.structure_keys == (fresh.structure_key(*bounds),)
