@@ -178,5 +178,5 @@ def test_each_stage_function_knows_its_code_range(solvers):
 
 
 def test_code_ranges_fall_back_to_none_on_unknown_text():
-    code, ranges = stage_library._code_sections("int f(void) { return 0; }\n", ["wbk0_hess"])
+    code, ranges = stage_library.code_sections("int f(void) { return 0; }\n", ["wbk0_hess"])
     assert code == "int f(void) { return 0; }\n" and ranges == ["0", "0"]

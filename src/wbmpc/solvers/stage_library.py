@@ -85,7 +85,7 @@ def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], np.ndarray]:
 _BODY_SIGNATURE = "(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem)"
 
 
-def _code_sections(code: str, names: list[str]) -> tuple[str, list[str]]:
+def code_sections(code: str, names: list[str]) -> tuple[str, list[str]]:
     """The generated C with each named function's body (CasADi's static `casadi_f<i>` its export calls) in a
     section of its own (not inlined into its export), and the C expressions of each body's first and past-the-end
     byte (the linker's __start_/__stop_ symbols of the section, weak: 0 if a section is missing; "0" where CasADi's
@@ -133,7 +133,7 @@ def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray, np.ndarray]:
     generator = ca.CodeGenerator("wbmpc_stages.c", {"with_header": False})
     for function in functions:
         generator.add(function)
-    code, code_ranges = _code_sections(generator.dump(), [function.name() for function in functions])
+    code, code_ranges = code_sections(generator.dump(), [function.name() for function in functions])
     return code + _kinds_table(functions, code_ranges), p_index, layout
 
 
