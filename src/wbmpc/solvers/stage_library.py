@@ -32,7 +32,6 @@ from wbmpc.solvers.native import source_dir, source_text
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
 KINDS_VERSION = 2  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
-O2_MAX_SOURCE_MB = 20.0  # generated C up to this size compiles at -O2 instead of CodegenConfig's -O1 (see build)
 
 
 def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
@@ -139,13 +138,14 @@ def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray, np.ndarray]:
 
 def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfig, tuple[str, ...]]:
     """The settings a stage library of this size compiles with. CodegenConfig's default -O1 (chosen for the
-    whole-NLP library's compile time) becomes -O2 up to O2_MAX_SOURCE_MB: b1_z1's stage functions evaluate 2.63 ->
+    whole-NLP library's compile time) becomes -O2 up to `stage_o2_max_source_mb`: b1_z1's stage functions evaluate 2.63 ->
     1.60 ms per closed-loop step for one longer, cached compile (7.6 MB of C, load ~4: 80 s and 0.86 GB at -O1,
-    254 s and 0.96 GB at -O2); g1's (17.9 MB): thread CPU per solver iteration 4.41 -> 3.63 ms (30 recorded
-    walk-in-place states, interleaved in one run, the same iterations) for 768 s and 2.8 GB of compile at load ~4
-    (-O1: ~200 s); larger sources follow `codegen.for_source` (TALOS-sized at -O0)."""
+    254 s and 0.96 GB at -O2); g1's (17.9 MB) only when asked (`stage_o2_max_source_mb=20`): thread CPU per solver
+    iteration 4.41 -> 3.63 ms (30 recorded walk-in-place states, interleaved in one run, the same iterations) for
+    768 s and 2.8 GB of compile at load ~4 (-O1: ~200 s); larger sources follow `codegen.for_source` (TALOS-sized
+    at -O0)."""
     config = for_source(config, source_mb)
-    optimize = source_mb <= O2_MAX_SOURCE_MB
+    optimize = source_mb <= config.stage_o2_max_source_mb
     return config, tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)
 
 
