@@ -113,3 +113,14 @@ def test_large_sources_compile_at_a_lower_optimisation_level():
     assert large.flags == ("-march=native", "-O0") and large.large_source_mb == config.large_source_mb
     assert cache_key("code", large) != cache_key("code", config)  # the cache follows the flags used
     assert for_source(CodegenConfig(flags=("-O2",), large_source_mb=None), 1e3).flags == ("-O2",)
+
+
+def test_stage_library_optimisation_by_source_size():
+    """-O2 up to `stage_o2_max_source_mb` (b1_z1's 7.6 MB by default; g1's 17.9 MB only when asked: a 4x longer
+    compile), -O1 above it, the large-source level above `large_source_mb` (TALOS)."""
+    from wbmpc.solvers.stage_library import compile_flags
+
+    assert compile_flags(CodegenConfig(), 7.6)[1] == ("-O2", "-march=native")
+    assert compile_flags(CodegenConfig(), 17.9)[1] == ("-O1", "-march=native")
+    assert compile_flags(CodegenConfig(stage_o2_max_source_mb=20.0), 17.9)[1] == ("-O2", "-march=native")
+    assert compile_flags(CodegenConfig(stage_o2_max_source_mb=20.0), 23.6)[1] == ("-march=native", "-O0")

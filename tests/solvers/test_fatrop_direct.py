@@ -10,7 +10,7 @@ from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
-from wbmpc.solvers import make_solver
+from wbmpc.solvers import fatrop_direct, make_solver
 from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver, mpc_tolerances, multiplier_start
@@ -291,6 +291,33 @@ def test_a_new_row_structure_gets_its_own_fatrop(direct, step_data):
     assert first.stats.success and other.stats.success and again.stats.success
     assert len(solver.structure_keys) == 2
     np.testing.assert_allclose(again.x, first.x, atol=1e-6)
+
+
+def test_least_recently_used_instances_are_freed_and_rebuilt(direct, step_data, monkeypatch):
+    """Beyond MAX_INSTANCES the least recently used Fatrop instance is freed; a structure met again gets a new one
+    that solves it as the first did (same iterations, same solution), with its options set again."""
+    monkeypatch.setattr(fatrop_direct, "MAX_INSTANCES", 2)
+    solver = direct.recreated(extra_options={"fatrop": {"max_iter": 40}})
+    lbg, ubg = step_data["lbg"].copy(), step_data["ubg"].copy()
+    free = np.nonzero(np.isinf(lbg) & np.isinf(ubg))[0]
+    variants, seen = [], set()
+    for row in free:  # three structures: one more inequality row in another stage each
+        lo, hi = lbg.copy(), ubg.copy()
+        lo[row], hi[row] = -1e3, 1e3
+        key = solver.structure_key(step_data["lbx"], step_data["ubx"], lo, hi)
+        if key not in seen and len(variants) < 3:
+            seen.add(key)
+            variants.append({**step_data, "lbg": lo, "ubg": hi})
+    assert len(variants) == 3
+    first = [solver.solve(**variant) for variant in variants]
+    keys = solver.structure_keys
+    assert len(keys) == 2 and solver.structure_key(variants[0]["lbx"], variants[0]["ubx"], variants[0]["lbg"],
+                                                   variants[0]["ubg"]) not in keys
+    again = solver.solve(**variants[0])  # built again, the second structure freed
+    assert len(solver.structure_keys) == 2
+    assert again.stats.iterations == first[0].stats.iterations
+    np.testing.assert_array_equal(again.x, first[0].x)
+    assert all(result.stats.success for result in first)
 
 
 def test_fatrop_options_pass_through_and_an_unknown_one_is_named(direct, step_data):

@@ -1,6 +1,9 @@
 """The direct Fatrop binding's stage evaluations on several threads (SolverConfig.threads) against one thread:
 the same derivatives and the same solves bit for bit, on a small go2 problem."""
 
+import ctypes
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -8,6 +11,7 @@ from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
+from wbmpc.solvers import stage_library
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
 from wbmpc.solvers.nlp import SolverConfig
@@ -135,3 +139,44 @@ def test_another_horizon_reuses_the_compiled_stages(robot, solvers, codegen):
     assert solver.compile_report.cached and solver.compile_report.library == solvers[1].compile_report.library
     mpc = MPC(robot, MpcConfig(ocp=longer.config, recovery=RecoveryConfig(fallback_solver=None)), problem=longer, solver=solver)
     assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.1).success
+
+
+class _Kinds(ctypes.Structure):  # csrc/wbmpc_stages.h's wb_kinds
+    _fields_ = [("version", ctypes.c_int), ("n_kinds", ctypes.c_int), ("functions", ctypes.POINTER(ctypes.c_void_p)),
+                ("sz", ctypes.c_int * 4), ("code", ctypes.POINTER(ctypes.c_void_p))]
+
+
+class _DlInfo(ctypes.Structure):
+    _fields_ = [("dli_fname", ctypes.c_char_p), ("dli_fbase", ctypes.c_void_p), ("dli_sname", ctypes.c_char_p),
+                ("dli_saddr", ctypes.c_void_p)]
+
+
+def test_each_stage_function_knows_its_code_range(solvers):
+    """The shim prefetches a kind's machine code from the library's table: every function has a range of its own
+    inside the stage library, apart from the others, the derivatives' the longest of their kind."""
+    library = solvers[1].compile_report.library
+    lib = ctypes.CDLL(str(library))
+    lib.wbmpc_stage_kinds.restype = ctypes.POINTER(_Kinds)
+    kinds = lib.wbmpc_stage_kinds().contents
+    assert kinds.version == stage_library.KINDS_VERSION
+    n = kinds.n_kinds * len(stage_library.FUNCTION_KINDS)
+    ranges = [(kinds.code[2 * i], kinds.code[2 * i + 1]) for i in range(n)]
+    libc = ctypes.CDLL(None)
+    info = _DlInfo()
+    for start, end in ranges:
+        assert start and end and end > start
+        for address in (start, end - 1):
+            assert libc.dladdr(ctypes.c_void_p(address), ctypes.byref(info))
+            assert Path(info.dli_fname.decode()).resolve() == Path(library).resolve()
+    ordered = sorted(ranges)
+    assert all(a[1] <= b[0] for a, b in zip(ordered, ordered[1:]))
+    wrappers = [kinds.functions[i] for i in range(n)]
+    assert not any(start <= w < end for w in wrappers for start, end in ranges)
+    sizes = np.array([end - start for start, end in ranges]).reshape(kinds.n_kinds, -1)
+    assert stage_library.FUNCTION_KINDS[:2] == ("hess", "jac")
+    assert (sizes[:, :2].min(axis=1) > sizes[:, 2:].max(axis=1)).all()  # the derivatives' code is the longest
+
+
+def test_code_ranges_fall_back_to_none_on_unknown_text():
+    code, ranges = stage_library.code_sections("int f(void) { return 0; }\n", ["wbk0_hess"])
+    assert code == "int f(void) { return 0; }\n" and ranges == ["0", "0"]

@@ -51,6 +51,10 @@ class CodegenConfig:
     # 4.5 / 11.0 ms in CasADi's virtual machine (the uncompiled solvers). g1 (17.5 MB) and smaller keep -O1
     large_source_mb: float | None = 20.0
     large_source_optimization: str = "-O0"
+    # fatrop-direct's stage library (solvers/stage_library.py) compiles at -O2 instead of -O1 up to this size (MB of
+    # C). 10 takes b1_z1 (7.6 MB: 254 s); 20 also g1 (17.9 MB): thread CPU per solver iteration 4.41 -> 3.63 ms for a
+    # one-off 768 s / 2.8 GB compile instead of ~200 s at -O1 (load ~4), so g1's -O2 is opt-in
+    stage_o2_max_source_mb: float = 10.0
 
 
 @dataclass

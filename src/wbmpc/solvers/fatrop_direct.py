@@ -74,6 +74,12 @@ MULTIPLIER_MAX_ITERATIONS = 12
 # starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
 # g1 standing 2 s 1.71 -> 1.01 iterations per step; walking never gets there (5.41 either way)
 QUIET_ITERATIONS = 2
+# Fatrop instances kept per solver, the least recently used freed beyond: one per row-count pattern (the contact
+# schedule over the horizon) takes ~25 MB on g1 (BLASFEO blocks of every stage), its first build ~10 ms CPU, mostly
+# page faults on fresh memory. g1 walking meets ~30 patterns in its first gait cycle and none after, which all
+# stay; a bound below a cycle's patterns rebuilds one at every change (8: 135 rebuilds of 2.7 ms in 3 s against 30
+# of 11 ms). The bound keeps gaits and terrains with ever new patterns from growing the process without limit
+MAX_INSTANCES = 48
 _N_STATS = 13
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
@@ -380,16 +386,26 @@ class FatropDirectSolver:
 
     def _solver_for(self, lbx, ubx, lbg, ubg) -> ctypes.c_void_p:
         key = self.structure_key(lbx, ubx, lbg, ubg)
-        solver = self._by_structure.get(key)
+        solver = self._by_structure.pop(key, None)
         if solver is None:
             lib = self._library.lib
+            self._free_least_recent(MAX_INSTANCES - 1)
             solver = ctypes.c_void_p(lib.wb_solver_new(self._ctx, _ptr(lbx), _ptr(ubx), _ptr(lbg), _ptr(ubg),
                                                        int(self.config.print_level > 0)))
             if not solver.value:
                 raise RuntimeError("Fatrop could not create a solver for this structure")
             self._set_options(solver)
-            self._by_structure[key] = solver
+        self._by_structure[key] = solver  # most recently used last
         return solver
+
+    def _free_least_recent(self, keep: int) -> None:
+        """Free the least recently used Fatrop instances beyond `keep` (MAX_INSTANCES)."""
+        while len(self._by_structure) > keep:
+            solver = self._by_structure.pop(next(iter(self._by_structure)))
+            self._options.pop(solver.value, None)  # a new instance may get its address
+            if self._last_solver is not None and self._last_solver.value == solver.value:
+                self._last_solver = None
+            self._library.lib.wb_solver_free(solver)
 
     def _set_options(self, solver: ctypes.c_void_p) -> None:
         """The tolerances and `extra_options["fatrop"]` on a new Fatrop instance; an option Fatrop does not know

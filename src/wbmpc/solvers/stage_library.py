@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import re
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -30,8 +31,7 @@ from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _c
 from wbmpc.solvers.native import source_dir, source_text
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
-KINDS_VERSION = 1  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
-O2_MAX_SOURCE_MB = 10.0  # generated C up to this size compiles at -O2 instead of CodegenConfig's -O1 (see build)
+KINDS_VERSION = 2  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
 
 
 def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
@@ -81,15 +81,40 @@ def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], np.ndarray]:
     return functions, layout
 
 
-def _kinds_table(functions: list[ca.Function]) -> str:
+_BODY_SIGNATURE = "(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem)"
+
+
+def code_sections(code: str, names: list[str]) -> tuple[str, list[str]]:
+    """The generated C with each named function's body (CasADi's static `casadi_f<i>` its export calls) in a
+    section of its own (not inlined into its export), and the C expressions of each body's first and past-the-end
+    byte (the linker's __start_/__stop_ symbols of the section, weak: 0 if a section is missing; "0" where CasADi's
+    text is not as expected): the shim prefetches a kind's code before its first call (`csrc/stage_tasks.c`).
+    Placement only: the body's instructions are the same."""
+    ranges = []
+    for name in names:
+        found = re.search(re.escape(f"int {name}{_BODY_SIGNATURE}") + r"\{\s*return (casadi_f\d+)\(", code)
+        definition = f"static int {found.group(1)}{_BODY_SIGNATURE} {{" if found else None
+        if definition is None or code.count(definition) != 1:
+            ranges += ["0", "0"]
+            continue
+        section = f"wbmpc_code_{name}"
+        code = code.replace(definition, f'__attribute__((noinline, section("{section}"))) {definition}')
+        ranges += [f"__start_{section}", f"__stop_{section}"]
+    return code, ranges
+
+
+def _kinds_table(functions: list[ca.Function], code_ranges: list[str]) -> str:
     """The C table of the stage kinds (`wb_kinds`), compiled beside the generated functions."""
     sizes = np.array([[f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()] for f in functions]).max(axis=0)
     n_kinds = len(functions) // len(FUNCTION_KINDS)
     pointers = ", ".join(f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS)
-    fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes]
+    fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes, "wb_code"]
+    bounds = sorted({name for name in code_ranges if name != "0"})
     return "".join([
         '\n/* ---- wbmpc: the table of the stage kinds (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
+        "".join(f"extern const char {name}[] __attribute__((weak, visibility(\"hidden\")));\n" for name in bounds),
         f"static const wb_fn wb_functions[] = {{{pointers}}};\n",
+        f"static const char* const wb_code[] = {{{', '.join(code_ranges)}}};\n",
         f"static const wb_kinds wb_stage_kinds = {{{', '.join(str(f) for f in fields)}}};\n",
         "const wb_kinds* wbmpc_stage_kinds(void) { return &wb_stage_kinds; }\n",
     ])
@@ -107,16 +132,20 @@ def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray, np.ndarray]:
     generator = ca.CodeGenerator("wbmpc_stages.c", {"with_header": False})
     for function in functions:
         generator.add(function)
-    return generator.dump() + _kinds_table(functions), p_index, layout
+    code, code_ranges = code_sections(generator.dump(), [function.name() for function in functions])
+    return code + _kinds_table(functions, code_ranges), p_index, layout
 
 
 def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfig, tuple[str, ...]]:
     """The settings a stage library of this size compiles with. CodegenConfig's default -O1 (chosen for the
-    whole-NLP library's compile time) becomes -O2 up to O2_MAX_SOURCE_MB: b1_z1's stage functions evaluate 2.63 ->
+    whole-NLP library's compile time) becomes -O2 up to `stage_o2_max_source_mb`: b1_z1's stage functions evaluate 2.63 ->
     1.60 ms per closed-loop step for one longer, cached compile (7.6 MB of C, load ~4: 80 s and 0.86 GB at -O1,
-    254 s and 0.96 GB at -O2); larger sources follow `codegen.for_source` (TALOS-sized at -O0)."""
+    254 s and 0.96 GB at -O2); g1's (17.9 MB) only when asked (`stage_o2_max_source_mb=20`): thread CPU per solver
+    iteration 4.41 -> 3.63 ms (30 recorded walk-in-place states, interleaved in one run, the same iterations) for
+    768 s and 2.8 GB of compile at load ~4 (-O1: ~200 s); larger sources follow `codegen.for_source` (TALOS-sized
+    at -O0)."""
     config = for_source(config, source_mb)
-    optimize = source_mb <= O2_MAX_SOURCE_MB
+    optimize = source_mb <= config.stage_o2_max_source_mb
     return config, tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)
 
 

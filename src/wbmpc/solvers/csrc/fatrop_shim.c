@@ -16,6 +16,8 @@ typedef struct {
 
 static int wb_work_init(wb_work* w, const wb_stages* st) {
   size_t n = (size_t) st->max_n;
+  int f;
+  for (f = 0; f < WB_N_FUNCTIONS; ++f) w->last_kind[f] = -1;
   w->arg = (const double**) calloc(st->sz_arg + 8, sizeof(double*));
   w->res = (double**) calloc(st->sz_res + 8, sizeof(double*));
   w->iw = (long long int*) calloc(st->sz_iw + 1, sizeof(long long int));
@@ -63,7 +65,7 @@ static int wb_stages_init(wb_stages* st, const wb_kinds* kinds, const int* layou
   int k, *copy = (int*) malloc(sizeof(int) * WB_LAYOUT_ROWS * (n_stages > 0 ? n_stages : 1));
   if (!copy) return 0;
   memcpy(copy, layout, sizeof(int) * WB_LAYOUT_ROWS * n_stages);
-  st->kinds = kinds; st->functions = kinds->functions;
+  st->kinds = kinds; st->functions = kinds->functions; st->code = kinds->code;
   st->sz_arg = kinds->sz_arg; st->sz_res = kinds->sz_res; st->sz_iw = kinds->sz_iw; st->sz_w = kinds->sz_w;
   st->n_stages = n_stages; st->n_params = n_params; st->n_variables = n_variables; st->n_constraints = n_constraints;
   st->kind = copy + WB_L_KIND * n_stages; st->nx = copy + WB_L_NX * n_stages; st->nu = copy + WB_L_NU * n_stages;

@@ -32,6 +32,7 @@ typedef struct {
   double *hess, *jac_next, *jac_rows, *f, *r, *lam_rows;
   double *ufull, *compact, *col; /* a stage's whole u; blocks of Fatrop's (free u, x) rows; one column */
   int* cols;                     /* the columns a block selects */
+  int last_kind[WB_N_FUNCTIONS]; /* the stage kind this thread last evaluated each function of (-1: none) */
 } wb_work;
 
 /* the evaluation a pool job runs on every stage (see stage_tasks.c) */

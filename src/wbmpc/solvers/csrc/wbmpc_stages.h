@@ -17,7 +17,7 @@ typedef int (*wb_fn)(const double** arg, double** res, long long int* iw, double
    jac (u, x, p) -> (d f / d(u, x))', (d r / d(u, x))';  val -> f, r;  grad -> d l / d(u, x);  cost -> l */
 enum { WB_HESS = 0, WB_JAC, WB_VAL, WB_GRAD, WB_COST, WB_N_FUNCTIONS };
 
-#define WB_KINDS_VERSION 1
+#define WB_KINDS_VERSION 2
 
 /* what the stage library exports (wbmpc_stage_kinds()) */
 typedef struct {
@@ -25,6 +25,9 @@ typedef struct {
   int n_kinds;
   const wb_fn* functions; /* kind * WB_N_FUNCTIONS + function */
   int sz_arg, sz_res, sz_iw, sz_w; /* largest work sizes over the functions */
+  /* [2 * (kind * WB_N_FUNCTIONS + function)] and [... + 1]: the first and the past-the-end byte of each function's
+     generated machine code (0, 0 where unknown), prefetched before a kind's first call (stage_tasks.c) */
+  const char* const* code;
 } wb_kinds;
 
 /* a problem: its stage kinds and the layout of its stages (the shim's copy) */
@@ -40,6 +43,7 @@ typedef struct {
   int* row_offset;   /* first NLP path row of stage k */
   int* gap_offset;   /* first gap row of stage k (-1 on the last) */
   const wb_fn* functions;
+  const char* const* code; /* the kinds' code ranges (wb_kinds.code) */
   int sz_arg, sz_res, sz_iw, sz_w;
   int max_n, max_x, max_rows; /* largest nu + nx, nx, nr (>= 1) */
 } wb_stages;
