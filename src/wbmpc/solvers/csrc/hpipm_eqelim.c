@@ -25,16 +25,6 @@
 #define EQ_CACHE 48
 #define PIVOT_RATIO 1e-9  /* a pivot below this fraction of G_u's largest entry: rank deficient, no guess */
 
-typedef struct {
-    int *dims;  /* nx, nu per stage */
-    unsigned long used;
-    void *dim_mem, *qp_mem, *sol_mem, *arg_mem, *ws_mem;
-    struct d_ocp_qp_dim dim;
-    struct d_ocp_qp qp;
-    struct d_ocp_qp_sol sol;
-    struct d_ocp_qp_ipm_arg arg;
-    struct d_ocp_qp_ipm_ws ws;
-} eq_inst;
 
 typedef struct {
     int m, nf, *rows, *piv, *free;  /* rows: stage k's equality rows with inputs (>= 0) then k+1's on x (-1 - row) */
@@ -47,18 +37,13 @@ struct wbqp_eqelim {
     int N, n_cached, widest, *key;
     unsigned long clock;
     eq_stage *st;
-    eq_inst cache[EQ_CACHE];
+    wbqp_inst cache[EQ_CACHE];
     double *G, *work, *work2, *pi_known;
     char *pure;  /* per stage and row: an equality row on the state alone */
     void *blasfeo_mem;  /* BLASFEO's panel-major matrices of the two large products in `transform` */
     struct blasfeo_dmat sRP, sX, sS, sA2, sB2, sQ, sC1, sAB, sPr, sY, sSF;
     double *gather;
 };
-
-static void release(eq_inst *i) {
-    free(i->dim_mem); free(i->qp_mem); free(i->sol_mem); free(i->arg_mem); free(i->ws_mem); free(i->dims);
-    memset(i, 0, sizeof(*i));
-}
 
 wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r) {
     int N = r->N, k, w = 0, mmax = 0;
@@ -122,7 +107,7 @@ wbqp_eqelim *wbqp_eqelim_new(const wbqp_reduction *r) {
 void wbqp_eqelim_free(wbqp_eqelim *e) {
     int k;
     if (!e) return;
-    for (k = 0; k < e->n_cached; k++) release(&e->cache[k]);
+    for (k = 0; k < e->n_cached; k++) wbqp_inst_release(&e->cache[k]);
     for (k = 0; k <= e->N; k++) { free(e->st[k].rows); free(e->st[k].X); }
     free(e->st); free(e->key); free(e->G); free(e->work); free(e->pi_known); free(e->pure);
     free(e->blasfeo_mem); free(e->gather); free(e);
@@ -342,30 +327,26 @@ static void transform_dynamics(wbqp_eqelim *e, const wbqp_reduction *r, const wb
     }
 }
 
-static void build(wbqp_eqelim *e, eq_inst *in) {
+static void build(wbqp_eqelim *e, wbqp_inst *in) {
     int N = e->N, *zeros = calloc(N + 1, sizeof(int));  /* no bounds, rows or slacks: HPIPM's one factorisation */
     in->dims = malloc(2 * (N + 1) * sizeof(int)); memcpy(in->dims, e->key, 2 * (N + 1) * sizeof(int));
-    in->dim_mem = malloc(d_ocp_qp_dim_memsize(N));
-    d_ocp_qp_dim_create(N, &in->dim, in->dim_mem);
+    wbqp_inst_dim(in, N);
     d_ocp_qp_dim_set_all(in->dims, in->dims + N + 1, zeros, zeros, zeros, zeros, &in->dim);
-    in->qp_mem = malloc(d_ocp_qp_memsize(&in->dim)); d_ocp_qp_create(&in->dim, &in->qp, in->qp_mem);
-    in->sol_mem = malloc(d_ocp_qp_sol_memsize(&in->dim)); d_ocp_qp_sol_create(&in->dim, &in->sol, in->sol_mem);
-    in->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(&in->dim)); d_ocp_qp_ipm_arg_create(&in->dim, &in->arg, in->arg_mem);
+    wbqp_inst_memory(in);
     d_ocp_qp_ipm_arg_set_default(SPEED, &in->arg);
-    in->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(&in->dim, &in->arg));
-    d_ocp_qp_ipm_ws_create(&in->dim, &in->arg, &in->ws, in->ws_mem);
+    wbqp_inst_workspace(in);
     free(zeros);
 }
 
-static eq_inst *instance(wbqp_eqelim *e) {
+static wbqp_inst *instance(wbqp_eqelim *e) {
     int i, oldest = 0, n = 2 * (e->N + 1);
     for (i = 0; i < e->n_cached; i++) {
-        eq_inst *c = &e->cache[i];
+        wbqp_inst *c = &e->cache[i];
         if (!memcmp(c->dims, e->key, n * sizeof(int))) { c->used = ++e->clock; return c; }
         if (c->used < e->cache[oldest].used) oldest = i;
     }
     i = e->n_cached < EQ_CACHE ? e->n_cached++ : oldest;
-    release(&e->cache[i]);
+    wbqp_inst_release(&e->cache[i]);
     build(e, &e->cache[i]);
     e->cache[i].used = ++e->clock;
     return &e->cache[i];
@@ -443,7 +424,7 @@ static void multipliers(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stag
 int wbqp_eqelim_solve(wbqp_eqelim *e, const wbqp_reduction *r, const wbqp_stage *d, wbqp_stage_sol *sol, double tol) {
     int N = r->N, k, i, j, status;
     double viol = 0.0, res = 0.0;
-    eq_inst *in;
+    wbqp_inst *in;
     for (k = 0; k <= N; k++) classify_rows(e, r, &d[k], k);
     if (r->rnx[0] > 0) {  /* x_0 in the QP: no rows on it alone (nothing before stage 0 moves them onto inputs) */
         const char *pure = pure_at(e, r, 0);

@@ -24,18 +24,6 @@
 #define WBQP_CACHE 48  /* HPIPM instances kept (b1_z1's trot at 80 Hz: ~40 size patterns a gait cycle) */
 #define GUESS_SKIP 8   /* calls without the active-set guess after it failed (an active set persists for a while) */
 
-/* one HPIPM instance, for the reduced sizes (rnx, rnu, rng) and equality flags it was built for */
-typedef struct {
-    int *dims;
-    char *eq;  /* per stage, 1 where [u, x, g] of the reduced stage is a declared equality */
-    unsigned long used;
-    void *dim_mem, *qp_mem, *sol_mem, *arg_mem, *ws_mem;
-    struct d_ocp_qp_dim dim;
-    struct d_ocp_qp qp;
-    struct d_ocp_qp_sol sol;
-    struct d_ocp_qp_ipm_arg arg;
-    struct d_ocp_qp_ipm_ws ws;
-} wbqp_inst;
 
 typedef struct {
     wbqp_reduction red;
@@ -55,9 +43,28 @@ typedef struct {
     int guess_skip, guess_tries, guess_hits, guess_last;
 } wbqp;
 
-static void release(wbqp_inst *i) {
+void wbqp_inst_release(wbqp_inst *i) {
     free(i->dim_mem); free(i->qp_mem); free(i->sol_mem); free(i->arg_mem); free(i->ws_mem); free(i->dims); free(i->eq);
     memset(i, 0, sizeof(*i));
+}
+
+void wbqp_inst_dim(wbqp_inst *i, int N) {
+    i->dim_mem = malloc(d_ocp_qp_dim_memsize(N));
+    d_ocp_qp_dim_create(N, &i->dim, i->dim_mem);
+}
+
+void wbqp_inst_memory(wbqp_inst *i) {
+    i->qp_mem = malloc(d_ocp_qp_memsize(&i->dim));
+    d_ocp_qp_create(&i->dim, &i->qp, i->qp_mem);
+    i->sol_mem = malloc(d_ocp_qp_sol_memsize(&i->dim));
+    d_ocp_qp_sol_create(&i->dim, &i->sol, i->sol_mem);
+    i->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(&i->dim));
+    d_ocp_qp_ipm_arg_create(&i->dim, &i->arg, i->arg_mem);
+}
+
+void wbqp_inst_workspace(wbqp_inst *i) {
+    i->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(&i->dim, &i->arg));
+    d_ocp_qp_ipm_ws_create(&i->dim, &i->arg, &i->ws, i->ws_mem);
 }
 
 static void index_lists(wbqp *s, const int *nx, const int *nu, const int *ng) {
@@ -103,7 +110,7 @@ void wbqp_free(void *handle) {
     wbqp *s = handle;
     int i;
     if (!s) return;
-    for (i = 0; i < s->n_cached; i++) release(&s->cache[i]);
+    for (i = 0; i < s->n_cached; i++) wbqp_inst_release(&s->cache[i]);
     wbqp_reduction_free(&s->red);
     wbqp_eqelim_free(s->eq);
     free(s->key_dims); free(s->key_eq); free(s->idxbu); free(s->idx_store); free(s->mask); free(s->zeros);
@@ -138,8 +145,7 @@ static void build(wbqp *s, wbqp_inst *i) {
     int *nx = s->key_dims, *nu = nx + N + 1, *ng = nu + N + 1, *ns = calloc(N + 1, sizeof(int));
     i->dims = malloc(3 * (N + 1) * sizeof(int)); memcpy(i->dims, s->key_dims, 3 * (N + 1) * sizeof(int));
     i->eq = malloc(n + 1); memcpy(i->eq, s->key_eq, n);
-    i->dim_mem = malloc(d_ocp_qp_dim_memsize(N));
-    d_ocp_qp_dim_create(N, &i->dim, i->dim_mem);
+    wbqp_inst_dim(i, N);
     d_ocp_qp_dim_set_all(nx, nu, nx, nu, ng, ns, &i->dim);
     for (k = 0; k <= N; k++) {
         int j, counts[3] = {0, 0, 0};
@@ -150,15 +156,9 @@ static void build(wbqp *s, wbqp_inst *i) {
         d_ocp_qp_dim_set_nge(k, counts[2], &i->dim);
         offset += nu[k] + nx[k] + ng[k];
     }
-    i->qp_mem = malloc(d_ocp_qp_memsize(&i->dim));
-    d_ocp_qp_create(&i->dim, &i->qp, i->qp_mem);
-    i->sol_mem = malloc(d_ocp_qp_sol_memsize(&i->dim));
-    d_ocp_qp_sol_create(&i->dim, &i->sol, i->sol_mem);
-    i->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(&i->dim));
-    d_ocp_qp_ipm_arg_create(&i->dim, &i->arg, i->arg_mem);
+    wbqp_inst_memory(i);
     set_arguments(s, i);
-    i->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(&i->dim, &i->arg));
-    d_ocp_qp_ipm_ws_create(&i->dim, &i->arg, &i->ws, i->ws_mem);
+    wbqp_inst_workspace(i);
     free(ns);
     s->rebuilds++;
 }
@@ -195,7 +195,7 @@ static wbqp_inst *instance(wbqp *s) {
         if (c->used < s->cache[oldest].used) oldest = i;
     }
     i = s->n_cached < WBQP_CACHE ? s->n_cached++ : oldest;
-    release(&s->cache[i]);
+    wbqp_inst_release(&s->cache[i]);
     build(s, &s->cache[i]);
     s->cache[i].used = ++s->clock;
     return &s->cache[i];

@@ -1,6 +1,32 @@
-/* Shared between hpipm_shim.c (HPIPM instances, solve) and hpipm_reduce.c (fixed inputs and x_0 eliminated). */
+/* Shared between hpipm_shim.c (HPIPM instances, solve), hpipm_reduce.c (fixed inputs and x_0 eliminated) and
+ * hpipm_eqelim.c (the active-set guess). */
 #ifndef WBMPC_HPIPM_SHIM_H
 #define WBMPC_HPIPM_SHIM_H
+
+#include "hpipm_d_ocp_qp_dim.h"
+#include "hpipm_d_ocp_qp.h"
+#include "hpipm_d_ocp_qp_sol.h"
+#include "hpipm_d_ocp_qp_ipm.h"
+
+/* one HPIPM instance, kept between calls for the sizes (and equality flags) it was built for: the shim's, and the
+ * active-set guess's (`eq` NULL). Built by wbqp_inst_dim (then the dimensions set), wbqp_inst_memory (then the
+ * arguments set), wbqp_inst_workspace; freed by wbqp_inst_release. */
+typedef struct {
+    int *dims;
+    char *eq;  /* per stage, 1 where [u, x, g] of the reduced stage is a declared equality */
+    unsigned long used;
+    void *dim_mem, *qp_mem, *sol_mem, *arg_mem, *ws_mem;
+    struct d_ocp_qp_dim dim;
+    struct d_ocp_qp qp;
+    struct d_ocp_qp_sol sol;
+    struct d_ocp_qp_ipm_arg arg;
+    struct d_ocp_qp_ipm_ws ws;
+} wbqp_inst;
+
+void wbqp_inst_dim(wbqp_inst *i, int N);
+void wbqp_inst_memory(wbqp_inst *i);
+void wbqp_inst_workspace(wbqp_inst *i);
+void wbqp_inst_release(wbqp_inst *i);
 
 /* one stage's QP data, column-major blocks: A (nx1 x nx), B (nx1 x nu), b, Q (nx x nx), S (nu x nx), R (nu x nu), q, r,
  * C (ng x nx), D (ng x nu), bounds lbu/ubu, lbx/ubx, lg/ug (+-inf or beyond `inf`: absent) */
