@@ -523,6 +523,12 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         if m.get("sim_cpu_share") is not None:
             lines.append(f"  CPU share: simulation {100 * m['sim_cpu_share']:.0f} %, MPC {100 * (m['mpc_cpu_share'] or 0):.0f} % "
                          f"of a core; scheduling priority {m.get('realtime_priority') or 'default'}")
+        if m.get("plant_lateness_ms"):
+            late, plan = m["plant_lateness_ms"], m.get("cpu_plan") or {}
+            shared = (f"; solver's {plan['helper_threads']} helper thread(s) on CPU {plan['helpers']}"
+                      if plan.get("helper_threads") else "")
+            lines.append(f"  plant loop lateness {late['mean']:.2f} ms mean, {late['p99']:.2f} p99, {late['max']:.2f} max "
+                         f"({100 * m['plant_late_tick_share']:.1f} % of joint ticks over half a period){shared}")
     if m.get("est_base_vel_rmse_m_s") is not None:
         lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
                      f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {math.degrees(m['est_orientation_rmse_rad']):.2f} deg")

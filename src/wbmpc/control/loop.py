@@ -25,7 +25,13 @@ from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC
 from wbmpc.control.run_log import RSS_SAMPLE_PERIOD_S, RunLog
 from wbmpc.control.solution import Solution
-from wbmpc.control.solver_process import SolverProcess, cpu_split, raise_priority
+from wbmpc.control.solver_process import (
+    SolverProcess,
+    available_cpus,
+    cpu_plan,
+    raise_loop_priority,
+    restore_scheduling,
+)
 from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
@@ -222,6 +228,7 @@ class ClosedLoop:
     def _new_log(self) -> RunLog:
         log = self.log = RunLog(self.log_dir, self.log_chunk_rows)
         log.mpc_rate_hz = self.config.mpc_rate_hz
+        log.control_rate_hz = self.config.control_rate_hz
         return log
 
     def _control_tick(self, log: RunLog, active: Solution, t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -328,20 +335,29 @@ class ClosedLoop:
         """Simulation paced by the wall clock while the MPC solves in its own process (`SolverProcess`,
         built before the clock starts); each new solve starts at the next MPC tick after the previous one ended."""
         log = self._new_log()
-        cpus = cpu_split()
-        solver = SolverProcess(self.robot.spec, self.mpc.config, cpus[1], stop)
-        if cpus[0]:
-            os.sched_setaffinity(0, cpus[0])
+        t0 = self.plant.time_s
+        # this process's own first step, before its priority and core change (its MPC's stage pool then has both)
+        active = self._solve(log, t0, commands, first=True)
+        if not active.success:
+            raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
+        own_cpus = available_cpus()
         own_nice = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
-        log.realtime_priority = raise_priority()
+        # the loop's priority first: the solver's helper threads share its core only where the loop preempts them at
+        # once (SCHED_FIFO; at nice -10 against their nice 0 the fair scheduler let them delay g1's loop by up to 100 ms)
+        log.realtime_priority = raise_loop_priority()
+        plan = log.cpu_plan = cpu_plan(own_cpus, share_loop_core=log.realtime_priority.startswith("fifo"))
+        try:
+            solver = SolverProcess(self.robot.spec, self.mpc.config, plan, stop)
+        except BaseException:
+            restore_scheduling(log.realtime_priority, own_nice)
+            raise
+        log.solver_helper_threads = solver.helper_threads
+        if plan.loop:
+            os.sched_setaffinity(0, plan.loop)
         try:
             if solver.interrupted:
                 log.interrupted = True
                 return log
-            t0 = self.plant.time_s
-            active = self._solve(log, t0, commands, first=True)
-            if not active.success:
-                raise RunError(f"the MPC failed on the initial state ({active.stats.status}); check the start pose")
             # the solver process solves the first step too, before the clock: its MPC then warm-starts (a cold
             # step of the anytime SQP ignores its deadline to converge) from the same state as this one's
             q, v = self._measure()
@@ -349,13 +365,9 @@ class ClosedLoop:
             solver.receive()  # from here on requests and plans go through shared memory
             self._paced_loop(log, solver, active, t0, duration_s, commands, events, progress, stop)
         finally:
-            if cpus[0]:
-                os.sched_setaffinity(0, cpus[0] | cpus[1])
-            if own_nice is not None and log.realtime_priority != "default":
-                try:
-                    os.setpriority(os.PRIO_PROCESS, 0, own_nice)  # back to the caller's priority
-                except OSError:
-                    pass
+            if plan.loop:
+                os.sched_setaffinity(0, own_cpus)
+            restore_scheduling(log.realtime_priority, own_nice)  # back to the caller's policy and priority
             solver.close()
         return log
 
@@ -370,6 +382,7 @@ class ClosedLoop:
         # solver's budget is the period less it, so that the answer is back before the next MPC tick
         transport_s = REALTIME_TRANSPORT_GUESS_S
         tau = np.zeros(self.robot.n_joints)
+        lateness = []  # per joint-loop tick: how long after its wall-clock time it ran (s)
         wall_start, cpu_start = time.perf_counter(), time.process_time()
         while plant.time_s - t0 < duration_s - 1e-9:
             t = plant.time_s
@@ -380,6 +393,8 @@ class ClosedLoop:
                     lag = (t - t0) - (time.perf_counter() - wall_start)
                 if lag > 0:
                     time.sleep(lag)
+            if t >= next_control - 1e-9:
+                lateness.append(time.perf_counter() - wall_start - (t - t0))
             self._apply_events(events, t, log)
             if request is not None and solver.ready():
                 solution = solver.receive()
@@ -406,6 +421,7 @@ class ClosedLoop:
         log.wall_time_s = time.perf_counter() - wall_start
         log.rss_samples.append((plant.time_s - t0, rss_mb()))
         log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
+        log.plant_lateness_ms = 1e3 * np.maximum(np.asarray(lateness), 0.0)
 
     def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the

@@ -47,7 +47,11 @@ class RunLog:
         self.late_solutions = 0
         self.sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
         self.mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
-        self.realtime_priority: str | None = None  # real time: scheduling priority granted (see `raise_priority`)
+        self.realtime_priority: str | None = None  # real time: scheduling priority granted (see `raise_loop_priority`)
+        self.cpu_plan = None  # real time: where the loop and the solver's threads ran (`solver_process.CpuPlan`)
+        self.solver_helper_threads = 0  # real time: the solver's helper threads placed by the plan
+        # real time: per joint-loop tick, how late after its wall-clock time it ran (ms): the plant's own lateness
+        self.plant_lateness_ms: np.ndarray | None = None
         self.recovered_solutions = 0  # counted as logged: progress reads it every control tick
         self.failed_solutions = 0
         self.interrupted = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
@@ -55,6 +59,7 @@ class RunLog:
         self.fell_at_s: float | None = None
         self.wall_time_s = 0.0
         self.mpc_rate_hz: float | None = None  # the loop's configured MPC rate (`LoopConfig.mpc_rate_hz`)
+        self.control_rate_hz: float | None = None  # ... and its joint loop's (`LoopConfig.control_rate_hz`)
 
     # ------------------------------------------------------------------ writing
     def record_tick(self, t_s: float, q, v, tau, tau_ff, q_des, contact_forces) -> None:

@@ -1,7 +1,7 @@
 """The MPC in its own process: what `wbmpc run --delay-mode realtime` and `wbmpc deploy` both solve with.
 
 A process, not a thread: the 500 Hz loop beside it is Python and would starve a solver thread of the
-GIL. `SolverProcess` starts `mpc_worker` (spawned, single-threaded BLAS, pinned to its own cores and
+GIL. `SolverProcess` starts `mpc_worker` (spawned, single-threaded BLAS, on the cores `cpu_plan` gives it and
 at raised priority where allowed), waits for its MPC build, and then moves requests (measured q, v,
 the command, t, the expected delay for the delay compensation and the step's budget) and plans. The
 first request and plan go through a pipe; from the first plan on, both go through a shared-memory
@@ -11,7 +11,9 @@ block woken by events (`realtime_channel.py`): no pickles, no polling.
 from __future__ import annotations
 
 import os
+import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,6 +31,10 @@ from wbmpc.control.solution import Solution
 from wbmpc.errors import RunError, WbmpcError
 
 REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
+# the plant loop's real-time priority (SCHED_FIFO, low: below kernel threads and audio) where permitted: it preempts
+# the solver's helper thread on its core at once. It sleeps between physics steps, so it takes only what it uses
+LOOP_FIFO_PRIORITY = 10
+HELPER_NICE = 0  # the solver's helper threads on the plant loop's core: ordinary priority, below the loop's
 BUILD_TIMEOUT_S = 300.0
 
 
@@ -47,33 +53,126 @@ def raise_priority(nice: int = REALTIME_NICE) -> str:
         return "default"
 
 
+def raise_loop_priority(fifo_priority: int = LOOP_FIFO_PRIORITY, nice: int = REALTIME_NICE) -> str:
+    """The plant loop's priority: SCHED_FIFO `fifo_priority` where permitted (root, CAP_SYS_NICE, RLIMIT_RTPRIO;
+    children started afterwards get the ordinary policy back: SCHED_RESET_ON_FORK), else `raise_priority(nice)`.
+    Returns what was granted: "fifo 10", "nice -10" or "default"; `restore_scheduling` undoes it."""
+    if hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_FIFO"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0),
+                                  os.sched_param(fifo_priority))
+            return f"fifo {fifo_priority}"
+        except OSError:
+            pass
+    return raise_priority(nice)
+
+
+def restore_scheduling(granted: str, nice: int | None) -> None:
+    """Back to the ordinary policy and the caller's `nice` after `raise_loop_priority` granted `granted`."""
+    try:
+        if granted.startswith("fifo"):
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        if granted != "default" and nice is not None:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except OSError:
+        pass
+
+
+@dataclass(frozen=True)
+class CpuPlan:
+    """Where a real-time run's threads run (empty sets: not pinned). `loop`: the plant loop (500 Hz joint loop and
+    physics); `solver`: the solver process's main thread (the Riccati recursion, Python); `helpers`: the solver's
+    helper threads (the stage evaluations' pool, `fatrop_direct.default_threads`). On two CPUs the helpers share the
+    loop's core at a lower priority than the loop (`shares_loop_core`): the loop takes ~a fifth of its core, the
+    evaluations take its idle time and the loop preempts them."""
+
+    loop: frozenset[int] = frozenset()
+    solver: frozenset[int] = frozenset()
+    helpers: frozenset[int] = frozenset()
+
+    @property
+    def shares_loop_core(self) -> bool:
+        return bool(self.helpers & self.loop)
+
+    @property
+    def solver_process(self) -> frozenset[int]:
+        """The solver process's CPUs while it builds (its pool sized from them)."""
+        return self.solver | self.helpers
+
+
+def available_cpus() -> list[int]:
+    """The CPUs this thread may run on (empty where affinity is not supported)."""
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return []
+
+
+def cpu_plan(cpus=None, share_loop_core: bool = True) -> CpuPlan:
+    """The real-time run's `CpuPlan` on `cpus` (default: this thread's): no pinning on a single CPU; one core for the
+    plant loop and the others for the solver, its helper threads on the solver's cores where it has two or more, else
+    (two CPUs) on the loop's core when `share_loop_core` (the loop then needs a higher priority than the helpers)."""
+    cpus = sorted(available_cpus() if cpus is None else cpus)
+    if len(cpus) < 2:
+        return CpuPlan()
+    loop, solver = frozenset(cpus[:1]), frozenset(cpus[1:])
+    return CpuPlan(loop, solver, loop if share_loop_core and len(solver) < 2 else solver)
+
+
 def cpu_split() -> tuple[set[int], set[int]]:
     """(loop CPUs, MPC CPUs): one core each where there are two or more, so neither starves the other;
     empty sets (no pinning) on a single core or where affinity is not supported."""
+    plan = cpu_plan(share_loop_core=False)
+    return set(plan.loop), set(plan.solver)
+
+
+def thread_ids() -> list[int]:
+    """The kernel thread ids of this process (Linux; [] elsewhere)."""
     try:
-        available = sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return set(), set()
-    if len(available) < 2:
-        return set(), set()
-    return {available[0]}, set(available[1:])
+        return sorted(int(name) for name in os.listdir("/proc/self/task"))
+    except OSError:
+        return []
+
+
+def place_helper_threads(plan: CpuPlan, main_thread: int) -> int:
+    """Pin this process's threads other than `main_thread` (the stage pool's workers, started by the solver's build)
+    to `plan.helpers`, below the loop's priority where they share its core (`HELPER_NICE`); returns how many."""
+    placed = 0
+    for tid in thread_ids():
+        if tid == main_thread:
+            continue
+        try:
+            if plan.helpers:
+                os.sched_setaffinity(tid, plan.helpers)
+            if plan.shares_loop_core:
+                os.setpriority(os.PRIO_PROCESS, tid, max(HELPER_NICE, os.getpriority(os.PRIO_PROCESS, tid)))
+            placed += 1
+        except OSError:  # the thread ended meanwhile, or affinity/priority not permitted
+            continue
+    return placed
 
 
 class SolverProcess:
     """`request` a plan, `ready`/`wait` for it, `receive` it; `close` at the end (also on errors)."""
 
-    def __init__(self, spec, mpc_config: MpcConfig, cpus: set[int] | None = None, stop=None,
+    def __init__(self, spec, mpc_config: MpcConfig, cpus: CpuPlan | set[int] | None = None, stop=None,
                  build_timeout_s: float = BUILD_TIMEOUT_S):
         """Start the process and wait for its MPC build (Ctrl-C honoured through `stop()`): `interrupted`
-        says whether `stop` ended the wait; a process that did not start is a RunError."""
+        says whether `stop` ended the wait; a process that did not start is a RunError. `cpus`: a `CpuPlan`, or
+        the CPUs of all its threads."""
         import multiprocessing
+
+        if cpus is not None and not isinstance(cpus, CpuPlan):
+            cpus = CpuPlan(solver=frozenset(cpus), helpers=frozenset(cpus))
+        self.cpus = cpus or CpuPlan()
+        self.helper_threads = 0  # the solver's helper threads placed by `cpus` (told by the process when built)
 
         context = multiprocessing.get_context("spawn")
         self._conn, child = context.Pipe()
         self._events = SharedChannel.events(context)
         self.channel: SharedChannel | None = None
         self.cpu_start_s = 0.0  # the process's CPU time when the channel opened (its share is measured from there)
-        self._process = context.Process(target=mpc_worker, args=(spec, mpc_config, child, cpus, self._events),
+        self._process = context.Process(target=mpc_worker, args=(spec, mpc_config, child, self.cpus, self._events),
                                         daemon=True)
         single_threaded = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
         saved = {name: os.environ.get(name) for name in single_threaded}
@@ -94,9 +193,11 @@ class SolverProcess:
             if stop is not None and stop():
                 self.interrupted = True
                 return
-        if not self._conn.poll(0) or self._conn.recv() != "ready":
+        answer = self._conn.recv() if self._conn.poll(0) else None
+        if not (isinstance(answer, tuple) and answer[0] == "ready"):
             self.close()
             raise RunError("the real-time MPC process did not start (see its error above)")
+        self.helper_threads = answer[1]
 
     def is_alive(self) -> bool:
         return self._process.is_alive()
@@ -152,8 +253,9 @@ class SolverProcess:
             self.channel.close()
 
 
-def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None) -> None:
-    """The solver process: build the MPC, then answer requests: through the pipe ("cpu" asks for the
+def mpc_worker(spec, mpc_config, conn, cpus: CpuPlan | None = None, events=None) -> None:
+    """The solver process: build the MPC on the CPUs of `cpus` (its stage pool sized from them), move its threads to
+    their places (`place_helper_threads`), then answer requests: through the pipe ("cpu" asks for the
     process's CPU time so far; (q, v, commands, t, delay_s, budget_s) a plan) until ("channel", layout,
     name) moves them to the shared-memory channel (`realtime_channel.py`, with `events`)."""
     import signal
@@ -161,12 +263,18 @@ def mpc_worker(spec, mpc_config, conn, cpus: set[int] | None = None, events=None
     from wbmpc.robots import RobotModel
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent decides
-    if cpus:
-        os.sched_setaffinity(0, cpus)
+    cpus = cpus or CpuPlan()
+    if cpus.solver_process:
+        os.sched_setaffinity(0, cpus.solver_process)
     raise_priority()
     mpc = MPC(RobotModel(spec), mpc_config)
     mpc.prepare_fallback()  # a failed step must not pay for building its recovery solvers
-    conn.send("ready")
+    helpers = 0
+    if cpus.solver:
+        main_thread = threading.get_native_id()
+        os.sched_setaffinity(0, cpus.solver)
+        helpers = place_helper_threads(cpus, main_thread)
+    conn.send(("ready", helpers))
     while True:
         message = conn.recv()
         if message is None:
