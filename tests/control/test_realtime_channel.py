@@ -2,11 +2,16 @@
 process here; tests/control/test_loop.py and tests/solvers/test_anytime.py run it across processes)."""
 
 import multiprocessing
+import os
+import signal as signal_module
+import threading
+import time
 
 import numpy as np
+import pytest
 
 from wbmpc.control import Commands
-from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, command_from_row, command_row
+from wbmpc.control.realtime_channel import ChannelLayout, SharedChannel, Signal, command_from_row, command_row
 from wbmpc.control.solution import Solution
 from wbmpc.solvers.nlp import SolverStats
 
@@ -58,3 +63,33 @@ def test_requests_and_plans_cross_unchanged():
     finally:
         solver.close()
         sim.close()
+
+
+def _waiting_child(signal, started, queue):
+    started.set()
+    queue.put(signal.wait(120))
+
+
+@pytest.mark.skipif(not hasattr(signal_module, "SIGSTOP"), reason="needs SIGSTOP/SIGCONT")
+def test_a_signal_is_posted_while_its_waiter_cannot_run():
+    """The plant loop's request must not wait for the solver process to be scheduled: `Signal.set` returns while the
+    process sleeping in `wait` is stopped (multiprocessing.Event.set would block until it runs again), and the
+    waiter takes the post once it continues."""
+    context = multiprocessing.get_context("spawn")
+    signal, started, queue = Signal(context), context.Event(), context.Queue()
+    child = context.Process(target=_waiting_child, args=(signal, started, queue))
+    child.start()
+    try:
+        assert started.wait(60)
+        time.sleep(0.2)  # let it reach the semaphore (set() must return whether it sleeps there already or not)
+        os.kill(child.pid, signal_module.SIGSTOP)
+        setter = threading.Thread(target=signal.set, daemon=True)
+        setter.start()
+        setter.join(30)
+        returned = not setter.is_alive()
+        os.kill(child.pid, signal_module.SIGCONT)
+        assert returned, "set() waited for the stopped waiter"
+        assert queue.get(timeout=60) is True
+    finally:
+        os.kill(child.pid, signal_module.SIGCONT)
+        child.join(60)
