@@ -88,7 +88,7 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
 def realtime_plant_metrics(log: RunLog) -> dict:
     """Real time: the plant loop's own lateness per joint-loop tick (ms after its wall-clock time: mean, 99th
     percentile, max; the share of ticks later than half a joint-loop period) and the CPUs of the loop, the solver and
-    its helper threads (None / {} for other delay modes)."""
+    its helper threads (None for the other delay modes)."""
     late = log.plant_lateness_ms
     plan = log.cpu_plan
     out: dict = {"plant_lateness_ms": None, "plant_late_tick_share": None, "cpu_plan": None}
