@@ -24,8 +24,9 @@ def test_bound_kind():
 
 def test_rows_follow_their_identity_one_node_later(problem):
     """On a uniform grid one node later: every row takes the multiplier of the same tag and place at the next
-    node (held at the last), whatever its position among its stage's rows; a row whose bound kind changed (a
-    foot's rows at touchdown) starts from 0; no shift returns the multipliers unchanged."""
+    node (held at the last), whatever its position among its stage's rows; across a change of a row's bound kind (a
+    foot's rows at touchdown) the old node of its kind alone, 0 where neither is; no shift returns the multipliers
+    unchanged."""
     shift = MultiplierShift(problem)
     lam = np.arange(1.0, problem.n_constraints + 1)
     kinds = np.full(problem.n_constraints, 4)
@@ -42,7 +43,12 @@ def test_rows_follow_their_identity_one_node_later(problem):
     changed = shift.shift(lam, touchdown, kinds, DT_S)
     assert np.all(changed[foot_vel[0]] == lam[foot_vel[1]]) and np.all(changed[foot_vel[-1]] == lam[foot_vel[-1]])
     touchdown[foot_vel[1]] = 1
-    changed = shift.shift(lam, touchdown, kinds, DT_S)
+    changed = shift.shift(lam, touchdown, kinds, DT_S)  # the source's kind differs, the next node's is the row's
+    assert np.all(changed[foot_vel[0]] == lam[foot_vel[2]])
+    half = shift.shift(lam, touchdown, kinds, DT_S / 2)  # between old nodes of another kind (0) and of its (alone)
+    assert np.all(half[foot_vel[0]] == 0.0) and np.all(half[foot_vel[1]] == lam[foot_vel[2]])
+    touchdown[foot_vel[2]] = 1
+    changed = shift.shift(lam, touchdown, kinds, DT_S)  # neither old node of the row's kind
     assert np.all(changed[foot_vel[0]] == 0.0)
     np.testing.assert_array_equal(changed[gap[:-1]], lam[gap[1:]])
 

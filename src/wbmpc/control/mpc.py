@@ -28,7 +28,7 @@ from wbmpc.control.references import References
 from wbmpc.control.solution import Solution, python_share
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
-from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess
+from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess, shifted_sole_wrenches
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import GaitClock, SwingProfile, make_gait
@@ -102,6 +102,8 @@ class MPC:
         # a solver that starts from given multipliers (fatrop-direct on flat feet) gets the last plan's, moved by
         # constraint identity (ocp/multipliers.py)
         self._duals = ShiftedDuals(self.problem) if getattr(self.solver, "takes_multipliers", False) else None
+        dyn = self.problem.dyn  # flat feet's columns of F: force and sole moments (`_shifted_sole_wrenches`)
+        self._sole_columns = {i: np.r_[3 * i : 3 * i + 3, dyn.moment_slice(i)] for i in self.problem.surface_feet}
 
     def _plan_function(self) -> ca.Function:
         """(x, p) -> the plan's trajectories (`OcpProblem.trajectory_function`) with the configurations q_ref (+) dq
@@ -455,21 +457,12 @@ class MPC:
 
     def _shifted_sole_wrenches(self, forces: np.ndarray, previous: Solution, new_times: np.ndarray,
                                old_times: np.ndarray) -> np.ndarray:
-        """Flat feet: the previous plan's wrench (force and moments, shifted in time) for each foot and input node
-        in stance now and over the whole previous interval, instead of the weight share. A sole's wrench carries
-        the plan's centre of pressure; re-initialised (moments 0, equal shares) it violated the dynamics rows by up to
-        half the weight at the warm start (g1 walking in place: 10.0 -> 9.1 Fatrop iterations per step)."""
-        shifted = interp_rows(new_times, old_times, previous.forces)
-        pos = np.minimum(np.maximum(np.searchsorted(old_times, new_times) - 1, 0), max(len(old_times) - 2, 0))
-        before = previous.contact[: len(old_times)] > 0.5
-        keep = before[pos] & before[np.minimum(pos + 1, len(old_times) - 1)] & (self.gait.contact(new_times) > 0.5)
-        keep &= (new_times <= old_times[-1])[:, None]
-        dyn, forces = self.problem.dyn, forces.copy()
-        for i in self.problem.surface_feet:
-            moments = dyn.moment_slice(i)
-            for columns in (slice(3 * i, 3 * i + 3), moments):
-                forces[keep[:, i], columns] = shifted[keep[:, i], columns]
-        return forces
+        """Flat feet: the previous plan's wrenches (force and moments) shifted in time by contact pattern
+        (`warm_start.shifted_sole_wrenches`), instead of the weight share. A sole's wrench carries the plan's centre
+        of pressure; re-initialised (moments 0, equal shares) it violated the dynamics rows by up to half the weight
+        at the warm start."""
+        return shifted_sole_wrenches(forces, previous.forces, previous.contact, self.gait.contact(new_times), new_times,
+                                     old_times, self._sole_columns)
 
     def _joint_trajectory(self, q_traj: np.ndarray) -> np.ndarray:
         """Joint positions per node; continuous joints unwrapped along the horizon (no 2 pi jumps)."""

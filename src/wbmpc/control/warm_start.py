@@ -5,6 +5,9 @@ interpolation over its own nodes (`control/trajectory.py`'s `Resampler`, values 
 `ShiftedGuess` lays every re-sampled variable out once as (node, column) of one table, so a step re-samples the
 whole vector in a few gathers (the same arithmetic, bit for bit), instead of unpacking, re-sampling and packing it
 part by part. `ShiftedDuals` does the same for the last plan's multipliers, for a solver that takes them.
+
+Flat feet's wrenches are re-sampled by contact pattern (`shifted_sole_wrenches`): a new node takes the last plan's
+wrenches from the old nodes around its time that had the same stance feet, not across a contact switch.
 """
 
 from __future__ import annotations
@@ -77,6 +80,39 @@ class ShiftedGuess:
         out = np.zeros(self._size)
         out[self._target] = (1 - w_v) * before + w_v * after_
         return out
+
+
+def shifted_sole_wrenches(forces: np.ndarray, previous_forces: np.ndarray, previous_contact: np.ndarray,
+                          contact: np.ndarray, new_times: np.ndarray, old_times: np.ndarray,
+                          columns: dict[int, np.ndarray]) -> np.ndarray:
+    """The last plan's sole wrenches (force and moments; `columns[i]`: flat foot i's
+    columns of F) at the new input nodes.
+
+    Each new node's sources are the two old nodes around its time (the last old node alone past the old horizon)
+    whose contact pattern (which feet stand) is the new node's: both, linear interpolation; one, its wrench (a
+    contact switch lies between them); none, `forces` (the weight share re-initialised, section V-A2). Interpolating
+    across a switch mixes two load distributions: at a lift-off the unloaded foot got half the weight (g1 walking in
+    place, dynamics rows violated by up to 0.7 of the weight at the warm start, 5.42 Fatrop iterations per step;
+    by pattern with the multipliers' kind rule in `ocp/multipliers.py`, 4.52). `contact`, `previous_contact`:
+    (nodes, feet) stance flags of the new and old input nodes; only stance feet's columns are written."""
+    n_old = len(old_times)
+    after = np.searchsorted(old_times, new_times)
+    first = np.minimum(np.maximum(after - 1, 0), max(n_old - 2, 0))
+    second = np.minimum(first + 1, n_old - 1)
+    beyond = new_times > old_times[-1]
+    first, second = np.where(beyond, n_old - 1, first), np.where(beyond, n_old - 1, second)
+    span = old_times[second] - old_times[first]
+    weight = np.where(span > 0, np.clip((new_times - old_times[first]) / np.where(span > 0, span, 1.0), 0.0, 1.0), 0.0)
+    stance, before = contact > 0.5, previous_contact[:n_old] > 0.5
+    same_first, same_second = (before[first] == stance).all(axis=1), (before[second] == stance).all(axis=1)
+    weight = np.where(same_first & same_second, weight, np.where(same_first, 0.0, 1.0))[:, None]
+    matched = same_first | same_second
+    out = forces.copy()
+    for foot, cols in columns.items():
+        rows = np.flatnonzero(matched & stance[:, foot])
+        out[np.ix_(rows, cols)] = (1 - weight[rows]) * previous_forces[np.ix_(first[rows], cols)] + \
+            weight[rows] * previous_forces[np.ix_(second[rows], cols)]
+    return out
 
 
 class ShiftedDuals:

@@ -4,9 +4,12 @@ A row (or variable) is named by its tag, node and place within that node (`OcpPr
 not by its position among a stage's equality or inequality rows: a gait switch changes which rows of a stage are
 equalities, inequalities or free, and a solver's own ordering of them with it (a multiplier copied by position lands
 on another foot's or another kind of row). Like the primal warm start, each multiplier is re-sampled at the new node
-times (linear between the two old nodes around a new node's time, held beyond the old horizon); a row whose bound
-kind (free, lower, upper, range, equality) differs from its source's, e.g. a foot's rows at touchdown or lift-off,
-starts from 0, the solver's bound multipliers then from the barrier's floor.
+times (linear between the two old nodes around a new node's time, held beyond the old horizon), from those of the
+two whose bound kind (free, lower, upper, range, equality) is the row's now. Where a foot's rows change kind between
+the two (touchdown, lift-off) the one of the same kind alone counts: requiring both zeroed a stance sole's active
+centre-of-pressure multiplier next to every switch (g1 walking in place, with the sole wrenches shifted by contact
+pattern: 4.70 -> 4.52 Fatrop iterations per step). A row whose kind neither has starts from 0, the solver's bound
+multipliers then from the barrier's floor.
 """
 
 from __future__ import annotations
@@ -87,5 +90,8 @@ class MultiplierShift:
         w = np.where(src1 < 0, 0.0, np.where(src0 < 0, 1.0, w))
         src0, src1 = np.where(src0 < 0, src1, src0), np.where(src1 < 0, src0, src1)
         lam = np.asarray(lam, dtype=float)
-        same = (kind_old[src0] == kind_new) & ((w == 0) | (kind_old[src1] == kind_new)) & (src0 >= 0) & covered
+        # the sources of the row's own kind: both, interpolated; one, its multiplier (a switch lies between them)
+        same0, same1 = kind_old[src0] == kind_new, kind_old[src1] == kind_new
+        w = np.where(same0 & same1, w, np.where(same0, 0.0, 1.0))
+        same = (same0 | same1) & (src0 >= 0) & covered
         return np.where(same, (1 - w) * lam[src0] + w * lam[src1], 0.0)

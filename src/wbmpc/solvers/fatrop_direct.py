@@ -63,11 +63,14 @@ MPC_CONSTRAINT_TOLERANCE = 1e-4
 # means driving the barrier below 1e-3 around that active set, 2-3 more iterations per step. At 1e-2 a plan stops
 # with the barrier at its start value: its active rows then sit mu / z inside their bound (< 1e-3 of the force
 # scale, ~0.1 N on g1). g1 walk-in-place (compiled, 2 s, plant waiting): 9.22 -> 5.41 iterations per step with the
-# warm start below, drift 0.351 / 0.345 cm/s and base velocity RMSE 0.0187 / 0.0185 m/s
+# warm start below, drift 0.351 / 0.345 cm/s and base velocity RMSE 0.0187 / 0.0185 m/s (4.59 since the warm start
+# moves wrenches and multipliers by contact pattern, control/warm_start.py; 2e-2 / 3e-2 / 5e-2 would give 4.31 /
+# 4.14 / 3.95 on 100 recorded walking states against 4.52 here, not taken: looser plans, not a better start)
 FLAT_FEET_MPC_TOLERANCE = 1e-2
 # the warm attempt from given multipliers (`takes_multipliers`): its barrier and iteration cap. g1 walk-in-place,
 # 2 s at FLAT_FEET_MPC_TOLERANCE: 5.94 iterations per step from 1e-3, 5.41 from 3e-3, 6.98 from 1e-2 (Fatrop's own
-# start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98)
+# start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98). With the
+# contact-pattern warm start, 100 recorded walking states: 4.67 from 2e-3, 4.52 from 3e-3, 4.84 from 5e-3
 MULTIPLIER_BARRIER_INIT = 3e-3
 MULTIPLIER_MAX_ITERATIONS = 12
 # after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
