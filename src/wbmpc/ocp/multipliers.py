@@ -65,6 +65,10 @@ class MultiplierShift:
                                     n_nodes, problem.n_constraints)
         self.variables = _identity_table([(np.atleast_2d(idx), np.arange(len(idx))) for idx in problem.idx.values()],
                                          n_nodes, problem.n_variables)
+        # with the compiled step packer (`OcpProblem.bounds_packer`, solvers/step_pack.py) `shift` is one C call, bit
+        # for bit this NumPy code
+        self._compiled = {kind: CompiledShift(problem.bounds_packer, self.node_times_s, identity) for kind, identity in
+                          ((True, self.rows), (False, self.variables))} if problem.bounds_packer is not None else None
 
     def _sources(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Per new node: the old node before its time and the weight of the one after."""
@@ -78,6 +82,9 @@ class MultiplierShift:
               rows: bool = True) -> np.ndarray:
         """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
         `dt_s` the time from the last step to this one."""
+        compiled = self._compiled[rows] if self._compiled is not None else None
+        if compiled is not None and compiled.fits(lam, kind_old, kind_new):
+            return compiled(lam, kind_old, kind_new, dt_s)
         table, (group, node, place), covered, (first, last) = self.rows if rows else self.variables
         before, weight = self._sources(dt_s)
         node0 = np.clip(before[node], first, last)
@@ -89,3 +96,31 @@ class MultiplierShift:
         lam = np.asarray(lam, dtype=float)
         same = (kind_old[src0] == kind_new) & ((w == 0) | (kind_old[src1] == kind_new)) & (src0 >= 0) & covered
         return np.where(same, (1 - w) * lam[src0] + w * lam[src1], 0.0)
+
+
+class CompiledShift:
+    """`MultiplierShift.shift` for one identity table (rows or variables) in one call of the compiled step packer
+    (`csrc/step_pack.c` `wbsp_dual_shift`): the fixed tables' addresses taken once."""
+
+    def __init__(self, packer, node_times_s: np.ndarray, identity):
+        table, (group, node, place), covered, (first, last) = identity
+        self._packer, self.size = packer, len(covered)
+        self._arrays = [np.ascontiguousarray(a, dtype=np.int64) for a in (group, node, place, first, last)] + \
+            [np.ascontiguousarray(covered, dtype=np.uint8), np.ascontiguousarray(table, dtype=np.int64),
+             np.ascontiguousarray(node_times_s, dtype=float), np.zeros(len(node_times_s), dtype=np.int64),
+             np.zeros(len(node_times_s))]
+        addresses = [a.ctypes.data for a in self._arrays]
+        self._head = (self.size, addresses[7], len(node_times_s))
+        self._tables = (*addresses[:7], table.shape[1], table.shape[2])
+        self._scratch = tuple(addresses[8:])
+
+    def fits(self, lam, kind_old, kind_new) -> bool:
+        """The arguments the C code reads as they are: contiguous float64 multipliers and int64 kinds of this size."""
+        return all(type(a) is np.ndarray and a.flags.c_contiguous and a.shape == (self.size,) and a.dtype == dtype
+                   for a, dtype in ((lam, np.float64), (kind_old, np.int64), (kind_new, np.int64)))
+
+    def __call__(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float) -> np.ndarray:
+        out = np.empty(self.size)
+        self._packer.wbsp_dual_shift(*self._head, float(dt_s), *self._tables, lam.ctypes.data, kind_old.ctypes.data,
+                                     kind_new.ctypes.data, out.ctypes.data, *self._scratch)
+        return out
