@@ -209,7 +209,8 @@ class SwingPlacement:
 def swings_in_horizon(gait: Gait, t_s: float, times_s: np.ndarray):
     """(foot, its nodes, swing progress s at those nodes, lift-off time, touch-down time, progress now) of every
     swing at the absolute node times `times_s`, in time order per foot; a new swing starts where progress drops
-    (or at the first swing node). Nothing for a gait without swings."""
+    (or at the first swing node). Nothing for a gait without swings. (Every MPC step, twice on flat feet: the
+    nodes' flags go through Python lists, a swing's nodes being the run from its start while the foot swings.)"""
     duty = gait.duty_factor
     if duty >= 1:
         return
@@ -217,18 +218,24 @@ def swings_in_horizon(gait: Gait, t_s: float, times_s: np.ndarray):
     phase = gait.phase(times_s)  # (n, feet)
     progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
     now_phase = gait.phase(np.array([t_s]))[0]
-    for foot in range(phase.shape[1]):
-        swinging = progress[:, foot] >= 0
-        if not swinging.any():
+    swinging = progress >= 0
+    starts = swinging.copy()  # a swing starts after a stance node or where its progress drops
+    starts[1:] &= (progress[:-1] < 0) | (progress[1:] < progress[:-1])
+    for foot, (foot_swinging, foot_starts) in enumerate(zip(swinging.T.tolist(), starts.T.tolist())):
+        if not any(foot_swinging):
             continue
-        previous = np.r_[-1.0, progress[:-1, foot]]
-        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, foot] < previous))) * swinging
         s_now = (now_phase[foot] - duty) / (1 - duty) if now_phase[foot] >= duty else 0.0
-        for label in np.unique(labels[labels > 0]):
-            nodes = np.flatnonzero(labels == label)
-            s = progress[nodes, foot]
-            lift_off_t = times_s[nodes[0]] - s[0] * swing_s
+        n, first = len(foot_starts), 0
+        while True in foot_starts[first:]:
+            first = foot_starts.index(True, first)
+            last = first + 1
+            while last < n and foot_swinging[last] and not foot_starts[last]:
+                last += 1
+            nodes = np.arange(first, last)
+            s = progress[first:last, foot].copy()
+            lift_off_t = times_s[first] - s[0] * swing_s
             yield foot, nodes, s, lift_off_t, lift_off_t + swing_s, s_now
+            first = last
 
 
 def _swings(gait: Gait, t_s: float, node_times_s: np.ndarray):
