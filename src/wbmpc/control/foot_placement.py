@@ -166,17 +166,18 @@ class SwingPlacement:
         self.reach_m = MAX_STEP_PER_LEG * self.height_m
 
     def velocities(self, gait: Gait, t_s: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
-                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray, yaw_rate_rad_s: float = 0.0) -> np.ndarray:
+                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray, yaw_rate_rad_s: float = 0.0,
+                   swings: list | None = None) -> np.ndarray:
         """(nodes, n_feet, 2) world xy velocity references of swing feet at t + node_times_s (NaN: stance or
         the free end of a swing). `v_world`: the measured base velocity, `command_world` the commanded one,
         both world xy; `yaw`: the base's heading; `feet_m`: measured foot positions (n_feet, >= 2);
-        `yaw_rate_rad_s`: the commanded yaw rate."""
+        `yaw_rate_rad_s`: the commanded yaw rate; `swings`: `_swings`' list for these times, if already made."""
         out = np.full((len(node_times_s), len(self._frames), 2), np.nan)
         command = np.asarray(command_world, dtype=float)[:2]
         capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self.height_m / 9.81)
         stance_s = gait.duty_factor * gait.period_s
         starts = [np.asarray(foot[:2], dtype=float) for foot in feet_m]
-        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s):
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s) if swings is None else swings:
             lever = _rotation(yaw + yaw_rate_rad_s * ahead_s) @ self.foot_offsets_m[i]
             under_hip = q[:2] + ahead_s * command + lever
             step = (command + yaw_rate_rad_s * np.array([-lever[1], lever[0]])) * stance_s / 2 + capture
@@ -190,20 +191,24 @@ class SwingPlacement:
         return out
 
     def yaw_rates(self, gait: Gait, t_s: float, node_times_s: np.ndarray, yaw: float, yaw_rate_rad_s: float,
-                  feet_yaw_rad: np.ndarray) -> np.ndarray:
+                  feet_yaw_rad: np.ndarray, swings: list | None = None) -> np.ndarray:
         """(nodes, n_feet) world yaw rates of swing soles at t + node_times_s that turn each to its heading at
         touch-down (NaN: stance or the free end of a swing). `yaw`: the base's heading, `yaw_rate_rad_s` the
-        commanded yaw rate, `feet_yaw_rad` the soles' measured headings."""
+        commanded yaw rate, `feet_yaw_rad` the soles' measured headings; `swings` as in `velocities`."""
         out = np.full((len(node_times_s), len(self._frames)), np.nan)
         stance_s = gait.duty_factor * gait.period_s
         starts = np.asarray(feet_yaw_rad, dtype=float).copy()
-        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s):
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s) if swings is None else swings:
             target = yaw + yaw_rate_rad_s * (ahead_s + stance_s / 2) + self._foot_yaws_rad[i]
             turn = _wrap(target - starts[i])
             if shape is not None:
                 out[nodes, i] = shape * turn
             starts[i] = starts[i] + turn
         return out
+
+    def swings(self, gait: Gait, t_s: float, node_times_s: np.ndarray) -> list:
+        """The swings `velocities` and `yaw_rates` follow at t + node_times_s, made once for both (same gait)."""
+        return list(_swings(gait, t_s, node_times_s))
 
 
 def swings_in_horizon(gait: Gait, t_s: float, times_s: np.ndarray):
