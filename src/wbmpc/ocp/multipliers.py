@@ -100,27 +100,29 @@ class MultiplierShift:
 
 class CompiledShift:
     """`MultiplierShift.shift` for one identity table (rows or variables) in one call of the compiled step packer
-    (`csrc/step_pack.c` `wbsp_dual_shift`): the fixed tables' addresses taken once."""
+    (`csrc/step_pack.c` `wbsp_dual_shift`). Its arguments go through kept arrays whose addresses are taken once (a
+    copy costs a third of reading an array's address through ctypes)."""
 
     def __init__(self, packer, node_times_s: np.ndarray, identity):
         table, (group, node, place), covered, (first, last) = identity
         self._packer, self.size = packer, len(covered)
+        self._lam, self._out = np.zeros(self.size), np.zeros(self.size)
+        self._kinds = np.zeros((2, self.size), dtype=np.int64)  # old, new
         self._arrays = [np.ascontiguousarray(a, dtype=np.int64) for a in (group, node, place, first, last)] + \
             [np.ascontiguousarray(covered, dtype=np.uint8), np.ascontiguousarray(table, dtype=np.int64),
              np.ascontiguousarray(node_times_s, dtype=float), np.zeros(len(node_times_s), dtype=np.int64),
              np.zeros(len(node_times_s))]
         addresses = [a.ctypes.data for a in self._arrays]
         self._head = (self.size, addresses[7], len(node_times_s))
-        self._tables = (*addresses[:7], table.shape[1], table.shape[2])
-        self._scratch = tuple(addresses[8:])
+        self._tail = (*addresses[:7], table.shape[1], table.shape[2], self._lam.ctypes.data, self._kinds.ctypes.data,
+                      self._kinds.ctypes.data + 8 * self.size, self._out.ctypes.data, *addresses[8:])
 
     def fits(self, lam, kind_old, kind_new) -> bool:
-        """The arguments the C code reads as they are: contiguous float64 multipliers and int64 kinds of this size."""
-        return all(type(a) is np.ndarray and a.flags.c_contiguous and a.shape == (self.size,) and a.dtype == dtype
+        """Arrays of this size whose values the kept arrays hold exactly: float64 multipliers, int64 kinds."""
+        return all(type(a) is np.ndarray and a.shape == (self.size,) and a.dtype == dtype
                    for a, dtype in ((lam, np.float64), (kind_old, np.int64), (kind_new, np.int64)))
 
     def __call__(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float) -> np.ndarray:
-        out = np.empty(self.size)
-        self._packer.wbsp_dual_shift(*self._head, float(dt_s), *self._tables, lam.ctypes.data, kind_old.ctypes.data,
-                                     kind_new.ctypes.data, out.ctypes.data, *self._scratch)
-        return out
+        self._lam[...], self._kinds[0], self._kinds[1] = lam, kind_old, kind_new
+        self._packer.wbsp_dual_shift(*self._head, float(dt_s), *self._tail)
+        return self._out.copy()
