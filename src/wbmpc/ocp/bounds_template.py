@@ -195,6 +195,7 @@ class CompiledMeasuredBounds:
         self._input_views = [self._inputs[start:stop].reshape(shape) for start, stop, shape in
                              zip(self._offsets[:-1], self._offsets[1:], self._shapes)]
         self._step_pointers = (ctypes.c_void_p * len(self._shapes))(*self._input_addresses)
+        self._soles = bool(surface.size)
         self._contact = np.zeros((N + 1, nf), dtype=bool)
         self._call_head = (self._meta.ctypes.data, self._table_pointers, self._constant_pointers, self._step_pointers,
                            self._contact.ctypes.data)
@@ -211,7 +212,9 @@ class CompiledMeasuredBounds:
                   data.ee_force_on_robot_n if data.ee_force_on_robot_n is not None else _ZERO3,
                   problem.initial_state(data.q_ref, data.v0, None), data.swing_vz_m_s, data.swing_vxy_m_s,
                   data.foot_velocity_m_s, data.ee_velocity_m_s if data.ee_velocity_m_s is not None else _ZERO3,
-                  data.ee_velocity_measured_m_s, data.swing_yaw_rate_rad_s, data.foot_angular_velocity_rad_s)
+                  data.ee_velocity_measured_m_s)
+        if self._soles:  # (point feet: the C code reads neither)
+            values += (data.swing_yaw_rate_rad_s, data.foot_angular_velocity_rad_s)
         pointers, views = self._step_pointers, self._input_views
         for k, value in enumerate(values):
             if value is None:
