@@ -202,18 +202,18 @@ int wbsp_swing_vz(int n, const double *progress, double piece_s, double apex_m, 
   return 0;
 }
 
-/* `MultiplierShift.shift` (ocp/multipliers.py): the last step's multipliers of n items (rows or variables) moved dt_s
- * later by identity (group, node, place: table[group][node][place] the item there or -1), linear between the old nodes
- * around each new node's time, 0 where the bound kind changed. node_times (n_times), the items' tables of_item
- * (group, node, place), first / last node, covered: fixed; lam, kind_old, kind_new: this step's; out: n. */
-int wbsp_dual_shift(int n, const double *node_times, int n_times, double dt_s, const int64_t *group,
-                    const int64_t *node, const int64_t *place, const int64_t *first, const int64_t *last,
-                    const uint8_t *covered, const int64_t *table, int n_table_nodes, int n_places, const double *lam,
-                    const int64_t *kind_old, const int64_t *kind_new, double *out, int64_t *before, double *weight) {
+/* `MultiplierShift.shift`'s sources (ocp/multipliers.py): for each of n items (rows or variables), the old items
+ * src0, src1 it is re-sampled from dt_s later and the weight w of src1, found by identity (group, node, place:
+ * table[group][node][place] the item there or -1) between the old nodes around its new node's time (node_times,
+ * n_times). Which of them count (their bound kinds) stays the NumPy code's. before, weight: n_times scratch. */
+int wbsp_dual_sources(int n, const double *node_times, int n_times, double dt_s, const int64_t *group,
+                      const int64_t *node, const int64_t *place, const int64_t *first, const int64_t *last,
+                      const int64_t *table, int n_table_nodes, int n_places, int64_t *src0, int64_t *src1, double *w,
+                      int64_t *before, double *weight) {
   int k, i;
   for (k = 0; k < n_times; ++k) { /* `MultiplierShift._sources` */
     double shifted = wb_min(node_times[k] + dt_s, node_times[n_times - 1]);
-    long b = 0, lo = 0, hi = n_times; /* np.searchsorted(side="right"): the first index with times[i] > shifted */
+    long b, lo = 0, hi = n_times; /* np.searchsorted(side="right"): the first index with times[i] > shifted */
     while (lo < hi) {
       long mid = lo + (hi - lo) / 2;
       if (node_times[mid] <= shifted) lo = mid + 1;
@@ -229,19 +229,11 @@ int wbsp_dual_shift(int n, const double *node_times, int n_times, double dt_s, c
     int64_t node0 = before[nd] < lo_node ? lo_node : (before[nd] > hi_node ? hi_node : before[nd]);
     int64_t node1 = node0 + 1 < hi_node ? node0 + 1 : hi_node;
     const int64_t *column = table + group[i] * (int64_t)n_table_nodes * n_places + place[i];
-    int64_t src0 = column[node0 * n_places], src1 = column[node1 * n_places];
-    double w = node0 < hi_node ? weight[nd] : 0.0;
-    int same;
-    w = src1 < 0 ? 0.0 : (src0 < 0 ? 1.0 : w);
-    if (src0 < 0) src0 = src1;
-    else if (src1 < 0) src1 = src0;
-    same = covered[i] && src0 >= 0 && kind_old[src0] == kind_new[i] && (w == 0 || kind_old[src1] == kind_new[i]);
-    if (same) {
-      double a = (1 - w) * lam[src0], b = w * lam[src1];
-      out[i] = a + b;
-    } else {
-      out[i] = 0.0;
-    }
+    int64_t s0 = column[node0 * n_places], s1 = column[node1 * n_places];
+    double wi = node0 < hi_node ? weight[nd] : 0.0;
+    w[i] = s1 < 0 ? 0.0 : (s0 < 0 ? 1.0 : wi);
+    src0[i] = s0 < 0 ? s1 : s0;
+    src1[i] = s1 < 0 ? s0 : s1;
   }
   return 0;
 }
