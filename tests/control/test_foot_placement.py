@@ -6,8 +6,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.control.foot_placement import StanceReference
-from wbmpc.gait import make_gait
+from wbmpc.control.foot_placement import StanceReference, swings_in_horizon
+from wbmpc.gait import GaitClock, make_gait
+from wbmpc.ocp.grid import TimeGrid
 from wbmpc.robots import load_robot
 
 
@@ -72,3 +73,49 @@ def test_a_yaw_rate_moves_the_feet_around_the_base():
     moved = feet[:, :2] - centred_feet[:, :2]
     # counter-clockwise about the base: the left front foot lands back and to the left, the right rear forward
     assert moved[0, 1] > 0.005 and moved[0, 0] < 0 and moved[3, 0] > 0.005
+
+
+def _swings_reference(gait, t_s, times_s):
+    """`swings_in_horizon` as it was (labels by a cumulative sum, one np.unique per foot): the oracle of the faster one."""
+    duty = gait.duty_factor
+    if duty >= 1:
+        return
+    swing_s = gait.swing_duration_s
+    phase = gait.phase(times_s)
+    progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
+    now_phase = gait.phase(np.array([t_s]))[0]
+    for foot in range(phase.shape[1]):
+        swinging = progress[:, foot] >= 0
+        if not swinging.any():
+            continue
+        previous = np.r_[-1.0, progress[:-1, foot]]
+        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, foot] < previous))) * swinging
+        s_now = (now_phase[foot] - duty) / (1 - duty) if now_phase[foot] >= duty else 0.0
+        for label in np.unique(labels[labels > 0]):
+            nodes = np.flatnonzero(labels == label)
+            s = progress[nodes, foot]
+            lift_off_t = times_s[nodes[0]] - s[0] * swing_s
+            yield foot, nodes, s, lift_off_t, lift_off_t + swing_s, s_now
+
+
+def test_swings_in_horizon_are_the_labelled_runs_bitwise():
+    """The swings of a biped's walk, a trot and a clock that retimes and stands, on the MPC's non-uniform grid and on
+    a coarse one whose nodes skip whole stances (a new swing where progress drops): the same nodes and bits as the
+    labelled runs."""
+    walk, trot = make_gait("walk", 2, leg_length_m=0.75), make_gait("trot", 4, 0.5)
+    clock = GaitClock(make_gait("walk", 2, leg_length_m=0.75))
+    clock.retime(0.4, 0.7)
+    clock.stand_from(1.1)
+    grids = (TimeGrid(n_intervals=15).node_times_s, np.linspace(0.0, 2.4, 9), np.linspace(0.0, 0.3, 4))
+    count = 0
+    for gait in (walk, trot, clock):
+        for t_s in np.linspace(0.0, 2.0, 37):
+            for grid in grids:
+                expected = list(_swings_reference(gait, t_s, t_s + grid))
+                got = list(swings_in_horizon(gait, t_s, t_s + grid))
+                assert len(got) == len(expected)
+                for a, b in zip(got, expected):
+                    assert a[0] == b[0] and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+                    assert [float(x) for x in a[3:]] == [float(x) for x in b[3:]]
+                count += len(got)
+    assert count > 500

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from wbmpc.control import MPC, Commands, MpcConfig
+from wbmpc.control.tuning import tuning_for
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import (
@@ -251,3 +252,53 @@ def test_bounds_equal_the_straightforward_ones_on_varied_steps(robot_name, formu
     rng = np.random.default_rng(1)
     for data in _varied(problem, robot, rng):
         _assert_same(problem, data)
+
+
+def _counting(monkeypatch) -> list:
+    """The compiled packer's calls of `wbsp_bounds_measured` from now on (skips without a C compiler)."""
+    packer = step_pack.library()
+    if packer is None:
+        pytest.skip("no C compiler")
+    calls, measured = [], packer.wbsp_bounds_measured
+    monkeypatch.setattr(packer, "wbsp_bounds_measured", lambda *args: calls.append(args) or measured(*args))
+    return calls
+
+
+def test_flat_feet_bounds_are_packed_in_one_compiled_call(monkeypatch):
+    """g1 (flat feet: sole moments, wrench cones, yaw-rate bands, measured sole rotation): every step's measured entries
+    are written by the compiled packer (`wbsp_bounds_measured`), not by the NumPy fallback, and equal it bit for bit."""
+    robot = load_robot("g1")
+    problem = OcpProblem(robot, OcpConfig(grid=GRID, soft_rows=("foot_vel",)))
+    calls = _counting(monkeypatch)
+    steps = _varied(problem, robot, np.random.default_rng(3))
+    for data in steps:
+        _assert_same(problem, data)
+    assert len(calls) == len(steps)  # one C call per step: the flat feet's rows did not fall back to NumPy
+
+
+def test_flat_feet_bounds_equal_numpys_on_a_walks_states(monkeypatch):
+    """g1 walking forward while turning on the small grid: the StageBounds the MPC built in double support and in
+    swing (swing placements, yaw rates, measured sole rotation), and varied around each, packed by C as by NumPy."""
+    robot = load_robot("g1")
+    mpc = MPC(robot, tuning_for(robot).apply_to(MpcConfig(ocp=OcpConfig(grid=GRID), gait="walk")))
+    problem, recorded = mpc.problem, []
+    bounds = problem.bounds
+
+    def spy(data):
+        recorded.append(data)
+        return bounds(data)
+
+    problem.bounds = spy
+    q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
+    command = Commands(base_velocity_m_s=np.array([0.3, 0.0, 0.0]), base_yaw_rate_rad_s=0.3)
+    for t_s in (0.16, 0.26):
+        solution = mpc.solve(q, v, command, t_s=t_s)
+        q, v = solution.q[1].copy(), solution.v[1].copy()
+    problem.bounds = bounds
+    assert len({r.contact.tobytes() for r in recorded}) > 1
+    assert all(np.isfinite(r.swing_yaw_rate_rad_s).any() for r in recorded if not r.contact.all())
+    calls, steps = _counting(monkeypatch), [varied for data in recorded
+                                            for varied in _varied(problem, robot, np.random.default_rng(4), data)[:3]]
+    for data in steps:
+        _assert_same(problem, data)
+    assert len(calls) == len(steps)

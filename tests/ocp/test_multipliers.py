@@ -7,6 +7,7 @@ from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
+from wbmpc.solvers import step_pack
 
 DT_S = 0.02
 
@@ -61,3 +62,31 @@ def test_variables_follow_their_identity(problem):
     forces = np.atleast_2d(problem.idx["F"])
     np.testing.assert_array_equal(moved[forces[:-1]], lam[forces[1:]])
     np.testing.assert_array_equal(moved[forces[-1]], lam[forces[-1]])
+
+
+def test_the_compiled_shift_equals_numpys_bitwise(monkeypatch):
+    """With the compiled step packer (`OcpProblem.bounds_packer`) the shift's sources (old rows, weights) are one C
+    call: on g1 (flat feet: wrench and CoP rows), shifts within a node, across several, beyond the horizon and by a
+    rounding error, the sources and the shifted random multipliers are NumPy's bits, and the NumPy code does not run."""
+    packer = step_pack.library()
+    if packer is None:
+        pytest.skip("no C compiler")
+    problem = OcpProblem(load_robot("g1"), OcpConfig(grid=TimeGrid(n_intervals=5, dt_first_s=0.01, dt_last_s=0.05)))
+    numpy_shift = MultiplierShift(problem)
+    problem.bounds_packer = packer
+    compiled_shift = MultiplierShift(problem)
+    calls, sources = [], MultiplierShift._sources
+    monkeypatch.setattr(MultiplierShift, "_sources", lambda self, dt: calls.append(dt) or sources(self, dt))
+    rng = np.random.default_rng(5)
+    for rows, size in ((True, problem.n_constraints), (False, problem.n_variables)):
+        for dt in (0.0, 0.0125, 0.0125 + 2e-18, 0.011, 0.07, 0.3):
+            for got, expected in zip(compiled_shift.sources(dt, rows), numpy_shift.sources(dt, rows)):
+                assert got.dtype == expected.dtype and np.array_equal(got, expected)
+            lam = rng.normal(size=size) * (rng.uniform(size=size) < 0.8)
+            kind_old, kind_new = rng.integers(0, 5, size=size), rng.integers(0, 5, size=size)
+            same = rng.uniform(size=size) < 0.7
+            kind_new[same] = kind_old[same]  # most rows keep their kind
+            expected = numpy_shift.shift(lam, kind_old, kind_new, dt, rows=rows)
+            got = compiled_shift.shift(lam, kind_old, kind_new, dt, rows=rows)
+            assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+    assert len(calls) == 24  # NumPy's sources: the reference's two calls per shift only

@@ -166,17 +166,18 @@ class SwingPlacement:
         self.reach_m = MAX_STEP_PER_LEG * self.height_m
 
     def velocities(self, gait: Gait, t_s: float, node_times_s: np.ndarray, q: np.ndarray, v_world: np.ndarray,
-                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray, yaw_rate_rad_s: float = 0.0) -> np.ndarray:
+                   command_world: np.ndarray, yaw: float, feet_m: np.ndarray, yaw_rate_rad_s: float = 0.0,
+                   swings: list | None = None) -> np.ndarray:
         """(nodes, n_feet, 2) world xy velocity references of swing feet at t + node_times_s (NaN: stance or
         the free end of a swing). `v_world`: the measured base velocity, `command_world` the commanded one,
         both world xy; `yaw`: the base's heading; `feet_m`: measured foot positions (n_feet, >= 2);
-        `yaw_rate_rad_s`: the commanded yaw rate."""
+        `yaw_rate_rad_s`: the commanded yaw rate; `swings`: `_swings`' list for these times, if already made."""
         out = np.full((len(node_times_s), len(self._frames), 2), np.nan)
         command = np.asarray(command_world, dtype=float)[:2]
         capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self.height_m / 9.81)
         stance_s = gait.duty_factor * gait.period_s
         starts = [np.asarray(foot[:2], dtype=float) for foot in feet_m]
-        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s):
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s) if swings is None else swings:
             lever = _rotation(yaw + yaw_rate_rad_s * ahead_s) @ self.foot_offsets_m[i]
             under_hip = q[:2] + ahead_s * command + lever
             step = (command + yaw_rate_rad_s * np.array([-lever[1], lever[0]])) * stance_s / 2 + capture
@@ -190,14 +191,14 @@ class SwingPlacement:
         return out
 
     def yaw_rates(self, gait: Gait, t_s: float, node_times_s: np.ndarray, yaw: float, yaw_rate_rad_s: float,
-                  feet_yaw_rad: np.ndarray) -> np.ndarray:
+                  feet_yaw_rad: np.ndarray, swings: list | None = None) -> np.ndarray:
         """(nodes, n_feet) world yaw rates of swing soles at t + node_times_s that turn each to its heading at
         touch-down (NaN: stance or the free end of a swing). `yaw`: the base's heading, `yaw_rate_rad_s` the
-        commanded yaw rate, `feet_yaw_rad` the soles' measured headings."""
+        commanded yaw rate, `feet_yaw_rad` the soles' measured headings; `swings` as in `velocities`."""
         out = np.full((len(node_times_s), len(self._frames)), np.nan)
         stance_s = gait.duty_factor * gait.period_s
         starts = np.asarray(feet_yaw_rad, dtype=float).copy()
-        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s):
+        for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s) if swings is None else swings:
             target = yaw + yaw_rate_rad_s * (ahead_s + stance_s / 2) + self._foot_yaws_rad[i]
             turn = _wrap(target - starts[i])
             if shape is not None:
@@ -205,11 +206,16 @@ class SwingPlacement:
             starts[i] = starts[i] + turn
         return out
 
+    def swings(self, gait: Gait, t_s: float, node_times_s: np.ndarray) -> list:
+        """The swings `velocities` and `yaw_rates` follow at t + node_times_s, made once for both (same gait)."""
+        return list(_swings(gait, t_s, node_times_s))
+
 
 def swings_in_horizon(gait: Gait, t_s: float, times_s: np.ndarray):
     """(foot, its nodes, swing progress s at those nodes, lift-off time, touch-down time, progress now) of every
     swing at the absolute node times `times_s`, in time order per foot; a new swing starts where progress drops
-    (or at the first swing node). Nothing for a gait without swings."""
+    (or at the first swing node). Nothing for a gait without swings. (Every MPC step, twice on flat feet: the
+    nodes' flags go through Python lists, a swing's nodes being the run from its start while the foot swings.)"""
     duty = gait.duty_factor
     if duty >= 1:
         return
@@ -217,18 +223,24 @@ def swings_in_horizon(gait: Gait, t_s: float, times_s: np.ndarray):
     phase = gait.phase(times_s)  # (n, feet)
     progress = np.where(phase >= duty, (phase - duty) / (1 - duty), -1.0)
     now_phase = gait.phase(np.array([t_s]))[0]
-    for foot in range(phase.shape[1]):
-        swinging = progress[:, foot] >= 0
-        if not swinging.any():
+    swinging = progress >= 0
+    starts = swinging.copy()  # a swing starts after a stance node or where its progress drops
+    starts[1:] &= (progress[:-1] < 0) | (progress[1:] < progress[:-1])
+    for foot, (foot_swinging, foot_starts) in enumerate(zip(swinging.T.tolist(), starts.T.tolist())):
+        if not any(foot_swinging):
             continue
-        previous = np.r_[-1.0, progress[:-1, foot]]
-        labels = np.cumsum(swinging & ((previous < 0) | (progress[:, foot] < previous))) * swinging
         s_now = (now_phase[foot] - duty) / (1 - duty) if now_phase[foot] >= duty else 0.0
-        for label in np.unique(labels[labels > 0]):
-            nodes = np.flatnonzero(labels == label)
-            s = progress[nodes, foot]
-            lift_off_t = times_s[nodes[0]] - s[0] * swing_s
+        n, first = len(foot_starts), 0
+        while True in foot_starts[first:]:
+            first = foot_starts.index(True, first)
+            last = first + 1
+            while last < n and foot_swinging[last] and not foot_starts[last]:
+                last += 1
+            nodes = np.arange(first, last)
+            s = progress[first:last, foot].copy()
+            lift_off_t = times_s[first] - s[0] * swing_s
             yield foot, nodes, s, lift_off_t, lift_off_t + swing_s, s_now
+            first = last
 
 
 def _swings(gait: Gait, t_s: float, node_times_s: np.ndarray):

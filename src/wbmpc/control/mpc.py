@@ -298,7 +298,8 @@ class MPC:
         sway = references.sway(commands)
         if sway:  # lean over the feet that will stand support_lead_s later
             dq_des = references.sway_towards_support(q, rot, dq_des, t, node_times, sway)
-        swing_vxy = references.swing_velocities(q, v, rot, t, node_times, base_velocity_world, commands.base_yaw_rate_rad_s)
+        swing_vxy, swing_yaw_rates = references.swing_references(q, v, rot, t, node_times, base_velocity_world,
+                                                                 commands.base_yaw_rate_rad_s)
         # on a terrain: footholds, eq. (6) between its heights and the cones' normals (control/terrain_references.py)
         terrain = references.terrain_step(q, v, rot, t, node_times, base_velocity_world)
         if terrain is not None:
@@ -312,7 +313,7 @@ class MPC:
         p = self._parameters(q, rot, dq_des, v_des, forces, terrain, object_values)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
-            swing_yaw_rate_rad_s=references.swing_yaw_rates(q, rot, t, node_times, commands.base_yaw_rate_rad_s),
+            swing_yaw_rate_rad_s=swing_yaw_rates,
             ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
             **self._measured_frame_velocities(q, v),

@@ -2,7 +2,7 @@
 
 The base follows the commanded velocity from a position reference (`ReferenceConfig.base_tracking`), the
 joints a nominal posture moved with the feet (`foot_placement.StanceReference`); bipeds lean over their
-next stance foot (`sway_towards_support`) and carry their swing feet to a landing point (`swing_velocities`).
+next stance foot (`sway_towards_support`) and carry their swing feet to a landing point (`swing_references`).
 On a terrain (`ReferenceConfig.terrain`) the base rides over its support and the feet land on it
 (`terrain_step`, control/terrain_references.py).
 """
@@ -134,24 +134,23 @@ class References:
         dq_des[:3] += rot.T[:, :2] @ shift.T
         return dq_des
 
-    def swing_velocities(self, q, v, rot, t_s, node_times, command_world, yaw_rate_rad_s: float = 0.0
-                         ) -> np.ndarray | None:
-        """Swing feet's xy velocity references to their landing points (`SwingPlacement`), or None."""
+    def swing_references(self, q, v, rot, t_s, node_times, command_world, yaw_rate_rad_s: float = 0.0
+                         ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Swing feet's xy velocity references to their landing points and swing soles' yaw rates to their headings
+        at touch-down (`SwingPlacement.velocities`, `yaw_rates`: one forward kinematics and one pass over the
+        horizon's swings for both), each None without a placement (the yaw rates also without flat feet)."""
         if self._swing_placement is None:
-            return None
+            return None, None
         pin.framesForwardKinematics(self.robot.model, self._data, q)
-        feet = np.array([self._data.oMf[i].translation for i in self._foot_ids])
-        return self._swing_placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world,
-                                                heading_of(rot), feet, yaw_rate_rad_s)
-
-    def swing_yaw_rates(self, q, rot, t_s, node_times, yaw_rate_rad_s: float) -> np.ndarray | None:
-        """Swing soles' yaw rates to their headings at touch-down (`SwingPlacement.yaw_rates`), or None (no
-        placement, or no flat feet: a point foot has no heading)."""
-        if self._swing_placement is None or not self.robot.soles:
-            return None
-        pin.framesForwardKinematics(self.robot.model, self._data, q)
-        feet_yaw = np.array([heading_of(self._data.oMf[i].rotation) for i in self._foot_ids])
-        return self._swing_placement.yaw_rates(self.gait, t_s, node_times, heading_of(rot), yaw_rate_rad_s, feet_yaw)
+        frames = [self._data.oMf[i] for i in self._foot_ids]
+        placement, swings = self._swing_placement, self._swing_placement.swings(self.gait, t_s, node_times)
+        velocities = placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world, heading_of(rot),
+                                          np.array([frame.translation for frame in frames]), yaw_rate_rad_s, swings)
+        if not self.robot.soles:
+            return velocities, None
+        feet_yaw = np.array([heading_of(frame.rotation) for frame in frames])
+        return velocities, placement.yaw_rates(self.gait, t_s, node_times, heading_of(rot), yaw_rate_rad_s, feet_yaw,
+                                               swings)
 
     def follow_support(self, rot: np.ndarray, dq_des: np.ndarray, terrain: TerrainStep) -> np.ndarray:
         """Base xy targets moved with the footholds of a biped's support on a terrain

@@ -22,7 +22,8 @@ _ZERO3 = np.zeros(3)
 class BoundsTemplate:
     """lbx, ubx, lbg, ubg of a problem before the measurement's entries: `start(contact, soft)`."""
 
-    def __init__(self, problem, packer=None, early_nodes: int = 0, blend_time_s: float = 1.0):
+    def __init__(self, problem, packer=None, early_nodes: int = 0, blend_time_s: float = 1.0,
+                 yaw_band_rad_s: float = 0.0):
         robot, N, nf = problem.robot, problem.N, problem.n_feet
         idx, rows = problem.idx, problem.rows
         n_x, n_g = problem.n_variables, problem.n_constraints
@@ -93,7 +94,8 @@ class BoundsTemplate:
             self._flags_needed = int(self._flags.max(initial=-1)) + 1  # contact flags the table reads
         # `OcpProblem.bounds`' measured entries in C too, where the problem's rows allow (early_nodes, blend_time_s:
         # its EARLY_NODES and BLEND_TIME_S)
-        measured = CompiledMeasuredBounds(problem, packer, early_nodes, blend_time_s) if packer is not None else None
+        measured = CompiledMeasuredBounds(problem, packer, early_nodes, blend_time_s, yaw_band_rad_s) \
+            if packer is not None else None
         self.measured = measured if measured is not None and measured.supported else None
 
     def _views(self, buffer: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -133,12 +135,11 @@ class CompiledMeasuredBounds:
     `wbsp_bounds_measured`): the joint limits about the measurement, x_0's rows, the feet's and the end effector's
     velocity rows, the relaxed rows, x's scaling. The tables are the index selections `OcpProblem.bounds` makes,
     taken once; `write` returns False (the caller then runs its NumPy code) for what it does not cover: an object or
-    collision model, flat feet, other row tags relaxed, data of other shapes."""
+    collision model, other row tags relaxed, data of other shapes."""
 
-    def __init__(self, problem, packer, early_nodes: int, blend_time_s: float):
+    def __init__(self, problem, packer, early_nodes: int, blend_time_s: float, yaw_band_rad_s: float):
         idx, rows, robot, N = problem.idx, problem.rows, problem.robot, problem.N
-        self.supported = problem.object is None and problem.collision is None and not problem.surface_feet and \
-            "dq" in idx
+        self.supported = problem.object is None and problem.collision is None and "dq" in idx
         if not self.supported:
             return
         self._problem, self._packer, nj = problem, packer, idx["dq"].shape[1] - 6
@@ -161,10 +162,13 @@ class CompiledMeasuredBounds:
         def decay(nodes):  # `OcpProblem._blend_from_measurement`'s
             return np.minimum(np.maximum(1.0 - times[nodes] / blend_time_s, 0.0), 1.0)
 
+        surface = np.asarray(problem.surface_feet, dtype=int)  # flat feet: their soles' angular velocity rows
+        ang_nodes = problem.row_nodes["foot_ang"] if surface.size else np.zeros(0, dtype=int)
         tables = [joint_dq, joint_dq[early] if coasting else joint_dq[:0],
                   np.concatenate(overspeed) if overspeed else np.zeros((0, nj), dtype=int),
                   np.concatenate(v0_rows) if v0_rows else np.zeros((0, nj), dtype=int), arm, rows["x0"][0],
-                  rows["foot_vel"], foot_nodes, ee_rows]
+                  rows["foot_vel"], foot_nodes, ee_rows, rows["foot_ang"] if surface.size else ang_nodes, ang_nodes,
+                  surface]
         if any(np.shape(table)[-1] != nj for table in tables[:4]) or robot.q_min.size != nj:
             self.supported = False
             return
@@ -173,21 +177,25 @@ class CompiledMeasuredBounds:
             robot.q_min, robot.q_max, times[1:][early], robot.v_max,
             decay(foot_nodes) if foot_nodes.size else np.zeros(1),
             decay(problem.row_nodes["ee_vel"]) if ee_rows.size else np.zeros(1),
-            np.concatenate([problem.x_scale, problem.x_scale]))]
+            np.concatenate([problem.x_scale, problem.x_scale]), decay(ang_nodes) if ang_nodes.size else np.zeros(1),
+            [yaw_band_rad_s])]
         meta = [problem.n_variables, problem.n_constraints, nj, len(joint_dq), len(tables[1]), len(tables[2]),
-                len(tables[3]), len(arm), rows["x0"][0].size, len(foot_nodes), problem.n_feet, len(ee_rows)]
+                len(tables[3]), len(arm), rows["x0"][0].size, len(foot_nodes), problem.n_feet, len(ee_rows),
+                len(ang_nodes), surface.size]
         self._meta = np.array(meta, dtype=np.int64)
         self._table_pointers = (ctypes.c_void_p * len(tables))(*[t.ctypes.data for t in self._tables])
         self._constant_pointers = (ctypes.c_void_p * len(self._constants))(*[c.ctypes.data for c in self._constants])
         # the step's inputs are copied into one kept array (their addresses taken once, not per step: ~1.6 us each)
         nf = problem.n_feet
-        self._shapes = ((nj,), (nj,), (3,), (rows["x0"][0].size,), (N + 1, nf), (N + 1, nf, 2), (nf, 3), (3,), (3,))
+        self._shapes = ((nj,), (nj,), (3,), (rows["x0"][0].size,), (N + 1, nf), (N + 1, nf, 2), (nf, 3), (3,), (3,),
+                        (N + 1, nf), (nf, 3))
         self._offsets = np.concatenate([[0], np.cumsum([np.prod(shape) for shape in self._shapes])]).tolist()
         self._inputs = np.zeros(self._offsets[-1])
         self._input_addresses = [self._inputs.ctypes.data + 8 * offset for offset in self._offsets[:-1]]
         self._input_views = [self._inputs[start:stop].reshape(shape) for start, stop, shape in
                              zip(self._offsets[:-1], self._offsets[1:], self._shapes)]
         self._step_pointers = (ctypes.c_void_p * len(self._shapes))(*self._input_addresses)
+        self._soles = bool(surface.size)
         self._contact = np.zeros((N + 1, nf), dtype=bool)
         self._call_head = (self._meta.ctypes.data, self._table_pointers, self._constant_pointers, self._step_pointers,
                            self._contact.ctypes.data)
@@ -205,6 +213,8 @@ class CompiledMeasuredBounds:
                   problem.initial_state(data.q_ref, data.v0, None), data.swing_vz_m_s, data.swing_vxy_m_s,
                   data.foot_velocity_m_s, data.ee_velocity_m_s if data.ee_velocity_m_s is not None else _ZERO3,
                   data.ee_velocity_measured_m_s)
+        if self._soles:  # (point feet: the C code reads neither)
+            values += (data.swing_yaw_rate_rad_s, data.foot_angular_velocity_rad_s)
         pointers, views = self._step_pointers, self._input_views
         for k, value in enumerate(values):
             if value is None:

@@ -68,6 +68,10 @@ class MultiplierShift:
                                     n_nodes, problem.n_constraints)
         self.variables = _identity_table([(np.atleast_2d(idx), np.arange(len(idx))) for idx in problem.idx.values()],
                                          n_nodes, problem.n_variables)
+        # with the compiled step packer (`OcpProblem.bounds_packer`, solvers/step_pack.py) `sources` is one C call,
+        # bit for bit its NumPy code
+        self._compiled = {kind: CompiledShift(problem.bounds_packer, self.node_times_s, identity) for kind, identity in
+                          ((True, self.rows), (False, self.variables))} if problem.bounds_packer is not None else None
 
     def _sources(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Per new node: the old node before its time and the weight of the one after."""
@@ -77,11 +81,12 @@ class MultiplierShift:
         weight = np.clip((shifted - times[before]) / (times[before + 1] - times[before]), 0.0, 1.0)
         return before, weight
 
-    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
-              rows: bool = True) -> np.ndarray:
-        """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
-        `dt_s` the time from the last step to this one."""
+    def sources(self, dt_s: float, rows: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per row (`rows`) or variable: the old ones it is re-sampled from `dt_s` later (src0, src1; -1: none),
+        the weight w of src1 and whether it has an identity (covered); in C with the compiled step packer."""
         table, (group, node, place), covered, (first, last) = self.rows if rows else self.variables
+        if self._compiled is not None:
+            return (*self._compiled[rows](dt_s), covered)
         before, weight = self._sources(dt_s)
         node0 = np.clip(before[node], first, last)
         src0 = table[group, node0, place]
@@ -89,9 +94,38 @@ class MultiplierShift:
         w = np.where(node0 < last, weight[node], 0.0)
         w = np.where(src1 < 0, 0.0, np.where(src0 < 0, 1.0, w))
         src0, src1 = np.where(src0 < 0, src1, src0), np.where(src1 < 0, src0, src1)
+        return src0, src1, w, covered
+
+    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
+              rows: bool = True) -> np.ndarray:
+        """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
+        `dt_s` the time from the last step to this one."""
+        src0, src1, w, covered = self.sources(dt_s, rows)
         lam = np.asarray(lam, dtype=float)
         # the sources of the row's own kind: both, interpolated; one, its multiplier (a switch lies between them)
         same0, same1 = kind_old[src0] == kind_new, kind_old[src1] == kind_new
         w = np.where(same0 & same1, w, np.where(same0, 0.0, 1.0))
         same = (same0 | same1) & (src0 >= 0) & covered
         return np.where(same, (1 - w) * lam[src0] + w * lam[src1], 0.0)
+
+
+class CompiledShift:
+    """`MultiplierShift.sources` for one identity table (rows or variables) in one call of the compiled step packer
+    (`csrc/step_pack.c` `wbsp_dual_sources`), bit for bit the NumPy code; addresses taken once."""
+
+    def __init__(self, packer, node_times_s: np.ndarray, identity):
+        table, (group, node, place), covered, (first, last) = identity
+        self._packer, size = packer, len(covered)
+        self._out = (np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64), np.zeros(size))  # src0, src1, w
+        self._arrays = [np.ascontiguousarray(a, dtype=np.int64) for a in (group, node, place, first, last, table)] + \
+            [np.ascontiguousarray(node_times_s, dtype=float), np.zeros(len(node_times_s), dtype=np.int64),
+             np.zeros(len(node_times_s))]
+        addresses = [a.ctypes.data for a in self._arrays]
+        self._head = (size, addresses[6], len(node_times_s))
+        self._tail = (*addresses[:6], table.shape[1], table.shape[2], *(a.ctypes.data for a in self._out),
+                      *addresses[7:])
+
+    def __call__(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """src0, src1, w (fresh arrays)."""
+        self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
+        return tuple(a.copy() for a in self._out)

@@ -623,7 +623,8 @@ class OcpProblem:
         rows, idx = self.rows, self.idx  # (properties: read once)
         template = self._bounds_template
         if template is None or template.packer is not self.bounds_packer:
-            template = self._bounds_template = BoundsTemplate(self, self.bounds_packer, EARLY_NODES, BLEND_TIME_S)
+            template = self._bounds_template = BoundsTemplate(self, self.bounds_packer, EARLY_NODES, BLEND_TIME_S,
+                                                              SWING_YAW_RATE_BAND_RAD_S)
         contact = np.asarray(data.contact, dtype=bool)
         buffer, lbx, ubx, lbg, ubg = template.start(contact, data.soft)
         if template.measured is not None and template.measured.write(template.last_address, data, contact):

@@ -45,6 +45,8 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
                                               pointer, pointer, ctypes.c_int, ctypes.c_int, pointer]
             lib.wbsp_bounds_measured.argtypes = [pointer] * 6 + [ctypes.c_int, ctypes.c_int]
             lib.wbsp_swing_vz.argtypes = [ctypes.c_int, pointer] + [ctypes.c_double] * 4 + [pointer]
+            lib.wbsp_dual_sources.argtypes = [ctypes.c_int, pointer, ctypes.c_int, ctypes.c_double] + [pointer] * 6 + \
+                [ctypes.c_int, ctypes.c_int] + [pointer] * 5
         _libraries[key] = lib
     return _libraries[key]
 

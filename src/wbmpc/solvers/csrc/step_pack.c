@@ -71,10 +71,12 @@ int wbsp_bounds_start(const double *template_, int n, const int64_t *entries, co
 /* ---- `OcpProblem.bounds`' measured entries (`BoundsTemplate.measured`), in its order. The buffer is
  * [lbx | ubx | lbg | ubg]; a table's entries are x or g indices (n_x, n_g added for the upper / g parts). */
 enum { M_NX, M_NG, M_NJ, M_DQ_ROWS, M_EARLY_ROWS, M_OVERSPEED_ROWS, M_V0_ROWS, M_ARM_ROWS, M_X0, M_FOOT_NODES,
-       M_NF, M_EE_ROWS, M_COUNT };
-enum { T_DQ, T_EARLY, T_OVERSPEED, T_V0, T_ARM, T_X0, T_FOOT_ROWS, T_FOOT_NODES, T_EE, T_COUNT };
-enum { C_QMIN, C_QMAX, C_EARLY_TIMES, C_VMAX, C_FOOT_DECAY, C_EE_DECAY, C_X_SCALE, C_COUNT };
-enum { S_QJ, S_V0J, S_FORCE, S_X0, S_SWING_VZ, S_SWING_VXY, S_FOOT_MEASURED, S_EE_VEL, S_EE_MEASURED, S_COUNT };
+       M_NF, M_EE_ROWS, M_ANG_NODES, M_NS, M_COUNT };
+enum { T_DQ, T_EARLY, T_OVERSPEED, T_V0, T_ARM, T_X0, T_FOOT_ROWS, T_FOOT_NODES, T_EE, T_ANG_ROWS, T_ANG_NODES,
+       T_SURFACE, T_COUNT };
+enum { C_QMIN, C_QMAX, C_EARLY_TIMES, C_VMAX, C_FOOT_DECAY, C_EE_DECAY, C_X_SCALE, C_ANG_DECAY, C_YAW_BAND, C_COUNT };
+enum { S_QJ, S_V0J, S_FORCE, S_X0, S_SWING_VZ, S_SWING_VXY, S_FOOT_MEASURED, S_EE_VEL, S_EE_MEASURED, S_SWING_YAW,
+       S_FOOT_ANG_MEASURED, S_COUNT };
 
 static void wb_pin(double *buf, long n_upper, int64_t entry, double value) {
   buf[entry] = value;
@@ -137,6 +139,28 @@ static void wb_foot_bounds(double *buf, const int64_t *m, const int64_t *const *
     }
 }
 
+/* flat feet's angular velocity rows (eq. 6 for soles): a swing sole's yaw rate within the band about its reference
+ * where it has one, a stance sole measured rotating blended from the measurement (`OcpProblem._foot_bounds`) */
+static void wb_sole_bounds(double *buf, const int64_t *m, const int64_t *const *t, const double *const *c,
+                           const double *const *s, const uint8_t *contact) {
+  long lbg = 2 * m[M_NX], ng = m[M_NG], nf = m[M_NF], ns = m[M_NS], r, f, k;
+  for (r = 0; r < m[M_ANG_NODES]; ++r)
+    for (f = 0; f < ns; ++f) {
+      long foot = t[T_SURFACE][f], at = t[T_ANG_NODES][r] * nf + foot;
+      const int64_t *rows = t[T_ANG_ROWS] + (r * ns + f) * 3;
+      int swing = !contact[at];
+      if (s[S_SWING_YAW] && swing && isfinite(s[S_SWING_YAW][at])) {
+        buf[lbg + rows[2]] = s[S_SWING_YAW][at] - c[C_YAW_BAND][0];
+        buf[lbg + rows[2] + ng] = s[S_SWING_YAW][at] + c[C_YAW_BAND][0];
+      }
+      if (s[S_FOOT_ANG_MEASURED] && !swing)
+        for (k = 0; k < 3; ++k) {
+          double target = 0.0, measured = s[S_FOOT_ANG_MEASURED][foot * 3 + k];
+          wb_pin(buf, ng, lbg + rows[k], target + c[C_ANG_DECAY][r] * (measured - target));
+        }
+    }
+}
+
 /* x_0 rows = the measured state, the end effector's velocity rows of eq. (7) (blended from the measurement) or
  * free when relaxed, then lbx, ubx divided by the variables' scales (`BoundsTemplate.finish`) */
 int wbsp_bounds_measured(double *buf, const int64_t *m, const int64_t *const *t, const double *const *c,
@@ -145,6 +169,7 @@ int wbsp_bounds_measured(double *buf, const int64_t *m, const int64_t *const *t,
   wb_joint_bounds(buf, m, t, c, s);
   for (r = 0; r < m[M_X0]; ++r) wb_pin(buf, ng, lbg + t[T_X0][r], s[S_X0][r]);
   wb_foot_bounds(buf, m, t, c, s, contact, relax_foot);
+  wb_sole_bounds(buf, m, t, c, s, contact);
   for (r = 0; r < m[M_EE_ROWS]; ++r)
     for (k = 0; k < 3; ++k) {
       long row = lbg + t[T_EE][r * 3 + k];
@@ -173,6 +198,42 @@ int wbsp_swing_vz(int n, const double *progress, double piece_s, double apex_m, 
     double up = (3.0 * x2 - 4.0 * x + 1.0) * liftoff_t + (-6.0 * x2 + 6.0 * x) * apex_m;
     double descent = (6.0 * x2 - 6.0 * x) * apex_m + (3.0 * x2 - 2.0 * x) * touchdown_t;
     out[i] = s >= 0 ? (down ? descent : up) / piece_s : 0.0;
+  }
+  return 0;
+}
+
+/* `MultiplierShift.shift`'s sources (ocp/multipliers.py): for each of n items (rows or variables), the old items
+ * src0, src1 it is re-sampled from dt_s later and the weight w of src1, found by identity (group, node, place:
+ * table[group][node][place] the item there or -1) between the old nodes around its new node's time (node_times,
+ * n_times). Which of them count (their bound kinds) stays the NumPy code's. before, weight: n_times scratch. */
+int wbsp_dual_sources(int n, const double *node_times, int n_times, double dt_s, const int64_t *group,
+                      const int64_t *node, const int64_t *place, const int64_t *first, const int64_t *last,
+                      const int64_t *table, int n_table_nodes, int n_places, int64_t *src0, int64_t *src1, double *w,
+                      int64_t *before, double *weight) {
+  int k, i;
+  for (k = 0; k < n_times; ++k) { /* `MultiplierShift._sources` */
+    double shifted = wb_min(node_times[k] + dt_s, node_times[n_times - 1]);
+    long b, lo = 0, hi = n_times; /* np.searchsorted(side="right"): the first index with times[i] > shifted */
+    while (lo < hi) {
+      long mid = lo + (hi - lo) / 2;
+      if (node_times[mid] <= shifted) lo = mid + 1;
+      else hi = mid;
+    }
+    b = lo - 1;
+    b = b < 0 ? 0 : (b > n_times - 2 ? n_times - 2 : b);
+    before[k] = b;
+    weight[k] = wb_min(wb_max((shifted - node_times[b]) / (node_times[b + 1] - node_times[b]), 0.0), 1.0);
+  }
+  for (i = 0; i < n; ++i) {
+    int64_t nd = node[i], lo_node = first[i], hi_node = last[i];
+    int64_t node0 = before[nd] < lo_node ? lo_node : (before[nd] > hi_node ? hi_node : before[nd]);
+    int64_t node1 = node0 + 1 < hi_node ? node0 + 1 : hi_node;
+    const int64_t *column = table + group[i] * (int64_t)n_table_nodes * n_places + place[i];
+    int64_t s0 = column[node0 * n_places], s1 = column[node1 * n_places];
+    double wi = node0 < hi_node ? weight[nd] : 0.0;
+    w[i] = s1 < 0 ? 0.0 : (s0 < 0 ? 1.0 : wi);
+    src0[i] = s0 < 0 ? s1 : s0;
+    src1[i] = s1 < 0 ? s0 : s1;
   }
   return 0;
 }
