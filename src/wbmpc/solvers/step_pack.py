@@ -1,8 +1,10 @@
 """The per-step packing of an MPC step in C (`csrc/step_pack.c`): the warm start's re-sampling (`ShiftedGuess`), the
-bounds (`BoundsTemplate`, `CompiledMeasuredBounds`) and the swing feet's v_z references (`SwingVelocity`).
+bounds of point and flat feet (`BoundsTemplate`, `CompiledMeasuredBounds`), the sources of the multipliers' shift
+(`ocp/multipliers.py`, flat feet's dual warm start) and the swing feet's v_z references (`SwingVelocity`).
 
 Each C function is the NumPy code it replaces, operation for operation and compiled without fused multiply-adds, so
-results are the same bit for bit (tests/control/test_step_packing.py, tests/ocp/test_bounds_template.py). Why C: right after the solver's call the
+results are the same bit for bit (tests/control/test_step_packing.py, tests/ocp/test_bounds_template.py,
+tests/ocp/test_multipliers.py). Why C: right after the solver's call the
 interpreter's caches are cold and each of the step's ~250 small NumPy calls costs 2-4 us; one C call replaces 5-20
 of them. The library is shipped source, compiled once per machine into the cache (`native.build_native`); without
 a compiler `library()` is None and the callers keep their NumPy code (the same results, slower).
