@@ -133,3 +133,44 @@ def test_the_mpc_warm_starts_a_bipeds_sole_wrenches_by_contact_pattern(biped, rn
         first = np.clip(np.searchsorted(old_times, new_times) - 1, 0, len(old_times) - 2)
         switches += int((previous.contact[first] != previous.contact[first + 1]).any(axis=1).sum())
     assert switches >= 4
+
+
+def test_shifted_duals_record_the_kinds_of_the_bounds_they_were_shifted_to(biped, rng):
+    """`ShiftedDuals.record` reuses the bound kinds `at` found for the same step's bounds: the next shift equals that
+    of a ShiftedDuals that recorded the same plan without an `at` before it, and a record with other bounds than
+    `at` saw takes its own (a wrong reuse moves multipliers onto rows of another kind, or zeroes them)."""
+    from wbmpc.control.warm_start import ShiftedDuals
+
+    config = MpcConfig(gait="walk", ocp=OcpConfig(grid=TimeGrid(n_intervals=5, dt_first_s=0.01, dt_last_s=0.05)))
+    problem = MPC(biped, config).problem
+    n_g, n_x = problem.n_constraints, problem.n_variables
+
+    def random_bounds():
+        lower = [np.where(rng.random(n) < 0.3, -np.inf, rng.normal(size=n)) for n in (n_x, n_g)]
+        upper = [np.where(rng.random(n) < 0.3, np.inf, lo + rng.choice([0.0, 1.0], size=n)) for lo, n in
+                 zip(lower, (n_x, n_g))]
+        return lower[0], upper[0], lower[1], upper[1]
+
+    class Result:
+        def __init__(self):
+            self.lam_g, self.lam_x = rng.normal(size=n_g), rng.normal(size=n_x)
+
+    first, second, third, other = (random_bounds() for _ in range(4))
+    plan_1, plan_2 = Result(), Result()
+    cached, fresh, mismatched = ShiftedDuals(problem), ShiftedDuals(problem), ShiftedDuals(problem)
+    for duals in (cached, mismatched):
+        duals.record(0.0, plan_1, first)
+        assert len(duals.at(0.0125, second, 0.0)) == 2
+    cached.record(0.0125, plan_2, second)
+    mismatched.record(0.0125, plan_2, other)  # not the bounds `at` saw: their own kinds
+    fresh.record(0.0125, plan_2, second)
+    expected = fresh.at(0.025, third, 0.0125)
+    for got in cached.at(0.025, third, 0.0125):
+        assert np.isfinite(got).all()
+    for got, want in zip(cached.at(0.025, third, 0.0125), expected):
+        np.testing.assert_array_equal(got, want)
+    reference = ShiftedDuals(problem)
+    reference.record(0.0125, plan_2, other)
+    for got, want in zip(mismatched.at(0.025, third, 0.0125), reference.at(0.025, third, 0.0125)):
+        np.testing.assert_array_equal(got, want)
+    assert any(not np.array_equal(a, b) for a, b in zip(expected, reference.at(0.025, third, 0.0125)))

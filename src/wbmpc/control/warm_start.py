@@ -122,14 +122,22 @@ class ShiftedDuals:
     def __init__(self, problem):
         self._shift = MultiplierShift(problem)
         self._last: tuple | None = None  # (t_s, lam_g, lam_x, row kinds, variable kinds) of the last plan
+        self._kinds: tuple | None = None  # (bounds, row kinds, variable kinds) that `at` found for this step's bounds
 
     def reset(self) -> None:
-        self._last = None
+        self._last = self._kinds = None
 
     def record(self, t_s: float, result, bounds) -> None:
         """Keep a successful step's multipliers with the kinds of its rows' and variables' bounds."""
+        kinds, self._kinds = self._kinds, None
+        if kinds is None or kinds[0] is not bounds:
+            kinds = (bounds, *self._bound_kinds(bounds))
+        self._last = (t_s, result.lam_g, result.lam_x, kinds[1], kinds[2])
+
+    @staticmethod
+    def _bound_kinds(bounds) -> tuple[np.ndarray, np.ndarray]:
         lbx, ubx, lbg, ubg = bounds
-        self._last = (t_s, result.lam_g, result.lam_x, bound_kind(lbg, ubg), bound_kind(lbx, ubx))
+        return bound_kind(lbg, ubg), bound_kind(lbx, ubx)
 
     def at(self, t_s: float, bounds, previous_t_s: float | None) -> tuple:
         """(lam_g0, lam_x0) for the step at `t_s` with `bounds`, when the kept multipliers are the plan's at
@@ -137,7 +145,8 @@ class ShiftedDuals:
         last = self._last
         if last is None or previous_t_s is None or last[0] != previous_t_s:
             return ()
-        lbx, ubx, lbg, ubg = bounds
+        kind_rows, kind_variables = self._bound_kinds(bounds)
+        self._kinds = (bounds, kind_rows, kind_variables)  # `record` of this step's plan takes them (same bounds)
         dt_s = t_s - last[0]
-        return (self._shift.shift(last[1], last[3], bound_kind(lbg, ubg), dt_s),
-                self._shift.shift(last[2], last[4], bound_kind(lbx, ubx), dt_s, rows=False))
+        return (self._shift.shift(last[1], last[3], kind_rows, dt_s),
+                self._shift.shift(last[2], last[4], kind_variables, dt_s, rows=False))
