@@ -98,13 +98,16 @@ def lagrangian_hessian(u: ca.SX, x: ca.SX, rest: ca.SX, rows: ca.SX, lam_rows: c
     - "exact": all of it.
     - "cross": their blocks with an input only, (u, u) and (u, x); their (x, x) block dropped. RNEA is linear in
       a and F (eq. 5), so what stays is exact d^2/(d x d u) (M(q)'s and J_c(q)'s derivatives in lam's direction)
-      and what goes is the curvature of gravity, Coriolis and the inertia in (q, v), ~80 % of g1's Hessian code.
+      and what goes is the curvature of gravity, the contacts, Coriolis and the inertia in (q, v) (g1's plain stage
+      Hessian 139.6k -> 52.7k CasADi instructions).
     - "static": "cross" and the (x, x) curvature of the rows at zero velocity and acceleration (`static_rows`: the
-      rows with v = a = 0, i.e. gravity's and the contact forces' in q, g1: 26k of 119k instructions); what goes is
-      the inertial terms' (M(q) a, Coriolis) curvature in (q, v).
-    - "gauss-newton": none of it (the rows' curvature dropped; the cost's and the other rows' kept).
+      rows with v = a = 0, gravity's and the contact forces' in q: 78.2k); what goes is the inertial terms'
+      (M(q) a, Coriolis) curvature in (q, v).
+    - "gauss-newton": none of it (the rows' curvature dropped; the cost's and the other rows' kept: 38.9k).
 
-    An inexact Hessian keeps the KKT point (same constraints and stationarity) and can cost iterations."""
+    An inexact Hessian keeps the KKT point (same constraints and stationarity) but can cost iterations: on b1_z1's
+    trot "cross" keeps them (-8 % CPU a solve), on g1's walk each of the three doubles them (6.4 -> 13.8-18.3 on
+    recorded states), hence "exact" by default (docs/design/realtime-loop.md)."""
     if mode not in DYNAMICS_HESSIANS:
         raise ConfigError(f"unknown dynamics_hessian '{mode}'; choose from {', '.join(DYNAMICS_HESSIANS)}")
     z = ca.vertcat(u, x)
