@@ -17,7 +17,7 @@ from wbmpc.robots import load_robot
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
-from wbmpc.solvers.stage_library import DYNAMICS_TAGS, rate_variables, stage_kind_functions
+from wbmpc.solvers.stage_library import DYNAMICS_TAGS, stage_kind_functions
 
 TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
 
@@ -46,11 +46,9 @@ def test_kept_blocks_are_exact_and_dropped_ones_are_the_rnea_curvature(problem, 
     function, tags = problem.stage_function(k)
     rnea = _rnea_rows(tags)
     assert rnea.size >= 6  # the base rows at least (eq. 5)
-    rates = rate_variables(problem, k)
-    assert len(rates) == 2 * problem.robot.nv  # v and a
     exact, jac = stage_kind_functions(function, "exact", tags, "exact")[:2]
-    static, cross, gauss_newton = (stage_kind_functions(function, mode.replace("-", "_"), tags, mode, rates)[0]
-                                   for mode in ("static", "cross", "gauss-newton"))
+    cross, gauss_newton = (stage_kind_functions(function, mode.replace("-", "_"), tags, mode)[0]
+                           for mode in ("cross", "gauss-newton"))
     n_u, n_x = function.size1_in(1), function.size1_in(0)
     rng = np.random.default_rng(k)
     state, inputs = problem.stage_slices[k]
@@ -58,8 +56,8 @@ def test_kept_blocks_are_exact_and_dropped_ones_are_the_rnea_curvature(problem, 
     u = step_data["x0"][inputs] + 0.3 * rng.normal(size=n_u)
     p = np.asarray(ca.evalf(problem.stage_parameters(ca.DM(step_data["p"]), k))).ravel()
     sigma, lam_dyn, lam_rows = 0.7, rng.normal(size=exact.size1_in(4)), rng.normal(size=exact.size1_in(5))
-    h_exact, h_static, h_cross, h_gn = (np.asarray(h(u, x, p, sigma, lam_dyn, lam_rows))
-                                        for h in (exact, static, cross, gauss_newton))
+    h_exact, h_cross, h_gn = (np.asarray(h(u, x, p, sigma, lam_dyn, lam_rows))
+                              for h in (exact, cross, gauss_newton))
     scale = max(1.0, np.abs(h_exact).max())
     # the RNEA rows' Hessian lam' d^2 r / dz^2 by central differences of their Jacobian (z = (u, x))
     lam = np.zeros_like(lam_rows)
@@ -69,27 +67,14 @@ def test_kept_blocks_are_exact_and_dropped_ones_are_the_rnea_curvature(problem, 
         return np.asarray(jac(z[:n_u], z[n_u:], p)[1]) @ lam
 
     z, step = np.concatenate([u, x]), 1e-6
-    def central_differences(z):
-        return np.column_stack([(gradient(z + step * e) - gradient(z - step * e)) / (2 * step)
-                                for e in np.eye(n_u + n_x)])
-
-    rnea_hessian = central_differences(z)
+    rnea_hessian = np.column_stack([(gradient(z + step * e) - gradient(z - step * e)) / (2 * step)
+                                    for e in np.eye(n_u + n_x)])
     assert np.abs(rnea_hessian).max() > 1e-3  # the rows have curvature to drop
     np.testing.assert_allclose(h_exact - h_gn, rnea_hessian, atol=1e-6 * scale)
     # cross keeps every block with an input exactly, drops the RNEA rows' (x, x) block
     np.testing.assert_allclose(h_cross[:n_u], h_exact[:n_u], atol=1e-9 * scale)
     np.testing.assert_allclose(h_cross[:, :n_u], h_exact[:, :n_u], atol=1e-9 * scale)
     np.testing.assert_allclose(h_exact[n_u:, n_u:] - h_cross[n_u:, n_u:], rnea_hessian[n_u:, n_u:], atol=1e-6 * scale)
-    # static: cross and the (x, x) curvature of the rows at v = a = 0 (gravity's and the contacts' in q)
-    np.testing.assert_allclose(h_static[:n_u], h_exact[:n_u], atol=1e-9 * scale)
-    z_static = z.copy()
-    z_static[rates] = 0.0
-    static_curvature = central_differences(z_static)[n_u:, n_u:]
-    moving = [i - n_u for i in rates if i >= n_u]  # the v rows and columns: zero in "static"
-    static_curvature[moving] = 0.0
-    static_curvature[:, moving] = 0.0
-    assert np.abs(static_curvature).max() > 1e-3
-    np.testing.assert_allclose(h_static[n_u:, n_u:] - h_gn[n_u:, n_u:], static_curvature, atol=1e-6 * scale)
     # RNEA is linear in (a, F): the rows' (u, u) block is zero, so gauss-newton keeps it too
     np.testing.assert_allclose(rnea_hessian[:n_u, :n_u], 0, atol=1e-6 * scale)
 

@@ -47,14 +47,14 @@ DYNAMICS_TAGS = ("dynamics", "implied_torque")  # the path rows that are RNEA ro
 
 
 def stage_kind_functions(function: ca.Function, tag: str, row_tags: list[tuple[str, int]] | None = None,
-                         dynamics_hessian: str = "exact", rates: list[int] | None = None) -> list[ca.Function]:
+                         dynamics_hessian: str = "exact") -> list[ca.Function]:
     """The five C functions of one stage kind, inputs (u_k, x_k, p_k) in Fatrop's order, dense outputs.
 
     hess: Hessian in (u, x) of sigma l + lam_dyn' f + lam_rows' r (Fatrop's stage Lagrangian, the
     x_{k+1} term of the dynamics being linear); jac: d f/d(u, x) transposed and d r/d(u, x) transposed;
     val: f and r; grad: d l/d(u, x); cost: l. `dynamics_hessian` (with the rows' `row_tags`, as
     `OcpProblem.stage_function` gives them) approximates the curvature of the dynamics rows (`DYNAMICS_TAGS`):
-    see `lagrangian_hessian` (`rates`: where v and a sit in (u, x), for "static").
+    see `lagrangian_hessian`.
     """
     n_x, n_u, n_p = function.size1_in(0), function.size1_in(1), function.size1_in(2)
     u, x, p = ca.SX.sym("u", n_u), ca.SX.sym("x", n_x), ca.SX.sym("p", n_p)
@@ -63,13 +63,8 @@ def stage_kind_functions(function: ca.Function, tag: str, row_tags: list[tuple[s
     sigma = ca.SX.sym("sigma")
     lam_dyn, lam_rows = ca.SX.sym("lam_dyn", next_state.shape[0]), ca.SX.sym("lam_rows", rows.shape[0])
     dynamics = _tagged_rows(row_tags or [], DYNAMICS_TAGS)
-    static_rows = None
-    if dynamics_hessian == "static" and dynamics:
-        zero = set(rates or [])
-        z_static = [ca.SX(0) if i in zero else z[i] for i in range(n_u + n_x)]
-        static_rows = function(ca.vertcat(*z_static[n_u:]), ca.vertcat(*z_static[:n_u]), p)[1]
     hessian = lagrangian_hessian(u, x, sigma * cost + ca.dot(lam_dyn, next_state), rows, lam_rows, dynamics,
-                                 dynamics_hessian, static_rows)
+                                 dynamics_hessian)
     dense = ca.densify
     return [
         ca.Function(f"{tag}_hess", [u, x, p, sigma, lam_dyn, lam_rows], [dense(hessian)]),
@@ -91,7 +86,7 @@ def _tagged_rows(row_tags: list[tuple[str, int]], wanted: tuple[str, ...]) -> li
 
 
 def lagrangian_hessian(u: ca.SX, x: ca.SX, rest: ca.SX, rows: ca.SX, lam_rows: ca.SX, dynamics: list[int],
-                       mode: str = "exact", static_rows: ca.SX | None = None) -> ca.SX:
+                       mode: str = "exact") -> ca.SX:
     """Hessian in z = (u, x) of rest + lam_rows' rows, the curvature of the rows `dynamics` (the RNEA rows)
     as `mode` says:
 
@@ -100,14 +95,11 @@ def lagrangian_hessian(u: ca.SX, x: ca.SX, rest: ca.SX, rows: ca.SX, lam_rows: c
       a and F (eq. 5), so what stays is exact d^2/(d x d u) (M(q)'s and J_c(q)'s derivatives in lam's direction)
       and what goes is the curvature of gravity, the contacts, Coriolis and the inertia in (q, v) (g1's plain stage
       Hessian 139.6k -> 52.7k CasADi instructions).
-    - "static": "cross" and the (x, x) curvature of the rows at zero velocity and acceleration (`static_rows`: the
-      rows with v = a = 0, gravity's and the contact forces' in q: 78.2k); what goes is the inertial terms'
-      (M(q) a, Coriolis) curvature in (q, v).
     - "gauss-newton": none of it (the rows' curvature dropped; the cost's and the other rows' kept: 38.9k).
 
     An inexact Hessian keeps the KKT point (same constraints and stationarity) but can cost iterations: on b1_z1's
-    trot "cross" keeps them (-8 % CPU a solve), on g1's walk each of the three doubles them (6.4 -> 13.8-18.3 on
-    recorded states), hence "exact" by default (docs/design/realtime-loop.md)."""
+    trot "cross" keeps them (-8 % CPU a solve), on g1's walk both double them (6.4 -> 13.8 / 18.3 on recorded
+    states), hence "exact" by default (docs/design/realtime-loop.md)."""
     if mode not in DYNAMICS_HESSIANS:
         raise ConfigError(f"unknown dynamics_hessian '{mode}'; choose from {', '.join(DYNAMICS_HESSIANS)}")
     z = ca.vertcat(u, x)
@@ -119,26 +111,7 @@ def lagrangian_hessian(u: ca.SX, x: ca.SX, rest: ca.SX, rows: ca.SX, lam_rows: c
         return hessian
     n_u, n_x = u.shape[0], x.shape[0]
     with_input = ca.jacobian(ca.gradient(ca.dot(lam_rows[dynamics], rows[dynamics]), u), z)  # (u, z) rows
-    state_block = ca.SX(n_x, n_x)
-    if mode == "static":
-        state_block = ca.hessian(ca.dot(lam_rows[dynamics], static_rows[dynamics]), x)[0]
-    return hessian + ca.vertcat(with_input, ca.horzcat(with_input[:, n_u:].T, state_block))
-
-
-RATE_PARTS = ("v", "a")  # the velocity and acceleration variables (wb_inverse's x = (dq, v), u = (a, F, ...))
-
-
-def rate_variables(problem: OcpProblem, k: int) -> list[int]:
-    """Where stage k's velocities and accelerations sit in its (u_k, x_k)."""
-    state, inputs = problem.stage_slices[k]
-    n_u, out = inputs.stop - inputs.start, []
-    for name in RATE_PARTS:
-        rows = problem.idx.get(name)
-        if rows is None or k >= len(rows):
-            continue
-        for i in np.asarray(rows[k]).ravel():
-            out.append(int(i - inputs.start) if inputs.start <= i < inputs.stop else int(n_u + i - state.start))
-    return out
+    return hessian + ca.vertcat(with_input, ca.horzcat(with_input[:, n_u:].T, ca.SX(n_x, n_x)))
 
 
 LAYOUT_ROWS = ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")  # wbmpc_stages.h's WB_L_*
@@ -155,8 +128,7 @@ def _stage_kinds(problem: OcpProblem, dynamics_hessian: str = "exact") -> tuple[
         function, row_tags = problem.stage_function(k)
         if function.name() not in kinds:
             kinds[function.name()] = len(kinds)
-            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}", row_tags, dynamics_hessian,
-                                              rate_variables(problem, k))
+            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}", row_tags, dynamics_hessian)
         state, inputs = problem.stage_slices[k]
         gap = int(problem.stage_row_starts[k])
         layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
