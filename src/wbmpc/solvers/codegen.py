@@ -27,8 +27,11 @@ from pathlib import Path
 import casadi as ca
 
 from wbmpc.cache import default_cache_dir
-from wbmpc.errors import WbmpcError
+from wbmpc.errors import ConfigError, WbmpcError
 from wbmpc.ocp.problem import OcpProblem
+
+# how fatrop-direct's stage library treats the curvature of the RNEA rows (stage_library.lagrangian_hessian)
+DYNAMICS_HESSIANS = ("exact", "cross", "gauss-newton")
 
 
 class CompileError(WbmpcError, RuntimeError):
@@ -55,6 +58,15 @@ class CodegenConfig:
     # C). 10 takes b1_z1 (7.6 MB: 254 s); 20 also g1 (17.9 MB): thread CPU per solver iteration 4.41 -> 3.63 ms for a
     # one-off 768 s / 2.8 GB compile instead of ~200 s at -O1 (load ~4), so g1's -O2 is opt-in
     stage_o2_max_source_mb: float = 10.0
+    # fatrop-direct's stage Hessian: the RNEA rows' curvature "exact", "cross" (only its blocks with an input:
+    # d^2/du dx, d^2/du^2) or "gauss-newton" (none); see stage_library.lagrangian_hessian. Inexact ones cost g1
+    # twice the iterations; "cross" keeps b1_z1's at -8 % CPU a solve (docs/design/realtime-loop.md)
+    dynamics_hessian: str = "exact"
+
+    def __post_init__(self):
+        if self.dynamics_hessian not in DYNAMICS_HESSIANS:
+            raise ConfigError(f"unknown dynamics_hessian '{self.dynamics_hessian}'; choose from "
+                              f"{', '.join(DYNAMICS_HESSIANS)}")
 
 
 @dataclass

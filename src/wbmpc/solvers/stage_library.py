@@ -26,20 +26,35 @@ import casadi as ca
 import numpy as np
 
 from wbmpc.cache import default_cache_dir
+from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers.codegen import CodegenConfig, CompileError, CompileReport, _compile, cache_key, for_source
+from wbmpc.solvers.codegen import (
+    DYNAMICS_HESSIANS,
+    CodegenConfig,
+    CompileError,
+    CompileReport,
+    _compile,
+    cache_key,
+    for_source,
+)
 from wbmpc.solvers.native import source_dir, source_text
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
 KINDS_VERSION = 2  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
 
 
-def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
+DYNAMICS_TAGS = ("dynamics", "implied_torque")  # the path rows that are RNEA rows (eq. 5) on wb_inverse
+
+
+def stage_kind_functions(function: ca.Function, tag: str, row_tags: list[tuple[str, int]] | None = None,
+                         dynamics_hessian: str = "exact") -> list[ca.Function]:
     """The five C functions of one stage kind, inputs (u_k, x_k, p_k) in Fatrop's order, dense outputs.
 
     hess: Hessian in (u, x) of sigma l + lam_dyn' f + lam_rows' r (Fatrop's stage Lagrangian, the
     x_{k+1} term of the dynamics being linear); jac: d f/d(u, x) transposed and d r/d(u, x) transposed;
-    val: f and r; grad: d l/d(u, x); cost: l.
+    val: f and r; grad: d l/d(u, x); cost: l. `dynamics_hessian` (with the rows' `row_tags`, as
+    `OcpProblem.stage_function` gives them) approximates the curvature of the dynamics rows (`DYNAMICS_TAGS`):
+    see `lagrangian_hessian`.
     """
     n_x, n_u, n_p = function.size1_in(0), function.size1_in(1), function.size1_in(2)
     u, x, p = ca.SX.sym("u", n_u), ca.SX.sym("x", n_x), ca.SX.sym("p", n_p)
@@ -47,8 +62,9 @@ def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
     next_state, rows, cost = function(x, u, p)
     sigma = ca.SX.sym("sigma")
     lam_dyn, lam_rows = ca.SX.sym("lam_dyn", next_state.shape[0]), ca.SX.sym("lam_rows", rows.shape[0])
-    lagrangian = sigma * cost + ca.dot(lam_dyn, next_state) + ca.dot(lam_rows, rows)
-    hessian = ca.hessian(lagrangian, z)[0]
+    dynamics = _tagged_rows(row_tags or [], DYNAMICS_TAGS)
+    hessian = lagrangian_hessian(u, x, sigma * cost + ca.dot(lam_dyn, next_state), rows, lam_rows, dynamics,
+                                 dynamics_hessian)
     dense = ca.densify
     return [
         ca.Function(f"{tag}_hess", [u, x, p, sigma, lam_dyn, lam_rows], [dense(hessian)]),
@@ -59,10 +75,49 @@ def stage_kind_functions(function: ca.Function, tag: str) -> list[ca.Function]:
     ]
 
 
+def _tagged_rows(row_tags: list[tuple[str, int]], wanted: tuple[str, ...]) -> list[int]:
+    """Indices of the path rows whose tag is in `wanted`."""
+    out, start = [], 0
+    for name, size in row_tags:
+        if name in wanted:
+            out += range(start, start + size)
+        start += size
+    return out
+
+
+def lagrangian_hessian(u: ca.SX, x: ca.SX, rest: ca.SX, rows: ca.SX, lam_rows: ca.SX, dynamics: list[int],
+                       mode: str = "exact") -> ca.SX:
+    """Hessian in z = (u, x) of rest + lam_rows' rows, the curvature of the rows `dynamics` (the RNEA rows)
+    as `mode` says:
+
+    - "exact": all of it.
+    - "cross": their blocks with an input only, (u, u) and (u, x); their (x, x) block dropped. RNEA is linear in
+      a and F (eq. 5), so what stays is exact d^2/(d x d u) (M(q)'s and J_c(q)'s derivatives in lam's direction)
+      and what goes is the curvature of gravity, the contacts, Coriolis and the inertia in (q, v) (g1's plain stage
+      Hessian 139.6k -> 52.7k CasADi instructions).
+    - "gauss-newton": none of it (the rows' curvature dropped; the cost's and the other rows' kept: 38.9k).
+
+    An inexact Hessian keeps the KKT point (same constraints and stationarity) but can cost iterations: on b1_z1's
+    trot "cross" keeps them (-8 % CPU a solve), on g1's walk both double them (6.4 -> 13.8 / 18.3 on recorded
+    states), hence "exact" by default (docs/design/realtime-loop.md)."""
+    if mode not in DYNAMICS_HESSIANS:
+        raise ConfigError(f"unknown dynamics_hessian '{mode}'; choose from {', '.join(DYNAMICS_HESSIANS)}")
+    z = ca.vertcat(u, x)
+    if mode == "exact" or not dynamics:
+        return ca.hessian(rest + ca.dot(lam_rows, rows), z)[0]
+    others = [i for i in range(rows.shape[0]) if i not in set(dynamics)]
+    hessian = ca.hessian(rest + ca.dot(lam_rows[others], rows[others]), z)[0]
+    if mode == "gauss-newton":
+        return hessian
+    n_u, n_x = u.shape[0], x.shape[0]
+    with_input = ca.jacobian(ca.gradient(ca.dot(lam_rows[dynamics], rows[dynamics]), u), z)  # (u, z) rows
+    return hessian + ca.vertcat(with_input, ca.horzcat(with_input[:, n_u:].T, ca.SX(n_x, n_x)))
+
+
 LAYOUT_ROWS = ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")  # wbmpc_stages.h's WB_L_*
 
 
-def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], np.ndarray]:
+def _stage_kinds(problem: OcpProblem, dynamics_hessian: str = "exact") -> tuple[list[ca.Function], np.ndarray]:
     """The generated functions of each stage kind (in order of first appearance) and the stages' layout
     (LAYOUT_ROWS x (N+1) ints)."""
     N, nx = problem.N, problem.nx
@@ -70,10 +125,10 @@ def _stage_kinds(problem: OcpProblem) -> tuple[list[ca.Function], np.ndarray]:
     functions: list[ca.Function] = []
     layout = np.zeros((len(LAYOUT_ROWS), N + 1), dtype=np.int32)
     for k in range(N + 1):
-        function, _ = problem.stage_function(k)
+        function, row_tags = problem.stage_function(k)
         if function.name() not in kinds:
             kinds[function.name()] = len(kinds)
-            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}")
+            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}", row_tags, dynamics_hessian)
         state, inputs = problem.stage_slices[k]
         gap = int(problem.stage_row_starts[k])
         layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
@@ -120,11 +175,11 @@ def _kinds_table(functions: list[ca.Function], code_ranges: list[str]) -> str:
     ])
 
 
-def generate_source(problem: OcpProblem) -> tuple[str, np.ndarray, np.ndarray]:
+def generate_source(problem: OcpProblem, dynamics_hessian: str = "exact") -> tuple[str, np.ndarray, np.ndarray]:
     """The C source of the stage library for `problem`, the (N+1, n_p) index map of the stage parameters into p and
     the stages' layout for the shim (LAYOUT_ROWS x (N+1)). The source depends on the kinds of stages only: another
     horizon length with the same kinds reuses the library."""
-    functions, layout = _stage_kinds(problem)
+    functions, layout = _stage_kinds(problem, dynamics_hessian)
     n_p = functions[0].size1_in(2)
     p_index = np.array([np.asarray(ca.evalf(problem.stage_parameters(ca.DM(np.arange(problem.params.size)), k)))
                         .ravel() for k in range(problem.N + 1)]).round().astype(np.int64)
@@ -152,7 +207,7 @@ def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfi
 def build(problem: OcpProblem, config: CodegenConfig = CodegenConfig()) -> "StageLibrary":
     """Generate, compile (unless cached) and load the stage library of `problem`."""
     start = time.perf_counter()
-    code, p_index, layout = generate_source(problem)
+    code, p_index, layout = generate_source(problem, config.dynamics_hessian)
     generate_s = time.perf_counter() - start
     source_mb = len(code) / 1e6
     config, flags = compile_flags(config, source_mb)
