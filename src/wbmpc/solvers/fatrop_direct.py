@@ -179,8 +179,7 @@ class FatropDirectSolver:
         self._options: dict[int, tuple] = {}  # per Fatrop instance: the (mu_init, max_iter, print_level) set
         self._g = np.zeros(problem.n_constraints)
         self._stats = np.zeros(_N_STATS)
-        # addresses for wb_solve: the stage parameters it gathers, then (after the bounds, x0) x, lam_g, lam_x, stats
-        self._addresses = tuple(a.ctypes.data for a in (self._stage_p, *self._out, self._stats))
+        lib.lib.wb_ctx_outputs(self._ctx, *(a.ctypes.data for a in (self._stage_p, *self._out, self._stats)))
         n_x, n_g = problem.n_variables, problem.n_constraints
         self._input_sizes = (problem.params.size, n_x, n_x, n_g, n_g, n_x)  # p, lbx, ubx, lbg, ubg, x0
         # the shim gathers each stage's parameters from the NLP's p and checks p, x0 and the bounds itself
@@ -332,10 +331,10 @@ class FatropDirectSolver:
         attempt = self._solve(p, lbx, ubx, lbg, ubg, x0, mu_warm, min(cap_warm, cap), deadline, warm_duals=True,
                               given=given)
         self._quiet = attempt.stats.success and attempt.stats.iterations <= QUIET_ITERATIONS
-        if attempt.stats.status in _INVALID_INPUTS:  # refused before any work: a cold attempt would be refused too
-            return attempt
         if attempt.stats.success or attempt.stats.status == "time_limit_reached":
             self._warm_failures = 0 if attempt.stats.success else self._warm_failures
+            return attempt
+        if attempt.stats.status in _INVALID_INPUTS:  # refused before any work: a cold attempt would be refused too
             return attempt
         if given is not None or not offered:  # (a quiet step's failed attempt: the given multipliers next step)
             self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
@@ -452,8 +451,7 @@ class FatropDirectSolver:
                     self._options[solver.value] = options
             # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler);
             # no instance yet: the shim checks the inputs and returns -2 before any work
-            code = lib.wb_solve(self._ctx, solver, p, self._addresses[0], lbx, ubx, lbg, ubg, x0, *self._addresses[1:],
-                                budget_s, warm, *multipliers, mu_init)
+            code = lib.wb_solve(self._ctx, solver, p, lbx, ubx, lbg, ubg, x0, budget_s, warm, *multipliers, mu_init)
             if code != -2 or attempt:
                 break
             solver = self._solver_for(*inputs[1:5])

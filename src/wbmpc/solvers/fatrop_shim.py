@@ -102,10 +102,11 @@ class ShimLibrary:
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
         lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
         lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
-        # (ctx, solver, p, P, lbx, ubx, lbg, ubg, x0, x, lam_g, lam_x, stats, budget_s, warm, lam_g0, lam_x0, z_floor)
-        lib.wb_solve.argtypes = [ctypes.c_void_p] * 2 + [_DOUBLE_P, ctypes.c_void_p] + [_DOUBLE_P] * 5 + \
-            [ctypes.c_void_p] * 4 + [ctypes.c_double, ctypes.c_int, _DOUBLE_P, _DOUBLE_P, ctypes.c_double]
+        # (ctx, solver, p, lbx, ubx, lbg, ubg, x0, budget_s, warm, lam_g0, lam_x0, z_floor)
+        lib.wb_solve.argtypes = [ctypes.c_void_p] * 2 + [_DOUBLE_P] * 6 + [ctypes.c_double, ctypes.c_int, _DOUBLE_P,
+                                                                          _DOUBLE_P, ctypes.c_double]
         lib.wb_ctx_parameters.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
+        lib.wb_ctx_outputs.argtypes = [ctypes.c_void_p] * 6
         lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
         lib.wbd_fatrop_kernels.restype = ctypes.c_int
         lib.wb_warm_up.argtypes = [ctypes.c_void_p]

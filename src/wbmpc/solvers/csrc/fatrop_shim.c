@@ -168,6 +168,13 @@ int wb_ctx_parameters(void* ctx, const long long* p_index, int n_p) {
   return 0;
 }
 
+/* where wb_solve writes: the stages' parameters P (n_stages x n_params), x, lam_g, lam_x (the NLP's layout) and its
+   stats (15, see wb_solve): the caller's buffers, set once (fewer arguments per call) */
+void wb_ctx_outputs(void* ctx, double* P, double* x, double* lam_g, double* lam_x, double* stats) {
+  wb_ctx* c = (wb_ctx*) ctx;
+  c->P_out = P; c->x_out = x; c->lam_g_out = lam_g; c->lam_x_out = lam_x; c->stats_out = stats;
+}
+
 int wb_sizes(void* ctx, int* out) {
   const wb_stages* st = ((wb_ctx*) ctx)->st;
   out[0] = st->n_stages; out[1] = st->n_params; out[2] = st->n_variables; out[3] = st->n_constraints;
@@ -394,27 +401,29 @@ static int wb_check_inputs(const wb_ctx* c, const double* p, const double* x0) {
   return 0;
 }
 
-/* One MPC solve from the NLP's p, bounds and initial guess (the inputs checked first, wb_check_inputs), the stages'
-   parameters gathered into P (n_stages x n_params, wb_ctx_parameters' positions). solver NULL: the checks and the
-   row classification only, returning -2 (the caller makes the instance of these bounds' rows and calls again).
+/* One MPC solve from the NLP's p, bounds and initial guess (the inputs checked first, wb_check_inputs): the stages'
+   parameters gathered into P (n_stages x n_params, wb_ctx_parameters' positions), the solution unpacked into x,
+   lam_g, lam_x and the stats written into wb_ctx_outputs' buffers. solver NULL: the checks and the row
+   classification only, returning -2 (the caller makes the instance of these bounds' rows and calls again).
    stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s), stage
    evaluations (s), cost, largest bound violation at the solution, the call's wall time outside Fatrop's timer (s:
    checks, rows, warm start, unpacking), 1 if every entry of x is finite (else 0). budget_s > 0: stop at the first
    evaluation after that many seconds with the last accepted iterate (return 3, flag -3). Returns 0 converged, 1 not,
    -1 Fatrop raised, -2 another row structure than the solver's, -4 non-finite constraint values or derivatives at
-   x0, -5 / -6 refused inputs (wb_check_inputs), -7 no parameter positions (wb_ctx_parameters). warm_duals: 0
-   Fatrop's own start (bound multipliers 1, least-squares equality multipliers), 1 this instance's last solution's,
-   2 the given lam_g0 / lam_x0 (NLP layout), bound multipliers at least z_floor / their slack's distance */
-int wb_solve(void* ctx, void* solver, const double* p, double* P, const double* lbx, const double* ubx,
-             const double* lbg, const double* ubg, const double* x0, double* x_out, double* lam_g_out,
-             double* lam_x_out, double* stats, double budget_s, int warm_duals, const double* lam_g0,
+   x0, -5 / -6 refused inputs (wb_check_inputs), -7 no parameter positions or outputs (wb_ctx_parameters,
+   wb_ctx_outputs). warm_duals: 0 Fatrop's own start (bound multipliers 1, least-squares equality multipliers), 1
+   this instance's last solution's, 2 the given lam_g0 / lam_x0 (NLP layout), bound multipliers at least z_floor /
+   their slack's distance */
+int wb_solve(void* ctx, void* solver, const double* p, const double* lbx, const double* ubx, const double* lbg,
+             const double* ubg, const double* x0, double budget_s, int warm_duals, const double* lam_g0,
              const double* lam_x0, double z_floor) {
   const double start = wb_now();
   wb_ctx* c = (wb_ctx*) ctx;
   wb_solver* s = (wb_solver*) solver;
   const int n_p = c->st->n_stages * c->st->n_params;
+  double *P = c->P_out, *x_out = c->x_out, *stats = c->stats_out;
   int k, ret;
-  if (!c->p_index) return -7;
+  if (!c->p_index || !P || !x_out || !c->lam_g_out || !c->lam_x_out || !stats) return -7;
   c->lbx = lbx; c->ubx = ubx; c->lbg = lbg; c->ubg = ubg; c->x0 = x0;
   ret = wb_check_inputs(c, p, x0);
   if (ret) return ret;
@@ -434,7 +443,7 @@ int wb_solve(void* ctx, void* solver, const double* p, double* P, const double* 
   if (c->nonfinite_hit) return -4;
   if (c->deadline_hit) { ret = 3; stats[1] = -3; }
   else if (ret == -1) return -1; /* exception inside Fatrop */
-  stats[11] = wb_unpack(c, s->solver, x_out, lam_g_out, lam_x_out);
+  stats[11] = wb_unpack(c, s->solver, x_out, c->lam_g_out, c->lam_x_out);
   stats[12] = wb_violation(c, x_out);
   stats[14] = 1;
   for (k = 0; k < c->st->n_variables; ++k)

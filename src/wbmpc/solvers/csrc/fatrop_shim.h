@@ -68,7 +68,8 @@ typedef struct {
   int has_jac, has_grad, has_obj;
   double* zeros;          /* max_x zeros: the last stage's dynamics multipliers */
   int* p_index;           /* n_stages x n_params: stage k's parameters' positions in the NLP's p (wb_ctx_parameters) */
-  int n_p;                /* length of the NLP's p (0: p_index not set, P given per stage) */
+  int n_p;                /* length of the NLP's p */
+  double *P_out, *x_out, *lam_g_out, *lam_x_out, *stats_out; /* wb_solve's outputs (wb_ctx_outputs) */
   double* stage_cost;     /* per stage, of the last cost evaluation */
   double* stage_f;        /* K * max_x: f of the last violation evaluation, per stage */
   double* stage_r;        /* K * max_rows: r of the same */
