@@ -86,6 +86,7 @@ _REFUSED = {-1: "solver_exception: Fatrop raised (see its output with print_leve
             -5: "invalid_input_nan", -6: "invalid_bounds"}
 _INVALID_INPUTS = (_REFUSED[-5], _REFUSED[-6])
 _C_DOUBLE = ctypes.c_double
+_F64 = np.dtype(np.float64)
 _DOUBLE_P = ctypes.POINTER(_C_DOUBLE)
 
 
@@ -124,14 +125,20 @@ def _ptr(array: np.ndarray):
     return array.ctypes.data_as(_DOUBLE_P)
 
 
-def _ref(array: np.ndarray):
-    """A float64 array's data as a ctypes argument for a double* (a c_double over its buffer: ~3x cheaper than
-    `array.ctypes.data`, whose object NumPy builds at every access; read-only arrays take that way)."""
-    return _C_DOUBLE.from_buffer(array) if array.flags.writeable else array.ctypes.data_as(_DOUBLE_P)
+def _refs(arrays) -> list:
+    """float64 arrays' data as ctypes arguments for double* (c_doubles over their buffers: ~3x cheaper than
+    `array.ctypes.data`, whose object NumPy builds at every access; read-only arrays go that way)."""
+    try:
+        return [_C_DOUBLE.from_buffer(array) for array in arrays]
+    except (TypeError, ValueError):  # a read-only (or empty) array
+        return [array.ctypes.data_as(_DOUBLE_P) for array in arrays]
 
 
 def _f64(values) -> np.ndarray:
-    return np.ascontiguousarray(values, dtype=np.float64).ravel()
+    """values as a 1-D C-contiguous float64 array: itself when it is one (the MPC's), else a converted copy."""
+    if type(values) is np.ndarray and values.dtype is _F64 and values.ndim == 1 and values.flags.c_contiguous:
+        return values
+    return np.ascontiguousarray(values, dtype=_F64).ravel()
 
 
 class FatropDirectSolver:
@@ -432,7 +439,7 @@ class FatropDirectSolver:
         otherwise), else on the instance of this structure; results into the preallocated outputs."""
         lib = self._library.lib
         solver = self._last_solver
-        p, lbx, ubx, lbg, ubg, x0 = (_ref(a) for a in inputs)
+        p, lbx, ubx, lbg, ubg, x0 = _refs(inputs)
         multipliers = (None, None)
         if given is not None:
             given = _f64(given[0]), _f64(given[1])
@@ -440,7 +447,7 @@ class FatropDirectSolver:
                 raise ConfigError(f"fatrop-direct's given multipliers have {given[0].size} and {given[1].size} "
                                   f"entries, the problem's lam_g {self.problem.n_constraints} and lam_x "
                                   f"{self.problem.n_variables}")
-            multipliers = (_ref(given[0]), _ref(given[1]))
+            multipliers = _refs(given)
         for attempt in range(2):
             if solver is not None:
                 options = (mu_init, max_iterations, self.config.print_level)

@@ -53,7 +53,8 @@ void wb_ctx_free(void* ctx) {
   free(c->a_eq_i); free(c->a_ineq_i); free(c->x_eq_i); free(c->x_ineq_i);
   free(c->zeros); free(c->stage_cost); free(c->stage_f); free(c->stage_r); free(c->last_primal);
   free(c->nur); free(c->u_fixed); free(c->u_fixed_i); free(c->rmap); free(c->rmap_i); free(c->red_pos);
-  free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->obj_primal); free(c->fix_i);
+  free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->obj_primal);
+  free(c->classes); free(c->fix_i);
   free(c->p_index);
   free(c->run_src); free(c->run_dst); free(c->run_len); free(c->run_i);
   free(c->stages.kind);
@@ -100,6 +101,7 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->jac_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->grad_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->obj_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
+  c->classes = (unsigned char*) calloc(st->n_variables + st->n_constraints + 1, 1);
   c->nur = (int*) calloc(K, sizeof(int));
   c->u_fixed = (int*) calloc(st->n_variables + 1, sizeof(int));
   c->rmap = (int*) calloc(st->n_variables + 1, sizeof(int));
@@ -115,7 +117,7 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
   ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
        c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->jac_primal && c->grad_primal &&
-       c->obj_primal &&
+       c->obj_primal && c->classes &&
        c->nur && c->u_fixed && c->rmap && c->red_pos && c->u_fixed_i && c->rmap_i && c->fix_i && c->fix_grad &&
        c->fix_jac && c->run_src && c->run_dst && c->run_len && c->run_i && c->work;
   for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);
@@ -385,19 +387,28 @@ static void wb_fill_stats(const wb_ctx* c, void* solver, double* stats) {
   stats[10] = c->t_functions;
 }
 
+/* 1 if every value is finite: v - v is 0 for a finite v and NaN otherwise (two sums, no branch per value) */
+static int wb_all_finite(const double* v, int n) {
+  double a = 0, b = 0;
+  int i;
+  for (i = 0; i + 2 <= n; i += 2) { a += v[i] - v[i]; b += v[i + 1] - v[i + 1]; }
+  if (i < n) a += v[i] - v[i];
+  return a + b == 0;
+}
+
+/* 1 if lower[i] <= upper[i] for every i (NaN fails) */
+static int wb_in_order(const double* lower, const double* upper, int n) {
+  int i, bad = 0;
+  for (i = 0; i < n; ++i) bad |= !(lower[i] <= upper[i]);
+  return !bad;
+}
+
 /* the inputs a solve refuses before any work: 0 if fine, -5 a parameter or an entry of the initial guess is not
    finite (Fatrop can hang on a NaN start), -6 a variable's or a row's bounds are out of order (lb > ub) or NaN */
 static int wb_check_inputs(const wb_ctx* c, const double* p, const double* x0) {
   const wb_stages* st = c->st;
-  int i;
-  for (i = 0; i < c->n_p; ++i)
-    if (!isfinite(p[i])) return -5;
-  for (i = 0; i < st->n_variables; ++i)
-    if (!isfinite(x0[i])) return -5;
-  for (i = 0; i < st->n_variables; ++i)
-    if (!(c->lbx[i] <= c->ubx[i])) return -6;
-  for (i = 0; i < st->n_constraints; ++i)
-    if (!(c->lbg[i] <= c->ubg[i])) return -6;
+  if (!wb_all_finite(p, c->n_p) || !wb_all_finite(x0, st->n_variables)) return -5;
+  if (!wb_in_order(c->lbx, c->ubx, st->n_variables) || !wb_in_order(c->lbg, c->ubg, st->n_constraints)) return -6;
   return 0;
 }
 
@@ -445,9 +456,7 @@ int wb_solve(void* ctx, void* solver, const double* p, const double* lbx, const 
   else if (ret == -1) return -1; /* exception inside Fatrop */
   stats[11] = wb_unpack(c, s->solver, x_out, c->lam_g_out, c->lam_x_out);
   stats[12] = wb_violation(c, x_out);
-  stats[14] = 1;
-  for (k = 0; k < c->st->n_variables; ++k)
-    if (!isfinite(x_out[k])) { stats[14] = 0; break; }
+  stats[14] = wb_all_finite(x_out, c->st->n_variables);
   stats[13] = wb_now() - start - stats[2];
   return ret;
 }
