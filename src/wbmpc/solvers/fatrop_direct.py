@@ -180,19 +180,8 @@ class FatropDirectSolver:
         self._quiet = False  # the last warm attempt converged within QUIET_ITERATIONS
         self.last_start = "cold"  # the last call's first attempt: "cold", "instance" or "given" multipliers
         self._warm_failures = 0
-        self._stage_p = np.zeros(lib.p_index.shape)
-        # x, lam_g, lam_x and the stats of the last call, written by the shim (results are copies of them)
-        self._out = (np.zeros(problem.n_variables), np.zeros(problem.n_constraints), np.zeros(problem.n_variables))
         self._options: dict[int, tuple] = {}  # per Fatrop instance: the (mu_init, max_iter, print_level) set
-        self._g = np.zeros(problem.n_constraints)
-        self._stats = np.zeros(_N_STATS)
-        lib.lib.wb_ctx_outputs(self._ctx, *(a.ctypes.data for a in (self._stage_p, *self._out, self._stats)))
-        n_x, n_g = problem.n_variables, problem.n_constraints
-        self._input_sizes = (problem.params.size, n_x, n_x, n_g, n_g, n_x)  # p, lbx, ubx, lbg, ubg, x0
-        # the shim gathers each stage's parameters from the NLP's p and checks p, x0 and the bounds itself
-        p_index = np.ascontiguousarray(lib.p_index, dtype=np.int64)
-        if lib.lib.wb_ctx_parameters(self._ctx, p_index.ctypes.data, problem.params.size) != 0:
-            raise ConfigError("the compiled stage library's parameter positions do not fit this problem's p")
+        self._bind_buffers(problem)
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
@@ -208,6 +197,22 @@ class FatropDirectSolver:
         if self.threads not in lib.warmed_up:
             lib.lib.wb_warm_up(self._ctx)
             lib.warmed_up.add(self.threads)
+
+    def _bind_buffers(self, problem: OcpProblem) -> None:
+        """The buffers wb_solve writes (stage parameters; x, lam_g, lam_x and the stats of the last call, results
+        being copies of them), their addresses given to the shim once, and the positions of the stages' parameters
+        in the NLP's p: the shim gathers them and checks p, x0 and the bounds itself."""
+        lib = self._library
+        self._stage_p = np.zeros(lib.p_index.shape)
+        self._out = (np.zeros(problem.n_variables), np.zeros(problem.n_constraints), np.zeros(problem.n_variables))
+        self._g = np.zeros(problem.n_constraints)
+        self._stats = np.zeros(_N_STATS)
+        lib.lib.wb_ctx_outputs(self._ctx, *(a.ctypes.data for a in (self._stage_p, *self._out, self._stats)))
+        n_x, n_g = problem.n_variables, problem.n_constraints
+        self._input_sizes = (problem.params.size, n_x, n_x, n_g, n_g, n_x)  # p, lbx, ubx, lbg, ubg, x0
+        p_index = np.ascontiguousarray(lib.p_index, dtype=np.int64)
+        if lib.lib.wb_ctx_parameters(self._ctx, p_index.ctypes.data, problem.params.size) != 0:
+            raise ConfigError("the compiled stage library's parameter positions do not fit this problem's p")
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property

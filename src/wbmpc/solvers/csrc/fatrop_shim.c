@@ -54,7 +54,7 @@ void wb_ctx_free(void* ctx) {
   free(c->zeros); free(c->stage_cost); free(c->stage_f); free(c->stage_r); free(c->last_primal);
   free(c->nur); free(c->u_fixed); free(c->u_fixed_i); free(c->rmap); free(c->rmap_i); free(c->red_pos);
   free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->obj_primal);
-  free(c->classes); free(c->fix_i);
+  free(c->fix_i);
   free(c->p_index);
   free(c->run_src); free(c->run_dst); free(c->run_len); free(c->run_i);
   free(c->stages.kind);
@@ -101,7 +101,6 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->jac_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->grad_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->obj_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
-  c->classes = (unsigned char*) calloc(st->n_variables + st->n_constraints + 1, 1);
   c->nur = (int*) calloc(K, sizeof(int));
   c->u_fixed = (int*) calloc(st->n_variables + 1, sizeof(int));
   c->rmap = (int*) calloc(st->n_variables + 1, sizeof(int));
@@ -117,7 +116,7 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
   ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
        c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->jac_primal && c->grad_primal &&
-       c->obj_primal && c->classes &&
+       c->obj_primal &&
        c->nur && c->u_fixed && c->rmap && c->red_pos && c->u_fixed_i && c->rmap_i && c->fix_i && c->fix_grad &&
        c->fix_jac && c->run_src && c->run_dst && c->run_len && c->run_i && c->work;
   for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);

@@ -66,8 +66,6 @@ typedef struct {
   double *fix_jac, *fix_grad, *jac_primal, *grad_primal, *obj_primal;
   int* fix_i;                /* K + 1 starts into fix_jac (fix_grad: u_fixed_i) */
   int has_jac, has_grad, has_obj;
-  unsigned char* classes; /* per row, then per variable: the last classification's classes (wb_classify) */
-  int classes_valid;      /* 0: none yet, else 1 + the elimination setting they were made with */
   double* zeros;          /* max_x zeros: the last stage's dynamics multipliers */
   int* p_index;           /* n_stages x n_params: stage k's parameters' positions in the NLP's p (wb_ctx_parameters) */
   int n_p;                /* length of the NLP's p */

@@ -52,33 +52,9 @@ static void wb_reduce_stage(wb_ctx* c, int k) {
   wb_stage_runs(c, k);
 }
 
-/* each row's and variable's class (0 equality, 1 inequality, 2 free) into c->classes: 1 if they and the
-   elimination setting are those of the last classification (its index arrays then hold), else 0 */
-static int wb_same_classes(wb_ctx* c) {
-  const wb_stages* st = c->st;
-  unsigned char* cls = c->classes;
-  int i, changed = c->classes_valid != 1 + c->eliminate;
-#define WB_CLASS(lo, hi) (unsigned char) ((lo) != (hi)) * (unsigned char) (1 + ((lo) == -INFINITY && (hi) == INFINITY))
-  for (i = 0; i < st->n_constraints; ++i) {
-    const unsigned char v = WB_CLASS(c->lbg[i], c->ubg[i]);
-    changed |= v != cls[i];
-    cls[i] = v;
-  }
-  cls += st->n_constraints;
-  for (i = 0; i < st->n_variables; ++i) {
-    const unsigned char v = WB_CLASS(c->lbx[i], c->ubx[i]);
-    changed |= v != cls[i];
-    cls[i] = v;
-  }
-#undef WB_CLASS
-  c->classes_valid = 1 + c->eliminate;
-  return !changed;
-}
-
 void wb_classify(wb_ctx* c) {
   const wb_stages* st = c->st;
   int k, i;
-  if (wb_same_classes(c)) return;
   c->a_eq_i[0] = c->a_ineq_i[0] = c->x_eq_i[0] = c->x_ineq_i[0] = 0;
   c->u_fixed_i[0] = c->rmap_i[0] = c->fix_i[0] = c->run_i[0] = c->n_fatrop = 0;
   for (k = 0; k < st->n_stages; ++k) {
