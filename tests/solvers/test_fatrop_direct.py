@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
@@ -325,16 +326,46 @@ def test_fatrop_options_pass_through_and_an_unknown_one_is_named(direct, step_da
     of the wrong type is refused by name instead of silently ignored."""
     loose = direct.recreated(extra_options={"fatrop": {"tolerance": 1e-1, "constr_viol_tol": 1e-1}})
     assert loose.solve(**step_data).stats.iterations < direct.solve(**step_data).stats.iterations
-    from wbmpc.errors import ConfigError
-
     for options in ({"bound_pish": 1e-2}, {"bound_push": 1}):
         with pytest.raises(ConfigError, match=f"Fatrop has no .*option '{next(iter(options))}'"):
             direct.recreated(extra_options={"fatrop": options}).solve(**step_data)
 
 
-def test_nan_guess_is_refused(direct, step_data):
-    data = {**step_data, "x0": np.full_like(step_data["x0"], np.nan)}
-    assert direct.solve(**data).stats.status == "invalid_input_nan"
+@pytest.mark.parametrize("name, index, value, status", [
+    ("x0", None, np.nan, "invalid_input_nan"), ("x0", 7, np.inf, "invalid_input_nan"),
+    ("p", -1, np.nan, "invalid_input_nan"), ("lbx", "above", 1.0, "invalid_bounds"), ("ubg", -1, np.nan, "invalid_bounds"),
+    ("lbg", 0, np.nan, "invalid_bounds")])
+def test_refused_inputs_give_a_named_failure_and_no_nan_plan(problem, codegen, step_data, name, index, value, status):
+    """The shim checks the inputs before any work (Fatrop can hang on a NaN start; a NaN bound would reach its
+    iterates): a non-finite p or x0, or a bound out of order or NaN, is a failed solve whose status says which,
+    with no Fatrop instance built for such bounds; the next valid call solves."""
+    fresh = FatropDirectSolver(problem, SolverConfig(name="fatrop-direct", codegen=codegen))
+    bad = {key: np.array(value_, dtype=float) for key, value_ in step_data.items()}
+    if index is None:
+        bad[name][:] = value
+    elif index == "above":  # a variable's lower bound above its (finite) upper one
+        index = int(np.flatnonzero(np.isfinite(bad["ubx"]))[0])
+        bad[name][index] = bad["ubx"][index] + value
+    else:
+        bad[name][index] = value
+    result = fresh.solve(**bad, warm_start=True)
+    assert result.stats.status == status and not result.stats.success
+    assert np.isnan(result.x).all() and fresh.structure_keys == ()
+    assert fresh.solve(**step_data).stats.success
+
+
+def test_inputs_of_another_size_are_refused_by_name(direct, step_data):
+    with pytest.raises(ConfigError, match=r"lbg has 3 entries, the problem \d+"):
+        direct.solve(**{**step_data, "lbg": np.zeros(3)})
+
+
+def test_shim_reports_its_own_work_around_fatrop_as_interface(direct, step_data):
+    """The split's parts add up to the call: the shim's checks, row classification and unpacking (timed in C) are
+    `interface`, not `outside_solver` (the Python and ctypes around the call)."""
+    stats = direct.solve(**step_data).stats
+    split = stats.split_ms
+    assert split["interface"] > 0 and split["outside_solver"] >= 0
+    assert sum(split.values()) == pytest.approx(1e3 * stats.solve_time_s, rel=0.05, abs=0.05)
 
 
 def test_missing_compiler_falls_back_to_casadis_fatrop(problem, step_data, tmp_path):

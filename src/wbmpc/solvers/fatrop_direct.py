@@ -37,9 +37,9 @@ import numpy as np
 
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
-from wbmpc.solvers import blasfeo, stage_library
+from wbmpc.solvers import stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
-from wbmpc.solvers.fatrop_shim import FatropUnavailable, build_shim
+from wbmpc.solvers.fatrop_shim import FatropUnavailable, ShimLibrary, build_shim
 from wbmpc.solvers.nlp import (
     _FATROP_FLAGS,
     NlpResult,
@@ -49,7 +49,6 @@ from wbmpc.solvers.nlp import (
     bound_violation,
     failed_result,
 )
-from wbmpc.solvers.stage_library import StageLibrary
 
 NAME = "fatrop-direct"
 # The binding's own KKT and constraint tolerances, used while SolverConfig holds its defaults (1e-4 / 1e-6) and
@@ -83,54 +82,15 @@ QUIET_ITERATIONS = 2
 # stay; a bound below a cycle's patterns rebuilds one at every change (8: 135 rebuilds of 2.7 ms in 3 s against 30
 # of 11 ms). The bound keeps gaits and terrains with ever new patterns from growing the process without limit
 MAX_INSTANCES = 48
-_N_STATS = 13
-_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
-
-
-class _Library:
-    """The compiled shim and the problem's stage library, loaded with ctypes, shared by every solver on the problem."""
-
-    def __init__(self, shim: CompileReport, stages: StageLibrary):
-        self.report, self.shim_report, self.stages = stages.report, shim, stages
-        self.p_index = stages.p_index
-        blasfeo.activate()  # before libfatrop (and its BLASFEO) is loaded with the shim
-        lib = ctypes.CDLL(str(shim.library))
-        lib.wb_ctx_new.restype = ctypes.c_void_p
-        lib.wb_ctx_new.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)] + [ctypes.c_int] * 5
-        lib.wb_ctx_free.argtypes = [ctypes.c_void_p]
-        lib.wb_ctx_threads.argtypes = [ctypes.c_void_p]
-        lib.wb_sizes.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int)]
-        lib.wb_solver_new.restype = ctypes.c_void_p
-        lib.wb_solver_new.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 4 + [ctypes.c_int]
-        lib.wb_solver_free.argtypes = [ctypes.c_void_p]
-        for name, kind in (("wb_option_double", ctypes.c_double), ("wb_option_int", ctypes.c_int),
-                           ("wb_option_bool", ctypes.c_int)):
-            getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
-        lib.wb_eval_g.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 3
-        lib.wb_eval_derivatives.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P, ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
-        lib.wb_solve.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_double, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
-                                                           ctypes.c_double]
-        lib.wbd_fatrop_kernels.argtypes = [ctypes.c_int]
-        lib.wbd_fatrop_kernels.restype = ctypes.c_int
-        lib.wb_warm_up.argtypes = [ctypes.c_void_p]
-        lib.wb_ctx_eliminate_fixed.argtypes = [ctypes.c_void_p, ctypes.c_int]
-        self.lib = lib
-        self.warmed_up: set[int] = set()  # thread counts whose first context ran wb_warm_up
-
-    def context(self, threads: int) -> ctypes.c_void_p:
-        """A new context (scratch and thread pool) evaluating on `threads` threads."""
-        stages = self.stages
-        layout = stages.layout.ctypes.data_as(ctypes.POINTER(ctypes.c_int))
-        ctx = ctypes.c_void_p(self.lib.wb_ctx_new(stages.kinds, layout, *stages.sizes, int(threads)))
-        if not ctx.value:
-            raise RuntimeError("the Fatrop shim could not allocate its context (out of memory, or the stage library "
-                               "was built for another shim: clear the cache directory)")
-        return ctx
-
-    def sizes(self, ctx) -> tuple[int, int, int, int]:
-        sizes = (ctypes.c_int * 4)()
-        self.lib.wb_sizes(ctx, sizes)
-        return tuple(sizes)
+_N_STATS = 15
+# wb_solve's codes of a call that did not solve (csrc/fatrop_shim.c), as statuses
+_REFUSED = {-1: "solver_exception: Fatrop raised (see its output with print_level > 0)",
+            -2: "solver_exception: row structure changed under the solver", -4: "invalid_input_nan_constraints",
+            -5: "invalid_input_nan", -6: "invalid_bounds"}
+_INVALID_INPUTS = (_REFUSED[-5], _REFUSED[-6])
+_C_DOUBLE = ctypes.c_double
+_F64 = np.dtype(np.float64)
+_DOUBLE_P = ctypes.POINTER(_C_DOUBLE)
 
 
 def default_threads() -> int:
@@ -168,15 +128,27 @@ def _ptr(array: np.ndarray):
     return array.ctypes.data_as(_DOUBLE_P)
 
 
+def _refs(arrays) -> list:
+    """float64 arrays' data as ctypes arguments for double* (c_doubles over their buffers: ~3x cheaper than
+    `array.ctypes.data`, whose object NumPy builds at every access; read-only arrays go that way)."""
+    try:
+        return [_C_DOUBLE.from_buffer(array) for array in arrays]
+    except (TypeError, ValueError):  # a read-only (or empty) array
+        return [array.ctypes.data_as(_DOUBLE_P) for array in arrays]
+
+
 def _f64(values) -> np.ndarray:
-    return np.ascontiguousarray(values, dtype=np.float64).ravel()
+    """values as a 1-D C-contiguous float64 array: itself when it is one (the MPC's), else a converted copy."""
+    if type(values) is np.ndarray and values.dtype is _F64 and values.ndim == 1 and values.flags.c_contiguous:
+        return values
+    return np.ascontiguousarray(values, dtype=_F64).ravel()
 
 
 class FatropDirectSolver:
     """Fatrop through its OCP C interface on our compiled stage functions (see the module docstring)."""
 
     def __init__(self, problem: OcpProblem, config: SolverConfig = SolverConfig(name=NAME),
-                 library: _Library | None = None):
+                 library: ShimLibrary | None = None):
         if config.name != NAME:
             raise ConfigError(f"FatropDirectSolver needs SolverConfig(name='{NAME}'), got '{config.name}'")
         self.problem, self.config = problem, config
@@ -186,7 +158,7 @@ class FatropDirectSolver:
         self._library = library
         if library is None:
             try:
-                self._library = _Library(build_shim(config.codegen), stage_library.build(problem, config.codegen))
+                self._library = ShimLibrary(build_shim(config.codegen), stage_library.build(problem, config.codegen))
             except (CompileError, FatropUnavailable, OSError) as exc:
                 self.direct_error = self.compile_error = str(exc)
                 warnings.warn(f"the direct Fatrop binding is unavailable, using casadi's Fatrop: {exc}",
@@ -211,14 +183,8 @@ class FatropDirectSolver:
         self._quiet = False  # the last warm attempt converged within QUIET_ITERATIONS
         self.last_start = "cold"  # the last call's first attempt: "cold", "instance" or "given" multipliers
         self._warm_failures = 0
-        self._stage_p = np.zeros(lib.p_index.shape)
-        # x, lam_g, lam_x and the stats of the last call, written by the shim (results are copies of them)
-        self._out = (np.zeros(problem.n_variables), np.zeros(problem.n_constraints), np.zeros(problem.n_variables))
         self._options: dict[int, tuple] = {}  # per Fatrop instance: the (mu_init, max_iter, print_level) set
-        self._g = np.zeros(problem.n_constraints)
-        self._stats = np.zeros(_N_STATS)
-        # addresses for wb_solve: stage parameters, then (after the bounds and x0) x, lam_g, lam_x, stats
-        self._out_addresses = tuple(a.ctypes.data for a in (self._stage_p, *self._out, self._stats))
+        self._bind_buffers(problem)
         # MPC warm starts (the small-barrier attempt) start the equality multipliers from the instance's last
         # converged solution instead of Fatrop's least-squares estimate (one KKT factorisation less)
         self.warm_duals = bool(config.extra_options.get("warm_duals", True))
@@ -234,6 +200,22 @@ class FatropDirectSolver:
         if self.threads not in lib.warmed_up:
             lib.lib.wb_warm_up(self._ctx)
             lib.warmed_up.add(self.threads)
+
+    def _bind_buffers(self, problem: OcpProblem) -> None:
+        """The buffers wb_solve writes (stage parameters; x, lam_g, lam_x and the stats of the last call, results
+        being copies of them), their addresses given to the shim once, and the positions of the stages' parameters
+        in the NLP's p: the shim gathers them and checks p, x0 and the bounds itself."""
+        lib = self._library
+        self._stage_p = np.zeros(lib.p_index.shape)
+        self._out = (np.zeros(problem.n_variables), np.zeros(problem.n_constraints), np.zeros(problem.n_variables))
+        self._g = np.zeros(problem.n_constraints)
+        self._stats = np.zeros(_N_STATS)
+        lib.lib.wb_ctx_outputs(self._ctx, *(a.ctypes.data for a in (self._stage_p, *self._out, self._stats)))
+        n_x, n_g = problem.n_variables, problem.n_constraints
+        self._input_sizes = (problem.params.size, n_x, n_x, n_g, n_g, n_x)  # p, lbx, ubx, lbg, ubg, x0
+        p_index = np.ascontiguousarray(lib.p_index, dtype=np.int64)
+        if lib.lib.wb_ctx_parameters(self._ctx, p_index.ctypes.data, problem.params.size) != 0:
+            raise ConfigError("the compiled stage library's parameter positions do not fit this problem's p")
 
     # ---------------------------------------------------------------- NlpSolver's interface
     @property
@@ -367,6 +349,8 @@ class FatropDirectSolver:
         if attempt.stats.success or attempt.stats.status == "time_limit_reached":
             self._warm_failures = 0 if attempt.stats.success else self._warm_failures
             return attempt
+        if attempt.stats.status in _INVALID_INPUTS:  # refused before any work: a cold attempt would be refused too
+            return attempt
         if given is not None or not offered:  # (a quiet step's failed attempt: the given multipliers next step)
             self._warm_pause = cfg.warm_backoff_steps * 2 ** min(self._warm_failures, 3)
             self._warm_failures += 1
@@ -425,75 +409,80 @@ class FatropDirectSolver:
 
     def _solve(self, p, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int,
                deadline: float | None = None, warm_duals: bool = False, given=None) -> NlpResult:
-        problem = self.problem
-        lbx, ubx, lbg, ubg, x0 = (_f64(a) for a in (lbx, ubx, lbg, ubg, x0))
-        # Fatrop can hang on a NaN at the initial guess: refuse such calls and say why (as NlpSolver); NaN
-        # constraint values or derivatives at x0 end the solve at its first evaluation (code -4)
-        if not (np.isfinite(p).all() and np.isfinite(x0).all()):
-            return failed_result(problem, x0, "invalid_input_nan")
-        if (lbx > ubx).any() or (lbg > ubg).any():
-            return failed_result(problem, x0, "invalid_bounds")
+        """One wb_solve: the shim checks the inputs (finite p and x0, bounds in order: Fatrop can hang on a NaN
+        start), gathers the stages' parameters, classifies the rows, solves and unpacks into the preallocated
+        outputs; the result holds copies of them."""
+        inputs = (_f64(p), _f64(lbx), _f64(ubx), _f64(lbg), _f64(ubg), _f64(x0))
+        if (inputs[0].size, inputs[1].size, inputs[2].size, inputs[3].size, inputs[4].size, inputs[5].size) != \
+                self._input_sizes:
+            self._refuse_sizes(inputs)
         start, start_cpu = time.perf_counter(), self._cpu_s()
-        self.stage_parameters(p)
         # the driver maps the stored multipliers position by position within each stage: where a gait switch
         # swapped rows between two feet the start is off for those rows only (measured on the b1_z1 trot:
         # requiring the same rows halved the warm starts used and cost 0.5-1 ms CPU per step on average)
-        warm = int(warm_duals and self.warm_duals)
-        if given is not None:
-            given = _f64(given[0]), _f64(given[1])
-            warm = 2
+        warm = 2 if given is not None else int(warm_duals and self.warm_duals)
         budget_s = 0.0 if deadline is None else max(deadline - time.perf_counter(), 1e-9)
-        code = self._call(lbx, ubx, lbg, ubg, x0, mu_init, int(max_iterations), budget_s, warm, given)
+        code = self._call(inputs, mu_init, int(max_iterations), budget_s, warm, given)
         elapsed, cpu = time.perf_counter() - start, self._cpu_s() - start_cpu
-        if code in (-4, -1, -2):
-            return failed_result(problem, x0, {
-                -4: "invalid_input_nan_constraints", -2: "solver_exception: row structure changed under the solver",
-                -1: "solver_exception: Fatrop raised (see its output with print_level > 0)"}[code])
-        stats = self._stats
-        x = self._out[0].copy()
-        flag = int(stats[1])
+        if code < 0:
+            return failed_result(self.problem, inputs[5], _REFUSED.get(code, f"solver_exception: shim code {code}"))
+        stats = self._stats.tolist()  # Python floats: no NumPy scalars below (every MPC step)
+        flag, finite = int(stats[1]), stats[14] > 0  # stats[14]: every entry of x finite (the shim's check)
         status = "time_limit_reached" if code == 3 else _FATROP_FLAGS.get(flag, f"fatrop_flag_{flag}")
-        finite = bool(np.isfinite(x).all())
-        viol = float(stats[12]) if finite else float("inf")  # bound_violation's, computed by the shim
-        return NlpResult(x=x, lam_g=self._out[1].copy(), lam_x=self._out[2].copy(), stats=SolverStats(
-            status=status, success=flag in (0, 2) and finite, iterations=int(stats[0]), solve_time_s=elapsed,
-            max_constraint_violation=viol, cost=float(stats[11]), cpu_time_s=cpu,
+        out = self._out
+        return NlpResult(x=out[0].copy(), lam_g=out[1].copy(), lam_x=out[2].copy(), stats=SolverStats(
+            status=status, success=finite and flag in (0, 2), iterations=int(stats[0]), solve_time_s=elapsed,
+            max_constraint_violation=stats[12] if finite else float("inf"), cost=stats[11], cpu_time_s=cpu,
             split_ms=_time_split_ms(stats, elapsed)))
 
-    def _call(self, lbx, ubx, lbg, ubg, x0, mu_init: float, max_iterations: int, budget_s: float, warm: int,
-              given=None) -> int:
-        """wb_solve on the last step's Fatrop instance first (the shim classifies the rows anyway and refuses, -2,
-        another structure without solving, so the row-count key is computed only then: 0.08 ms a step otherwise),
-        else on the instance of this structure; results into the preallocated outputs."""
+    def _refuse_sizes(self, inputs) -> None:
+        names = ("p", "lbx", "ubx", "lbg", "ubg", "x0")
+        wrong = [f"{name} has {array.size} entries, the problem {size}"
+                 for name, array, size in zip(names, inputs, self._input_sizes) if array.size != size]
+        raise ConfigError(f"fatrop-direct's solve got inputs of another problem: {'; '.join(wrong)}")
+
+    def _call(self, inputs, mu_init: float, max_iterations: int, budget_s: float, warm: int, given=None) -> int:
+        """wb_solve on the last step's Fatrop instance first (the shim checks the inputs, classifies the rows and
+        refuses, -2, another structure without solving, so the row-count key is computed only then: 0.08 ms a step
+        otherwise), else on the instance of this structure; results into the preallocated outputs."""
         lib = self._library.lib
-        solver = self._last_solver or self._solver_for(lbx, ubx, lbg, ubg)
+        solver = self._last_solver
+        p, lbx, ubx, lbg, ubg, x0 = _refs(inputs)
+        multipliers = (None, None)
+        if given is not None:
+            given = _f64(given[0]), _f64(given[1])
+            if (given[0].size, given[1].size) != (self.problem.n_constraints, self.problem.n_variables):
+                raise ConfigError(f"fatrop-direct's given multipliers have {given[0].size} and {given[1].size} "
+                                  f"entries, the problem's lam_g {self.problem.n_constraints} and lam_x "
+                                  f"{self.problem.n_variables}")
+            multipliers = _refs(given)
         for attempt in range(2):
-            options = (mu_init, max_iterations, int(self.config.print_level))
-            if self._options.get(solver.value) != options:  # options hold between calls on an instance
-                lib.wb_option_double(solver, b"mu_init", mu_init)
-                lib.wb_option_int(solver, b"max_iter", max_iterations)
-                lib.wb_option_int(solver, b"print_level", options[2])
-                self._options[solver.value] = options
-            # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler)
-            code = lib.wb_solve(self._ctx, solver, self._out_addresses[0], lbx.ctypes.data, ubx.ctypes.data,
-                                lbg.ctypes.data, ubg.ctypes.data, x0.ctypes.data, *self._out_addresses[1:],
-                                budget_s, warm, *((given[0].ctypes.data, given[1].ctypes.data) if given else (None, None)),
-                                mu_init)
+            if solver is not None:
+                options = (mu_init, max_iterations, self.config.print_level)
+                if self._options.get(solver.value) != options:  # options hold between calls on an instance
+                    lib.wb_option_double(solver, b"mu_init", mu_init)
+                    lib.wb_option_int(solver, b"max_iter", max_iterations)
+                    lib.wb_option_int(solver, b"print_level", int(options[2]))
+                    self._options[solver.value] = options
+            # a Ctrl-C meanwhile raises KeyboardInterrupt when the call returns (Fatrop installs no handler);
+            # no instance yet: the shim checks the inputs and returns -2 before any work
+            code = lib.wb_solve(self._ctx, solver, p, lbx, ubx, lbg, ubg, x0, budget_s, warm, *multipliers, mu_init)
             if code != -2 or attempt:
                 break
-            solver = self._solver_for(lbx, ubx, lbg, ubg)
+            solver = self._solver_for(*inputs[1:5])
         self._last_solver = solver if code != -2 else None
         return code
 
 
-def _time_split_ms(stats: np.ndarray, elapsed_s: float) -> dict:
+def _time_split_ms(stats: list, elapsed_s: float) -> dict:
     """The solve's time split in `nlp.time_split_ms`'s parts: functions (the generated code, timed by the
-    shim), linear algebra, initialization, interface (Fatrop's evaluation timers beyond the functions:
-    packing into BLASFEO), the rest inside Fatrop, and outside the solver (Python, ctypes, unpacking)."""
-    values = stats[2:11].tolist()  # Python floats: the arithmetic below without NumPy scalars (every MPC step)
-    total, search_dir, init, functions = 1e3 * values[0], 1e3 * values[1], 1e3 * values[2], 1e3 * values[8]
-    callbacks = 1e3 * sum(values[3:8])
+    shim), linear algebra, initialization, interface (the shim's C between the NLP's layout and Fatrop's: Fatrop's
+    evaluation timers beyond the functions, i.e. packing into BLASFEO, and the shim's work around Fatrop's solve:
+    input checks, row classification, unpacking the solution), the rest inside Fatrop, and outside the solver
+    (Python, ctypes)."""
+    total, search_dir, init, functions = 1e3 * stats[2], 1e3 * stats[3], 1e3 * stats[4], 1e3 * stats[10]
+    callbacks, around = 1e3 * (stats[5] + stats[6] + stats[7] + stats[8] + stats[9]), 1e3 * stats[13]
     return {"functions": functions, "linear_algebra": search_dir, "initialization": init,
-            "interface": max(callbacks - functions, 0.0),
+            "interface": max(callbacks - functions, 0.0) + around,
             "line_search_and_rest": max(total - search_dir - init - max(callbacks, functions), 0.0),
-            "outside_solver": max(1e3 * elapsed_s - total, 0.0)}
+            "outside_solver": max(1e3 * elapsed_s - total - around, 0.0)}

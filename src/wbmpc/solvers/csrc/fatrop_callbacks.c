@@ -128,9 +128,12 @@ static fatrop_int cb_full_obj(double scale, const double* primal, const double* 
   double total = 0;
   int k;
   wb_begin(c, primal, 0, scale, s);
+  c->has_obj = 0;
   for (k = 0; k < c->st->n_stages; ++k) wb_task_cost(c, k, 0);
   for (k = 0; k < c->st->n_stages; ++k) total += c->stage_cost[k];
   *res = scale * total;
+  memcpy(c->obj_primal, primal, sizeof(double) * c->n_fatrop); /* the solution's cost, when it was there */
+  c->has_obj = 1;
   return 1;
 }
 

@@ -53,7 +53,9 @@ void wb_ctx_free(void* ctx) {
   free(c->a_eq_i); free(c->a_ineq_i); free(c->x_eq_i); free(c->x_ineq_i);
   free(c->zeros); free(c->stage_cost); free(c->stage_f); free(c->stage_r); free(c->last_primal);
   free(c->nur); free(c->u_fixed); free(c->u_fixed_i); free(c->rmap); free(c->rmap_i); free(c->red_pos);
-  free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->fix_i);
+  free(c->fix_jac); free(c->fix_grad); free(c->jac_primal); free(c->grad_primal); free(c->obj_primal);
+  free(c->fix_i);
+  free(c->p_index);
   free(c->run_src); free(c->run_dst); free(c->run_len); free(c->run_i);
   free(c->stages.kind);
   free(c);
@@ -98,6 +100,7 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->last_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->jac_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->grad_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
+  c->obj_primal = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->nur = (int*) calloc(K, sizeof(int));
   c->u_fixed = (int*) calloc(st->n_variables + 1, sizeof(int));
   c->rmap = (int*) calloc(st->n_variables + 1, sizeof(int));
@@ -113,6 +116,7 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
   ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
        c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->jac_primal && c->grad_primal &&
+       c->obj_primal &&
        c->nur && c->u_fixed && c->rmap && c->red_pos && c->u_fixed_i && c->rmap_i && c->fix_i && c->fix_grad &&
        c->fix_jac && c->run_src && c->run_dst && c->run_len && c->run_i && c->work;
   for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);
@@ -146,6 +150,31 @@ int wb_ctx_threads(void* ctx) { return 1 + wb_pool_workers(((wb_ctx*) ctx)->pool
 /* 1 (default): inputs with lb == ub are eliminated (stage_layout.c); 0: equality rows, as casadi's plugin. Set before
    the context's first solver is made: its Fatrop instances keep the dimensions they were built with */
 void wb_ctx_eliminate_fixed(void* ctx, int on) { ((wb_ctx*) ctx)->eliminate = on != 0; }
+
+/* where each stage's parameters are in the NLP's p (n_stages x n_params positions, row-major, each below n_p): wb_solve
+   then takes the NLP's p and gathers the stages' parameters itself. 0, or -1 for a position out of range */
+int wb_ctx_parameters(void* ctx, const long long* p_index, int n_p) {
+  wb_ctx* c = (wb_ctx*) ctx;
+  const size_t n = (size_t) c->st->n_stages * c->st->n_params;
+  size_t i;
+  int* copy = (int*) malloc(sizeof(int) * (n + 1));
+  if (!copy || n_p < 0) { free(copy); return -1; }
+  for (i = 0; i < n; ++i) {
+    if (p_index[i] < 0 || p_index[i] >= n_p) { free(copy); return -1; }
+    copy[i] = (int) p_index[i];
+  }
+  free(c->p_index);
+  c->p_index = copy;
+  c->n_p = n_p;
+  return 0;
+}
+
+/* where wb_solve writes: the stages' parameters P (n_stages x n_params), x, lam_g, lam_x (the NLP's layout) and its
+   stats (15, see wb_solve): the caller's buffers, set once (fewer arguments per call) */
+void wb_ctx_outputs(void* ctx, double* P, double* x, double* lam_g, double* lam_x, double* stats) {
+  wb_ctx* c = (wb_ctx*) ctx;
+  c->P_out = P; c->x_out = x; c->lam_g_out = lam_g; c->lam_x_out = lam_x; c->stats_out = stats;
+}
 
 int wb_sizes(void* ctx, int* out) {
   const wb_stages* st = ((wb_ctx*) ctx)->st;
@@ -325,9 +354,10 @@ static double wb_unpack(wb_ctx* c, void* solver, double* x_out, double* lam_g_ou
   memset(&c->job, 0, sizeof(c->job));
   c->job.primal = primal;
   c->job.dims = dims;
+  const int costed = wb_same_point(c, c->has_obj, c->obj_primal, primal); /* stage_cost holds its costs */
   for (k = 0; k < st->n_stages; ++k) {
     wb_unpack_stage(c, k, primal, dual, dims, x_out, lam_g_out, lam_x_out);
-    wb_task_cost(c, k, 0);
+    if (!costed) wb_task_cost(c, k, 0);
     cost += c->stage_cost[k];
   }
   if (c->u_fixed_i[st->n_stages] > 0) {
@@ -356,25 +386,65 @@ static void wb_fill_stats(const wb_ctx* c, void* solver, double* stats) {
   stats[10] = c->t_functions;
 }
 
-/* stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s), stage
-   evaluations (s), cost, largest bound violation at the solution. budget_s > 0: stop at the first evaluation after
-   that many seconds with the last accepted iterate (return 3, flag -3). Returns 0 converged, 1 not, -1 Fatrop raised,
-   -2 another row structure than the solver's, -4 non-finite constraint values or derivatives at x0. warm_duals: 0
-   Fatrop's own start (bound multipliers 1, least-squares equality multipliers), 1 this instance's last solution's,
-   2 the given lam_g0 / lam_x0 (NLP layout), bound multipliers at least z_floor / their slack's distance */
-int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const double* ubx, const double* lbg,
-             const double* ubg, const double* x0, double* x_out, double* lam_g_out, double* lam_x_out,
-             double* stats, double budget_s, int warm_duals, const double* lam_g0, const double* lam_x0,
-             double z_floor) {
+/* 1 if every value is finite: v - v is 0 for a finite v and NaN otherwise (two sums, no branch per value) */
+static int wb_all_finite(const double* v, int n) {
+  double a = 0, b = 0;
+  int i;
+  for (i = 0; i + 2 <= n; i += 2) { a += v[i] - v[i]; b += v[i + 1] - v[i + 1]; }
+  if (i < n) a += v[i] - v[i];
+  return a + b == 0;
+}
+
+/* 1 if lower[i] <= upper[i] for every i (NaN fails) */
+static int wb_in_order(const double* lower, const double* upper, int n) {
+  int i, bad = 0;
+  for (i = 0; i < n; ++i) bad |= !(lower[i] <= upper[i]);
+  return !bad;
+}
+
+/* the inputs a solve refuses before any work: 0 if fine, -5 a parameter or an entry of the initial guess is not
+   finite (Fatrop can hang on a NaN start), -6 a variable's or a row's bounds are out of order (lb > ub) or NaN */
+static int wb_check_inputs(const wb_ctx* c, const double* p, const double* x0) {
+  const wb_stages* st = c->st;
+  if (!wb_all_finite(p, c->n_p) || !wb_all_finite(x0, st->n_variables)) return -5;
+  if (!wb_in_order(c->lbx, c->ubx, st->n_variables) || !wb_in_order(c->lbg, c->ubg, st->n_constraints)) return -6;
+  return 0;
+}
+
+/* One MPC solve from the NLP's p, bounds and initial guess (the inputs checked first, wb_check_inputs): the stages'
+   parameters gathered into P (n_stages x n_params, wb_ctx_parameters' positions), the solution unpacked into x,
+   lam_g, lam_x and the stats written into wb_ctx_outputs' buffers. solver NULL: the checks and the row
+   classification only, returning -2 (the caller makes the instance of these bounds' rows and calls again).
+   stats: iterations, return flag, total, search directions, initialization, hess, jac, cv, grad, obj (s), stage
+   evaluations (s), cost, largest bound violation at the solution, the call's wall time outside Fatrop's timer (s:
+   checks, rows, warm start, unpacking), 1 if every entry of x is finite (else 0). budget_s > 0: stop at the first
+   evaluation after that many seconds with the last accepted iterate (return 3, flag -3). Returns 0 converged, 1 not,
+   -1 Fatrop raised, -2 another row structure than the solver's, -4 non-finite constraint values or derivatives at
+   x0, -5 / -6 refused inputs (wb_check_inputs), -7 no parameter positions or outputs (wb_ctx_parameters,
+   wb_ctx_outputs). warm_duals: 0 Fatrop's own start (bound multipliers 1, least-squares equality multipliers), 1
+   this instance's last solution's, 2 the given lam_g0 / lam_x0 (NLP layout), bound multipliers at least z_floor /
+   their slack's distance */
+int wb_solve(void* ctx, void* solver, const double* p, const double* lbx, const double* ubx, const double* lbg,
+             const double* ubg, const double* x0, double budget_s, int warm_duals, const double* lam_g0,
+             const double* lam_x0, double z_floor) {
+  const double start = wb_now();
   wb_ctx* c = (wb_ctx*) ctx;
   wb_solver* s = (wb_solver*) solver;
+  const int n_p = c->st->n_stages * c->st->n_params;
+  double *P = c->P_out, *x_out = c->x_out, *stats = c->stats_out;
   int k, ret;
-  c->P = P; c->lbx = lbx; c->ubx = ubx; c->lbg = lbg; c->ubg = ubg; c->x0 = x0;
+  if (!c->p_index || !P || !x_out || !c->lam_g_out || !c->lam_x_out || !stats) return -7;
+  c->lbx = lbx; c->ubx = ubx; c->lbg = lbg; c->ubg = ubg; c->x0 = x0;
+  ret = wb_check_inputs(c, p, x0);
+  if (ret) return ret;
+  for (k = 0; k < n_p; ++k) P[k] = p[c->p_index[k]];
+  c->P = P;
   wb_classify(c);
-  for (k = 0; k < c->st->n_stages; ++k)
+  for (k = 0; s && k < c->st->n_stages; ++k)
     if (wb_n_eq(c, k) != s->n_eq[k] || wb_n_ineq(c, k) != s->n_ineq[k] || c->nur[k] != s->nur[k]) return -2;
+  if (!s) return -2;
   c->t_functions = 0;
-  c->deadline_hit = c->nonfinite_hit = c->checked = c->has_last = c->has_jac = c->has_grad = 0;
+  c->deadline_hit = c->nonfinite_hit = c->checked = c->has_last = c->has_jac = c->has_grad = c->has_obj = 0;
   c->deadline = budget_s > 0 ? wb_now() + budget_s : 0;
   if (warm_duals == 2) wb_pack_given(c, s->solver, lam_g0, lam_x0);
   ret = wbd_solve(s->solver, warm_duals, z_floor);
@@ -383,7 +453,9 @@ int wb_solve(void* ctx, void* solver, const double* P, const double* lbx, const 
   if (c->nonfinite_hit) return -4;
   if (c->deadline_hit) { ret = 3; stats[1] = -3; }
   else if (ret == -1) return -1; /* exception inside Fatrop */
-  stats[11] = wb_unpack(c, s->solver, x_out, lam_g_out, lam_x_out);
+  stats[11] = wb_unpack(c, s->solver, x_out, c->lam_g_out, c->lam_x_out);
   stats[12] = wb_violation(c, x_out);
+  stats[14] = wb_all_finite(x_out, c->st->n_variables);
+  stats[13] = wb_now() - start - stats[2];
   return ret;
 }

@@ -63,10 +63,13 @@ typedef struct {
   int *run_src, *run_dst, *run_len, *run_i; /* rmap as runs of consecutive positions; K + 1 starts */
   int n_fatrop;              /* length of Fatrop's primal vector */
   /* the fixed inputs' rows of (d f)' | (d r)' and gradient entries at the last evaluations (their multipliers) */
-  double *fix_jac, *fix_grad, *jac_primal, *grad_primal;
+  double *fix_jac, *fix_grad, *jac_primal, *grad_primal, *obj_primal;
   int* fix_i;                /* K + 1 starts into fix_jac (fix_grad: u_fixed_i) */
-  int has_jac, has_grad;
+  int has_jac, has_grad, has_obj;
   double* zeros;          /* max_x zeros: the last stage's dynamics multipliers */
+  int* p_index;           /* n_stages x n_params: stage k's parameters' positions in the NLP's p (wb_ctx_parameters) */
+  int n_p;                /* length of the NLP's p */
+  double *P_out, *x_out, *lam_g_out, *lam_x_out, *stats_out; /* wb_solve's outputs (wb_ctx_outputs) */
   double* stage_cost;     /* per stage, of the last cost evaluation */
   double* stage_f;        /* K * max_x: f of the last violation evaluation, per stage */
   double* stage_r;        /* K * max_rows: r of the same */
