@@ -217,24 +217,31 @@ def _varied(problem, robot, rng, base: StageBounds | None = None) -> list[StageB
     return out
 
 
-def test_bounds_equal_the_straightforward_ones_on_a_closed_loops_states():
-    """b1_z1 (point feet, arm, soft rows), 6 steps 60 ms apart of a trot whose base moves: every step's StageBounds as the MPC
-    built them, and varied around each."""
-    robot = load_robot("b1_z1")
-    mpc = MPC(robot, MpcConfig(ocp=OcpConfig(grid=GRID, soft_rows=("ee_vel", "foot_vel"))))
-    problem, recorded = mpc.problem, []
-    bounds = problem.bounds
+
+def recording_bounds(problem) -> list:
+    """The StageBounds of every `problem.bounds` call from now on (the call itself unchanged)."""
+    recorded, bounds = [], problem.bounds
 
     def spy(data):
         recorded.append(data)
         return bounds(data)
 
     problem.bounds = spy
+    return recorded
+
+
+def test_bounds_equal_the_straightforward_ones_on_a_closed_loops_states():
+    """b1_z1 (point feet, arm, soft rows), 6 steps 60 ms apart of a trot whose base moves: every step's StageBounds as the MPC
+    built them, and varied around each."""
+    robot = load_robot("b1_z1")
+    mpc = MPC(robot, MpcConfig(ocp=OcpConfig(grid=GRID, soft_rows=("ee_vel", "foot_vel"))))
+    problem = mpc.problem
+    recorded = recording_bounds(problem)
     q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
     for k in range(6):
         solution = mpc.solve(q, v, Commands(base_velocity_m_s=np.array([0.3, 0.0, 0.0])), t_s=0.06 * k)
         q, v = solution.q[1].copy(), solution.v[1].copy()
-    problem.bounds = bounds
+    del problem.bounds  # the spy off: the class's own method again
     assert len(recorded) >= 6 and len({r.contact.tobytes() for r in recorded}) > 1  # the contacts changed
     rng = np.random.default_rng(0)
     for data in recorded:
@@ -281,20 +288,14 @@ def test_flat_feet_bounds_equal_numpys_on_a_walks_states(monkeypatch):
     swing (swing placements, yaw rates, measured sole rotation), and varied around each, packed by C as by NumPy."""
     robot = load_robot("g1")
     mpc = MPC(robot, tuning_for(robot).apply_to(MpcConfig(ocp=OcpConfig(grid=GRID), gait="walk")))
-    problem, recorded = mpc.problem, []
-    bounds = problem.bounds
-
-    def spy(data):
-        recorded.append(data)
-        return bounds(data)
-
-    problem.bounds = spy
+    problem = mpc.problem
+    recorded = recording_bounds(problem)
     q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
     command = Commands(base_velocity_m_s=np.array([0.3, 0.0, 0.0]), base_yaw_rate_rad_s=0.3)
     for t_s in (0.16, 0.26):
         solution = mpc.solve(q, v, command, t_s=t_s)
         q, v = solution.q[1].copy(), solution.v[1].copy()
-    problem.bounds = bounds
+    del problem.bounds  # the spy off: the class's own method again
     assert len({r.contact.tobytes() for r in recorded}) > 1
     assert all(np.isfinite(r.swing_yaw_rate_rad_s).any() for r in recorded if not r.contact.all())
     calls, steps = _counting(monkeypatch), [varied for data in recorded

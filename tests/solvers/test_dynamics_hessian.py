@@ -9,7 +9,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from tests.solvers.mpc_steps import capture_step_data
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
@@ -88,19 +88,7 @@ def test_exact_is_the_default_and_names_are_checked():
 @pytest.fixture(scope="module")
 def step_data(robot, problem):
     """p, bounds and initial guess of one trot MPC step from a moving base."""
-    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
-    captured = {}
-    solve = mpc.solver.solve
-
-    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
-        captured.update(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(), x0=x0.copy())
-        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
-
-    mpc.solver.solve = spy
-    v0 = np.zeros(robot.nv)
-    v0[:2] = [0.1, 0.05]
-    assert mpc.solve(robot.q_nominal, v0, t_s=0.1).success
-    return captured
+    return capture_step_data(robot, problem, TINY)
 
 
 @pytest.fixture(scope="module")

@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tests.solvers.mpc_steps import capture_step_data
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
@@ -46,19 +47,7 @@ def direct(problem, codegen):
 @pytest.fixture(scope="module")
 def step_data(robot, problem):
     """p, bounds and initial guess of one MPC step (trot, moving base), as the MPC hands them to its solver."""
-    mpc = MPC(robot, MpcConfig(ocp=TINY, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
-    captured = {}
-    solve = mpc.solver.solve
-
-    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
-        captured.update(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(), x0=x0.copy())
-        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
-
-    mpc.solver.solve = spy
-    v0 = np.zeros(robot.nv)
-    v0[:2] = [0.1, 0.05]
-    assert mpc.solve(robot.q_nominal, v0, t_s=0.1).success
-    return captured
+    return capture_step_data(robot, problem, TINY)
 
 
 def test_same_solution_as_casadis_fatrop(problem, direct, step_data):

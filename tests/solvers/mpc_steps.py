@@ -1,0 +1,23 @@
+"""One MPC step's solver inputs, recorded for the solver tests."""
+
+import numpy as np
+
+from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.ocp.problem import OcpConfig
+
+
+def capture_step_data(robot, problem, ocp: OcpConfig) -> dict:
+    """p, bounds and initial guess of one trot MPC step from a moving base, as the MPC hands them to its solver."""
+    mpc = MPC(robot, MpcConfig(ocp=ocp, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
+    captured = {}
+    solve = mpc.solver.solve
+
+    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
+        captured.update(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(), x0=x0.copy())
+        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
+
+    mpc.solver.solve = spy
+    v0 = np.zeros(robot.nv)
+    v0[:2] = [0.1, 0.05]
+    assert mpc.solve(robot.q_nominal, v0, t_s=0.1).success
+    return captured
