@@ -3,13 +3,25 @@
 import numpy as np
 import pytest
 
+from tests.solvers.mpc_steps import TINY
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
-from wbmpc.ocp.problem import OcpConfig
+from wbmpc.ocp.problem import OcpConfig, OcpProblem
 from wbmpc.robots import load_robot
 from wbmpc.solvers.nlp import SolverConfig
 
 SMALL_GRID = OcpConfig(grid=TimeGrid(n_intervals=6, dt_first_s=0.01, dt_last_s=0.06))
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="module")
+def problem(robot):
+    """go2's OCP on the tiny grid (`mpc_steps.TINY`); a module may define its own."""
+    return OcpProblem(robot, TINY)
 
 
 @pytest.fixture(scope="module")

@@ -1,9 +1,12 @@
-"""One MPC step's solver inputs, recorded for the solver tests."""
+"""go2's tiny OCP (2 intervals) and one MPC step's solver inputs, for the solver tests."""
 
 import numpy as np
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
+from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
+
+TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
 
 
 def capture_step_data(robot, problem, ocp: OcpConfig) -> dict:

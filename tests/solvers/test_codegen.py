@@ -5,24 +5,10 @@ import warnings
 import numpy as np
 import pytest
 
+from tests.solvers.mpc_steps import TINY
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
-from wbmpc.ocp.grid import TimeGrid
-from wbmpc.ocp.problem import OcpConfig, OcpProblem
-from wbmpc.robots import load_robot
 from wbmpc.solvers.codegen import CodegenConfig, cache_key, nlp_functions
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
-
-TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("go2")
-
-
-@pytest.fixture(scope="module")
-def problem(robot):
-    return OcpProblem(robot, TINY)
 
 
 @pytest.fixture(scope="module")

@@ -9,27 +9,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tests.solvers.mpc_steps import capture_step_data
+from tests.solvers.mpc_steps import TINY, capture_step_data
 from wbmpc.errors import ConfigError
-from wbmpc.ocp.grid import TimeGrid
-from wbmpc.ocp.problem import OcpConfig, OcpProblem
-from wbmpc.robots import load_robot
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig
 from wbmpc.solvers.stage_library import DYNAMICS_TAGS, stage_kind_functions
-
-TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("go2")
-
-
-@pytest.fixture(scope="module")
-def problem(robot):
-    return OcpProblem(robot, TINY)
 
 
 def _rnea_rows(tags):

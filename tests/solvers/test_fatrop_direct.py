@@ -6,29 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.solvers.mpc_steps import capture_step_data
+from tests.solvers.mpc_steps import TINY, capture_step_data
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.errors import ConfigError
-from wbmpc.ocp.grid import TimeGrid
-from wbmpc.ocp.problem import OcpConfig, OcpProblem
-from wbmpc.robots import load_robot
 from wbmpc.solvers import fatrop_direct, make_solver
 from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver, mpc_tolerances, multiplier_start
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
-
-TINY = OcpConfig(grid=TimeGrid(n_intervals=2, dt_first_s=0.01, dt_last_s=0.02))
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("go2")
-
-
-@pytest.fixture(scope="module")
-def problem(robot):
-    return OcpProblem(robot, TINY)
 
 
 @pytest.fixture(scope="module")

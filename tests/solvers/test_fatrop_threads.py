@@ -10,7 +10,6 @@ import pytest
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
-from wbmpc.robots import load_robot
 from wbmpc.solvers import stage_library
 from wbmpc.solvers.codegen import CodegenConfig
 from wbmpc.solvers.fatrop_direct import FatropDirectSolver
@@ -18,11 +17,6 @@ from wbmpc.solvers.nlp import SolverConfig
 from wbmpc.solvers.stage_library import stage_kind_functions
 
 SMALL = OcpConfig(grid=TimeGrid(n_intervals=4, dt_first_s=0.01, dt_last_s=0.04))
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("go2")
 
 
 @pytest.fixture(scope="module")
