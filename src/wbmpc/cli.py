@@ -236,12 +236,17 @@ def _with_arm(spec, arm):
 
 
 def plant_config_from_args(args: argparse.Namespace, robot):
-    """The plant's drive train (--plant-armature/...), independent of the controller's model."""
-    from wbmpc.sim import PlantConfig
+    """The plant's drive train (--plant-armature/...), independent of the controller's model: the flags given, over
+    the robot's own plant settings (`robot_plant_config`: g1's rotor inertias) unless --plant-model brings its own.
+    (A flag alone used to replace those: --plant-coulomb-friction 0.1 took g1's rotors away and its walk fell.)"""
+    from wbmpc.sim import PlantConfig, robot_plant_config
 
     drive = {field: _joint_values_arg(getattr(args, option), "--" + option.replace("_", "-"), robot.joint_names)
              for option, field in _PLANT_DRIVE.items() if getattr(args, option, None) is not None}
-    return PlantConfig(**drive) if drive else None
+    if not drive:
+        return None
+    own = None if getattr(args, "plant_model", None) else robot_plant_config(robot)
+    return dataclasses.replace(own, **drive) if own is not None else PlantConfig(**drive)
 
 
 def _emit(args: argparse.Namespace, payload: dict, human: str) -> None:

@@ -157,3 +157,22 @@ def test_cli_options_reach_the_model_and_the_plant(capsys, tmp_path):
     ):
         assert main(argv) == 2
         assert words in capsys.readouterr().err
+
+
+def test_plant_flags_keep_the_robots_own_rotors():
+    """--plant-coulomb-friction on g1 adds dry friction to the plant's joints and keeps g1's rotor inertias (its
+    preset's, `robot_plant_config`); they were dropped, and g1's walk fell at 0.8 s with 0.1 N m. With --plant-model
+    the file brings its own drive train: nothing of the preset is added."""
+    from wbmpc.cli import build_parser, plant_config_from_args, robot_from_args
+
+    args = build_parser().parse_args(["run", "walk-in-place", "--robot", "g1", "--plant-coulomb-friction", "0.1"])
+    robot = robot_from_args(args)
+    assert np.any(robot.armature_kg_m2)
+    plant = MujocoPlant(robot, plant_config_from_args(args, robot))
+    dofs = [plant.model.joint(name).dofadr[0] for name in robot.joint_names]
+    np.testing.assert_allclose(plant.model.dof_armature[dofs], robot.armature_kg_m2)
+    np.testing.assert_allclose(plant.model.dof_frictionloss[dofs], 0.1)
+    args = build_parser().parse_args(["run", "walk-in-place", "--robot", "g1", "--plant-coulomb-friction", "0.1",
+                                      "--plant-model", "g1.xml"])
+    config = plant_config_from_args(args, robot)
+    assert config.joint_frictionloss_nm == 0.1 and config.joint_armature_kg_m2 == 0.0

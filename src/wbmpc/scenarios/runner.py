@@ -95,7 +95,9 @@ class RunConfig:
     physics_dt_ms: float | None = option(None, flag="--physics-dt", metavar="MS", low=0.0, high=20.0, low_open=True,
                                          unit="ms", help="the simulator's step (unitree_mujoco: 5 ms by default)",
                                          default_text="the plant's, 1 ms")
-    plant_config: PlantConfig | None = None  # the plant's drive train etc. (None: defaults)
+    # the plant's drive train etc.: None, the robot's own (`sim.robot_plant_config`, g1's rotors); given, as it is
+    # (start from `robot_plant_config(robot)` to keep those, as the CLI's --plant-* flags do)
+    plant_config: PlantConfig | None = None
     plant_model: str | None = option(None, flag="--plant-model", metavar="FILE",
                                      help="MuJoCo simulates this file of the robot (MJCF or URDF; its own inertias, "
                                      "geoms, friction, damping, armature, contact settings; its actuators replaced by "
