@@ -5,7 +5,7 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
-from wbmpc.control.delay import roll_forward
+from wbmpc.control.delay import DelayPredictor, roll_forward
 from wbmpc.control.loop import ClosedLoop, LoopConfig
 from wbmpc.control.solution import Solution
 from wbmpc.ocp.grid import TimeGrid
@@ -71,8 +71,8 @@ def test_roll_forward_predicts_the_model_plant_exactly(go2, motion):
 
 
 def test_mpc_plans_from_the_predicted_state(go2):
-    """With compensation the plan starts at t + delay from the rolled-forward state (node 0 of the OCP is
-    pinned to it); without, at the measurement."""
+    """With compensation the plan starts at t + delay from the predicted state (node 0 of the OCP is pinned to
+    it; without a loop's motor law, the robot's tuned one); without, at the measurement."""
     config = MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None), delay_compensation=True)
     mpc = MPC(go2, config)
     v = np.zeros(go2.nv)
@@ -81,7 +81,7 @@ def test_mpc_plans_from_the_predicted_state(go2):
     assert first.success and first.t_s == 0.0
     q1, v1 = first.q[1], first.v[1]
     delay = 0.006
-    predicted = roll_forward(go2.model, q1, v1, first, 0.01, delay)
+    predicted = DelayPredictor(go2).predict(q1, v1, first, 0.01, delay, None)
     second = mpc.solve(q1, v1, t_s=0.01, delay_s=delay)
     assert second.success, second.stats.status
     assert second.t_s == pytest.approx(0.01 + delay)
