@@ -135,6 +135,7 @@ class DelayPredictor:
     def __post_init__(self):
         self._settings = pin.ProximalSettings(1e-12, 1e-10, 1)  # no proximal damping: the contacts held exactly
         self._default_law: MotorLaw | None = None
+        self._gain_arrays = None  # (law, kp, kd) of the last law used
 
     def predict(self, q: np.ndarray, v: np.ndarray, plan: Solution | None, t_s: float, delay_s: float,
                 law: MotorLaw | None) -> tuple[np.ndarray, np.ndarray]:
@@ -143,28 +144,33 @@ class DelayPredictor:
             return roll_forward(self.robot.model, q, v, plan, t_s, delay_s)
         law = law or self._tuned_law()
         robot, model = self.robot, self.robot.model
-        kp, kd = np.asarray(law.kp), np.asarray(law.kd)
+        kp, kd = self._gains(law)
         hold = 1.0 / law.control_rate_hz
         lead = 0.5 * hold if law.sample_mid_hold else 0.0
-        node_times = plan.t_s + plan.node_times_s
+        ticks = np.arange(t_s, t_s + delay_s - 1e-12, hold)  # the joint loop's, from the measurement on
+        steps = np.diff(np.r_[ticks, t_s + delay_s])
+        nodes = np.searchsorted(plan.t_s + plan.node_times_s, ticks, side="right") - 1
+        stances = plan.contact[np.clip(nodes, 0, len(plan.contact) - 1)].astype(bool)
+        coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()  # joint angles are q[7:]
         q, v = np.array(q, dtype=float), np.array(v, dtype=float)
         tau = np.zeros(model.nv)
-        tick, end = t_s, t_s + delay_s
-        while tick < end - 1e-12:  # one semi-implicit Euler step per tick, eq. (10) held over it
-            h = min(hold, end - tick)
+        for tick, h, stance in zip(ticks, steps, stances):  # a semi-implicit Euler step per tick, eq. (10) held
             reference = interpolate(plan, tick + lead)
-            q_j = robot.joint_positions(q, near=reference.q_des)
+            q_j = q[7:] if coordinates else robot.joint_positions(q, near=reference.q_des)
             tau[6:] = pd_torque(reference, q_j, v[6:], kp, kd, robot.tau_max)
-            k = int(np.clip(np.searchsorted(node_times, tick, side="right") - 1, 0, len(plan.contact) - 1))
-            models, datas, data = self._held_feet(tuple(bool(c) for c in plan.contact[k]), h)
+            models, datas, data = self._held_feet(stance, h)
             if models is None:
                 a = pin.aba(model, data, q, v, tau)
             else:
                 a = pin.constraintDynamics(model, data, q, v, tau, models, datas, self._settings)
             v = v + a * h
             q = pin.integrate(model, q, v * h)
-            tick += h
         return q, v
+
+    def _gains(self, law: MotorLaw) -> tuple[np.ndarray, np.ndarray]:
+        if self._gain_arrays is None or self._gain_arrays[0] is not law:
+            self._gain_arrays = (law, np.array(law.kp), np.array(law.kd))
+        return self._gain_arrays[1], self._gain_arrays[2]
 
     def _tuned_law(self) -> MotorLaw:
         """Without a loop's motor law: the robot's tuned gains on the paper's 500 Hz joint loop."""
@@ -174,10 +180,10 @@ class DelayPredictor:
             self._default_law = MotorLaw.of(tuning_for(self.robot).gains_at(), ~self.robot.leg_joint_mask)
         return self._default_law
 
-    def _held_feet(self, stance: tuple[bool, ...], h: float):
+    def _held_feet(self, stance: np.ndarray, h: float):
         """The rigid contacts of the stance feet and their pinocchio data (built once per stance set and step):
         the sole's 6D velocity, a point foot's 3D one, driven to zero within one step (a touchdown's impact)."""
-        key = (stance, round(h, 9))
+        key = (stance.tobytes(), round(h, 9))
         if key not in self._contacts:
             robot, model = self.robot, self.robot.model
             models, datas = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
