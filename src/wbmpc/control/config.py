@@ -14,6 +14,7 @@ import functools
 import warnings
 from dataclasses import dataclass, field
 
+from wbmpc.control.delay import MotorLaw
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import SwingProfile
@@ -151,9 +152,11 @@ class MpcConfig:
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     push: PushConfig = field(default_factory=PushConfig)
     # delay compensation (control/delay.py): `solve(..., delay_s=d)` plans from the state predicted for t + d
-    # (the measurement rolled forward with the previous plan's accelerations) and returns a plan starting at
-    # t + d; off: the plan starts at the measurement, d late
-    delay_compensation: bool = False
+    # (the measurement carried forward by the motor law on the previous plan, feet in stance held) and returns a
+    # plan starting at t + d; off: the plan starts at the measurement, d late
+    # False: off; True: on, predicting with the robot's tuned motor law (gains at 500 Hz); a `MotorLaw`: on, with
+    # that joint loop (`ClosedLoop` puts its own in)
+    delay_compensation: bool | MotorLaw = False
     # the whole step's budget (s, on the solver's clock) for solvers with a deadline (the anytime SQP): the
     # solver stops in time for the MPC's own work after it (measured); None: the solver's own setting
     step_budget_s: float | None = None
