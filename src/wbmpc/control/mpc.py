@@ -19,13 +19,14 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.commands import Commands, object_reference
+from wbmpc.control.compiled_step import CompiledStep
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import roll_forward
 from wbmpc.control.inputs import checked_state
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
-from wbmpc.control.solution import Solution, python_share
+from wbmpc.control.solution import Solution, joint_trajectory, python_share, shifted_plan
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
 from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess, shifted_sole_wrenches
@@ -104,6 +105,9 @@ class MPC:
         self._duals = ShiftedDuals(self.problem) if getattr(self.solver, "takes_multipliers", False) else None
         dyn = self.problem.dyn  # flat feet's columns of F: force and sole moments (`_shifted_sole_wrenches`)
         self._sole_columns = {i: np.r_[3 * i : 3 * i + 3, dyn.moment_slice(i)] for i in self.problem.surface_feet}
+        # the step's data preparation and unpacking in one C call each where the problem allows (compiled_step.py)
+        compiled = CompiledStep(self, packer, self._functions_library) if packer is not None else None
+        self._compiled = compiled if compiled is not None and compiled.supported else None
 
     def _plan_function(self) -> ca.Function:
         """(x, p) -> the plan's trajectories (`OcpProblem.trajectory_function`) with the configurations q_ref (+) dq
@@ -122,6 +126,7 @@ class MPC:
         """The MPC's own functions of every step, compiled with the solver's (`SolverConfig.compiled`; cached):
         b1_z1's plan unpacking and q (-) q over the nodes take 3.5 and 2.4 us compiled against 26 and 10 us in
         CasADi's virtual machine. Where they cannot be compiled, the virtual machine's (the solver's warning says why)."""
+        self._functions_library = None
         if not self.config.solver.compiled:
             return list(functions)
         try:
@@ -129,7 +134,8 @@ class MPC:
                                        self.config.solver.codegen)
         except CompileError:
             return list(functions)
-        return [ca.external(function.name(), str(report.library)) for function in functions]
+        self._functions_library = str(report.library)  # (also called from C: `CompiledStep`)
+        return [ca.external(function.name(), self._functions_library) for function in functions]
 
     def _nominal_inertial(self) -> dict[str, np.ndarray]:
         names = [n for n in ("base_com_offset", "payload_kg", "base_payload_kg") if n in self.problem.params.names]
@@ -229,15 +235,19 @@ class MPC:
         N, n_feet = self.problem.N, len(self.robot.feet)
         forces = np.zeros((N, self.problem.nf))
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
-        mass = self.robot.mass_kg + sum(float(self._inertial[name][0]) for name in ("payload_kg", "base_payload_kg")
-                                        if name in self._inertial)
-        support = mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
+        support = self._support_n(on_robot)
         stance = contact[:N]
         n_stance = np.maximum(stance.sum(axis=1, keepdims=True), 1)
         forces[:, 2 : 3 * n_feet : 3] = stance * support / n_stance
         if self.robot.arm_ee:
             forces[:, 3 * n_feet : 3 * n_feet + 3] = on_robot
         return forces
+
+    def _support_n(self, on_robot: np.ndarray) -> float:
+        """The weight (with the payloads) less the arm's vertical force on the robot: what the feet carry."""
+        mass = self.robot.mass_kg + sum(float(self._inertial[name][0]) for name in ("payload_kg", "base_payload_kg")
+                                        if name in self._inertial)
+        return mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
 
     def schedule(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Node times, contact flags and swing v_z references of the horizon starting at `t_s`."""
@@ -280,7 +290,7 @@ class MPC:
             if self._duals is not None:
                 self._duals.record(t, result, step.bounds)
         elif self.config.recovery.hold_previous and self._previous is not None:
-            solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
+            solution = shifted_plan(self._previous, t, step.node_times, step.contact, result.stats, self.robot)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
         python_share(result.stats, 1e3 * (time.perf_counter() - start))
@@ -288,7 +298,9 @@ class MPC:
 
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:
         """This step's NLP data: parameters (targets, weights, schedule), bounds (hard, and with the soft rows free
-        where a failed hard step retries them) and the initial guess."""
+        where a failed hard step retries them) and the initial guess; in one C call where it covers the step."""
+        if self._compiled is not None and self._compiled.covers(commands, measured_contact):
+            return _StepData(*self._compiled.prepare(q, v, commands, t))
         problem, references = self.problem, self.references
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         dq_des, v_des, base_velocity_world = references.targets(q, rot, commands, t, problem.config.grid.node_times_s)
@@ -336,11 +348,7 @@ class MPC:
         """p of this step: the blocks that stay (time steps, friction, weights, the flat ground's normals, inertial
         parameters) from a template packed once, this step's targets and force guess written into a copy."""
         params = self.problem.params
-        if self._p_template is None:
-            self._p_template = params.template({
-                "dt": self.problem.config.grid.dt_s, "mu": [self.config.friction_coefficient],
-                "contact_normal": self._flat_normals, **self._weights, **self._inertial})
-        p = self._p_template.copy()
+        p = self._parameter_template().copy()
         q_ref, rot_ref, dq_block, v_block, force_block = self._p_blocks
         p[q_ref], p[v_block] = q, v_des
         p[rot_ref], p[dq_block] = rot.ravel(order="F"), dq_des.ravel(order="F")  # (column-major, as `pack`)
@@ -350,6 +358,14 @@ class MPC:
         for name, value in object_values.items():
             params.write(p, name, value)
         return p
+
+    def _parameter_template(self) -> np.ndarray:
+        """p's blocks that stay between steps (time steps, friction, weights, normals, inertial parameters)."""
+        if self._p_template is None:
+            self._p_template = self.problem.params.template({
+                "dt": self.problem.config.grid.dt_s, "mu": [self.config.friction_coefficient],
+                "contact_normal": self._flat_normals, **self._weights, **self._inertial})
+        return self._p_template
 
     def _solve_step(self, p, bounds, soft_rows, x0, t: float, budget_s: float | None, clock, clock_start):
         """One step's solve: the push fallback solver first in the wake of a push, else the solver on this
@@ -405,22 +421,6 @@ class MPC:
             rows = tuple(dict.fromkeys((*rows, "ee_vel")))
         return rows
 
-    def _shifted_previous(self, t: float, node_times: np.ndarray, contact: np.ndarray, stats) -> Solution:
-        """The last good plan re-sampled at the new node times (held beyond its horizon), returned as
-        a failed step (`success` False, `held_previous` True): the loop keeps applying a plan that
-        moves on in time instead of the stale one."""
-        prev = self._previous
-        old, new = prev.t_s + prev.node_times_s, t + node_times
-        n_tau = prev.tau.shape[0]
-        q = interp_rows(new, old, prev.q)
-        q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
-        stats.status = f"{stats.status}; holding the last good plan shifted by {1e3 * (t - prev.t_s):.0f} ms"
-        shifted = Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=interp_rows(new, old, prev.v),
-                           a=interp_rows(new[:-1], old[:-1], prev.a), forces=interp_rows(new[:-1], old[:-1], prev.forces),
-                           tau=interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
-                           success=False, x=None, q_joints=self._joint_trajectory(q), held_previous=True)
-        return shifted
-
     def _initial_guess(self, q, v, t, node_times, forces, object_state=None) -> np.ndarray:
         """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous
         solution's variables shifted to the new node times (any formulation, `ShiftedGuess`), forces re-initialised
@@ -465,23 +465,18 @@ class MPC:
         return shifted_sole_wrenches(forces, previous.forces, previous.contact, self.gait.contact(new_times), new_times,
                                      old_times, self._sole_columns)
 
-    def _joint_trajectory(self, q_traj: np.ndarray) -> np.ndarray:
-        """Joint positions per node; continuous joints unwrapped along the horizon (no 2 pi jumps)."""
-        positions = self.robot.joint_positions(q_traj)
-        continuous = self.robot.continuous
-        if continuous.any():
-            positions[:, continuous] = np.unwrap(positions[:, continuous], axis=0)
-        return positions
-
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        plan, parts, start = self._plan(x, p)[0].copy(), [], 0
-        for rows, cols in self._plan_shapes:
-            parts.append(plan[start : start + rows * cols].reshape(rows, cols))
-            start += rows * cols
-        q_traj, v, a, forces, tau = parts
-        finite = math.isfinite(float(np.vdot(x, x)) + float(np.vdot(tau, tau)))  # (no NaN or inf in either: two reductions, not four)
+        unpacked = self._compiled.unpack(x, p) if self._compiled is not None else None
+        if unpacked is None:
+            plan, parts, start = self._plan(x, p)[0].copy(), [], 0
+            for rows, cols in self._plan_shapes:
+                parts.append(plan[start : start + rows * cols].reshape(rows, cols))
+                start += rows * cols
+            tau = parts[-1]  # (no NaN or inf in x or tau: two reductions, not four)
+            unpacked = parts, math.isfinite(float(np.vdot(x, x)) + float(np.vdot(tau, tau)))
+        (q_traj, v, a, forces, tau), finite = unpacked
         # one coordinate per joint, none continuous: the joint positions are q[:, 7:] (Solution's own view)
-        q_joints = None if self._joints_are_coordinates else self._joint_trajectory(q_traj)
+        q_joints = None if self._joints_are_coordinates else joint_trajectory(self.robot, q_traj)
         return Solution(t_s=t, node_times_s=node_times.copy(), q=q_traj, v=v, a=a, forces=forces, tau=tau, contact=contact,
                         stats=stats, success=bool(stats.success and finite), x=np.asarray(x, dtype=float), q_joints=q_joints)
 

@@ -58,7 +58,7 @@ class ShiftedGuess:
             lengths, group_node, by_column, column_start, target = (a.ctypes.data for a in self._tables)
             self._call = (groups, lengths, n_nodes, times + 8 * n_nodes, n_nodes, times, len(self._target), group_node,
                           by_column, column_start, target, old_x, self._size, out, pos, weight)
-        self._n_nodes = n_nodes
+        self._n_nodes, self.compiled_call = n_nodes, self._call if packer is not None else None  # (compiled_step.py)
 
     def __call__(self, old_x: np.ndarray, new_times: np.ndarray, old_times: np.ndarray) -> np.ndarray:
         """The vector `old_x` (NLP layout) at `new_times`: each variable of node k linearly interpolated

@@ -119,6 +119,12 @@ class BoundsTemplate:
             buffer[self._slack_entries] = INF
         return (buffer, *self._views(buffer))
 
+    def c_arguments(self) -> tuple:
+        """`start`'s C call for `csrc/step_prepare.c`: the template's address, its entries', contact flags' and
+        slacks' tables, the stance and swing values and the table's size."""
+        buffer, _, entries, flags, stance, swing, n_entries = self._call_head
+        return buffer, entries, flags, self._call_slack[0], stance, swing, n_entries
+
     def views(self, buffer: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """lbx, ubx, lbg, ubg of a buffer that `measured` finished."""
         return self._views(buffer)
@@ -199,6 +205,29 @@ class CompiledMeasuredBounds:
         self._contact = np.zeros((N + 1, nf), dtype=bool)
         self._call_head = (self._meta.ctypes.data, self._table_pointers, self._constant_pointers, self._step_pointers,
                            self._contact.ctypes.data)
+
+    def c_arguments(self) -> dict:
+        """`write`'s C call for `csrc/step_prepare.c` (after `stage_inputs`): its contact flags' address and its
+        tables, constants and step inputs (ctypes pointer arrays: their addresses)."""
+        meta, tables, constants, inputs, contact = self._call_head
+        return {"contact": contact, "call": (meta, *(ctypes.addressof(a) for a in (tables, constants, inputs)))}
+
+    def stage_inputs(self, swing_vxy, foot_velocity, ee_velocity, ee_velocity_measured, swing_yaw_rates,
+                     foot_angular_velocity) -> None:
+        """The step inputs from Python's side (the references and pinocchio's frame velocities, each an array of its
+        shape or None) for the C call; the first five (joint positions, joint velocities, arm force, x_0, swing v_z)
+        are the C code's."""
+        pointers, views = self._step_pointers, self._input_views
+        for k in range(5):
+            pointers[k] = self._input_addresses[k]
+        values = (swing_vxy, foot_velocity, ee_velocity if ee_velocity is not None else _ZERO3, ee_velocity_measured,
+                  swing_yaw_rates, foot_angular_velocity)
+        for k, value in enumerate(values, start=5):
+            if value is None:
+                pointers[k] = None
+                continue
+            views[k][...] = value
+            pointers[k] = self._input_addresses[k]
 
     def write(self, address: int | None, data, contact: np.ndarray) -> bool:
         """The measured entries of `data` (a `StageBounds`) into the buffer [lbx | ubx | lbg | ubg] at `address` after
