@@ -107,7 +107,7 @@ class MPC:
         self._sole_columns = {i: np.r_[3 * i : 3 * i + 3, dyn.moment_slice(i)] for i in self.problem.surface_feet}
         # the step's data preparation and unpacking in one C call each where the problem allows (compiled_step.py)
         compiled = CompiledStep(self, packer, self._functions_library) if packer is not None else None
-        self._compiled = compiled if compiled is not None and compiled.supported else None
+        self.compiled_step = compiled if compiled is not None and compiled.supported else None
 
     def _plan_function(self) -> ca.Function:
         """(x, p) -> the plan's trajectories (`OcpProblem.trajectory_function`) with the configurations q_ref (+) dq
@@ -299,8 +299,8 @@ class MPC:
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:
         """This step's NLP data: parameters (targets, weights, schedule), bounds (hard, and with the soft rows free
         where a failed hard step retries them) and the initial guess; in one C call where it covers the step."""
-        if self._compiled is not None and self._compiled.covers(commands, measured_contact):
-            return _StepData(*self._compiled.prepare(q, v, commands, t))
+        if self.compiled_step is not None and self.compiled_step.covers(commands, measured_contact):
+            return _StepData(*self.compiled_step.prepare(q, v, commands, t))
         problem, references = self.problem, self.references
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         dq_des, v_des, base_velocity_world = references.targets(q, rot, commands, t, problem.config.grid.node_times_s)
@@ -466,7 +466,7 @@ class MPC:
                                      old_times, self._sole_columns)
 
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        unpacked = self._compiled.unpack(x, p) if self._compiled is not None else None
+        unpacked = self.compiled_step.unpack(x, p) if self.compiled_step is not None else None
         if unpacked is None:
             plan, parts, start = self._plan(x, p)[0].copy(), [], 0
             for rows, cols in self._plan_shapes:
