@@ -145,26 +145,29 @@ class CompiledStep:
         self._gait_state = (anchors, [list(interval) for interval in stand])
 
     def anchor(self, q: np.ndarray, rot: np.ndarray, commands, t_s: float) -> tuple[np.ndarray, float]:
-        """`References.targets`' base position reference moved to `t_s` (the same arithmetic): the commanded velocity
-        in world coordinates (3,), and the anchor's yaw."""
+        """`References.targets`' base position reference moved to `t_s`, the same arithmetic on Python floats: the
+        commanded velocity in world coordinates (3,), and the anchor's yaw."""
         references = self._mpc.references
         yaw = math.atan2(rot[1, 0], rot[0, 0])
         dt_since = 0.0 if references.last_t_s is None else max(0.0, t_s - references.last_t_s)
         references.last_t_s = t_s
         velocity_only = references.config.base_tracking == "velocity"
+        qx, qy = q[:2].tolist()
         if references.anchor_xy_m is None or velocity_only:
-            references.anchor_xy_m, references.anchor_yaw_rad = q[:2].copy(), yaw
+            references.anchor_xy_m, references.anchor_yaw_rad = np.array([qx, qy]), yaw
         cos_y, sin_y = math.cos(references.anchor_yaw_rad), math.sin(references.anchor_yaw_rad)
         cx, cy, cz = np.asarray(commands.base_velocity_m_s, dtype=float).tolist()
-        v_world = np.array([cos_y * cx - sin_y * cy, sin_y * cx + cos_y * cy, cz])
+        wx, wy = cos_y * cx - sin_y * cy, sin_y * cx + cos_y * cy
+        ax, ay = references.anchor_xy_m.tolist()
         if not velocity_only:
-            references.anchor_xy_m = references.anchor_xy_m + v_world[:2] * dt_since
+            ax, ay = ax + wx * dt_since, ay + wy * dt_since
             references.anchor_yaw_rad = references.anchor_yaw_rad + commands.base_yaw_rate_rad_s * dt_since
-        offset = references.anchor_xy_m - q[:2]
-        distance = math.hypot(offset[0], offset[1])
+        ox, oy = ax - qx, ay - qy
+        distance = math.hypot(ox, oy)
         if distance > MAX_ANCHOR_OFFSET_M:
-            references.anchor_xy_m = q[:2] + MAX_ANCHOR_OFFSET_M * offset / distance
-        return v_world, references.anchor_yaw_rad
+            ax, ay = qx + MAX_ANCHOR_OFFSET_M * ox / distance, qy + MAX_ANCHOR_OFFSET_M * oy / distance
+        references.anchor_xy_m = np.array([ax, ay])
+        return np.array([wx, wy, cz]), references.anchor_yaw_rad
 
     def prepare(self, q: np.ndarray, v: np.ndarray, commands, t_s: float) -> tuple:
         """This step's (p, bounds, soft_rows, x0, node_times, contact) as `MPC._step_data` makes them."""
