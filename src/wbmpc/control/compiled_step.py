@@ -25,10 +25,11 @@ from wbmpc.ocp.problem import StageBounds
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 _FIELDS = [(name, _I) for name in ("nq", "nv", "nodes", "n_feet", "n_force", "arm", "n_x", "n_g", "n_p", "n_state0",
-                                     "n_slack", "n_anchors", "n_stand", "n_x0")] + \
+                                     "n_slack", "n_anchors", "n_stand", "n_x0", "soles")] + \
     [(name, _P) for name in ("scalars", "q", "v", "rot", "v_des", "offsets", "node_times", "q_nominal",
-                             "phase_offsets", "anchors", "stand", "difference", "plan", "arg", "res", "iw", "w",
-                             "targets", "dq_des", "progress", "swing_vz", "x0_state", "contact_flags", "p_template")] + \
+                             "phase_offsets", "anchors", "stand", "difference", "plan", "velocities", "arg", "res", "iw",
+                             "w", "targets", "dq_des", "progress", "swing_vz", "x0_state", "velocities_out",
+                             "contact_flags", "p_template")] + \
     [(name, _I) for name in ("p_q", "p_rot", "p_dq", "p_v", "p_force")] + \
     [(name, _P) for name in ("bounds_template", "bounds_entries", "bounds_flags", "slack_entries", "bounds_stance",
                              "bounds_swing")] + [("n_bounds_entries", _I)] + \
@@ -58,7 +59,8 @@ class CompiledStep:
         shift_call = mpc._shift.compiled_call
         self.supported = bool(
             packer is not None and functions_library is not None and template.measured is not None
-            and shift_call is not None and problem.state_names == ["dq", "v"] and problem.object is None
+            and shift_call is not None and mpc._measured_velocities.function is not None
+            and problem.state_names == ["dq", "v"] and problem.object is None
             and problem.collision is None and mpc._joints_are_coordinates and "F" in problem.idx
             and type(mpc.config.swing) is SwingProfile
             and all(tag in ("ee_vel", "foot_vel") for tag in mpc.config.push.relaxed_rows)
@@ -78,6 +80,7 @@ class CompiledStep:
         self._previous_q = self._buffer(nodes * robot.nq).reshape(nodes, -1)
         self._previous_times, self._swing_vz = self._buffer(nodes), self._buffer(nodes * n_feet).reshape(nodes, -1)
         self._plan_out = self._buffer(sum(rows * cols for rows, cols in mpc._plan_shapes))
+        self._velocities = self._buffer(mpc._measured_velocities.function.outputs[0].size)
         self._step = self._structure(mpc, ctypes.CDLL(functions_library), template, shift_call)
         self._gait_state, self._p_template, self._p = (None, None), None, None
         self._address = ctypes.addressof(self._step)
@@ -99,7 +102,8 @@ class CompiledStep:
         """The C side's view of the problem: sizes, tables, the step's buffers, the generated functions."""
         problem, robot = mpc.problem, mpc.robot
         nodes, n_feet = problem.N + 1, len(robot.feet)
-        names = (mpc._difference.function.name(), mpc._plan.function.name())
+        names = (mpc._difference.function.name(), mpc._plan.function.name(),
+                 mpc._measured_velocities.function.function.name())
         work = [_work(functions, name) for name in names]
         n_arg, n_res, n_iw, n_w = (max(sizes[i] for sizes in work) for i in range(4))
         measured = self._measured.c_arguments()
@@ -114,10 +118,12 @@ class CompiledStep:
         return _Step(
             robot.nq, robot.nv, nodes, n_feet, problem.nf, int(bool(robot.arm_ee)), problem.n_variables,
             problem.n_constraints, problem.params.size, state0.size, problem.slack_index.size, 1, 0, 2 * robot.nv,
+            int(bool(robot.soles)),
             *(a.ctypes.data for a in (self._scalars, self._q, self._v, self._rot, self._v_des)), None,
             address(problem.config.grid.node_times_s), address(robot.q_nominal), address(mpc.gait.phase_offsets), None,
             None, *(ctypes.cast(functions[name], _P) for name in names), *scratch,
             self._buffer(nodes * n_feet).ctypes.data, self._swing_vz.ctypes.data, self._buffer(2 * robot.nv).ctypes.data,
+            self._velocities.ctypes.data,
             measured["contact"], None, *blocks, *template.c_arguments(), *measured["call"], groups, n_vars, lengths,
             group_node, by_column, column_start, target, pos, weight, self._buffer(2 * nodes).ctypes.data,
             self._buffer(problem.n_variables).ctypes.data,
@@ -186,12 +192,10 @@ class CompiledStep:
         self._gait_tables(gait)
         swing_vxy, swing_yaw_rates = references.swing_references(q, v, rot, t_s, node_times, v_world, yaw_rate)
         relaxed = mpc._relaxed_rows(after_push, commands)
-        measured = mpc._measured_frame_velocities(q, v)
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
         ee_velocity = references.ee_velocity(q, commands, v_world)
-        self._measured.stage_inputs(swing_vxy, measured["foot_velocity_m_s"], ee_velocity,
-                                    measured["ee_velocity_measured_m_s"], swing_yaw_rates,
-                                    measured.get("foot_angular_velocity_rad_s"))
+        self._measured.stage_inputs(swing_vxy, ee_velocity, swing_yaw_rates, bool(mpc.robot.arm_ee),
+                                    bool(mpc.robot.soles))
         previous = mpc._previous if config.warm_start else None
         warm = previous is not None and previous.x is not None and previous.x.size == self._x.size and \
             previous.q.shape == self._previous_q.shape and previous.node_times_s.shape == self._previous_times.shape
@@ -218,10 +222,10 @@ class CompiledStep:
             raise RuntimeError("the MPC's compiled q (-) q over the nodes failed")
         self._p_address = address
         return self._outputs(out, q, v, t_s, previous if warm else None, after_push, soft, swing_vxy, swing_yaw_rates,
-                             ee_velocity, on_robot, measured)
+                             ee_velocity, on_robot)
 
     def _outputs(self, out: np.ndarray, q, v, t_s: float, previous, after_push: bool, soft: bool, swing_vxy,
-                 swing_yaw_rates, ee_velocity, on_robot, measured: dict) -> tuple:
+                 swing_yaw_rates, ee_velocity, on_robot) -> tuple:
         """`prepare`'s results as views of the step's buffer `out`; the cold guess (no last plan) and flat feet's
         wrenches (`MPC._shifted_sole_wrenches`) NumPy's, and the soft rows' `StageBounds` where a failure may need them."""
         mpc = self._mpc
@@ -240,8 +244,19 @@ class CompiledStep:
         soft_rows = None if soft or not problem.n_slack_variables else StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=self._swing_vz.copy(), swing_vxy_m_s=swing_vxy,
             swing_yaw_rate_rad_s=swing_yaw_rates, ee_velocity_m_s=ee_velocity, ee_force_on_robot_n=on_robot,
-            **measured, soft=True, relaxed_rows=mpc.config.push.relaxed_rows)
+            **self._measured_values(), soft=True, relaxed_rows=mpc.config.push.relaxed_rows)
         return p, problem.bounds_template().views(bounds), soft_rows, x, node_times, contact
+
+    def _measured_values(self) -> dict:
+        """The measured frame velocities of this step (`MeasuredVelocities`' fields), copied from the C code's."""
+        robot, values = self._mpc.robot, self._velocities.copy()
+        n_feet = len(robot.feet)
+        ee = 3 * n_feet + (3 if robot.arm_ee else 0)
+        out = {"foot_velocity_m_s": values[: 3 * n_feet].reshape(n_feet, 3),
+               "ee_velocity_measured_m_s": values[3 * n_feet : ee] if robot.arm_ee else None}
+        if robot.soles:
+            out["foot_angular_velocity_rad_s"] = values[ee : ee + 3 * n_feet].reshape(n_feet, 3)
+        return out
 
     def unpack(self, x: np.ndarray, p: np.ndarray):
         """The plan (q, v, a, F, tau as (nodes, size) views of one fresh array) from the solver's x and this step's p,

@@ -23,6 +23,7 @@ from wbmpc.control.compiled_step import CompiledStep
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import roll_forward
 from wbmpc.control.inputs import checked_state
+from wbmpc.control.measured import MeasuredVelocities, velocities_function
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
@@ -71,17 +72,19 @@ class MPC:
         dyn, N = self.problem.dyn, self.problem.N
         q, q1 = ca.SX.sym("q", robot.nq), ca.SX.sym("q1", robot.nq)
         # called on NumPy buffers every step (no DM conversions); outputs are reused: copy what is kept
-        difference, plan = self._step_functions(
+        difference, plan, velocities = self._step_functions(
             ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1, [True, False], [False]),
-            self._plan_function())  # q (-) q1 over the nodes, one q for all of them
+            self._plan_function(), velocities_function(self.problem, robot))  # q (-) q1 over the nodes, one q for all
         self._difference, self._plan = BufferedFunction(difference), BufferedFunction(plan)
+        # the measured frame velocities of the bounds: compiled with these where they are, else pinocchio's
+        self._measured_velocities = MeasuredVelocities(robot, BufferedFunction(velocities) if self._functions_library
+                                                       else None)
         self._weights = config.weights.vectors(robot, self.problem.nf)
         # the model's mass distribution (OcpConfig.inertial_parameters): NLP parameters, set between steps
         self._inertial = self._nominal_inertial()
         self._p_template: np.ndarray | None = None  # p's blocks that stay between steps (`_parameters`)
         self._p_blocks = tuple(self.problem.params.block(name) for name in ("q_ref", "rot_ref", "dq_des", "v_des", "F_des"))
         self._data = robot.model.createData()
-        self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._joints_are_coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()
         self.references = References(robot, config.references, self.gait, self._difference, config.swing)
@@ -202,21 +205,6 @@ class MPC:
                 prepare(*self._step_data(q, v, Commands(), float(t_s)).bounds)
             self.reset()
 
-    def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
-        """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
-        model, data = self.robot.model, self._data
-        pin.forwardKinematics(model, data, q, v)
-
-        def velocity(frame_id):
-            return pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
-
-        out = {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
-               "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
-        if self.robot.soles:
-            out["foot_angular_velocity_rad_s"] = np.array(
-                [pin.getFrameVelocity(model, data, i, pin.LOCAL_WORLD_ALIGNED).angular for i in self._foot_ids])
-        return out
-
     def _object_data(self, q: np.ndarray, t: float, node_times: np.ndarray, commands: Commands) -> tuple[dict, dict]:
         """With an object model: its reference and weights (NLP parameters) and its measured state and contact
         rows (bounds); empty without one."""
@@ -328,7 +316,7 @@ class MPC:
             swing_yaw_rate_rad_s=swing_yaw_rates,
             ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
-            **self._measured_frame_velocities(q, v),
+            **self._measured_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),
             collision_measured_m=problem.collision_rows_at(q) if problem.collision is not None else None,
             **object_bounds,

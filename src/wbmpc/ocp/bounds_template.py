@@ -212,22 +212,20 @@ class CompiledMeasuredBounds:
         meta, tables, constants, inputs, contact = self._call_head
         return {"contact": contact, "call": (meta, *(ctypes.addressof(a) for a in (tables, constants, inputs)))}
 
-    def stage_inputs(self, swing_vxy, foot_velocity, ee_velocity, ee_velocity_measured, swing_yaw_rates,
-                     foot_angular_velocity) -> None:
-        """The step inputs from Python's side (the references and pinocchio's frame velocities, each an array of its
-        shape or None) for the C call; the first five (joint positions, joint velocities, arm force, x_0, swing v_z)
-        are the C code's."""
-        pointers, views = self._step_pointers, self._input_views
-        for k in range(5):
-            pointers[k] = self._input_addresses[k]
-        values = (swing_vxy, foot_velocity, ee_velocity if ee_velocity is not None else _ZERO3, ee_velocity_measured,
-                  swing_yaw_rates, foot_angular_velocity)
-        for k, value in enumerate(values, start=5):
+    def stage_inputs(self, swing_vxy, ee_velocity, swing_yaw_rates, arm: bool, soles: bool) -> None:
+        """The step inputs from Python's side (the swing references, the end effector's target: each an array of its
+        shape or None) for the C call; the others (joint positions and velocities, arm force, x_0, swing v_z, the
+        measured frame velocities, where the robot has them) are the C code's."""
+        pointers, views, addresses = self._step_pointers, self._input_views, self._input_addresses
+        for k in (0, 1, 2, 3, 4, 6):
+            pointers[k] = addresses[k]
+        pointers[8], pointers[10] = addresses[8] if arm else None, addresses[10] if soles else None
+        for k, value in ((5, swing_vxy), (7, ee_velocity if ee_velocity is not None else _ZERO3), (9, swing_yaw_rates)):
             if value is None:
                 pointers[k] = None
                 continue
             views[k][...] = value
-            pointers[k] = self._input_addresses[k]
+            pointers[k] = addresses[k]
 
     def write(self, address: int | None, data, contact: np.ndarray) -> bool:
         """The measured entries of `data` (a `StageBounds`) into the buffer [lbx | ubx | lbg | ubg] at `address` after

@@ -33,16 +33,16 @@ enum { K_T, K_ANCHOR_X, K_ANCHOR_Y, K_VWORLD_X, K_VWORLD_Y, K_HEIGHT, K_SUPPORT,
 /* A problem's tables and buffers, laid out once by Python (ctypes.Structure `_Step` in control/compiled_step.py:
  * the same fields in the same order). */
 typedef struct {
-  int64_t nq, nv, nodes, n_feet, n_force, arm, n_x, n_g, n_p, n_state0, n_slack, n_anchors, n_stand, n_x0;
+  int64_t nq, nv, nodes, n_feet, n_force, arm, n_x, n_g, n_p, n_state0, n_slack, n_anchors, n_stand, n_x0, soles;
   double *scalars;
   const double *q, *v, *rot, *v_des, *offsets;                                   /* step inputs */
   const double *node_times, *q_nominal, *phase_offsets, *anchors, *stand;          /* anchors (t0, c0, period) */
-  wbsp_fn difference, plan;
+  wbsp_fn difference, plan, velocities; /* the MPC's compiled functions (`control/measured.py`'s velocities) */
   const double **arg; /* the functions' argument and result pointers and work (their `_work` sizes) */
   double **res;
   wbsp_int *iw;
   double *w;
-  double *targets, *dq_des, *progress, *swing_vz, *x0_state;                       /* scratch */
+  double *targets, *dq_des, *progress, *swing_vz, *x0_state, *velocities_out;      /* scratch */
   uint8_t *contact_flags;                                                          /* bounds' contact (bool) */
   const double *p_template;
   int64_t p_q, p_rot, p_dq, p_v, p_force;                                          /* offsets of p's blocks */
@@ -157,8 +157,9 @@ static void wb_parameters(const wbsp_step *s, const double *forces, double *p) {
   memcpy(p + s->p_force, forces, sizeof(double) * (size_t)(n_in * s->n_force));
 }
 
-/* `OcpProblem.bounds` (template, then the measured entries) into the buffer [lbx | ubx | lbg | ubg] */
-static void wb_bounds(const wbsp_step *s, double *bounds) {
+/* `OcpProblem.bounds` (template, then the measured entries) into the buffer [lbx | ubx | lbg | ubg], with the
+ * measured frame velocities (`MPC`'s compiled `measured_velocities`); 1 if that evaluation failed */
+static int wb_bounds(const wbsp_step *s, double *bounds) {
   const double *k = s->scalars;
   int64_t j, nj = s->nq - 7;
   double **in = s->measured_inputs;
@@ -168,10 +169,19 @@ static void wb_bounds(const wbsp_step *s, double *bounds) {
   for (j = 0; j < nj; ++j) in[0][j] = s->q[7 + j]; /* the joint positions (one coordinate per joint) */
   for (j = 0; j < s->nv - 6; ++j) in[1][j] = s->v[6 + j];
   for (j = 0; j < 3; ++j) in[2][j] = k[K_FORCE_X + j];
+  /* the measured feet's (and end effector's, flat feet's angular) velocities */
+  s->arg[0] = s->q;
+  s->arg[1] = s->v;
+  s->res[0] = s->velocities_out;
+  if (s->velocities(s->arg, s->res, s->iw, s->w, 0)) return 1;
+  memcpy(in[6], s->velocities_out, sizeof(double) * (size_t)(3 * s->n_feet));
+  if (s->arm) memcpy(in[8], s->velocities_out + 3 * s->n_feet, sizeof(double) * 3);
+  if (s->soles) memcpy(in[10], s->velocities_out + 3 * (s->n_feet + s->arm), sizeof(double) * (size_t)(3 * s->n_feet));
   memcpy(in[3], s->x0_state, sizeof(double) * (size_t)s->n_x0);
   memcpy(in[4], s->swing_vz, sizeof(double) * (size_t)(s->nodes * s->n_feet));
   wbsp_bounds_measured(bounds, s->measured_meta, s->measured_tables, s->measured_constants,
                        (const double *const *)in, s->contact_flags, k[K_RELAX_EE] != 0, k[K_RELAX_FOOT] != 0);
+  return 0;
 }
 
 /* `MPC._initial_guess` warm: the last plan's x re-sampled at the new node times, dq re-expressed on q, node 0 the
@@ -219,7 +229,7 @@ int wbsp_prepare(const wbsp_step *s, double *out) {
   for (j = 0; j < s->n_x0; ++j) s->x0_state[j] = j < s->nv ? 0.0 : s->v[j - s->nv]; /* x_0 = [dq = 0, v] */
   wb_forces(s, contact, forces);
   wb_parameters(s, forces, p);
-  wb_bounds(s, bounds);
+  rc |= wb_bounds(s, bounds);
   return rc | wb_guess(s, forces, x);
 }
 
