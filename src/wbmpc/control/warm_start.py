@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
+from wbmpc.ocp.multipliers import MultiplierShift
 
 
 class ShiftedGuess:
@@ -134,10 +134,9 @@ class ShiftedDuals:
             kinds = (bounds, *self._bound_kinds(bounds))
         self._last = (t_s, result.lam_g, result.lam_x, kinds[1], kinds[2])
 
-    @staticmethod
-    def _bound_kinds(bounds) -> tuple[np.ndarray, np.ndarray]:
+    def _bound_kinds(self, bounds) -> tuple[np.ndarray, np.ndarray]:
         lbx, ubx, lbg, ubg = bounds
-        return bound_kind(lbg, ubg), bound_kind(lbx, ubx)
+        return self._shift.kinds(lbg, ubg), self._shift.kinds(lbx, ubx)  # (`bound_kind`, in C where compiled)
 
     def at(self, t_s: float, bounds, previous_t_s: float | None) -> tuple:
         """(lam_g0, lam_x0) for the step at `t_s` with `bounds`, when the kept multipliers are the plan's at
