@@ -81,8 +81,11 @@ class CompiledStep:
         self._previous_times, self._swing_vz = self._buffer(nodes), self._buffer(nodes * n_feet).reshape(nodes, -1)
         self._plan_out = self._buffer(sum(rows * cols for rows, cols in mpc._plan_shapes))
         self._velocities = self._buffer(mpc._measured_velocities.function.outputs[0].size)
+        self._node_times = np.ascontiguousarray(problem.config.grid.node_times_s, dtype=float)
         self._step = self._structure(mpc, ctypes.CDLL(functions_library), template, shift_call)
         self._gait_state, self._p_template, self._p = (None, None), None, None
+        # the plan made of the last `unpack` (`MPC._unpack` sets it): the next step reads its x and q from there
+        self.last_solution, self._reading_own = None, False
         self._address = ctypes.addressof(self._step)
         n_tau = int(np.prod(mpc._plan_shapes[-1]))
         self._unpack_call = (self._address, self._x.ctypes.data, self._plan_out.ctypes.data, self._plan_out.size - n_tau,
@@ -120,7 +123,7 @@ class CompiledStep:
             problem.n_constraints, problem.params.size, state0.size, problem.slack_index.size, 1, 0, 2 * robot.nv,
             int(bool(robot.soles)),
             *(a.ctypes.data for a in (self._scalars, self._q, self._v, self._rot, self._v_des)), None,
-            address(problem.config.grid.node_times_s), address(robot.q_nominal), address(mpc.gait.phase_offsets), None,
+            self._node_times.ctypes.data, address(robot.q_nominal), address(mpc.gait.phase_offsets), None,
             None, *(ctypes.cast(functions[name], _P) for name in names), *scratch,
             self._buffer(nodes * n_feet).ctypes.data, self._swing_vz.ctypes.data, self._buffer(2 * robot.nv).ctypes.data,
             self._velocities.ctypes.data,
@@ -200,8 +203,7 @@ class CompiledStep:
         warm = previous is not None and previous.x is not None and previous.x.size == self._x.size and \
             previous.q.shape == self._previous_q.shape and previous.node_times_s.shape == self._previous_times.shape
         if warm:
-            self._previous_x[:], self._previous_q[...], self._previous_times[:] = \
-                previous.x, previous.q, previous.node_times_s
+            self._point_at_previous(previous)
         self._q[:], self._v[:], self._rot[...] = q, v, rot
         self._v_des[:3] = rot.T @ v_world  # (`References.targets`' v_des, in NumPy: its matrix product)
         self._v_des[3:6] = yaw_rate * rot[2]
@@ -246,6 +248,19 @@ class CompiledStep:
             swing_yaw_rate_rad_s=swing_yaw_rates, ee_velocity_m_s=ee_velocity, ee_force_on_robot_n=on_robot,
             **self._measured_values(), soft=True, relaxed_rows=mpc.config.push.relaxed_rows)
         return p, problem.bounds_template().views(bounds), soft_rows, x, node_times, contact
+
+    def _point_at_previous(self, previous) -> None:
+        """The last plan's x, q and node times for the C code: the last `unpack`'s own buffers where `previous` is its
+        plan (`last_solution`: nothing overwrote them since), else copies of the plan's."""
+        step, own = self._step, previous is self.last_solution
+        if not own:
+            self._previous_x[:], self._previous_q[...], self._previous_times[:] = \
+                previous.x, previous.q, previous.node_times_s
+        if own != self._reading_own:
+            sources = (self._x, self._plan_out, self._node_times) if own else \
+                (self._previous_x, self._previous_q, self._previous_times)
+            step.previous_x, step.previous_q, step.previous_times = (a.ctypes.data for a in sources)
+            self._reading_own = own
 
     def _measured_values(self) -> dict:
         """The measured frame velocities of this step (`MeasuredVelocities`' fields), copied from the C code's."""

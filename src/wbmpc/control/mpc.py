@@ -455,6 +455,7 @@ class MPC:
 
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
         unpacked = self.compiled_step.unpack(x, p) if self.compiled_step is not None else None
+        unpacked_in_c = unpacked is not None
         if unpacked is None:
             plan, parts, start = self._plan(x, p)[0].copy(), [], 0
             for rows, cols in self._plan_shapes:
@@ -465,6 +466,10 @@ class MPC:
         (q_traj, v, a, forces, tau), finite = unpacked
         # one coordinate per joint, none continuous: the joint positions are q[:, 7:] (Solution's own view)
         q_joints = None if self._joints_are_coordinates else joint_trajectory(self.robot, q_traj)
-        return Solution(t_s=t, node_times_s=node_times.copy(), q=q_traj, v=v, a=a, forces=forces, tau=tau, contact=contact,
-                        stats=stats, success=bool(stats.success and finite), x=np.asarray(x, dtype=float), q_joints=q_joints)
+        solution = Solution(t_s=t, node_times_s=node_times.copy(), q=q_traj, v=v, a=a, forces=forces, tau=tau,
+                            contact=contact, stats=stats, success=bool(stats.success and finite),
+                            x=np.asarray(x, dtype=float), q_joints=q_joints)
+        if self.compiled_step is not None:  # (its buffers hold this plan's x and q until the next unpacking)
+            self.compiled_step.last_solution = solution if unpacked_in_c else None
+        return solution
 

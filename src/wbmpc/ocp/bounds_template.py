@@ -201,7 +201,7 @@ class CompiledMeasuredBounds:
         self._input_views = [self._inputs[start:stop].reshape(shape) for start, stop, shape in
                              zip(self._offsets[:-1], self._offsets[1:], self._shapes)]
         self._step_pointers = (ctypes.c_void_p * len(self._shapes))(*self._input_addresses)
-        self._soles = bool(surface.size)
+        self._soles, self._staged = bool(surface.size), None
         self._contact = np.zeros((N + 1, nf), dtype=bool)
         self._call_head = (self._meta.ctypes.data, self._table_pointers, self._constant_pointers, self._step_pointers,
                            self._contact.ctypes.data)
@@ -216,16 +216,20 @@ class CompiledMeasuredBounds:
         """The step inputs from Python's side (the swing references, the end effector's target: each an array of its
         shape or None) for the C call; the others (joint positions and velocities, arm force, x_0, swing v_z, the
         measured frame velocities, where the robot has them) are the C code's."""
-        pointers, views, addresses = self._step_pointers, self._input_views, self._input_addresses
-        for k in (0, 1, 2, 3, 4, 6):
-            pointers[k] = addresses[k]
-        pointers[8], pointers[10] = addresses[8] if arm else None, addresses[10] if soles else None
-        for k, value in ((5, swing_vxy), (7, ee_velocity if ee_velocity is not None else _ZERO3), (9, swing_yaw_rates)):
-            if value is None:
-                pointers[k] = None
-                continue
-            views[k][...] = value
-            pointers[k] = addresses[k]
+        views, addresses = self._input_views, self._input_addresses
+        values = ((5, swing_vxy), (7, ee_velocity if ee_velocity is not None else _ZERO3), (9, swing_yaw_rates))
+        staged = (swing_vxy is None, swing_yaw_rates is None, arm, soles)
+        if staged != self._staged:  # (the pointers change only with these: set then)
+            pointers = self._step_pointers
+            for k in (0, 1, 2, 3, 4, 6):
+                pointers[k] = addresses[k]
+            pointers[8], pointers[10] = addresses[8] if arm else None, addresses[10] if soles else None
+            for k, value in values:
+                pointers[k] = None if value is None else addresses[k]
+            self._staged = staged
+        for k, value in values:
+            if value is not None:
+                views[k][...] = value
 
     def write(self, address: int | None, data, contact: np.ndarray) -> bool:
         """The measured entries of `data` (a `StageBounds`) into the buffer [lbx | ubx | lbg | ubg] at `address` after
@@ -243,6 +247,7 @@ class CompiledMeasuredBounds:
         if self._soles:  # (point feet: the C code reads neither)
             values += (data.swing_yaw_rate_rad_s, data.foot_angular_velocity_rad_s)
         pointers, views = self._step_pointers, self._input_views
+        self._staged = None  # (the pointers change below: `stage_inputs` sets its own again)
         for k, value in enumerate(values):
             if value is None:
                 pointers[k] = None
