@@ -151,6 +151,16 @@ class GaitClock(Gait):
         object.__setattr__(self, "transitions", [])  # (t requested, t switched, "stand" | "walk")
 
     # ------------------------------------------------------------------ time -> cycles
+    @property
+    def anchors(self) -> list[tuple[float, float, float]]:
+        """(from t, cycles there, period) of each piece of the clock (a new list after each change)."""
+        return self._anchors
+
+    @property
+    def stand_intervals(self) -> list[list[float]]:
+        """[start, end) of each standing interval."""
+        return self._stand
+
     def cycles(self, times_s: np.ndarray) -> np.ndarray:
         times = np.asarray(times_s, dtype=float)
         anchors = self._anchors

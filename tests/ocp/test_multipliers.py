@@ -67,7 +67,8 @@ def test_variables_follow_their_identity(problem):
 def test_the_compiled_shift_equals_numpys_bitwise(monkeypatch):
     """With the compiled step packer (`OcpProblem.bounds_packer`) the shift's sources (old rows, weights) are one C
     call: on g1 (flat feet: wrench and CoP rows), shifts within a node, across several, beyond the horizon and by a
-    rounding error, the sources and the shifted random multipliers are NumPy's bits, and the NumPy code does not run."""
+    rounding error, the sources and the shifted random multipliers are NumPy's bits, and the NumPy code does not run;
+    the bound kinds too."""
     packer = step_pack.library()
     if packer is None:
         pytest.skip("no C compiler")
@@ -90,3 +91,7 @@ def test_the_compiled_shift_equals_numpys_bitwise(monkeypatch):
             got = compiled_shift.shift(lam, kind_old, kind_new, dt, rows=rows)
             assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
     assert len(calls) == 24  # NumPy's sources: the reference's two calls per shift only
+    values = np.array([-np.inf, np.inf, np.nan, 0.0, -0.0, 1.0, -2.5])  # bound kinds: C against `bound_kind`
+    lower, upper = rng.choice(values, size=(2, 4000))
+    upper[::7] = lower[::7]
+    np.testing.assert_array_equal(compiled_shift.kinds(lower, upper), bound_kind(lower, upper), strict=True)

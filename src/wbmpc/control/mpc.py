@@ -19,13 +19,15 @@ import numpy as np
 import pinocchio as pin
 
 from wbmpc.control.commands import Commands, object_reference
+from wbmpc.control.compiled_step import CompiledStep
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import DelayPredictor
 from wbmpc.control.inputs import checked_state
+from wbmpc.control.measured import MeasuredVelocities, velocities_function
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
-from wbmpc.control.solution import Solution, python_share
+from wbmpc.control.solution import Solution, joint_trajectory, python_share, shifted_plan
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
 from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess, shifted_sole_wrenches
@@ -70,17 +72,19 @@ class MPC:
         dyn, N = self.problem.dyn, self.problem.N
         q, q1 = ca.SX.sym("q", robot.nq), ca.SX.sym("q1", robot.nq)
         # called on NumPy buffers every step (no DM conversions); outputs are reused: copy what is kept
-        difference, plan = self._step_functions(
+        difference, plan, velocities = self._step_functions(
             ca.Function("difference", [q, q1], [dyn.difference(q, q1)]).map(N + 1, [True, False], [False]),
-            self._plan_function())  # q (-) q1 over the nodes, one q for all of them
+            self._plan_function(), velocities_function(self.problem, robot))  # q (-) q1 over the nodes, one q for all
         self._difference, self._plan = BufferedFunction(difference), BufferedFunction(plan)
+        # the measured frame velocities of the bounds: compiled with these where they are, else pinocchio's
+        self._measured_velocities = MeasuredVelocities(robot, BufferedFunction(velocities) if self._functions_library
+                                                       else None)
         self._weights = config.weights.vectors(robot, self.problem.nf)
         # the model's mass distribution (OcpConfig.inertial_parameters): NLP parameters, set between steps
         self._inertial = self._nominal_inertial()
         self._p_template: np.ndarray | None = None  # p's blocks that stay between steps (`_parameters`)
         self._p_blocks = tuple(self.problem.params.block(name) for name in ("q_ref", "rot_ref", "dq_des", "v_des", "F_des"))
         self._data = robot.model.createData()
-        self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
         self._joints_are_coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()
         self.references = References(robot, config.references, self.gait, self._difference, config.swing)
@@ -105,6 +109,9 @@ class MPC:
         self._duals = ShiftedDuals(self.problem) if getattr(self.solver, "takes_multipliers", False) else None
         dyn = self.problem.dyn  # flat feet's columns of F: force and sole moments (`_shifted_sole_wrenches`)
         self._sole_columns = {i: np.r_[3 * i : 3 * i + 3, dyn.moment_slice(i)] for i in self.problem.surface_feet}
+        # the step's data preparation and unpacking in one C call each where the problem allows (compiled_step.py)
+        compiled = CompiledStep(self, packer, self._functions_library) if packer is not None else None
+        self.compiled_step = compiled if compiled is not None and compiled.supported else None
 
     def _plan_function(self) -> ca.Function:
         """(x, p) -> the plan's trajectories (`OcpProblem.trajectory_function`) with the configurations q_ref (+) dq
@@ -123,6 +130,7 @@ class MPC:
         """The MPC's own functions of every step, compiled with the solver's (`SolverConfig.compiled`; cached):
         b1_z1's plan unpacking and q (-) q over the nodes take 3.5 and 2.4 us compiled against 26 and 10 us in
         CasADi's virtual machine. Where they cannot be compiled, the virtual machine's (the solver's warning says why)."""
+        self._functions_library = None
         if not self.config.solver.compiled:
             return list(functions)
         try:
@@ -130,7 +138,8 @@ class MPC:
                                        self.config.solver.codegen)
         except CompileError:
             return list(functions)
-        return [ca.external(function.name(), str(report.library)) for function in functions]
+        self._functions_library = str(report.library)  # (also called from C: `CompiledStep`)
+        return [ca.external(function.name(), self._functions_library) for function in functions]
 
     def _nominal_inertial(self) -> dict[str, np.ndarray]:
         names = [n for n in ("base_com_offset", "payload_kg", "base_payload_kg") if n in self.problem.params.names]
@@ -197,21 +206,6 @@ class MPC:
                 prepare(*self._step_data(q, v, Commands(), float(t_s)).bounds)
             self.reset()
 
-    def _measured_frame_velocities(self, q: np.ndarray, v: np.ndarray) -> dict:
-        """Measured world linear velocities of the feet (n_feet, 3) and of the end-effector (3,)."""
-        model, data = self.robot.model, self._data
-        pin.forwardKinematics(model, data, q, v)
-
-        def velocity(frame_id):
-            return pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
-
-        out = {"foot_velocity_m_s": np.array([velocity(i) for i in self._foot_ids]),
-               "ee_velocity_measured_m_s": velocity(self._ee_id) if self._ee_id is not None else None}
-        if self.robot.soles:
-            out["foot_angular_velocity_rad_s"] = np.array(
-                [pin.getFrameVelocity(model, data, i, pin.LOCAL_WORLD_ALIGNED).angular for i in self._foot_ids])
-        return out
-
     def _object_data(self, q: np.ndarray, t: float, node_times: np.ndarray, commands: Commands) -> tuple[dict, dict]:
         """With an object model: its reference and weights (NLP parameters) and its measured state and contact
         rows (bounds); empty without one."""
@@ -230,15 +224,19 @@ class MPC:
         N, n_feet = self.problem.N, len(self.robot.feet)
         forces = np.zeros((N, self.problem.nf))
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
-        mass = self.robot.mass_kg + sum(float(self._inertial[name][0]) for name in ("payload_kg", "base_payload_kg")
-                                        if name in self._inertial)
-        support = mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
+        support = self._support_n(on_robot)
         stance = contact[:N]
         n_stance = np.maximum(stance.sum(axis=1, keepdims=True), 1)
         forces[:, 2 : 3 * n_feet : 3] = stance * support / n_stance
         if self.robot.arm_ee:
             forces[:, 3 * n_feet : 3 * n_feet + 3] = on_robot
         return forces
+
+    def _support_n(self, on_robot: np.ndarray) -> float:
+        """The weight (with the payloads) less the arm's vertical force on the robot: what the feet carry."""
+        mass = self.robot.mass_kg + sum(float(self._inertial[name][0]) for name in ("payload_kg", "base_payload_kg")
+                                        if name in self._inertial)
+        return mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
 
     def schedule(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Node times, contact flags and swing v_z references of the horizon starting at `t_s`."""
@@ -281,7 +279,7 @@ class MPC:
             if self._duals is not None:
                 self._duals.record(t, result, step.bounds)
         elif self.config.recovery.hold_previous and self._previous is not None:
-            solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
+            solution = shifted_plan(self._previous, t, step.node_times, step.contact, result.stats, self.robot)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
         self._delay.account(result.stats)  # the prediction's own part of the step's split
@@ -290,7 +288,9 @@ class MPC:
 
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:
         """This step's NLP data: parameters (targets, weights, schedule), bounds (hard, and with the soft rows free
-        where a failed hard step retries them) and the initial guess."""
+        where a failed hard step retries them) and the initial guess; in one C call where it covers the step."""
+        if self.compiled_step is not None and self.compiled_step.covers(commands, measured_contact):
+            return _StepData(*self.compiled_step.prepare(q, v, commands, t))
         problem, references = self.problem, self.references
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         dq_des, v_des, base_velocity_world = references.targets(q, rot, commands, t, problem.config.grid.node_times_s)
@@ -318,7 +318,7 @@ class MPC:
             swing_yaw_rate_rad_s=swing_yaw_rates,
             ee_velocity_m_s=references.ee_velocity(q, commands, base_velocity_world),
             ee_force_on_robot_n=-np.asarray(commands.ee_force_n, dtype=float),
-            **self._measured_frame_velocities(q, v),
+            **self._measured_velocities(q, v),
             soft=after_push or self.config.soft_rows_always, relaxed_rows=self._relaxed_rows(after_push, commands),
             collision_measured_m=problem.collision_rows_at(q) if problem.collision is not None else None,
             **object_bounds,
@@ -338,11 +338,7 @@ class MPC:
         """p of this step: the blocks that stay (time steps, friction, weights, the flat ground's normals, inertial
         parameters) from a template packed once, this step's targets and force guess written into a copy."""
         params = self.problem.params
-        if self._p_template is None:
-            self._p_template = params.template({
-                "dt": self.problem.config.grid.dt_s, "mu": [self.config.friction_coefficient],
-                "contact_normal": self._flat_normals, **self._weights, **self._inertial})
-        p = self._p_template.copy()
+        p = self._parameter_template().copy()
         q_ref, rot_ref, dq_block, v_block, force_block = self._p_blocks
         p[q_ref], p[v_block] = q, v_des
         p[rot_ref], p[dq_block] = rot.ravel(order="F"), dq_des.ravel(order="F")  # (column-major, as `pack`)
@@ -352,6 +348,14 @@ class MPC:
         for name, value in object_values.items():
             params.write(p, name, value)
         return p
+
+    def _parameter_template(self) -> np.ndarray:
+        """p's blocks that stay between steps (time steps, friction, weights, normals, inertial parameters)."""
+        if self._p_template is None:
+            self._p_template = self.problem.params.template({
+                "dt": self.problem.config.grid.dt_s, "mu": [self.config.friction_coefficient],
+                "contact_normal": self._flat_normals, **self._weights, **self._inertial})
+        return self._p_template
 
     def _solve_step(self, p, bounds, soft_rows, x0, t: float, budget_s: float | None, clock, clock_start):
         """One step's solve: the push fallback solver first in the wake of a push, else the solver on this
@@ -407,22 +411,6 @@ class MPC:
             rows = tuple(dict.fromkeys((*rows, "ee_vel")))
         return rows
 
-    def _shifted_previous(self, t: float, node_times: np.ndarray, contact: np.ndarray, stats) -> Solution:
-        """The last good plan re-sampled at the new node times (held beyond its horizon), returned as
-        a failed step (`success` False, `held_previous` True): the loop keeps applying a plan that
-        moves on in time instead of the stale one."""
-        prev = self._previous
-        old, new = prev.t_s + prev.node_times_s, t + node_times
-        n_tau = prev.tau.shape[0]
-        q = interp_rows(new, old, prev.q)
-        q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
-        stats.status = f"{stats.status}; holding the last good plan shifted by {1e3 * (t - prev.t_s):.0f} ms"
-        shifted = Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=interp_rows(new, old, prev.v),
-                           a=interp_rows(new[:-1], old[:-1], prev.a), forces=interp_rows(new[:-1], old[:-1], prev.forces),
-                           tau=interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
-                           success=False, x=None, q_joints=self._joint_trajectory(q), held_previous=True)
-        return shifted
-
     def _initial_guess(self, q, v, t, node_times, forces, object_state=None) -> np.ndarray:
         """Cold: the measured state held over the horizon, weight-sharing forces. Warm: the previous
         solution's variables shifted to the new node times (any formulation, `ShiftedGuess`), forces re-initialised
@@ -467,23 +455,23 @@ class MPC:
         return shifted_sole_wrenches(forces, previous.forces, previous.contact, self.gait.contact(new_times), new_times,
                                      old_times, self._sole_columns)
 
-    def _joint_trajectory(self, q_traj: np.ndarray) -> np.ndarray:
-        """Joint positions per node; continuous joints unwrapped along the horizon (no 2 pi jumps)."""
-        positions = self.robot.joint_positions(q_traj)
-        continuous = self.robot.continuous
-        if continuous.any():
-            positions[:, continuous] = np.unwrap(positions[:, continuous], axis=0)
-        return positions
-
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
-        plan, parts, start = self._plan(x, p)[0].copy(), [], 0
-        for rows, cols in self._plan_shapes:
-            parts.append(plan[start : start + rows * cols].reshape(rows, cols))
-            start += rows * cols
-        q_traj, v, a, forces, tau = parts
-        finite = math.isfinite(float(np.vdot(x, x)) + float(np.vdot(tau, tau)))  # (no NaN or inf in either: two reductions, not four)
+        unpacked = self.compiled_step.unpack(x, p) if self.compiled_step is not None else None
+        unpacked_in_c = unpacked is not None
+        if unpacked is None:
+            plan, parts, start = self._plan(x, p)[0].copy(), [], 0
+            for rows, cols in self._plan_shapes:
+                parts.append(plan[start : start + rows * cols].reshape(rows, cols))
+                start += rows * cols
+            tau = parts[-1]  # (no NaN or inf in x or tau: two reductions, not four)
+            unpacked = parts, math.isfinite(float(np.vdot(x, x)) + float(np.vdot(tau, tau)))
+        (q_traj, v, a, forces, tau), finite = unpacked
         # one coordinate per joint, none continuous: the joint positions are q[:, 7:] (Solution's own view)
-        q_joints = None if self._joints_are_coordinates else self._joint_trajectory(q_traj)
-        return Solution(t_s=t, node_times_s=node_times.copy(), q=q_traj, v=v, a=a, forces=forces, tau=tau, contact=contact,
-                        stats=stats, success=bool(stats.success and finite), x=np.asarray(x, dtype=float), q_joints=q_joints)
+        q_joints = None if self._joints_are_coordinates else joint_trajectory(self.robot, q_traj)
+        solution = Solution(t_s=t, node_times_s=node_times.copy(), q=q_traj, v=v, a=a, forces=forces, tau=tau,
+                            contact=contact, stats=stats, success=bool(stats.success and finite),
+                            x=np.asarray(x, dtype=float), q_joints=q_joints)
+        if self.compiled_step is not None:  # (its buffers hold this plan's x and q until the next unpacking)
+            self.compiled_step.last_solution = solution if unpacked_in_c else None
+        return solution
 

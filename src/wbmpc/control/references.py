@@ -37,7 +37,7 @@ class References:
         self._data = robot.model.createData()
         self._foot_ids = [robot.frame_id(robot.contact_frame(foot)) for foot in robot.feet]  # soles of flat feet
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
-        self._stance_reference = StanceReference(robot) if config.stance_posture else None
+        self._stance_reference = self.stance_reference = StanceReference(robot) if config.stance_posture else None
         self._swing_placement = SwingPlacement(robot) if config.swing_placement else None
         # on a terrain (not the flat floor): its footholds, swing splines, cone normals and base targets
         self.terrain = TerrainReferences(robot, config.terrain, swing or SwingProfile(), config.footholds,

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wbmpc.control.trajectory import interp_rows
 from wbmpc.solvers.nlp import SolverStats
 
 
@@ -70,3 +71,27 @@ def python_share(stats, step_ms: float) -> None:
     outside = split.pop("outside_solver", 0.0)
     inside = sum(split.values()) if split else 1e3 * stats.solve_time_s
     split["python"] = max(step_ms - inside, outside, 0.0)
+
+
+def joint_trajectory(robot, q_traj: np.ndarray) -> np.ndarray:
+    """Joint positions per node; continuous joints unwrapped along the horizon (no 2 pi jumps)."""
+    positions = robot.joint_positions(q_traj)
+    continuous = robot.continuous
+    if continuous.any():
+        positions[:, continuous] = np.unwrap(positions[:, continuous], axis=0)
+    return positions
+
+
+def shifted_plan(prev: Solution, t: float, node_times: np.ndarray, contact: np.ndarray, stats, robot) -> Solution:
+    """The last good plan `prev` re-sampled at the new node times (held beyond its horizon), returned as a failed step
+    (`success` False, `held_previous` True): the loop keeps applying a plan that moves on in time instead of the
+    stale one."""
+    old, new = prev.t_s + prev.node_times_s, t + node_times
+    n_tau = prev.tau.shape[0]
+    q = interp_rows(new, old, prev.q)
+    q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
+    stats.status = f"{stats.status}; holding the last good plan shifted by {1e3 * (t - prev.t_s):.0f} ms"
+    return Solution(t_s=t, node_times_s=node_times.copy(), q=q, v=interp_rows(new, old, prev.v),
+                    a=interp_rows(new[:-1], old[:-1], prev.a), forces=interp_rows(new[:-1], old[:-1], prev.forces),
+                    tau=interp_rows(new[:n_tau], old[:n_tau], prev.tau), contact=contact, stats=stats,
+                    success=False, x=None, q_joints=joint_trajectory(robot, q), held_previous=True)

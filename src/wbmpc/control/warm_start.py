@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbmpc.ocp.multipliers import MultiplierShift, bound_kind
+from wbmpc.ocp.multipliers import MultiplierShift
 
 
 class ShiftedGuess:
@@ -58,7 +58,7 @@ class ShiftedGuess:
             lengths, group_node, by_column, column_start, target = (a.ctypes.data for a in self._tables)
             self._call = (groups, lengths, n_nodes, times + 8 * n_nodes, n_nodes, times, len(self._target), group_node,
                           by_column, column_start, target, old_x, self._size, out, pos, weight)
-        self._n_nodes = n_nodes
+        self._n_nodes, self.compiled_call = n_nodes, self._call if packer is not None else None  # (compiled_step.py)
 
     def __call__(self, old_x: np.ndarray, new_times: np.ndarray, old_times: np.ndarray) -> np.ndarray:
         """The vector `old_x` (NLP layout) at `new_times`: each variable of node k linearly interpolated
@@ -134,10 +134,9 @@ class ShiftedDuals:
             kinds = (bounds, *self._bound_kinds(bounds))
         self._last = (t_s, result.lam_g, result.lam_x, kinds[1], kinds[2])
 
-    @staticmethod
-    def _bound_kinds(bounds) -> tuple[np.ndarray, np.ndarray]:
+    def _bound_kinds(self, bounds) -> tuple[np.ndarray, np.ndarray]:
         lbx, ubx, lbg, ubg = bounds
-        return bound_kind(lbg, ubg), bound_kind(lbx, ubx)
+        return self._shift.kinds(lbg, ubg), self._shift.kinds(lbx, ubx)  # (`bound_kind`, in C where compiled)
 
     def at(self, t_s: float, bounds, previous_t_s: float | None) -> tuple:
         """(lam_g0, lam_x0) for the step at `t_s` with `bounds`, when the kept multipliers are the plan's at

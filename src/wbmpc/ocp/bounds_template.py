@@ -119,6 +119,12 @@ class BoundsTemplate:
             buffer[self._slack_entries] = INF
         return (buffer, *self._views(buffer))
 
+    def c_arguments(self) -> tuple:
+        """`start`'s C call for `csrc/step_prepare.c`: the template's address, its entries', contact flags' and
+        slacks' tables, the stance and swing values and the table's size."""
+        buffer, _, entries, flags, stance, swing, n_entries = self._call_head
+        return buffer, entries, flags, self._call_slack[0], stance, swing, n_entries
+
     def views(self, buffer: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """lbx, ubx, lbg, ubg of a buffer that `measured` finished."""
         return self._views(buffer)
@@ -195,10 +201,35 @@ class CompiledMeasuredBounds:
         self._input_views = [self._inputs[start:stop].reshape(shape) for start, stop, shape in
                              zip(self._offsets[:-1], self._offsets[1:], self._shapes)]
         self._step_pointers = (ctypes.c_void_p * len(self._shapes))(*self._input_addresses)
-        self._soles = bool(surface.size)
+        self._soles, self._staged = bool(surface.size), None
         self._contact = np.zeros((N + 1, nf), dtype=bool)
         self._call_head = (self._meta.ctypes.data, self._table_pointers, self._constant_pointers, self._step_pointers,
                            self._contact.ctypes.data)
+
+    def c_arguments(self) -> dict:
+        """`write`'s C call for `csrc/step_prepare.c` (after `stage_inputs`): its contact flags' address and its
+        tables, constants and step inputs (ctypes pointer arrays: their addresses)."""
+        meta, tables, constants, inputs, contact = self._call_head
+        return {"contact": contact, "call": (meta, *(ctypes.addressof(a) for a in (tables, constants, inputs)))}
+
+    def stage_inputs(self, swing_vxy, ee_velocity, swing_yaw_rates, arm: bool, soles: bool) -> None:
+        """The step inputs from Python's side (the swing references, the end effector's target: each an array of its
+        shape or None) for the C call; the others (joint positions and velocities, arm force, x_0, swing v_z, the
+        measured frame velocities, where the robot has them) are the C code's."""
+        views, addresses = self._input_views, self._input_addresses
+        values = ((5, swing_vxy), (7, ee_velocity if ee_velocity is not None else _ZERO3), (9, swing_yaw_rates))
+        staged = (swing_vxy is None, swing_yaw_rates is None, arm, soles)
+        if staged != self._staged:  # (the pointers change only with these: set then)
+            pointers = self._step_pointers
+            for k in (0, 1, 2, 3, 4, 6):
+                pointers[k] = addresses[k]
+            pointers[8], pointers[10] = addresses[8] if arm else None, addresses[10] if soles else None
+            for k, value in values:
+                pointers[k] = None if value is None else addresses[k]
+            self._staged = staged
+        for k, value in values:
+            if value is not None:
+                views[k][...] = value
 
     def write(self, address: int | None, data, contact: np.ndarray) -> bool:
         """The measured entries of `data` (a `StageBounds`) into the buffer [lbx | ubx | lbg | ubg] at `address` after
@@ -216,6 +247,7 @@ class CompiledMeasuredBounds:
         if self._soles:  # (point feet: the C code reads neither)
             values += (data.swing_yaw_rate_rad_s, data.foot_angular_velocity_rad_s)
         pointers, views = self._step_pointers, self._input_views
+        self._staged = None  # (the pointers change below: `stage_inputs` sets its own again)
         for k, value in enumerate(values):
             if value is None:
                 pointers[k] = None

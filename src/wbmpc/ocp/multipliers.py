@@ -70,6 +70,7 @@ class MultiplierShift:
                                          n_nodes, problem.n_variables)
         # with the compiled step packer (`OcpProblem.bounds_packer`, solvers/step_pack.py) `sources` is one C call,
         # bit for bit its NumPy code
+        self._packer = problem.bounds_packer
         self._compiled = {kind: CompiledShift(problem.bounds_packer, self.node_times_s, identity) for kind, identity in
                           ((True, self.rows), (False, self.variables))} if problem.bounds_packer is not None else None
 
@@ -96,10 +97,21 @@ class MultiplierShift:
         src0, src1 = np.where(src0 < 0, src1, src0), np.where(src1 < 0, src0, src1)
         return src0, src1, w, covered
 
+    def kinds(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        """`bound_kind(lower, upper)`, in one C call with the compiled step packer."""
+        if self._compiled is None:
+            return bound_kind(lower, upper)
+        lower, upper = np.ascontiguousarray(lower, dtype=float), np.ascontiguousarray(upper, dtype=float)
+        kind = np.empty(lower.size, dtype=np.int64)
+        self._packer.wbsp_bound_kind(kind.size, lower.ctypes.data, upper.ctypes.data, kind.ctypes.data)
+        return kind
+
     def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
               rows: bool = True) -> np.ndarray:
         """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
-        `dt_s` the time from the last step to this one."""
+        `dt_s` the time from the last step to this one; in C with the compiled step packer (its sources too)."""
+        if self._compiled is not None:
+            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s)
         src0, src1, w, covered = self.sources(dt_s, rows)
         lam = np.asarray(lam, dtype=float)
         # the sources of the row's own kind: both, interpolated; one, its multiplier (a switch lies between them)
@@ -122,6 +134,8 @@ class CompiledShift:
              np.zeros(len(node_times_s))]
         addresses = [a.ctypes.data for a in self._arrays]
         self._head = (size, addresses[6], len(node_times_s))
+        self._covered = np.ascontiguousarray(covered, dtype=np.uint8)
+        self._shift_tail = (*(a.ctypes.data for a in self._out), self._covered.ctypes.data)
         self._tail = (*addresses[:6], table.shape[1], table.shape[2], *(a.ctypes.data for a in self._out),
                       *addresses[7:])
 
@@ -129,3 +143,13 @@ class CompiledShift:
         """src0, src1, w (fresh arrays)."""
         self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
         return tuple(a.copy() for a in self._out)
+
+    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float) -> np.ndarray:
+        """`MultiplierShift.shift` (its sources and the kind rule) in two C calls (`wbsp_dual_shift`)."""
+        self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
+        lam = np.ascontiguousarray(lam, dtype=float)
+        kind_old, kind_new = (np.ascontiguousarray(kind, dtype=np.int64) for kind in (kind_old, kind_new))
+        out = np.empty(self._covered.size)
+        self._packer.wbsp_dual_shift(out.size, lam.ctypes.data, kind_old.ctypes.data, kind_new.ctypes.data,
+                                     *self._shift_tail, out.ctypes.data)
+        return out

@@ -616,15 +616,20 @@ class OcpProblem:
         return ca.Function("trajectories", [x, p], outputs, ["x", "p"], ["dq", "v", "a", "F", "tau"])
 
     # ------------------------------------------------------------------ per-step data
+    def bounds_template(self) -> BoundsTemplate:
+        """The step-independent part of `bounds` (built once per `bounds_packer`)."""
+        template = self._bounds_template
+        if template is None or template.packer is not self.bounds_packer:
+            template = self._bounds_template = BoundsTemplate(self, self.bounds_packer, EARLY_NODES, BLEND_TIME_S,
+                                                              SWING_YAW_RATE_BAND_RAD_S)
+        return template
+
     def bounds(self, data: StageBounds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """lbx, ubx, lbg, ubg for one step: the constant and contact-dependent entries from `BoundsTemplate`
         (one copy and one gather), then the measurement's."""
         robot, nf = self.robot, self.n_feet
         rows, idx = self.rows, self.idx  # (properties: read once)
-        template = self._bounds_template
-        if template is None or template.packer is not self.bounds_packer:
-            template = self._bounds_template = BoundsTemplate(self, self.bounds_packer, EARLY_NODES, BLEND_TIME_S,
-                                                              SWING_YAW_RATE_BAND_RAD_S)
+        template = self.bounds_template()
         contact = np.asarray(data.contact, dtype=bool)
         buffer, lbx, ubx, lbg, ubg = template.start(contact, data.soft)
         if template.measured is not None and template.measured.write(template.last_address, data, contact):
@@ -688,7 +693,7 @@ class OcpProblem:
             lbg[rows[tag]] = -INF
             ubg[rows[tag]] = INF
         # friction cones: the template's (active in stance, free in swing)
-        return self._bounds_template.finish(buffer)
+        return template.finish(buffer)
 
     def _foot_bounds(self, lbg, ubg, data: StageBounds, contact: np.ndarray) -> None:
         """Eq. (6) foot velocities on nodes 1..N: stance 0, swing v_z = reference, v_xy free (the template's) or

@@ -237,3 +237,31 @@ int wbsp_dual_sources(int n, const double *node_times, int n_times, double dt_s,
   }
   return 0;
 }
+
+/* `ocp/multipliers.bound_kind`: per row 0 free, 1 lower bound only, 2 upper only, 3 both, 4 equality */
+int wbsp_bound_kind(int n, const double *lower, const double *upper, int64_t *kind) {
+  int i;
+  for (i = 0; i < n; ++i) kind[i] = lower[i] == upper[i] ? 4 : (isfinite(lower[i]) ? 1 : 0) + (isfinite(upper[i]) ? 2 : 0);
+  return 0;
+}
+
+/* `MultiplierShift.shift` from its sources (`wbsp_dual_sources`): each multiplier re-sampled from the old ones of
+ * its row's bound kind now (both: interpolated; one: its value), 0 where neither has it or the row has no identity */
+int wbsp_dual_shift(int n, const double *lam, const int64_t *kind_old, const int64_t *kind_new, const int64_t *src0,
+                    const int64_t *src1, const double *w, const uint8_t *covered, double *out) {
+  int i;
+  for (i = 0; i < n; ++i) {
+    int64_t s0 = src0[i], s1 = src1[i];
+    int same0, same1;
+    double wi;
+    if (s0 < 0 || !covered[i]) {
+      out[i] = 0.0;
+      continue;
+    }
+    same0 = kind_old[s0] == kind_new[i];
+    same1 = kind_old[s1] == kind_new[i];
+    wi = same0 && same1 ? w[i] : (same0 ? 0.0 : 1.0);
+    out[i] = same0 || same1 ? (1 - wi) * lam[s0] + wi * lam[s1] : 0.0;
+  }
+  return 0;
+}
