@@ -20,6 +20,10 @@
 #include <immintrin.h>
 #pragma GCC push_options
 #pragma GCC optimize("O3", "fp-contract=off") /* BLASFEO's dgead rounds B + (a A) twice: so do we */
+void wb_dgemm_nt(int m, int n, int k, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi,
+                 int bj, double beta, blasfeo_dmat* sC, int ci, int cj, blasfeo_dmat* sD, int di, int dj);
+void wb_dsyrk_ln_mn(int m, int n, int k, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi,
+                    int bj, double beta, blasfeo_dmat* sC, int ci, int cj, blasfeo_dmat* sD, int di, int dj);
 namespace {
 #define WB_EL(A, i, j) ((A)->pA[((i) - ((i) & 3)) * (A)->cn + (j) * 4 + ((i) & 3)])
 
@@ -149,11 +153,14 @@ void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj,
 }
 #undef WB_EL
 
-struct WbSlot { const char* symbol; void* replacement; void** slot; void* saved; };
+/* group 1: the equality elimination (same bits as Fatrop's), 2: the sparse products (fatrop_sparse.cpp) */
+struct WbSlot { const char* symbol; void* replacement; int group; void** slot; void* saved; };
 WbSlot wb_slots[] = {
   {"_ZN6fatrop25fatrop_lu_fact_transposedEiiiRiP12blasfeo_dmatRNS_17PermutationMatrixES4_d",
-   reinterpret_cast<void*>(&wb_lu_fact_transposed), nullptr, nullptr},
-  {"blasfeo_dtrsm_rlnn", reinterpret_cast<void*>(&wb_dtrsm_rlnn), nullptr, nullptr},
+   reinterpret_cast<void*>(&wb_lu_fact_transposed), 1, nullptr, nullptr},
+  {"blasfeo_dtrsm_rlnn", reinterpret_cast<void*>(&wb_dtrsm_rlnn), 1, nullptr, nullptr},
+  {"blasfeo_dgemm_nt", reinterpret_cast<void*>(&wb_dgemm_nt), 2, nullptr, nullptr},
+  {"blasfeo_dsyrk_ln_mn", reinterpret_cast<void*>(&wb_dsyrk_ln_mn), 2, nullptr, nullptr},
 };
 int wb_slots_found = -1;
 
@@ -213,7 +220,8 @@ bool wb_write(void** slot, void* value) {
 }  // namespace
 #pragma GCC pop_options
 
-/* 1: put the kernels into libfatrop's GOT, 0: restore. Returns how many slots hold them now, -1 when this build
+/* which kernels sit in libfatrop's GOT: 1 all (the equality elimination and the sparse products), 2 the equality
+   elimination only, 0 none (Fatrop's and BLASFEO's own). Returns how many slots hold ours now, -1 when this build
    cannot (no AVX2/FMA, BLASFEO panels not 4 rows), -2 when libfatrop or its slots are not found */
 extern "C" int wbd_fatrop_kernels(int enable) {
   if (!wb_panel_height_is_4()) return -1;
@@ -222,7 +230,7 @@ extern "C" int wbd_fatrop_kernels(int enable) {
   int active = 0;
   for (WbSlot& s : wb_slots) {
     if (!s.slot) continue;
-    if (enable) {
+    if (enable == 1 || (enable == 2 && s.group == 1)) {
       if (*s.slot != s.replacement) {
         s.saved = *s.slot;
         if (!wb_write(s.slot, s.replacement)) return -2;
