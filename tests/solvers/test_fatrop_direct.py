@@ -65,8 +65,8 @@ def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
 
 
 def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
-    """Our AVX2 LU and triangular solve (csrc/fatrop_kernels.cpp) against Fatrop's own: same iterations, same
-    point."""
+    """Our AVX2 LU and triangular solve (csrc/fatrop_kernels.cpp) and sparse products (csrc/fatrop_sparse.cpp)
+    against Fatrop's and BLASFEO's own: same iterations, same point bit for bit."""
     if not cpu_has_avx2_fma():
         pytest.skip("the kernels need AVX2/FMA")
     assert direct.kernels
@@ -79,8 +79,9 @@ def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
         assert solver.set_elimination_kernels(True)
     assert ours.stats.success and fatrops.stats.success
     assert ours.stats.iterations == fatrops.stats.iterations
-    np.testing.assert_allclose(ours.x, fatrops.x, atol=1e-10)
-    np.testing.assert_allclose(ours.lam_g, fatrops.lam_g, atol=1e-8 * max(1.0, np.abs(fatrops.lam_g).max()))
+    # the same operations in the same order: the same bits
+    np.testing.assert_array_equal(ours.x, fatrops.x)
+    np.testing.assert_array_equal(ours.lam_g, fatrops.lam_g)
 
 
 def test_sparse_products_give_blasfeos_iterates_bit_for_bit(direct, step_data):

@@ -9,7 +9,9 @@
  * those two symbols (found through its dynamic section), (0) puts the saved entries back. */
 #include <cmath>
 #include <cstdint>
+#include <algorithm>
 #include <cstring>
+#include <vector>
 #include <elf.h>
 #include <link.h>
 #include <sys/mman.h>
@@ -35,15 +37,40 @@ inline __m256d wb_row_mask(int first, int end, int p) {
   return _mm256_castsi256_pd(_mm256_and_si256(ge, lt));
 }
 
+/* rows [.., n) of the panel at `panel` (rows p .. p + 3): columns i and bc swapped */
+inline void wb_swap_columns(double* panel, int p, int n, int i, int bc) {
+  if (p + 4 <= n) {
+    const __m256d t = _mm256_loadu_pd(panel + i * 4);
+    _mm256_storeu_pd(panel + i * 4, _mm256_loadu_pd(panel + bc * 4));
+    _mm256_storeu_pd(panel + bc * 4, t);
+  } else {
+    for (int r = 0; r < n - p; ++r) { const double t = panel[i * 4 + r]; panel[i * 4 + r] = panel[bc * 4 + r]; panel[bc * 4 + r] = t; }
+  }
+}
+
+/* step i's elimination on one panel: column j (> i) += (-u_j) column i, rows of `rows` only */
+inline void wb_eliminate(double* panel, int i, int m, const double* minus_u, __m256d rows) {
+  const __m256d ci = _mm256_and_pd(_mm256_loadu_pd(panel + i * 4), rows);
+  for (int j = i + 1; j < m; j++)
+    _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(minus_u[j]), ci)));
+}
+
 /* Fatrop's fatrop_lu_fact_transposed: At (n x m) holds the transposed equality Jacobian; pivots are
-   searched in rows < n_max, columns >= i; rank = number of pivots >= tol */
+   searched in rows < n_max, columns >= i; rank = number of pivots >= tol. The rows the pivot search never reads
+   (the panels from n_max on: the states and the right-hand side) get each step's column swap and elimination
+   after the last step, panel by panel (each panel stays in L1 through all steps instead of the whole matrix
+   streaming through the cache once a step): the same operations on each entry in the same order */
 void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank, blasfeo_dmat* At,
                            fatrop::PermutationMatrix& Pl, fatrop::PermutationMatrix& Pr, double tol) {
   At->use_dA = 0;
   const int minmn = m < n_max ? m : n_max;
   double* const pA = At->pA;
   const int cn = At->cn;
+  const int eager = std::min(n, (n_max + 3) & ~3);  /* rows updated at each step: the pivot search's panels */
+  static thread_local std::vector<double> minus_u;  /* step i's -A(i, j), j > i, at step i: minus_u[i * m + j] */
+  if (static_cast<int>(minus_u.size()) < minmn * m) minus_u.resize(static_cast<size_t>(minmn) * m);
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+  const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
   int r = 0;
   for (int i = 0; i < minmn; i++) {
     /* the first largest |A(row, col)| in column-major order (Fatrop: strict >, starting from A(i, i)) */
@@ -67,31 +94,31 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
       for (int row = i; row < n_max; ++row)
         if (std::fabs(WB_EL(At, row, bc)) == best) { br = row; break; }
     if (std::fabs(WB_EL(At, br, bc)) < tol) break;
-    if (bc != i) {
-      int p = 0;
-      for (; p + 4 <= n; p += 4) {
-        double *a = pA + p * cn + i * 4, *b = pA + p * cn + bc * 4;
-        const __m256d t = _mm256_loadu_pd(a);
-        _mm256_storeu_pd(a, _mm256_loadu_pd(b));
-        _mm256_storeu_pd(b, t);
-      }
-      for (int row = p; row < n; ++row) { double t = WB_EL(At, row, i); WB_EL(At, row, i) = WB_EL(At, row, bc); WB_EL(At, row, bc) = t; }
-    }
+    if (bc != i)
+      for (int p = 0; p < eager; p += 4) wb_swap_columns(pA + p * cn, p, eager, i, bc);
     Pl[i] = bc;
     if (br != i)
       for (int col = 0; col < m; ++col) { double t = WB_EL(At, i, col); WB_EL(At, i, col) = WB_EL(At, br, col); WB_EL(At, br, col) = t; }
     Pr[i] = br;
     const double pivot = WB_EL(At, i, i);
-    for (int j = i + 1; j < m; j++) WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
-    /* rows i+1 .. n-1: column j -= L_ij column i */
-    for (int p = p0; p < n; p += 4) {
-      double* panel = pA + p * cn;
-      __m256d ci = _mm256_loadu_pd(panel + i * 4);
-      if (p == p0 || p + 4 > n) ci = _mm256_and_pd(ci, wb_row_mask(i + 1, n, p));
-      for (int j = i + 1; j < m; j++)
-        _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(-WB_EL(At, i, j)), ci)));
+    double* const mu = minus_u.data() + static_cast<size_t>(i) * m;
+    for (int j = i + 1; j < m; j++) {
+      WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
+      mu[j] = -WB_EL(At, i, j);
     }
+    /* rows i+1 .. eager-1: column j -= L_ij column i */
+    for (int p = p0; p < eager; p += 4)
+      wb_eliminate(pA + p * cn, i, m, mu, p == p0 || p + 4 > n ? wb_row_mask(i + 1, n, p) : all);
     r = i + 1;
+  }
+  /* the other rows: every step's swap and elimination, panel by panel */
+  for (int p = eager; p < n; p += 4) {
+    double* const panel = pA + p * cn;
+    const __m256d rows = p + 4 > n ? wb_row_mask(p, n, p) : all;
+    for (int i = 0; i < r; ++i) {
+      if (Pl[i] != i) wb_swap_columns(panel, p, n, i, Pl[i]);
+      wb_eliminate(panel, i, m, minus_u.data() + static_cast<size_t>(i) * m, rows);
+    }
   }
   rank = r;
 }
