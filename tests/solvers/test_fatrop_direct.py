@@ -105,6 +105,23 @@ def test_sparse_products_give_blasfeos_iterates_bit_for_bit(direct, step_data):
     np.testing.assert_array_equal(sparse.lam_x, dense.lam_x)
 
 
+def test_mpc_solves_skip_iterative_refinement_at_the_same_iterations(direct, step_data):
+    """At the MPC tolerances the binding asks Fatrop for no iterative refinement (MPC_ITERATIVE_REFINEMENT): the
+    same iterations and the same point to rounding as with Fatrop's default (which refines here, so the bits
+    differ: the option reaches Fatrop); a negative count is refused by name."""
+    assert fatrop_direct.MPC_ITERATIVE_REFINEMENT == 0 and direct.tolerance >= fatrop_direct.MPC_TOLERANCE
+    default = direct.recreated().solve(**step_data)
+    none = direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": 0}}).solve(**step_data)
+    refined = direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": 5}}).solve(**step_data)
+    assert default.stats.success and refined.stats.success
+    np.testing.assert_array_equal(default.x, none.x)
+    assert default.stats.iterations == refined.stats.iterations
+    np.testing.assert_allclose(default.x, refined.x, atol=1e-9)
+    assert not np.array_equal(default.x, refined.x)
+    with pytest.raises(ConfigError, match="max_iterative_refinement"):
+        direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": -1}}).solve(**step_data)
+
+
 def test_shim_constraints_equal_the_nlp(problem, direct, step_data):
     rng = np.random.default_rng(0)
     x = step_data["x0"] + 0.01 * rng.normal(size=problem.n_variables)

@@ -72,6 +72,11 @@ FLAT_FEET_MPC_TOLERANCE = 1e-2
 # start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98). With the
 # contact-pattern warm start, 100 recorded walking states: 4.67 from 2e-3, 4.52 from 3e-3, 4.84 from 5e-3
 MULTIPLIER_BARRIER_INIT = 3e-3
+# At the MPC tolerances no iterative refinement of the search directions (Fatrop's default: a KKT residual after each
+# direction, up to 5 refinement solves): that residual never asked for one on 100 recorded g1 walk or 200 b1_z1
+# trot steps (same bits either way; the g1 states solved cold: x within 6e-12, same iterations) and cost 21 % (g1) /
+# 11 % (b1_z1) of the linear algebra. `extra_options={"fatrop": {"max_iterative_refinement": 5}}` restores it
+MPC_ITERATIVE_REFINEMENT = 0
 MULTIPLIER_MAX_ITERATIONS = 12
 # after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
 # starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
@@ -403,7 +408,8 @@ class FatropDirectSolver:
         """The tolerances and `extra_options["fatrop"]` on a new Fatrop instance; an option Fatrop does not know
         (or of another type) is refused by name rather than ignored."""
         lib = self._library.lib
-        options = {"tolerance": self.tolerance, "constr_viol_tol": self.constraint_tolerance,
+        refine = {"max_iterative_refinement": MPC_ITERATIVE_REFINEMENT} if self.tolerance >= MPC_TOLERANCE else {}
+        options = {"tolerance": self.tolerance, "constr_viol_tol": self.constraint_tolerance, **refine,
                    **self.config.extra_options.get("fatrop", {})}
         for name, value in options.items():
             setter = {float: lib.wb_option_double, int: lib.wb_option_int, bool: lib.wb_option_bool}.get(type(value))

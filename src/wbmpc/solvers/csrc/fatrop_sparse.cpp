@@ -149,19 +149,19 @@ bool wb_product_sparse_b(int m, int n, int k, double alpha, blasfeo_dmat* sA, in
     dense += (long) k * height;
   }
   if (work > kSparse * dense) return false;
-  for (int j = 0; j < n; ++j) {
-    const int r0 = lower ? j : 0;
-    const int* list = idx[j];
-    const double* b = val[j];
-    const int c = count[j];
-    for (int p = r0 & ~3; p < m; p += 4) {
-      const double* pa = sA->pA + p * sA->cn + aj * 4;
+  for (int p = 0; p < m; p += 4) {  /* panel by panel: C and D read and written in their storage order */
+    const double* pa = sA->pA + p * sA->cn + aj * 4;
+    const double* pc = sC->pA + (ci + p) * sC->cn + cj * 4;
+    double* pd = sD->pA + (di + p) * sD->cn + dj * 4;
+    const int j_end = lower && p + 4 < n ? p + 4 : n;
+    for (int j = 0; j < j_end; ++j) {
+      const int* list = idx[j];
+      const double* b = val[j];
       __m256d acc = _mm256_setzero_pd();
-      for (int t = 0; t < c; ++t) acc = _mm256_fmadd_pd(_mm256_loadu_pd(pa + list[t] * 4), _mm256_set1_pd(b[t]), acc);
-      const double* pc = sC->pA + (ci + p) * sC->cn + (cj + j) * 4;
-      double* pd = sD->pA + (di + p) * sD->cn + (dj + j) * 4;
-      if (p >= r0 && p + 4 <= m) wb_store4(acc, alpha, beta, pc, pd);
-      else wb_store(acc, alpha, beta, pc, pd, wb_lanes(r0 - p, m - p));
+      for (int t = 0; t < count[j]; ++t) acc = _mm256_fmadd_pd(_mm256_loadu_pd(pa + list[t] * 4), _mm256_set1_pd(b[t]), acc);
+      const int r0 = lower ? j : 0;
+      if (p >= r0 && p + 4 <= m) wb_store4(acc, alpha, beta, pc + j * 4, pd + j * 4);
+      else wb_store(acc, alpha, beta, pc + j * 4, pd + j * 4, wb_lanes(r0 - p, m - p));
     }
   }
   return true;
