@@ -123,10 +123,82 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
   rank = r;
 }
 
+/* alpha B(b0 .. b0 + 3, col): rows past `rows` zero; whole panels (or two, shifted) as vectors where B's storage
+   holds them */
+inline __m256d wb_b_rows(const blasfeo_dmat* sB, int b0, int col, int rows, __m256d valpha) {
+  const int s = b0 & 3, q = b0 - s, stored = (sB->m + 3) & ~3;
+  const double* pq = sB->pA + q * sB->cn + col * 4;
+  if (rows == 4 && s == 0) return _mm256_mul_pd(valpha, _mm256_loadu_pd(pq));
+  if (rows == 4 && q + 8 <= stored) {
+    const __m256d v0 = _mm256_loadu_pd(pq), v1 = _mm256_loadu_pd(pq + 4 * sB->cn);
+    __m256d v;
+    if (s == 1) v = _mm256_blend_pd(_mm256_permute4x64_pd(v0, 0x39), _mm256_permute4x64_pd(v1, 0x39), 0x8);
+    else if (s == 2) v = _mm256_blend_pd(_mm256_permute4x64_pd(v0, 0x4e), _mm256_permute4x64_pd(v1, 0x4e), 0xc);
+    else v = _mm256_blend_pd(_mm256_permute4x64_pd(v0, 0x93), _mm256_permute4x64_pd(v1, 0x93), 0xe);
+    return _mm256_mul_pd(valpha, v);
+  }
+  double b[4] = {0.0, 0.0, 0.0, 0.0};
+  for (int t = 0; t < rows; ++t) b[t] = WB_EL(sB, b0 + t, col);
+  return _mm256_mul_pd(valpha, _mm256_loadu_pd(b));
+}
+
+inline __m256d wb_minus(__m256d x, double a, __m256d d) { return _mm256_sub_pd(x, _mm256_mul_pd(_mm256_set1_pd(a), d)); }
+
+/* NP panels of D from row p (all rows whole when NP > 1): BLASFEO's reference dtrsm_rlnn order, the panels' chains
+   interleaved */
+template <int NP>
+void wb_trsm_panels(int m, int n, const __m256d valpha, const blasfeo_dmat* sA, int ai, int aj, const double* dA,
+                    const blasfeo_dmat* sB, int bi, int bj, blasfeo_dmat* sD, int di, int dj, int p) {
+  double* Dp[NP];
+  int rows[NP];
+  __m256i store[NP];
+  for (int u = 0; u < NP; ++u) {
+    Dp[u] = sD->pA + (di + p + 4 * u) * sD->cn;
+    rows[u] = m - p - 4 * u < 4 ? m - p - 4 * u : 4;
+    store[u] = _mm256_castpd_si256(wb_row_mask(0, rows[u], 0));
+  }
+  auto put = [&](int u, int col, __m256d v) {
+    if (rows[u] == 4) _mm256_storeu_pd(Dp[u] + (dj + col) * 4, v);
+    else _mm256_maskstore_pd(Dp[u] + (dj + col) * 4, store[u], v);
+  };
+  int jj = 0;
+  for (; jj < n - 1; jj += 2) {
+    const int id = n - jj - 2;
+    __m256d d0[NP], d1[NP];
+    for (int u = 0; u < NP; ++u) {
+      d0[u] = wb_b_rows(sB, bi + p + 4 * u, bj + id, rows[u], valpha);
+      d1[u] = wb_b_rows(sB, bi + p + 4 * u, bj + id + 1, rows[u], valpha);
+    }
+    for (int kk = id + 2; kk < n; kk++) {
+      const double a0 = WB_EL(sA, ai + kk, aj + id), a1 = WB_EL(sA, ai + kk, aj + id + 1);
+      for (int u = 0; u < NP; ++u) {
+        const __m256d dk = _mm256_loadu_pd(Dp[u] + (dj + kk) * 4);
+        d0[u] = wb_minus(d0[u], a0, dk);
+        d1[u] = wb_minus(d1[u], a1, dk);
+      }
+    }
+    const double a10 = WB_EL(sA, ai + id + 1, aj + id);
+    for (int u = 0; u < NP; ++u) {
+      d1[u] = _mm256_mul_pd(d1[u], _mm256_set1_pd(dA[id + 1]));
+      d0[u] = _mm256_mul_pd(wb_minus(d0[u], a10, d1[u]), _mm256_set1_pd(dA[id]));
+      put(u, id, d0[u]);
+      put(u, id + 1, d1[u]);
+    }
+  }
+  for (; jj < n; jj++) {
+    const int id = n - jj - 1;
+    for (int u = 0; u < NP; ++u) {
+      __m256d d0 = wb_b_rows(sB, bi + p + 4 * u, bj + id, rows[u], valpha);
+      for (int kk = id + 1; kk < n; kk++) d0 = wb_minus(d0, WB_EL(sA, ai + kk, aj + id), _mm256_loadu_pd(Dp[u] + (dj + kk) * 4));
+      put(u, id, _mm256_mul_pd(d0, _mm256_set1_pd(dA[id])));
+    }
+  }
+}
+
 /* BLASFEO's dtrsm_rlnn: D = alpha B A^-1, A (n x n) lower triangular, in the order of BLASFEO's reference code
    (the one the AVX2 build runs): columns from the last in pairs, the inverse diagonal kept in A's dA; vectorised
-   over four rows of D at a time. The fast path needs D's first row at a panel start and D apart from A and B
-   (Fatrop's call), otherwise BLASFEO's own routine runs */
+   over four rows of D at a time, two panels interleaved. The fast path needs D's first row at a panel start and D
+   apart from A and B (Fatrop's call), otherwise BLASFEO's own routine runs */
 void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi, int bj,
                    blasfeo_dmat* sD, int di, int dj) {
   if ((di & 3) != 0 || sD == sB || sD == sA || m <= 0 || n <= 0) {
@@ -145,38 +217,9 @@ void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj,
     sA->use_dA = 0;
   }
   const __m256d valpha = _mm256_set1_pd(alpha);
-  for (int p = 0; p < m; p += 4) {
-    double* Dp = sD->pA + (di + p) * sD->cn;
-    const int rows = m - p < 4 ? m - p : 4;
-    const __m256i store = _mm256_castpd_si256(wb_row_mask(0, rows, 0));
-    auto b_col = [&](int j) {
-      double b[4] = {0.0, 0.0, 0.0, 0.0};
-      for (int t = 0; t < rows; ++t) b[t] = WB_EL(sB, bi + p + t, bj + j);
-      return _mm256_mul_pd(valpha, _mm256_loadu_pd(b));
-    };
-    auto minus = [](__m256d x, double a, __m256d d) { return _mm256_sub_pd(x, _mm256_mul_pd(_mm256_set1_pd(a), d)); };
-    int jj = 0;
-    for (; jj < n - 1; jj += 2) {
-      const int id = n - jj - 2;
-      __m256d d0 = b_col(id), d1 = b_col(id + 1);
-      for (int kk = id + 2; kk < n; kk++) {
-        const __m256d dk = _mm256_loadu_pd(Dp + (dj + kk) * 4);
-        d0 = minus(d0, WB_EL(sA, ai + kk, aj + id), dk);
-        d1 = minus(d1, WB_EL(sA, ai + kk, aj + id + 1), dk);
-      }
-      d1 = _mm256_mul_pd(d1, _mm256_set1_pd(dA[id + 1]));
-      d0 = minus(d0, WB_EL(sA, ai + id + 1, aj + id), d1);
-      d0 = _mm256_mul_pd(d0, _mm256_set1_pd(dA[id]));
-      _mm256_maskstore_pd(Dp + (dj + id) * 4, store, d0);
-      _mm256_maskstore_pd(Dp + (dj + id + 1) * 4, store, d1);
-    }
-    for (; jj < n; jj++) {
-      const int id = n - jj - 1;
-      __m256d d0 = b_col(id);
-      for (int kk = id + 1; kk < n; kk++) d0 = minus(d0, WB_EL(sA, ai + kk, aj + id), _mm256_loadu_pd(Dp + (dj + kk) * 4));
-      _mm256_maskstore_pd(Dp + (dj + id) * 4, store, _mm256_mul_pd(d0, _mm256_set1_pd(dA[id])));
-    }
-  }
+  int p = 0;
+  for (; p + 8 <= m; p += 8) wb_trsm_panels<2>(m, n, valpha, sA, ai, aj, dA, sB, bi, bj, sD, di, dj, p);
+  for (; p < m; p += 4) wb_trsm_panels<1>(m, n, valpha, sA, ai, aj, dA, sB, bi, bj, sD, di, dj, p);
 }
 #undef WB_EL
 
