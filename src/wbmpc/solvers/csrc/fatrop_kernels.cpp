@@ -221,6 +221,36 @@ void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj,
   for (; p + 8 <= m; p += 8) wb_trsm_panels<2>(m, n, valpha, sA, ai, aj, dA, sB, bi, bj, sD, di, dj, p);
   for (; p < m; p += 4) wb_trsm_panels<1>(m, n, valpha, sA, ai, aj, dA, sB, bi, bj, sD, di, dj, p);
 }
+/* BLASFEO's dtrtr_l (C's upper triangle = A's lower one transposed, the diagonal too; a copy) on 4x4 blocks in
+   registers instead of BLASFEO's element loops over the panels; at panel starts only, else BLASFEO's own */
+void wb_dtrtr_l(int m, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sC, int ci, int cj) {
+  if ((ai & 3) != 0 || (ci & 3) != 0 || m <= 0) {
+    blasfeo_dtrtr_l(m, sA, ai, aj, sC, ci, cj);
+    return;
+  }
+  sC->use_dA = 0;
+  const int whole = m & ~3;  /* rows and columns in whole 4x4 blocks */
+  for (int J = 0; J < whole; J += 4) {
+    const double* a_row = sA->pA + (ai + J) * sA->cn + (aj + J) * 4;  /* the diagonal block */
+    double* c_row = sC->pA + (ci + J) * sC->cn + (cj + J) * 4;
+    for (int t = 0; t < 4; ++t)
+      for (int r = t; r < 4; ++r) c_row[r * 4 + t] = a_row[t * 4 + r];
+    for (int I = J + 4; I < whole; I += 4) {
+      const double* a = sA->pA + (ai + I) * sA->cn + (aj + J) * 4;
+      double* c = sC->pA + (ci + J) * sC->cn + (cj + I) * 4;
+      const __m256d a0 = _mm256_loadu_pd(a), a1 = _mm256_loadu_pd(a + 4), a2 = _mm256_loadu_pd(a + 8),
+                    a3 = _mm256_loadu_pd(a + 12);
+      const __m256d t0 = _mm256_unpacklo_pd(a0, a1), t1 = _mm256_unpackhi_pd(a0, a1);
+      const __m256d t2 = _mm256_unpacklo_pd(a2, a3), t3 = _mm256_unpackhi_pd(a2, a3);
+      _mm256_storeu_pd(c, _mm256_permute2f128_pd(t0, t2, 0x20));
+      _mm256_storeu_pd(c + 4, _mm256_permute2f128_pd(t1, t3, 0x20));
+      _mm256_storeu_pd(c + 8, _mm256_permute2f128_pd(t0, t2, 0x31));
+      _mm256_storeu_pd(c + 12, _mm256_permute2f128_pd(t1, t3, 0x31));
+    }
+  }
+  for (int i = whole; i < m; ++i)  /* the last rows: element by element */
+    for (int j = 0; j <= i; ++j) WB_EL(sC, ci + j, cj + i) = WB_EL(sA, ai + i, aj + j);
+}
 #undef WB_EL
 
 /* group 1: the equality elimination (same bits as Fatrop's), 2: the sparse products (fatrop_sparse.cpp) */
@@ -229,6 +259,7 @@ WbSlot wb_slots[] = {
   {"_ZN6fatrop25fatrop_lu_fact_transposedEiiiRiP12blasfeo_dmatRNS_17PermutationMatrixES4_d",
    reinterpret_cast<void*>(&wb_lu_fact_transposed), 1, nullptr, nullptr},
   {"blasfeo_dtrsm_rlnn", reinterpret_cast<void*>(&wb_dtrsm_rlnn), 1, nullptr, nullptr},
+  {"blasfeo_dtrtr_l", reinterpret_cast<void*>(&wb_dtrtr_l), 1, nullptr, nullptr},
   {"blasfeo_dgemm_nt", reinterpret_cast<void*>(&wb_dgemm_nt), 2, nullptr, nullptr},
   {"blasfeo_dsyrk_ln_mn", reinterpret_cast<void*>(&wb_dsyrk_ln_mn), 2, nullptr, nullptr},
 };
