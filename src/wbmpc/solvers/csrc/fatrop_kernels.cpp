@@ -55,6 +55,20 @@ inline void wb_eliminate(double* panel, int i, int m, const double* minus_u, __m
     _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(minus_u[j]), ci)));
 }
 
+/* the rows from `eager` on (n rows, m columns, panel stride cn): the column swap and elimination of the LU's steps
+   0 .. steps - 1, panel by panel */
+void wb_eliminate_rest(double* pA, int cn, int eager, int n, int m, int steps, fatrop::PermutationMatrix& Pl,
+                       const double* minus_u) {
+  for (int p = eager; p < n; p += 4) {
+    double* const panel = pA + p * cn;
+    const __m256d rows = p + 4 > n ? wb_row_mask(p, n, p) : _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+    for (int i = 0; i < steps; ++i) {
+      if (Pl[i] != i) wb_swap_columns(panel, p, n, i, Pl[i]);
+      wb_eliminate(panel, i, m, minus_u + static_cast<size_t>(i) * m, rows);
+    }
+  }
+}
+
 /* Fatrop's fatrop_lu_fact_transposed: At (n x m) holds the transposed equality Jacobian; pivots are
    searched in rows < n_max, columns >= i; rank = number of pivots >= tol. The rows the pivot search never reads
    (the panels from n_max on: the states and the right-hand side) get each step's column swap and elimination
@@ -111,15 +125,7 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
       wb_eliminate(pA + p * cn, i, m, mu, p == p0 || p + 4 > n ? wb_row_mask(i + 1, n, p) : all);
     r = i + 1;
   }
-  /* the other rows: every step's swap and elimination, panel by panel */
-  for (int p = eager; p < n; p += 4) {
-    double* const panel = pA + p * cn;
-    const __m256d rows = p + 4 > n ? wb_row_mask(p, n, p) : all;
-    for (int i = 0; i < r; ++i) {
-      if (Pl[i] != i) wb_swap_columns(panel, p, n, i, Pl[i]);
-      wb_eliminate(panel, i, m, minus_u.data() + static_cast<size_t>(i) * m, rows);
-    }
-  }
+  wb_eliminate_rest(pA, cn, eager, n, m, r, Pl, minus_u.data());
   rank = r;
 }
 
