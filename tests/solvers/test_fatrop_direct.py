@@ -65,8 +65,8 @@ def test_same_solution_as_casadis_fatrop(problem, direct, step_data):
 
 
 def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
-    """Our AVX2 LU and triangular solve (csrc/fatrop_kernels.cpp) against Fatrop's own: same iterations, same
-    point."""
+    """Our AVX2 LU and triangular solve (csrc/fatrop_kernels.cpp) and sparse products (csrc/fatrop_sparse.cpp)
+    against Fatrop's and BLASFEO's own: same iterations, same point bit for bit."""
     if not cpu_has_avx2_fma():
         pytest.skip("the kernels need AVX2/FMA")
     assert direct.kernels
@@ -79,8 +79,47 @@ def test_elimination_kernels_follow_fatrops_iterates(direct, step_data):
         assert solver.set_elimination_kernels(True)
     assert ours.stats.success and fatrops.stats.success
     assert ours.stats.iterations == fatrops.stats.iterations
-    np.testing.assert_allclose(ours.x, fatrops.x, atol=1e-10)
-    np.testing.assert_allclose(ours.lam_g, fatrops.lam_g, atol=1e-8 * max(1.0, np.abs(fatrops.lam_g).max()))
+    # the same operations in the same order: the same bits
+    np.testing.assert_array_equal(ours.x, fatrops.x)
+    np.testing.assert_array_equal(ours.lam_g, fatrops.lam_g)
+
+
+def test_sparse_products_give_blasfeos_iterates_bit_for_bit(direct, step_data):
+    """Fatrop's Riccati products with the sparse dynamics and inequality Jacobians on ours (csrc/fatrop_sparse.cpp)
+    against BLASFEO's dense ones: the same iterations and the same bits (the products sum the nonzero terms in
+    BLASFEO's order; a changed rounding anywhere would show in x and the multipliers)."""
+    if not cpu_has_avx2_fma():
+        pytest.skip("the kernels need AVX2/FMA")
+    solver = direct.recreated(tolerance=1e-10, warm_barrier_init=None)
+    try:
+        assert solver.set_elimination_kernels(True, sparse_products=False)
+        dense = solver.solve(**step_data)
+        assert solver.set_elimination_kernels(True, sparse_products=True)
+        sparse = solver.solve(**step_data)
+    finally:
+        assert solver.set_elimination_kernels(True) == direct.kernels
+    assert dense.stats.success and sparse.stats.success
+    assert sparse.stats.iterations == dense.stats.iterations
+    np.testing.assert_array_equal(sparse.x, dense.x)
+    np.testing.assert_array_equal(sparse.lam_g, dense.lam_g)
+    np.testing.assert_array_equal(sparse.lam_x, dense.lam_x)
+
+
+def test_mpc_solves_skip_iterative_refinement_at_the_same_iterations(direct, step_data):
+    """At the MPC tolerances the binding asks Fatrop for no iterative refinement (MPC_ITERATIVE_REFINEMENT): the
+    same iterations and the same point to rounding as with Fatrop's default (which refines here, so the bits
+    differ: the option reaches Fatrop); a negative count is refused by name."""
+    assert fatrop_direct.MPC_ITERATIVE_REFINEMENT == 0 and direct.tolerance >= fatrop_direct.MPC_TOLERANCE
+    default = direct.recreated().solve(**step_data)
+    none = direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": 0}}).solve(**step_data)
+    refined = direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": 5}}).solve(**step_data)
+    assert default.stats.success and refined.stats.success
+    np.testing.assert_array_equal(default.x, none.x)
+    assert default.stats.iterations == refined.stats.iterations
+    np.testing.assert_allclose(default.x, refined.x, atol=1e-9)
+    assert not np.array_equal(default.x, refined.x)
+    with pytest.raises(ConfigError, match="max_iterative_refinement"):
+        direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": -1}}).solve(**step_data)
 
 
 def test_shim_constraints_equal_the_nlp(problem, direct, step_data):

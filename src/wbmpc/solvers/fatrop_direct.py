@@ -18,7 +18,8 @@ multipliers moved by constraint identity instead, `takes_multipliers`) and a tim
 
 Its own tolerances for MPC steps (`MPC_TOLERANCE` or on flat feet `FLAT_FEET_MPC_TOLERANCE`,
 `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
-`extra_options={"fatrop_kernels": False}` leaves Fatrop's own).
+`extra_options={"fatrop_kernels": False}` leaves Fatrop's own), and its Riccati products with the sparse dynamics and
+inequality Jacobians on sparsity-aware ones (`csrc/fatrop_sparse.cpp`; `{"sparse_products": False}`: BLASFEO's).
 
 When the shim cannot be built (no compiler, no Fatrop headers or library in the casadi wheel) the
 solver falls back to casadi's nlpsol Fatrop with a RuntimeWarning; `direct_error` says why (None
@@ -71,6 +72,11 @@ FLAT_FEET_MPC_TOLERANCE = 1e-2
 # start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98). With the
 # contact-pattern warm start, 100 recorded walking states: 4.67 from 2e-3, 4.52 from 3e-3, 4.84 from 5e-3
 MULTIPLIER_BARRIER_INIT = 3e-3
+# At the MPC tolerances no iterative refinement of the search directions (Fatrop's default: a KKT residual after each
+# direction, up to 5 refinement solves): that residual never asked for one on 100 recorded g1 walk or 200 b1_z1
+# trot steps (same bits either way; the g1 states solved cold: x within 6e-12, same iterations) and cost 21 % (g1) /
+# 11 % (b1_z1) of the linear algebra. `extra_options={"fatrop": {"max_iterative_refinement": 5}}` restores it
+MPC_ITERATIVE_REFINEMENT = 0
 MULTIPLIER_MAX_ITERATIONS = 12
 # after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
 # starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
@@ -193,8 +199,10 @@ class FatropDirectSolver:
         self.takes_multipliers, self.multiplier_barrier_init, self.multiplier_max_iterations = \
             multiplier_start(config, bool(problem.surface_feet))
         self.tolerance, self.constraint_tolerance = mpc_tolerances(config, bool(problem.surface_feet))
-        # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp; process-wide, same iterates)
-        self.kernels = lib.lib.wbd_fatrop_kernels(1) > 0 if config.extra_options.get("fatrop_kernels", True) else False
+        # Fatrop's equality elimination on our AVX2 kernels (csrc/fatrop_kernels.cpp) and its products with the sparse
+        # dynamics and inequality Jacobians on ours (csrc/fatrop_sparse.cpp); process-wide, same iterates
+        self.kernels = self.set_elimination_kernels(True, bool(config.extra_options.get("sparse_products", True))) \
+            if config.extra_options.get("fatrop_kernels", True) else False
         # the first step's one-off costs now, before any clock runs (b1_z1, fresh processes on a loaded machine: first
         # closed-loop solve 24.0 -> 20.5 ms on average over 3 pairs; it stays the cold one: 5 iterations, least-squares duals)
         if self.threads not in lib.warmed_up:
@@ -235,12 +243,14 @@ class FatropDirectSolver:
         """The row-count patterns (`structure_key`) a Fatrop instance was built for so far."""
         return tuple(self._by_structure) if self._fallback is None else self._fallback.structure_keys
 
-    def set_elimination_kernels(self, enabled: bool) -> bool:
-        """Fatrop's equality elimination on our AVX2 kernels (True) or its own (False), process-wide; whether ours
-        are in place afterwards (False where they cannot be: no AVX2/FMA build, BLASFEO panels not 4 rows)."""
+    def set_elimination_kernels(self, enabled: bool, sparse_products: bool = True) -> bool:
+        """Fatrop's equality elimination on our AVX2 kernels (True; with `sparse_products` also its products with the
+        sparse dynamics and inequality Jacobians) or its own and BLASFEO's (False), process-wide; whether ours are in
+        place afterwards (False where they cannot be: no AVX2/FMA build, BLASFEO panels not 4 rows)."""
         if self._fallback is not None:
             return False
-        return self._library.lib.wbd_fatrop_kernels(int(bool(enabled))) > 0
+        mode = (1 if sparse_products else 2) if enabled else 0
+        return self._library.lib.wbd_fatrop_kernels(mode) > 0
 
     @property
     def evaluation_threads(self) -> int:
@@ -398,7 +408,8 @@ class FatropDirectSolver:
         """The tolerances and `extra_options["fatrop"]` on a new Fatrop instance; an option Fatrop does not know
         (or of another type) is refused by name rather than ignored."""
         lib = self._library.lib
-        options = {"tolerance": self.tolerance, "constr_viol_tol": self.constraint_tolerance,
+        refine = {"max_iterative_refinement": MPC_ITERATIVE_REFINEMENT} if self.tolerance >= MPC_TOLERANCE else {}
+        options = {"tolerance": self.tolerance, "constr_viol_tol": self.constraint_tolerance, **refine,
                    **self.config.extra_options.get("fatrop", {})}
         for name, value in options.items():
             setter = {float: lib.wb_option_double, int: lib.wb_option_int, bool: lib.wb_option_bool}.get(type(value))

@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from wbmpc.solvers.stage_library import StageLibrary
 
 SOURCES = ("fatrop_shim.c", "fatrop_callbacks.c", "stage_layout.c", "stage_tasks.c", "stage_pool.c",
-           "fatrop_driver.cpp", "fatrop_kernels.cpp")
+           "fatrop_driver.cpp", "fatrop_kernels.cpp", "fatrop_sparse.cpp")
 HEADERS = ("fatrop_shim.h", "stage_pool.h", "wbmpc_stages.h")
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 

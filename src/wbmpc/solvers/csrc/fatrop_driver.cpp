@@ -22,6 +22,7 @@
 #include <fatrop/ip_algorithm/ip_data.hpp>
 #include <fatrop/ip_algorithm/ip_eq_mult_initializer.hpp>
 #include <fatrop/ip_algorithm/ip_iterate.hpp>
+#include <fatrop/ocp/pd_solver_orig.hpp>
 #include <fatrop/ocp/OCPCInterfaceInternal.hpp>
 #include <fatrop/ocp/problem_info.hpp>
 #include <fatrop/ocp/type.hpp>
@@ -121,6 +122,7 @@ struct Driver {
     warm = std::make_shared<WarmEqMult>(builder.get_ipdata(), base);
     options.register_options(*warm);
     builder.*reach(EqMultSlot()) = warm;
+    pd_solver = builder.get_pd_solver();
     Banner::set_suppress(true);
     algo = builder.build();
     data = builder.get_ipdata();
@@ -141,6 +143,7 @@ struct Driver {
   std::shared_ptr<FatropOcpCMapping> m;
   OptionRegistry options;
   std::shared_ptr<WarmEqMult> warm;
+  std::shared_ptr<PdSolverOrig<OcpType>> pd_solver;
   std::shared_ptr<IpAlgorithm<OcpType>> algo;
   std::shared_ptr<IpData<OcpType>> data;
   IpSolverReturnFlag flag = IpSolverReturnFlag::Unknown;
@@ -156,8 +159,16 @@ void wbd_destroy(void* d) { delete static_cast<Driver*>(d); }
 int wbd_option_double(void* d, const char* name, double value) {
   try { static_cast<Driver*>(d)->options.set_option<double>(name, value); return 0; } catch (const std::exception&) { return 1; }
 }
+/* Fatrop's options, and one its registry lacks: "max_iterative_refinement", at most that many refinement solves after
+   each search direction (Fatrop's default 5; 0 also skips the KKT residual that decides whether to refine) */
 int wbd_option_int(void* d, const char* name, int value) {
-  try { static_cast<Driver*>(d)->options.set_option<int>(name, value); return 0; } catch (const std::exception&) { return 1; }
+  Driver* driver = static_cast<Driver*>(d);
+  if (std::strcmp(name, "max_iterative_refinement") == 0) {
+    if (value < 0) return 1;
+    driver->pd_solver->set_max_it_ref(value);
+    return 0;
+  }
+  try { driver->options.set_option<int>(name, value); return 0; } catch (const std::exception&) { return 1; }
 }
 int wbd_option_bool(void* d, const char* name, int value) {
   try { static_cast<Driver*>(d)->options.set_option<bool>(name, value != 0); return 0; } catch (const std::exception&) { return 1; }

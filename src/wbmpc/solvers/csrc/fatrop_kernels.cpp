@@ -9,7 +9,9 @@
  * those two symbols (found through its dynamic section), (0) puts the saved entries back. */
 #include <cmath>
 #include <cstdint>
+#include <algorithm>
 #include <cstring>
+#include <vector>
 #include <elf.h>
 #include <link.h>
 #include <sys/mman.h>
@@ -20,6 +22,10 @@
 #include <immintrin.h>
 #pragma GCC push_options
 #pragma GCC optimize("O3", "fp-contract=off") /* BLASFEO's dgead rounds B + (a A) twice: so do we */
+void wb_dgemm_nt(int m, int n, int k, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi,
+                 int bj, double beta, blasfeo_dmat* sC, int ci, int cj, blasfeo_dmat* sD, int di, int dj);
+void wb_dsyrk_ln_mn(int m, int n, int k, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi,
+                    int bj, double beta, blasfeo_dmat* sC, int ci, int cj, blasfeo_dmat* sD, int di, int dj);
 namespace {
 #define WB_EL(A, i, j) ((A)->pA[((i) - ((i) & 3)) * (A)->cn + (j) * 4 + ((i) & 3)])
 
@@ -31,15 +37,54 @@ inline __m256d wb_row_mask(int first, int end, int p) {
   return _mm256_castsi256_pd(_mm256_and_si256(ge, lt));
 }
 
+/* rows [.., n) of the panel at `panel` (rows p .. p + 3): columns i and bc swapped */
+inline void wb_swap_columns(double* panel, int p, int n, int i, int bc) {
+  if (p + 4 <= n) {
+    const __m256d t = _mm256_loadu_pd(panel + i * 4);
+    _mm256_storeu_pd(panel + i * 4, _mm256_loadu_pd(panel + bc * 4));
+    _mm256_storeu_pd(panel + bc * 4, t);
+  } else {
+    for (int r = 0; r < n - p; ++r) { const double t = panel[i * 4 + r]; panel[i * 4 + r] = panel[bc * 4 + r]; panel[bc * 4 + r] = t; }
+  }
+}
+
+/* step i's elimination on one panel: column j (> i) += (-u_j) column i, rows of `rows` only */
+inline void wb_eliminate(double* panel, int i, int m, const double* minus_u, __m256d rows) {
+  const __m256d ci = _mm256_and_pd(_mm256_loadu_pd(panel + i * 4), rows);
+  for (int j = i + 1; j < m; j++)
+    _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(minus_u[j]), ci)));
+}
+
+/* the rows from `eager` on (n rows, m columns, panel stride cn): the column swap and elimination of the LU's steps
+   0 .. steps - 1, panel by panel */
+void wb_eliminate_rest(double* pA, int cn, int eager, int n, int m, int steps, fatrop::PermutationMatrix& Pl,
+                       const double* minus_u) {
+  for (int p = eager; p < n; p += 4) {
+    double* const panel = pA + p * cn;
+    const __m256d rows = p + 4 > n ? wb_row_mask(p, n, p) : _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+    for (int i = 0; i < steps; ++i) {
+      if (Pl[i] != i) wb_swap_columns(panel, p, n, i, Pl[i]);
+      wb_eliminate(panel, i, m, minus_u + static_cast<size_t>(i) * m, rows);
+    }
+  }
+}
+
 /* Fatrop's fatrop_lu_fact_transposed: At (n x m) holds the transposed equality Jacobian; pivots are
-   searched in rows < n_max, columns >= i; rank = number of pivots >= tol */
+   searched in rows < n_max, columns >= i; rank = number of pivots >= tol. The rows the pivot search never reads
+   (the panels from n_max on: the states and the right-hand side) get each step's column swap and elimination
+   after the last step, panel by panel (each panel stays in L1 through all steps instead of the whole matrix
+   streaming through the cache once a step): the same operations on each entry in the same order */
 void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank, blasfeo_dmat* At,
                            fatrop::PermutationMatrix& Pl, fatrop::PermutationMatrix& Pr, double tol) {
   At->use_dA = 0;
   const int minmn = m < n_max ? m : n_max;
   double* const pA = At->pA;
   const int cn = At->cn;
+  const int eager = std::min(n, (n_max + 3) & ~3);  /* rows updated at each step: the pivot search's panels */
+  static thread_local std::vector<double> minus_u;  /* step i's -A(i, j), j > i, at step i: minus_u[i * m + j] */
+  if (static_cast<int>(minus_u.size()) < minmn * m) minus_u.resize(static_cast<size_t>(minmn) * m);
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+  const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
   int r = 0;
   for (int i = 0; i < minmn; i++) {
     /* the first largest |A(row, col)| in column-major order (Fatrop: strict >, starting from A(i, i)) */
@@ -63,39 +108,103 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
       for (int row = i; row < n_max; ++row)
         if (std::fabs(WB_EL(At, row, bc)) == best) { br = row; break; }
     if (std::fabs(WB_EL(At, br, bc)) < tol) break;
-    if (bc != i) {
-      int p = 0;
-      for (; p + 4 <= n; p += 4) {
-        double *a = pA + p * cn + i * 4, *b = pA + p * cn + bc * 4;
-        const __m256d t = _mm256_loadu_pd(a);
-        _mm256_storeu_pd(a, _mm256_loadu_pd(b));
-        _mm256_storeu_pd(b, t);
-      }
-      for (int row = p; row < n; ++row) { double t = WB_EL(At, row, i); WB_EL(At, row, i) = WB_EL(At, row, bc); WB_EL(At, row, bc) = t; }
-    }
+    if (bc != i)
+      for (int p = 0; p < eager; p += 4) wb_swap_columns(pA + p * cn, p, eager, i, bc);
     Pl[i] = bc;
     if (br != i)
       for (int col = 0; col < m; ++col) { double t = WB_EL(At, i, col); WB_EL(At, i, col) = WB_EL(At, br, col); WB_EL(At, br, col) = t; }
     Pr[i] = br;
     const double pivot = WB_EL(At, i, i);
-    for (int j = i + 1; j < m; j++) WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
-    /* rows i+1 .. n-1: column j -= L_ij column i */
-    for (int p = p0; p < n; p += 4) {
-      double* panel = pA + p * cn;
-      __m256d ci = _mm256_loadu_pd(panel + i * 4);
-      if (p == p0 || p + 4 > n) ci = _mm256_and_pd(ci, wb_row_mask(i + 1, n, p));
-      for (int j = i + 1; j < m; j++)
-        _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(-WB_EL(At, i, j)), ci)));
+    double* const mu = minus_u.data() + static_cast<size_t>(i) * m;
+    for (int j = i + 1; j < m; j++) {
+      WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
+      mu[j] = -WB_EL(At, i, j);
     }
+    /* rows i+1 .. eager-1: column j -= L_ij column i */
+    for (int p = p0; p < eager; p += 4)
+      wb_eliminate(pA + p * cn, i, m, mu, p == p0 || p + 4 > n ? wb_row_mask(i + 1, n, p) : all);
     r = i + 1;
   }
+  wb_eliminate_rest(pA, cn, eager, n, m, r, Pl, minus_u.data());
   rank = r;
+}
+
+/* alpha B(b0 .. b0 + 3, col): rows past `rows` zero; whole panels (or two, shifted) as vectors where B's storage
+   holds them */
+inline __m256d wb_b_rows(const blasfeo_dmat* sB, int b0, int col, int rows, __m256d valpha) {
+  const int s = b0 & 3, q = b0 - s, stored = (sB->m + 3) & ~3;
+  const double* pq = sB->pA + q * sB->cn + col * 4;
+  if (rows == 4 && s == 0) return _mm256_mul_pd(valpha, _mm256_loadu_pd(pq));
+  if (rows == 4 && q + 8 <= stored) {
+    const __m256d v0 = _mm256_loadu_pd(pq), v1 = _mm256_loadu_pd(pq + 4 * sB->cn);
+    __m256d v;
+    if (s == 1) v = _mm256_blend_pd(_mm256_permute4x64_pd(v0, 0x39), _mm256_permute4x64_pd(v1, 0x39), 0x8);
+    else if (s == 2) v = _mm256_blend_pd(_mm256_permute4x64_pd(v0, 0x4e), _mm256_permute4x64_pd(v1, 0x4e), 0xc);
+    else v = _mm256_blend_pd(_mm256_permute4x64_pd(v0, 0x93), _mm256_permute4x64_pd(v1, 0x93), 0xe);
+    return _mm256_mul_pd(valpha, v);
+  }
+  double b[4] = {0.0, 0.0, 0.0, 0.0};
+  for (int t = 0; t < rows; ++t) b[t] = WB_EL(sB, b0 + t, col);
+  return _mm256_mul_pd(valpha, _mm256_loadu_pd(b));
+}
+
+inline __m256d wb_minus(__m256d x, double a, __m256d d) { return _mm256_sub_pd(x, _mm256_mul_pd(_mm256_set1_pd(a), d)); }
+
+/* NP panels of D from row p (all rows whole when NP > 1): BLASFEO's reference dtrsm_rlnn order, the panels' chains
+   interleaved */
+template <int NP>
+void wb_trsm_panels(int m, int n, const __m256d valpha, const blasfeo_dmat* sA, int ai, int aj, const double* dA,
+                    const blasfeo_dmat* sB, int bi, int bj, blasfeo_dmat* sD, int di, int dj, int p) {
+  double* Dp[NP];
+  int rows[NP];
+  __m256i store[NP];
+  for (int u = 0; u < NP; ++u) {
+    Dp[u] = sD->pA + (di + p + 4 * u) * sD->cn;
+    rows[u] = m - p - 4 * u < 4 ? m - p - 4 * u : 4;
+    store[u] = _mm256_castpd_si256(wb_row_mask(0, rows[u], 0));
+  }
+  auto put = [&](int u, int col, __m256d v) {
+    if (rows[u] == 4) _mm256_storeu_pd(Dp[u] + (dj + col) * 4, v);
+    else _mm256_maskstore_pd(Dp[u] + (dj + col) * 4, store[u], v);
+  };
+  int jj = 0;
+  for (; jj < n - 1; jj += 2) {
+    const int id = n - jj - 2;
+    __m256d d0[NP], d1[NP];
+    for (int u = 0; u < NP; ++u) {
+      d0[u] = wb_b_rows(sB, bi + p + 4 * u, bj + id, rows[u], valpha);
+      d1[u] = wb_b_rows(sB, bi + p + 4 * u, bj + id + 1, rows[u], valpha);
+    }
+    for (int kk = id + 2; kk < n; kk++) {
+      const double a0 = WB_EL(sA, ai + kk, aj + id), a1 = WB_EL(sA, ai + kk, aj + id + 1);
+      for (int u = 0; u < NP; ++u) {
+        const __m256d dk = _mm256_loadu_pd(Dp[u] + (dj + kk) * 4);
+        d0[u] = wb_minus(d0[u], a0, dk);
+        d1[u] = wb_minus(d1[u], a1, dk);
+      }
+    }
+    const double a10 = WB_EL(sA, ai + id + 1, aj + id);
+    for (int u = 0; u < NP; ++u) {
+      d1[u] = _mm256_mul_pd(d1[u], _mm256_set1_pd(dA[id + 1]));
+      d0[u] = _mm256_mul_pd(wb_minus(d0[u], a10, d1[u]), _mm256_set1_pd(dA[id]));
+      put(u, id, d0[u]);
+      put(u, id + 1, d1[u]);
+    }
+  }
+  for (; jj < n; jj++) {
+    const int id = n - jj - 1;
+    for (int u = 0; u < NP; ++u) {
+      __m256d d0 = wb_b_rows(sB, bi + p + 4 * u, bj + id, rows[u], valpha);
+      for (int kk = id + 1; kk < n; kk++) d0 = wb_minus(d0, WB_EL(sA, ai + kk, aj + id), _mm256_loadu_pd(Dp[u] + (dj + kk) * 4));
+      put(u, id, _mm256_mul_pd(d0, _mm256_set1_pd(dA[id])));
+    }
+  }
 }
 
 /* BLASFEO's dtrsm_rlnn: D = alpha B A^-1, A (n x n) lower triangular, in the order of BLASFEO's reference code
    (the one the AVX2 build runs): columns from the last in pairs, the inverse diagonal kept in A's dA; vectorised
-   over four rows of D at a time. The fast path needs D's first row at a panel start and D apart from A and B
-   (Fatrop's call), otherwise BLASFEO's own routine runs */
+   over four rows of D at a time, two panels interleaved. The fast path needs D's first row at a panel start and D
+   apart from A and B (Fatrop's call), otherwise BLASFEO's own routine runs */
 void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sB, int bi, int bj,
                    blasfeo_dmat* sD, int di, int dj) {
   if ((di & 3) != 0 || sD == sB || sD == sA || m <= 0 || n <= 0) {
@@ -114,46 +223,51 @@ void wb_dtrsm_rlnn(int m, int n, double alpha, blasfeo_dmat* sA, int ai, int aj,
     sA->use_dA = 0;
   }
   const __m256d valpha = _mm256_set1_pd(alpha);
-  for (int p = 0; p < m; p += 4) {
-    double* Dp = sD->pA + (di + p) * sD->cn;
-    const int rows = m - p < 4 ? m - p : 4;
-    const __m256i store = _mm256_castpd_si256(wb_row_mask(0, rows, 0));
-    auto b_col = [&](int j) {
-      double b[4] = {0.0, 0.0, 0.0, 0.0};
-      for (int t = 0; t < rows; ++t) b[t] = WB_EL(sB, bi + p + t, bj + j);
-      return _mm256_mul_pd(valpha, _mm256_loadu_pd(b));
-    };
-    auto minus = [](__m256d x, double a, __m256d d) { return _mm256_sub_pd(x, _mm256_mul_pd(_mm256_set1_pd(a), d)); };
-    int jj = 0;
-    for (; jj < n - 1; jj += 2) {
-      const int id = n - jj - 2;
-      __m256d d0 = b_col(id), d1 = b_col(id + 1);
-      for (int kk = id + 2; kk < n; kk++) {
-        const __m256d dk = _mm256_loadu_pd(Dp + (dj + kk) * 4);
-        d0 = minus(d0, WB_EL(sA, ai + kk, aj + id), dk);
-        d1 = minus(d1, WB_EL(sA, ai + kk, aj + id + 1), dk);
-      }
-      d1 = _mm256_mul_pd(d1, _mm256_set1_pd(dA[id + 1]));
-      d0 = minus(d0, WB_EL(sA, ai + id + 1, aj + id), d1);
-      d0 = _mm256_mul_pd(d0, _mm256_set1_pd(dA[id]));
-      _mm256_maskstore_pd(Dp + (dj + id) * 4, store, d0);
-      _mm256_maskstore_pd(Dp + (dj + id + 1) * 4, store, d1);
-    }
-    for (; jj < n; jj++) {
-      const int id = n - jj - 1;
-      __m256d d0 = b_col(id);
-      for (int kk = id + 1; kk < n; kk++) d0 = minus(d0, WB_EL(sA, ai + kk, aj + id), _mm256_loadu_pd(Dp + (dj + kk) * 4));
-      _mm256_maskstore_pd(Dp + (dj + id) * 4, store, _mm256_mul_pd(d0, _mm256_set1_pd(dA[id])));
+  int p = 0;
+  for (; p + 8 <= m; p += 8) wb_trsm_panels<2>(m, n, valpha, sA, ai, aj, dA, sB, bi, bj, sD, di, dj, p);
+  for (; p < m; p += 4) wb_trsm_panels<1>(m, n, valpha, sA, ai, aj, dA, sB, bi, bj, sD, di, dj, p);
+}
+/* BLASFEO's dtrtr_l (C's upper triangle = A's lower one transposed, the diagonal too; a copy) on 4x4 blocks in
+   registers instead of BLASFEO's element loops over the panels; at panel starts only, else BLASFEO's own */
+void wb_dtrtr_l(int m, blasfeo_dmat* sA, int ai, int aj, blasfeo_dmat* sC, int ci, int cj) {
+  if ((ai & 3) != 0 || (ci & 3) != 0 || m <= 0) {
+    blasfeo_dtrtr_l(m, sA, ai, aj, sC, ci, cj);
+    return;
+  }
+  sC->use_dA = 0;
+  const int whole = m & ~3;  /* rows and columns in whole 4x4 blocks */
+  for (int J = 0; J < whole; J += 4) {
+    const double* a_row = sA->pA + (ai + J) * sA->cn + (aj + J) * 4;  /* the diagonal block */
+    double* c_row = sC->pA + (ci + J) * sC->cn + (cj + J) * 4;
+    for (int t = 0; t < 4; ++t)
+      for (int r = t; r < 4; ++r) c_row[r * 4 + t] = a_row[t * 4 + r];
+    for (int I = J + 4; I < whole; I += 4) {
+      const double* a = sA->pA + (ai + I) * sA->cn + (aj + J) * 4;
+      double* c = sC->pA + (ci + J) * sC->cn + (cj + I) * 4;
+      const __m256d a0 = _mm256_loadu_pd(a), a1 = _mm256_loadu_pd(a + 4), a2 = _mm256_loadu_pd(a + 8),
+                    a3 = _mm256_loadu_pd(a + 12);
+      const __m256d t0 = _mm256_unpacklo_pd(a0, a1), t1 = _mm256_unpackhi_pd(a0, a1);
+      const __m256d t2 = _mm256_unpacklo_pd(a2, a3), t3 = _mm256_unpackhi_pd(a2, a3);
+      _mm256_storeu_pd(c, _mm256_permute2f128_pd(t0, t2, 0x20));
+      _mm256_storeu_pd(c + 4, _mm256_permute2f128_pd(t1, t3, 0x20));
+      _mm256_storeu_pd(c + 8, _mm256_permute2f128_pd(t0, t2, 0x31));
+      _mm256_storeu_pd(c + 12, _mm256_permute2f128_pd(t1, t3, 0x31));
     }
   }
+  for (int i = whole; i < m; ++i)  /* the last rows: element by element */
+    for (int j = 0; j <= i; ++j) WB_EL(sC, ci + j, cj + i) = WB_EL(sA, ai + i, aj + j);
 }
 #undef WB_EL
 
-struct WbSlot { const char* symbol; void* replacement; void** slot; void* saved; };
+/* group 1: the equality elimination (same bits as Fatrop's), 2: the sparse products (fatrop_sparse.cpp) */
+struct WbSlot { const char* symbol; void* replacement; int group; void** slot; void* saved; };
 WbSlot wb_slots[] = {
   {"_ZN6fatrop25fatrop_lu_fact_transposedEiiiRiP12blasfeo_dmatRNS_17PermutationMatrixES4_d",
-   reinterpret_cast<void*>(&wb_lu_fact_transposed), nullptr, nullptr},
-  {"blasfeo_dtrsm_rlnn", reinterpret_cast<void*>(&wb_dtrsm_rlnn), nullptr, nullptr},
+   reinterpret_cast<void*>(&wb_lu_fact_transposed), 1, nullptr, nullptr},
+  {"blasfeo_dtrsm_rlnn", reinterpret_cast<void*>(&wb_dtrsm_rlnn), 1, nullptr, nullptr},
+  {"blasfeo_dtrtr_l", reinterpret_cast<void*>(&wb_dtrtr_l), 1, nullptr, nullptr},
+  {"blasfeo_dgemm_nt", reinterpret_cast<void*>(&wb_dgemm_nt), 2, nullptr, nullptr},
+  {"blasfeo_dsyrk_ln_mn", reinterpret_cast<void*>(&wb_dsyrk_ln_mn), 2, nullptr, nullptr},
 };
 int wb_slots_found = -1;
 
@@ -213,7 +327,8 @@ bool wb_write(void** slot, void* value) {
 }  // namespace
 #pragma GCC pop_options
 
-/* 1: put the kernels into libfatrop's GOT, 0: restore. Returns how many slots hold them now, -1 when this build
+/* which kernels sit in libfatrop's GOT: 1 all (the equality elimination and the sparse products), 2 the equality
+   elimination only, 0 none (Fatrop's and BLASFEO's own). Returns how many slots hold ours now, -1 when this build
    cannot (no AVX2/FMA, BLASFEO panels not 4 rows), -2 when libfatrop or its slots are not found */
 extern "C" int wbd_fatrop_kernels(int enable) {
   if (!wb_panel_height_is_4()) return -1;
@@ -222,7 +337,7 @@ extern "C" int wbd_fatrop_kernels(int enable) {
   int active = 0;
   for (WbSlot& s : wb_slots) {
     if (!s.slot) continue;
-    if (enable) {
+    if (enable == 1 || (enable == 2 && s.group == 1)) {
       if (*s.slot != s.replacement) {
         s.saved = *s.slot;
         if (!wb_write(s.slot, s.replacement)) return -2;
