@@ -39,6 +39,8 @@ from wbmpc.solvers.codegen import (
     for_source,
 )
 from wbmpc.solvers.native import source_dir, source_text
+from wbmpc.solvers.stage_covers import Cover, find_cover
+from wbmpc.solvers.stage_covers import wrappers as cover_wrappers
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
 KINDS_VERSION = 2  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
@@ -120,24 +122,43 @@ LAYOUT_ROWS = ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")
 
 
 def _stage_kinds(problem: OcpProblem, dynamics_hessian: str = "exact", dense: bool = False
-                 ) -> tuple[list[ca.Function], np.ndarray]:
-    """The generated functions of each stage kind (in order of first appearance) and the stages' layout
-    (LAYOUT_ROWS x (N+1) ints)."""
+                 ) -> tuple[list[ca.Function], np.ndarray, int, dict[int, Cover]]:
+    """The generated functions of the stage kinds (in order of first appearance; a covered kind's Hessian and
+    Jacobian left out: `stage_covers`), the stages' layout (LAYOUT_ROWS x (N+1) ints), the number of kinds and
+    their covers."""
     N, nx = problem.N, problem.nx
     kinds: dict[str, int] = {}
-    functions: list[ca.Function] = []
+    stages: list[tuple[ca.Function, list[tuple[str, int]]]] = []
     layout = np.zeros((len(LAYOUT_ROWS), N + 1), dtype=np.int32)
     for k in range(N + 1):
         function, row_tags = problem.stage_function(k)
         if function.name() not in kinds:
             kinds[function.name()] = len(kinds)
-            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}", row_tags, dynamics_hessian,
-                                              dense)
+            stages.append((function, row_tags))
         state, inputs = problem.stage_slices[k]
         gap = int(problem.stage_row_starts[k])
         layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
                         gap + (nx if k < N else 0), gap if k < N else -1)
-    return functions, layout
+    covers = _covers(stages)
+    functions: list[ca.Function] = []
+    for kind, (function, row_tags) in enumerate(stages):
+        generated = stage_kind_functions(function, f"wbk{kind}", row_tags, dynamics_hessian, dense)
+        functions += generated[2:] if kind in covers else generated
+    return functions, layout, len(stages), covers
+
+
+def _covers(stages: list[tuple[ca.Function, list[tuple[str, int]]]]) -> dict[int, Cover]:
+    """Each kind's cover by a kind with code of its own, where there is one (stage_covers.find_cover)."""
+    covers: dict[int, Cover] = {}
+    for kind, (function, tags) in enumerate(stages):
+        for other, (cover_function, cover_tags) in enumerate(stages):
+            if other == kind or other in covers or any(c.cover == kind for c in covers.values()):
+                continue
+            found = find_cover(kind, function, tags, other, cover_function, cover_tags)
+            if found is not None:
+                covers[kind] = found
+                break
+    return covers
 
 
 _BODY_SIGNATURE = "(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem)"
@@ -201,18 +222,29 @@ def dense_writes(code: str, functions: list[ca.Function]) -> str | None:
     return "#include <string.h>\n" + code
 
 
-def _kinds_table(functions: list[ca.Function], code_ranges: list[str]) -> str:
-    """The C table of the stage kinds (`wb_kinds`), compiled beside the generated functions."""
+def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: int, covers: dict[int, Cover]) -> str:
+    """The C table of the stage kinds (`wb_kinds`) and the covered kinds' wrappers, compiled beside the generated
+    functions; a covered kind's Hessian and Jacobian have its cover's code range (the code they run)."""
+    by_name = {f.name(): f for f in functions}
+    ranges = dict(zip([f.name() for f in functions], zip(code_ranges[::2], code_ranges[1::2])))
     sizes = np.array([[f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()] for f in functions]).max(axis=0)
-    n_kinds = len(functions) // len(FUNCTION_KINDS)
-    pointers = ", ".join(f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS)
+    wrappers = []
+    for kind, cover in sorted(covers.items()):
+        jac_work = by_name[f"wbk{cover.cover}_jac"].sz_w()
+        sizes[3] = max(sizes[3], jac_work + cover.n_z * cover.cover_rows)
+        wrappers.append(cover_wrappers(cover, jac_work))
+        for name in ("hess", "jac"):
+            ranges[f"wbk{kind}_{name}"] = ranges[f"wbk{cover.cover}_{name}"]
+    names = [f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS]
+    code = [bound for name in names for bound in ranges[name]]
     fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes, "wb_code"]
-    bounds = sorted({name for name in code_ranges if name != "0"})
+    bounds = sorted({name for name in code if name != "0"})
     return "".join([
+        "\n#include <string.h>\n", *wrappers,
         '\n/* ---- wbmpc: the table of the stage kinds (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
         "".join(f"extern const char {name}[] __attribute__((weak, visibility(\"hidden\")));\n" for name in bounds),
-        f"static const wb_fn wb_functions[] = {{{pointers}}};\n",
-        f"static const char* const wb_code[] = {{{', '.join(code_ranges)}}};\n",
+        f"static const wb_fn wb_functions[] = {{{', '.join(names)}}};\n",
+        f"static const char* const wb_code[] = {{{', '.join(code)}}};\n",
         f"static const wb_kinds wb_stage_kinds = {{{', '.join(str(f) for f in fields)}}};\n",
         "const wb_kinds* wbmpc_stage_kinds(void) { return &wb_stage_kinds; }\n",
     ])
@@ -222,17 +254,17 @@ def generate_source(problem: OcpProblem, dynamics_hessian: str = "exact") -> tup
     """The C source of the stage library for `problem`, the (N+1, n_p) index map of the stage parameters into p and
     the stages' layout for the shim (LAYOUT_ROWS x (N+1)). The source depends on the kinds of stages only: another
     horizon length with the same kinds reuses the library."""
-    functions, layout = _stage_kinds(problem, dynamics_hessian)
+    functions, layout, n_kinds, covers = _stage_kinds(problem, dynamics_hessian)
     code = dense_writes(_generated(functions), functions)
     if code is None:  # CasADi's text not as expected: its own densified outputs
-        functions, layout = _stage_kinds(problem, dynamics_hessian, dense=True)
+        functions, layout, n_kinds, covers = _stage_kinds(problem, dynamics_hessian, dense=True)
         code = _generated(functions)
     n_p = functions[0].size1_in(2)
     p_index = np.array([np.asarray(ca.evalf(problem.stage_parameters(ca.DM(np.arange(problem.params.size)), k)))
                         .ravel() for k in range(problem.N + 1)]).round().astype(np.int64)
     assert p_index.shape == (problem.N + 1, n_p)
     code, code_ranges = code_sections(code, [function.name() for function in functions])
-    return code + _kinds_table(functions, code_ranges), p_index, layout
+    return code + _kinds_table(functions, code_ranges, n_kinds, covers), p_index, layout
 
 
 def _generated(functions: list[ca.Function]) -> str:
