@@ -240,7 +240,7 @@ def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: 
     fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes, "wb_code"]
     bounds = sorted({name for name in code if name != "0"})
     return "".join([
-        "\n#include <string.h>\n", *wrappers,
+        *(["\n#include <string.h>\n", *wrappers] if wrappers else []),
         '\n/* ---- wbmpc: the table of the stage kinds (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
         "".join(f"extern const char {name}[] __attribute__((weak, visibility(\"hidden\")));\n" for name in bounds),
         f"static const wb_fn wb_functions[] = {{{', '.join(names)}}};\n",
