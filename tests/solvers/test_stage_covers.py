@@ -5,8 +5,7 @@ derivatives through the wrappers against its own CasADi functions: test_fatrop_t
 import casadi as ca
 import numpy as np
 
-from wbmpc.solvers.stage_covers import find_cover
-from wbmpc.solvers.stage_library import _covers
+from wbmpc.solvers.stage_covers import find_cover, find_covers
 
 
 def _stage(rows, tags, cost_scale=1.0):
@@ -32,7 +31,7 @@ def test_first_stage_is_covered_by_the_torque_stage():
     assert cover.rows == (-1, -1, 0, 2)
     # x0 rows' transposed Jacobian columns in z = (u, x): unit entries at the states
     assert cover.linear == {0: ((2, 1.0),), 1: ((3, 1.0),)}
-    assert _covers([(function, tags), (cover_function, cover_tags)]) == {0: cover}
+    assert find_covers([(function, tags), (cover_function, cover_tags)]) == {0: cover}
 
 
 def test_a_nonlinear_row_of_its_own_or_other_expressions_are_no_cover():
@@ -46,7 +45,7 @@ def test_a_nonlinear_row_of_its_own_or_other_expressions_are_no_cover():
     resized, tags = _stage(lambda x, u, p: [x, ca.cos(x[0]) * u[1] - p, p], [("x0", 2), ("dynamics", 2)])
     assert find_cover(0, resized, tags, 1, cover_function, cover_tags) is None
     # two kinds never cover each other (one keeps its code)
-    assert len(_covers([(cover_function, cover_tags), (cover_function, cover_tags)])) == 1
+    assert len(find_covers([(cover_function, cover_tags), (cover_function, cover_tags)])) == 1
 
 
 def test_go2_first_stage_kind_is_covered(problem):
@@ -56,6 +55,6 @@ def test_go2_first_stage_kind_is_covered(problem):
         if function.name() not in seen:
             seen.add(function.name())
             stages.append((function, tags))
-    covers = _covers(stages)
+    covers = find_covers(stages)
     assert 0 in covers and [tag for tag, _ in stages[0][1]][0] == "x0"
     assert np.all(np.array(covers[0].rows[:problem.nx]) == -1)  # the x0 rows are its own, linear

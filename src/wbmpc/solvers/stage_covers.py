@@ -91,6 +91,20 @@ def find_cover(kind: int, function: ca.Function, tags, cover: int, cover_functio
     return Cover(kind, cover, tuple(rows), linear, z.shape[0], cover_function.size1_out(1))
 
 
+def find_covers(stages: list[tuple[ca.Function, list[tuple[str, int]]]]) -> dict[int, Cover]:
+    """Each stage kind's cover (`find_cover`) by a kind with code of its own, where there is one."""
+    covers: dict[int, Cover] = {}
+    for kind, (function, tags) in enumerate(stages):
+        for other, (cover_function, cover_tags) in enumerate(stages):
+            if other == kind or other in covers or any(c.cover == kind for c in covers.values()):
+                continue
+            found = find_cover(kind, function, tags, other, cover_function, cover_tags)
+            if found is not None:
+                covers[kind] = found
+                break
+    return covers
+
+
 def wrappers(cover: Cover, jac_work: int) -> str:
     """C of `wbk<kind>_hess` and `wbk<kind>_jac` calling the cover's: the multipliers scattered to the cover's rows
     (zeros on the rows the kind does not have); the Jacobian's shared columns copied from the cover's, computed into

@@ -39,7 +39,7 @@ from wbmpc.solvers.codegen import (
     for_source,
 )
 from wbmpc.solvers.native import source_dir, source_text
-from wbmpc.solvers.stage_covers import Cover, find_cover
+from wbmpc.solvers.stage_covers import Cover, find_covers
 from wbmpc.solvers.stage_covers import wrappers as cover_wrappers
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
@@ -139,26 +139,12 @@ def _stage_kinds(problem: OcpProblem, dynamics_hessian: str = "exact", dense: bo
         gap = int(problem.stage_row_starts[k])
         layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
                         gap + (nx if k < N else 0), gap if k < N else -1)
-    covers = _covers(stages)
+    covers = find_covers(stages)
     functions: list[ca.Function] = []
     for kind, (function, row_tags) in enumerate(stages):
         generated = stage_kind_functions(function, f"wbk{kind}", row_tags, dynamics_hessian, dense)
         functions += generated[2:] if kind in covers else generated
     return functions, layout, len(stages), covers
-
-
-def _covers(stages: list[tuple[ca.Function, list[tuple[str, int]]]]) -> dict[int, Cover]:
-    """Each kind's cover by a kind with code of its own, where there is one (stage_covers.find_cover)."""
-    covers: dict[int, Cover] = {}
-    for kind, (function, tags) in enumerate(stages):
-        for other, (cover_function, cover_tags) in enumerate(stages):
-            if other == kind or other in covers or any(c.cover == kind for c in covers.values()):
-                continue
-            found = find_cover(kind, function, tags, other, cover_function, cover_tags)
-            if found is not None:
-                covers[kind] = found
-                break
-    return covers
 
 
 _BODY_SIGNATURE = "(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem)"
