@@ -54,9 +54,14 @@ class CodegenConfig:
     # 4.5 / 11.0 ms in CasADi's virtual machine (the uncompiled solvers). g1 (17.5 MB) and smaller keep -O1
     large_source_mb: float | None = 20.0
     large_source_optimization: str = "-O0"
+    # the same limit for fatrop-direct's stage library, whose C is denser (solvers/stage_library.dense_writes: no
+    # stored zeros; one kind's derivatives shared, stage_covers): TALOS's is 13.9 MB now for the same Hessian bodies
+    # as its 25.3 MB before (at -O0), g1's 10.6 MB (17.9 before, -O1 in 1-2.5 min)
+    stage_large_source_mb: float | None = 12.0
     # fatrop-direct's stage library (solvers/stage_library.py) compiles at -O2 instead of -O1 up to this size (MB of
-    # C). 10 takes b1_z1 (7.6 MB: 254 s); 20 also g1 (17.9 MB): thread CPU per solver iteration 4.41 -> 3.63 ms for a
-    # one-off 768 s / 2.8 GB compile instead of ~200 s at -O1 (load ~4), so g1's -O2 is opt-in
+    # C). 10 takes b1_z1 (4.3 MB: 132 s at load 5; 7.6 MB and 254 s before the stage library wrote only nonzeros and
+    # shared the first stage's code); g1 (10.6 MB, 17.9 before: -O1 in 57-152 s at load 4-6) stays at -O1: at -O2
+    # its 17.9 MB took a one-off 768 s / 2.8 GB for thread CPU per solver iteration 4.41 -> 3.63 ms, so it is opt-in
     stage_o2_max_source_mb: float = 10.0
     # fatrop-direct's stage Hessian: the RNEA rows' curvature "exact", "cross" (only its blocks with an input:
     # d^2/du dx, d^2/du^2) or "gauss-newton" (none); see stage_library.lagrangian_hessian. Inexact ones cost g1

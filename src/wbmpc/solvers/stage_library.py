@@ -2,8 +2,9 @@
 
 Fatrop asks an OCP for per-stage blocks: the transposed dynamics Jacobian BAbt, the Lagrangian Hessian RSQrqt,
 the equality and inequality Jacobians Ggt / Ggt_ineq, constraint values, cost gradients and bounds. Each stage
-kind's blocks are generated here directly in Fatrop's (u_k, x_k) order and dense (`stage_kind_functions`), so each
-block is one generated call and one BLASFEO pack. The generated C and a table of the stage kinds
+kind's blocks are generated here directly in Fatrop's (u_k, x_k) order (`stage_kind_functions`) and written dense
+(`dense_writes`: the structural nonzeros into a cleared column-major buffer), so each block is one generated call
+and one BLASFEO pack. The generated C and a table of the stage kinds
 (`csrc/wbmpc_stages.h`: their functions and work sizes) compile into one library per set of stage kinds (the
 horizon's length does not enter: 10 or 40 nodes of one formulation share it); the shim that answers Fatrop
 (`fatrop_shim.py`) is compiled once per machine and gets the stages' layout (kinds, sizes, offsets) from Python.
@@ -38,6 +39,8 @@ from wbmpc.solvers.codegen import (
     for_source,
 )
 from wbmpc.solvers.native import source_dir, source_text
+from wbmpc.solvers.stage_covers import Cover, find_covers
+from wbmpc.solvers.stage_covers import wrappers as cover_wrappers
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
 KINDS_VERSION = 2  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
@@ -47,8 +50,9 @@ DYNAMICS_TAGS = ("dynamics", "implied_torque")  # the path rows that are RNEA ro
 
 
 def stage_kind_functions(function: ca.Function, tag: str, row_tags: list[tuple[str, int]] | None = None,
-                         dynamics_hessian: str = "exact") -> list[ca.Function]:
-    """The five C functions of one stage kind, inputs (u_k, x_k, p_k) in Fatrop's order, dense outputs.
+                         dynamics_hessian: str = "exact", dense: bool = False) -> list[ca.Function]:
+    """The five C functions of one stage kind, inputs (u_k, x_k, p_k) in Fatrop's order; outputs sparse (the shim
+    gets them dense all the same: `dense_writes`) or, with `dense`, densified.
 
     hess: Hessian in (u, x) of sigma l + lam_dyn' f + lam_rows' r (Fatrop's stage Lagrangian, the
     x_{k+1} term of the dynamics being linear); jac: d f/d(u, x) transposed and d r/d(u, x) transposed;
@@ -65,7 +69,7 @@ def stage_kind_functions(function: ca.Function, tag: str, row_tags: list[tuple[s
     dynamics = _tagged_rows(row_tags or [], DYNAMICS_TAGS)
     hessian = lagrangian_hessian(u, x, sigma * cost + ca.dot(lam_dyn, next_state), rows, lam_rows, dynamics,
                                  dynamics_hessian)
-    dense = ca.densify
+    dense = ca.densify if dense else (lambda expr: expr)
     return [
         ca.Function(f"{tag}_hess", [u, x, p, sigma, lam_dyn, lam_rows], [dense(hessian)]),
         ca.Function(f"{tag}_jac", [u, x, p], [dense(ca.jacobian(next_state, z).T), dense(ca.jacobian(rows, z).T)]),
@@ -117,23 +121,30 @@ def lagrangian_hessian(u: ca.SX, x: ca.SX, rest: ca.SX, rows: ca.SX, lam_rows: c
 LAYOUT_ROWS = ("kind", "nx", "nu", "nr", "x_offset", "row_offset", "gap_offset")  # wbmpc_stages.h's WB_L_*
 
 
-def _stage_kinds(problem: OcpProblem, dynamics_hessian: str = "exact") -> tuple[list[ca.Function], np.ndarray]:
-    """The generated functions of each stage kind (in order of first appearance) and the stages' layout
-    (LAYOUT_ROWS x (N+1) ints)."""
+def _stage_kinds(problem: OcpProblem, dynamics_hessian: str = "exact", dense: bool = False
+                 ) -> tuple[list[ca.Function], np.ndarray, int, dict[int, Cover]]:
+    """The generated functions of the stage kinds (in order of first appearance; a covered kind's Hessian and
+    Jacobian left out: `stage_covers`), the stages' layout (LAYOUT_ROWS x (N+1) ints), the number of kinds and
+    their covers."""
     N, nx = problem.N, problem.nx
     kinds: dict[str, int] = {}
-    functions: list[ca.Function] = []
+    stages: list[tuple[ca.Function, list[tuple[str, int]]]] = []
     layout = np.zeros((len(LAYOUT_ROWS), N + 1), dtype=np.int32)
     for k in range(N + 1):
         function, row_tags = problem.stage_function(k)
         if function.name() not in kinds:
             kinds[function.name()] = len(kinds)
-            functions += stage_kind_functions(function, f"wbk{kinds[function.name()]}", row_tags, dynamics_hessian)
+            stages.append((function, row_tags))
         state, inputs = problem.stage_slices[k]
         gap = int(problem.stage_row_starts[k])
         layout[:, k] = (kinds[function.name()], nx, inputs.stop - inputs.start, function.size1_out(1), state.start,
                         gap + (nx if k < N else 0), gap if k < N else -1)
-    return functions, layout
+    covers = find_covers(stages)
+    functions: list[ca.Function] = []
+    for kind, (function, row_tags) in enumerate(stages):
+        generated = stage_kind_functions(function, f"wbk{kind}", row_tags, dynamics_hessian, dense)
+        functions += generated[2:] if kind in covers else generated
+    return functions, layout, len(stages), covers
 
 
 _BODY_SIGNATURE = "(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem)"
@@ -158,18 +169,68 @@ def code_sections(code: str, names: list[str]) -> tuple[str, list[str]]:
     return code, ranges
 
 
-def _kinds_table(functions: list[ca.Function], code_ranges: list[str]) -> str:
-    """The C table of the stage kinds (`wb_kinds`), compiled beside the generated functions."""
+_OUTPUT_WRITE = re.compile(r"if \(res\[(\d+)\]!=0\) res\[\1\]\[(\d+)\]=")
+
+
+def dense_writes(code: str, functions: list[ca.Function]) -> str | None:
+    """The generated C of `functions` (sparse outputs) rewritten to write each output's nonzeros straight into the
+    dense column-major buffer the shim passes, after one memset of that buffer; None where CasADi's text is not as
+    expected (then the caller generates densified outputs). CasADi's densified outputs store every structural zero
+    one by one, each behind a null check of its buffer (the shim passes every output): g1's plain stage Hessian
+    stores 10404 values of which 2404 are nonzero, its Jacobian 10506 of 1217. The arithmetic is the same
+    instructions in the same order, so the values are bit for bit those of the dense outputs; only less machine
+    code streams through the core per call (g1's plain stage Hessian 1.51 -> 1.28 MB)."""
+    for function in functions:
+        found = re.search(re.escape(f"int {function.name()}{_BODY_SIGNATURE}") + r"\{\s*return (casadi_f\d+)\(", code)
+        head = f"static int {found.group(1)}{_BODY_SIGNATURE} {{\n" if found else None
+        if head is None or code.count(head) != 1:
+            return None
+        start = code.index(head) + len(head)
+        end = code.find("\n  return 0;\n}\n", start)
+        if end < 0:
+            return None
+        outputs = [function.sparsity_out(i) for i in range(function.n_out())]
+        positions = [np.array(sparsity.row(), dtype=int) + sparsity.size1() * np.array(sparsity.get_col(), dtype=int)
+                     for sparsity in outputs]  # column-major place of each nonzero
+        written = []
+
+        def dense(found: re.Match) -> str:
+            i, k = int(found.group(1)), int(found.group(2))
+            written.append((i, k))
+            return f"res[{i}][{positions[i][k]}]="
+
+        body = _OUTPUT_WRITE.sub(dense, code[start:end])
+        if sorted(written) != [(i, k) for i, sparsity in enumerate(outputs) for k in range(sparsity.nnz())]:
+            return None
+        zeros = "".join(f"  memset(res[{i}], 0, sizeof(casadi_real) * {sparsity.numel()});\n"
+                        for i, sparsity in enumerate(outputs) if sparsity.nnz() < sparsity.numel())
+        code = code[:start] + zeros + body + code[end:]
+    return "#include <string.h>\n" + code
+
+
+def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: int, covers: dict[int, Cover]) -> str:
+    """The C table of the stage kinds (`wb_kinds`) and the covered kinds' wrappers, compiled beside the generated
+    functions; a covered kind's Hessian and Jacobian have its cover's code range (the code they run)."""
+    by_name = {f.name(): f for f in functions}
+    ranges = dict(zip([f.name() for f in functions], zip(code_ranges[::2], code_ranges[1::2])))
     sizes = np.array([[f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()] for f in functions]).max(axis=0)
-    n_kinds = len(functions) // len(FUNCTION_KINDS)
-    pointers = ", ".join(f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS)
+    wrappers = []
+    for kind, cover in sorted(covers.items()):
+        jac_work = by_name[f"wbk{cover.cover}_jac"].sz_w()
+        sizes[3] = max(sizes[3], jac_work + cover.n_z * cover.cover_rows)
+        wrappers.append(cover_wrappers(cover, jac_work))
+        for name in ("hess", "jac"):
+            ranges[f"wbk{kind}_{name}"] = ranges[f"wbk{cover.cover}_{name}"]
+    names = [f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS]
+    code = [bound for name in names for bound in ranges[name]]
     fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes, "wb_code"]
-    bounds = sorted({name for name in code_ranges if name != "0"})
+    bounds = sorted({name for name in code if name != "0"})
     return "".join([
+        *(["\n#include <string.h>\n", *wrappers] if wrappers else []),
         '\n/* ---- wbmpc: the table of the stage kinds (wbmpc_stages.h) ---- */\n#include "wbmpc_stages.h"\n',
         "".join(f"extern const char {name}[] __attribute__((weak, visibility(\"hidden\")));\n" for name in bounds),
-        f"static const wb_fn wb_functions[] = {{{pointers}}};\n",
-        f"static const char* const wb_code[] = {{{', '.join(code_ranges)}}};\n",
+        f"static const wb_fn wb_functions[] = {{{', '.join(names)}}};\n",
+        f"static const char* const wb_code[] = {{{', '.join(code)}}};\n",
         f"static const wb_kinds wb_stage_kinds = {{{', '.join(str(f) for f in fields)}}};\n",
         "const wb_kinds* wbmpc_stage_kinds(void) { return &wb_stage_kinds; }\n",
     ])
@@ -179,27 +240,35 @@ def generate_source(problem: OcpProblem, dynamics_hessian: str = "exact") -> tup
     """The C source of the stage library for `problem`, the (N+1, n_p) index map of the stage parameters into p and
     the stages' layout for the shim (LAYOUT_ROWS x (N+1)). The source depends on the kinds of stages only: another
     horizon length with the same kinds reuses the library."""
-    functions, layout = _stage_kinds(problem, dynamics_hessian)
+    functions, layout, n_kinds, covers = _stage_kinds(problem, dynamics_hessian)
+    code = dense_writes(_generated(functions), functions)
+    if code is None:  # CasADi's text not as expected: its own densified outputs
+        functions, layout, n_kinds, covers = _stage_kinds(problem, dynamics_hessian, dense=True)
+        code = _generated(functions)
     n_p = functions[0].size1_in(2)
     p_index = np.array([np.asarray(ca.evalf(problem.stage_parameters(ca.DM(np.arange(problem.params.size)), k)))
                         .ravel() for k in range(problem.N + 1)]).round().astype(np.int64)
     assert p_index.shape == (problem.N + 1, n_p)
+    code, code_ranges = code_sections(code, [function.name() for function in functions])
+    return code + _kinds_table(functions, code_ranges, n_kinds, covers), p_index, layout
+
+
+def _generated(functions: list[ca.Function]) -> str:
     generator = ca.CodeGenerator("wbmpc_stages.c", {"with_header": False})
     for function in functions:
         generator.add(function)
-    code, code_ranges = code_sections(generator.dump(), [function.name() for function in functions])
-    return code + _kinds_table(functions, code_ranges), p_index, layout
+    return generator.dump()
 
 
 def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfig, tuple[str, ...]]:
     """The settings a stage library of this size compiles with. CodegenConfig's default -O1 (chosen for the
     whole-NLP library's compile time) becomes -O2 up to `stage_o2_max_source_mb`: b1_z1's stage functions evaluate 2.63 ->
     1.60 ms per closed-loop step for one longer, cached compile (7.6 MB of C, load ~4: 80 s and 0.86 GB at -O1,
-    254 s and 0.96 GB at -O2); g1's (17.9 MB) only when asked (`stage_o2_max_source_mb=20`): thread CPU per solver
-    iteration 4.41 -> 3.63 ms (30 recorded walk-in-place states, interleaved in one run, the same iterations) for
-    768 s and 2.8 GB of compile at load ~4 (-O1: ~200 s); larger sources follow `codegen.for_source` (TALOS-sized
-    at -O0)."""
-    config = for_source(config, source_mb)
+    254 s and 0.96 GB at -O2; 4.3 MB since `dense_writes` and `stage_covers`); g1's (17.9 MB then, 10.6 MB now) only
+    when asked (`stage_o2_max_source_mb=20`): thread CPU per solver iteration 4.41 -> 3.63 ms (30 recorded
+    walk-in-place states, interleaved in one run, the same iterations) for 768 s and 2.8 GB of compile at load ~4
+    (-O1: ~200 s); larger sources follow `codegen.for_source` (TALOS-sized at -O0)."""
+    config = for_source(replace(config, large_source_mb=config.stage_large_source_mb), source_mb)
     optimize = source_mb <= config.stage_o2_max_source_mb
     return config, tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)
 

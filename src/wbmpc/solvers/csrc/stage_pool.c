@@ -31,9 +31,11 @@ struct wb_pool {
   /* the current job, written by the caller while no task is left or running */
   wb_task_fn fn;
   void* job;
-  int n_tasks;
-  /* (job number << 32) | tasks not yet taken: a task is taken by a compare-and-swap on the whole word, so a
-     worker late from one job can never take a task of the next one under the old count */
+  /* (job number << 32) | (front << 16) | back: the tasks front .. back - 1 are not taken yet. The caller takes
+     them from the front, the workers from the back, each by a compare-and-swap on the whole word, so a worker late
+     from one job can never take a task of the next one under the old counts. From the two ends, each core keeps
+     to one end of the horizon, so it runs (and fetches the machine code of) fewer stage kinds per job: g1's
+     first and torque stages on the caller's core, the plain and terminal ones on the worker's. */
   _Atomic unsigned long long ticket;
   atomic_int done;
 };
@@ -43,13 +45,17 @@ typedef struct {
   int worker;
 } wb_worker_arg;
 
-/* take and run tasks until none is left; a task's job fields are read after taking it (they cannot change
-   before it is counted done) */
+#define WB_FRONT(t) ((int) (((t) >> 16) & 0xffffULL))
+#define WB_BACK(t) ((int) ((t) & 0xffffULL))
+
+/* take and run tasks until none is left (the caller from the front, workers from the back); a task's job fields
+   are read after taking it (they cannot change before it is counted done) */
 static void wb_take_tasks(wb_pool* p, int worker) {
   unsigned long long t = atomic_load_explicit(&p->ticket, memory_order_acquire);
-  while ((t & 0xffffffffULL) != 0) {
-    if (atomic_compare_exchange_weak_explicit(&p->ticket, &t, t - 1, memory_order_acq_rel, memory_order_acquire)) {
-      p->fn(p->job, p->n_tasks - (int) (t & 0xffffffffULL), worker);
+  while (WB_FRONT(t) < WB_BACK(t)) {
+    const unsigned long long next = worker == 0 ? t + (1ULL << 16) : t - 1;
+    if (atomic_compare_exchange_weak_explicit(&p->ticket, &t, next, memory_order_acq_rel, memory_order_acquire)) {
+      p->fn(p->job, worker == 0 ? WB_FRONT(t) : WB_BACK(t) - 1, worker);
       atomic_fetch_add_explicit(&p->done, 1, memory_order_release);
       t = atomic_load_explicit(&p->ticket, memory_order_acquire);
     }
@@ -137,15 +143,15 @@ int wb_pool_workers(const wb_pool* p) { return p ? p->n_workers : 0; }
 void wb_pool_run(wb_pool* p, int n_tasks, wb_task_fn fn, void* job) {
   int i, spin = 0;
   unsigned g;
-  if (!p || p->n_workers == 0 || n_tasks < 2) {
+  if (!p || p->n_workers == 0 || n_tasks < 2 || n_tasks > 0xffff) {
     for (i = 0; i < n_tasks; ++i) fn(job, i, 0);
     return;
   }
   p->fn = fn;
   p->job = job;
-  p->n_tasks = n_tasks;
   atomic_store_explicit(&p->done, 0, memory_order_relaxed);
   g = atomic_load_explicit(&p->generation, memory_order_relaxed) + 1;
+  /* front 0, back n_tasks */
   atomic_store_explicit(&p->ticket, ((unsigned long long) g << 32) | (unsigned) n_tasks, memory_order_release);
   atomic_store_explicit(&p->generation, g, memory_order_release);
   wb_wake_all(p);

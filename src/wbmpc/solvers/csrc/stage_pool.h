@@ -1,6 +1,7 @@
 /* A small pool of worker threads that runs the tasks 0 .. n-1 of one job, the calling thread taking part.
- * Tasks are handed out in order through an atomic counter; each task writes only its own outputs, so the
- * results do not depend on which thread ran which task (the per-stage evaluations of fatrop_shim.c). */
+ * Tasks are handed out through an atomic counter, the caller's from the front, the workers' from the back; each
+ * task writes only its own outputs, so the results do not depend on which thread ran which task (the per-stage
+ * evaluations of fatrop_shim.c). */
 #ifndef WBMPC_STAGE_POOL_H
 #define WBMPC_STAGE_POOL_H
 

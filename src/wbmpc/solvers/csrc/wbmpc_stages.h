@@ -12,7 +12,8 @@ extern "C" {
 /* CasADi's calling convention (casadi_real double, casadi_int long long int: CasADi's defaults) */
 typedef int (*wb_fn)(const double** arg, double** res, long long int* iw, double* w, int mem);
 
-/* the five functions of a stage kind, inputs (u_k, x_k, p_k, ...) in Fatrop's order, dense outputs:
+/* the five functions of a stage kind, inputs (u_k, x_k, p_k, ...) in Fatrop's order, dense column-major outputs
+   (every output pointer given: the generated code writes without null checks):
    hess (u, x, p, sigma, lam_dyn, lam_rows) -> Lagrangian Hessian in (u, x);
    jac (u, x, p) -> (d f / d(u, x))', (d r / d(u, x))';  val -> f, r;  grad -> d l / d(u, x);  cost -> l */
 enum { WB_HESS = 0, WB_JAC, WB_VAL, WB_GRAD, WB_COST, WB_N_FUNCTIONS };
