@@ -237,7 +237,8 @@ def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
     assert log.realtime_priority is not None
     assert 0 < log.wall_time_s < 60.0
     # the plant's own lateness: one figure per joint-loop tick, never negative; the plan's CPUs are this process's
-    assert log.plant_lateness_ms.shape == (len(log.t),) and np.all(log.plant_lateness_ms >= 0)
+    late = log.plant_lateness
+    assert late.count == len(log.t) and late.min >= 0 and late.max >= late.percentile(99) >= 0
     cpus = set(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else set()
     assert log.cpu_plan.loop | log.cpu_plan.solver == (cpus if len(cpus) >= 2 else set())
     if hasattr(os, "sched_getscheduler"):  # the loop's real-time policy and core are given back after the run

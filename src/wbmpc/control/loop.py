@@ -32,6 +32,7 @@ from wbmpc.control.solver_process import (
     raise_loop_priority,
     restore_scheduling,
 )
+from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
@@ -382,7 +383,8 @@ class ClosedLoop:
         # solver's budget is the period less it, so that the answer is back before the next MPC tick
         transport_s = REALTIME_TRANSPORT_GUESS_S
         tau = np.zeros(self.robot.n_joints)
-        lateness = []  # per joint-loop tick: how long after its wall-clock time it ran (s)
+        # per joint-loop tick: how long after its wall-clock time it ran (ms), over half a period counted as late
+        lateness = log.plant_lateness = StreamingStats(threshold=0.5e3 / self.config.control_rate_hz)
         wall_start, cpu_start = time.perf_counter(), time.process_time()
         while plant.time_s - t0 < duration_s - 1e-9:
             t = plant.time_s
@@ -394,7 +396,7 @@ class ClosedLoop:
                 if lag > 0:
                     time.sleep(lag)
             if t >= next_control - 1e-9:
-                lateness.append(time.perf_counter() - wall_start - (t - t0))
+                lateness.add(max(1e3 * (time.perf_counter() - wall_start - (t - t0)), 0.0))
             self._apply_events(events, t, log)
             if request is not None and solver.ready():
                 solution = solver.receive()
@@ -421,7 +423,6 @@ class ClosedLoop:
         log.wall_time_s = time.perf_counter() - wall_start
         log.rss_samples.append((plant.time_s - t0, rss_mb()))
         log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
-        log.plant_lateness_ms = 1e3 * np.maximum(np.asarray(lateness), 0.0)
 
     def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the

@@ -7,6 +7,7 @@ import numpy as np
 from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
 from wbmpc.control.commands import Commands
 from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
+from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError
 
 RECOVERY_MARK = "(recovery after"  # in the status of a step that needed a recovery re-solve
@@ -50,8 +51,8 @@ class RunLog:
         self.realtime_priority: str | None = None  # real time: scheduling priority granted (see `raise_loop_priority`)
         self.cpu_plan = None  # real time: where the loop and the solver's threads ran (`solver_process.CpuPlan`)
         self.solver_helper_threads = 0  # real time: the solver's helper threads placed by the plan
-        # real time: per joint-loop tick, how late after its wall-clock time it ran (ms): the plant's own lateness
-        self.plant_lateness_ms: np.ndarray | None = None
+        # real time: how late after its wall-clock time each joint-loop tick ran (ms, `StreamingStats`: fixed memory)
+        self.plant_lateness: StreamingStats | None = None
         self.recovered_solutions = 0  # counted as logged: progress reads it every control tick
         self.failed_solutions = 0
         self.interrupted = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
