@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
+from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable, ChunkWriter
 from wbmpc.control.commands import Commands
 from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
 from wbmpc.control.streaming_stats import StreamingStats
@@ -24,7 +24,8 @@ class RunLog:
 
     Ticks and steps go into `ChunkedTable`s (one preallocated chunk each, full chunks spilled to
     `.npy` files in `spill_dir`, a temporary directory by default), so a run of any length holds a
-    few MB. Read whole columns with `arrays(keys)` (`every=k`: every k-th tick, for plots and
+    few MB. The spills are written by the log's own writer thread (`ChunkWriter`), off the loop that
+    records the rows. Read whole columns with `arrays(keys)` (`every=k`: every k-th tick, for plots and
     replays), stream them with `tick_chunks(keys)`; the attributes `t`, `q`, ... `mpc_t`,
     `status`, `commands` read whole columns back too. Counters (failures, recoveries) are kept as
     the steps are logged. `rss_samples` holds (simulated s since the start, resident MB) every
@@ -34,13 +35,14 @@ class RunLog:
     def __init__(self, spill_dir=None, chunk_rows: int = DEFAULT_CHUNK_ROWS):
         self.spill_dir = spill_dir
         self.chunk_rows = chunk_rows
+        self._writer = ChunkWriter()  # writes the full chunks of every table below
         self._ticks: ChunkedTable | None = None  # built at the first row, when the sizes are known
         self._steps: ChunkedTable | None = None
-        self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays")
+        self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays", self._writer)
         # per step of a solver that reports them (the anytime SQP): its SQP iterations, the KKT residuals of the
         # iterate it returned, its budget (NaN: none) and whether it ended past its deadline
         self._solver_details = ChunkedTable({key: ((), float) for key in SOLVER_DETAIL_KEYS}, chunk_rows, spill_dir,
-                                            "solver_details")
+                                            "solver_details", self._writer)
         self._status_names: list[str] = []  # distinct solver statuses; steps store an index into it
         self._status_codes: dict[str, int] = {}
         self.events: list = []  # (time_s, name) of each event applied to the plant
@@ -153,7 +155,7 @@ class RunLog:
             if array.dtype.kind not in kinds:
                 raise ConfigError(f"run log column '{key}' needs numbers, got {type(value).__name__} {value!r}")
             columns[key] = (array.shape, kinds[array.dtype.kind])
-        return ChunkedTable(columns, self.chunk_rows, self.spill_dir, name)
+        return ChunkedTable(columns, self.chunk_rows, self.spill_dir, name, self._writer)
 
     def close(self) -> None:
         """Delete the spilled chunks now (otherwise when the log is garbage collected)."""
