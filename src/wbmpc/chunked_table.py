@@ -15,7 +15,6 @@ flight, so what they read is the same, bit for bit.
 
 from __future__ import annotations
 
-import os
 import queue
 import shutil
 import tempfile
@@ -29,41 +28,54 @@ import numpy as np
 from wbmpc.errors import ConfigError
 
 DEFAULT_CHUNK_ROWS = 5000  # 10 s of 500 Hz control ticks
-WRITER_NICE = 10
+WRITER_IDLE_S = 30.0  # a chunk writer's thread ends after this long without a chunk (a run's come every 10 s)
 
 
 class ChunkWriter:
     """A thread that writes the chunks of one or more tables, in the order they were handed over.
 
-    The thread starts when a chunk is handed over and ends when none is left (a short run never starts it, a
-    campaign's many runs leave none behind); `flush()` waits until every chunk handed over is on disk. NumPy writes
-    a chunk's data with the GIL released (`ndarray.tofile`), so the thread appending rows runs on meanwhile. The
-    writer runs below the ordinary priority (nice WRITER_NICE): a real-time loop at a raised priority, or at
-    SCHED_FIFO (whose threads start at the ordinary policy, SCHED_RESET_ON_FORK), preempts it."""
+    The thread starts with the first chunk handed over (or `start()`) and ends `idle_s` after the last one (a short
+    run never starts it, a campaign's many runs leave none behind); `flush()` waits until every chunk handed over is on disk. NumPy writes
+    a chunk's data with the GIL released (`ndarray.tofile`), so the thread appending rows runs on meanwhile. Its
+    priority is the ordinary one (a loop at SCHED_FIFO with SCHED_RESET_ON_FORK starts its threads at it, and
+    preempts them). Not lower: a thread descheduled while it holds the GIL stalls the loop (at nice 10 on a loaded
+    machine, 0.9 s)."""
 
-    def __init__(self):
+    def __init__(self, idle_s: float = WRITER_IDLE_S):
+        self.idle_s = idle_s
         self._queue: queue.Queue = queue.Queue()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._error: BaseException | None = None
 
+    def start(self) -> None:
+        """Start the thread now (a real-time loop: before it raises its priority and pins its core, so the writer
+        keeps the ordinary policy and every CPU); otherwise the first chunk starts it."""
+        with self._lock:
+            self._start()
+
+    def _start(self) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._work, name="wbmpc-chunk-writer", daemon=True)
+            self._thread.start()
+
     def submit(self, job) -> None:
         """Run `job()` (a chunk's writes) on the writer's thread."""
         with self._lock:
             self._queue.put(job)
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._work, name="wbmpc-chunk-writer", daemon=True)
-                self._thread.start()
+            self._start()
 
     def _work(self) -> None:
-        _lower_own_priority()
+        """Jobs in order; the thread ends after `idle_s` without one."""
         while True:
-            with self._lock:
-                try:
-                    job = self._queue.get_nowait()
-                except queue.Empty:
-                    self._thread = None
-                    return
+            try:
+                job = self._queue.get(timeout=self.idle_s)
+            except queue.Empty:
+                with self._lock:
+                    if self._queue.empty():
+                        self._thread = None
+                        return
+                continue
             try:
                 job()
             except BaseException as exc:  # noqa: BLE001 - raised again by the next flush, in the reader's thread
@@ -224,15 +236,6 @@ class ChunkedTable:
         """Bytes of the preallocated chunk buffers (what the table holds in memory; two chunks with a writer)."""
         spare = sum(buffer.nbytes for buffer in self._in_flight.values()) if self._in_flight is not None else 0
         return sum(buffer.nbytes for buffer in self._buffers.values()) + spare
-
-
-def _lower_own_priority() -> None:
-    """This thread at nice WRITER_NICE at least (Linux: per thread; always permitted)."""
-    try:
-        tid = threading.get_native_id()
-        os.setpriority(os.PRIO_PROCESS, tid, max(WRITER_NICE, os.getpriority(os.PRIO_PROCESS, tid)))
-    except (AttributeError, OSError):
-        pass
 
 
 def _remove(folder: Path, writer: ChunkWriter | None) -> None:

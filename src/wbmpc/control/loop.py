@@ -345,6 +345,7 @@ class ClosedLoop:
         own_nice = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
         # the loop's priority first: the solver's helper threads share its core only where the loop preempts them at
         # once (SCHED_FIFO; at nice -10 against their nice 0 the fair scheduler let them delay g1's loop by up to 100 ms)
+        log.start_writer()  # its thread at the ordinary policy, on every CPU: the loop never waits for the disk
         log.realtime_priority = raise_loop_priority()
         plan = log.cpu_plan = cpu_plan(own_cpus, share_loop_core=log.realtime_priority.startswith("fifo"))
         try:

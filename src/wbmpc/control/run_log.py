@@ -163,6 +163,10 @@ class RunLog:
             if table is not None:
                 table.close()
 
+    def start_writer(self) -> None:
+        """Start the chunk writer's thread now (`ChunkWriter.start`: a real-time loop, before its priority)."""
+        self._writer.start()
+
     # ------------------------------------------------------------------ reading
     @property
     def n_ticks(self) -> int:
