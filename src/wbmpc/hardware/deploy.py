@@ -48,6 +48,7 @@ from wbmpc.gait import GaitClock, make_gait
 from wbmpc.hardware.deploy_config import DeployConfig, DeployFailure, LinkMismatchError, NoRobotStateError
 from wbmpc.hardware.deploy_plans import DeployPlans
 from wbmpc.hardware.deploy_report import DeployReport
+from wbmpc.hardware.deploy_scheduling import DeployScheduling
 from wbmpc.hardware.deploy_tick import DeployPhase, DeployTick
 from wbmpc.hardware.link import LowStateLink
 from wbmpc.hardware.link_timing import LinkTiming
@@ -75,8 +76,8 @@ class Controller:
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None,
                  solver_process=None):
         """`solver_process(robot, mpc_config)`: the real-time solver process (request/ready/receive/close), by
-        default the one `wbmpc run --delay-mode realtime` solves with (`control/solver_process.py`: pinned to its
-        own core, shared memory); lock-step solves in this process with `mpc` (built here when None)."""
+        default the one `wbmpc run --delay-mode realtime` solves with, on the same CPU plan (`DeployScheduling`);
+        lock-step solves in this process with `mpc` (built here when None)."""
         check_interface(config.network)
         self.report = DeployReport()
         if not config.lockstep and mpc_config.push.gait_period_scale is not None:
@@ -115,7 +116,8 @@ class Controller:
         self._stop = None  # the operator's lie-down (`run(stop=...)`)
         self._publisher = None
         self._z1 = None
-        self._solver_process = solver_process or _solver_process
+        self.scheduling = DeployScheduling(realtime=not config.lockstep)  # the loop's priority and core, the solver's
+        self._solver_process = solver_process or self.scheduling.solver_process
 
     # ------------------------------------------------------------------ DDS side
     def _on_state(self, msg) -> None:
@@ -205,6 +207,7 @@ class Controller:
         self._worker = self._sport = self._arm_link = None
         self._stop = stop
         try:
+            self.scheduling.raise_loop()
             latest = self._start()
             self._publisher, self._z1 = publisher, self._arm_link  # from here on, every exit goes through damping
             self._loop(latest, commands, self._worker, progress, ee_reference)
@@ -219,6 +222,8 @@ class Controller:
                                         "damping") from exc
             raise
         finally:
+            self.scheduling.restore()
+            report.scheduling = self.scheduling.summary()
             if self.identification is not None:
                 report.inertial = self.identification.metrics()
             if previous_handler is not None:
@@ -247,6 +252,7 @@ class Controller:
             self.mpc = MPC(robot, self.mpc_config)
         elif not cfg.lockstep:
             self._worker = self._solver_process(robot, self.mpc_config)
+            self.scheduling.pin_loop()
         if self.identification is not None and cfg.lockstep:  # the estimate goes to this process's MPC
             self.identification.mpc = self.mpc
         if cfg.sport_release:  # after the build: the robot stays under its own controller until we command it
@@ -486,9 +492,3 @@ class Controller:
             self._enter("damping", t, q_joints)
         return command
 
-
-def _solver_process(robot: RobotModel, mpc_config: MpcConfig):
-    """The real-time run's solver process, on the cores this controller leaves it (`cpu_split`)."""
-    from wbmpc.control.solver_process import SolverProcess, cpu_split
-
-    return SolverProcess(robot.spec, mpc_config, cpu_split()[1] or None)

@@ -30,6 +30,7 @@ class DeployReport:
     link: dict = field(default_factory=dict)  # robot link, time source, accepted unset fields, mode_machine
     joint_loop: dict | None = None  # the command period and hold measured before the MPC phase, the gains it took
     inertial: dict | None = None  # --identify-mass: the estimate (`InertialIdentification.metrics`)
+    scheduling: dict | None = None  # real time: the loop's priority granted and the CPU plan (`DeployScheduling`)
 
     def summary(self) -> dict:
         tick = np.array(self.tick_ms)
@@ -40,6 +41,7 @@ class DeployReport:
             "states_rejected": dict(self.states_rejected),
             **self.link,
             "joint_loop": self.joint_loop,
+            "scheduling": self.scheduling,
             **(self.inertial or {}),
             "commands_sent": self.commands_sent,
             "arm": self.arm,
