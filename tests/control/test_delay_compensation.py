@@ -5,9 +5,11 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
-from wbmpc.control.delay import roll_forward
+from wbmpc.control.delay import DelayPredictor, MotorLaw, roll_forward
+from wbmpc.control.interpolator import interpolate, pd_torque
 from wbmpc.control.loop import ClosedLoop, LoopConfig
 from wbmpc.control.solution import Solution
+from wbmpc.control.tuning import tuning_for
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
 from wbmpc.robots import load_robot
@@ -71,8 +73,8 @@ def test_roll_forward_predicts_the_model_plant_exactly(go2, motion):
 
 
 def test_mpc_plans_from_the_predicted_state(go2):
-    """With compensation the plan starts at t + delay from the rolled-forward state (node 0 of the OCP is
-    pinned to it); without, at the measurement."""
+    """With compensation the plan starts at t + delay from the predicted state (node 0 of the OCP is pinned to
+    it; without a loop's motor law, the robot's tuned one); without, at the measurement."""
     config = MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None), delay_compensation=True)
     mpc = MPC(go2, config)
     v = np.zeros(go2.nv)
@@ -81,7 +83,7 @@ def test_mpc_plans_from_the_predicted_state(go2):
     assert first.success and first.t_s == 0.0
     q1, v1 = first.q[1], first.v[1]
     delay = 0.006
-    predicted = roll_forward(go2.model, q1, v1, first, 0.01, delay)
+    predicted = DelayPredictor(go2).predict(q1, v1, first, 0.01, delay, None)
     second = mpc.solve(q1, v1, t_s=0.01, delay_s=delay)
     assert second.success, second.stats.status
     assert second.t_s == pytest.approx(0.01 + delay)
@@ -105,3 +107,90 @@ def test_fixed_delay_run_with_compensation_stays_up(go2):
     np.testing.assert_allclose(log.delay_ms, 6.0)
     # every plan starts where it applies: 6 ms after the step's measurement
     assert mpc.last_plan.t_s == pytest.approx(log.mpc_t[-1] + 0.006) or not log.success[-1]
+
+
+def _standing_plan(robot, q: np.ndarray, t_s: float = 0.0) -> Solution:
+    """A plan that holds the pose q on both soles: at rest, with the joint torques of its static equilibrium
+    (gravity carried by the soles' wrenches, least squares)."""
+    model, data = robot.model, robot.model.createData()
+    jacobian = np.vstack([pin.computeFrameJacobian(model, data, q, robot.frame_id(robot.contact_frame(foot)), pin.LOCAL)
+                          for foot in robot.feet])
+    gravity = pin.computeGeneralizedGravity(model, data, q)
+    wrenches = np.linalg.lstsq(jacobian[:, :6].T, gravity[:6], rcond=None)[0]
+    tau = gravity[6:] - jacobian[:, 6:].T @ wrenches
+    node_times = np.array([0.0, 0.01, 0.022, 0.036])
+    n = len(node_times)
+    return Solution(t_s=t_s, node_times_s=node_times, q=np.tile(q, (n, 1)), v=np.zeros((n, robot.nv)),
+                    a=np.zeros((n - 1, robot.nv)), forces=np.zeros((n - 1, 6 * len(robot.feet))),
+                    tau=np.tile(tau, (2, 1)), contact=np.ones((n, len(robot.feet)), bool),
+                    stats=SolverStats("ok", True, 0, 0.0, 0.0, 0.0), success=True)
+
+
+def _run_motor_law(plant, robot, plan: Solution, law: MotorLaw, t0: float, t1: float) -> None:
+    """The plant under eq. (10) on `plan`, held per tick of the law's joint loop (control/loop.py's rule)."""
+    hold = 1.0 / law.control_rate_hz
+    for tick in np.arange(t0, t1 - 1e-9, hold):
+        q, v = plant.state()
+        reference = interpolate(plan, tick + 0.5 * hold)
+        tau = pd_torque(reference, robot.joint_positions(q), v[6:], np.array(law.kp), np.array(law.kd), robot.tau_max)
+        for _ in range(round(hold / plant.dt_s)):
+            plant.step(tau)
+
+
+@pytest.fixture(scope="module")
+def g1():
+    return load_robot("g1")
+
+
+def test_prediction_runs_the_motor_law_as_mujoco_does(g1):
+    """g1 standing, its arms measured swinging at 1 rad/s against a plan that holds them: over a 20 ms delay
+    MuJoCo's plant under eq. (10) (g1's tuned PD, 500 Hz) puts the arms back on the plan's references, and the
+    prediction lands where the plant does. Integrating the plan's accelerations (the compensation of before, which
+    g1's arms oscillated with) keeps them swinging: it misses by the whole swing."""
+    law = MotorLaw.of(tuning_for(g1).gains_at(), ~g1.leg_joint_mask)
+    plan = _standing_plan(g1, g1.q_nominal)
+    plant = make_plant("mujoco", g1)
+    plant.reset(g1.q_nominal, np.zeros(g1.nv))
+    _run_motor_law(plant, g1, plan, law, -0.1, 0.0)  # settled on the floor
+    q, v = plant.state()
+    arm = np.flatnonzero(~g1.leg_joint_mask)
+    v[6 + arm] += np.where(np.arange(arm.size) % 2, 1.0, -1.0)
+    plant.set_state(q, v)
+    delay = 0.02
+    q_pred, v_pred = DelayPredictor(g1).predict(q, v, plan, 0.0, delay, law)
+    q_old, v_old = roll_forward(g1.model, q, v, plan, 0.0, delay)
+    _run_motor_law(plant, g1, plan, law, 0.0, delay)
+    q_true, v_true = plant.state()
+    miss = pin.difference(g1.model, q_true, q_pred)
+    assert np.abs(miss[6:]).max() < np.radians(0.1) and np.abs(v_pred[6:] - v_true[6:]).max() < 0.05
+    assert np.abs(miss[:6]).max() < 2e-4 and np.abs(v_pred[:6] - v_true[:6]).max() < 0.02  # the base's reaction too
+    assert np.abs(v_old[6:] - v_true[6:]).max() > 0.8  # the accelerations' roll-forward: the swing kept
+
+
+def test_prediction_keeps_the_stance_soles_on_the_ground(g1):
+    """The plan's feet in stance stay where they were measured (pinocchio's kinematics of the predicted state),
+    whatever the measured joint velocities and the plan's accelerations would make them do: the OCP's node 0 and
+    its stance rows (eq. 6, zero sole velocity) see a state they can hold. A sole measured sliding stops within a
+    tick (an impact); the swing sole is free."""
+    rng = np.random.default_rng(5)
+    law = MotorLaw.of(tuning_for(g1).gains_at(), ~g1.leg_joint_mask)
+    plan = _standing_plan(g1, g1.q_nominal)
+    plan.a[:] = rng.normal(scale=20.0, size=plan.a.shape)  # accelerations that move the soles
+    plan.contact[:, 1] = False  # the right foot swings
+    model, data = g1.model, g1.model.createData()
+    left = g1.frame_id(g1.contact_frame(g1.feet[0]))
+    v = np.zeros(g1.nv)
+    v[6:] = rng.normal(scale=0.3, size=g1.n_joints)
+    pin.forwardKinematics(model, data, g1.q_nominal, v)
+    measured = pin.updateFramePlacement(model, data, left).copy()
+    assert np.abs(pin.getFrameVelocity(model, data, left, pin.LOCAL).vector).max() > 0.1  # measured sliding
+    def moved(state):
+        pin.forwardKinematics(model, data, *state)
+        placement = pin.updateFramePlacement(model, data, left)
+        offset = np.r_[placement.translation - measured.translation, pin.log3(measured.rotation.T @ placement.rotation)]
+        return np.abs(offset).max(), np.abs(pin.getFrameVelocity(model, data, left, pin.LOCAL).vector).max()
+
+    offset, velocity = moved(DelayPredictor(g1).predict(g1.q_nominal, v, plan, 0.0, 0.02, law))
+    assert offset < 1e-4 and velocity < 1e-3
+    offset, velocity = moved(roll_forward(model, g1.q_nominal, v, plan, 0.0, 0.02))  # the plan's accelerations
+    assert offset > 5e-3 and velocity > 0.1

@@ -14,6 +14,7 @@ import functools
 import warnings
 from dataclasses import dataclass, field
 
+from wbmpc.control.delay import MotorLaw
 from wbmpc.control.weights import CostWeights
 from wbmpc.errors import ConfigError, check_number
 from wbmpc.gait import SwingProfile
@@ -151,9 +152,12 @@ class MpcConfig:
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     push: PushConfig = field(default_factory=PushConfig)
     # delay compensation (control/delay.py): `solve(..., delay_s=d)` plans from the state predicted for t + d
-    # (the measurement rolled forward with the previous plan's accelerations) and returns a plan starting at
-    # t + d; off: the plan starts at the measurement, d late
+    # (the measurement carried forward by the motor law on the previous plan, feet in stance held) and returns a
+    # plan starting at t + d; off: the plan starts at the measurement, d late
     delay_compensation: bool = False
+    # the joint loop the plans reach the motors through, which delay compensation runs over the delay (`ClosedLoop`
+    # sets its own); None: the robot's tuned gains at 500 Hz
+    motor_law: MotorLaw | None = None
     # the whole step's budget (s, on the solver's clock) for solvers with a deadline (the anytime SQP): the
     # solver stops in time for the MPC's own work after it (measured); None: the solver's own setting
     step_budget_s: float | None = None

@@ -10,13 +10,28 @@ tangent space of the measured q):
     v(t + h) = v(t) + a_k h,    dq(t + h) = dq(t) + v(t) h + a_k h^2 / 2,    q = q_meas (+) dq
 
 so a plant that moves as the plan says is predicted exactly.
+
+A plant does not apply the plan's accelerations, though: it applies the motor law (eqs. 9-10, the plan's
+torques plus a PD onto its references), and where the PD dominates a joint's inertia (a humanoid's arms:
+Kd / I ~ 1 / 4 ms) the joint follows the plan's references within a few milliseconds, wherever it was
+measured. Rolled forward with the accelerations instead, the predicted state misses the plant by the
+plan's own error; the next plan starts from that miss, its references pull the plant the other way,
+and the miss flips sign and grows every step (g1's elbows at 20 ms: x1.3 a step, 45 deg within 0.6 s).
+`DelayPredictor` therefore runs the joint loop itself over the delay when it knows it (`MotorLaw`):
+eq. (10) evaluated at the loop's ticks on the plan applied meanwhile, held between them, through
+pinocchio's constrained forward dynamics with the feet the plan has in stance held still (rigid 6D
+contacts for soles, 3D for points), so the predicted stance soles stay on the ground the OCP's rows
+assume.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 
@@ -81,3 +96,112 @@ def roll_forward(model: pin.Model, q: np.ndarray, v: np.ndarray, plan: Solution 
             velocity += acceleration * h
             s += h
     return pin.integrate(model, np.asarray(q, dtype=float), dq), velocity
+
+
+@dataclass(frozen=True)
+class MotorLaw:
+    """The joint loop a plan reaches the motors through (`LoopConfig`: eq. 10's gains, its rate, where eq. 9 is
+    sampled): what `DelayPredictor` runs over the delay. `kp`, `kd` per joint (Nm/rad, Nm s/rad)."""
+
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+    control_rate_hz: float = 500.0
+    sample_mid_hold: bool = True  # `LoopConfig.sample_mid_hold`: eq. (9) sampled half a tick ahead
+
+    @classmethod
+    def of(cls, gains: PdGains, is_arm: np.ndarray, control_rate_hz: float = 500.0,
+           sample_mid_hold: bool = True) -> "MotorLaw":
+        kp, kd = gains.vectors(np.asarray(is_arm, dtype=bool))
+        return cls(tuple(map(float, kp)), tuple(map(float, kd)), float(control_rate_hz), bool(sample_mid_hold))
+
+
+def expect_motor_law(mpc, gains: PdGains, control_rate_hz: float, sample_mid_hold: bool) -> None:
+    """Tell an MPC with delay compensation the closed loop's motor law (`MpcConfig.motor_law`; an MPC stand-in
+    without a config is left alone). Set before a real-time run starts: its solver process gets the config."""
+    config = getattr(mpc, "config", None)
+    if config is not None and getattr(config, "delay_compensation", False):
+        config.motor_law = MotorLaw.of(gains, ~mpc.robot.leg_joint_mask, control_rate_hz, sample_mid_hold)
+
+
+@dataclass
+class DelayPredictor:
+    """The state the plant will be in when the next plan applies (module docstring): the measurement carried over
+    the delay by the motor law on the plan applied meanwhile, through the constrained rigid-body dynamics.
+    Without a plan the velocity is held (`roll_forward`); without a `MotorLaw` the robot's tuned one runs."""
+
+    robot: object  # RobotModel
+    _contacts: dict = field(init=False, repr=False, default_factory=dict)
+
+    def __post_init__(self):
+        self._settings = pin.ProximalSettings(1e-12, 1e-10, 1)  # no proximal damping: the contacts held exactly
+        self._default_law: MotorLaw | None = None
+        self._gain_arrays = None  # (law, kp, kd) of the last law used
+
+    def predict(self, q: np.ndarray, v: np.ndarray, plan: Solution | None, t_s: float, delay_s: float,
+                law: MotorLaw | None) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) at t_s + delay_s from the measurement (q, v) at t_s while `plan` is applied."""
+        if not delay_s > 0 or plan is None:
+            return roll_forward(self.robot.model, q, v, plan, t_s, delay_s)
+        law = law or self._tuned_law()
+        robot, model = self.robot, self.robot.model
+        kp, kd = self._gains(law)
+        hold = 1.0 / law.control_rate_hz
+        lead = 0.5 * hold if law.sample_mid_hold else 0.0
+        ticks = np.arange(t_s, t_s + delay_s - 1e-12, hold)  # the joint loop's, from the measurement on
+        steps = np.diff(np.r_[ticks, t_s + delay_s])
+        nodes = np.searchsorted(plan.t_s + plan.node_times_s, ticks, side="right") - 1
+        stances = plan.contact[np.clip(nodes, 0, len(plan.contact) - 1)].astype(bool)
+        coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()  # joint angles are q[7:]
+        q, v = np.array(q, dtype=float), np.array(v, dtype=float)
+        tau = np.zeros(model.nv)
+        for tick, h, stance in zip(ticks, steps, stances):  # a semi-implicit Euler step per tick, eq. (10) held
+            reference = interpolate(plan, tick + lead)
+            q_j = q[7:] if coordinates else robot.joint_positions(q, near=reference.q_des)
+            tau[6:] = pd_torque(reference, q_j, v[6:], kp, kd, robot.tau_max)
+            models, datas, data = self._held_feet(stance, h)
+            if models is None:
+                a = pin.aba(model, data, q, v, tau)
+            else:
+                a = pin.constraintDynamics(model, data, q, v, tau, models, datas, self._settings)
+            v = v + a * h
+            q = pin.integrate(model, q, v * h)
+        return q, v
+
+    def _gains(self, law: MotorLaw) -> tuple[np.ndarray, np.ndarray]:
+        if self._gain_arrays is None or self._gain_arrays[0] is not law:
+            self._gain_arrays = (law, np.array(law.kp), np.array(law.kd))
+        return self._gain_arrays[1], self._gain_arrays[2]
+
+    def _tuned_law(self) -> MotorLaw:
+        """Without a loop's motor law: the robot's tuned gains on the paper's 500 Hz joint loop."""
+        if self._default_law is None:
+            from wbmpc.control.tuning import tuning_for
+
+            self._default_law = MotorLaw.of(tuning_for(self.robot).gains_at(), ~self.robot.leg_joint_mask)
+        return self._default_law
+
+    def _held_feet(self, stance: np.ndarray, h: float):
+        """The rigid contacts of the stance feet and their pinocchio data (built once per stance set and step):
+        the sole's 6D velocity, a point foot's 3D one, driven to zero within one step (a touchdown's impact)."""
+        key = (stance.tobytes(), round(h, 9))
+        if key not in self._contacts:
+            robot, model = self.robot, self.robot.model
+            models, datas = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
+            for foot, held in zip(robot.feet, stance):
+                if not held:
+                    continue
+                frame = model.frames[robot.frame_id(robot.contact_frame(foot))]
+                kind = pin.ContactType.CONTACT_6D if foot in (robot.soles or {}) else pin.ContactType.CONTACT_3D
+                contact = pin.RigidConstraintModel(kind, model, frame.parentJoint, frame.placement,
+                                                   pin.ReferenceFrame.LOCAL)
+                corrector = contact.m_baumgarte_parameters
+                corrector.Kd = 1.0 / h
+                contact.setBaumgarteCorrectorParameters(corrector)
+                models.append(contact)
+            for contact in models:
+                datas.append(contact.createData())
+            data = model.createData()  # one per set: pinocchio sizes its buffers for the contacts it was given
+            if len(models):
+                pin.initConstraintDynamics(model, data, models, datas)
+            self._contacts[key] = (models, datas, data) if len(models) else (None, None, data)
+        return self._contacts[key]

@@ -20,7 +20,7 @@ import pinocchio as pin
 
 from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS
 from wbmpc.control.commands import Commands
-from wbmpc.control.delay import check_delay
+from wbmpc.control.delay import check_delay, expect_motor_law
 from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
 from wbmpc.control.mpc import MPC
 from wbmpc.control.run_log import RSS_SAMPLE_PERIOD_S, RunLog
@@ -122,6 +122,7 @@ class ClosedLoop:
         self.plant = plant
         self.config = config
         self.kp, self.kd = config.gains.vectors(~self.robot.leg_joint_mask)
+        expect_motor_law(mpc, config.gains, config.control_rate_hz, config.sample_mid_hold)  # what it predicts with
         self._rng = np.random.default_rng(config.seed)
         self._jitter_rng = np.random.default_rng([config.seed, 1])  # its own stream: noise draws stay as they were
         self._nominal_tick = 0.0

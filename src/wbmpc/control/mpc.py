@@ -20,7 +20,7 @@ import pinocchio as pin
 
 from wbmpc.control.commands import Commands, object_reference
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
-from wbmpc.control.delay import roll_forward
+from wbmpc.control.delay import DelayPredictor
 from wbmpc.control.inputs import checked_state
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
@@ -98,6 +98,7 @@ class MPC:
                                   np.concatenate([np.arange(self.problem.state_offsets[name].start,
                                                             self.problem.state_offsets[name].stop) for name in states]))
         self._previous: Solution | None = None
+        self._delay = DelayPredictor(robot)  # delay compensation's state prediction
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
         # a solver that starts from given multipliers (fatrop-direct on flat feet) gets the last plan's, moved by
         # constraint identity (ocp/multipliers.py)
@@ -268,7 +269,7 @@ class MPC:
         q, v = checked_state(self.robot, self.config.limits, q, v, commands, t)
         check_number("delay_s", delay_s, low=0.0, high=1.0, unit="s")
         if self.config.delay_compensation and delay_s > 0:
-            q, v = roll_forward(self.robot.model, q, v, self._previous, t, delay_s)
+            q, v = self._delay.predict(q, v, self._previous, t, delay_s, self.config.motor_law)
             t = t + delay_s
         self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
