@@ -280,11 +280,10 @@ class Controller:
         if self._sport is not None and report.sport_mode is not None:
             report.sport_mode["restored"] = self._sport.restore()
         if z1 is not None:
-            age = np.array(report.arm_state_age_ms)
+            age = report.arm_state_age_ms.summary()
             report.arm = {"states_received": z1.received, "states_rejected": dict(z1.rejected),
-                          "commands_sent": z1.commands_sent,
-                          "state_age_ms_p50": float(np.percentile(age, 50)) if age.size else None,
-                          "state_age_ms_max": float(age.max()) if age.size else None}
+                          "commands_sent": z1.commands_sent, "state_age_ms_p50": age["p50"],
+                          "state_age_ms_max": age["max"]}
             z1.close()
         report.states_rejected = dict(self.link.rejected)
         report.link = self.link.summary()
@@ -381,7 +380,7 @@ class Controller:
         if self.identification is not None and phase.name == "mpc":  # the torque the motors apply until the next
             self.identification.on_torque(command.torque(reading.joint_position_rad, reading.joint_velocity_rad_s))
         self._send(command, echo_tick=state[0].tick)
-        report.tick_ms.append(1e3 * (time.perf_counter() - start) - solve_ms)
+        report.tick_ms.add(1e3 * (time.perf_counter() - start) - solve_ms)
         return True
 
     def _watch_arm(self) -> None:
@@ -390,9 +389,10 @@ class Controller:
         if z1 is None:
             return
         z1.poll()
-        self.report.arm_state_age_ms.append(1e3 * z1.watchdog.age_s())
+        age_ms = 1e3 * z1.watchdog.age_s()
+        self.report.arm_state_age_ms.add(age_ms)
         if z1.watchdog.expired():
-            self._fail("arm-state-lost", f"no valid Z1 state for {self.report.arm_state_age_ms[-1]:.0f} ms (limit "
+            self._fail("arm-state-lost", f"no valid Z1 state for {age_ms:.0f} ms (limit "
                        f"{self.config.arm_state_timeout_ms:.0f} ms; rejected {dict(z1.rejected)})", self._t_last)
 
     def _enter(self, name: str, t: float, q_joints) -> None:
@@ -466,7 +466,7 @@ class Controller:
         t_mpc = t - self._mpc_t0
         solve_ms = plans.step(t_mpc, q, v, commands)
         age_s = t_mpc - plans.active.t_s
-        report.plan_age_ms.append(1e3 * age_s)
+        report.plan_age_ms.add(1e3 * age_s)
         if age_s > cfg.max_plan_age_s:
             self._fail("stale-plan", f"the MPC plan in use is {1e3 * age_s:.0f} ms old (limit "
                        f"{1e3 * cfg.max_plan_age_s:.0f} ms): the solver fell behind", t)
@@ -474,10 +474,10 @@ class Controller:
         command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
         if self.identification is not None:
             self.identification.on_estimate(t, q, v)
-        report.estimated_xy_m.append(q[:2].tolist())
+        report.record_position(q[:2])
         if ee_reference is not None:
             ee = robot.frame_trajectories(q[None, :], [robot.arm_ee])[robot.arm_ee][0]
-            report.ee_error_m.append(float(np.linalg.norm(ee_reference(t_mpc) - ee)))
+            report.record_ee_error(float(np.linalg.norm(ee_reference(t_mpc) - ee)))
         if t_mpc >= cfg.duration_s:
             self._enter("lie-down" if cfg.lie_down else "damping", t, q_joints)
         if progress:
