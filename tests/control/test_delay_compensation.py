@@ -5,7 +5,7 @@ import pinocchio as pin
 import pytest
 
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
-from wbmpc.control.delay import DelayPredictor, MotorLaw, roll_forward
+from wbmpc.control.delay import DelayPredictor, MotorLaw, joint_references, roll_forward
 from wbmpc.control.interpolator import interpolate, pd_torque
 from wbmpc.control.loop import ClosedLoop, LoopConfig
 from wbmpc.control.solution import Solution
@@ -194,3 +194,21 @@ def test_prediction_keeps_the_stance_soles_on_the_ground(g1):
     assert offset < 1e-4 and velocity < 1e-3
     offset, velocity = moved(roll_forward(model, g1.q_nominal, v, plan, 0.0, 0.02))  # the plan's accelerations
     assert offset > 5e-3 and velocity > 0.1
+
+
+def test_joint_references_are_the_loops_interpolation(go2):
+    """The prediction's eq. (9) at all its ticks at once gives `interpolate`'s numbers at each, bit for bit: in
+    the first interval, in the second (a late plan) and held beyond it."""
+    rng = np.random.default_rng(7)
+    node_times = np.array([0.0, 0.01, 0.022, 0.036])
+    plan = _plan(go2, rng.normal(size=(3, go2.nv)), t_s=0.3, node_times=node_times)
+    plan.v[:] = rng.normal(size=plan.v.shape)
+    plan.q[:, 7:] += rng.normal(scale=0.1, size=(4, go2.n_joints))
+    plan.q_joints = plan.q[:, 7:]
+    plan.tau = rng.normal(size=(3, go2.n_joints))
+    times = 0.3 + np.array([-0.001, 0.0, 0.004, 0.0099, 0.01, 0.017, 0.022, 0.03])
+    tau_ff, q_des, v_des = joint_references(plan, times)
+    for i, t in enumerate(times):
+        reference = interpolate(plan, t)
+        assert np.array_equal(tau_ff[i], reference.tau_ff) and np.array_equal(q_des[i], reference.q_des)
+        assert np.array_equal(v_des[i], reference.v_des)

@@ -557,9 +557,9 @@ def test_real_time_sqp_on_flat_feet_holds_the_last_plan_after_a_failed_qp(g1):
     assert mpc.solver.recovery_solver is None and not mpc.recovery.built()  # nothing was built or run to rescue it
 
 
-def test_delay_compensation_is_off_by_default_on_flat_feet(g1):
-    """Plans from the state rolled forward over the delay set g1's free arms oscillating once they came 12 ms late:
-    flat feet plan from the measurement unless asked; point feet compensate any delay; an explicit choice wins."""
+def test_delay_compensation_is_on_by_default_with_a_delay_on_every_robot(g1):
+    """Plans from the state predicted with the motor law (control/delay.py) keep g1's arms still: flat feet
+    compensate any delay as point feet do; none without a delay; an explicit choice wins."""
     from wbmpc.scenarios.runner import RunConfig, mpc_config_for
 
     def compensation(robot, **fields):
@@ -567,7 +567,7 @@ def test_delay_compensation_is_off_by_default_on_flat_feet(g1):
         return mpc_config_for(make_scenario("walk-in-place", robot), config, robot).delay_compensation
 
     b1_z1 = load_robot("b1_z1")
-    assert not compensation(g1, delay_mode="realtime") and not compensation(g1, delay_ms=12.0)
-    assert compensation(g1, delay_mode="realtime", delay_compensation=True)
+    assert compensation(g1, delay_mode="realtime") and compensation(g1, delay_ms=12.0)
+    assert not compensation(g1, delay_mode="realtime", delay_compensation=False)
     assert compensation(b1_z1, delay_mode="realtime") and compensation(b1_z1, delay_mode="measured")
     assert not compensation(b1_z1, delay_mode="none") and not compensation(g1, delay_mode="none")

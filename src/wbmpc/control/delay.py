@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from wbmpc.control.interpolator import PdGains, interpolate, pd_torque
+from wbmpc.control.interpolator import PdGains
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 
@@ -98,6 +98,20 @@ def roll_forward(model: pin.Model, q: np.ndarray, v: np.ndarray, plan: Solution 
     return pin.integrate(model, np.asarray(q, dtype=float), dq), velocity
 
 
+
+def joint_references(plan: Solution, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. (9) at several times at once: (tau_ff, q_des, v_des), each (len(times_s), n_joints), the numbers
+    `control/interpolator.interpolate` gives at each time (same rule, same arithmetic)."""
+    times = plan.t_s + plan.node_times_s
+    k = (np.asarray(times_s) >= times[1]).astype(int)
+    t_local = np.clip(times_s - times[k], 0.0, times[k + 1] - times[k])[:, None]
+    dt_k = (times[k + 1] - times[k])[:, None]
+    n_tau = plan.tau.shape[0]
+    tau_k, tau_next = plan.tau[np.minimum(k, n_tau - 1)], plan.tau[np.minimum(k + 1, n_tau - 1)]
+    tau_ff = tau_k + (tau_next - tau_k) * (t_local / dt_k)
+    return tau_ff, plan.q_joints[k] + plan.v[k, 6:] * t_local, plan.v[k, 6:] + plan.a[k, 6:] * t_local
+
+
 @dataclass(frozen=True)
 class MotorLaw:
     """The joint loop a plan reaches the motors through (`LoopConfig`: eq. 10's gains, its rate, where eq. 9 is
@@ -151,13 +165,14 @@ class DelayPredictor:
         steps = np.diff(np.r_[ticks, t_s + delay_s])
         nodes = np.searchsorted(plan.t_s + plan.node_times_s, ticks, side="right") - 1
         stances = plan.contact[np.clip(nodes, 0, len(plan.contact) - 1)].astype(bool)
+        tau_ff, q_des, v_des = joint_references(plan, ticks + lead)
         coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()  # joint angles are q[7:]
         q, v = np.array(q, dtype=float), np.array(v, dtype=float)
         tau = np.zeros(model.nv)
-        for tick, h, stance in zip(ticks, steps, stances):  # a semi-implicit Euler step per tick, eq. (10) held
-            reference = interpolate(plan, tick + lead)
-            q_j = q[7:] if coordinates else robot.joint_positions(q, near=reference.q_des)
-            tau[6:] = pd_torque(reference, q_j, v[6:], kp, kd, robot.tau_max)
+        for i, (h, stance) in enumerate(zip(steps, stances)):  # a semi-implicit Euler step per tick, eq. (10) held
+            q_j = q[7:] if coordinates else robot.joint_positions(q, near=q_des[i])
+            motor = tau_ff[i] + kp * (q_des[i] - q_j) + kd * (v_des[i] - v[6:])  # control/interpolator.pd_torque
+            tau[6:] = np.minimum(np.maximum(motor, -robot.tau_max), robot.tau_max)
             models, datas, data = self._held_feet(stance, h)
             if models is None:
                 a = pin.aba(model, data, q, v, tau)
