@@ -26,11 +26,14 @@ from wbmpc.control.mpc import MPC
 from wbmpc.control.run_log import RSS_SAMPLE_PERIOD_S, RunLog
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import (
+    REALTIME_NICE,
     SolverProcess,
     available_cpus,
     cpu_plan,
     raise_loop_priority,
+    raise_session_priority,
     restore_scheduling,
+    restore_session_priority,
 )
 from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError, RunError, check_number
@@ -348,11 +351,14 @@ class ClosedLoop:
         # once (SCHED_FIFO; at nice -10 against their nice 0 the fair scheduler let them delay g1's loop by up to 100 ms)
         log.start_writer()  # its thread at the ordinary policy, on every CPU: the loop never waits for the disk
         log.realtime_priority = raise_loop_priority()
+        session_before = raise_session_priority()  # against other sessions' load too (Linux autogroups)
+        log.session_nice = None if session_before is None else min(session_before, REALTIME_NICE)
         plan = log.cpu_plan = cpu_plan(own_cpus, share_loop_core=log.realtime_priority.startswith("fifo"))
         try:
             solver = SolverProcess(self.robot.spec, self.mpc.config, plan, stop)
         except BaseException:
             restore_scheduling(log.realtime_priority, own_nice)
+            restore_session_priority(session_before)
             raise
         log.solver_helper_threads = solver.helper_threads
         if plan.loop:
@@ -371,6 +377,7 @@ class ClosedLoop:
             if plan.loop:
                 os.sched_setaffinity(0, own_cpus)
             restore_scheduling(log.realtime_priority, own_nice)  # back to the caller's policy and priority
+            restore_session_priority(session_before)
             solver.close()
         return log
 

@@ -51,6 +51,7 @@ class RunLog:
         self.sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
         self.mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
         self.realtime_priority: str | None = None  # real time: scheduling priority granted (see `raise_loop_priority`)
+        self.session_nice: int | None = None  # real time: the session group's nice (Linux autogroups), None: none
         self.cpu_plan = None  # real time: where the loop and the solver's threads ran (`solver_process.CpuPlan`)
         self.solver_helper_threads = 0  # real time: the solver's helper threads placed by the plan
         # real time: how late after its wall-clock time each joint-loop tick ran (ms, `StreamingStats`: fixed memory)

@@ -79,6 +79,7 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "sim_cpu_share": log.sim_cpu_share,  # real time: simulation process CPU / wall (must not starve the MPC)
         "mpc_cpu_share": log.mpc_cpu_share,
         "realtime_priority": log.realtime_priority,  # real time: "fifo 10" / "nice -10" where permitted, else "default"
+        "realtime_session_nice": log.session_nice,  # real time: the session group's nice (Linux autogroups), else None
         **realtime_plant_metrics(log),
         **stability_metrics(log, cmd_t, solve, duration),
         **solver_detail_metrics(log),
