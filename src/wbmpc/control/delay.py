@@ -1,32 +1,33 @@
 """Delay compensation: the state a plan will start from when it is applied, not when it was measured.
 
 A solution computed from the state measured at t reaches the motors at t + d (solve time plus
-transport). Real deployments therefore start the OCP (eq. 1) at the state predicted for t + d: the
-measured state rolled forward over d with the accelerations of the plan being applied meanwhile
-(the previous solution; eq. 9 applies its a_k between nodes). Within one interval of piecewise
-constant a_k this is the continuous limit of the OCP's own integration (eq. 4, increments dq in the
-tangent space of the measured q):
+transport). Real deployments therefore start the OCP (eq. 1) at the state predicted for t + d.
 
-    v(t + h) = v(t) + a_k h,    dq(t + h) = dq(t) + v(t) h + a_k h^2 / 2,    q = q_meas (+) dq
+The plant does not apply the plan's accelerations: it applies the motor law (eqs. 9-10, the plan's
+torques plus a PD onto its references), and where the PD dominates a joint's inertia (a humanoid's
+arms, Kd / I ~ 1 / 4 ms; the Z1's) the joint follows the plan's references within a few milliseconds,
+wherever it was measured. `DelayPredictor` therefore runs the joint loop itself over the delay
+(`MotorLaw`: the closed loop's gains and rate): eq. (10) evaluated at the loop's ticks on the plan
+applied meanwhile and held between them, through pinocchio's constrained forward dynamics with the
+feet the plan has in stance held still (rigid 6D contacts for soles, 3D for points), so the
+predicted stance soles stay where the OCP's rows assume them.
 
-so a plant that moves as the plan says is predicted exactly.
+`roll_forward` is the prediction of before: the measured state rolled forward with the plan's
+accelerations, the continuous limit of the OCP's own integration (eq. 4, increments dq in the
+tangent space of the measured q; exact for a plant that moves as the plan says),
 
-A plant does not apply the plan's accelerations, though: it applies the motor law (eqs. 9-10, the plan's
-torques plus a PD onto its references), and where the PD dominates a joint's inertia (a humanoid's arms:
-Kd / I ~ 1 / 4 ms) the joint follows the plan's references within a few milliseconds, wherever it was
-measured. Rolled forward with the accelerations instead, the predicted state misses the plant by the
-plan's own error; the next plan starts from that miss, its references pull the plant the other way,
-and the miss flips sign and grows every step (g1's elbows at 20 ms: x1.3 a step, 45 deg within 0.6 s).
-`DelayPredictor` therefore runs the joint loop itself over the delay when it knows it (`MotorLaw`):
-eq. (10) evaluated at the loop's ticks on the plan applied meanwhile, held between them, through
-pinocchio's constrained forward dynamics with the feet the plan has in stance held still (rigid 6D
-contacts for soles, 3D for points), so the predicted stance soles stay on the ground the OCP's rows
-assume.
+    v(t + h) = v(t) + a_k h,    dq(t + h) = dq(t) + v(t) h + a_k h^2 / 2,    q = q_meas (+) dq.
+
+It missed the plant by the plan's own error; the next plan started from that miss, its references
+pulled the plant the other way, and the miss flipped sign and grew every step (g1's elbows at a
+20 ms delay: x1.3 a step, 0.6 to 45 deg within 0.6 s; b1_z1's Z1 at 12.5-20 ms: failed steps, and
+falls on stairs). It stays for the first step (no plan yet: the velocity held).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
@@ -34,6 +35,9 @@ import pinocchio as pin
 from wbmpc.control.interpolator import PdGains
 from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
+
+if TYPE_CHECKING:
+    from wbmpc.robots import RobotModel
 
 # when a plan reaches the plant in closed loop (control/loop.py): none (the simulation waits for the solver), measured
 # (the step's CPU time elapses: its time on a core of its own), measured-wall (its wall time), fixed (`delay_ms`),
@@ -98,7 +102,6 @@ def roll_forward(model: pin.Model, q: np.ndarray, v: np.ndarray, plan: Solution 
     return pin.integrate(model, np.asarray(q, dtype=float), dq), velocity
 
 
-
 def joint_references(plan: Solution, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eq. (9) at several times at once: (tau_ff, q_des, v_des), each (len(times_s), n_joints), the numbers
     `control/interpolator.interpolate` gives at each time (same rule, same arithmetic)."""
@@ -143,7 +146,7 @@ class DelayPredictor:
     the delay by the motor law on the plan applied meanwhile, through the constrained rigid-body dynamics.
     Without a plan the velocity is held (`roll_forward`); without a `MotorLaw` the robot's tuned one runs."""
 
-    robot: object  # RobotModel
+    robot: RobotModel
     _contacts: dict = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self):
@@ -173,7 +176,7 @@ class DelayPredictor:
             q_j = q[7:] if coordinates else robot.joint_positions(q, near=q_des[i])
             motor = tau_ff[i] + kp * (q_des[i] - q_j) + kd * (v_des[i] - v[6:])  # control/interpolator.pd_torque
             tau[6:] = np.minimum(np.maximum(motor, -robot.tau_max), robot.tau_max)
-            models, datas, data = self._held_feet(stance, h)
+            models, datas, data = self._held_feet(stance, hold)
             if models is None:
                 a = pin.aba(model, data, q, v, tau)
             else:
@@ -195,10 +198,11 @@ class DelayPredictor:
             self._default_law = MotorLaw.of(tuning_for(self.robot).gains_at(), ~self.robot.leg_joint_mask)
         return self._default_law
 
-    def _held_feet(self, stance: np.ndarray, h: float):
-        """The rigid contacts of the stance feet and their pinocchio data (built once per stance set and step):
-        the sole's 6D velocity, a point foot's 3D one, driven to zero within one step (a touchdown's impact)."""
-        key = (stance.tobytes(), round(h, 9))
+    def _held_feet(self, stance: np.ndarray, hold: float):
+        """The rigid contacts of the stance feet and their pinocchio data (built once per stance set and tick
+        length): the sole's 6D velocity, a point foot's 3D one, driven to zero within a tick (a touchdown's
+        impact)."""
+        key = (stance.tobytes(), hold)
         if key not in self._contacts:
             robot, model = self.robot, self.robot.model
             models, datas = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
@@ -210,7 +214,7 @@ class DelayPredictor:
                 contact = pin.RigidConstraintModel(kind, model, frame.parentJoint, frame.placement,
                                                    pin.ReferenceFrame.LOCAL)
                 corrector = contact.m_baumgarte_parameters
-                corrector.Kd = 1.0 / h
+                corrector.Kd = 1.0 / hold
                 contact.setBaumgarteCorrectorParameters(corrector)
                 models.append(contact)
             for contact in models:
