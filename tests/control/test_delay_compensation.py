@@ -89,9 +89,10 @@ def test_mpc_plans_from_the_predicted_state(go2):
     assert second.t_s == pytest.approx(0.01 + delay)
     np.testing.assert_allclose(second.q[0], predicted[0], atol=1e-9)
     np.testing.assert_allclose(second.v[0], predicted[1], atol=1e-9)
+    assert second.stats.split_ms["delay_prediction"] > 0  # the prediction's own part of the step's time
     off = MPC(go2, MpcConfig(ocp=SMALL, gait="trot", recovery=RecoveryConfig(fallback_solver=None)), problem=mpc.problem)
     plain = off.solve(q1, v1, t_s=0.01, delay_s=delay)
-    assert plain.t_s == 0.01
+    assert plain.t_s == 0.01 and "delay_prediction" not in plain.stats.split_ms
     np.testing.assert_allclose(plain.q[0], q1, atol=1e-9)
 
 

@@ -154,10 +154,9 @@ class MpcConfig:
     # delay compensation (control/delay.py): `solve(..., delay_s=d)` plans from the state predicted for t + d
     # (the measurement carried forward by the motor law on the previous plan, feet in stance held) and returns a
     # plan starting at t + d; off: the plan starts at the measurement, d late
-    delay_compensation: bool = False
-    # the joint loop the plans reach the motors through, which delay compensation runs over the delay (`ClosedLoop`
-    # sets its own); None: the robot's tuned gains at 500 Hz
-    motor_law: MotorLaw | None = None
+    # False: off; True: on, predicting with the robot's tuned motor law (gains at 500 Hz); a `MotorLaw`: on, with
+    # that joint loop (`ClosedLoop` puts its own in)
+    delay_compensation: bool | MotorLaw = False
     # the whole step's budget (s, on the solver's clock) for solvers with a deadline (the anytime SQP): the
     # solver stops in time for the MPC's own work after it (measured); None: the solver's own setting
     step_budget_s: float | None = None

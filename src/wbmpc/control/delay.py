@@ -26,6 +26,7 @@ falls on stairs). It stays for the first step (no plan yet: the velocity held).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -133,18 +134,19 @@ class MotorLaw:
 
 
 def expect_motor_law(mpc, gains: PdGains, control_rate_hz: float, sample_mid_hold: bool) -> None:
-    """Tell an MPC with delay compensation the closed loop's motor law (`MpcConfig.motor_law`; an MPC stand-in
-    without a config is left alone). Set before a real-time run starts: its solver process gets the config."""
+    """Tell an MPC with delay compensation the closed loop's motor law (`MpcConfig.delay_compensation` becomes
+    it; an MPC stand-in without a config is left alone). Set before a real-time run starts: its solver process
+    gets the config."""
     config = getattr(mpc, "config", None)
     if config is not None and getattr(config, "delay_compensation", False):
-        config.motor_law = MotorLaw.of(gains, ~mpc.robot.leg_joint_mask, control_rate_hz, sample_mid_hold)
+        config.delay_compensation = MotorLaw.of(gains, ~mpc.robot.leg_joint_mask, control_rate_hz, sample_mid_hold)
 
 
 @dataclass
 class DelayPredictor:
     """The state the plant will be in when the next plan applies (module docstring): the measurement carried over
     the delay by the motor law on the plan applied meanwhile, through the constrained rigid-body dynamics.
-    Without a plan the velocity is held (`roll_forward`); without a `MotorLaw` the robot's tuned one runs."""
+    Without a plan the velocity is held (`roll_forward`)."""
 
     robot: RobotModel
     _contacts: dict = field(init=False, repr=False, default_factory=dict)
@@ -153,13 +155,16 @@ class DelayPredictor:
         self._settings = pin.ProximalSettings(1e-12, 1e-10, 1)  # no proximal damping: the contacts held exactly
         self._default_law: MotorLaw | None = None
         self._gain_arrays = None  # (law, kp, kd) of the last law used
+        self._last_ms: float | None = None  # the last prediction's wall time, until `account`
 
     def predict(self, q: np.ndarray, v: np.ndarray, plan: Solution | None, t_s: float, delay_s: float,
-                law: MotorLaw | None) -> tuple[np.ndarray, np.ndarray]:
-        """(q, v) at t_s + delay_s from the measurement (q, v) at t_s while `plan` is applied."""
+                law: MotorLaw | bool | None) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) at t_s + delay_s from the measurement (q, v) at t_s while `plan` is applied; `law`: the joint
+        loop's (`MpcConfig.delay_compensation`), anything else: the robot's tuned one."""
+        start = time.perf_counter()
         if not delay_s > 0 or plan is None:
             return roll_forward(self.robot.model, q, v, plan, t_s, delay_s)
-        law = law or self._tuned_law()
+        law = law if isinstance(law, MotorLaw) else self._tuned_law()
         robot, model = self.robot, self.robot.model
         kp, kd = self._gains(law)
         hold = 1.0 / law.control_rate_hz
@@ -183,7 +188,15 @@ class DelayPredictor:
                 a = pin.constraintDynamics(model, data, q, v, tau, models, datas, self._settings)
             v = v + a * h
             q = pin.integrate(model, q, v * h)
+        self._last_ms = 1e3 * (time.perf_counter() - start)
         return q, v
+
+    def account(self, stats) -> None:
+        """Put this step's prediction time into the solver stats' split as its own part (`delay_prediction`, ms;
+        `control/solution.python_share` then leaves it out of `python`); nothing when it did not run."""
+        if self._last_ms is not None and stats.split_ms:
+            stats.split_ms["delay_prediction"] = self._last_ms
+        self._last_ms = None
 
     def _gains(self, law: MotorLaw) -> tuple[np.ndarray, np.ndarray]:
         if self._gain_arrays is None or self._gain_arrays[0] is not law:

@@ -269,7 +269,7 @@ class MPC:
         q, v = checked_state(self.robot, self.config.limits, q, v, commands, t)
         check_number("delay_s", delay_s, low=0.0, high=1.0, unit="s")
         if self.config.delay_compensation and delay_s > 0:
-            q, v = self._delay.predict(q, v, self._previous, t, delay_s, self.config.motor_law)
+            q, v = self._delay.predict(q, v, self._previous, t, delay_s, self.config.delay_compensation)
             t = t + delay_s
         self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
@@ -284,6 +284,7 @@ class MPC:
             solution = self._shifted_previous(t, step.node_times, step.contact, result.stats)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
+        self._delay.account(result.stats)  # the prediction's own part of the step's split
         python_share(result.stats, 1e3 * (time.perf_counter() - start))
         return solution
 
