@@ -161,8 +161,9 @@ def test_deploy_builds_the_mpc_configuration_run_builds(robot_name):
 
 # ---------------------------------------------------------------------------- deploy's exits, fake robot
 class _FakeRobot:
-    """LowState from a standing reading, one per LowCmd (lock-step), through stand-ins of the SDK's
-    channels; the Z1 through a real `Z1Server` on loopback. Records every LowCmd and Z1 command."""
+    """LowState from a standing reading, every 50 ms until the first LowCmd, then one per LowCmd (lock-step), through
+    stand-ins of the SDK's channels; the Z1 through a real `Z1Server` on loopback. Records every LowCmd and Z1
+    command."""
 
     def __init__(self, robot, ports, stop_after: int | None = None, arm_silent_after: int | None = None,
                  corrupt_every: int | None = None):
@@ -198,6 +199,12 @@ class _FakeRobot:
             if command is not None and (not self.arm_commands or self.arm_commands[-1] is not command):
                 self.arm_commands.append(command)
             time.sleep(0.002)
+
+    def publish_until_commanded(self):
+        """Before the first LowCmd a LowState every 50 ms (a robot publishes on its own; two timed ones raced the
+        controller's start on a loaded machine: both came before it read the first)."""
+        while not self._stop.wait(0.05) and not self.low_cmds:
+            self.publish_state()
 
     def publish_state(self):
         if self.stop_after is not None and self.tick >= self.stop_after:
@@ -235,8 +242,7 @@ class _FakeRobot:
 
             def Init(self, callback, depth):
                 fake.callback = callback
-                threading.Timer(0.05, fake.publish_state).start()
-                threading.Timer(0.10, fake.publish_state).start()
+                threading.Thread(target=fake.publish_until_commanded, daemon=True).start()
 
             def Close(self):
                 pass
