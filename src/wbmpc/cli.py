@@ -527,7 +527,9 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
                      f"mean delay {m['delay_ms_mean']:.1f} ms")
         if m.get("sim_cpu_share") is not None:
             lines.append(f"  CPU share: simulation {100 * m['sim_cpu_share']:.0f} %, MPC {100 * (m['mpc_cpu_share'] or 0):.0f} % "
-                         f"of a core; scheduling priority {m.get('realtime_priority') or 'default'}")
+                         f"of a core; scheduling priority {m.get('realtime_priority') or 'default'}"
+                         + (f", session nice {m['realtime_session_nice']}"
+                            if m.get("realtime_session_nice") is not None else ""))
         if m.get("plant_lateness_ms"):
             late, plan = m["plant_lateness_ms"], m.get("cpu_plan") or {}
             shared = (f"; solver's {plan['helper_threads']} helper thread(s) on CPU {plan['helpers']}"

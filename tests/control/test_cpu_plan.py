@@ -83,3 +83,21 @@ def test_helper_threads_are_pinned_and_lowered_the_main_thread_is_not():
     # sharing the loop's core (loop == helpers here) the helper runs below the loop: nice HELPER_NICE (0) or its own
     # if that is lower already; the main thread keeps its priority
     assert helper_nice == max(HELPER_NICE, start_nice) and main_nice == start_nice
+
+
+def test_the_session_group_is_raised_and_restored(tmp_path):
+    """Linux autogroups (one scheduling group per session, a process's nice weighing only inside it): the run's group
+    goes to nice -10 and back; a group already higher is left; no autogroup file, nothing done."""
+    from wbmpc.control.solver_process import REALTIME_NICE, raise_session_priority, restore_session_priority
+
+    group = tmp_path / "autogroup"
+    group.write_text("/autogroup-152 nice 0\n")
+    before = raise_session_priority(path=str(group))
+    assert before == 0 and group.read_text() == str(REALTIME_NICE)
+    restore_session_priority(before, path=str(group))
+    assert group.read_text() == "0"
+    group.write_text("/autogroup-152 nice -15\n")
+    assert raise_session_priority(path=str(group)) == -15 and group.read_text().endswith("nice -15\n")
+    assert raise_session_priority(path=str(tmp_path / "none")) is None
+    restore_session_priority(None, path=str(group))  # nothing changed: nothing to give back
+    assert group.read_text().endswith("nice -15\n")

@@ -1,12 +1,14 @@
 """Long runs in bounded memory: `ChunkedTable`, the chunked `RunLog`, metrics streamed over its chunks."""
 
+import threading
 import tracemalloc
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from wbmpc.chunked_table import ChunkedTable
+import wbmpc.chunked_table as chunked_table
+from wbmpc.chunked_table import ChunkedTable, ChunkWriter
 from wbmpc.control import MPC, MpcConfig
 from wbmpc.control.commands import Commands
 from wbmpc.control.loop import ClosedLoop, LoopConfig
@@ -45,6 +47,39 @@ def test_table_reads_back_exactly_what_was_written_across_chunks(tmp_path):
         table.column("y")
 
 
+def test_a_writer_thread_spills_the_same_chunks_off_the_appending_thread(tmp_path, monkeypatch):
+    """The full chunks are written by the writer's thread, never by the one appending rows (a real-time loop), and
+    the files and columns are the same, bit for bit, as when `append` writes them itself."""
+    writers = []
+    write = chunked_table._write_chunk
+
+    def recording_write(*args):
+        writers.append(threading.current_thread())
+        write(*args)
+
+    monkeypatch.setattr(chunked_table, "_write_chunk", recording_write)
+    rng = np.random.default_rng(1)
+    rows = rng.normal(size=(1050, 5))
+    columns = {"x": ((5,), float), "k": ((), np.int64)}
+    tables = [ChunkedTable(columns, 100, tmp_path / "inline", "t"),
+              ChunkedTable(columns, 100, tmp_path / "thread", "t", ChunkWriter())]
+    for table in tables:
+        for i, row in enumerate(rows):
+            table.append({"x": row, "k": i})
+    inline, threaded = tables
+    np.testing.assert_array_equal(threaded.column("x"), rows)  # a reader waits for the chunk in flight
+    assert len(writers) == 20 and writers[:10] == [threading.current_thread()] * 10
+    assert threading.current_thread() not in writers[10:]
+    assert threaded.spilled_chunks == inline.spilled_chunks == 10
+    for path in sorted(inline.spill_dir.iterdir()):
+        assert (threaded.spill_dir / path.name).read_bytes() == path.read_bytes()
+    np.testing.assert_array_equal(threaded.last("x"), rows[-1])
+    assert threaded.nbytes_in_memory == 2 * inline.nbytes_in_memory  # the chunk filling and the one being written
+    folder = threaded.spill_dir
+    threaded.close()
+    assert not folder.exists()
+
+
 def test_spilled_chunks_go_with_the_table():
     table = ChunkedTable({"x": ((2,), float)}, chunk_rows=2)
     for i in range(5):
@@ -63,7 +98,8 @@ def _go2_tick(robot, k):
 
 
 def test_run_log_memory_stays_bounded_however_many_ticks():
-    """60 s of 500 Hz ticks (~20 MB of numbers) and 80 Hz steps: the log holds one chunk of each."""
+    """60 s of 500 Hz ticks (~20 MB of numbers) and 80 Hz steps: the log holds two chunks of each table (the one
+    filling, the one its writer thread writes: 2 x 1.4 MB of ticks here)."""
     robot = load_robot("go2")
     command = Commands(base_velocity_m_s=np.array([0.3, 0.0, 0.0]))
     log = RunLog(chunk_rows=2000)
@@ -81,7 +117,7 @@ def test_run_log_memory_stays_bounded_however_many_ticks():
     row_bytes = 8 * (1 + robot.nq + robot.nv + 3 * robot.n_joints + 3 * len(robot.feet))
     written = 30_000 * row_bytes
     assert written > 15e6
-    assert peak - start < 0.15 * written, f"the log grew by {(peak - start) / 1e6:.1f} MB for {written / 1e6:.1f} MB written"
+    assert peak - start < 0.2 * written, f"the log grew by {(peak - start) / 1e6:.1f} MB for {written / 1e6:.1f} MB written"
     assert log.n_ticks == 30_000 and log.n_steps == 5000
     a = log.arrays(("t", "q", "tau", "contact_forces", "mpc_t"))
     np.testing.assert_array_equal(a["t"], 0.002 * np.arange(30_000))

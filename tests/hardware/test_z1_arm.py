@@ -161,8 +161,9 @@ def test_deploy_builds_the_mpc_configuration_run_builds(robot_name):
 
 # ---------------------------------------------------------------------------- deploy's exits, fake robot
 class _FakeRobot:
-    """LowState from a standing reading, one per LowCmd (lock-step), through stand-ins of the SDK's
-    channels; the Z1 through a real `Z1Server` on loopback. Records every LowCmd and Z1 command."""
+    """LowState from a standing reading, every 50 ms until the first LowCmd, then one per LowCmd (lock-step), through
+    stand-ins of the SDK's channels; the Z1 through a real `Z1Server` on loopback. Records every LowCmd and Z1
+    command."""
 
     def __init__(self, robot, ports, stop_after: int | None = None, arm_silent_after: int | None = None,
                  corrupt_every: int | None = None):
@@ -198,6 +199,12 @@ class _FakeRobot:
             if command is not None and (not self.arm_commands or self.arm_commands[-1] is not command):
                 self.arm_commands.append(command)
             time.sleep(0.002)
+
+    def publish_until_commanded(self):
+        """Before the first LowCmd a LowState every 50 ms (a robot publishes on its own; two timed ones raced the
+        controller's start on a loaded machine: both came before it read the first)."""
+        while not self._stop.wait(0.05) and not self.low_cmds:
+            self.publish_state()
 
     def publish_state(self):
         if self.stop_after is not None and self.tick >= self.stop_after:
@@ -235,8 +242,7 @@ class _FakeRobot:
 
             def Init(self, callback, depth):
                 fake.callback = callback
-                threading.Timer(0.05, fake.publish_state).start()
-                threading.Timer(0.10, fake.publish_state).start()
+                threading.Thread(target=fake.publish_until_commanded, daemon=True).start()
 
             def Close(self):
                 pass
@@ -275,7 +281,8 @@ class _FakeMpc:
                                q_joints=np.tile(self.robot.q_nominal[7:], (4, 1)), stats=SimpleNamespace(status="fake"))
 
 
-def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None, corrupt_every=None, **fake_mpc):
+def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None, corrupt_every=None, solver_process=None,
+                            **fake_mpc):
     from wbmpc.control import MpcConfig
     from wbmpc.hardware import deploy as deploy_mod
     from wbmpc.hardware.deploy import Controller, DeployConfig
@@ -286,9 +293,11 @@ def _deploy_with_fake_robot(monkeypatch, stop_after=None, arm_silent_after=None,
     fake = _FakeRobot(robot, ports, stop_after, arm_silent_after, corrupt_every)
     monkeypatch.setattr(deploy_mod, "load_sdk", fake.sdk)
     safety = SafetyConfig(stand_up_s=0.1, lie_down_s=0.1, state_timeout_ms=300)
-    config = DeployConfig(lockstep=True, duration_s=0.2, hold_s=0.02, safety=safety, sport_release=False, z1_ports=ports,
-                          arm_state_timeout_ms=200, max_plan_age_s=0.05)
-    controller = Controller(robot, MpcConfig(gait="stand"), config, mpc=_FakeMpc(robot, MpcConfig(gait="stand"), **fake_mpc))
+    config = DeployConfig(lockstep=solver_process is None, duration_s=0.2, hold_s=0.02, safety=safety, sport_release=False,
+                          z1_ports=ports, arm_state_timeout_ms=200, max_plan_age_s=0.05)
+    mpc = _FakeMpc(robot, MpcConfig(gait="stand"), **fake_mpc)
+    controller = Controller(robot, MpcConfig(gait="stand"), config, mpc=mpc if solver_process is None else None,
+                            solver_process=solver_process and (lambda robot, mpc_config: solver_process(mpc)))
     try:
         try:
             controller.run()
@@ -339,3 +348,57 @@ def test_deploy_ends_in_damping_on_every_exit(monkeypatch):
     report, fake, error = _deploy_with_fake_robot(monkeypatch, fail_after=0)  # the first solve never succeeds
     assert isinstance(error, DeployFailure) and report.stopped_by == "mpc-failed"
     assert report.first_solve_failures == 3 and "mpc" not in [p for _, p in report.phases] and _damped(fake)
+
+
+class _FakeSolverProcess:
+    """A real-time deploy's solver process that solves at once, noting the controller thread's CPUs and policy."""
+
+    def __init__(self, mpc):
+        self.mpc, self.answer, self.seen = mpc, None, []
+
+    def request(self, q, v, command, t, delay_s=0.0, **_):
+        self.seen.append((os.sched_getaffinity(0), os.sched_getscheduler(0)))
+        self.answer = self.mpc.solve(q, v, command, t)
+        self.answer.held_previous, self.answer.wall_time_s = False, 0.0
+
+    def ready(self):
+        return self.answer is not None
+
+    def receive(self):
+        answer, self.answer = self.answer, None
+        return answer
+
+    def close(self):
+        pass
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="CPU affinity is Linux's")
+def test_real_time_deploy_runs_its_loop_on_the_cpu_plan_and_gives_it_back():
+    """The controller loop of a real-time deploy takes the simulated real-time loop's plan (`CpuPlan`): FIFO where
+    permitted, pinned to the plan's loop core while it runs; the report says what was granted; afterwards the
+    caller's CPUs and policy are back."""
+    monkeypatch = pytest.MonkeyPatch()
+    workers = []
+
+    def solver(mpc):
+        workers.append(_FakeSolverProcess(mpc))
+        return workers[-1]
+
+    cpus = os.sched_getaffinity(0)
+    try:
+        report, fake, error = _deploy_with_fake_robot(monkeypatch, solver_process=solver)
+    finally:
+        monkeypatch.undo()
+    assert error is None and report.stopped_by == "done", report.error
+    scheduling = report.scheduling
+    plan = scheduling["cpu_plan"]
+    assert scheduling["realtime_priority"] in ("fifo 10", "nice -10", "default")
+    if len(cpus) >= 2:
+        assert set(plan["loop"]) | set(plan["solver"]) == cpus and len(plan["loop"]) == 1
+        assert {frozenset(a) for a, _ in workers[0].seen} == {frozenset(plan["loop"])}  # the loop on its core
+        shares = scheduling["realtime_priority"].startswith("fifo")
+        assert (set(plan["helpers"]) == set(plan["loop"])) == shares  # the helpers below a FIFO loop, else apart
+    if scheduling["realtime_priority"].startswith("fifo"):
+        reset_on_fork = getattr(os, "SCHED_RESET_ON_FORK", 0)
+        assert {policy & ~reset_on_fork for _, policy in workers[0].seen} == {os.SCHED_FIFO}
+    assert os.sched_getaffinity(0) == cpus and os.sched_getscheduler(0) == os.SCHED_OTHER

@@ -26,12 +26,16 @@ from wbmpc.control.mpc import MPC
 from wbmpc.control.run_log import RSS_SAMPLE_PERIOD_S, RunLog
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import (
+    REALTIME_NICE,
     SolverProcess,
     available_cpus,
     cpu_plan,
     raise_loop_priority,
+    raise_session_priority,
     restore_scheduling,
+    restore_session_priority,
 )
+from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
 
@@ -345,12 +349,16 @@ class ClosedLoop:
         own_nice = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
         # the loop's priority first: the solver's helper threads share its core only where the loop preempts them at
         # once (SCHED_FIFO; at nice -10 against their nice 0 the fair scheduler let them delay g1's loop by up to 100 ms)
+        log.start_writer()  # its thread at the ordinary policy, on every CPU: the loop never waits for the disk
         log.realtime_priority = raise_loop_priority()
+        session_before = raise_session_priority()  # against other sessions' load too (Linux autogroups)
+        log.session_nice = None if session_before is None else min(session_before, REALTIME_NICE)
         plan = log.cpu_plan = cpu_plan(own_cpus, share_loop_core=log.realtime_priority.startswith("fifo"))
         try:
             solver = SolverProcess(self.robot.spec, self.mpc.config, plan, stop)
         except BaseException:
             restore_scheduling(log.realtime_priority, own_nice)
+            restore_session_priority(session_before)
             raise
         log.solver_helper_threads = solver.helper_threads
         if plan.loop:
@@ -369,6 +377,7 @@ class ClosedLoop:
             if plan.loop:
                 os.sched_setaffinity(0, own_cpus)
             restore_scheduling(log.realtime_priority, own_nice)  # back to the caller's policy and priority
+            restore_session_priority(session_before)
             solver.close()
         return log
 
@@ -383,7 +392,8 @@ class ClosedLoop:
         # solver's budget is the period less it, so that the answer is back before the next MPC tick
         transport_s = REALTIME_TRANSPORT_GUESS_S
         tau = np.zeros(self.robot.n_joints)
-        lateness = []  # per joint-loop tick: how long after its wall-clock time it ran (s)
+        # per joint-loop tick: how long after its wall-clock time it ran (ms), over half a period counted as late
+        lateness = log.plant_lateness = StreamingStats(threshold=0.5e3 / self.config.control_rate_hz)
         wall_start, cpu_start = time.perf_counter(), time.process_time()
         while plant.time_s - t0 < duration_s - 1e-9:
             t = plant.time_s
@@ -395,7 +405,7 @@ class ClosedLoop:
                 if lag > 0:
                     time.sleep(lag)
             if t >= next_control - 1e-9:
-                lateness.append(time.perf_counter() - wall_start - (t - t0))
+                lateness.add(max(1e3 * (time.perf_counter() - wall_start - (t - t0)), 0.0))
             self._apply_events(events, t, log)
             if request is not None and solver.ready():
                 solution = solver.receive()
@@ -422,7 +432,6 @@ class ClosedLoop:
         log.wall_time_s = time.perf_counter() - wall_start
         log.rss_samples.append((plant.time_s - t0, rss_mb()))
         log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
-        log.plant_lateness_ms = 1e3 * np.maximum(np.asarray(lateness), 0.0)
 
     def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the

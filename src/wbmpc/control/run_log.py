@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable
+from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable, ChunkWriter
 from wbmpc.control.commands import Commands
 from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
+from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError
 
 RECOVERY_MARK = "(recovery after"  # in the status of a step that needed a recovery re-solve
@@ -23,7 +24,8 @@ class RunLog:
 
     Ticks and steps go into `ChunkedTable`s (one preallocated chunk each, full chunks spilled to
     `.npy` files in `spill_dir`, a temporary directory by default), so a run of any length holds a
-    few MB. Read whole columns with `arrays(keys)` (`every=k`: every k-th tick, for plots and
+    few MB. The spills are written by the log's own writer thread (`ChunkWriter`), off the loop that
+    records the rows. Read whole columns with `arrays(keys)` (`every=k`: every k-th tick, for plots and
     replays), stream them with `tick_chunks(keys)`; the attributes `t`, `q`, ... `mpc_t`,
     `status`, `commands` read whole columns back too. Counters (failures, recoveries) are kept as
     the steps are logged. `rss_samples` holds (simulated s since the start, resident MB) every
@@ -33,13 +35,14 @@ class RunLog:
     def __init__(self, spill_dir=None, chunk_rows: int = DEFAULT_CHUNK_ROWS):
         self.spill_dir = spill_dir
         self.chunk_rows = chunk_rows
+        self._writer = ChunkWriter()  # writes the full chunks of every table below
         self._ticks: ChunkedTable | None = None  # built at the first row, when the sizes are known
         self._steps: ChunkedTable | None = None
-        self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays")
+        self._delays = ChunkedTable({"delay_ms": ((), float)}, chunk_rows, spill_dir, "delays", self._writer)
         # per step of a solver that reports them (the anytime SQP): its SQP iterations, the KKT residuals of the
         # iterate it returned, its budget (NaN: none) and whether it ended past its deadline
         self._solver_details = ChunkedTable({key: ((), float) for key in SOLVER_DETAIL_KEYS}, chunk_rows, spill_dir,
-                                            "solver_details")
+                                            "solver_details", self._writer)
         self._status_names: list[str] = []  # distinct solver statuses; steps store an index into it
         self._status_codes: dict[str, int] = {}
         self.events: list = []  # (time_s, name) of each event applied to the plant
@@ -48,10 +51,11 @@ class RunLog:
         self.sim_cpu_share: float | None = None  # real time: CPU time of the simulation process / wall time
         self.mpc_cpu_share: float | None = None  # real time: CPU time of the MPC process / wall time
         self.realtime_priority: str | None = None  # real time: scheduling priority granted (see `raise_loop_priority`)
+        self.session_nice: int | None = None  # real time: the session group's nice (Linux autogroups), None: none
         self.cpu_plan = None  # real time: where the loop and the solver's threads ran (`solver_process.CpuPlan`)
         self.solver_helper_threads = 0  # real time: the solver's helper threads placed by the plan
-        # real time: per joint-loop tick, how late after its wall-clock time it ran (ms): the plant's own lateness
-        self.plant_lateness_ms: np.ndarray | None = None
+        # real time: how late after its wall-clock time each joint-loop tick ran (ms, `StreamingStats`: fixed memory)
+        self.plant_lateness: StreamingStats | None = None
         self.recovered_solutions = 0  # counted as logged: progress reads it every control tick
         self.failed_solutions = 0
         self.interrupted = False  # stopped early by `stop()` (Ctrl-C): the log holds what ran until then
@@ -152,13 +156,17 @@ class RunLog:
             if array.dtype.kind not in kinds:
                 raise ConfigError(f"run log column '{key}' needs numbers, got {type(value).__name__} {value!r}")
             columns[key] = (array.shape, kinds[array.dtype.kind])
-        return ChunkedTable(columns, self.chunk_rows, self.spill_dir, name)
+        return ChunkedTable(columns, self.chunk_rows, self.spill_dir, name, self._writer)
 
     def close(self) -> None:
         """Delete the spilled chunks now (otherwise when the log is garbage collected)."""
         for table in (self._ticks, self._steps, self._delays, self._solver_details):
             if table is not None:
                 table.close()
+
+    def start_writer(self) -> None:
+        """Start the chunk writer's thread now (`ChunkWriter.start`: a real-time loop, before its priority)."""
+        self._writer.start()
 
     # ------------------------------------------------------------------ reading
     @property

@@ -434,6 +434,11 @@ def _deploy_summary(report: dict, args: argparse.Namespace) -> list[str]:
         f"{report['plan_age_ms_max'] or 0:.1f} ms; controller work per tick p50 "
         f"{report['controller_tick_ms_p50'] or 0:.2f} ms, p99 {report['controller_tick_ms_p99'] or 0:.2f} ms",
     ]
+    scheduling = report.get("scheduling")
+    if scheduling is not None:
+        plan = scheduling["cpu_plan"]
+        lines.append(f"  controller loop at {scheduling['realtime_priority']} on CPU {plan['loop'] or 'any'}, solver on "
+                     f"{plan['solver'] or 'any'}, its {plan['helper_threads']} helper thread(s) on {plan['helpers'] or 'any'}")
     if report["ee_rmse_estimated_m"] is not None:
         lines.append(f"  end effector RMSE {100 * report['ee_rmse_estimated_m']:.2f} cm (from the estimated state)")
     if arm is not None:

@@ -48,6 +48,7 @@ from wbmpc.gait import GaitClock, make_gait
 from wbmpc.hardware.deploy_config import DeployConfig, DeployFailure, LinkMismatchError, NoRobotStateError
 from wbmpc.hardware.deploy_plans import DeployPlans
 from wbmpc.hardware.deploy_report import DeployReport
+from wbmpc.hardware.deploy_scheduling import DeployScheduling
 from wbmpc.hardware.deploy_tick import DeployPhase, DeployTick
 from wbmpc.hardware.link import LowStateLink
 from wbmpc.hardware.link_timing import LinkTiming
@@ -75,8 +76,8 @@ class Controller:
     def __init__(self, robot: RobotModel, mpc_config: MpcConfig, config: DeployConfig = DeployConfig(), mpc: MPC | None = None,
                  solver_process=None):
         """`solver_process(robot, mpc_config)`: the real-time solver process (request/ready/receive/close), by
-        default the one `wbmpc run --delay-mode realtime` solves with (`control/solver_process.py`: pinned to its
-        own core, shared memory); lock-step solves in this process with `mpc` (built here when None)."""
+        default the one `wbmpc run --delay-mode realtime` solves with, on the same CPU plan (`DeployScheduling`);
+        lock-step solves in this process with `mpc` (built here when None)."""
         check_interface(config.network)
         self.report = DeployReport()
         if not config.lockstep and mpc_config.push.gait_period_scale is not None:
@@ -115,7 +116,8 @@ class Controller:
         self._stop = None  # the operator's lie-down (`run(stop=...)`)
         self._publisher = None
         self._z1 = None
-        self._solver_process = solver_process or _solver_process
+        self.scheduling = DeployScheduling(realtime=not config.lockstep)  # the loop's priority and core, the solver's
+        self._solver_process = solver_process or self.scheduling.solver_process
 
     # ------------------------------------------------------------------ DDS side
     def _on_state(self, msg) -> None:
@@ -205,6 +207,7 @@ class Controller:
         self._worker = self._sport = self._arm_link = None
         self._stop = stop
         try:
+            self.scheduling.raise_loop()
             latest = self._start()
             self._publisher, self._z1 = publisher, self._arm_link  # from here on, every exit goes through damping
             self._loop(latest, commands, self._worker, progress, ee_reference)
@@ -219,6 +222,8 @@ class Controller:
                                         "damping") from exc
             raise
         finally:
+            self.scheduling.restore()
+            report.scheduling = self.scheduling.summary()
             if self.identification is not None:
                 report.inertial = self.identification.metrics()
             if previous_handler is not None:
@@ -247,6 +252,7 @@ class Controller:
             self.mpc = MPC(robot, self.mpc_config)
         elif not cfg.lockstep:
             self._worker = self._solver_process(robot, self.mpc_config)
+            self.scheduling.pin_loop()
         if self.identification is not None and cfg.lockstep:  # the estimate goes to this process's MPC
             self.identification.mpc = self.mpc
         if cfg.sport_release:  # after the build: the robot stays under its own controller until we command it
@@ -274,11 +280,10 @@ class Controller:
         if self._sport is not None and report.sport_mode is not None:
             report.sport_mode["restored"] = self._sport.restore()
         if z1 is not None:
-            age = np.array(report.arm_state_age_ms)
+            age = report.arm_state_age_ms.summary()
             report.arm = {"states_received": z1.received, "states_rejected": dict(z1.rejected),
-                          "commands_sent": z1.commands_sent,
-                          "state_age_ms_p50": float(np.percentile(age, 50)) if age.size else None,
-                          "state_age_ms_max": float(age.max()) if age.size else None}
+                          "commands_sent": z1.commands_sent, "state_age_ms_p50": age["p50"],
+                          "state_age_ms_max": age["max"]}
             z1.close()
         report.states_rejected = dict(self.link.rejected)
         report.link = self.link.summary()
@@ -375,7 +380,7 @@ class Controller:
         if self.identification is not None and phase.name == "mpc":  # the torque the motors apply until the next
             self.identification.on_torque(command.torque(reading.joint_position_rad, reading.joint_velocity_rad_s))
         self._send(command, echo_tick=state[0].tick)
-        report.tick_ms.append(1e3 * (time.perf_counter() - start) - solve_ms)
+        report.tick_ms.add(1e3 * (time.perf_counter() - start) - solve_ms)
         return True
 
     def _watch_arm(self) -> None:
@@ -384,9 +389,10 @@ class Controller:
         if z1 is None:
             return
         z1.poll()
-        self.report.arm_state_age_ms.append(1e3 * z1.watchdog.age_s())
+        age_ms = 1e3 * z1.watchdog.age_s()
+        self.report.arm_state_age_ms.add(age_ms)
         if z1.watchdog.expired():
-            self._fail("arm-state-lost", f"no valid Z1 state for {self.report.arm_state_age_ms[-1]:.0f} ms (limit "
+            self._fail("arm-state-lost", f"no valid Z1 state for {age_ms:.0f} ms (limit "
                        f"{self.config.arm_state_timeout_ms:.0f} ms; rejected {dict(z1.rejected)})", self._t_last)
 
     def _enter(self, name: str, t: float, q_joints) -> None:
@@ -460,7 +466,7 @@ class Controller:
         t_mpc = t - self._mpc_t0
         solve_ms = plans.step(t_mpc, q, v, commands)
         age_s = t_mpc - plans.active.t_s
-        report.plan_age_ms.append(1e3 * age_s)
+        report.plan_age_ms.add(1e3 * age_s)
         if age_s > cfg.max_plan_age_s:
             self._fail("stale-plan", f"the MPC plan in use is {1e3 * age_s:.0f} ms old (limit "
                        f"{1e3 * cfg.max_plan_age_s:.0f} ms): the solver fell behind", t)
@@ -468,10 +474,10 @@ class Controller:
         command = MotorCommand(reference.q_des, reference.v_des, self.kp, self.kd, reference.tau_ff)
         if self.identification is not None:
             self.identification.on_estimate(t, q, v)
-        report.estimated_xy_m.append(q[:2].tolist())
+        report.record_position(q[:2])
         if ee_reference is not None:
             ee = robot.frame_trajectories(q[None, :], [robot.arm_ee])[robot.arm_ee][0]
-            report.ee_error_m.append(float(np.linalg.norm(ee_reference(t_mpc) - ee)))
+            report.record_ee_error(float(np.linalg.norm(ee_reference(t_mpc) - ee)))
         if t_mpc >= cfg.duration_s:
             self._enter("lie-down" if cfg.lie_down else "damping", t, q_joints)
         if progress:
@@ -486,9 +492,3 @@ class Controller:
             self._enter("damping", t, q_joints)
         return command
 
-
-def _solver_process(robot: RobotModel, mpc_config: MpcConfig):
-    """The real-time run's solver process, on the cores this controller leaves it (`cpu_split`)."""
-    from wbmpc.control.solver_process import SolverProcess, cpu_split
-
-    return SolverProcess(robot.spec, mpc_config, cpu_split()[1] or None)

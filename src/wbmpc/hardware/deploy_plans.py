@@ -90,6 +90,6 @@ class DeployPlans:
 
     def _count(self, solution, solve_ms: float) -> None:
         self.report.mpc_solves += 1
-        self.report.solve_ms.append(solve_ms)
+        self.report.solve_ms.add(solve_ms)
         if not solution.success:
             self.report.mpc_failures += 1

@@ -79,6 +79,7 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
         "sim_cpu_share": log.sim_cpu_share,  # real time: simulation process CPU / wall (must not starve the MPC)
         "mpc_cpu_share": log.mpc_cpu_share,
         "realtime_priority": log.realtime_priority,  # real time: "fifo 10" / "nice -10" where permitted, else "default"
+        "realtime_session_nice": log.session_nice,  # real time: the session group's nice (Linux autogroups), else None
         **realtime_plant_metrics(log),
         **stability_metrics(log, cmd_t, solve, duration),
         **solver_detail_metrics(log),
@@ -89,14 +90,12 @@ def realtime_plant_metrics(log: RunLog) -> dict:
     """Real time: the plant loop's own lateness per joint-loop tick (ms after its wall-clock time: mean, 99th
     percentile, max; the share of ticks later than half a joint-loop period) and the CPUs of the loop, the solver and
     its helper threads (None for the other delay modes)."""
-    late = log.plant_lateness_ms
+    late = log.plant_lateness
     plan = log.cpu_plan
     out: dict = {"plant_lateness_ms": None, "plant_late_tick_share": None, "cpu_plan": None}
-    if late is not None and late.size:
-        out["plant_lateness_ms"] = {"mean": float(np.mean(late)), "p99": float(np.percentile(late, 99)),
-                                    "max": float(np.max(late))}
-        half_tick_ms = 0.5e3 / (log.control_rate_hz or 500.0)
-        out["plant_late_tick_share"] = float(np.mean(late > half_tick_ms))
+    if late is not None and late.count:
+        out["plant_lateness_ms"] = {"mean": late.mean, "p99": late.percentile(99), "max": late.max}
+        out["plant_late_tick_share"] = late.share_over()
     if plan is not None:
         out["cpu_plan"] = {"loop": sorted(plan.loop), "solver": sorted(plan.solver), "helpers": sorted(plan.helpers),
                            "helper_threads": int(log.solver_helper_threads)}
