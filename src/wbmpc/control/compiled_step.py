@@ -19,6 +19,7 @@ import math
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.measured import split_velocities
 from wbmpc.control.references import MAX_ANCHOR_OFFSET_M
 from wbmpc.gait import SwingProfile
 from wbmpc.ocp.problem import StageBounds
@@ -264,14 +265,7 @@ class CompiledStep:
 
     def _measured_values(self) -> dict:
         """The measured frame velocities of this step (`MeasuredVelocities`' fields), copied from the C code's."""
-        robot, values = self._mpc.robot, self._velocities.copy()
-        n_feet = len(robot.feet)
-        ee = 3 * n_feet + (3 if robot.arm_ee else 0)
-        out = {"foot_velocity_m_s": values[: 3 * n_feet].reshape(n_feet, 3),
-               "ee_velocity_measured_m_s": values[3 * n_feet : ee] if robot.arm_ee else None}
-        if robot.soles:
-            out["foot_angular_velocity_rad_s"] = values[ee : ee + 3 * n_feet].reshape(n_feet, 3)
-        return out
+        return split_velocities(self._mpc.robot, self._velocities.copy())
 
     def unpack(self, x: np.ndarray, p: np.ndarray):
         """The plan (q, v, a, F, tau as (nodes, size) views of one fresh array) from the solver's x and this step's p,

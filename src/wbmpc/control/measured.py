@@ -31,6 +31,17 @@ def velocities_function(problem, robot) -> ca.Function:
     return ca.Function("measured_velocities", [q, v], [ca.vertcat(*parts)], ["q", "v"], ["velocities"])
 
 
+def split_velocities(robot, values: np.ndarray) -> dict:
+    """`velocities_function`'s output vector as `MeasuredVelocities`' fields (views of `values`)."""
+    n_feet = len(robot.feet)
+    ee = 3 * n_feet + (3 if robot.arm_ee else 0)
+    out = {"foot_velocity_m_s": values[: 3 * n_feet].reshape(n_feet, 3),
+           "ee_velocity_measured_m_s": values[3 * n_feet : ee] if robot.arm_ee else None}
+    if robot.soles:
+        out["foot_angular_velocity_rad_s"] = values[ee : ee + 3 * n_feet].reshape(n_feet, 3)
+    return out
+
+
 class MeasuredVelocities:
     """`(q, v)` -> {"foot_velocity_m_s": (n_feet, 3), "ee_velocity_measured_m_s": (3,) or None, and with flat feet
     "foot_angular_velocity_rad_s": (n_feet, 3)} (`StageBounds`' fields), by `function` (a `BufferedFunction` of
@@ -43,15 +54,9 @@ class MeasuredVelocities:
         self._ee_id = robot.frame_id(robot.arm_ee) if robot.arm_ee else None
 
     def __call__(self, q: np.ndarray, v: np.ndarray) -> dict:
-        n_feet, robot = len(self._foot_ids), self.robot
+        robot = self.robot
         if self.function is not None:
-            out = self.function(q, v)[0]
-            ee = 3 * n_feet + (3 if robot.arm_ee else 0)
-            values = {"foot_velocity_m_s": out[: 3 * n_feet].reshape(n_feet, 3),
-                      "ee_velocity_measured_m_s": out[3 * n_feet : ee] if robot.arm_ee else None}
-            if robot.soles:
-                values["foot_angular_velocity_rad_s"] = out[ee : ee + 3 * n_feet].reshape(n_feet, 3)
-            return values
+            return split_velocities(robot, self.function(q, v)[0])
         model, data = robot.model, self._data
         pin.forwardKinematics(model, data, q, v)
 
