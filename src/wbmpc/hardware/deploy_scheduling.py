@@ -80,6 +80,6 @@ class DeployScheduling:
         if self.priority is None:
             return None
         plan = self.plan
-        return {"realtime_priority": self.priority, "session_nice": self.session_nice, "cpu_plan": {"loop": sorted(plan.loop), "solver": sorted(plan.solver),
-                                                                 "helpers": sorted(plan.helpers),
-                                                                 "helper_threads": int(self.helper_threads)}}
+        cpus = {"loop": sorted(plan.loop), "solver": sorted(plan.solver), "helpers": sorted(plan.helpers),
+                "helper_threads": int(self.helper_threads)}
+        return {"realtime_priority": self.priority, "session_nice": self.session_nice, "cpu_plan": cpus}
