@@ -87,8 +87,13 @@ def test_helper_threads_are_pinned_and_lowered_the_main_thread_is_not():
 
 def test_the_session_group_is_raised_and_restored(tmp_path):
     """Linux autogroups (one scheduling group per session, a process's nice weighing only inside it): the run's group
-    goes to nice -10 and back; a group already higher is left; no autogroup file, nothing done."""
-    from wbmpc.control.solver_process import REALTIME_NICE, raise_session_priority, restore_session_priority
+    goes to nice -10 and back; a group already higher is left; no autogroup file or an empty one, nothing done."""
+    from wbmpc.control.solver_process import (
+        REALTIME_NICE,
+        raise_session_priority,
+        restore_session_priority,
+        session_group_nice,
+    )
 
     group = tmp_path / "autogroup"
     group.write_text("/autogroup-152 nice 0\n")
@@ -99,5 +104,9 @@ def test_the_session_group_is_raised_and_restored(tmp_path):
     group.write_text("/autogroup-152 nice -15\n")
     assert raise_session_priority(path=str(group)) == -15 and group.read_text().endswith("nice -15\n")
     assert raise_session_priority(path=str(tmp_path / "none")) is None
+    empty = tmp_path / "empty"  # autogroups disabled (CI containers): the file is there but empty
+    empty.write_text("")
+    assert raise_session_priority(path=str(empty)) is None and session_group_nice(str(empty)) is None
+    assert empty.read_text() == ""
     restore_session_priority(None, path=str(group))  # nothing changed: nothing to give back
     assert group.read_text().endswith("nice -15\n")

@@ -11,6 +11,7 @@ from wbmpc.control import MPC, MpcConfig
 from wbmpc.control.interpolator import JointReference, interpolate, pd_torque
 from wbmpc.control.loop import ClosedLoop, Event, LoopConfig
 from wbmpc.control.solution import Solution
+from wbmpc.control.solver_process import session_group_nice
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
@@ -213,14 +214,6 @@ def test_realtime_processes_ask_for_a_higher_priority_and_report_what_they_got()
         assert granted == f"nice {nice}" and nice <= -10
 
 
-def _autogroup_nice():
-    try:
-        with open("/proc/self/autogroup") as f:
-            return int(f.read().split()[-1])
-    except OSError:
-        return None
-
-
 def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
     """`--delay-mode realtime` on a small problem: the solver process answers, every answer is logged with its
     wall time as the delay, late ones are counted, the two processes' CPU shares are measured; the robot
@@ -235,7 +228,7 @@ def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
     plant.reset(robot.q_nominal, np.zeros(robot.nv))
     loop = ClosedLoop(mpc, plant, LoopConfig(delay_mode="realtime"))
     answers = 6
-    group = _autogroup_nice()
+    group = session_group_nice()
     log = loop.run(60.0, stop=lambda: loop.log is not None and loop.log.n_steps >= answers)
     assert not log.fell and log.interrupted  # stopped by the count, within the minute
     assert len(log.solve_ms) >= answers
@@ -252,5 +245,5 @@ def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
     assert log.cpu_plan.loop | log.cpu_plan.solver == (cpus if len(cpus) >= 2 else set())
     if hasattr(os, "sched_getscheduler"):  # the loop's real-time policy and core are given back after the run
         assert os.sched_getscheduler(0) == os.SCHED_OTHER and set(os.sched_getaffinity(0)) == cpus
-    assert _autogroup_nice() == group  # the session's group given back too (Linux autogroups)
-    assert log.session_nice is None or log.session_nice <= min(group, -10)
+    assert session_group_nice() == group  # the session's group given back too (Linux autogroups)
+    assert log.session_nice is None or log.session_nice <= min(group, -10)  # None: no autogroups (or not permitted)

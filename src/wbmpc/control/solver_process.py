@@ -78,13 +78,24 @@ def raise_session_priority(nice: int = REALTIME_NICE, path: str = AUTOGROUP_FILE
     ~9 ms of CPU) and g1's session fell. The group holds the loop, the solver process and the rest of the session
     (its shell). Returns the group's nice before (`restore_session_priority`), None where there are no autogroups
     or raising is not permitted."""
+    before = session_group_nice(path)
+    if before is None:
+        return None
     try:
-        with open(path) as f:
-            before = int(f.read().split()[-1])
         if before > nice:
             with open(path, "w") as f:
                 f.write(str(nice))
         return before
+    except OSError:
+        return None
+
+
+def session_group_nice(path: str = AUTOGROUP_FILE) -> int | None:
+    """The nice of this session's scheduling group (Linux autogroups), None where there is none: no file, or an
+    empty one (kernels and containers with autogroups disabled give an empty /proc/self/autogroup)."""
+    try:
+        with open(path) as f:
+            return int(f.read().split()[-1])
     except (OSError, ValueError, IndexError):
         return None
 
