@@ -49,6 +49,8 @@ def test_requests_and_plans_cross_unchanged():
         assert budget_s is None and inertial.tolist() == [-0.02, 0.0, 0.001, 1.5, 0.0]
         assert np.array_equal(command_from_row(row).ee_force_n, command.ee_force_n)
         plan = _solution(rng, status="ipopt: Solve_Succeeded (recovery after Deadline)", held=True)
+        plan.stamps = np.r_[10.0, np.nan, np.arange(11.0, 17.0)]  # received, (answered), the MPC's
+        before = time.perf_counter()
         solver.send_solution(plan)
         assert events[1].is_set()
         got = sim.receive_solution()
@@ -58,6 +60,9 @@ def test_requests_and_plans_cross_unchanged():
         assert got.stats.status == plan.stats.status and got.stats.iterations == 9
         assert got.stats.details == {"sqp_iterations": 2, "primal_residual": 1e-7, "late": 0.0}
         assert (got.wall_time_s, got.process_cpu_s) == (0.0051, 12.5)
+        # the step's stamps cross too, the channel's own `answered` stamped as it wrote the plan
+        assert got.stamps[0] == 10.0 and got.stamps[2:].tolist() == list(range(11, 17))
+        assert before <= got.stamps[1] <= time.perf_counter()
         sim.send_stop()
         assert solver.receive_request() is None
     finally:

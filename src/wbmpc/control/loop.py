@@ -35,6 +35,7 @@ from wbmpc.control.solver_process import (
     restore_scheduling,
     restore_session_priority,
 )
+from wbmpc.control.step_anatomy import segments
 from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
@@ -388,6 +389,7 @@ class ClosedLoop:
         plant, mpc_period = self.plant, 1.0 / self.config.mpc_rate_hz
         next_mpc, next_control = t0 + mpc_period, self._start_ticks(t0)
         request = None  # (t, command, wall time) of the request being solved; None: the solver is free
+        woken = None  # when the loop's wait on the answer returned (step_anatomy.py)
         # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
         # solver's budget is the period less it, so that the answer is back before the next MPC tick
         transport_s = REALTIME_TRANSPORT_GUESS_S
@@ -400,7 +402,8 @@ class ClosedLoop:
             lag = (t - t0) - (time.perf_counter() - wall_start)
             if lag > 0:  # wait for the wall clock, woken early by the answer
                 if request is not None:
-                    solver.wait(lag)
+                    if solver.wait(lag) and woken is None:
+                        woken = time.perf_counter()
                     lag = (t - t0) - (time.perf_counter() - wall_start)
                 if lag > 0:
                     time.sleep(lag)
@@ -408,21 +411,18 @@ class ClosedLoop:
                 lateness.add(max(1e3 * (time.perf_counter() - wall_start - (t - t0)), 0.0))
             self._apply_events(events, t, log)
             if request is not None and solver.ready():
+                noticed = time.perf_counter()
                 solution = solver.receive()
                 now = time.perf_counter()
                 log.mpc_cpu_share = (solution.process_cpu_s - solver.cpu_start_s) / max(now - wall_start, 1e-9)
-                transport_s = self._take_answer(log, solution, request, t, now, transport_s)
+                measured = wall_start + request[0] - t0  # the measurement's plant time on the wall clock
+                loop_stamps = (measured, request[2], noticed if woken is None else woken, noticed, now)
+                transport_s = self._take_answer(log, solution, request, t, loop_stamps, transport_s)
                 if solution.success or solution.held_previous:
                     active = solution
-                request = None
+                request = woken = None
             if request is None and t >= next_mpc - 1e-9:
-                if not solver.is_alive():
-                    raise RunError("the real-time MPC process died (see its error above)")
-                q, v = self._measure()
-                command = commands(t, q, v)
-                budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
-                solver.request(q, v, command, t, self._delay_mean_s, budget)
-                request = (t, command, time.perf_counter())
+                request = self._request(solver, t, commands, mpc_period - transport_s)
                 while next_mpc <= t + 1e-9:
                     next_mpc += mpc_period
             tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress, stop)
@@ -433,12 +433,26 @@ class ClosedLoop:
         log.rss_samples.append((plant.time_s - t0, rss_mb()))
         log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
 
-    def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
+    def _request(self, solver: SolverProcess, t_s: float, commands: CommandSource, budget_s: float) -> tuple:
+        """A plan asked of the solver process from the state measured now, with the step's budget (less a margin for
+        the transport's jitter); returns (t_s, command, wall time sent)."""
+        if not solver.is_alive():
+            raise RunError("the real-time MPC process died (see its error above)")
+        q, v = self._measure()
+        command = commands(t_s, q, v)
+        sent = time.perf_counter()
+        solver.request(q, v, command, t_s, self._delay_mean_s, max(budget_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S))
+        return t_s, command, sent
+
+    def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, loop_stamps, transport_s: float) -> float:
         """Log a plan from the solver process with the delay the plant sees (from the measurement to the
-        plan's first tick, transport included); returns the updated transport estimate."""
+        plan's first tick, transport included) and where it went (`step_anatomy.segments`; `loop_stamps`: the loop's
+        measured, sent, woken, noticed, taken); returns the updated transport estimate."""
         self._record(log, request[0], request[1], solution)
-        delay = max(t_s - request[0], now - request[2])
+        delay = max(t_s - request[0], loop_stamps[-1] - loop_stamps[0])  # plant time, or wall time if the loop ran late
         log.record_delay(delay * 1e3)
+        if solution.stamps is not None:
+            log.record_anatomy(segments(solution.stamps, solution.stats.solve_time_s, loop_stamps, delay))
         self._note_delay(delay)
         if delay > 1.0 / self.config.mpc_rate_hz:
             log.late_solutions += 1

@@ -28,6 +28,7 @@ from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
 from wbmpc.control.solution import Solution, joint_trajectory, python_share, shifted_plan
+from wbmpc.control.step_anatomy import StepStamps
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
 from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess, shifted_sole_wrenches
@@ -103,6 +104,7 @@ class MPC:
                                                             self.problem.state_offsets[name].stop) for name in states]))
         self._previous: Solution | None = None
         self._delay = DelayPredictor(robot)  # delay compensation's state prediction
+        self.step_stamps = StepStamps()  # where the last step's time went (control/step_anatomy.py)
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
         # a solver that starts from given multipliers (fatrop-direct on flat feet) gets the last plan's, moved by
         # constraint identity (ocp/multipliers.py)
@@ -260,7 +262,9 @@ class MPC:
             warnings.warn("MPC.solve(..., t=...) is deprecated; use t_s", DeprecationWarning, stacklevel=2)
             t_s = t
         t = t_s
-        start = time.perf_counter()
+        stamps = self.step_stamps
+        stamps.start()
+        start = stamps.values[0]
         clock = getattr(self.solver, "clock", None)
         clock_start = clock() if clock is not None else None
         commands = commands or Commands()
@@ -269,11 +273,15 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = self._delay.predict(q, v, self._previous, t, delay_s, self.config.delay_compensation)
             t = t + delay_s
+        stamps.mark("predicted")
         self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
+        stamps.mark("prepared")
         result, solve_end = self._solve_step(step.p, step.bounds, step.soft_rows, step.x0, t, budget_s, clock,
                                              clock_start)
+        stamps.mark("solved")
         solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
+        stamps.mark("unpacked")
         if solution.success:
             self._previous = solution
             if self._duals is not None:
@@ -284,6 +292,7 @@ class MPC:
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
         self._delay.account(result.stats)  # the prediction's own part of the step's split
         python_share(result.stats, 1e3 * (time.perf_counter() - start))
+        stamps.mark("end")
         return solution
 
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:

@@ -11,6 +11,7 @@ of the same MPC, so both sides agree on every shape.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from wbmpc.control.commands import Commands
 from wbmpc.control.solution import Solution
+from wbmpc.control.step_anatomy import INDEX, SOLVER_STAMPS
 from wbmpc.solvers.nlp import SolverStats
 
 SOLUTION_ARRAYS = ("node_times_s", "q", "v", "a", "forces", "tau", "contact", "q_joints")
@@ -98,7 +100,8 @@ class ChannelLayout:
         out = [("req_q", (self.nq,)), ("req_v", (self.nv,)), ("req_command", (self.command_width,)),
                ("req_scalars", (len(REQUEST_SCALARS),)), ("req_inertial", (INERTIAL_WIDTH,))]
         out += [(f"sol_{name}", shape) for name, shape in self.arrays]
-        out += [("sol_scalars", (len(STATS_SCALARS),)), ("sol_details", (len(DETAIL_KEYS),))]
+        out += [("sol_scalars", (len(STATS_SCALARS),)), ("sol_details", (len(DETAIL_KEYS),)),
+                ("sol_stamps", (len(SOLVER_STAMPS),))]
         return out
 
     @property
@@ -185,7 +188,7 @@ class SharedChannel:
                             a=arrays["a"], forces=arrays["forces"], tau=arrays["tau"], contact=arrays["contact"] > 0.5,
                             stats=stats, success=bool(scalars["success"]), x=None, q_joints=arrays["q_joints"],
                             held_previous=bool(scalars["held_previous"]), wall_time_s=scalars["wall_time_s"],
-                            process_cpu_s=scalars["process_cpu_s"])
+                            process_cpu_s=scalars["process_cpu_s"], stamps=views["sol_stamps"].copy())
         return solution
 
     # ------------------------------------------------------------------ solver side
@@ -219,4 +222,7 @@ class SharedChannel:
         encoded = str(stats.status).encode("utf-8")[:STATUS_BYTES]
         self._status[:8].view(np.int64)[0] = len(encoded)
         self._status[8 : 8 + len(encoded)] = np.frombuffer(encoded, dtype=np.uint8)
+        stamps = views["sol_stamps"]
+        stamps[:] = np.nan if solution.stamps is None else solution.stamps
+        stamps[INDEX["answered"]] = time.perf_counter()  # the step's anatomy (control/step_anatomy.py)
         self.answer_ready.set()

@@ -338,7 +338,9 @@ def mpc_worker(spec, mpc_config, conn, cpus: CpuPlan | None = None, events=None)
 
 
 def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget_s: float | None,
-           inertial=None) -> Solution:
+           inertial=None, received_s: float = np.nan) -> Solution:
+    """One plan; its `stamps` (control/step_anatomy.SOLVER_STAMPS) from `received_s` (the request read) and the
+    MPC's own (`MPC.step_stamps`); the channel adds `answered`."""
     if inertial is not None:
         mpc.set_inertial_parameters(inertial[:3], inertial[3], inertial[4])
     start = time.perf_counter()
@@ -347,6 +349,8 @@ def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget
     solution = mpc.solve(q, v, command, t_s, delay_s=delay_s, budget_s=budget)
     solution.wall_time_s = time.perf_counter() - start
     solution.process_cpu_s = time.process_time()
+    stamps = getattr(mpc, "step_stamps", None)
+    solution.stamps = np.r_[received_s, np.nan, np.nan if stamps is None else stamps.values]
     return solution
 
 
@@ -355,9 +359,10 @@ def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
     try:
         while True:
             request = channel.receive_request()
+            received = time.perf_counter()
             if request is None:
                 return
             q, v, row, t, delay_s, budget_s, inertial = request
-            channel.send_solution(_solve(mpc, q, v, command_from_row(row), t, delay_s, budget_s, inertial))
+            channel.send_solution(_solve(mpc, q, v, command_from_row(row), t, delay_s, budget_s, inertial, received))
     finally:
         channel.close()
