@@ -38,6 +38,7 @@ from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 
 if TYPE_CHECKING:
+    from wbmpc.control.delay_ticks import CompiledTicks
     from wbmpc.robots import RobotModel
 
 # when a plan reaches the plant in closed loop (control/loop.py): none (the simulation waits for the solver), measured
@@ -149,6 +150,8 @@ class DelayPredictor:
     Without a plan the velocity is held (`roll_forward`)."""
 
     robot: RobotModel
+    # the joint loop as one compiled call (control/delay_ticks.py), None: pinocchio's dynamics tick by tick
+    ticks: CompiledTicks | None = None
     _contacts: dict = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self):
@@ -176,6 +179,10 @@ class DelayPredictor:
         tau_ff, q_des, v_des = joint_references(plan, ticks + lead)
         coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()  # joint angles are q[7:]
         q, v = np.array(q, dtype=float), np.array(v, dtype=float)
+        if self.ticks is not None and coordinates:
+            q, v = self.ticks.run(q, v, tau_ff, q_des, v_des, stances, steps, kp, kd, 1.0 / hold)
+            self._last_ms = 1e3 * (time.perf_counter() - start)
+            return q, v
         tau = np.zeros(model.nv)
         for i, (h, stance) in enumerate(zip(steps, stances)):  # a semi-implicit Euler step per tick, eq. (10) held
             q_j = q[7:] if coordinates else robot.joint_positions(q, near=q_des[i])

@@ -22,6 +22,7 @@ from wbmpc.control.commands import Commands, object_reference
 from wbmpc.control.compiled_step import CompiledStep
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import DelayPredictor
+from wbmpc.control.delay_ticks import compiled_ticks
 from wbmpc.control.inputs import checked_state
 from wbmpc.control.measured import MeasuredVelocities, velocities_function
 from wbmpc.control.push import PushMode
@@ -103,7 +104,9 @@ class MPC:
                                   np.concatenate([np.arange(self.problem.state_offsets[name].start,
                                                             self.problem.state_offsets[name].stop) for name in states]))
         self._previous: Solution | None = None
-        self._delay = DelayPredictor(robot)  # delay compensation's state prediction
+        # delay compensation's state prediction, its joint loop compiled where the solver is (control/delay_ticks.py)
+        self._delay = DelayPredictor(robot, compiled_ticks(dyn, robot, config.solver) if config.delay_compensation
+                                     else None)
         self.step_stamps = StepStamps()  # where the last step's time went (control/step_anatomy.py)
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
         # a solver that starts from given multipliers (fatrop-direct on flat feet) gets the last plan's, moved by

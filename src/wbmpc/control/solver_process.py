@@ -247,15 +247,17 @@ class SolverProcess:
         return self._process.is_alive()
 
     def request(self, q, v, command: Commands, t_s: float, delay_s: float = 0.0, budget_s: float | None = None,
-                inertial=None) -> None:
+                inertial=None, next_request_s: float | None = None) -> None:
         """A plan from (q, v) at MPC time t; `delay_s`: when it will apply (delay compensation), `budget_s`:
         the step's deadline for a solver that has one; `inertial`: an identified (base CoM offset x, y, z (m),
-        hand payload, base payload (kg)) the plan uses (`MPC.set_inertial_parameters`), None: the last ones."""
+        hand payload, base payload (kg)) the plan uses (`MPC.set_inertial_parameters`), None: the last ones;
+        `next_request_s`: when (time.perf_counter) the next request is due if this answer is on time (the solver
+        process waits for it awake: `realtime_channel.SPIN_LEAD_S`)."""
         inertial = None if inertial is None else np.asarray(inertial, dtype=float).reshape(INERTIAL_WIDTH)
         if self.channel is None:
             self._conn.send((q, v, command, t_s, delay_s, budget_s, inertial))
         else:
-            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s, inertial)
+            self.channel.send_request(q, v, command_row(command), t_s, delay_s, budget_s, inertial, next_request_s)
 
     def ready(self) -> bool:
         return self.channel.answer_ready.is_set() if self.channel is not None else self._conn.poll()
