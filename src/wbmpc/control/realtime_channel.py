@@ -216,6 +216,11 @@ class SharedChannel:
         return (views["req_q"].copy(), views["req_v"].copy(), views["req_command"].copy(), t, delay_s,
                 None if np.isnan(budget_s) else budget_s, None if np.isnan(inertial).any() else inertial)
 
+    def idle_s(self) -> float:
+        """Solver side: how long until the next request is due (0 where the last request did not say or it is due)."""
+        due = self._next_request_s
+        return max(due - time.perf_counter(), 0.0) if math.isfinite(due) else 0.0
+
     def _await_request(self) -> None:
         """Asleep until SPIN_LEAD_S before the next request is due, then polling for it until SPIN_AFTER_S after (a
         late answer's next request comes at once); nothing where no time was given."""
