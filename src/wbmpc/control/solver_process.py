@@ -36,8 +36,8 @@ REALTIME_NICE = -10  # asked for by both real-time processes; granted where the 
 LOOP_FIFO_PRIORITY = 10
 HELPER_NICE = 0  # the solver's helper threads on the plant loop's core: ordinary priority, below the loop's
 BUILD_TIMEOUT_S = 300.0
-# `MPC.warm_up` after an answer only where the next request is due later than this (it takes ~0.3 ms on g1)
-WARM_UP_MIN_IDLE_S = 1e-3
+# `MPC.warm_up` after an answer only where the next request is due later than this (it takes 0.15-0.35 ms on g1)
+WARM_UP_MIN_IDLE_S = 0.6e-3
 
 
 def raise_priority(nice: int = REALTIME_NICE) -> str:
