@@ -123,10 +123,17 @@ class SharedChannel:
         self.request_ready, self.answer_ready = events
         self.views: dict[str, np.ndarray] = {}
         offset = 0
+        self._plan_span: list[int] = []  # [first, end) float64 entries of the plan's arrays (consecutive)
+        self._plan_views: list[tuple[str, int, int, tuple[int, ...]]] = []  # (name, start, end in the span, shape)
         for name, shape in layout.fields():
             size = int(np.prod(shape))
             self.views[name] = np.ndarray(shape, dtype=np.float64, buffer=memory.buf, offset=offset)
+            if name[4:] in SOLUTION_ARRAYS and name.startswith("sol_"):
+                self._plan_span = [self._plan_span[0] if self._plan_span else offset // 8, (offset // 8) + size]
+                start = offset // 8 - self._plan_span[0]
+                self._plan_views.append((name[4:], start, start + size, shape))
             offset += 8 * size
+        self._words = np.ndarray((offset // 8,), dtype=np.float64, buffer=memory.buf)
         self._status = np.ndarray((STATUS_BYTES + 8,), dtype=np.uint8, buffer=memory.buf, offset=offset)
         self._next_request_s = math.nan  # solver side: when the last request said the next one is due
 
@@ -159,7 +166,7 @@ class SharedChannel:
 
     def close(self) -> None:
         self.views.clear()
-        self._status = None
+        self._status = self._words = None
         self.memory.close()
         if self.owner:
             self.memory.unlink()
@@ -186,7 +193,8 @@ class SharedChannel:
     def receive_solution(self) -> Solution:
         """The plan the solver process wrote (copied out: the next answer reuses the block)."""
         views = self.views
-        arrays = {name: views[f"sol_{name}"].copy() for name, _ in self.layout.arrays}
+        block = self._words[self._plan_span[0] : self._plan_span[1]].copy()  # one copy; the arrays are views of it
+        arrays = {name: block[start:end].reshape(shape) for name, start, end, shape in self._plan_views}
         scalars = dict(zip(STATS_SCALARS, views["sol_scalars"].tolist()))
         details = {key: value for key, value in zip(DETAIL_KEYS, views["sol_details"].tolist()) if np.isfinite(value)}
         length = int(self._status[:8].view(np.int64)[0])
