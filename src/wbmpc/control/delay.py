@@ -159,7 +159,6 @@ class DelayPredictor:
         self._default_law: MotorLaw | None = None
         self._gain_arrays = None  # (law, kp, kd) of the last law used
         self._last_ms: float | None = None  # the last prediction's wall time, until `account`
-        self._last_inputs: tuple | None = None  # the last prediction's inputs (`rehearse`)
 
     def predict(self, q: np.ndarray, v: np.ndarray, plan: Solution | None, t_s: float, delay_s: float,
                 law: MotorLaw | bool | None) -> tuple[np.ndarray, np.ndarray]:
@@ -169,7 +168,6 @@ class DelayPredictor:
         if not delay_s > 0 or plan is None:
             return roll_forward(self.robot.model, q, v, plan, t_s, delay_s)
         law = law if isinstance(law, MotorLaw) else self._tuned_law()
-        self._last_inputs = (q, v, plan, t_s, delay_s, law)
         robot, model = self.robot, self.robot.model
         kp, kd = self._gains(law)
         hold = 1.0 / law.control_rate_hz
@@ -199,15 +197,6 @@ class DelayPredictor:
             q = pin.integrate(model, q, v * h)
         self._last_ms = 1e3 * (time.perf_counter() - start)
         return q, v
-
-    def rehearse(self) -> None:
-        """The last prediction once more, its result dropped: run while a real-time solver process waits for its next
-        request, it brings the prediction's code and data back into the caches the solve evicted (g1: the next
-        prediction 0.34 -> 0.14 ms, the median of a closed loop's steps). Nothing before a first prediction."""
-        if self._last_inputs is not None:
-            last_ms = self._last_ms
-            self.predict(*self._last_inputs)
-            self._last_ms = last_ms
 
     def account(self, stats) -> None:
         """Put this step's prediction time into the solver stats' split as its own part (`delay_prediction`, ms;

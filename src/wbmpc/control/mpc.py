@@ -195,11 +195,6 @@ class MPC:
         detector sets it after a kick."""
         self.push_mode.enter(until_t_s)
 
-    def warm_up(self) -> None:
-        """Between steps, while waiting for the next measurement: the last step's delay prediction run again, its
-        result dropped (`DelayPredictor.rehearse`: its code and data back in the caches the solve evicted)."""
-        self._delay.rehearse()
-
     def prepare_fallback(self) -> None:
         """Build the recovery solvers (`Recovery.prepare`) and the solver's instances (`prepare_structures`) now:
         before the clock runs, not at a step."""

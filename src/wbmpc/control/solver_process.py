@@ -37,8 +37,8 @@ REALTIME_NICE = -10  # asked for by both real-time processes; granted where the 
 LOOP_FIFO_PRIORITY = 10
 HELPER_NICE = 0  # the solver's helper threads on the plant loop's core: ordinary priority, below the loop's
 BUILD_TIMEOUT_S = 300.0
-# `MPC.warm_up` after an answer only where the next request is due later than this (it takes 0.15-0.35 ms on g1)
-WARM_UP_MIN_IDLE_S = 0.6e-3
+# the garbage collector's young generations run after an answer where the next request is due later than this
+GC_MIN_IDLE_S = 0.6e-3
 
 
 def raise_priority(nice: int = REALTIME_NICE) -> str:
@@ -376,8 +376,7 @@ def _serve_channel(mpc: MPC, channel: SharedChannel) -> None:
             if row_before is None or not np.array_equal(row, row_before, equal_nan=True):  # (commands change rarely)
                 row_before, command = row, command_from_row(row)
             channel.send_solution(_solve(mpc, q, v, command, t, delay_s, budget_s, inertial, received))
-            if channel.idle_s() > WARM_UP_MIN_IDLE_S:  # time to spare before the next request: warm the caches
-                mpc.warm_up()
-                gc.collect(1)  # the step's garbage now rather than in the middle of a step (gen. 1: 0.5-0.9 ms)
+            if channel.idle_s() > GC_MIN_IDLE_S:  # time to spare before the next request
+                gc.collect(1)  # the steps' garbage now rather than in the middle of a step (gen. 1: 0.5-0.9 ms)
     finally:
         channel.close()
