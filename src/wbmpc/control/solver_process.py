@@ -29,6 +29,7 @@ from wbmpc.control.realtime_channel import (
     command_row,
 )
 from wbmpc.control.solution import Solution
+from wbmpc.control.step_anatomy import PROCESS_STAMPS, SOLVER_STAMPS
 from wbmpc.errors import RunError, WbmpcError
 
 REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
@@ -359,7 +360,10 @@ def _solve(mpc: MPC, q, v, command: Commands, t_s: float, delay_s: float, budget
     solution.wall_time_s = time.perf_counter() - start
     solution.process_cpu_s = time.process_time()
     stamps = getattr(mpc, "step_stamps", None)
-    solution.stamps = np.r_[received_s, np.nan, np.nan if stamps is None else stamps.values]
+    solution.stamps = np.full(len(SOLVER_STAMPS), np.nan)
+    solution.stamps[0] = received_s
+    if stamps is not None:
+        solution.stamps[len(PROCESS_STAMPS):] = stamps.values
     return solution
 
 
