@@ -536,6 +536,8 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
                       if plan.get("helper_threads") else "")
             lines.append(f"  plant loop lateness {late['mean']:.2f} ms mean, {late['p99']:.2f} p99, {late['max']:.2f} max "
                          f"({100 * m['plant_late_tick_share']:.1f} % of joint ticks over half a period){shared}")
+        if m.get("realtime_step_anatomy_ms"):
+            lines.append(anatomy_line(m["realtime_step_anatomy_ms"]))
     if m.get("est_base_vel_rmse_m_s") is not None:
         lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
                      f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {math.degrees(m['est_orientation_rmse_rad']):.2f} deg")
@@ -561,6 +563,13 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
     if failure:
         lines.append(f"  FAILED: {failure} (exit code {EXIT_FAILED})")
     return lines
+
+
+def anatomy_line(anatomy: dict) -> str:
+    """Where a real-time plan's delay went beside its solve (ms means; `control/step_anatomy.py`)."""
+    outside = sum(part["mean"] for name, part in anatomy.items() if name != "solve")
+    parts = ", ".join(f"{name.replace('_', ' ')} {part['mean']:.2f}" for name, part in anatomy.items() if name != "solve")
+    return f"  plan delay beside the solve {outside:.2f} ms mean: {parts}"
 
 
 def plant_model_line(report: dict) -> str:

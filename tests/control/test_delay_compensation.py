@@ -213,3 +213,97 @@ def test_joint_references_are_the_loops_interpolation(go2):
         reference = interpolate(plan, t)
         assert np.array_equal(tau_ff[i], reference.tau_ff) and np.array_equal(q_des[i], reference.q_des)
         assert np.array_equal(v_des[i], reference.v_des)
+
+
+def _moving_plan(robot, rng) -> Solution:
+    """A plan whose references move (eq. 9 varies over the ticks), a foot lifting off inside the delay and another
+    landing: the held feet change from tick to tick."""
+    node_times = np.array([0.0, 0.004, 0.01, 0.022, 0.036])
+    n = len(node_times)
+    q = np.tile(robot.q_nominal, (n, 1))
+    q[:, 7:] += rng.normal(scale=0.05, size=(n, robot.n_joints))
+    contact = np.ones((n, len(robot.feet)), bool)
+    contact[2:, 0] = False  # lifts off at 10 ms
+    contact[:1, -1] = False  # lands at 4 ms
+    return Solution(t_s=0.0, node_times_s=node_times, q=q, v=rng.normal(scale=0.3, size=(n, robot.nv)),
+                    a=rng.normal(scale=5.0, size=(n - 1, robot.nv)), forces=np.zeros((n - 1, 3)),
+                    tau=rng.normal(scale=3.0, size=(3, robot.n_joints)), contact=contact,
+                    stats=SolverStats("ok", True, 0, 0.0, 0.0, 0.0), success=True)
+
+
+@pytest.mark.parametrize("name", ["g1", "go2", "b1_z1"])
+def test_the_joint_loop_as_one_casadi_call_predicts_what_pinocchio_does(name):
+    """`delay_ticks`: eq. (10) held per tick and the forward dynamics with the stance feet held, from our symbolic
+    dynamics (6D soles on g1, 3D points on the quadrupeds, b1_z1's arm), land on the state pinocchio's
+    constraintDynamics loop (`DelayPredictor`) gives: over 1 to 18 ticks (a partial last tick, several calls), with
+    feet lifting off and landing within the delay, from a state away from the plan."""
+    from wbmpc.control.delay_ticks import CompiledTicks, ticks_function
+    from wbmpc.solvers.buffered import BufferedFunction
+    from wbmpc.symbolic import SymbolicDynamics
+
+    robot = load_robot(name)
+    law = MotorLaw.of(tuning_for(robot).gains_at(), ~robot.leg_joint_mask)
+    ticks = CompiledTicks(BufferedFunction(ticks_function(SymbolicDynamics(robot), robot)), robot)
+    rng = np.random.default_rng(11)
+    for delay in (0.0013, 0.0113, 0.02, 0.0351):
+        plan = _moving_plan(robot, rng)
+        q = pin.integrate(robot.model, robot.q_nominal, rng.normal(scale=0.05, size=robot.nv))
+        v = rng.normal(scale=0.3, size=robot.nv)
+        q_ref, v_ref = DelayPredictor(robot).predict(q, v, plan, 0.001, delay, law)
+        q_got, v_got = DelayPredictor(robot, ticks).predict(q, v, plan, 0.001, delay, law)
+        np.testing.assert_allclose(q_got, q_ref, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(v_got, v_ref, rtol=0, atol=1e-9)
+        assert np.abs(pin.difference(robot.model, q, q_ref)).max() > 1e-3  # the state moved: a real prediction
+
+
+def _pinocchio_contacts(robot, stance: np.ndarray, baumgarte_kd: float):
+    """pinocchio's rigid contacts of the stance feet (LOCAL frame; 6D for a sole, 3D for a point), their data and a
+    model data sized for them."""
+    model = robot.model
+    models, datas = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
+    for foot in np.asarray(robot.feet)[stance]:
+        frame = model.frames[robot.frame_id(robot.contact_frame(foot))]
+        kind = pin.ContactType.CONTACT_6D if foot in (robot.soles or {}) else pin.ContactType.CONTACT_3D
+        contact = pin.RigidConstraintModel(kind, model, frame.parentJoint, frame.placement, pin.ReferenceFrame.LOCAL)
+        corrector = contact.m_baumgarte_parameters
+        corrector.Kd = baumgarte_kd
+        contact.setBaumgarteCorrectorParameters(corrector)
+        models.append(contact)
+    for contact in models:
+        datas.append(contact.createData())
+    data = model.createData()
+    if len(models):
+        pin.initConstraintDynamics(model, data, models, datas)
+    return models, datas, data
+
+
+def test_held_forward_dynamics_is_pinocchios_constraint_dynamics():
+    """symbolic/constrained.py against pinocchio's `constraintDynamics` on g1 (soles, 6D) and go2 (points, 3D):
+    every foot held, one foot free, none held (then `aba`), at random states and torques."""
+    import casadi as ca
+
+    from wbmpc.symbolic import Motion, SymbolicDynamics
+    from wbmpc.symbolic.constrained import held_forward_dynamics
+
+    rng = np.random.default_rng(2)
+    for name in ("g1", "go2"):
+        robot = load_robot(name)
+        model, dyn = robot.model, SymbolicDynamics(robot)
+        q, v = ca.SX.sym("q", robot.nq), ca.SX.sym("v", robot.nv)
+        tau, held = ca.SX.sym("tau", robot.n_joints), ca.SX.sym("held", len(robot.feet))
+        cfg = dyn.configuration(q)
+        f = ca.Function("f", [q, v, tau, held], [held_forward_dynamics(dyn, cfg, Motion(cfg, v), tau, held, 400.0, 1e-10)])
+        for free in (None, 0, "all"):
+            stance = np.ones(len(robot.feet), bool)
+            if free == "all":
+                stance[:] = False
+            elif free is not None:
+                stance[free] = False
+            qn = pin.integrate(model, robot.q_nominal, rng.normal(scale=0.2, size=robot.nv))
+            vn, tn = rng.normal(scale=0.5, size=robot.nv), rng.normal(scale=5.0, size=robot.n_joints)
+            models, datas, data = _pinocchio_contacts(robot, stance, baumgarte_kd=400.0)
+            tau_full = np.r_[np.zeros(6), tn]
+            expected = pin.aba(model, data, qn, vn, tau_full) if not len(models) else pin.constraintDynamics(
+                model, data, qn, vn, tau_full, models, datas, pin.ProximalSettings(1e-12, 1e-10, 1))
+            got = np.asarray(f(qn, vn, tn, stance.astype(float))).ravel()
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * max(1.0, np.abs(expected).max()))

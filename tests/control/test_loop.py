@@ -12,6 +12,7 @@ from wbmpc.control.interpolator import JointReference, interpolate, pd_torque
 from wbmpc.control.loop import ClosedLoop, Event, LoopConfig
 from wbmpc.control.solution import Solution
 from wbmpc.control.solver_process import session_group_nice
+from wbmpc.control.step_anatomy import SEGMENTS
 from wbmpc.errors import ConfigError
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig
@@ -235,6 +236,13 @@ def test_realtime_loop_solves_in_its_own_process_and_measures_itself():
     assert len(log.delay_ms) == len(log.solve_ms) - 1  # all but the first (solved before the clock starts)
     assert 0 <= log.late_solutions <= len(log.delay_ms)
     assert log.late_solutions == sum(d > 1e3 / 80 for d in log.delay_ms)
+    # where each plan's delay went (step_anatomy.py): one row per plan taken, stamps in the order the step ran them
+    # (no segment negative), the segments adding up to the plan's delay, the solve's being the solver's own
+    anatomy = log.anatomy()
+    assert anatomy.shape == (len(log.delay_ms), len(SEGMENTS)) and np.isfinite(anatomy).all()
+    assert (anatomy >= -1e-9).all(), anatomy.min(axis=0)
+    np.testing.assert_allclose(anatomy.sum(axis=1), log.delay_ms, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(anatomy[:, SEGMENTS.index("solve")], log.solve_ms[1:], rtol=0, atol=1e-9)
     assert 0 < log.sim_cpu_share <= 1.05 and 0 < log.mpc_cpu_share <= 1.05
     assert log.realtime_priority is not None
     assert 0 < log.wall_time_s < 60.0

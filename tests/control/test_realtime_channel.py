@@ -49,6 +49,8 @@ def test_requests_and_plans_cross_unchanged():
         assert budget_s is None and inertial.tolist() == [-0.02, 0.0, 0.001, 1.5, 0.0]
         assert np.array_equal(command_from_row(row).ee_force_n, command.ee_force_n)
         plan = _solution(rng, status="ipopt: Solve_Succeeded (recovery after Deadline)", held=True)
+        plan.stamps = np.r_[10.0, np.nan, np.arange(11.0, 17.0)]  # received, (answered), the MPC's
+        before = time.perf_counter()
         solver.send_solution(plan)
         assert events[1].is_set()
         got = sim.receive_solution()
@@ -58,6 +60,9 @@ def test_requests_and_plans_cross_unchanged():
         assert got.stats.status == plan.stats.status and got.stats.iterations == 9
         assert got.stats.details == {"sqp_iterations": 2, "primal_residual": 1e-7, "late": 0.0}
         assert (got.wall_time_s, got.process_cpu_s) == (0.0051, 12.5)
+        # the step's stamps cross too, the channel's own `answered` stamped as it wrote the plan
+        assert got.stamps[0] == 10.0 and got.stamps[2:].tolist() == list(range(11, 17))
+        assert before <= got.stamps[1] <= time.perf_counter()
         sim.send_stop()
         assert solver.receive_request() is None
     finally:
@@ -93,3 +98,28 @@ def test_a_signal_is_posted_while_its_waiter_cannot_run():
     finally:
         os.kill(child.pid, signal_module.SIGCONT)
         child.join(60)
+
+
+@pytest.mark.parametrize("due_in_s", [60.0, -1.0, None])
+def test_the_solver_side_takes_a_request_whenever_it_comes(due_in_s):
+    """The solver process waits for the next request asleep until shortly before the time the last request said it
+    is due, awake (polling) around it: a request that comes long before that time (60 s), or after it (a late answer's
+    next request), or without a time is taken all the same, and `idle_s` says how long until the next is due."""
+    rng = np.random.default_rng(1)
+    layout = ChannelLayout.from_solution(_solution(rng), len(command_row(Commands())))
+    events = SharedChannel.events(multiprocessing.get_context("spawn"))
+    sim = SharedChannel.create(layout, events)
+    solver = SharedChannel.attach(*sim.handle, events)
+    try:
+        q, v, row = rng.normal(size=19), rng.normal(size=18), command_row(Commands())
+        due = None if due_in_s is None else time.perf_counter() + due_in_s
+        sim.send_request(q, v, row, 1.0, 0.01, None, next_request_s=due)
+        assert solver.receive_request()[3] == 1.0
+        assert (solver.idle_s() > 0) == (due_in_s == 60.0)  # the next request is due in a minute, or now, or unknown
+        later = threading.Timer(0.05, sim.send_request, args=(q, v, row, 2.0, 0.01, None))
+        later.start()
+        assert solver.receive_request()[3] == 2.0  # taken when it came, not at the minute
+        later.join()
+    finally:
+        solver.close()
+        sim.close()

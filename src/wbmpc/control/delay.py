@@ -38,6 +38,7 @@ from wbmpc.control.solution import Solution
 from wbmpc.errors import ConfigError, check_number
 
 if TYPE_CHECKING:
+    from wbmpc.control.delay_ticks import CompiledTicks
     from wbmpc.robots import RobotModel
 
 # when a plan reaches the plant in closed loop (control/loop.py): none (the simulation waits for the solver), measured
@@ -149,6 +150,8 @@ class DelayPredictor:
     Without a plan the velocity is held (`roll_forward`)."""
 
     robot: RobotModel
+    # the joint loop as one compiled call (control/delay_ticks.py), None: pinocchio's dynamics tick by tick
+    ticks: CompiledTicks | None = None
     _contacts: dict = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self):
@@ -156,6 +159,7 @@ class DelayPredictor:
         self._default_law: MotorLaw | None = None
         self._gain_arrays = None  # (law, kp, kd) of the last law used
         self._last_ms: float | None = None  # the last prediction's wall time, until `account`
+        self._last_inputs: tuple | None = None  # the last prediction's inputs (`rehearse`)
 
     def predict(self, q: np.ndarray, v: np.ndarray, plan: Solution | None, t_s: float, delay_s: float,
                 law: MotorLaw | bool | None) -> tuple[np.ndarray, np.ndarray]:
@@ -165,6 +169,7 @@ class DelayPredictor:
         if not delay_s > 0 or plan is None:
             return roll_forward(self.robot.model, q, v, plan, t_s, delay_s)
         law = law if isinstance(law, MotorLaw) else self._tuned_law()
+        self._last_inputs = (q, v, plan, t_s, delay_s, law)
         robot, model = self.robot, self.robot.model
         kp, kd = self._gains(law)
         hold = 1.0 / law.control_rate_hz
@@ -176,6 +181,10 @@ class DelayPredictor:
         tau_ff, q_des, v_des = joint_references(plan, ticks + lead)
         coordinates = robot.nq == robot.nv + 1 and not robot.continuous.any()  # joint angles are q[7:]
         q, v = np.array(q, dtype=float), np.array(v, dtype=float)
+        if self.ticks is not None and coordinates:
+            q, v = self.ticks.run(q, v, tau_ff, q_des, v_des, stances, steps, kp, kd, 1.0 / hold)
+            self._last_ms = 1e3 * (time.perf_counter() - start)
+            return q, v
         tau = np.zeros(model.nv)
         for i, (h, stance) in enumerate(zip(steps, stances)):  # a semi-implicit Euler step per tick, eq. (10) held
             q_j = q[7:] if coordinates else robot.joint_positions(q, near=q_des[i])
@@ -190,6 +199,15 @@ class DelayPredictor:
             q = pin.integrate(model, q, v * h)
         self._last_ms = 1e3 * (time.perf_counter() - start)
         return q, v
+
+    def rehearse(self) -> None:
+        """The last prediction once more, its result dropped: run while a real-time solver process waits for its next
+        request, it brings the prediction's code and data back into the caches the solve evicted (g1: the next
+        prediction 0.34 -> 0.14 ms, the median of a closed loop's steps). Nothing before a first prediction."""
+        if self._last_inputs is not None:
+            last_ms = self._last_ms
+            self.predict(*self._last_inputs)
+            self._last_ms = last_ms
 
     def account(self, stats) -> None:
         """Put this step's prediction time into the solver stats' split as its own part (`delay_prediction`, ms;

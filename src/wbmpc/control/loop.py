@@ -35,6 +35,7 @@ from wbmpc.control.solver_process import (
     restore_scheduling,
     restore_session_priority,
 )
+from wbmpc.control.step_anatomy import segments
 from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError, RunError, check_number
 from wbmpc.resident_memory import rss_mb
@@ -384,10 +385,12 @@ class ClosedLoop:
     def _paced_loop(self, log: RunLog, solver: SolverProcess, active: Solution, t0: float, duration_s, commands,
                     events, progress, stop) -> None:
         """The 500 Hz simulation on the wall clock: a request to the solver process at each free MPC tick,
-        its answer taken as soon as it is ready, the last good plan interpolated meanwhile (eqs. 9-10)."""
+        its answer taken as soon as it is ready, the last good plan interpolated meanwhile (eqs. 9-10). Each physics
+        step's plant state exists before its wall-clock time comes: the loop waits for that time on the answer
+        (woken by it), measures the state and builds the request meanwhile, and sends it when the time comes."""
         plant, mpc_period = self.plant, 1.0 / self.config.mpc_rate_hz
         next_mpc, next_control = t0 + mpc_period, self._start_ticks(t0)
-        request = None  # (t, command, wall time) of the request being solved; None: the solver is free
+        pending = None  # (t, command, wall time sent) of the request being solved; None: the solver is free
         # the transport (shared memory, wake-ups, this loop noticing the answer) measured per step: the
         # solver's budget is the period less it, so that the answer is back before the next MPC tick
         transport_s = REALTIME_TRANSPORT_GUESS_S
@@ -395,36 +398,29 @@ class ClosedLoop:
         # per joint-loop tick: how long after its wall-clock time it ran (ms), over half a period counted as late
         lateness = log.plant_lateness = StreamingStats(threshold=0.5e3 / self.config.control_rate_hz)
         wall_start, cpu_start = time.perf_counter(), time.process_time()
+        clock = _WallClock(wall_start, t0)
         while plant.time_s - t0 < duration_s - 1e-9:
             t = plant.time_s
-            lag = (t - t0) - (time.perf_counter() - wall_start)
-            if lag > 0:  # wait for the wall clock, woken early by the answer
-                if request is not None:
-                    solver.wait(lag)
-                    lag = (t - t0) - (time.perf_counter() - wall_start)
-                if lag > 0:
-                    time.sleep(lag)
-            if t >= next_control - 1e-9:
-                lateness.add(max(1e3 * (time.perf_counter() - wall_start - (t - t0)), 0.0))
             self._apply_events(events, t, log)
-            if request is not None and solver.ready():
-                solution = solver.receive()
-                now = time.perf_counter()
-                log.mpc_cpu_share = (solution.process_cpu_s - solver.cpu_start_s) / max(now - wall_start, 1e-9)
-                transport_s = self._take_answer(log, solution, request, t, now, transport_s)
-                if solution.success or solution.held_previous:
-                    active = solution
-                request = None
-            if request is None and t >= next_mpc - 1e-9:
-                if not solver.is_alive():
-                    raise RunError("the real-time MPC process died (see its error above)")
-                q, v = self._measure()
-                command = commands(t, q, v)
-                budget = max(mpc_period - transport_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S)
-                solver.request(q, v, command, t, self._delay_mean_s, budget)
-                request = (t, command, time.perf_counter())
+            answer = None
+            if pending is not None:  # waited for until this step's wall-clock time
+                answer, transport_s = self._answer(solver, pending, t, clock, transport_s)
+                if answer is not None:
+                    pending = None
+                    active = answer[0] if answer[0].success or answer[0].held_previous else active
+            measured = self._measured(solver, t, commands) if pending is None and t >= next_mpc - 1e-9 else None
+            lag = clock.at(t) - time.perf_counter()
+            if lag > 0:
+                time.sleep(lag)
+            if t >= next_control - 1e-9:
+                lateness.add(max(1e3 * -(clock.at(t) - time.perf_counter()), 0.0))
+            if measured is not None:  # the request when its measurement's time comes, the last answer logged after it
                 while next_mpc <= t + 1e-9:
                     next_mpc += mpc_period
+                pending = self._request(solver, measured, mpc_period - transport_s, clock.at(next_mpc))
+            if answer is not None:
+                log.mpc_cpu_share = (answer[0].process_cpu_s - solver.cpu_start_s) / max(answer[2][-1] - wall_start, 1e-9)
+                self._log_answer(log, *answer)
             tau, next_control, fell = self._low_level(log, active, t, next_control, tau, t0, duration_s, progress, stop)
             if fell:
                 break
@@ -433,16 +429,62 @@ class ClosedLoop:
         log.rss_samples.append((plant.time_s - t0, rss_mb()))
         log.sim_cpu_share = (time.process_time() - cpu_start) / max(log.wall_time_s, 1e-9)
 
-    def _take_answer(self, log: RunLog, solution: Solution, request, t_s: float, now: float, transport_s: float) -> float:
-        """Log a plan from the solver process with the delay the plant sees (from the measurement to the
-        plan's first tick, transport included); returns the updated transport estimate."""
-        self._record(log, request[0], request[1], solution)
-        delay = max(t_s - request[0], now - request[2])
-        log.record_delay(delay * 1e3)
+    def _answer(self, solver: SolverProcess, pending, t_s: float, clock, transport_s: float) -> tuple:
+        """The solver process's answer to `pending` if it is ready by plant time `t_s`'s wall-clock time (waiting for
+        it until then): ((plan, pending, loop stamps, delay) or None, the updated transport estimate)."""
+        timeout = clock.at(t_s) - time.perf_counter()
+        if not (solver.wait(timeout) if timeout > 0 else solver.ready()):
+            return None, transport_s
+        woken = time.perf_counter()
+        solution = solver.receive()
+        stamps = (clock.at(pending[0]), pending[2], woken, woken, time.perf_counter())  # step_anatomy's loop stamps
+        delay, transport_s = self._delay_of(solution, pending, t_s, stamps, transport_s)
+        return (solution, pending, stamps, delay), transport_s
+
+    def _measured(self, solver: SolverProcess, t_s: float, commands: CommandSource) -> tuple:
+        """The next request's content: the state at plant time `t_s` and its command."""
+        if not solver.is_alive():
+            raise RunError("the real-time MPC process died (see its error above)")
+        q, v = self._measure()
+        return t_s, q, v, commands(t_s, q, v)
+
+    def _request(self, solver: SolverProcess, measured: tuple, budget_s: float, next_request_s: float) -> tuple:
+        """A plan asked of the solver process from `measured` (`_measured`), with the step's budget (less a margin for
+        the transport's jitter) and when the next request is due (perf_counter); returns (t_s, command, wall time
+        sent)."""
+        t_s, q, v, command = measured
+        sent = time.perf_counter()
+        solver.request(q, v, command, t_s, self._delay_mean_s, max(budget_s - REALTIME_MARGIN_S, REALTIME_MARGIN_S),
+                       next_request_s=next_request_s)
+        return t_s, command, sent
+
+    def _delay_of(self, solution: Solution, request, t_s: float, loop_stamps, transport_s: float) -> tuple:
+        """The delay the plant sees of a plan from the solver process (from the measurement to the plan's first physics
+        step, transport included; `loop_stamps`: the loop's measured, sent, woken, noticed, taken), noted for the
+        delay compensation, and the updated transport estimate."""
+        delay = max(t_s - request[0], loop_stamps[-1] - loop_stamps[0])  # plant time, or wall time if the loop ran late
         self._note_delay(delay)
+        return delay, 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
+
+    def _log_answer(self, log: RunLog, solution: Solution, request, loop_stamps, delay: float) -> None:
+        """Log a plan from the solver process with its delay and where it went (`step_anatomy.segments`)."""
+        self._record(log, request[0], request[1], solution)
+        log.record_delay(delay * 1e3)
+        if solution.stamps is not None:
+            log.record_anatomy(segments(solution.stamps, solution.stats.solve_time_s, loop_stamps, delay))
         if delay > 1.0 / self.config.mpc_rate_hz:
             log.late_solutions += 1
-        return 0.8 * transport_s + 0.2 * max(delay - solution.wall_time_s, 0.0)
+
+
+@dataclass(frozen=True)
+class _WallClock:
+    """The real-time loop's wall clock (time.perf_counter) of plant times: `at(t_s)`."""
+
+    wall_start_s: float
+    t0_s: float
+
+    def at(self, t_s: float) -> float:
+        return self.wall_start_s + (t_s - self.t0_s)
 
 
 REALTIME_TRANSPORT_GUESS_S = 1e-3  # the transport's first guess, before one was measured

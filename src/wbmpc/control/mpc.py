@@ -22,12 +22,14 @@ from wbmpc.control.commands import Commands, object_reference
 from wbmpc.control.compiled_step import CompiledStep
 from wbmpc.control.config import BASE_TRACKING_MODES, MpcConfig
 from wbmpc.control.delay import DelayPredictor
+from wbmpc.control.delay_ticks import compiled_ticks
 from wbmpc.control.inputs import checked_state
 from wbmpc.control.measured import MeasuredVelocities, velocities_function
 from wbmpc.control.push import PushMode
 from wbmpc.control.recovery import Recovery
 from wbmpc.control.references import References
 from wbmpc.control.solution import Solution, joint_trajectory, python_share, shifted_plan
+from wbmpc.control.step_anatomy import StepStamps
 from wbmpc.control.touchdown import follow_touchdown
 from wbmpc.control.trajectory import interp_rows
 from wbmpc.control.warm_start import ShiftedDuals, ShiftedGuess, shifted_sole_wrenches
@@ -102,7 +104,10 @@ class MPC:
                                   np.concatenate([np.arange(self.problem.state_offsets[name].start,
                                                             self.problem.state_offsets[name].stop) for name in states]))
         self._previous: Solution | None = None
-        self._delay = DelayPredictor(robot)  # delay compensation's state prediction
+        # delay compensation's state prediction, its joint loop compiled where the solver is (control/delay_ticks.py)
+        self._delay = DelayPredictor(robot, compiled_ticks(dyn, robot, config.solver) if config.delay_compensation
+                                     else None)
+        self.step_stamps = StepStamps()  # where the last step's time went (control/step_anatomy.py)
         self._after_solve_s = 0.5e-3  # running mean of the step's time after the solver returns (unpacking)
         # a solver that starts from given multipliers (fatrop-direct on flat feet) gets the last plan's, moved by
         # constraint identity (ocp/multipliers.py)
@@ -190,6 +195,11 @@ class MPC:
         detector sets it after a kick."""
         self.push_mode.enter(until_t_s)
 
+    def warm_up(self) -> None:
+        """Between steps, while waiting for the next measurement: the last step's delay prediction run again, its
+        result dropped (`DelayPredictor.rehearse`: its code and data back in the caches the solve evicted)."""
+        self._delay.rehearse()
+
     def prepare_fallback(self) -> None:
         """Build the recovery solvers (`Recovery.prepare`) and the solver's instances (`prepare_structures`) now:
         before the clock runs, not at a step."""
@@ -260,7 +270,9 @@ class MPC:
             warnings.warn("MPC.solve(..., t=...) is deprecated; use t_s", DeprecationWarning, stacklevel=2)
             t_s = t
         t = t_s
-        start = time.perf_counter()
+        stamps = self.step_stamps
+        stamps.start()
+        start = stamps.values[0]
         clock = getattr(self.solver, "clock", None)
         clock_start = clock() if clock is not None else None
         commands = commands or Commands()
@@ -269,11 +281,15 @@ class MPC:
         if self.config.delay_compensation and delay_s > 0:
             q, v = self._delay.predict(q, v, self._previous, t, delay_s, self.config.delay_compensation)
             t = t + delay_s
+        stamps.mark("predicted")
         self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
+        stamps.mark("prepared")
         result, solve_end = self._solve_step(step.p, step.bounds, step.soft_rows, step.x0, t, budget_s, clock,
                                              clock_start)
+        stamps.mark("solved")
         solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
+        stamps.mark("unpacked")
         if solution.success:
             self._previous = solution
             if self._duals is not None:
@@ -284,6 +300,7 @@ class MPC:
             self._after_solve_s = 0.8 * self._after_solve_s + 0.2 * (clock() - solve_end)
         self._delay.account(result.stats)  # the prediction's own part of the step's split
         python_share(result.stats, 1e3 * (time.perf_counter() - start))
+        stamps.mark("end")
         return solution
 
     def _step_data(self, q: np.ndarray, v: np.ndarray, commands: Commands, t: float, measured_contact=None) -> _StepData:

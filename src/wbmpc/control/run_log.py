@@ -7,6 +7,7 @@ import numpy as np
 from wbmpc.chunked_table import DEFAULT_CHUNK_ROWS, ChunkedTable, ChunkWriter
 from wbmpc.control.commands import Commands
 from wbmpc.control.realtime_channel import COMMAND_WIDTH, command_from_row, command_row
+from wbmpc.control.step_anatomy import SEGMENTS
 from wbmpc.control.streaming_stats import StreamingStats
 from wbmpc.errors import ConfigError
 
@@ -43,6 +44,9 @@ class RunLog:
         # iterate it returned, its budget (NaN: none) and whether it ended past its deadline
         self._solver_details = ChunkedTable({key: ((), float) for key in SOLVER_DETAIL_KEYS}, chunk_rows, spill_dir,
                                             "solver_details", self._writer)
+        # real time: where each plan's delay went (control/step_anatomy.SEGMENTS, ms), one row per plan taken
+        self._anatomy = ChunkedTable({"anatomy_ms": ((len(SEGMENTS),), float)}, chunk_rows, spill_dir, "anatomy",
+                                     self._writer)
         self._status_names: list[str] = []  # distinct solver statuses; steps store an index into it
         self._status_codes: dict[str, int] = {}
         self.events: list = []  # (time_s, name) of each event applied to the plant
@@ -147,6 +151,14 @@ class RunLog:
         """The delay of a solution that was applied (failed ones are not)."""
         self._delays.append({"delay_ms": delay_ms})
 
+    def record_anatomy(self, segments_ms) -> None:
+        """Real time: one plan's delay in its segments (`step_anatomy.segments`)."""
+        self._anatomy.append({"anatomy_ms": segments_ms})
+
+    def anatomy(self) -> np.ndarray:
+        """(plans, len(SEGMENTS)) of a real-time run (no rows for the other delay modes)."""
+        return self._anatomy.column("anatomy_ms")
+
     def _table(self, row: dict, name: str) -> ChunkedTable:
         """A table whose columns have the shapes of `row`'s values: floats, integers or booleans."""
         kinds = {"f": np.float64, "i": np.int64, "u": np.int64, "b": np.bool_}
@@ -160,7 +172,7 @@ class RunLog:
 
     def close(self) -> None:
         """Delete the spilled chunks now (otherwise when the log is garbage collected)."""
-        for table in (self._ticks, self._steps, self._delays, self._solver_details):
+        for table in (self._ticks, self._steps, self._delays, self._solver_details, self._anatomy):
             if table is not None:
                 table.close()
 

@@ -40,6 +40,7 @@ class Solution:
     wall_time_s: float = 0.0  # wall time of `MPC.solve`
     cpu_time_s: float = 0.0  # CPU time of the thread that ran it (`--delay-mode measured`)
     process_cpu_s: float = 0.0  # the solver process's CPU clock when the step ended (real-time CPU share)
+    stamps: np.ndarray | None = None  # real time: the step's clock stamps (control/step_anatomy.SOLVER_STAMPS)
 
     def __post_init__(self) -> None:
         if self.q_joints is None:  # nq = nv + 1: the joint coordinates are q[:, 7:]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control import step_anatomy
 from wbmpc.control.run_log import RunLog
 from wbmpc.robots import RobotModel
 
@@ -88,11 +89,13 @@ def common_metrics(robot: RobotModel, log: RunLog, scenario: str) -> dict:
 
 def realtime_plant_metrics(log: RunLog) -> dict:
     """Real time: the plant loop's own lateness per joint-loop tick (ms after its wall-clock time: mean, 99th
-    percentile, max; the share of ticks later than half a joint-loop period) and the CPUs of the loop, the solver and
+    percentile, max; the share of ticks later than half a joint-loop period), where each plan's delay went
+    (`control/step_anatomy.py`: per segment mean, p95, max in ms) and the CPUs of the loop, the solver and
     its helper threads (None for the other delay modes)."""
     late = log.plant_lateness
     plan = log.cpu_plan
-    out: dict = {"plant_lateness_ms": None, "plant_late_tick_share": None, "cpu_plan": None}
+    out: dict = {"plant_lateness_ms": None, "plant_late_tick_share": None, "cpu_plan": None,
+                 "realtime_step_anatomy_ms": step_anatomy.summary(log.anatomy()) or None}
     if late is not None and late.count:
         out["plant_lateness_ms"] = {"mean": late.mean, "p99": late.percentile(99), "max": late.max}
         out["plant_late_tick_share"] = late.share_over()

@@ -1,0 +1,101 @@
+"""The delay prediction's joint loop (control/delay.py) as one compiled call: eq. (10) held per 500 Hz tick and the
+forward dynamics with the stance feet held (`symbolic/constrained.py`), a semi-implicit Euler step per tick, over
+up to TICKS_PER_CALL ticks in one CasADi `mapaccum` (padding ticks of zero length leave the state as it is).
+
+Built from the OCP's own symbolic dynamics and compiled into the cache with the MPC's other functions
+(`MPC._step_functions`); pinocchio's `constraintDynamics` (`DelayPredictor`'s loop) stays the reference
+(tests/control/test_delay_compensation.py: the same states to ~1e-12). The Python loop over the ticks took ~60 us a
+tick on g1 (0.37 ms a real-time step); the compiled call takes what the arithmetic takes.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from wbmpc.solvers.buffered import BufferedFunction
+from wbmpc.solvers.codegen import CompileError, compile_functions
+from wbmpc.symbolic import Motion
+from wbmpc.symbolic.constrained import held_forward_dynamics
+
+TICKS_PER_CALL = 8  # a call's ticks (16 ms at 500 Hz: a real-time step's delay); longer delays chain calls
+PROXIMAL_MU = 1e-10  # pinocchio's proximal damping in `DelayPredictor` (ProximalSettings(1e-12, 1e-10, 1))
+
+
+def supports(robot) -> bool:
+    """Whether the compiled ticks cover this robot: joint angles are q[7:] (no continuous joint)."""
+    return robot.nq == robot.nv + 1 and not robot.continuous.any()
+
+
+def tick_function(dyn, robot) -> ca.Function:
+    """One joint-loop tick: (q, v, tau_ff, q_des, v_des, held feet 0/1, tick length h, kp, kd, Baumgarte Kd) ->
+    (q, v) after h: eq. (10)'s torques clipped to the limits, held over the tick (control/interpolator.pd_torque)."""
+    nj = robot.n_joints
+    q, v = ca.SX.sym("q", robot.nq), ca.SX.sym("v", robot.nv)
+    tau_ff, q_des, v_des = ca.SX.sym("tau_ff", nj), ca.SX.sym("q_des", nj), ca.SX.sym("v_des", nj)
+    held, h = ca.SX.sym("held", len(robot.feet)), ca.SX.sym("h")
+    kp, kd, baumgarte = ca.SX.sym("kp", nj), ca.SX.sym("kd", nj), ca.SX.sym("baumgarte_kd")
+    tau_max = np.asarray(robot.tau_max, dtype=float)
+    motor = tau_ff + kp * (q_des - q[7:]) + kd * (v_des - v[6:])
+    tau = ca.fmin(ca.fmax(motor, -tau_max), tau_max)
+    cfg = dyn.configuration(q)
+    a = held_forward_dynamics(dyn, cfg, Motion(cfg, v), tau, held, baumgarte, PROXIMAL_MU)
+    v_next = v + a * h
+    return ca.Function("delay_tick", [q, v, tau_ff, q_des, v_des, held, h, kp, kd, baumgarte],
+                       [dyn.integrate(q, v_next * h), v_next])
+
+
+def ticks_function(dyn, robot, ticks: int = TICKS_PER_CALL) -> ca.Function:
+    """`tick_function` over `ticks` ticks: (q, v, tau_ff, q_des, v_des, held, h (each a column per tick), kp, kd,
+    Baumgarte Kd) -> (q, v) after the last one."""
+    tick = tick_function(dyn, robot)
+    accumulated = tick.mapaccum("delay_ticks_acc", ticks, 2)
+    nj, n_feet = robot.n_joints, len(robot.feet)
+    q, v = ca.MX.sym("q", robot.nq), ca.MX.sym("v", robot.nv)
+    tau_ff, q_des, v_des = (ca.MX.sym(name, nj, ticks) for name in ("tau_ff", "q_des", "v_des"))
+    held, h = ca.MX.sym("held", n_feet, ticks), ca.MX.sym("h", 1, ticks)
+    kp, kd, baumgarte = ca.MX.sym("kp", nj), ca.MX.sym("kd", nj), ca.MX.sym("baumgarte_kd")
+    q_all, v_all = accumulated(q, v, tau_ff, q_des, v_des, held, h, ca.repmat(kp, 1, ticks), ca.repmat(kd, 1, ticks),
+                               ca.repmat(baumgarte, 1, ticks))
+    return ca.Function("delay_ticks", [q, v, tau_ff, q_des, v_des, held, h, kp, kd, baumgarte],
+                       [q_all[:, -1], v_all[:, -1]],
+                       ["q", "v", "tau_ff", "q_des", "v_des", "held", "h", "kp", "kd", "baumgarte_kd"],
+                       ["q_next", "v_next"])
+
+
+def compiled_ticks(dyn, robot, solver_config) -> CompiledTicks | None:
+    """The ticks compiled into the cache (`SolverConfig.codegen`, a library of their own: MPCs without delay
+    compensation do not build it) where the solver is compiled and the robot is covered; None otherwise or where it
+    cannot be compiled (`DelayPredictor` then steps pinocchio's dynamics tick by tick)."""
+    if not (solver_config.compiled and supports(robot)):
+        return None
+    function = ticks_function(dyn, robot)
+    try:
+        report = compile_functions([function], "delay_ticks", solver_config.codegen)
+    except CompileError:
+        return None
+    return CompiledTicks(BufferedFunction(ca.external(function.name(), str(report.library))), robot)
+
+
+class CompiledTicks:
+    """Runs the ticks on a `BufferedFunction` of `ticks_function`: `run(q, v, tau_ff, q_des, v_des, held, steps,
+    kp, kd, baumgarte_kd)` with one row per tick (as `DelayPredictor` builds them), TICKS_PER_CALL at a call."""
+
+    def __init__(self, function, robot):
+        self.function = function
+        self.ticks = int(function.function.size_in(6)[1])
+        nj, n_feet = robot.n_joints, len(robot.feet)
+        self._columns = [np.zeros((nj, self.ticks)), np.zeros((nj, self.ticks)), np.zeros((nj, self.ticks)),
+                         np.zeros((n_feet, self.ticks)), np.zeros((1, self.ticks))]
+
+    def run(self, q, v, tau_ff, q_des, v_des, held, steps, kp, kd, baumgarte_kd: float):
+        n = len(steps)
+        for start in range(0, n, self.ticks):
+            count = min(self.ticks, n - start)
+            rows = slice(start, start + count)
+            for column, values in zip(self._columns, (tau_ff, q_des, v_des, held, steps[:, None])):
+                column[:, :count] = values[rows].T
+                column[:, count:] = 0.0  # padding ticks: h = 0, nothing held
+            q, v = self.function(q, v, *self._columns, kp, kd, baumgarte_kd)
+            q, v = q.copy(), v.copy()
+        return q, v
