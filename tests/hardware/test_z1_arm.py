@@ -351,13 +351,15 @@ def test_deploy_ends_in_damping_on_every_exit(monkeypatch):
 
 
 class _FakeSolverProcess:
-    """A real-time deploy's solver process that solves at once, noting the controller thread's CPUs and policy."""
+    """A real-time deploy's solver process that solves at once, noting the controller thread's CPUs and policy and
+    each request's budget."""
 
     def __init__(self, mpc):
-        self.mpc, self.answer, self.seen = mpc, None, []
+        self.mpc, self.answer, self.seen, self.budgets = mpc, None, [], []
 
-    def request(self, q, v, command, t, delay_s=0.0, **_):
+    def request(self, q, v, command, t, delay_s=0.0, budget_s=None, **_):
         self.seen.append((os.sched_getaffinity(0), os.sched_getscheduler(0)))
+        self.budgets.append(budget_s)
         self.answer = self.mpc.solve(q, v, command, t)
         self.answer.held_previous, self.answer.wall_time_s = False, 0.0
 
@@ -376,7 +378,11 @@ class _FakeSolverProcess:
 def test_real_time_deploy_runs_its_loop_on_the_cpu_plan_and_gives_it_back():
     """The controller loop of a real-time deploy takes the simulated real-time loop's plan (`CpuPlan`): FIFO where
     permitted, pinned to the plan's loop core while it runs; the report says what was granted; afterwards the
-    caller's CPUs and policy are back."""
+    caller's CPUs and policy are back. Each request after the first (cold) one carries a step budget below the MPC
+    period, as in the simulated real-time loop."""
+    from wbmpc.control.loop import REALTIME_MARGIN_S
+    from wbmpc.hardware.deploy_config import MPC_RATE_HZ
+
     monkeypatch = pytest.MonkeyPatch()
     workers = []
 
@@ -402,3 +408,6 @@ def test_real_time_deploy_runs_its_loop_on_the_cpu_plan_and_gives_it_back():
         reset_on_fork = getattr(os, "SCHED_RESET_ON_FORK", 0)
         assert {policy & ~reset_on_fork for _, policy in workers[0].seen} == {os.SCHED_FIFO}
     assert os.sched_getaffinity(0) == cpus and os.sched_getscheduler(0) == os.SCHED_OTHER
+    budgets = workers[0].budgets
+    assert len(budgets) >= 3 and budgets[0] is None
+    assert all(REALTIME_MARGIN_S <= b <= 1.0 / MPC_RATE_HZ - REALTIME_MARGIN_S for b in budgets[1:])
