@@ -14,20 +14,40 @@ typedef struct {
   int *n_eq, *n_ineq, *nur; /* per stage: the dimensions Fatrop was built with */
 } wb_solver;
 
+/* each kind's lane output buffers (kinds with lane functions) */
+static int wb_lane_buffers(wb_work* w, const wb_stages* st) {
+  const size_t n = (size_t) st->max_n, L = (size_t) st->lanes;
+  int kind, ok = 1;
+  const int n_kinds = st->kinds->n_kinds;
+  w->lane_hess = (double**) calloc(n_kinds, sizeof(double*));
+  w->lane_jac_next = (double**) calloc(n_kinds, sizeof(double*));
+  w->lane_jac_rows = (double**) calloc(n_kinds, sizeof(double*));
+  w->lane_held = (int*) calloc(n_kinds * WB_N_LANE_FUNCTIONS, sizeof(int));
+  if (!w->lane_hess || !w->lane_jac_next || !w->lane_jac_rows || !w->lane_held) return 0;
+  for (kind = 0; kind < n_kinds && ok; ++kind) {
+    if (wb_kind_lanes(st, kind) == 1) continue;
+    w->lane_hess[kind] = (double*) calloc(L * n * n, sizeof(double));
+    w->lane_jac_next[kind] = (double*) calloc(L * n * st->max_x, sizeof(double));
+    w->lane_jac_rows[kind] = (double*) calloc(L * n * st->max_rows, sizeof(double));
+    ok = w->lane_hess[kind] && w->lane_jac_next[kind] && w->lane_jac_rows[kind];
+  }
+  return ok;
+}
+
 static int wb_work_init(wb_work* w, const wb_stages* st) {
   size_t n = (size_t) st->max_n, L = (size_t) (st->lanes > 1 ? st->lanes : 1);
   int f;
   for (f = 0; f < WB_N_FUNCTIONS; ++f) w->last_kind[f] = -1;
-  for (f = 0; f < WB_N_LANE_FUNCTIONS * WB_MAX_LANES; ++f) w->lane_code[f / WB_MAX_LANES][f % WB_MAX_LANES] = -1;
+  if (!wb_lane_buffers(w, st)) return 0;
   w->cover_lam = (double*) calloc(st->max_rows + 1, sizeof(double));
   w->cover_rows = (double*) calloc(n * st->max_rows + 1, sizeof(double));
   w->arg = (const double**) calloc(st->sz_arg + 8, sizeof(double*));
   w->res = (double**) calloc(st->sz_res + 8, sizeof(double*));
   w->iw = (long long int*) calloc(st->sz_iw + 1, sizeof(long long int));
   w->w = (double*) calloc(st->sz_w + 1, sizeof(double));
-  w->hess = (double*) calloc(L * n * n + 1, sizeof(double));
-  w->jac_next = (double*) calloc(L * n * st->max_x + 1, sizeof(double));
-  w->jac_rows = (double*) calloc(L * n * st->max_rows + 1, sizeof(double));
+  w->hess = (double*) calloc(n * n + 1, sizeof(double));
+  w->jac_next = (double*) calloc(n * st->max_x + 1, sizeof(double));
+  w->jac_rows = (double*) calloc(n * st->max_rows + 1, sizeof(double));
   w->f = (double*) calloc(st->max_x + 1, sizeof(double));
   w->r = (double*) calloc(st->max_rows + 1, sizeof(double));
   w->lam_rows = (double*) calloc(L * (st->max_rows + 1), sizeof(double));
@@ -39,7 +59,12 @@ static int wb_work_init(wb_work* w, const wb_stages* st) {
          w->ufull && w->compact && w->col && w->cols && w->cover_lam && w->cover_rows;
 }
 
-static void wb_work_free(wb_work* w) {
+static void wb_work_free(wb_work* w, int n_kinds) {
+  int kind;
+  for (kind = 0; kind < n_kinds && w->lane_hess; ++kind) {
+    free(w->lane_hess[kind]); free(w->lane_jac_next[kind]); free(w->lane_jac_rows[kind]);
+  }
+  free(w->lane_hess); free(w->lane_jac_next); free(w->lane_jac_rows); free(w->lane_held);
   free((void*) w->arg); free(w->res); free(w->iw); free(w->w); free(w->hess);
   free(w->jac_next); free(w->jac_rows); free(w->f); free(w->r); free(w->lam_rows);
   free(w->ufull); free(w->compact); free(w->col); free(w->cols); free(w->cover_lam); free(w->cover_rows);
@@ -50,7 +75,7 @@ void wb_ctx_free(void* ctx) {
   int i;
   if (!c) return;
   wb_pool_free(c->pool);
-  for (i = 0; c->work && i < c->n_work; ++i) wb_work_free(&c->work[i]);
+  for (i = 0; c->work && i < c->n_work; ++i) wb_work_free(&c->work[i], c->st->kinds->n_kinds);
   free(c->work);
   free(c->a_eq); free(c->a_ineq); free(c->x_eq); free(c->x_ineq);
   free(c->a_eq_i); free(c->a_ineq_i); free(c->x_eq_i); free(c->x_ineq_i);

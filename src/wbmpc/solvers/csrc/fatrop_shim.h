@@ -29,14 +29,16 @@ typedef struct {
   double** res;
   long long int* iw;
   double* w;
-  /* hess, jac_next, jac_rows, lam_rows, ufull: one block per lane of the kinds' lane functions (stride: the largest
-     stage's size) */
+  /* lam_rows, ufull: one block per lane of the kinds' lane functions (stride: the largest stage's size) */
   double *hess, *jac_next, *jac_rows, *f, *r, *lam_rows;
   double *ufull, *compact, *col; /* a stage's whole u; blocks of Fatrop's (free u, x) rows; one column */
   int* cols;                     /* the columns a block selects */
   int last_kind[WB_N_FUNCTIONS]; /* the stage kind this thread last evaluated each function of (-1: none) */
-  int lane_code[WB_N_LANE_FUNCTIONS][WB_MAX_LANES]; /* the kind whose lane function's outputs each lane's buffers
-                                                       hold (-1: other values), so their zeros need no clearing */
+  /* per kind with lane functions: its lanes' output buffers (hess, jac_next, jac_rows: L blocks each, stride the
+     largest stage's size; NULL for other kinds) and which lanes' buffers hold its outputs (bit l of
+     lane_held[kind * WB_N_LANE_FUNCTIONS + function]): only the nonzeros are written, their zeros stay */
+  double **lane_hess, **lane_jac_next, **lane_jac_rows;
+  int* lane_held;
   double *cover_lam, *cover_rows; /* a covered kind's stage: its own row multipliers, its rows from the cover's */
 } wb_work;
 

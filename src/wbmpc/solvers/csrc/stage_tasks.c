@@ -137,7 +137,7 @@ int wb_kind_lanes(const wb_stages* st, int kind) {
 }
 
 /* the Hessian's (WB_LANE_HESS) or Jacobian's lane function of `kind` on the n_l stages in lanes 0 .. n_l - 1 of arg
-   and res (stride L, the unused lanes repeating lane 0), clearing only lane buffers that held another code's outputs;
+   and res (stride L, the unused lanes repeating lane 0; res in the kind's lane buffers, cleared on their first use);
    with L = 1 the function of stage k's kind (its scalar code or its cover's wrapper) */
 static void wb_eval(const wb_ctx* c, wb_work* w, int lane_function, int kind, int k, int n_l, int L,
                     const double** arg, int n_in, double** res, int n_out) {
@@ -147,17 +147,14 @@ static void wb_eval(const wb_ctx* c, wb_work* w, int lane_function, int kind, in
   wb_prefetch_code(st, w, function, kind);
   if (L == 1) {
     st->functions[st->kind[k] * WB_N_FUNCTIONS + function](arg, res, w->iw, w->w, 0);
-    w->lane_code[lane_function][0] = -1; /* a covered kind's wrapper writes whole columns */
     return;
   }
   for (i = 0; i < n_in; ++i)
     for (l = n_l; l < L; ++l) arg[i * L + l] = arg[i * L];
   for (i = 0; i < n_out; ++i)
     for (l = n_l; l < L; ++l) res[i * L + l] = res[i * L];
-  for (l = 0; l < n_l; ++l) {
-    if (w->lane_code[lane_function][l] != kind) clear |= 1 << l;
-    w->lane_code[lane_function][l] = kind;
-  }
+  clear = ((1 << n_l) - 1) & ~w->lane_held[kind * WB_N_LANE_FUNCTIONS + lane_function];
+  w->lane_held[kind * WB_N_LANE_FUNCTIONS + lane_function] |= clear;
   st->lane_functions[kind * WB_N_LANE_FUNCTIONS + lane_function](arg, res, clear);
 }
 
@@ -188,7 +185,7 @@ void wb_task_hess(void* job, int b, int worker) {
     arg[3 * L + l] = &j->scale;
     arg[4 * L + l] = k < st->n_stages - 1 ? j->lam + s->dyn_eq_offs[k] : c->zeros;
     arg[5 * L + l] = lam_rows;
-    res[l] = w->hess + (size_t) l * st->max_n * st->max_n;
+    res[l] = L > 1 ? w->lane_hess[code] + (size_t) l * st->max_n * st->max_n : w->hess;
   }
   wb_eval(c, w, WB_LANE_HESS, code, ks[0], n_l, L, arg, 6, res, 1);
   for (l = 0; l < n_l; ++l) {
@@ -244,8 +241,8 @@ void wb_task_jac(void* job, int b, int worker) {
     const int k = ks[l];
     wb_stage_point(c, w->ufull + (size_t) l * (st->max_n + 1), k, &arg[l], &arg[L + l]);
     arg[2 * L + l] = c->P + (size_t) k * st->n_params;
-    res[l] = w->jac_next + (size_t) l * st->max_n * st->max_x;
-    res[L + l] = w->jac_rows + (size_t) l * st->max_n * st->max_rows;
+    res[l] = L > 1 ? w->lane_jac_next[code] + (size_t) l * st->max_n * st->max_x : w->jac_next;
+    res[L + l] = L > 1 ? w->lane_jac_rows[code] + (size_t) l * st->max_n * st->max_rows : w->jac_rows;
   }
   wb_eval(c, w, WB_LANE_JAC, code, ks[0], n_l, L, arg, 3, res, 2);
   for (l = 0; l < n_l; ++l) {
@@ -340,7 +337,6 @@ void wb_task_warm(void* job, int k, int worker) {
   wb_call(c, w, WB_VAL, k, z, z, 0, 0, 0, w->f, w->r);
   wb_call(c, w, WB_GRAD, k, z, z, 0, 0, 0, w->hess, 0);
   wb_call(c, w, WB_COST, k, z, z, 0, 0, 0, &value, 0);
-  w->lane_code[WB_LANE_HESS][0] = w->lane_code[WB_LANE_JAC][0] = -1; /* lane 0's buffers overwritten */
 }
 
 /* doubles of stage k's block in wb_eval_derivatives' output: gradient, Hessian, (d f)', (d r)' in (u, x) */
