@@ -60,6 +60,19 @@ inline void wb_eliminate(double* panel, int i, const int* list, int count, const
   }
 }
 
+/* step i's row of U (A(i, j) / pivot, j > i), its negatives into minus_u[j], and the j where they are nonzero into
+   list; returns how many */
+inline int wb_multipliers(blasfeo_dmat* At, int i, int m, double pivot, double* minus_u, int* list) {
+  int count = 0;
+  for (int j = i + 1; j < m; j++) {
+    WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
+    minus_u[j] = -WB_EL(At, i, j);
+    list[count] = j;
+    count += minus_u[j] != 0.0;
+  }
+  return count;
+}
+
 /* the rows from `eager` on (n rows, m columns, panel stride cn): the column swap and elimination of the LU's steps
    0 .. steps - 1, panel by panel (step i's nonzero u_j: list + i * m, counts[i] of them) */
 void wb_eliminate_rest(double* pA, int cn, int eager, int n, int m, int steps, fatrop::PermutationMatrix& Pl,
@@ -126,14 +139,7 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
     const double pivot = WB_EL(At, i, i);
     double* const mu = minus_u.data() + static_cast<size_t>(i) * m;
     int* const list = nonzero.data() + static_cast<size_t>(i) * m;
-    int count = 0;
-    for (int j = i + 1; j < m; j++) {
-      WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
-      mu[j] = -WB_EL(At, i, j);
-      list[count] = j;
-      count += mu[j] != 0.0;
-    }
-    counts[i] = count;
+    const int count = counts[i] = wb_multipliers(At, i, m, pivot, mu, list);
     /* rows i+1 .. eager-1: column j -= L_ij column i */
     for (int p = p0; p < eager; p += 4)
       wb_eliminate(pA + p * cn, i, list, count, mu, p == p0 || p + 4 > n ? wb_row_mask(i + 1, n, p) : all);
