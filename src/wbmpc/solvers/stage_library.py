@@ -4,7 +4,7 @@ Fatrop asks an OCP for per-stage blocks: the transposed dynamics Jacobian BAbt, 
 the equality and inequality Jacobians Ggt / Ggt_ineq, constraint values, cost gradients and bounds. Each stage
 kind's blocks are generated here directly in Fatrop's (u_k, x_k) order (`stage_kind_functions`) and written dense
 (`dense_writes`: the structural nonzeros into a cleared column-major buffer), so each block is one generated call
-and one BLASFEO pack. The generated C and a table of the stage kinds
+and one BLASFEO pack; the Hessian and Jacobian also on 4 stages of a kind at once (`stage_vectors`). The generated C and a table of the stage kinds
 (`csrc/wbmpc_stages.h`: their functions and work sizes) compile into one library per set of stage kinds (the
 horizon's length does not enter: 10 or 40 nodes of one formulation share it); the shim that answers Fatrop
 (`fatrop_shim.py`) is compiled once per machine and gets the stages' layout (kinds, sizes, offsets) from Python.
