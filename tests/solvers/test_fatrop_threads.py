@@ -137,7 +137,8 @@ def test_another_horizon_reuses_the_compiled_stages(robot, solvers, codegen):
 
 class _Kinds(ctypes.Structure):  # csrc/wbmpc_stages.h's wb_kinds
     _fields_ = [("version", ctypes.c_int), ("n_kinds", ctypes.c_int), ("functions", ctypes.POINTER(ctypes.c_void_p)),
-                ("sz", ctypes.c_int * 4), ("code", ctypes.POINTER(ctypes.c_void_p))]
+                ("sz", ctypes.c_int * 4), ("code", ctypes.POINTER(ctypes.c_void_p)), ("lanes", ctypes.c_int),
+                ("lane_functions", ctypes.POINTER(ctypes.c_void_p))]
 
 
 class _DlInfo(ctypes.Structure):

@@ -59,8 +59,8 @@ class CodegenConfig:
     # as its 25.3 MB before (at -O0), g1's 10.6 MB (17.9 before, -O1 in 1-2.5 min)
     stage_large_source_mb: float | None = 12.0
     # fatrop-direct's stage library (solvers/stage_library.py) compiles at -O2 instead of -O1 up to this size (MB of
-    # C). 10 takes b1_z1 (4.3 MB: 132 s at load 5; 7.6 MB and 254 s before the stage library wrote only nonzeros and
-    # shared the first stage's code); g1 (10.6 MB, 17.9 before: -O1 in 57-152 s at load 4-6) stays at -O1: at -O2
+    # C). 10 takes b1_z1 (4.3 MB: 132 s at load 5, 312 s at load 4 with the lane functions of stage_vectors; 7.6 MB and
+    # 254 s before the stage library wrote only nonzeros and shared the first stage's code); g1 (10.6 MB, 17.9 before: -O1 in 57-152 s at load 4-6) stays at -O1: at -O2
     # its 17.9 MB took a one-off 768 s / 2.8 GB for thread CPU per solver iteration 4.41 -> 3.63 ms, so it is opt-in
     stage_o2_max_source_mb: float = 10.0
     # fatrop-direct's stage Hessian: the RNEA rows' curvature "exact", "cross" (only its blocks with an input:

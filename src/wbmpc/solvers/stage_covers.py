@@ -107,8 +107,10 @@ def find_covers(stages: list[tuple[ca.Function, list[tuple[str, int]]]]) -> dict
 
 def wrappers(cover: Cover, jac_work: int) -> str:
     """C of `wbk<kind>_hess` and `wbk<kind>_jac` calling the cover's: the multipliers scattered to the cover's rows
-    (zeros on the rows the kind does not have); the Jacobian's shared columns copied from the cover's, computed into
-    the work array past the cover's own `jac_work` doubles, the linear rows' columns set from constants."""
+    (zeros on the rows the kind does not have: `wbk<kind>_cover_lam`); the Jacobian's shared columns copied from the
+    cover's, computed into the work array past the cover's own `jac_work` doubles, the linear rows' columns set from
+    constants (`wbk<kind>_cover_rows`). The shim calls the two adapters itself where it evaluates the kind's stages in
+    a lane of the cover's lane functions (stage_vectors.py)."""
     k, c, n = cover.kind, cover.cover, cover.n_z
     rows = ", ".join(str(r) for r in cover.rows) or "0"
     places = [place for i in sorted(cover.linear) for place, _ in cover.linear[i]]
@@ -120,26 +122,18 @@ static const int wbk{k}_rows[] = {{{rows}}};
 static const int wbk{k}_linear_start[] = {{{', '.join(str(s) for s in starts)}}};
 static const int wbk{k}_linear_place[] = {{{', '.join(str(p) for p in places) or '0'}}};
 static const casadi_real wbk{k}_linear_value[] = {{{', '.join(values) or '0'}}};
-int wbk{k}_hess(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {{
-  casadi_real lam[{max(cover.cover_rows, 1)}];
-  const casadi_real* cover_arg[6];
+/* the kind's row multipliers (NULL: zeros) as the cover's ({cover.cover_rows} rows) */
+void wbk{k}_cover_lam(const casadi_real* lam, casadi_real* cover_lam) {{
   int i;
-  memset(lam, 0, sizeof(lam));
+  memset(cover_lam, 0, sizeof(casadi_real) * {max(cover.cover_rows, 1)});
   for (i = 0; i < {len(cover.rows)}; ++i)
-    if (wbk{k}_rows[i] >= 0) lam[wbk{k}_rows[i]] = arg[5] ? arg[5][i] : 0;
-  for (i = 0; i < 5; ++i) cover_arg[i] = arg[i];
-  cover_arg[5] = lam;
-  return wbk{c}_hess(cover_arg, res, iw, w, mem);
+    if (wbk{k}_rows[i] >= 0) cover_lam[wbk{k}_rows[i]] = lam ? lam[i] : 0;
 }}
-int wbk{k}_jac(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {{
-  casadi_real* cover_rows = w + {jac_work};
-  casadi_real* cover_res[2];
-  int i, j, flag;
-  cover_res[0] = res[0];
-  cover_res[1] = cover_rows;
-  flag = wbk{c}_jac(arg, cover_res, iw, w, mem);
+/* the kind's transposed row Jacobian from the cover's ({n} x {cover.cover_rows}, column-major) */
+void wbk{k}_cover_rows(const casadi_real* cover_rows, casadi_real* rows) {{
+  int i, j;
   for (i = 0; i < {len(cover.rows)}; ++i) {{
-    casadi_real* column = res[1] + (size_t) i * {n};
+    casadi_real* column = rows + (size_t) i * {n};
     if (wbk{k}_rows[i] >= 0) {{
       memcpy(column, cover_rows + (size_t) wbk{k}_rows[i] * {n}, sizeof(casadi_real) * {n});
       continue;
@@ -148,6 +142,24 @@ int wbk{k}_jac(const casadi_real** arg, casadi_real** res, casadi_int* iw, casad
     for (j = wbk{k}_linear_start[i]; j < wbk{k}_linear_start[i + 1]; ++j)
       column[wbk{k}_linear_place[j]] = wbk{k}_linear_value[j];
   }}
+}}
+int wbk{k}_hess(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {{
+  casadi_real lam[{max(cover.cover_rows, 1)}];
+  const casadi_real* cover_arg[6];
+  int i;
+  wbk{k}_cover_lam(arg[5], lam);
+  for (i = 0; i < 5; ++i) cover_arg[i] = arg[i];
+  cover_arg[5] = lam;
+  return wbk{c}_hess(cover_arg, res, iw, w, mem);
+}}
+int wbk{k}_jac(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {{
+  casadi_real* cover_rows = w + {jac_work};
+  casadi_real* cover_res[2];
+  int flag;
+  cover_res[0] = res[0];
+  cover_res[1] = cover_rows;
+  flag = wbk{c}_jac(arg, cover_res, iw, w, mem);
+  wbk{k}_cover_rows(cover_rows, res[1]);
   return flag;
 }}
 """

@@ -4,7 +4,7 @@ Fatrop asks an OCP for per-stage blocks: the transposed dynamics Jacobian BAbt, 
 the equality and inequality Jacobians Ggt / Ggt_ineq, constraint values, cost gradients and bounds. Each stage
 kind's blocks are generated here directly in Fatrop's (u_k, x_k) order (`stage_kind_functions`) and written dense
 (`dense_writes`: the structural nonzeros into a cleared column-major buffer), so each block is one generated call
-and one BLASFEO pack. The generated C and a table of the stage kinds
+and one BLASFEO pack; the Hessian and Jacobian also on 4 stages of a kind at once (`stage_vectors`). The generated C and a table of the stage kinds
 (`csrc/wbmpc_stages.h`: their functions and work sizes) compile into one library per set of stage kinds (the
 horizon's length does not enter: 10 or 40 nodes of one formulation share it); the shim that answers Fatrop
 (`fatrop_shim.py`) is compiled once per machine and gets the stages' layout (kinds, sizes, offsets) from Python.
@@ -41,9 +41,10 @@ from wbmpc.solvers.codegen import (
 from wbmpc.solvers.native import source_dir, source_text
 from wbmpc.solvers.stage_covers import Cover, find_covers
 from wbmpc.solvers.stage_covers import wrappers as cover_wrappers
+from wbmpc.solvers.stage_vectors import LANES, vectorize
 
 FUNCTION_KINDS = ("hess", "jac", "val", "grad", "cost")  # the order of wbmpc_stages.h's WB_HESS, ...
-KINDS_VERSION = 2  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
+KINDS_VERSION = 3  # WB_KINDS_VERSION of csrc/wbmpc_stages.h
 
 
 DYNAMICS_TAGS = ("dynamics", "implied_torque")  # the path rows that are RNEA rows (eq. 5) on wb_inverse
@@ -208,9 +209,11 @@ def dense_writes(code: str, functions: list[ca.Function]) -> str | None:
     return "#include <string.h>\n" + code
 
 
-def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: int, covers: dict[int, Cover]) -> str:
+def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: int, covers: dict[int, Cover],
+                 lane_functions: list[str]) -> str:
     """The C table of the stage kinds (`wb_kinds`) and the covered kinds' wrappers, compiled beside the generated
-    functions; a covered kind's Hessian and Jacobian have its cover's code range (the code they run)."""
+    functions; a covered kind's Hessian and Jacobian have its cover's code range (the code they run); the functions
+    named in `lane_functions` have a `<name>_lanes` version of LANES stages (stage_vectors.py)."""
     by_name = {f.name(): f for f in functions}
     ranges = dict(zip([f.name() for f in functions], zip(code_ranges[::2], code_ranges[1::2])))
     sizes = np.array([[f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()] for f in functions]).max(axis=0)
@@ -223,7 +226,11 @@ def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: 
             ranges[f"wbk{kind}_{name}"] = ranges[f"wbk{cover.cover}_{name}"]
     names = [f"wbk{i}_{kind}" for i in range(n_kinds) for kind in FUNCTION_KINDS]
     code = [bound for name in names for bound in ranges[name]]
-    fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes, "wb_code"]
+    lanes = [f"wbk{i}_{kind}_lanes" if f"wbk{i}_{kind}" in lane_functions else "0"
+             for i in range(n_kinds) for kind in ("hess", "jac")]
+    cover_table = [f"{{{c.cover}, {c.cover_rows}, wbk{k}_cover_lam, wbk{k}_cover_rows}}" if (c := covers.get(k))
+                   else "{-1, 0, 0, 0}" for k in range(n_kinds)]
+    fields = [KINDS_VERSION, n_kinds, "wb_functions", *sizes, "wb_code", LANES, "wb_lane_functions", "wb_covers"]
     bounds = sorted({name for name in code if name != "0"})
     return "".join([
         *(["\n#include <string.h>\n", *wrappers] if wrappers else []),
@@ -231,6 +238,8 @@ def _kinds_table(functions: list[ca.Function], code_ranges: list[str], n_kinds: 
         "".join(f"extern const char {name}[] __attribute__((weak, visibility(\"hidden\")));\n" for name in bounds),
         f"static const wb_fn wb_functions[] = {{{', '.join(names)}}};\n",
         f"static const char* const wb_code[] = {{{', '.join(code)}}};\n",
+        f"static const wb_lane_fn wb_lane_functions[] = {{{', '.join(lanes)}}};\n",
+        f"static const wb_cover wb_covers[] = {{{', '.join(cover_table)}}};\n",
         f"static const wb_kinds wb_stage_kinds = {{{', '.join(str(f) for f in fields)}}};\n",
         "const wb_kinds* wbmpc_stage_kinds(void) { return &wb_stage_kinds; }\n",
     ])
@@ -250,7 +259,10 @@ def generate_source(problem: OcpProblem, dynamics_hessian: str = "exact") -> tup
                         .ravel() for k in range(problem.N + 1)]).round().astype(np.int64)
     assert p_index.shape == (problem.N + 1, n_p)
     code, code_ranges = code_sections(code, [function.name() for function in functions])
-    return code + _kinds_table(functions, code_ranges, n_kinds, covers), p_index, layout
+    derivatives = [f for f in functions if f.name().endswith(("_hess", "_jac"))]
+    code, lane_functions = vectorize(code, [f.name() for f in derivatives], {f.name(): f.n_in() for f in derivatives},
+                                     {f.name(): f.n_out() for f in derivatives})
+    return code + _kinds_table(functions, code_ranges, n_kinds, covers, lane_functions), p_index, layout
 
 
 def _generated(functions: list[ca.Function]) -> str:

@@ -78,7 +78,7 @@ static fatrop_int cb_full_hess(double scale, const double* primal, const double*
   wb_ctx* c = (wb_ctx*) d;
   wb_begin(c, primal, lam, scale, s);
   c->job.m0 = res;
-  wb_run(c, wb_task_hess);
+  wb_run_batches(c, wb_task_hess);
   wb_check_finite(c);
   return 1;
 }
@@ -89,7 +89,7 @@ static fatrop_int cb_full_jac(const double* primal, const double* sp, const doub
   wb_ctx* c = (wb_ctx*) d;
   wb_begin(c, primal, 0, 1.0, s);
   c->job.m0 = BAbt; c->job.m1 = Gg; c->job.m2 = Gg_ineq;
-  wb_run(c, wb_task_jac);
+  wb_run_batches(c, wb_task_jac);
   wb_check_finite(c);
   memcpy(c->jac_primal, primal, sizeof(double) * c->n_fatrop); /* the fixed inputs' rows kept were there */
   c->has_jac = 1;

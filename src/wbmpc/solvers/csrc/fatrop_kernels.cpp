@@ -48,23 +48,41 @@ inline void wb_swap_columns(double* panel, int p, int n, int i, int bc) {
   }
 }
 
-/* step i's elimination on one panel: column j (> i) += (-u_j) column i, rows of `rows` only */
-inline void wb_eliminate(double* panel, int i, int m, const double* minus_u, __m256d rows) {
+/* step i's elimination on one panel: column j (> i) += (-u_j) column i, rows of `rows` only, for the columns j in
+   `list` (count of them): those with u_j != 0. The equality Jacobians are sparse (g1: 11 % of the u_j are nonzero);
+   a column with u_j = 0 would get + (0 c_i) = +-0 (finite entries), which leaves every value as it is (at most a
+   zero's sign changes) */
+inline void wb_eliminate(double* panel, int i, const int* list, int count, const double* minus_u, __m256d rows) {
   const __m256d ci = _mm256_and_pd(_mm256_loadu_pd(panel + i * 4), rows);
-  for (int j = i + 1; j < m; j++)
+  for (int t = 0; t < count; t++) {
+    const int j = list[t];
     _mm256_storeu_pd(panel + j * 4, _mm256_add_pd(_mm256_loadu_pd(panel + j * 4), _mm256_mul_pd(_mm256_set1_pd(minus_u[j]), ci)));
+  }
+}
+
+/* step i's row of U (A(i, j) / pivot, j > i), its negatives into minus_u[j], and the j where they are nonzero into
+   list; returns how many */
+inline int wb_multipliers(blasfeo_dmat* At, int i, int m, double pivot, double* minus_u, int* list) {
+  int count = 0;
+  for (int j = i + 1; j < m; j++) {
+    WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
+    minus_u[j] = -WB_EL(At, i, j);
+    list[count] = j;
+    count += minus_u[j] != 0.0;
+  }
+  return count;
 }
 
 /* the rows from `eager` on (n rows, m columns, panel stride cn): the column swap and elimination of the LU's steps
-   0 .. steps - 1, panel by panel */
+   0 .. steps - 1, panel by panel (step i's nonzero u_j: list + i * m, counts[i] of them) */
 void wb_eliminate_rest(double* pA, int cn, int eager, int n, int m, int steps, fatrop::PermutationMatrix& Pl,
-                       const double* minus_u) {
+                       const double* minus_u, const int* list, const int* counts) {
   for (int p = eager; p < n; p += 4) {
     double* const panel = pA + p * cn;
     const __m256d rows = p + 4 > n ? wb_row_mask(p, n, p) : _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
     for (int i = 0; i < steps; ++i) {
       if (Pl[i] != i) wb_swap_columns(panel, p, n, i, Pl[i]);
-      wb_eliminate(panel, i, m, minus_u + static_cast<size_t>(i) * m, rows);
+      wb_eliminate(panel, i, list + static_cast<size_t>(i) * m, counts[i], minus_u + static_cast<size_t>(i) * m, rows);
     }
   }
 }
@@ -82,7 +100,11 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
   const int cn = At->cn;
   const int eager = std::min(n, (n_max + 3) & ~3);  /* rows updated at each step: the pivot search's panels */
   static thread_local std::vector<double> minus_u;  /* step i's -A(i, j), j > i, at step i: minus_u[i * m + j] */
+  static thread_local std::vector<int> nonzero;     /* step i's j with minus_u[i * m + j] != 0: nonzero[i * m + t] */
+  static thread_local std::vector<int> counts;      /* how many: counts[i] */
   if (static_cast<int>(minus_u.size()) < minmn * m) minus_u.resize(static_cast<size_t>(minmn) * m);
+  if (static_cast<int>(nonzero.size()) < minmn * m) nonzero.resize(static_cast<size_t>(minmn) * m);
+  if (static_cast<int>(counts.size()) < minmn) counts.resize(static_cast<size_t>(minmn));
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
   const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
   int r = 0;
@@ -116,16 +138,14 @@ void wb_lu_fact_transposed(const int m, const int n, const int n_max, int& rank,
     Pr[i] = br;
     const double pivot = WB_EL(At, i, i);
     double* const mu = minus_u.data() + static_cast<size_t>(i) * m;
-    for (int j = i + 1; j < m; j++) {
-      WB_EL(At, i, j) = WB_EL(At, i, j) / pivot;
-      mu[j] = -WB_EL(At, i, j);
-    }
+    int* const list = nonzero.data() + static_cast<size_t>(i) * m;
+    const int count = counts[i] = wb_multipliers(At, i, m, pivot, mu, list);
     /* rows i+1 .. eager-1: column j -= L_ij column i */
     for (int p = p0; p < eager; p += 4)
-      wb_eliminate(pA + p * cn, i, m, mu, p == p0 || p + 4 > n ? wb_row_mask(i + 1, n, p) : all);
+      wb_eliminate(pA + p * cn, i, list, count, mu, p == p0 || p + 4 > n ? wb_row_mask(i + 1, n, p) : all);
     r = i + 1;
   }
-  wb_eliminate_rest(pA, cn, eager, n, m, r, Pl, minus_u.data());
+  wb_eliminate_rest(pA, cn, eager, n, m, r, Pl, minus_u.data(), nonzero.data(), counts.data());
   rank = r;
 }
 

@@ -14,10 +14,33 @@ typedef struct {
   int *n_eq, *n_ineq, *nur; /* per stage: the dimensions Fatrop was built with */
 } wb_solver;
 
+/* each kind's lane output buffers (kinds with lane functions) */
+static int wb_lane_buffers(wb_work* w, const wb_stages* st) {
+  const size_t n = (size_t) st->max_n, L = (size_t) st->lanes;
+  int kind, ok = 1;
+  const int n_kinds = st->kinds->n_kinds;
+  w->lane_hess = (double**) calloc(n_kinds, sizeof(double*));
+  w->lane_jac_next = (double**) calloc(n_kinds, sizeof(double*));
+  w->lane_jac_rows = (double**) calloc(n_kinds, sizeof(double*));
+  w->lane_held = (int*) calloc(n_kinds * WB_N_LANE_FUNCTIONS, sizeof(int));
+  if (!w->lane_hess || !w->lane_jac_next || !w->lane_jac_rows || !w->lane_held) return 0;
+  for (kind = 0; kind < n_kinds && ok; ++kind) {
+    if (wb_kind_lanes(st, kind) == 1) continue;
+    w->lane_hess[kind] = (double*) calloc(L * n * n, sizeof(double));
+    w->lane_jac_next[kind] = (double*) calloc(L * n * st->max_x, sizeof(double));
+    w->lane_jac_rows[kind] = (double*) calloc(L * n * st->max_rows, sizeof(double));
+    ok = w->lane_hess[kind] && w->lane_jac_next[kind] && w->lane_jac_rows[kind];
+  }
+  return ok;
+}
+
 static int wb_work_init(wb_work* w, const wb_stages* st) {
-  size_t n = (size_t) st->max_n;
+  size_t n = (size_t) st->max_n, L = (size_t) (st->lanes > 1 ? st->lanes : 1);
   int f;
   for (f = 0; f < WB_N_FUNCTIONS; ++f) w->last_kind[f] = -1;
+  if (!wb_lane_buffers(w, st)) return 0;
+  w->cover_lam = (double*) calloc(st->max_rows + 1, sizeof(double));
+  w->cover_rows = (double*) calloc(n * st->max_rows + 1, sizeof(double));
   w->arg = (const double**) calloc(st->sz_arg + 8, sizeof(double*));
   w->res = (double**) calloc(st->sz_res + 8, sizeof(double*));
   w->iw = (long long int*) calloc(st->sz_iw + 1, sizeof(long long int));
@@ -27,19 +50,24 @@ static int wb_work_init(wb_work* w, const wb_stages* st) {
   w->jac_rows = (double*) calloc(n * st->max_rows + 1, sizeof(double));
   w->f = (double*) calloc(st->max_x + 1, sizeof(double));
   w->r = (double*) calloc(st->max_rows + 1, sizeof(double));
-  w->lam_rows = (double*) calloc(st->max_rows + 1, sizeof(double));
-  w->ufull = (double*) calloc(n + 1, sizeof(double));
+  w->lam_rows = (double*) calloc(L * (st->max_rows + 1), sizeof(double));
+  w->ufull = (double*) calloc(L * (n + 1), sizeof(double));
   w->compact = (double*) calloc(n * (n + st->max_x + st->max_rows) + 1, sizeof(double));
   w->col = (double*) calloc(n + 1, sizeof(double));
   w->cols = (int*) calloc(st->max_rows + 1, sizeof(int));
   return w->arg && w->res && w->iw && w->w && w->hess && w->jac_next && w->jac_rows && w->f && w->r && w->lam_rows &&
-         w->ufull && w->compact && w->col && w->cols;
+         w->ufull && w->compact && w->col && w->cols && w->cover_lam && w->cover_rows;
 }
 
-static void wb_work_free(wb_work* w) {
+static void wb_work_free(wb_work* w, int n_kinds) {
+  int kind;
+  for (kind = 0; kind < n_kinds && w->lane_hess; ++kind) {
+    free(w->lane_hess[kind]); free(w->lane_jac_next[kind]); free(w->lane_jac_rows[kind]);
+  }
+  free(w->lane_hess); free(w->lane_jac_next); free(w->lane_jac_rows); free(w->lane_held);
   free((void*) w->arg); free(w->res); free(w->iw); free(w->w); free(w->hess);
   free(w->jac_next); free(w->jac_rows); free(w->f); free(w->r); free(w->lam_rows);
-  free(w->ufull); free(w->compact); free(w->col); free(w->cols);
+  free(w->ufull); free(w->compact); free(w->col); free(w->cols); free(w->cover_lam); free(w->cover_rows);
 }
 
 void wb_ctx_free(void* ctx) {
@@ -47,7 +75,7 @@ void wb_ctx_free(void* ctx) {
   int i;
   if (!c) return;
   wb_pool_free(c->pool);
-  for (i = 0; c->work && i < c->n_work; ++i) wb_work_free(&c->work[i]);
+  for (i = 0; c->work && i < c->n_work; ++i) wb_work_free(&c->work[i], c->st->kinds->n_kinds);
   free(c->work);
   free(c->a_eq); free(c->a_ineq); free(c->x_eq); free(c->x_ineq);
   free(c->a_eq_i); free(c->a_ineq_i); free(c->x_eq_i); free(c->x_ineq_i);
@@ -57,6 +85,7 @@ void wb_ctx_free(void* ctx) {
   free(c->fix_i);
   free(c->p_index);
   free(c->run_src); free(c->run_dst); free(c->run_len); free(c->run_i);
+  free(c->batch_i); free(c->batch_k);
   free(c->stages.kind);
   free(c);
 }
@@ -68,6 +97,9 @@ static int wb_stages_init(wb_stages* st, const wb_kinds* kinds, const int* layou
   if (!copy) return 0;
   memcpy(copy, layout, sizeof(int) * WB_LAYOUT_ROWS * n_stages);
   st->kinds = kinds; st->functions = kinds->functions; st->code = kinds->code;
+  st->lanes = kinds->lane_functions && kinds->lanes > 1 && kinds->lanes <= WB_MAX_LANES ? kinds->lanes : 1;
+  st->lane_functions = st->lanes > 1 ? kinds->lane_functions : 0;
+  st->covers = kinds->covers;
   st->sz_arg = kinds->sz_arg; st->sz_res = kinds->sz_res; st->sz_iw = kinds->sz_iw; st->sz_w = kinds->sz_w;
   st->n_stages = n_stages; st->n_params = n_params; st->n_variables = n_variables; st->n_constraints = n_constraints;
   st->kind = copy + WB_L_KIND * n_stages; st->nx = copy + WB_L_NX * n_stages; st->nu = copy + WB_L_NU * n_stages;
@@ -114,11 +146,14 @@ static int wb_ctx_alloc(wb_ctx* c, int n_threads) {
   c->fix_grad = (double*) calloc(st->n_variables + 1, sizeof(double));
   c->fix_jac = (double*) calloc((size_t) st->n_variables * (st->max_x + st->max_rows) + 1, sizeof(double));
   c->work = (wb_work*) calloc(n_threads, sizeof(wb_work));
+  c->batch_i = (int*) calloc(K + 1, sizeof(int));
+  c->batch_k = (int*) calloc(2 * K + 2, sizeof(int)); /* and wb_batches' scratch */
   ok = c->a_eq && c->a_ineq && c->x_eq && c->x_ineq && c->a_eq_i && c->a_ineq_i && c->x_eq_i && c->x_ineq_i &&
        c->zeros && c->stage_cost && c->stage_f && c->stage_r && c->last_primal && c->jac_primal && c->grad_primal &&
        c->obj_primal &&
        c->nur && c->u_fixed && c->rmap && c->red_pos && c->u_fixed_i && c->rmap_i && c->fix_i && c->fix_grad &&
-       c->fix_jac && c->run_src && c->run_dst && c->run_len && c->run_i && c->work;
+       c->fix_jac && c->run_src && c->run_dst && c->run_len && c->run_i && c->work && c->batch_i && c->batch_k;
+  if (ok) wb_batches(c);
   for (i = 0; ok && i < n_threads; ++i, ++c->n_work) ok = wb_work_init(&c->work[i], st);
   if (ok && n_threads > 1) ok = (c->pool = wb_pool_new(n_threads - 1)) != 0;
   return ok;
@@ -300,7 +335,7 @@ static void wb_unpack_stage(wb_ctx* c, int k, const double* primal, const double
   const double* u_free = primal + dims->ux_offs[k];
   int i, col = 0;
   memcpy(x_out + st->x_offset[k], u_free + c->nur[k], sizeof(double) * st->nx[k]);
-  memcpy(x_out + st->x_offset[k] + st->nx[k], wb_full_inputs(c, &c->work[0], k, u_free), sizeof(double) * st->nu[k]);
+  memcpy(x_out + st->x_offset[k] + st->nx[k], wb_full_inputs(c, c->work[0].ufull, k, u_free), sizeof(double) * st->nu[k]);
   for (i = c->a_eq_i[k]; i < c->a_eq_i[k + 1]; ++i, ++col) lam_g_out[c->a_eq[i]] = dual[dims->g_offs[k] + col];
   for (i = c->x_eq_i[k]; i < c->x_eq_i[k + 1]; ++i, ++col) lam_x_out[c->x_eq[i]] = dual[dims->g_offs[k] + col];
   col = 0;
@@ -363,7 +398,7 @@ static double wb_unpack(wb_ctx* c, void* solver, double* x_out, double* lam_g_ou
   if (c->u_fixed_i[st->n_stages] > 0) {
     if (!(wb_same_point(c, c->has_jac, c->jac_primal, primal) && wb_same_point(c, c->has_grad, c->grad_primal, primal))) {
       c->job.cache_only = 1;
-      wb_pool_run(c->pool, st->n_stages, wb_task_jac, c);
+      wb_pool_run(c->pool, c->n_batches, wb_task_jac, c);
       wb_pool_run(c->pool, st->n_stages, wb_task_grad, c);
     }
     wb_fixed_multipliers(c, dual, dims, lam_g_out, lam_x_out);

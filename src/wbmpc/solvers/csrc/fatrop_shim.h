@@ -29,10 +29,17 @@ typedef struct {
   double** res;
   long long int* iw;
   double* w;
+  /* lam_rows, ufull: one block per lane of the kinds' lane functions (stride: the largest stage's size) */
   double *hess, *jac_next, *jac_rows, *f, *r, *lam_rows;
   double *ufull, *compact, *col; /* a stage's whole u; blocks of Fatrop's (free u, x) rows; one column */
   int* cols;                     /* the columns a block selects */
   int last_kind[WB_N_FUNCTIONS]; /* the stage kind this thread last evaluated each function of (-1: none) */
+  /* per kind with lane functions: its lanes' output buffers (hess, jac_next, jac_rows: L blocks each, stride the
+     largest stage's size; NULL for other kinds) and which lanes' buffers hold its outputs (bit l of
+     lane_held[kind * WB_N_LANE_FUNCTIONS + function]): only the nonzeros are written, their zeros stay */
+  double **lane_hess, **lane_jac_next, **lane_jac_rows;
+  int* lane_held;
+  double *cover_lam, *cover_rows; /* a covered kind's stage: its own row multipliers, its rows from the cover's */
 } wb_work;
 
 /* the evaluation a pool job runs on every stage (see stage_tasks.c) */
@@ -75,6 +82,10 @@ typedef struct {
   double* stage_r;        /* K * max_rows: r of the same */
   double* last_primal;    /* where that evaluation was (Fatrop's layout); has_last: valid */
   int has_last;
+  /* the Hessian's and Jacobian's tasks: batches of stages of one kind evaluated in one call of its lane functions
+     (stage_tasks.c), in order of their first stage; batch b holds stages batch_k[batch_i[b] .. batch_i[b + 1] - 1] */
+  int n_batches;
+  int *batch_i, *batch_k;
   wb_work* work;          /* one per thread: the caller's first */
   int n_work;
   wb_pool* pool;
@@ -86,7 +97,8 @@ typedef struct {
 
 /* stage_layout.c */
 void wb_classify(wb_ctx* c);
-const double* wb_full_inputs(const wb_ctx* c, wb_work* w, int k, const double* u_free);
+void wb_batches(wb_ctx* c);
+const double* wb_full_inputs(const wb_ctx* c, double* ufull, int k, const double* u_free);
 const double* wb_reduce_square(const wb_ctx* c, wb_work* w, int k, const double* A, int n);
 const double* wb_reduce_rows(const wb_ctx* c, wb_work* w, int k, const double* A, int n, int n_cols, const int* cols);
 void wb_keep_fixed_rows(wb_ctx* c, int k, const double* jac_next, const double* jac_rows, int n);
@@ -97,8 +109,10 @@ void wb_fixed_multipliers(const wb_ctx* c, const double* dual, const struct Fatr
 double wb_now(void);
 int wb_pack_ready(void);
 void wb_run(wb_ctx* c, wb_task_fn task);
-void wb_task_hess(void* job, int k, int worker);
-void wb_task_jac(void* job, int k, int worker);
+void wb_run_batches(wb_ctx* c, wb_task_fn task);
+int wb_kind_lanes(const wb_stages* st, int kind);
+void wb_task_hess(void* job, int batch, int worker);
+void wb_task_jac(void* job, int batch, int worker);
 void wb_task_viol(void* job, int k, int worker);
 void wb_task_grad(void* job, int k, int worker);
 void wb_task_cost(void* job, int k, int worker);

@@ -24,6 +24,13 @@ constexpr int kMaxN = 512;     /* most columns of D handled here */
 constexpr int kMaxRow = 32;    /* most nonzeros in a row of a sparse B */
 constexpr double kSparse = 0.5;  /* use a sparse path below this share of the dense work */
 
+/* a pointer the compiler must keep as it is (not re-derive from its thread-local origin) */
+template <typename T>
+inline T* wb_opaque(T* p) {
+  __asm__("" : "+r"(p));
+  return p;
+}
+
 /* lanes [first, end) of a panel set, the others clear */
 inline __m256i wb_lanes(int first, int end) {
   const __m256i lane = _mm256_setr_epi64x(0, 1, 2, 3);
@@ -65,8 +72,14 @@ inline int wb_panel_support(const double* pa, int k, int rows, int* idx) {
 bool wb_gemm_sparse_a(int m, int n, int k, double alpha, blasfeo_dmat* sA, int aj, blasfeo_dmat* sB, int bi, int bj,
                       double beta, blasfeo_dmat* sC, int ci, int cj, blasfeo_dmat* sD, int di, int dj) {
   const int panels = (m + 3) / 4;
-  static thread_local int idx[kMaxK * 64], counts[64];
-  static thread_local const double* row[kMaxN];
+  static thread_local int tls_idx[kMaxK * 64], tls_counts[64];
+  static thread_local const double* tls_row[kMaxN];
+  /* the thread's arrays by plain pointers the compiler cannot recompute (wb_opaque): each access of a thread_local
+     in a shared library calls __tls_get_addr, and GCC re-derived the addresses in the loops (g1: 5 % of a solve's
+     instructions) */
+  int* idx = wb_opaque(tls_idx);
+  int* counts = wb_opaque(tls_counts);
+  const double** row = wb_opaque(tls_row);
   if (panels > 64 || n > kMaxN) return false;
   long work = 0;
   for (int p = 0; p < panels; ++p) {
@@ -139,8 +152,11 @@ bool wb_row_support(int n, int k, blasfeo_dmat* sB, int bi, int bj, int* count, 
    the nonzeros of B's row j, on whole panels of A's columns. Returns false (nothing written) when not sparse enough */
 bool wb_product_sparse_b(int m, int n, int k, double alpha, blasfeo_dmat* sA, int aj, blasfeo_dmat* sB, int bi, int bj,
                          double beta, blasfeo_dmat* sC, int ci, int cj, blasfeo_dmat* sD, int di, int dj, bool lower) {
-  static thread_local int idx[kMaxN][kMaxRow], count[kMaxN];
-  static thread_local double val[kMaxN][kMaxRow];
+  static thread_local int tls_idx[kMaxN][kMaxRow], tls_count[kMaxN];
+  static thread_local double tls_val[kMaxN][kMaxRow];
+  int(*idx)[kMaxRow] = wb_opaque(tls_idx);  /* plain pointers: see wb_gemm_sparse_a */
+  int* count = wb_opaque(tls_count);
+  double(*val)[kMaxRow] = wb_opaque(tls_val);
   if (n > kMaxN || !wb_row_support(n, k, sB, bi, bj, count, idx, val)) return false;
   long work = 0, dense = 0;
   for (int j = 0; j < n; ++j) {

@@ -74,13 +74,13 @@ void wb_classify(wb_ctx* c) {
 }
 
 /* stage k's whole u from Fatrop's free inputs (fixed ones at their bound); u_free itself when none is fixed */
-const double* wb_full_inputs(const wb_ctx* c, wb_work* w, int k, const double* u_free) {
+const double* wb_full_inputs(const wb_ctx* c, double* ufull, int k, const double* u_free) {
   const wb_stages* st = c->st;
   int i, u0 = st->x_offset[k] + st->nx[k];
   if (c->nur[k] == st->nu[k]) return u_free;
-  for (i = c->u_fixed_i[k]; i < c->u_fixed_i[k + 1]; ++i) w->ufull[c->u_fixed[i]] = c->lbx[u0 + c->u_fixed[i]];
-  for (i = 0; i < c->nur[k]; ++i) w->ufull[c->rmap[c->rmap_i[k] + i]] = u_free[i];
-  return w->ufull;
+  for (i = c->u_fixed_i[k]; i < c->u_fixed_i[k + 1]; ++i) ufull[c->u_fixed[i]] = c->lbx[u0 + c->u_fixed[i]];
+  for (i = 0; i < c->nur[k]; ++i) ufull[c->rmap[c->rmap_i[k] + i]] = u_free[i];
+  return ufull;
 }
 
 /* Fatrop's rows of column `src` (n long) of stage k into `dst` (n_r long), run by run */
@@ -143,4 +143,29 @@ void wb_fixed_multipliers(const wb_ctx* c, const double* dual, const struct Fatr
       lam_x[u0 + c->u_fixed[f]] = -value;
     }
   }
+}
+
+/* the Hessian's and Jacobian's batches: stages whose code (their kind's or its cover's) has lane functions, up to its
+   lanes a batch, in the order of their first stage; every other stage a batch of its own */
+void wb_batches(wb_ctx* c) {
+  const wb_stages* st = c->st;
+  int k, m, n = 0, pos = 0, *code = c->batch_k + st->n_stages + 1; /* scratch past the batches' stages */
+  for (k = 0; k < st->n_stages; ++k) {
+    const int kind = st->kind[k];
+    code[k] = st->covers && st->covers[kind].cover >= 0 ? st->covers[kind].cover : kind;
+  }
+  for (k = 0; k < st->n_stages; ++k) {
+    int lanes;
+    if (code[k] < 0) continue; /* placed */
+    lanes = wb_kind_lanes(st, code[k]);
+    c->batch_i[n++] = pos;
+    for (m = k; m < st->n_stages && pos - c->batch_i[n - 1] < lanes; ++m)
+      if (m == k || (code[m] == code[k] && lanes > 1)) {
+        c->batch_k[pos++] = m;
+        if (m != k) code[m] = -1;
+      }
+    code[k] = -1;
+  }
+  c->batch_i[n] = pos;
+  c->n_batches = n;
 }

@@ -18,7 +18,23 @@ typedef int (*wb_fn)(const double** arg, double** res, long long int* iw, double
    jac (u, x, p) -> (d f / d(u, x))', (d r / d(u, x))';  val -> f, r;  grad -> d l / d(u, x);  cost -> l */
 enum { WB_HESS = 0, WB_JAC, WB_VAL, WB_GRAD, WB_COST, WB_N_FUNCTIONS };
 
-#define WB_KINDS_VERSION 2
+/* a kind's Hessian or Jacobian on `lanes` stages at once (solvers/stage_vectors.py): input i of stage l at
+   arg[i * lanes + l], output i at res[i * lanes + l]; unused lanes repeat a used lane's pointers. Only the outputs'
+   structural nonzeros are written, after clearing the outputs of the lanes l with bit l of `clear` set (a lane's
+   buffers that hold this function's last outputs need no clearing: the same places are written) */
+typedef int (*wb_lane_fn)(const double** arg, double** res, int clear);
+/* a kind whose Hessian and Jacobian are another kind's (solvers/stage_covers.py): its row multipliers as the
+   cover's, and its transposed row Jacobian from the cover's */
+typedef struct {
+  int cover; /* the kind whose code runs; -1: the kind's own */
+  int cover_rows;
+  void (*lam)(const double* lam, double* cover_lam);
+  void (*rows)(const double* cover_rows, double* rows);
+} wb_cover;
+enum { WB_LANE_HESS = 0, WB_LANE_JAC, WB_N_LANE_FUNCTIONS };
+#define WB_MAX_LANES 8
+
+#define WB_KINDS_VERSION 3
 
 /* what the stage library exports (wbmpc_stage_kinds()) */
 typedef struct {
@@ -29,6 +45,9 @@ typedef struct {
   /* [2 * (kind * WB_N_FUNCTIONS + function)] and [... + 1]: the first and the past-the-end byte of each function's
      generated machine code (0, 0 where unknown), prefetched before a kind's first call (stage_tasks.c) */
   const char* const* code;
+  int lanes;                        /* stages per lane function call (1: none) */
+  const wb_lane_fn* lane_functions; /* kind * WB_N_LANE_FUNCTIONS + WB_LANE_*: NULL where a kind has none */
+  const wb_cover* covers;           /* per kind */
 } wb_kinds;
 
 /* a problem: its stage kinds and the layout of its stages (the shim's copy) */
@@ -45,6 +64,9 @@ typedef struct {
   int* gap_offset;   /* first gap row of stage k (-1 on the last) */
   const wb_fn* functions;
   const char* const* code; /* the kinds' code ranges (wb_kinds.code) */
+  int lanes;
+  const wb_lane_fn* lane_functions;
+  const wb_cover* covers;
   int sz_arg, sz_res, sz_iw, sz_w;
   int max_n, max_x, max_rows; /* largest nu + nx, nx, nr (>= 1) */
 } wb_stages;
