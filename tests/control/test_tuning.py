@@ -6,6 +6,7 @@ import json
 import math
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import pytest
 
 from wbmpc.cli import build_parser, gains_from_args, main
@@ -189,3 +190,21 @@ def test_the_held_dampers_are_stable_at_the_default_joint_loop_and_derived_from_
         assert tuning.gains.kd_leg == pytest.approx(PdGains().kd_leg * math.sqrt(robot.mass_kg / REFERENCE.mass_kg))
     b1z1 = tuning_for("b1_z1")
     assert b1z1.gains_at(1 / 200) == b1z1.gains  # the paper's robot keeps its gains at 200 Hz
+
+def test_flat_feet_weigh_their_sole_moments_at_the_soles_lever(b1z1):
+    """w_F: contact_force on every force; on flat feet's sole moments (the last three columns per sole)
+    contact_force / half width^2 (the force the moment puts on the centre-of-pressure rows), or contact_moment
+    when set; point feet have no moments: all contact_force."""
+    from wbmpc.symbolic.dynamics import SymbolicDynamics
+
+    g1 = load_robot("g1")
+    dyn = SymbolicDynamics(g1)
+    weights = CostWeights(contact_force=1e-5)
+    w_f = weights.vectors(g1, dyn.n_forces)["w_F"]
+    np.testing.assert_array_equal(w_f[: dyn.n_linear_forces], 1e-5)
+    for i, foot in enumerate(g1.feet):
+        sole = g1.soles[foot]
+        np.testing.assert_allclose(w_f[dyn.moment_slice(i)], 1e-5 / sole.half_width_m**2, rtol=1e-12)
+    explicit = dataclasses.replace(weights, contact_moment=2e-3).vectors(g1, dyn.n_forces)["w_F"]
+    np.testing.assert_array_equal(explicit[dyn.n_linear_forces :], 2e-3)
+    np.testing.assert_array_equal(CostWeights().vectors(b1z1, 15)["w_F"], CostWeights().contact_force)

@@ -14,13 +14,15 @@ from wbmpc.robots import GRAVITY_M_S2, RobotModel, RobotSpec
 from wbmpc.solvers.nlp import SolverConfig
 
 
-def reference_wrenches(forces, previous_forces, previous_contact, contact, new_times, old_times, columns):
-    """The rule node by node: the old nodes around the new time (the last one alone past the old horizon) with the
-    new node's stance feet; both interpolated, one taken, none: `forces` kept; written to stance feet only."""
+def reference_wrenches(forces, previous_forces, previous_contact, contact, new_times, old_times, columns,
+                       torque_nodes=0):
+    """The rule node by node: the old nodes around the new time (the last one alone past the old horizon; a new node
+    k < torque_nodes among the old nodes < torque_nodes only) with the new node's stance feet; both interpolated,
+    one taken, none: `forces` kept; written to stance feet only."""
     out = forces.copy()
-    last = len(old_times) - 1
     for k, t in enumerate(new_times):
-        if t > old_times[-1]:
+        last = min(torque_nodes, len(old_times)) - 1 if k < torque_nodes else len(old_times) - 1
+        if t > old_times[last]:
             sources = [(last, 1.0)]
         else:
             a = min(max(int(np.searchsorted(old_times, t)) - 1, 0), last - 1)
@@ -67,6 +69,25 @@ def test_wrenches_follow_the_contact_pattern_not_the_interpolation_across_a_swit
     np.testing.assert_allclose(out, reference, rtol=0, atol=1e-12)
 
 
+def test_torque_nodes_take_their_wrenches_from_the_old_torque_nodes():
+    """The first input nodes carry the torques (their RNEA joint rows tie the wrenches to them): a new torque node
+    past the last old torque node holds that node's wrench instead of interpolating towards the next old node (the
+    free node after the torque nodes, whose wrench the plan sets apart); later nodes interpolate as before."""
+    old_times = np.array([0.0, 0.01, 0.022, 0.036, 0.053, 0.073])
+    new_times = old_times + 0.0125
+    columns = {0: np.r_[0:3, 6:9], 1: np.r_[3:6, 9:12]}
+    stance = np.ones((6, 2))
+    previous_forces = np.arange(6)[:, None] * np.ones((6, 12))  # node j's wrench: j everywhere
+    out = shifted_sole_wrenches(np.zeros((6, 12)), previous_forces, stance, stance, new_times, old_times, columns, 3)
+    np.testing.assert_allclose(out[0], 1 + 0.0025 / 0.012)  # between old nodes 1 and 2
+    np.testing.assert_allclose(out[1], 2.0)  # past old node 2, the last torque node: held, not 2 + 0.0005 / 0.014
+    np.testing.assert_allclose(out[2], 2.0)  # (t = 0.0345 lies before old node 3: interpolated without the rule)
+    np.testing.assert_allclose(out[3], 3 + 0.0125 / 0.017)  # free nodes: as without torque nodes
+    plain = shifted_sole_wrenches(np.zeros((6, 12)), previous_forces, stance, stance, new_times, old_times, columns)
+    np.testing.assert_array_equal(out[3:], plain[3:])
+    assert plain[2, 0] > 2.8  # without the rule node 2 took most of old node 3's wrench
+
+
 def test_random_schedules_match_the_reference(rng):
     columns = {0: np.r_[0:3, 9:12], 2: np.r_[6:9, 12:15]}  # foot 1 a point foot: never written
     for _ in range(50):
@@ -77,8 +98,11 @@ def test_random_schedules_match_the_reference(rng):
         contact = (rng.uniform(size=(8, 3)) < 0.6).astype(float)
         previous_contact[rng.integers(0, 8, size=4)] = contact[rng.integers(0, 8, size=4)]  # some shared patterns
         previous_forces, forces = rng.normal(size=(8, 15)), rng.normal(size=(8, 15))
-        out = shifted_sole_wrenches(forces, previous_forces, previous_contact, contact, new_times, old_times, columns)
-        reference = reference_wrenches(forces, previous_forces, previous_contact, contact, new_times, old_times, columns)
+        torque_nodes = int(rng.integers(0, 5))
+        out = shifted_sole_wrenches(forces, previous_forces, previous_contact, contact, new_times, old_times, columns,
+                                    torque_nodes)
+        reference = reference_wrenches(forces, previous_forces, previous_contact, contact, new_times, old_times, columns,
+                                       torque_nodes)
         np.testing.assert_allclose(out, reference, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(out[:, 3:6], forces[:, 3:6])
 
@@ -127,7 +151,8 @@ def test_the_mpc_warm_starts_a_bipeds_sole_wrenches_by_contact_pattern(biped, rn
         stance = mpc.gait.contact(new_times)
         share = np.zeros((len(new_times), problem.nf))  # the weight over the stance soles, no moments
         share[:, [2, 5]] = stance * biped.mass_kg * GRAVITY_M_S2 / stance.sum(axis=1, keepdims=True)
-        expected = reference_wrenches(share, previous.forces, previous.contact, stance, new_times, old_times, columns)
+        expected = reference_wrenches(share, previous.forces, previous.contact, stance, new_times, old_times, columns,
+                                      len(problem.idx["tau"]))
         np.testing.assert_allclose(guess[problem.idx["F"]], expected, rtol=0, atol=1e-9)
         # new nodes whose two old nodes around differ in their stance feet: the rule's case
         first = np.clip(np.searchsorted(old_times, new_times) - 1, 0, len(old_times) - 2)

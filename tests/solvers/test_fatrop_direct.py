@@ -185,7 +185,7 @@ def test_multiplier_warm_start_in_the_mpc(robot, problem, codegen):
     assert sum(g.stats.iterations for g in got) <= sum(e.stats.iterations for e in expected)
 
 
-def test_given_multipliers_restart_a_solution(direct, step_data, codegen, problem):
+def test_given_multipliers_restart_a_solution(direct, step_data, codegen, problem, monkeypatch):
     """Multipliers in the NLP's layout handed to the shim (`takes_multipliers`) land on their own rows: a solution's
     own multipliers restart it at its primal (from a barrier below the tolerance) in at most two iterations, fewer
     than from zeros or from the negated ones (a row's multiplier on another row, or of the wrong sign, is a worse
@@ -206,7 +206,8 @@ def test_given_multipliers_restart_a_solution(direct, step_data, codegen, proble
         iterations[name] = restart.stats.iterations
     assert iterations["own"] <= 2 and iterations["own"] < min(iterations["zeros"], iterations["negated"]), iterations
     # a warm step that converged within QUIET_ITERATIONS (a plan standing still) hands the next one to the instance's
-    # multipliers; a longer one keeps the given ones
+    # multipliers; a longer one keeps the given ones (the restart takes 2 here: the rule's count set to that)
+    monkeypatch.setattr(fatrop_direct, "QUIET_ITERATIONS", iterations["own"])
     steps = solver.recreated()
     steps.solve(*bounds, solution.x, solution.lam_g, solution.lam_x, warm_start=True)
     assert steps.last_start == "given"

@@ -465,7 +465,7 @@ class MPC:
         of pressure; re-initialised (moments 0, equal shares) it violated the dynamics rows by up to half the weight
         at the warm start."""
         return shifted_sole_wrenches(forces, previous.forces, previous.contact, self.gait.contact(new_times), new_times,
-                                     old_times, self._sole_columns)
+                                     old_times, self._sole_columns, len(self.problem.idx.get("tau", ())))
 
     def _unpack(self, x: np.ndarray, p: np.ndarray, q: np.ndarray, t: float, node_times, contact, stats) -> Solution:
         unpacked = self.compiled_step.unpack(x, p) if self.compiled_step is not None else None

@@ -84,7 +84,7 @@ class ShiftedGuess:
 
 def shifted_sole_wrenches(forces: np.ndarray, previous_forces: np.ndarray, previous_contact: np.ndarray,
                           contact: np.ndarray, new_times: np.ndarray, old_times: np.ndarray,
-                          columns: dict[int, np.ndarray]) -> np.ndarray:
+                          columns: dict[int, np.ndarray], torque_nodes: int = 0) -> np.ndarray:
     """The last plan's sole wrenches (force and moments; `columns[i]`: flat foot i's
     columns of F) at the new input nodes.
 
@@ -94,13 +94,19 @@ def shifted_sole_wrenches(forces: np.ndarray, previous_forces: np.ndarray, previ
     across a switch mixes two load distributions: at a lift-off the unloaded foot got half the weight (g1 walking in
     place, dynamics rows violated by up to 0.7 of the weight at the warm start, 5.42 Fatrop iterations per step;
     by pattern with the multipliers' kind rule in `ocp/multipliers.py`, 4.52). `contact`, `previous_contact`:
-    (nodes, feet) stance flags of the new and old input nodes; only stance feet's columns are written."""
+    (nodes, feet) stance flags of the new and old input nodes; only stance feet's columns are written.
+
+    The first `torque_nodes` input nodes (the torque variables' nodes, whose RNEA joint rows tie the wrenches to the
+    torques; eq. 5) take their sources among the old torque nodes only, the last one held past them: the plan's sole
+    moments jump between its last torque node and the next (g1 walking: the pitch moment -1.6 -> -7.6 in
+    scaled units), so interpolating a new torque node towards an old free node put the next node's wrench into it
+    and violated its joint rows by up to half the torque limit at every warm start (4.64 -> 4.50 Fatrop iterations
+    per step on 240 recorded walking-in-place steps)."""
     n_old = len(old_times)
-    after = np.searchsorted(old_times, new_times)
-    first = np.minimum(np.maximum(after - 1, 0), max(n_old - 2, 0))
-    second = np.minimum(first + 1, n_old - 1)
-    beyond = new_times > old_times[-1]
-    first, second = np.where(beyond, n_old - 1, first), np.where(beyond, n_old - 1, second)
+    first, second = _sources(new_times, old_times)
+    if torque_nodes > 0:
+        head = min(torque_nodes, len(new_times), len(old_times))
+        first[:head], second[:head] = _sources(new_times[:head], old_times[:head])
     span = old_times[second] - old_times[first]
     weight = np.where(span > 0, np.clip((new_times - old_times[first]) / np.where(span > 0, span, 1.0), 0.0, 1.0), 0.0)
     stance, before = contact > 0.5, previous_contact[:n_old] > 0.5
@@ -113,6 +119,16 @@ def shifted_sole_wrenches(forces: np.ndarray, previous_forces: np.ndarray, previ
         out[np.ix_(rows, cols)] = (1 - weight[rows]) * previous_forces[np.ix_(first[rows], cols)] + \
             weight[rows] * previous_forces[np.ix_(second[rows], cols)]
     return out
+
+
+def _sources(new_times: np.ndarray, old_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per new time: the old nodes before and after it (the last old node alone past the old ones)."""
+    n_old = len(old_times)
+    after = np.searchsorted(old_times, new_times)
+    first = np.minimum(np.maximum(after - 1, 0), max(n_old - 2, 0))
+    second = np.minimum(first + 1, n_old - 1)
+    beyond = new_times > old_times[-1]
+    return np.where(beyond, n_old - 1, first), np.where(beyond, n_old - 1, second)
 
 
 class ShiftedDuals:

@@ -80,8 +80,9 @@ MPC_ITERATIVE_REFINEMENT = 0
 MULTIPLIER_MAX_ITERATIONS = 12
 # after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
 # starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
-# g1 standing 2 s 1.71 -> 1.01 iterations per step; walking never gets there (5.41 either way)
-QUIET_ITERATIONS = 2
+# g1 standing 2 s 1.71 -> 1.01 iterations per step. At 2 g1 walking (its sole moments weighted) got there and failed
+# the capped attempt from another instance's stale multipliers: 10-12 iterations with the cold re-solve after it; at
+QUIET_ITERATIONS = 1  # 1 never (walking in place 3.98 -> 3.84 iterations per step, 8 -> 0 such steps; standing same)
 # Fatrop instances kept per solver, the least recently used freed beyond: one per row-count pattern (the contact
 # schedule over the horizon) takes ~25 MB on g1 (BLASFEO blocks of every stage), its first build ~10 ms CPU, mostly
 # page faults on fresh memory. g1 walking meets ~30 patterns in its first gait cycle and none after, which all
