@@ -239,20 +239,26 @@ def test_the_joint_loop_as_one_casadi_call_predicts_what_pinocchio_does(name):
     feet lifting off and landing within the delay, from a state away from the plan."""
     from wbmpc.control.delay_ticks import CompiledTicks, ticks_function
     from wbmpc.solvers.buffered import BufferedFunction
+    from wbmpc.solvers.step_pack import library
     from wbmpc.symbolic import SymbolicDynamics
 
     robot = load_robot(name)
     law = MotorLaw.of(tuning_for(robot).gains_at(), ~robot.leg_joint_mask)
-    ticks = CompiledTicks(BufferedFunction(ticks_function(SymbolicDynamics(robot), robot)), robot)
+    function = BufferedFunction(ticks_function(SymbolicDynamics(robot), robot))
+    packer = library()
+    assert packer is not None, "the test machine compiles the step packer"
+    # the ticks' inputs in NumPy, and in C (`csrc/delay_ticks.c`, `CompiledTicks.predict`)
+    tick_runs = (CompiledTicks(function, robot), CompiledTicks(function, robot, packer))
     rng = np.random.default_rng(11)
     for delay in (0.0013, 0.0113, 0.02, 0.0351):
         plan = _moving_plan(robot, rng)
         q = pin.integrate(robot.model, robot.q_nominal, rng.normal(scale=0.05, size=robot.nv))
         v = rng.normal(scale=0.3, size=robot.nv)
         q_ref, v_ref = DelayPredictor(robot).predict(q, v, plan, 0.001, delay, law)
-        q_got, v_got = DelayPredictor(robot, ticks).predict(q, v, plan, 0.001, delay, law)
-        np.testing.assert_allclose(q_got, q_ref, rtol=0, atol=1e-9)
-        np.testing.assert_allclose(v_got, v_ref, rtol=0, atol=1e-9)
+        for ticks in tick_runs:
+            q_got, v_got = DelayPredictor(robot, ticks).predict(q, v, plan, 0.001, delay, law)
+            np.testing.assert_allclose(q_got, q_ref, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(v_got, v_ref, rtol=0, atol=1e-9)
         assert np.abs(pin.difference(robot.model, q, q_ref)).max() > 1e-3  # the state moved: a real prediction
 
 

@@ -74,19 +74,54 @@ def compiled_ticks(dyn, robot, solver_config) -> CompiledTicks | None:
         report = compile_functions([function], "delay_ticks", solver_config.codegen)
     except CompileError:
         return None
-    return CompiledTicks(BufferedFunction(ca.external(function.name(), str(report.library))), robot)
+    from wbmpc.solvers.step_pack import library
+
+    return CompiledTicks(BufferedFunction(ca.external(function.name(), str(report.library))), robot,
+                         library(solver_config.codegen))
 
 
 class CompiledTicks:
     """Runs the ticks on a `BufferedFunction` of `ticks_function`: `run(q, v, tau_ff, q_des, v_des, held, steps,
     kp, kd, baumgarte_kd)` with one row per tick (as `DelayPredictor` builds them), TICKS_PER_CALL at a call."""
 
-    def __init__(self, function, robot):
+    def __init__(self, function, robot, packer=None):
         self.function = function
         self.ticks = int(function.function.size_in(6)[1])
         nj, n_feet = robot.n_joints, len(robot.feet)
         self._columns = [np.zeros((nj, self.ticks)), np.zeros((nj, self.ticks)), np.zeros((nj, self.ticks)),
                          np.zeros((n_feet, self.ticks)), np.zeros((1, self.ticks))]
+        # with the step packer (`solvers.step_pack.library()`): `predict`'s tick inputs written in place in one C call
+        self._packer, self._n_feet = packer, n_feet
+        self._columns_at = tuple(function.inputs[i].ctypes.data for i in range(2, 7))
+        self._gains: tuple | None = None  # (kp, kd, Baumgarte Kd) last written into the inputs
+
+    def predict(self, q, v, plan, t_s: float, delay_s: float, hold: float, lead: float, kp, kd):
+        """`DelayPredictor.predict`'s joint loop over the delay from (q, v) at t_s under `plan` (ticks of `hold`
+        s, eq. (9) sampled `lead` s after each), its tick inputs made in C (`csrc/delay_ticks.c`: the same
+        arithmetic as `DelayPredictor`'s NumPy); None without the packer or where the plan's arrays do not suit it."""
+        packer, function = self._packer, self.function
+        if packer is None:
+            return None
+        times, tau, q_joints, v_plan, a = plan.node_times_s, plan.tau, plan.q_joints, plan.v, plan.a
+        contact = np.ascontiguousarray(plan.contact, dtype=float)  # (a view where the plan's is: the MPC's are)
+        if not all(type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous
+                   for x in (times, tau, v_plan, a)) or q_joints.dtype != np.float64 or \
+                q_joints.strides[1] != 8 or len(times) < 2 or contact.shape[1:] != (self._n_feet,):
+            return None
+        inputs = function.inputs
+        if self._gains is None or self._gains[0] is not kp or self._gains[1] is not kd or self._gains[2] != hold:
+            inputs[7][:], inputs[8][:], inputs[9][0] = kp, kd, 1.0 / hold
+            self._gains = (kp, kd, hold)
+        n_ticks = packer.wbsp_tick_count(t_s, delay_s, hold)
+        call = (len(times), contact.ctypes.data, self._n_feet, tau.ctypes.data, len(tau), q_joints.ctypes.data,
+                q_joints.strides[0] // 8, v_plan.ctypes.data, a.ctypes.data, v_plan.shape[1], *self._columns_at)
+        q_next, v_next = q, v
+        for start in range(0, n_ticks, self.ticks):  # (one call for delays up to TICKS_PER_CALL ticks)
+            inputs[0][:], inputs[1][:] = q_next, v_next
+            packer.wbsp_tick_inputs(t_s, delay_s, hold, lead, n_ticks, start, self.ticks, plan.t_s, times.ctypes.data,
+                                    *call)
+            q_next, v_next = function.evaluate()
+        return np.array(q_next, dtype=float), np.array(v_next, dtype=float)
 
     def run(self, q, v, tau_ff, q_des, v_des, held, steps, kp, kd, baumgarte_kd: float):
         n = len(steps)

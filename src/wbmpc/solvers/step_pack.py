@@ -2,7 +2,7 @@
 bounds of point and flat feet (`BoundsTemplate`, `CompiledMeasuredBounds`), the sources of the multipliers' shift
 (`ocp/multipliers.py`, flat feet's dual warm start) and the swing feet's v_z references (`SwingVelocity`); and
 (`csrc/step_prepare.c`, `csrc/step_feet.c`) a whole step's data preparation and its plan's unpacking
-(`control/compiled_step.py`).
+(`control/compiled_step.py`), and (`csrc/delay_ticks.c`) the delay prediction's tick inputs (`control/delay_ticks.py`).
 
 Each C function is the NumPy code it replaces, operation for operation and compiled without fused multiply-adds, so
 results are the same bit for bit (tests/control/test_step_packing.py, tests/ocp/test_bounds_template.py,
@@ -34,7 +34,7 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
         try:
             # -O2 -ffp-contract=off: no fused multiply-adds, the NumPy arithmetic bit for bit (and no -march=native:
             # nothing here needs it)
-            sources = ("step_pack.c", "step_prepare.c", "step_feet.c")
+            sources = ("step_pack.c", "step_prepare.c", "step_feet.c", "delay_ticks.c")
             report = build_native("step_pack", sources, config, ("-O2", "-ffp-contract=off"))
             lib = ctypes.CDLL(str(report.library))
         except (CompileError, OSError) as exc:
@@ -57,6 +57,9 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
             lib.wbsp_prepare.argtypes = [pointer, pointer]  # (control/compiled_step.py)
             lib.wbsp_sole_wrenches.argtypes = [ctypes.c_int64, pointer, ctypes.c_int64, pointer] + \
                 [ctypes.c_int64] * 2 + [pointer] * 3 + [ctypes.c_int64] * 2 + [pointer] * 6
+            lib.wbsp_tick_count.argtypes, lib.wbsp_tick_count.restype = [ctypes.c_double] * 3, ctypes.c_int64
+            lib.wbsp_tick_inputs.argtypes = [ctypes.c_double] * 4 + [ctypes.c_int64] * 3 + [ctypes.c_double] + \
+                [pointer, ctypes.c_int64] * 4 + [pointer, pointer, ctypes.c_int64] + [pointer] * 5  # (delay_ticks.py)
             lib.wbsp_unpack.argtypes = [pointer, pointer, pointer, pointer, ctypes.c_int64, ctypes.c_int64]
         _libraries[key] = lib
     return _libraries[key]
