@@ -140,9 +140,11 @@ class References:
         return self._swing_placement
 
     def foot_frames(self, q: np.ndarray) -> list:
-        """The feet's (flat feet's soles') placements at q (pinocchio SE3s: translation, rotation)."""
-        pin.framesForwardKinematics(self.robot.model, self._data, q)
-        return [self._data.oMf[i] for i in self._foot_ids]
+        """The feet's (flat feet's soles') placements at q (pinocchio SE3s: translation, rotation): the joints' and
+        these frames' placements only (framesForwardKinematics' for every frame of g1 cost twice as much)."""
+        model, data = self.robot.model, self._data
+        pin.forwardKinematics(model, data, q)
+        return [pin.updateFramePlacement(model, data, i) for i in self._foot_ids]
 
     def swing_references(self, q, v, rot, t_s, node_times, command_world, yaw_rate_rad_s: float = 0.0
                          ) -> tuple[np.ndarray | None, np.ndarray | None]:
