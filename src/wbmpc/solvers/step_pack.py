@@ -60,6 +60,7 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
             lib.wbsp_tick_count.argtypes, lib.wbsp_tick_count.restype = [ctypes.c_double] * 3, ctypes.c_int64
             lib.wbsp_tick_inputs.argtypes = [ctypes.c_double] * 4 + [ctypes.c_int64] * 3 + [ctypes.c_double] + \
                 [pointer, ctypes.c_int64] * 4 + [pointer, pointer, ctypes.c_int64] + [pointer] * 5  # (delay_ticks.py)
+            lib.wbsp_ticks_run.argtypes = [pointer] + [ctypes.c_int64] * 4 + [pointer] * 16
             lib.wbsp_unpack.argtypes = [pointer, pointer, pointer, pointer, ctypes.c_int64, ctypes.c_int64]
         _libraries[key] = lib
     return _libraries[key]

@@ -60,3 +60,34 @@ void wbsp_tick_inputs(double t, double delay_s, double hold, double lead, int64_
     }
   }
 }
+
+typedef int (*wbdt_fn)(const double **arg, double **res, long long *iw, double *w, int mem);
+
+/* `count` ticks of the compiled one-tick function `tick` (control/delay_ticks.py's `tick_function`: its generated C
+ * entry point, work arrays of its `_work` sizes) on the columns `wbsp_tick_inputs` wrote, from (q, v) (updated in
+ * place; next_q, next_v scratch): the ticks the delay has, no padding ticks of zero length. 1 if an evaluation failed. */
+int wbsp_ticks_run(void *tick, int64_t count, int64_t nq, int64_t nv, int64_t n_feet, double *q, double *v,
+                   const double *tau_ff, const double *q_des, const double *v_des, const double *held, const double *h,
+                   const double *kp, const double *kd, const double *baumgarte, const double **arg, double **res,
+                   long long *iw, double *w, double *next_q, double *next_v) {
+  wbdt_fn f = (wbdt_fn)tick;
+  int64_t i, nj = nv - 6;
+  for (i = 0; i < count; ++i) {
+    arg[0] = q;
+    arg[1] = v;
+    arg[2] = tau_ff + i * nj;
+    arg[3] = q_des + i * nj;
+    arg[4] = v_des + i * nj;
+    arg[5] = held + i * n_feet;
+    arg[6] = h + i;
+    arg[7] = kp;
+    arg[8] = kd;
+    arg[9] = baumgarte;
+    res[0] = next_q;
+    res[1] = next_v;
+    if (f(arg, res, iw, w, 0)) return 1;
+    memcpy(q, next_q, sizeof(double) * (size_t)nq);
+    memcpy(v, next_v, sizeof(double) * (size_t)nv);
+  }
+  return 0;
+}
