@@ -94,9 +94,26 @@ def test_a_flat_footed_bipeds_walk_is_prepared_in_c_as_numpy_prepares_it(tmp_pat
     robot = RobotModel(RobotSpec(name="biped", urdf=str(urdf), feet=("l_foot", "r_foot"), foot_contact="surface"))
     config = MpcConfig(gait="walk", ocp=SMALL, references=ReferenceConfig(swing_placement=True))
     compiled, numpy_path = paired_mpcs(robot, config)
+    assert compiled.compiled_step.feet_in_c == (True, True)  # swing references and sole wrenches in C
     walk = Commands(base_velocity_m_s=np.array([0.2, 0.0, 0.0]), base_yaw_rate_rad_s=0.2)
     steps = [(robot.q_nominal.copy(), np.zeros(robot.nv), Commands(), 0.0)] + \
         [(None, None, walk, 0.0125 * k) for k in range(1, 10)]
+    assert run_both(compiled, numpy_path, steps) == len(steps)
+
+
+def test_point_feet_swing_placement_is_prepared_in_c_as_numpy_prepares_it():
+    """go2 trotting forward and turning with its swing feet carried to landing points (point feet: no soles' yaw
+    rates), after a push (capture-point feedback, the reach limit), from a state off the plan."""
+    robot = load_robot("go2")
+    config = MpcConfig(gait="trot", ocp=SMALL, references=ReferenceConfig(swing_placement=True))
+    compiled, numpy_path = paired_mpcs(robot, config)
+    assert compiled.compiled_step.feet_in_c == (True, False)
+    walk = Commands(base_velocity_m_s=np.array([0.4, 0.1, 0.0]), base_yaw_rate_rad_s=-0.4)
+    pushed = np.zeros(robot.nv)
+    pushed[:2] = [1.5, 0.8]
+    steps = [(robot.q_nominal.copy(), np.zeros(robot.nv), Commands(), 0.0)] + \
+        [(None, None, walk, 0.0125 * k) for k in range(1, 8)] + [(robot.q_nominal.copy(), pushed, walk, 0.1)] + \
+        [(None, None, walk, 0.1 + 0.0125 * k) for k in range(1, 4)]
     assert run_both(compiled, numpy_path, steps) == len(steps)
 
 

@@ -239,20 +239,26 @@ def test_the_joint_loop_as_one_casadi_call_predicts_what_pinocchio_does(name):
     feet lifting off and landing within the delay, from a state away from the plan."""
     from wbmpc.control.delay_ticks import CompiledTicks, ticks_function
     from wbmpc.solvers.buffered import BufferedFunction
+    from wbmpc.solvers.step_pack import library
     from wbmpc.symbolic import SymbolicDynamics
 
     robot = load_robot(name)
     law = MotorLaw.of(tuning_for(robot).gains_at(), ~robot.leg_joint_mask)
-    ticks = CompiledTicks(BufferedFunction(ticks_function(SymbolicDynamics(robot), robot)), robot)
+    function = BufferedFunction(ticks_function(SymbolicDynamics(robot), robot))
+    packer = library()
+    assert packer is not None, "the test machine compiles the step packer"
+    # the ticks' inputs in NumPy, and in C (`csrc/delay_ticks.c`, `CompiledTicks.predict`)
+    tick_runs = (CompiledTicks(function, robot), CompiledTicks(function, robot, packer))
     rng = np.random.default_rng(11)
     for delay in (0.0013, 0.0113, 0.02, 0.0351):
         plan = _moving_plan(robot, rng)
         q = pin.integrate(robot.model, robot.q_nominal, rng.normal(scale=0.05, size=robot.nv))
         v = rng.normal(scale=0.3, size=robot.nv)
         q_ref, v_ref = DelayPredictor(robot).predict(q, v, plan, 0.001, delay, law)
-        q_got, v_got = DelayPredictor(robot, ticks).predict(q, v, plan, 0.001, delay, law)
-        np.testing.assert_allclose(q_got, q_ref, rtol=0, atol=1e-9)
-        np.testing.assert_allclose(v_got, v_ref, rtol=0, atol=1e-9)
+        for ticks in tick_runs:
+            q_got, v_got = DelayPredictor(robot, ticks).predict(q, v, plan, 0.001, delay, law)
+            np.testing.assert_allclose(q_got, q_ref, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(v_got, v_ref, rtol=0, atol=1e-9)
         assert np.abs(pin.difference(robot.model, q, q_ref)).max() > 1e-3  # the state moved: a real prediction
 
 
@@ -307,3 +313,31 @@ def test_held_forward_dynamics_is_pinocchios_constraint_dynamics():
                 model, data, qn, vn, tau_full, models, datas, pin.ProximalSettings(1e-12, 1e-10, 1))
             got = np.asarray(f(qn, vn, tn, stance.astype(float))).ravel()
             np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * max(1.0, np.abs(expected).max()))
+
+
+def test_the_delays_ticks_one_by_one_from_c_predict_what_pinocchio_does(tmp_path):
+    """`compiled_ticks`: the one-tick function compiled beside the TICKS_PER_CALL one and run from C for the ticks
+    the delay has (`wbsp_ticks_run`, no padding ticks), on a small flat-footed biped (6D soles) with feet lifting off
+    and landing within the delay: the state pinocchio's constraintDynamics loop gives, over 1 to 18 ticks."""
+    from tests.control.test_humanoid import _biped_urdf
+    from wbmpc.control.delay_ticks import compiled_ticks
+    from wbmpc.robots import RobotModel, RobotSpec
+    from wbmpc.solvers.nlp import SolverConfig
+    from wbmpc.symbolic import SymbolicDynamics
+
+    urdf = tmp_path / "biped.urdf"
+    urdf.write_text(_biped_urdf(with_box=True))
+    robot = RobotModel(RobotSpec(name="biped", urdf=str(urdf), feet=("l_foot", "r_foot"), foot_contact="surface"))
+    ticks = compiled_ticks(SymbolicDynamics(robot), robot, SolverConfig(compiled=True))
+    assert ticks is not None and ticks.runs_ticks_in_c
+    law = MotorLaw.of(tuning_for(robot).gains_at(), ~robot.leg_joint_mask)
+    rng = np.random.default_rng(5)
+    for delay in (0.0013, 0.0113, 0.0351):
+        plan = _moving_plan(robot, rng)
+        q = pin.integrate(robot.model, robot.q_nominal, rng.normal(scale=0.05, size=robot.nv))
+        v = rng.normal(scale=0.3, size=robot.nv)
+        q_ref, v_ref = DelayPredictor(robot).predict(q, v, plan, 0.001, delay, law)
+        q_got, v_got = DelayPredictor(robot, ticks).predict(q, v, plan, 0.001, delay, law)
+        np.testing.assert_allclose(q_got, q_ref, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(v_got, v_ref, rtol=0, atol=1e-9)
+        assert np.abs(pin.difference(robot.model, q, q_ref)).max() > 1e-4  # the state moved: a real prediction

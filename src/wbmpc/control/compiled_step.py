@@ -4,9 +4,10 @@
 q (-) q_k, the schedule, the force guess, p, the bounds, the shifted warm start) and `MPC._unpack` a dozen after it;
 right after the solver the interpreter's caches are cold and each costs 2-4 us. `CompiledStep.prepare` keeps in Python
 what needs Python objects (the input checks, the anchor's few scalars, push mode, the gait clock's retiming, the
-stance and swing references, pinocchio's frame velocities) and runs the rest in one call, into one fresh buffer
+stance references, the feet's placements from pinocchio) and runs the rest in one call, into one fresh buffer
 [p | lbx | ubx | lbg | ubg | x | contact | forces] per step (the solution, the recovery and the dual warm start keep
-them). `unpack` is the plan's compiled function and the finiteness check in one call. The results are the NumPy
+them): with the swing feet's placement references (`csrc/step_feet.c`), and flat feet's wrench warm start in a second
+call after it. `unpack` is the plan's compiled function and the finiteness check in one call. The results are the NumPy
 path's bit for bit (tests/control/test_compiled_step.py); the NumPy path stays the reference and runs where the
 step needs what the C code does not cover (`covers`: terrains, sway, touchdown events, objects, collisions).
 """
@@ -19,6 +20,7 @@ import math
 import numpy as np
 import pinocchio as pin
 
+from wbmpc.control.foot_placement import heading_of
 from wbmpc.control.measured import split_velocities
 from wbmpc.control.references import MAX_ANCHOR_OFFSET_M
 from wbmpc.gait import SwingProfile
@@ -39,7 +41,8 @@ _FIELDS = [(name, _I) for name in ("nq", "nv", "nodes", "n_feet", "n_force", "ar
     [(name, _P) for name in ("shift_lengths", "shift_group_node", "shift_by_column", "shift_column_start",
                              "shift_target", "shift_pos", "shift_weight", "shift_times", "old_x", "previous_x",
                              "previous_q", "previous_times", "x_scale", "idx_dq", "state0", "x0_entries",
-                             "idx_force", "slack_index")]
+                             "idx_force", "slack_index", "swing_inputs", "swing_constants", "swing_feet",
+                             "swing_start", "swing_vxy", "swing_yaw")]
 # the step's scalars (csrc/step_prepare.c's K_*)
 (K_T, K_ANCHOR_X, K_ANCHOR_Y, K_VWORLD_X, K_VWORLD_Y, K_HEIGHT, K_SUPPORT, K_FORCE_X, K_FORCE_Y, K_FORCE_Z, K_SOFT,
  K_PIN_SLACK, K_WARM, K_PREVIOUS_T, K_RELAX_EE, K_RELAX_FOOT, K_DUTY, K_PIECE_S, K_APEX, K_LIFTOFF_T, K_TOUCHDOWN_T,
@@ -84,6 +87,7 @@ class CompiledStep:
         self._velocities = self._buffer(mpc._measured_velocities.function.outputs[0].size)
         self._node_times = np.ascontiguousarray(problem.config.grid.node_times_s, dtype=float)
         self._step = self._structure(mpc, ctypes.CDLL(functions_library), template, shift_call)
+        self._sole_call = self._sole_table(mpc) if problem.surface_feet else None
         self._gait_state, self._p_template, self._p = (None, None), None, None
         # the plan made of the last `unpack` (`MPC._unpack` sets it): the next step reads its x and q from there
         self.last_solution, self._reading_own = None, False
@@ -116,6 +120,7 @@ class CompiledStep:
             shift_call
         state0, x0_entries = mpc._measured_entries
         address = self._array
+        self._shift_times = self._buffer(2 * nodes)  # [new | old node times] of the warm start (the wrenches' too)
         scratch = [self._buffer(size, dtype).ctypes.data for size, dtype in (
             (n_arg, np.int64), (n_res, np.int64), (n_iw, np.int64), (n_w, float), (nodes * robot.nq, float),
             (nodes * robot.nv, float))]
@@ -129,11 +134,79 @@ class CompiledStep:
             self._buffer(nodes * n_feet).ctypes.data, self._swing_vz.ctypes.data, self._buffer(2 * robot.nv).ctypes.data,
             self._velocities.ctypes.data,
             measured["contact"], None, *blocks, *template.c_arguments(), *measured["call"], groups, n_vars, lengths,
-            group_node, by_column, column_start, target, pos, weight, self._buffer(2 * nodes).ctypes.data,
+            group_node, by_column, column_start, target, pos, weight, self._shift_times.ctypes.data,
             self._buffer(problem.n_variables).ctypes.data,
             *(a.ctypes.data for a in (self._previous_x, self._previous_q, self._previous_times)),
             address(problem.x_scale), address(problem.idx["dq"], np.int64), address(state0, np.int64),
-            address(x0_entries, np.int64), address(problem.idx["F"], np.int64), address(problem.slack_index, np.int64))
+            address(x0_entries, np.int64), address(problem.idx["F"], np.int64), address(problem.slack_index, np.int64),
+            *self._swing_fields(mpc))
+
+    def _swing_fields(self, mpc) -> tuple:
+        """The struct's swing placement (`References.swing_references` in C: `wbsp_swing_references`): its inputs,
+        constants, the measured soles, scratch and outputs; all None where Python's runs (no placement, or a grid
+        whose node 0 is not the step's time: the C code reads the swings' progress now from node 0)."""
+        placement, robot, nodes = mpc.references.swing_placement, mpc.robot, len(self._node_times)
+        self._swing = None
+        if placement is None or self._node_times[0] != 0.0:
+            return (None,) * 6
+        n_feet = len(robot.feet)
+        inputs, feet = self._buffer(11), self._buffer(4 * n_feet)  # (csrc/step_feet.c's S_*; positions, headings)
+        vxy, yaw = self._buffer(2 * nodes * n_feet).reshape(nodes, n_feet, 2), self._buffer(nodes * n_feet)
+        self._swing = (inputs, feet, vxy, yaw.reshape(nodes, n_feet) if robot.soles else None)
+        return (inputs.ctypes.data, self._array(placement.c_constants()), feet.ctypes.data,
+                self._buffer(3 * n_feet).ctypes.data, vxy.ctypes.data, yaw.ctypes.data if robot.soles else None)
+
+    @property
+    def feet_in_c(self) -> tuple[bool, bool]:
+        """Whether the swing references (`References.swing_references`) and flat feet's wrench warm start
+        (`MPC._shifted_sole_wrenches`) of covered steps run in C (`csrc/step_feet.c`) rather than in Python."""
+        return self._swing is not None, self._sole_call is not None
+
+    def _sole_table(self, mpc) -> tuple:
+        """`wbsp_sole_wrenches`' fixed arguments (after the times, before the last plan's): flat feet's columns of F
+        (`MPC._sole_columns`), the torque nodes, the guess's force entries and scale."""
+        problem, nodes = mpc.problem, len(self._node_times)
+        feet = sorted(mpc._sole_columns)
+        columns = [np.asarray(mpc._sole_columns[foot], dtype=np.int64) for foot in feet]
+        starts = np.cumsum([0] + [len(c) for c in columns])
+        times = self._shift_times.ctypes.data
+        head = (nodes - 1, times, nodes - 1, times + 8 * nodes, len(problem.idx.get("tau", ())), len(mpc.robot.feet))
+        tail = (problem.nf, len(feet), self._array(feet, np.int64), self._array(starts, np.int64),
+                self._array(np.concatenate(columns), np.int64), self._array(problem.idx["F"], np.int64),
+                self._array(problem.x_scale))
+        return head, tail
+
+    def _sole_wrenches(self, previous, contact: np.ndarray, x: np.ndarray) -> bool:
+        """Flat feet's wrenches of the last plan by contact pattern into the guess x (`MPC._shifted_sole_wrenches`)
+        in one C call after `wbsp_prepare` (its warm start's node times); False where the last plan's shapes differ."""
+        head, tail = self._sole_call
+        forces, before = previous.forces, previous.contact
+        if forces.shape != (head[0], tail[0]) or np.shape(before) != contact.shape:
+            return False
+        forces = np.ascontiguousarray(forces, dtype=float)
+        before = np.ascontiguousarray(before, dtype=float)
+        self._packer.wbsp_sole_wrenches(*head, contact.ctypes.data, before.ctypes.data, forces.ctypes.data, *tail,
+                                        x.ctypes.data)
+        return True
+
+    def _swing_references(self, q, v, rot, t_s: float, v_world, yaw_rate: float) -> tuple:
+        """This step's swing references (`References.swing_references`): where C computes them (`_swing_fields`), its
+        inputs staged and its output buffers returned (written by `wbsp_prepare`), else Python's."""
+        mpc = self._mpc
+        references, gait = mpc.references, mpc.gait
+        if self._swing is None:
+            return references.swing_references(q, v, rot, t_s, mpc.problem.config.grid.node_times_s, v_world, yaw_rate)
+        inputs, feet, vxy, yaw = self._swing
+        frames = references.foot_frames(q)
+        n_feet = len(frames)
+        for i, frame in enumerate(frames):
+            feet[3 * i : 3 * i + 3] = frame.translation
+        if yaw is not None:
+            feet[3 * n_feet :] = [heading_of(frame.rotation) for frame in frames]
+        v_base = rot @ v[:3]  # (`References.swing_references`' measured base velocity, the same product)
+        inputs[:] = (t_s, q[0], q[1], v_base[0], v_base[1], v_world[0], v_world[1], heading_of(rot), yaw_rate,
+                     gait.duty_factor * gait.period_s, gait.swing_duration_s)
+        return vxy, yaw
 
     def covers(self, commands, measured_contact) -> bool:
         """Whether this step's data can be prepared here (else `MPC._step_data`'s NumPy code runs)."""
@@ -194,7 +267,7 @@ class CompiledStep:
         after_push = mpc.push_mode.update(v, rot, v_world, t_s, mpc._previous)
         mpc.push_mode.adapt_cadence(t_s)
         self._gait_tables(gait)
-        swing_vxy, swing_yaw_rates = references.swing_references(q, v, rot, t_s, node_times, v_world, yaw_rate)
+        swing_vxy, swing_yaw_rates = self._swing_references(q, v, rot, t_s, v_world, yaw_rate)
         relaxed = mpc._relaxed_rows(after_push, commands)
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
         ee_velocity = references.ee_velocity(q, commands, v_world)
@@ -229,8 +302,9 @@ class CompiledStep:
 
     def _outputs(self, out: np.ndarray, q, v, t_s: float, previous, after_push: bool, soft: bool, swing_vxy,
                  swing_yaw_rates, ee_velocity, on_robot) -> tuple:
-        """`prepare`'s results as views of the step's buffer `out`; the cold guess (no last plan) and flat feet's
-        wrenches (`MPC._shifted_sole_wrenches`) NumPy's, and the soft rows' `StageBounds` where a failure may need them."""
+        """`prepare`'s results as views of the step's buffer `out`: the cold guess (no last plan) NumPy's, flat feet's
+        wrenches (`MPC._shifted_sole_wrenches`) C's (`_sole_wrenches`), and the soft rows' `StageBounds` where a failure
+        may need them."""
         mpc = self._mpc
         problem, node_times = mpc.problem, mpc.problem.config.grid.node_times_s
         p, bounds, x, contact, forces = (out[a:b] for a, b in zip(self._offsets[:-1], self._offsets[1:]))
@@ -240,13 +314,13 @@ class CompiledStep:
             x = mpc._initial_guess(q, v, t_s, node_times, forces)
             if not after_push:
                 x[problem.slack_index] = 0.0
-        elif problem.surface_feet:  # flat feet: the last plan's wrenches by contact pattern (`warm_start.py`)
-            columns = problem.idx["F"]
+        elif problem.surface_feet and not self._sole_wrenches(previous, contact, x):  # (else NumPy's, the same)
+            columns = problem.idx["F"]  # flat feet: the last plan's wrenches by contact pattern (`warm_start.py`)
             x[columns] = mpc._shifted_sole_wrenches(forces, previous, t_s + node_times[:-1],
                                                     previous.t_s + previous.node_times_s[:-1]) / problem.x_scale[columns]
         soft_rows = None if soft or not problem.n_slack_variables else StageBounds(
-            v0=v, q_ref=q, contact=contact, swing_vz_m_s=self._swing_vz.copy(), swing_vxy_m_s=swing_vxy,
-            swing_yaw_rate_rad_s=swing_yaw_rates, ee_velocity_m_s=ee_velocity, ee_force_on_robot_n=on_robot,
+            v0=v, q_ref=q, contact=contact, swing_vz_m_s=self._swing_vz.copy(), swing_vxy_m_s=_copy(swing_vxy),
+            swing_yaw_rate_rad_s=_copy(swing_yaw_rates), ee_velocity_m_s=ee_velocity, ee_force_on_robot_n=on_robot,
             **self._measured_values(), soft=True, relaxed_rows=mpc.config.push.relaxed_rows)
         return p, problem.bounds_template().views(bounds), soft_rows, x, node_times, contact
 
@@ -282,6 +356,11 @@ class CompiledStep:
             parts.append(plan[start : start + rows * cols].reshape(rows, cols))
             start += rows * cols
         return parts, finite == 1
+
+
+def _copy(values: np.ndarray | None) -> np.ndarray | None:
+    """A copy of a step's buffer the soft rows keep (the next step overwrites C's swing references)."""
+    return None if values is None else values.copy()
 
 
 def _work(functions: ctypes.CDLL, name: str) -> tuple[int, ...]:

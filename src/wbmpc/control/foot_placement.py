@@ -24,6 +24,8 @@ closely the plan follows these targets (`control/tuning.py`, `LEG_POSTURE`).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -173,18 +175,26 @@ class SwingPlacement:
         both world xy; `yaw`: the base's heading; `feet_m`: measured foot positions (n_feet, >= 2);
         `yaw_rate_rad_s`: the commanded yaw rate; `swings`: `_swings`' list for these times, if already made."""
         out = np.full((len(node_times_s), len(self._frames), 2), np.nan)
-        command = np.asarray(command_world, dtype=float)[:2]
-        capture = CAPTURE_GAIN * (np.asarray(v_world, dtype=float)[:2] - command) * np.sqrt(self.height_m / 9.81)
+        # (scalar arithmetic, term for term csrc/step_feet.c's: the compiled step's results are these bit for bit)
+        cx, cy = (float(c) for c in np.asarray(command_world, dtype=float)[:2])
+        vx, vy = (float(c) for c in np.asarray(v_world, dtype=float)[:2])
+        root, rate = math.sqrt(self.height_m / 9.81), float(yaw_rate_rad_s)
+        capture_x, capture_y = CAPTURE_GAIN * (vx - cx) * root, CAPTURE_GAIN * (vy - cy) * root
         stance_s = gait.duty_factor * gait.period_s
         starts = [np.asarray(foot[:2], dtype=float) for foot in feet_m]
+        qx, qy = float(q[0]), float(q[1])
         for i, nodes, shape, ahead_s in _swings(gait, t_s, node_times_s) if swings is None else swings:
-            lever = _rotation(yaw + yaw_rate_rad_s * ahead_s) @ self.foot_offsets_m[i]
-            under_hip = q[:2] + ahead_s * command + lever
-            step = (command + yaw_rate_rad_s * np.array([-lever[1], lever[0]])) * stance_s / 2 + capture
-            reach = np.linalg.norm(step)
+            angle = yaw + rate * ahead_s
+            cos_a, sin_a = math.cos(angle), math.sin(angle)
+            ox, oy = self.foot_offsets_m[i].tolist()
+            lever_x, lever_y = cos_a * ox - sin_a * oy, sin_a * ox + cos_a * oy
+            step_x = (cx + rate * -lever_y) * stance_s / 2 + capture_x
+            step_y = (cy + rate * lever_x) * stance_s / 2 + capture_y
+            reach = math.sqrt(step_x * step_x + step_y * step_y)
             if reach > self.reach_m:
-                step *= self.reach_m / reach
-            target = under_hip + step
+                scale = self.reach_m / reach
+                step_x, step_y = step_x * scale, step_y * scale
+            target = np.array([((qx + ahead_s * cx) + lever_x) + step_x, ((qy + ahead_s * cy) + lever_y) + step_y])
             if shape is not None:
                 out[nodes, i] = np.outer(shape, target - starts[i])
             starts[i] = target  # a later swing of this foot starts where this one lands
@@ -205,6 +215,12 @@ class SwingPlacement:
                 out[nodes, i] = shape * turn
             starts[i] = starts[i] + turn
         return out
+
+    def c_constants(self) -> np.ndarray:
+        """The constants of csrc/step_feet.c's `wbsp_swing_references`: nominal height, reach, capture gain, the free
+        end's share, then the feet's offsets under their hips (feet, 2) and the soles' nominal headings (feet)."""
+        return np.r_[self.height_m, self.reach_m, CAPTURE_GAIN, PLACEMENT_END_SHARE, self.foot_offsets_m.ravel(),
+                     self._foot_yaws_rad]
 
     def swings(self, gait: Gait, t_s: float, node_times_s: np.ndarray) -> list:
         """The swings `velocities` and `yaw_rates` follow at t + node_times_s, made once for both (same gait)."""
@@ -250,13 +266,9 @@ def _swings(gait: Gait, t_s: float, node_times_s: np.ndarray):
     times_s = t_s + np.asarray(node_times_s, dtype=float)
     for i, nodes, s, lift_off_t, touch_down_t, s_now in swings_in_horizon(gait, t_s, times_s):
         s0 = s_now if lift_off_t <= t_s else 0.0
-        left = 1 - 3 * s0**2 + 2 * s0**3  # integral of 6 s (1 - s) from s0 to 1
+        left = 1 - 3 * (s0 * s0) + 2 * (s0 * s0 * s0)  # integral of 6 s (1 - s) from s0 to 1
         shape = 6 * s * (1 - s) / (swing_s * left) if left > PLACEMENT_END_SHARE else None
-        yield i, nodes, shape, touch_down_t - t_s
-
-
-def _rotation(yaw: float) -> np.ndarray:
-    return np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+        yield i, nodes, shape, float(touch_down_t - t_s)
 
 
 def _wrap(angle: float) -> float:

@@ -134,6 +134,18 @@ class References:
         dq_des[:3] += rot.T[:, :2] @ shift.T
         return dq_des
 
+    @property
+    def swing_placement(self) -> SwingPlacement | None:
+        """The swing feet's landing placement (`ReferenceConfig.swing_placement`), None without."""
+        return self._swing_placement
+
+    def foot_frames(self, q: np.ndarray) -> list:
+        """The feet's (flat feet's soles') placements at q (pinocchio SE3s: translation, rotation): the joints' and
+        these frames' placements only (framesForwardKinematics' for every frame of g1 cost twice as much)."""
+        model, data = self.robot.model, self._data
+        pin.forwardKinematics(model, data, q)
+        return [pin.updateFramePlacement(model, data, i) for i in self._foot_ids]
+
     def swing_references(self, q, v, rot, t_s, node_times, command_world, yaw_rate_rad_s: float = 0.0
                          ) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Swing feet's xy velocity references to their landing points and swing soles' yaw rates to their headings
@@ -141,8 +153,7 @@ class References:
         horizon's swings for both), each None without a placement (the yaw rates also without flat feet)."""
         if self._swing_placement is None:
             return None, None
-        pin.framesForwardKinematics(self.robot.model, self._data, q)
-        frames = [self._data.oMf[i] for i in self._foot_ids]
+        frames = self.foot_frames(q)
         placement, swings = self._swing_placement, self._swing_placement.swings(self.gait, t_s, node_times)
         velocities = placement.velocities(self.gait, t_s, node_times, q, rot @ v[:3], command_world, heading_of(rot),
                                           np.array([frame.translation for frame in frames]), yaw_rate_rad_s, swings)

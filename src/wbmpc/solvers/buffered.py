@@ -42,14 +42,19 @@ class BufferedFunction:
                 target[:] = self._defaults[i]
                 continue
             target[:] = np.asarray(value, dtype=float).ravel(order="F")  # CasADi stores matrices column-major
-        self._evaluate()
-        if self._buffer.ret() != 0:
-            raise RuntimeError(f"evaluation of CasADi function '{self.function.name()}' failed "
-                               f"(return code {self._buffer.ret()})")
+        self.evaluate()
         if not shaped:
             return self.outputs
         return [array.reshape(shape, order="F") if dense else array
                 for array, dense, shape in zip(self.outputs, self._dense_out, self._shapes_out)]
+
+    def evaluate(self) -> list[np.ndarray]:
+        """Evaluate on the bound `inputs` as they are (for a caller that writes them in place); the outputs."""
+        self._evaluate()
+        if self._buffer.ret() != 0:
+            raise RuntimeError(f"evaluation of CasADi function '{self.function.name()}' failed "
+                               f"(return code {self._buffer.ret()})")
+        return self.outputs
 
     def stats(self) -> dict:
         """Statistics of the last evaluation (solvers: iterations, status, timings)."""

@@ -1,7 +1,8 @@
 """The per-step packing of an MPC step in C (`csrc/step_pack.c`): the warm start's re-sampling (`ShiftedGuess`), the
 bounds of point and flat feet (`BoundsTemplate`, `CompiledMeasuredBounds`), the sources of the multipliers' shift
 (`ocp/multipliers.py`, flat feet's dual warm start) and the swing feet's v_z references (`SwingVelocity`); and
-(`csrc/step_prepare.c`) a whole step's data preparation and its plan's unpacking (`control/compiled_step.py`).
+(`csrc/step_prepare.c`, `csrc/step_feet.c`) a whole step's data preparation and its plan's unpacking
+(`control/compiled_step.py`), and (`csrc/delay_ticks.c`) the delay prediction's tick inputs (`control/delay_ticks.py`).
 
 Each C function is the NumPy code it replaces, operation for operation and compiled without fused multiply-adds, so
 results are the same bit for bit (tests/control/test_step_packing.py, tests/ocp/test_bounds_template.py,
@@ -33,8 +34,8 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
         try:
             # -O2 -ffp-contract=off: no fused multiply-adds, the NumPy arithmetic bit for bit (and no -march=native:
             # nothing here needs it)
-            report = build_native("step_pack", ("step_pack.c", "step_prepare.c"), config,
-                                  ("-O2", "-ffp-contract=off"))
+            sources = ("step_pack.c", "step_prepare.c", "step_feet.c", "delay_ticks.c")
+            report = build_native("step_pack", sources, config, ("-O2", "-ffp-contract=off"))
             lib = ctypes.CDLL(str(report.library))
         except (CompileError, OSError) as exc:
             warnings.warn(f"the compiled step packer is unavailable, packing with NumPy (slower): {exc}",
@@ -54,6 +55,12 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
             lib.wbsp_bound_kind.argtypes = [ctypes.c_int, pointer, pointer, pointer]
             lib.wbsp_dual_shift.argtypes = [ctypes.c_int] + [pointer] * 8
             lib.wbsp_prepare.argtypes = [pointer, pointer]  # (control/compiled_step.py)
+            lib.wbsp_sole_wrenches.argtypes = [ctypes.c_int64, pointer, ctypes.c_int64, pointer] + \
+                [ctypes.c_int64] * 2 + [pointer] * 3 + [ctypes.c_int64] * 2 + [pointer] * 6
+            lib.wbsp_tick_count.argtypes, lib.wbsp_tick_count.restype = [ctypes.c_double] * 3, ctypes.c_int64
+            lib.wbsp_tick_inputs.argtypes = [ctypes.c_double] * 4 + [ctypes.c_int64] * 3 + [ctypes.c_double] + \
+                [pointer, ctypes.c_int64] * 4 + [pointer, pointer, ctypes.c_int64] + [pointer] * 5  # (delay_ticks.py)
+            lib.wbsp_ticks_run.argtypes = [pointer] + [ctypes.c_int64] * 4 + [pointer] * 16
             lib.wbsp_unpack.argtypes = [pointer, pointer, pointer, pointer, ctypes.c_int64, ctypes.c_int64]
         _libraries[key] = lib
     return _libraries[key]

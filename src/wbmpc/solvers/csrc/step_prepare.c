@@ -24,6 +24,9 @@ int wbsp_bounds_measured(double *buf, const int64_t *m, const int64_t *const *t,
                          const double *const *s, const uint8_t *contact, int relax_ee, int relax_foot);
 int wbsp_swing_vz(int n, const double *progress, double piece_s, double apex_m, double liftoff_t, double touchdown_t,
                   double *out);
+void wbsp_swing_references(int64_t nodes, int64_t n_feet, const double *progress, const double *node_times,
+                           const double *in, const double *c, const double *feet, double *start, double *vxy,
+                           double *yaw);
 
 /* the step's scalars (`wbsp_step.scalars`), written by Python each step */
 enum { K_T, K_ANCHOR_X, K_ANCHOR_Y, K_VWORLD_X, K_VWORLD_Y, K_HEIGHT, K_SUPPORT, K_FORCE_X, K_FORCE_Y, K_FORCE_Z,
@@ -62,6 +65,10 @@ typedef struct {
   double *shift_weight, *shift_times, *old_x;
   const double *previous_x, *previous_q, *previous_times, *x_scale;
   const int64_t *idx_dq, *state0, *x0_entries, *idx_force, *slack_index;
+  /* the swing placement (csrc/step_feet.c; swing_inputs NULL: none or Python's): the step's inputs, the robot's
+   * constants, the measured soles, scratch, the references (nodes, feet, 2) and the soles' yaw rates (or NULL) */
+  const double *swing_inputs, *swing_constants, *swing_feet;
+  double *swing_start, *swing_vxy, *swing_yaw;
 } wbsp_step;
 
 /* np.mod(a, 1.0) (npy_divmod's remainder for a positive divisor) */
@@ -225,6 +232,14 @@ int wbsp_prepare(const wbsp_step *s, double *out) {
   wb_schedule(s, contact);
   wbsp_swing_vz((int)(s->nodes * s->n_feet), s->progress, k[K_PIECE_S], k[K_APEX], k[K_LIFTOFF_T],
                 k[K_TOUCHDOWN_T], s->swing_vz);
+  if (s->swing_inputs) { /* `References.swing_references`, into the measured bounds' inputs (`stage_inputs`) */
+    wbsp_swing_references(s->nodes, s->n_feet, s->progress, s->node_times, s->swing_inputs, s->swing_constants,
+                          s->swing_feet, s->swing_start, s->swing_vxy, s->swing_yaw);
+    if (s->measured_inputs[5])
+      memcpy(s->measured_inputs[5], s->swing_vxy, sizeof(double) * (size_t)(2 * s->nodes * s->n_feet));
+    if (s->swing_yaw && s->measured_inputs[9])
+      memcpy(s->measured_inputs[9], s->swing_yaw, sizeof(double) * (size_t)(s->nodes * s->n_feet));
+  }
   rc = wb_targets(s);
   for (j = 0; j < s->n_x0; ++j) s->x0_state[j] = j < s->nv ? 0.0 : s->v[j - s->nv]; /* x_0 = [dq = 0, v] */
   wb_forces(s, contact, forces);
