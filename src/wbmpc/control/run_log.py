@@ -180,6 +180,10 @@ class RunLog:
         """Start the chunk writer's thread now (`ChunkWriter.start`: a real-time loop, before its priority)."""
         self._writer.start()
 
+    def flush(self) -> None:
+        """Wait until every full chunk handed to the writer thread is on disk (`ChunkWriter.flush`)."""
+        self._writer.flush()
+
     # ------------------------------------------------------------------ reading
     @property
     def n_ticks(self) -> int:
