@@ -20,30 +20,9 @@ from wbmpc.symbolic import spatial as sp
 from wbmpc.symbolic.dynamics import Configuration, Motion, SymbolicDynamics, _ltdl_solve
 
 
-def joint_accelerations(dyn: SymbolicDynamics, cfg: Configuration, motion: Motion, a: ca.SX) -> tuple[list, list]:
-    """Each joint's spatial acceleration (linear at its origin, angular) in its own frame, pinocchio's `data.a`
-    (no gravity): the forward pass of RNEA."""
-    lin: list = [None] * dyn.njoints
-    ang: list = [None] * dyn.njoints
-    lin[1], ang[1] = a[0:3], a[3:6]
-    for i, joint in dyn.joints.items():
-        rot, t, p = cfg.local_rotation[i], cfg.local_translation[i], joint.parent
-        lin_i = ca.mtimes(rot.T, lin[p] + sp.cross(ang[p], t))
-        ang_i = ca.mtimes(rot.T, ang[p])
-        axis = sp.const(joint.axis)
-        qd, qdd = motion.v[joint.idx_v], a[joint.idx_v]
-        if joint.kind == "revolute":
-            lin_i = lin_i + sp.cross(motion.lin[i], axis * qd)
-            ang_i = ang_i + axis * qdd + sp.cross(motion.ang[i], axis * qd)
-        else:
-            lin_i = lin_i + axis * qdd + sp.cross(motion.ang[i], axis * qd)
-        lin[i], ang[i] = lin_i, ang_i
-    return lin, ang
-
-
 def contact_rows(dyn: SymbolicDynamics, motion: Motion, accelerations: tuple[list, list], frame: str, surface: bool):
     """(constraint acceleration, constraint velocity) of a contact frame in its LOCAL axes, from the joints'
-    `accelerations` (`joint_accelerations`): the spatial acceleration and velocity (6 rows, linear first) of a sole,
+    `accelerations` (`SymbolicDynamics.joint_accelerations`): the spatial acceleration and velocity (6 rows, linear first) of a sole,
     the classical acceleration and linear velocity of a point (3)."""
     f = dyn.model.frames[dyn.robot.frame_id(frame)]
     j, rot_t, t = f.parentJoint, sp.const(np.array(f.placement.rotation).T), sp.const(f.placement.translation)
@@ -68,7 +47,7 @@ def held_forward_dynamics(dyn: SymbolicDynamics, cfg: Configuration, motion: Mot
     bias = dyn.rnea(cfg, motion, zero) - dyn.drive_train_torque(motion.v, zero)
     rhs = ca.vertcat(ca.SX.zeros(6), tau_joints) - bias
     rows, drift, mask = [], [], []
-    accelerations = joint_accelerations(dyn, cfg, motion, a_sym)
+    accelerations = dyn.joint_accelerations(cfg, motion, a_sym, gravity=False)
     for k, foot in enumerate(robot.feet):
         surface = foot in (robot.soles or {})
         acc, vel = contact_rows(dyn, motion, accelerations, robot.contact_frame(foot), surface)

@@ -366,8 +366,9 @@ class SymbolicDynamics:
         return ca.mtimes(cfg.base_rotation, x)
 
     # ------------------------------------------------------------------ dynamics
-    def _body_wrenches(self, cfg: Configuration, motion: Motion, a: ca.SX, gravity: bool):
-        """Forward pass of RNEA: net spatial force (force, moment about joint origin) per body."""
+    def joint_accelerations(self, cfg: Configuration, motion: Motion, a: ca.SX, gravity: bool) -> tuple[list, list]:
+        """Each joint's spatial acceleration (linear at its origin, angular) in its own frame, pinocchio's `data.a`
+        (with `gravity`: the base accelerated by -g, RNEA's trick): the forward pass of RNEA."""
         accel_lin: list = [None] * self.njoints
         accel_ang: list = [None] * self.njoints
         accel_lin[1] = a[0:3]
@@ -388,6 +389,11 @@ class SymbolicDynamics:
             else:
                 lin = lin + axis * qdd + sp.cross(motion.ang[i], axis * qd)
             accel_lin[i], accel_ang[i] = lin, ang
+        return accel_lin, accel_ang
+
+    def _body_wrenches(self, cfg: Configuration, motion: Motion, a: ca.SX, gravity: bool):
+        """Forward pass of RNEA: net spatial force (force, moment about joint origin) per body."""
+        accel_lin, accel_ang = self.joint_accelerations(cfg, motion, a, gravity)
         force, moment = {}, {}
         inertial = cfg.inertial
         for i, body in self.bodies.items():
