@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.solvers.mpc_steps import capture_trot_steps
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.ocp.grid import TimeGrid
 from wbmpc.ocp.problem import OcpConfig, OcpProblem
@@ -40,20 +41,7 @@ def solvers(problem, codegen):
 def steps(robot, problem, solvers):
     """p, bounds and guesses of a few trot steps (moving base, contact changes), as the MPC hands them over."""
     mpc = MPC(robot, MpcConfig(ocp=SMALL, recovery=RecoveryConfig(fallback_solver=None)), problem=problem, solver=solvers[1].recreated())
-    captured = []
-    solve = mpc.solver.solve
-
-    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
-        captured.append(dict(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(),
-                             x0=x0.copy()))
-        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
-
-    mpc.solver.solve = spy
-    v0 = np.zeros(robot.nv)
-    v0[:2] = [0.2, -0.05]
-    for t in (0.1, 0.1125, 0.125, 0.2):
-        assert mpc.solve(robot.q_nominal, v0, t_s=t).success
-    return captured
+    return capture_trot_steps(mpc, robot)
 
 
 def test_threads_are_used(solvers):

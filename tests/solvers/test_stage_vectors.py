@@ -9,6 +9,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from tests.solvers.mpc_steps import capture_trot_steps
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.solvers import stage_library
 from wbmpc.solvers.codegen import CodegenConfig
@@ -28,20 +29,7 @@ def codegen(tmp_path_factory):
 def steps(robot, problem):
     """p, bounds and guesses of a few trot steps (moving base, contact changes) as the MPC hands them over."""
     mpc = MPC(robot, MpcConfig(ocp=problem.config, recovery=RecoveryConfig(fallback_solver=None)), problem=problem)
-    captured = []
-    solve = mpc.solver.solve
-
-    def spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):
-        captured.append(dict(p=np.array(p), lbx=lbx.copy(), ubx=ubx.copy(), lbg=lbg.copy(), ubg=ubg.copy(),
-                             x0=x0.copy()))
-        return solve(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs)
-
-    mpc.solver.solve = spy
-    v0 = np.zeros(robot.nv)
-    v0[:2] = [0.2, -0.05]
-    for t in (0.1, 0.1125, 0.125, 0.2):
-        assert mpc.solve(robot.q_nominal, v0, t_s=t).success
-    return captured
+    return capture_trot_steps(mpc, robot)
 
 
 def _function():
