@@ -80,7 +80,7 @@ class Gait:
             whole = np.arange(np.floor(c_lo) - 1.0, np.ceil(c_hi) + 1.0)  # cycles where events fall: whole + event
             cycles = (whole[:, None] + events[None, :]).ravel()
             times = t0 + (cycles - c0) * period
-            found.append(times[(times > lo) & (times < hi)])
+            found.append(times[(times >= lo) & (times > start_s) & (times < hi)])  # (a piece may start on one)
         times = np.unique(np.concatenate(found)) if found else np.zeros(0)
         if times.size:
             times = times[np.r_[True, np.diff(times) > SWITCH_TOLERANCE_S]]
