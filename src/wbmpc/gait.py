@@ -14,6 +14,8 @@ import numpy as np
 
 from wbmpc.errors import ConfigError, check_number, unknown_name
 
+SWITCH_TOLERANCE_S = 1e-7  # contact switches closer than this are one (a trot's pairs), checked this far either side
+
 
 @dataclass(frozen=True)
 class Gait:
@@ -54,6 +56,37 @@ class Gait:
     def contact(self, times_s: np.ndarray) -> np.ndarray:
         """(len(times), n_feet) 1.0 where the foot is in stance."""
         return (self.swing_phase(times_s) < 0).astype(float)
+
+    @property
+    def anchors(self) -> list[tuple[float, float, float]]:
+        """(from t, cycles there, period) of each piece of the clock: one piece for a fixed gait."""
+        return [(0.0, 0.0, self.period_s)]
+
+    def switch_times(self, start_s: float, end_s: float) -> np.ndarray:
+        """The sorted times in (start_s, end_s) at which some foot's contact changes (touchdown: phase 0, lift-off:
+        the duty factor), each once (a trot's pairs switch together). Solved on each linear piece of the clock and
+        kept where `contact` changes across it (a standing interval holds the feet down)."""
+        if self.duty_factor >= 1 or not end_s > start_s:
+            return np.zeros(0)
+        anchors = self.anchors
+        events = np.mod(-np.r_[np.asarray(self.phase_offsets), np.asarray(self.phase_offsets) - self.duty_factor], 1.0)
+        found = []
+        for i, (t0, c0, period) in enumerate(anchors):  # cycles = c0 + (t - t0) / period from t0 to the next anchor
+            lo = max(start_s, t0)
+            hi = min(end_s, anchors[i + 1][0]) if i + 1 < len(anchors) else end_s
+            if not hi > lo:
+                continue
+            c_lo, c_hi = c0 + (lo - t0) / period, c0 + (hi - t0) / period
+            whole = np.arange(np.floor(c_lo) - 1.0, np.ceil(c_hi) + 1.0)  # cycles where events fall: whole + event
+            cycles = (whole[:, None] + events[None, :]).ravel()
+            times = t0 + (cycles - c0) * period
+            found.append(times[(times >= lo) & (times > start_s) & (times < hi)])  # (a piece may start on one)
+        times = np.unique(np.concatenate(found)) if found else np.zeros(0)
+        if times.size:
+            times = times[np.r_[True, np.diff(times) > SWITCH_TOLERANCE_S]]
+            before, after = self.contact(times - SWITCH_TOLERANCE_S), self.contact(times + SWITCH_TOLERANCE_S)
+            times = times[(before != after).any(axis=1)]
+        return times
 
 
 @dataclass(frozen=True)

@@ -101,6 +101,28 @@ def test_a_flat_footed_bipeds_walk_is_prepared_in_c_as_numpy_prepares_it(tmp_pat
     assert run_both(compiled, numpy_path, steps) == len(steps)
 
 
+def test_node_times_following_the_switches_are_prepared_in_c_as_numpy_prepares_them(tmp_path):
+    """The flat-footed biped walking on a grid whose far nodes follow the contact switches
+    (`TimeGrid.follow_contact_switches`): each step's own node times reach the C code's schedule, targets, swing
+    references, warm start and p's time steps as NumPy's, and the shifted multipliers as NumPy's."""
+    from tests.control.test_humanoid import _biped_urdf
+
+    urdf = tmp_path / "biped.urdf"
+    urdf.write_text(_biped_urdf(with_box=True))
+    robot = RobotModel(RobotSpec(name="biped", urdf=str(urdf), feet=("l_foot", "r_foot"), foot_contact="surface"))
+    grid = TimeGrid(n_intervals=8, dt_first_s=0.01, dt_last_s=0.08, follow_contact_switches=True)
+    config = MpcConfig(gait="walk", ocp=OcpConfig(grid=grid), references=ReferenceConfig(swing_placement=True))
+    compiled, numpy_path = paired_mpcs(robot, config)
+    walk = Commands(base_velocity_m_s=np.array([0.2, 0.0, 0.0]), base_yaw_rate_rad_s=0.2)
+    steps = [(robot.q_nominal.copy(), np.zeros(robot.nv), Commands(), 0.0)] + \
+        [(None, None, walk, 0.0125 * k) for k in range(1, 24)]
+    moved = []
+    solve = compiled.solve
+    compiled.solve = lambda *args, **kwargs: moved.append(solve(*args, **kwargs)) or moved[-1]
+    assert run_both(compiled, numpy_path, steps) == len(steps)
+    assert sum(not np.array_equal(plan.node_times_s, grid.node_times_s) for plan in moved) >= 5
+
+
 def test_point_feet_swing_placement_is_prepared_in_c_as_numpy_prepares_it():
     """go2 trotting forward and turning with its swing feet carried to landing points (point feet: no soles' yaw
     rates), after a push (capture-point feedback, the reach limit), from a state off the plan."""

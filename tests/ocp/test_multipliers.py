@@ -77,7 +77,7 @@ def test_the_compiled_shift_equals_numpys_bitwise(monkeypatch):
     problem.bounds_packer = packer
     compiled_shift = MultiplierShift(problem)
     calls, sources = [], MultiplierShift._sources
-    monkeypatch.setattr(MultiplierShift, "_sources", lambda self, dt: calls.append(dt) or sources(self, dt))
+    monkeypatch.setattr(MultiplierShift, "_sources", lambda self, dt, *times: calls.append(dt) or sources(self, dt, *times))
     rng = np.random.default_rng(5)
     for rows, size in ((True, problem.n_constraints), (False, problem.n_variables)):
         for dt in (0.0, 0.0125, 0.0125 + 2e-18, 0.011, 0.07, 0.3):

@@ -85,7 +85,7 @@ class CompiledStep:
         self._previous_times, self._swing_vz = self._buffer(nodes), self._buffer(nodes * n_feet).reshape(nodes, -1)
         self._plan_out = self._buffer(sum(rows * cols for rows, cols in mpc._plan_shapes))
         self._velocities = self._buffer(mpc._measured_velocities.function.outputs[0].size)
-        self._node_times = np.ascontiguousarray(problem.config.grid.node_times_s, dtype=float)
+        self._node_times = np.array(problem.config.grid.node_times_s, dtype=float)  # this step's (`MPC.node_times`)
         self._step = self._structure(mpc, ctypes.CDLL(functions_library), template, shift_call)
         self._sole_call = self._sole_table(mpc) if problem.surface_feet else None
         self._gait_state, self._p_template, self._p = (None, None), None, None
@@ -189,13 +189,13 @@ class CompiledStep:
                                         x.ctypes.data)
         return True
 
-    def _swing_references(self, q, v, rot, t_s: float, v_world, yaw_rate: float) -> tuple:
+    def _swing_references(self, q, v, rot, t_s: float, node_times, v_world, yaw_rate: float) -> tuple:
         """This step's swing references (`References.swing_references`): where C computes them (`_swing_fields`), its
         inputs staged and its output buffers returned (written by `wbsp_prepare`), else Python's."""
         mpc = self._mpc
         references, gait = mpc.references, mpc.gait
         if self._swing is None:
-            return references.swing_references(q, v, rot, t_s, mpc.problem.config.grid.node_times_s, v_world, yaw_rate)
+            return references.swing_references(q, v, rot, t_s, node_times, v_world, yaw_rate)
         inputs, feet, vxy, yaw = self._swing
         frames = references.foot_frames(q)
         n_feet = len(frames)
@@ -258,16 +258,17 @@ class CompiledStep:
         problem, references, gait, config = mpc.problem, mpc.references, mpc.gait, mpc.config
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
         v_world, anchor_yaw = self.anchor(q, rot, commands, t_s)
-        node_times = problem.config.grid.node_times_s
-        command, yaw_rate = np.asarray(commands.base_velocity_m_s, dtype=float), commands.base_yaw_rate_rad_s
-        stance, step = references.stance_reference, self._step
-        if stance is not None:  # (before the cadence's retiming, as in `References.targets`)
-            self._stance_offsets[...] = stance.joint_offsets(gait, t_s + node_times, command, yaw_rate)
-        step.offsets = None if stance is None else self._stance_offsets.ctypes.data
         after_push = mpc.push_mode.update(v, rot, v_world, t_s, mpc._previous)
         mpc.push_mode.adapt_cadence(t_s)
+        node_times = mpc.node_times(t_s)  # (after the cadence's retiming, as in `MPC._step_data`)
+        self._node_times[:] = node_times
+        command, yaw_rate = np.asarray(commands.base_velocity_m_s, dtype=float), commands.base_yaw_rate_rad_s
+        stance, step = references.stance_reference, self._step
+        if stance is not None:
+            self._stance_offsets[...] = stance.joint_offsets(gait, t_s + node_times, command, yaw_rate)
+        step.offsets = None if stance is None else self._stance_offsets.ctypes.data
         self._gait_tables(gait)
-        swing_vxy, swing_yaw_rates = self._swing_references(q, v, rot, t_s, v_world, yaw_rate)
+        swing_vxy, swing_yaw_rates = self._swing_references(q, v, rot, t_s, node_times, v_world, yaw_rate)
         relaxed = mpc._relaxed_rows(after_push, commands)
         on_robot = -np.asarray(commands.ee_force_n, dtype=float)
         ee_velocity = references.ee_velocity(q, commands, v_world)
@@ -297,16 +298,18 @@ class CompiledStep:
         if self._packer.wbsp_prepare(self._address, address):
             raise RuntimeError("the MPC's compiled q (-) q over the nodes failed")
         self._p_address = address
-        return self._outputs(out, q, v, t_s, previous if warm else None, after_push, soft, swing_vxy, swing_yaw_rates,
-                             ee_velocity, on_robot)
+        if node_times is not problem.config.grid.node_times_s:  # moved onto the contact switches
+            out[problem.params.block("dt")] = np.diff(node_times)
+        return self._outputs(out, q, v, t_s, node_times, previous if warm else None, after_push, soft, swing_vxy,
+                             swing_yaw_rates, ee_velocity, on_robot)
 
-    def _outputs(self, out: np.ndarray, q, v, t_s: float, previous, after_push: bool, soft: bool, swing_vxy,
+    def _outputs(self, out: np.ndarray, q, v, t_s: float, node_times, previous, after_push: bool, soft: bool, swing_vxy,
                  swing_yaw_rates, ee_velocity, on_robot) -> tuple:
         """`prepare`'s results as views of the step's buffer `out`: the cold guess (no last plan) NumPy's, flat feet's
         wrenches (`MPC._shifted_sole_wrenches`) C's (`_sole_wrenches`), and the soft rows' `StageBounds` where a failure
         may need them."""
         mpc = self._mpc
-        problem, node_times = mpc.problem, mpc.problem.config.grid.node_times_s
+        problem = mpc.problem
         p, bounds, x, contact, forces = (out[a:b] for a, b in zip(self._offsets[:-1], self._offsets[1:]))
         self._p = p
         contact, forces = contact.reshape(len(node_times), -1), forces.reshape(problem.N, -1)
@@ -328,13 +331,12 @@ class CompiledStep:
         """The last plan's x, q and node times for the C code: the last `unpack`'s own buffers where `previous` is its
         plan (`last_solution`: nothing overwrote them since), else copies of the plan's."""
         step, own = self._step, previous is self.last_solution
+        self._previous_times[:] = previous.node_times_s  # (the grid's, or its own where they follow the switches)
         if not own:
-            self._previous_x[:], self._previous_q[...], self._previous_times[:] = \
-                previous.x, previous.q, previous.node_times_s
+            self._previous_x[:], self._previous_q[...] = previous.x, previous.q
         if own != self._reading_own:
-            sources = (self._x, self._plan_out, self._node_times) if own else \
-                (self._previous_x, self._previous_q, self._previous_times)
-            step.previous_x, step.previous_q, step.previous_times = (a.ctypes.data for a in sources)
+            sources = (self._x, self._plan_out) if own else (self._previous_x, self._previous_q)
+            step.previous_x, step.previous_q = (a.ctypes.data for a in sources)
             self._reading_own = own
 
     def _measured_values(self) -> dict:

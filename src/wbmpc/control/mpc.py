@@ -248,9 +248,17 @@ class MPC:
                                         if name in self._inertial)
         return mass * GRAVITY_M_S2 - (on_robot[2] if self.robot.arm_ee else 0.0)
 
+    def node_times(self, t_s: float) -> np.ndarray:
+        """The horizon's node times from `t_s`: the grid's, the far ones on the gait's contact switches with
+        `TimeGrid.follow_contact_switches` (not with an object model: its rows read the grid's times)."""
+        grid = self.problem.config.grid
+        if not grid.follow_contact_switches or self.problem.object is not None:
+            return grid.node_times_s
+        return grid.on_switches(self.gait.switch_times(t_s, t_s + grid.horizon_s) - t_s)
+
     def schedule(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Node times, contact flags and swing v_z references of the horizon starting at `t_s`."""
-        node_times = self.problem.config.grid.node_times_s
+        """Node times (`node_times`), contact flags and swing v_z references of the horizon starting at `t_s`."""
+        node_times = self.node_times(t_s)
         times = t_s + node_times
         progress = self.gait.swing_phase(times)
         contact = (progress < 0).astype(float)  # gait.contact's, from the same phases
@@ -285,15 +293,14 @@ class MPC:
         self.gait.follow(t, commands.walking)  # stand <-> walk on command, where the feet allow it
         step = self._step_data(q, v, commands, t, measured_contact)
         stamps.mark("prepared")
-        result, solve_end = self._solve_step(step.p, step.bounds, step.soft_rows, step.x0, t, budget_s, clock,
-                                             clock_start)
+        result, solve_end = self._solve_step(step, t, budget_s, clock, clock_start)
         stamps.mark("solved")
         solution = self._unpack(result.x, step.p, q, t, step.node_times, step.contact, result.stats)
         stamps.mark("unpacked")
         if solution.success:
             self._previous = solution
             if self._duals is not None:
-                self._duals.record(t, result, step.bounds)
+                self._duals.record(t, result, step.bounds, step.node_times)
         elif self.config.recovery.hold_previous and self._previous is not None:
             solution = shifted_plan(self._previous, t, step.node_times, step.contact, result.stats, self.robot)
         if solve_end is not None:  # the MPC's work after a deadline-bound solve: the next deadline leaves room for it
@@ -310,10 +317,11 @@ class MPC:
             return _StepData(*self.compiled_step.prepare(q, v, commands, t))
         problem, references = self.problem, self.references
         rot = pin.Quaternion(q[3:7]).toRotationMatrix()
-        dq_des, v_des, base_velocity_world = references.targets(q, rot, commands, t, problem.config.grid.node_times_s)
+        base_velocity_world = references.advance(q, rot, commands, t)
         after_push = self.push_mode.update(v, rot, base_velocity_world, t, self._previous)
         self.push_mode.adapt_cadence(t)
         node_times, contact, swing_vz = self.schedule(t)
+        dq_des, v_des = references.targets_at(q, rot, commands, t, node_times, base_velocity_world)
         sway = references.sway(commands)
         if sway:  # lean over the feet that will stand support_lead_s later
             dq_des = references.sway_towards_support(q, rot, dq_des, t, node_times, sway)
@@ -330,6 +338,8 @@ class MPC:
         forces = self._force_guess(contact, commands)
         object_values, object_bounds = self._object_data(q, t, node_times, commands)
         p = self._parameters(q, rot, dq_des, v_des, forces, terrain, object_values)
+        if node_times is not problem.config.grid.node_times_s:  # moved onto the contact switches
+            p[problem.params.block("dt")] = np.diff(node_times)
         stage_bounds = StageBounds(
             v0=v, q_ref=q, contact=contact, swing_vz_m_s=swing_vz, swing_vxy_m_s=swing_vxy,
             swing_yaw_rate_rad_s=swing_yaw_rates,
@@ -374,11 +384,11 @@ class MPC:
                 "contact_normal": self._flat_normals, **self._weights, **self._inertial})
         return self._p_template
 
-    def _solve_step(self, p, bounds, soft_rows, x0, t: float, budget_s: float | None, clock, clock_start):
+    def _solve_step(self, step: _StepData, t: float, budget_s: float | None, clock, clock_start):
         """One step's solve: the push fallback solver first in the wake of a push, else the solver on this
         step's deadline, then the recovery ladder unless a deadline forbids it. Returns the result and the
         solver clock's time at the end of a deadline-bound solve (None otherwise)."""
-        cfg = self.config
+        cfg, p, bounds, soft_rows, x0 = self.config, step.p, step.bounds, step.soft_rows, step.x0
         solve_end = None
         if self.recovery.fallback_first(t):
             result = self.recovery.fallback_solver().solve(p, *bounds, x0)  # still in the wake of a push
@@ -393,7 +403,7 @@ class MPC:
             origin = clock_start if self._previous is not None or clock is None else clock()
             deadline = {} if clock is None or budget is None else \
                 {"deadline": origin + budget - self._after_solve_s}
-            result = self.solver.solve(p, *bounds, x0, *self._shifted_duals(t, bounds),
+            result = self.solver.solve(p, *bounds, x0, *self._shifted_duals(t, bounds, step.node_times),
                                        warm_start=self._previous is not None and cfg.warm_start, **deadline)
             solve_end = clock() if deadline else None
             if not result.stats.success and deadline and self._previous is not None and not cfg.recovery.past_deadline:
@@ -404,11 +414,11 @@ class MPC:
                 result = self._recover(result, p, bounds, x0, t, soft_rows=soft_rows)
         return result, solve_end
 
-    def _shifted_duals(self, t: float, bounds) -> tuple:
+    def _shifted_duals(self, t: float, bounds, node_times) -> tuple:
         """The last plan's multipliers at this step's rows for a solver that takes them (`ShiftedDuals`); () otherwise."""
         if self._duals is None or self._previous is None or not self.config.warm_start:
             return ()
-        return self._duals.at(t, bounds, self._previous.t_s)
+        return self._duals.at(t, bounds, self._previous.t_s, node_times)
 
     def _recover(self, failed, p, bounds, x0, t: float, fallback_tried: bool = False, soft_rows=None):
         """The recovery ladder (`Recovery.recover`; `soft_rows`: the step's data with the soft rows free, whose

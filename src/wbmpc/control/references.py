@@ -74,8 +74,12 @@ class References:
 
     def targets(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float, node_times: np.ndarray):
         """dq_des per node (nominal posture, base following the commanded velocity), v_des, and the
-        commanded base velocity in world coordinates."""
-        robot = self.robot
+        commanded base velocity in world coordinates (`advance`, then `targets_at`)."""
+        v_world = self.advance(q, rot, commands, t_s)
+        return (*self.targets_at(q, rot, commands, t_s, node_times, v_world), v_world)
+
+    def advance(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float) -> np.ndarray:
+        """Move the base anchor to `t_s` along the command; returns the commanded base velocity in world coordinates."""
         yaw = math.atan2(rot[1, 0], rot[0, 0])
         dt_since = 0.0 if self.last_t_s is None else max(0.0, t_s - self.last_t_s)
         self.last_t_s = t_s
@@ -93,6 +97,12 @@ class References:
         distance = math.hypot(offset[0], offset[1])
         if distance > MAX_ANCHOR_OFFSET_M:
             self.anchor_xy_m = q[:2] + MAX_ANCHOR_OFFSET_M * offset / distance
+        return v_world
+
+    def targets_at(self, q: np.ndarray, rot: np.ndarray, commands: Commands, t_s: float, node_times: np.ndarray,
+                   v_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """dq_des at the nodes `t_s + node_times` from the anchor `advance` set, and v_des."""
+        robot, command = self.robot, np.asarray(commands.base_velocity_m_s, dtype=float)
         if self._nominal_targets is None or len(self._nominal_targets) != len(node_times):
             self._nominal_targets = np.tile(robot.q_nominal, (len(node_times), 1))
         targets = self._nominal_targets.copy()
@@ -112,7 +122,7 @@ class References:
         v_des = np.zeros(robot.nv)
         v_des[:3] = rot.T @ v_world
         v_des[3:6] = commands.base_yaw_rate_rad_s * rot[2]  # rot.T (0, 0, yaw rate)
-        return dq_des, v_des, v_world
+        return dq_des, v_des
 
     def sway(self, commands: Commands) -> float:
         """The share of the lean over the stance feet this step (`support_sway`, `support_sway_free_ee`)."""

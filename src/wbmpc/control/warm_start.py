@@ -137,31 +137,40 @@ class ShiftedDuals:
 
     def __init__(self, problem):
         self._shift = MultiplierShift(problem)
-        self._last: tuple | None = None  # (t_s, lam_g, lam_x, row kinds, variable kinds) of the last plan
+        self._grid = problem.config.grid.node_times_s
+        self._last: tuple | None = None  # (t_s, lam_g, lam_x, row kinds, variable kinds, node times) of the last plan
         self._kinds: tuple | None = None  # (bounds, row kinds, variable kinds) that `at` found for this step's bounds
 
     def reset(self) -> None:
         self._last = self._kinds = None
 
-    def record(self, t_s: float, result, bounds) -> None:
-        """Keep a successful step's multipliers with the kinds of its rows' and variables' bounds."""
+    def record(self, t_s: float, result, bounds, node_times_s=None) -> None:
+        """Keep a successful step's multipliers with the kinds of its rows' and variables' bounds (and its node
+        times, where they are not the grid's: `TimeGrid.follow_contact_switches`)."""
         kinds, self._kinds = self._kinds, None
         if kinds is None or kinds[0] is not bounds:
             kinds = (bounds, *self._bound_kinds(bounds))
-        self._last = (t_s, result.lam_g, result.lam_x, kinds[1], kinds[2])
+        self._last = (t_s, result.lam_g, result.lam_x, kinds[1], kinds[2], self._moved(node_times_s))
+
+    def _moved(self, node_times_s):
+        return None if node_times_s is None or node_times_s is self._grid else node_times_s
 
     def _bound_kinds(self, bounds) -> tuple[np.ndarray, np.ndarray]:
         lbx, ubx, lbg, ubg = bounds
         return self._shift.kinds(lbg, ubg), self._shift.kinds(lbx, ubx)  # (`bound_kind`, in C where compiled)
 
-    def at(self, t_s: float, bounds, previous_t_s: float | None) -> tuple:
-        """(lam_g0, lam_x0) for the step at `t_s` with `bounds`, when the kept multipliers are the plan's at
-        `previous_t_s` (the last good plan); () otherwise."""
+    def at(self, t_s: float, bounds, previous_t_s: float | None, node_times_s=None) -> tuple:
+        """(lam_g0, lam_x0) for the step at `t_s` with `bounds` (and its node times, if not the grid's), when the
+        kept multipliers are the plan's at `previous_t_s` (the last good plan); () otherwise."""
         last = self._last
         if last is None or previous_t_s is None or last[0] != previous_t_s:
             return ()
         kind_rows, kind_variables = self._bound_kinds(bounds)
         self._kinds = (bounds, kind_rows, kind_variables)  # `record` of this step's plan takes them (same bounds)
-        dt_s = t_s - last[0]
-        return (self._shift.shift(last[1], last[3], kind_rows, dt_s),
-                self._shift.shift(last[2], last[4], kind_variables, dt_s, rows=False))
+        dt_s, times = t_s - last[0], {}
+        new_times, old_times = self._moved(node_times_s), last[5]
+        if new_times is not None or old_times is not None:  # re-sampled at the moved nodes, not the grid's
+            times = {"new_times": self._grid if new_times is None else new_times,
+                     "old_times": self._grid if old_times is None else old_times}
+        return (self._shift.shift(last[1], last[3], kind_rows, dt_s, **times),
+                self._shift.shift(last[2], last[4], kind_variables, dt_s, rows=False, **times))

@@ -74,21 +74,25 @@ class MultiplierShift:
         self._compiled = {kind: CompiledShift(problem.bounds_packer, self.node_times_s, identity) for kind, identity in
                           ((True, self.rows), (False, self.variables))} if problem.bounds_packer is not None else None
 
-    def _sources(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Per new node: the old node before its time and the weight of the one after."""
-        times = self.node_times_s
-        shifted = np.minimum(times + dt_s, times[-1])
+    def _sources(self, dt_s: float, new_times=None, old_times=None) -> tuple[np.ndarray, np.ndarray]:
+        """Per new node: the old node before its time and the weight of the one after (node times relative to each
+        plan's start: the grid's unless given)."""
+        times = self.node_times_s if old_times is None else np.asarray(old_times, dtype=float)
+        new = self.node_times_s if new_times is None else np.asarray(new_times, dtype=float)
+        shifted = np.minimum(new + dt_s, times[-1])
         before = np.clip(np.searchsorted(times, shifted, side="right") - 1, 0, len(times) - 2)
         weight = np.clip((shifted - times[before]) / (times[before + 1] - times[before]), 0.0, 1.0)
         return before, weight
 
-    def sources(self, dt_s: float, rows: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def sources(self, dt_s: float, rows: bool = True, new_times=None,
+                old_times=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per row (`rows`) or variable: the old ones it is re-sampled from `dt_s` later (src0, src1; -1: none),
-        the weight w of src1 and whether it has an identity (covered); in C with the compiled step packer."""
+        the weight w of src1 and whether it has an identity (covered); in C with the compiled step packer on the
+        grid's node times (`new_times`, `old_times`: each plan's own, relative to its start, if they moved)."""
         table, (group, node, place), covered, (first, last) = self.rows if rows else self.variables
-        if self._compiled is not None:
+        if self._compiled is not None and new_times is None and old_times is None:
             return (*self._compiled[rows](dt_s), covered)
-        before, weight = self._sources(dt_s)
+        before, weight = self._sources(dt_s, new_times, old_times)
         node0 = np.clip(before[node], first, last)
         src0 = table[group, node0, place]
         src1 = table[group, np.minimum(node0 + 1, last), place]
@@ -107,12 +111,15 @@ class MultiplierShift:
         return kind
 
     def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
-              rows: bool = True) -> np.ndarray:
+              rows: bool = True, new_times=None, old_times=None) -> np.ndarray:
         """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
-        `dt_s` the time from the last step to this one; in C with the compiled step packer (its sources too)."""
-        if self._compiled is not None:
-            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s)
-        src0, src1, w, covered = self.sources(dt_s, rows)
+        `dt_s` the time from the last step to this one (`new_times`, `old_times`: the plans' node times where they
+        are not the grid's); in C with the compiled step packer (its sources too)."""
+        moved = new_times is not None or old_times is not None
+        if self._compiled is not None:  # (moved node times: the sources in NumPy, the kind rule in C)
+            sources = self.sources(dt_s, rows, new_times, old_times)[:3] if moved else None
+            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s, sources)
+        src0, src1, w, covered = self.sources(dt_s, rows, new_times, old_times)
         lam = np.asarray(lam, dtype=float)
         # the sources of the row's own kind: both, interpolated; one, its multiplier (a switch lies between them)
         same0, same1 = kind_old[src0] == kind_new, kind_old[src1] == kind_new
@@ -144,9 +151,15 @@ class CompiledShift:
         self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
         return tuple(a.copy() for a in self._out)
 
-    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float) -> np.ndarray:
-        """`MultiplierShift.shift` (its sources and the kind rule) in two C calls (`wbsp_dual_shift`)."""
-        self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
+    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
+              sources: tuple | None = None) -> np.ndarray:
+        """`MultiplierShift.shift` (its sources and the kind rule) in two C calls (`wbsp_dual_shift`); `sources`:
+        (src0, src1, w) found elsewhere (node times off the grid), then one."""
+        if sources is None:
+            self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
+        else:
+            for out, values in zip(self._out, sources):
+                out[:] = values
         lam = np.ascontiguousarray(lam, dtype=float)
         kind_old, kind_new = (np.ascontiguousarray(kind, dtype=np.int64) for kind in (kind_old, kind_new))
         out = np.empty(self._covered.size)
