@@ -45,8 +45,6 @@ from wbmpc.solvers.nlp import NlpSolver
 
 __all__ = ["MPC", "BASE_TRACKING_MODES", "Commands", "CostWeights", "MpcConfig"]
 
-PATTERN_SAMPLE_S = 1e-3  # `prepare_structures`' spacing of plan start times (a physics step of the real-time loop)
-
 
 @dataclass
 class _StepData:
@@ -203,16 +201,13 @@ class MPC:
         self.recovery.prepare()
         self.prepare_structures()
 
-    def prepare_structures(self, rate_hz: float = 80.0) -> None:
-        """Build the solver's instances (`prepare_structure`: a Fatrop instance costs ~11 ms of CPU on g1) for the row
-        patterns that steps meet in the first two gait cycles, then reset the MPC. A step's plan starts anywhere
-        between the ticks at `rate_hz` (in real time at its measurement plus the delay), so the start times are
-        sampled every `PATTERN_SAMPLE_S` at most: at the 80 Hz ticks alone g1 walking in place met a 31st pattern
-        1.5 s into every real-time run, built in that step (17 ms, a late plan); sampled finely +0.35 s CPU."""
+    def prepare_structures(self, rate_hz: float = 80.0, sample_s: float = 1e-3) -> None:
+        """Build the solver's instances (`prepare_structure`: ~11 ms of CPU each on g1) for the row patterns of the first
+        two gait cycles, plans starting every `sample_s` (real time: between the ticks at `rate_hz`); reset the MPC."""
         prepare = getattr(self.solver, "prepare_structure", None)
         if prepare is not None and self.gait.duty_factor < 1:
             q, v, end_s = self.robot.q_nominal, np.zeros(self.robot.nv), self.gait.start_lead_s + 2 * self.gait.period_s
-            for t_s in np.arange(0.0, end_s, min(1.0 / rate_hz, PATTERN_SAMPLE_S)):
+            for t_s in np.arange(0.0, end_s, min(1.0 / rate_hz, sample_s)):
                 prepare(*self._step_data(q, v, Commands(), float(t_s)).bounds)
             self.reset()
 
