@@ -202,13 +202,14 @@ class MPC:
         self.prepare_structures()
 
     def prepare_structures(self, rate_hz: float = 80.0) -> None:
-        """Build the solver's instances (`prepare_structure`: a Fatrop instance costs ~11 ms of CPU on g1) for the row
-        patterns that steps at `rate_hz` meet in the first two gait cycles, then reset the MPC."""
-        prepare = getattr(self.solver, "prepare_structure", None)
+        """Build the solver's instances (`prepare_structures`: a Fatrop instance costs ~11 ms of CPU on g1, and its
+        first solve more than the next) for the row patterns that steps at `rate_hz` meet in the first two gait
+        cycles, then reset the MPC."""
+        prepare = getattr(self.solver, "prepare_structures", None)
         if prepare is not None and self.gait.duty_factor < 1:
             q, v, end_s = self.robot.q_nominal, np.zeros(self.robot.nv), self.gait.start_lead_s + 2 * self.gait.period_s
-            for t_s in np.arange(0.0, end_s, 1.0 / rate_hz):
-                prepare(*self._step_data(q, v, Commands(), float(t_s)).bounds)
+            steps = (self._step_data(q, v, Commands(), float(t_s)) for t_s in np.arange(0.0, end_s, 1.0 / rate_hz))
+            prepare([tuple(np.array(a) for a in (*step.bounds, step.p, step.x0)) for step in steps])
             self.reset()
 
     def _object_data(self, q: np.ndarray, t: float, node_times: np.ndarray, commands: Commands) -> tuple[dict, dict]:
