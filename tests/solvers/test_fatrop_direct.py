@@ -427,3 +427,26 @@ def test_the_mpc_builds_its_instances_before_the_clock_and_then_plans_as_before(
     for _ in range(2):
         fresh.prepare_structure(*bounds)
         assert fresh.structure_keys == (fresh.structure_key(*bounds),)
+
+
+def test_a_rehearsed_instance_forgets_its_rehearsal(problem, codegen, step_data, monkeypatch):
+    """`prepare_structures` solves on each instance it builds before the clock (its first solve costs more than the
+    next) and the instance forgets that solution: a warm step from the instance's multipliers then runs as on an
+    instance never rehearsed, bit for bit. The rehearsal here converges (uncapped), and the warm step starts from its
+    solution, so an instance that kept the rehearsal's multipliers would stop at once (0 iterations)."""
+    monkeypatch.setattr(fatrop_direct, "REHEARSAL_ITERATIONS", 100)
+    config = SolverConfig(name="fatrop-direct", codegen=codegen)
+    bounds = tuple(step_data[name] for name in ("lbx", "ubx", "lbg", "ubg"))
+    plain, rehearsed = FatropDirectSolver(problem, config), FatropDirectSolver(problem, config)
+    rehearsed.prepare_structures([(*bounds, step_data["p"], step_data["x0"])] * 2)
+    assert rehearsed.structure_keys == (rehearsed.structure_key(*bounds),)
+    solution = plain.recreated().solve(**step_data)
+    assert solution.stats.success
+    warm_step = dict(step_data, x0=solution.x)  # the instance's own multipliers start it (no given ones)
+    expected, got = (solver.solve(**warm_step, warm_start=True) for solver in (plain, rehearsed))
+    assert got.stats.success and got.stats.iterations == expected.stats.iterations > 0
+    np.testing.assert_array_equal(got.x, expected.x)
+    # an instance that keeps its converged solution does start from it: what the forgetting prevents
+    keeping = plain.recreated()
+    assert keeping.solve(**step_data).stats.success
+    assert keeping.solve(**warm_step, warm_start=True).stats.iterations == 0

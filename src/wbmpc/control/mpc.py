@@ -196,19 +196,20 @@ class MPC:
         self.push_mode.enter(until_t_s)
 
     def prepare_fallback(self) -> None:
-        """Build the recovery solvers (`Recovery.prepare`) and the solver's instances (`prepare_structures`) now:
-        before the clock runs, not at a step."""
+        """Build the recovery solvers and the solver's instances (`prepare_structures`) now: before the clock runs."""
         self.recovery.prepare()
         self.prepare_structures()
 
     def prepare_structures(self, rate_hz: float = 80.0, sample_s: float = 1e-3) -> None:
-        """Build the solver's instances (`prepare_structure`: ~11 ms of CPU each on g1) for the row patterns of the first
-        two gait cycles, plans starting every `sample_s` (real time: between the ticks at `rate_hz`); reset the MPC."""
-        prepare = getattr(self.solver, "prepare_structure", None)
+        """Build the solver's instances (`prepare_structures`: a Fatrop instance costs ~11 ms of CPU on g1, and its
+        first solve more than the next) for the row patterns of the first two gait cycles, plans starting every
+        `sample_s` (real time: between the ticks at `rate_hz`), then reset the MPC."""
+        prepare = getattr(self.solver, "prepare_structures", None)
         if prepare is not None and self.gait.duty_factor < 1:
             q, v, end_s = self.robot.q_nominal, np.zeros(self.robot.nv), self.gait.start_lead_s + 2 * self.gait.period_s
-            for t_s in np.arange(0.0, end_s, min(1.0 / rate_hz, sample_s)):
-                prepare(*self._step_data(q, v, Commands(), float(t_s)).bounds)
+            starts_s = np.arange(0.0, end_s, min(1 / rate_hz, sample_s)).tolist()
+            steps = (self._step_data(q, v, Commands(), t_s) for t_s in starts_s)
+            prepare(tuple(np.array(a) for a in (*step.bounds, step.p, step.x0)) for step in steps)
             self.reset()
 
     def _object_data(self, q: np.ndarray, t: float, node_times: np.ndarray, commands: Commands) -> tuple[dict, dict]:

@@ -59,10 +59,11 @@ class CodegenConfig:
     # as its 25.3 MB before (at -O0), g1's 10.6 MB (17.9 before, -O1 in 1-2.5 min)
     stage_large_source_mb: float | None = 12.0
     # fatrop-direct's stage library (solvers/stage_library.py) compiles at -O2 instead of -O1 up to this size (MB of
-    # C). 10 takes b1_z1 (4.3 MB: 132 s at load 5, 312 s at load 4 with the lane functions of stage_vectors; 7.6 MB and
-    # 254 s before the stage library wrote only nonzeros and shared the first stage's code); g1 (10.6 MB, 17.9 before: -O1 in 57-152 s at load 4-6) stays at -O1: at -O2
-    # its 17.9 MB took a one-off 768 s / 2.8 GB for thread CPU per solver iteration 4.41 -> 3.63 ms, so it is opt-in
-    stage_o2_max_source_mb: float = 10.0
+    # C), by default none: with the lane functions of stage_vectors, b1_z1's 4.4 MB compiled at -O2 in 340 s (load
+    # 4.5; 132 s before them) against 48 s at -O1 (load 3.3), for 3.7 % of its thread CPU per Fatrop iteration
+    # (1.056 -> 1.095 ms, 40 recorded trot states in one process; its functions 0.43 -> 0.48 ms); g1's 10.6 MB at -O2
+    # took 1095 s / 4.1 GB for 2.4 % (2.57 -> 2.50 ms). 10 brings b1_z1's -O2 back (a one-off, cached compile)
+    stage_o2_max_source_mb: float = 0.0
     # fatrop-direct's stage Hessian: the RNEA rows' curvature "exact", "cross" (only its blocks with an input:
     # d^2/du dx, d^2/du^2) or "gauss-newton" (none); see stage_library.lagrangian_hessian. Inexact ones cost g1
     # twice the iterations; "cross" keeps b1_z1's at -8 % CPU a solve (docs/design/realtime-loop.md)

@@ -29,7 +29,6 @@ when the direct binding runs).
 from __future__ import annotations
 
 import ctypes
-import os
 import time
 import warnings
 from dataclasses import replace
@@ -40,6 +39,19 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers import stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
+from wbmpc.solvers.fatrop_settings import (  # noqa: F401 (the settings' names, also here)
+    FLAT_FEET_MPC_TOLERANCE,
+    MPC_CONSTRAINT_TOLERANCE,
+    MPC_ITERATIVE_REFINEMENT,
+    MPC_TOLERANCE,
+    MULTIPLIER_BARRIER_INIT,
+    MULTIPLIER_MAX_ITERATIONS,
+    QUIET_ITERATIONS,
+    REHEARSAL_ITERATIONS,
+    default_threads,
+    mpc_tolerances,
+    multiplier_start,
+)
 from wbmpc.solvers.fatrop_shim import FatropUnavailable, ShimLibrary, build_shim
 from wbmpc.solvers.nlp import (
     _FATROP_FLAGS,
@@ -52,37 +64,6 @@ from wbmpc.solvers.nlp import (
 )
 
 NAME = "fatrop-direct"
-# The binding's own KKT and constraint tolerances, used while SolverConfig holds its defaults (1e-4 / 1e-6) and
-# `extra_options={"mpc_tolerances": False}` does not ask for those: on b1_z1's compiled closed loop (plant waiting)
-# 3.01 -> 2.39 Fatrop iterations per step with the same trot-in-place, trot-forward and arm-track metrics to 4-5
-# digits (drift, base velocity RMSE, EE RMSE); 1e-2 / 1e-3 (2.08 iterations) moved arm-track's 4th digit
-MPC_TOLERANCE = 1e-3
-MPC_CONSTRAINT_TOLERANCE = 1e-4
-# Flat feet's KKT tolerance (the constraint tolerance stays): a biped's plan keeps a sole's centre-of-pressure row
-# active over single stance (g1 walking in place: the lateral edge at nearly every stance node), and reaching 1e-3
-# means driving the barrier below 1e-3 around that active set, 2-3 more iterations per step. At 1e-2 a plan stops
-# with the barrier at its start value: its active rows then sit mu / z inside their bound (< 1e-3 of the force
-# scale, ~0.1 N on g1). g1 walk-in-place (compiled, 2 s, plant waiting): 9.22 -> 5.41 iterations per step with the
-# warm start below, drift 0.351 / 0.345 cm/s and base velocity RMSE 0.0187 / 0.0185 m/s (4.59 since the warm start
-# moves wrenches and multipliers by contact pattern, control/warm_start.py; 2e-2 / 3e-2 / 5e-2 would give 4.31 /
-# 4.14 / 3.95 on 100 recorded walking states against 4.52 here, not taken: looser plans, not a better start)
-FLAT_FEET_MPC_TOLERANCE = 1e-2
-# the warm attempt from given multipliers (`takes_multipliers`): its barrier and iteration cap. g1 walk-in-place,
-# 2 s at FLAT_FEET_MPC_TOLERANCE: 5.94 iterations per step from 1e-3, 5.41 from 3e-3, 6.98 from 1e-2 (Fatrop's own
-# start from 1e-3: 6.66; the instance's multipliers by position from 3e-3: 9 failed attempts of 59, 6.98). With the
-# contact-pattern warm start, 100 recorded walking states: 4.67 from 2e-3, 4.52 from 3e-3, 4.84 from 5e-3
-MULTIPLIER_BARRIER_INIT = 3e-3
-# At the MPC tolerances no iterative refinement of the search directions (Fatrop's default: a KKT residual after each
-# direction, up to 5 refinement solves): that residual never asked for one on 100 recorded g1 walk or 200 b1_z1
-# trot steps (same bits either way; the g1 states solved cold: x within 6e-12, same iterations) and cost 21 % (g1) /
-# 11 % (b1_z1) of the linear algebra. `extra_options={"fatrop": {"max_iterative_refinement": 5}}` restores it
-MPC_ITERATIVE_REFINEMENT = 0
-MULTIPLIER_MAX_ITERATIONS = 12
-# after a warm step that converged within this many iterations (the plan nearly still: standing) the next attempt
-# starts from the instance's multipliers and slacks at `warm_barrier_init` (same rows, no time shift to speak of):
-# g1 standing 2 s 1.71 -> 1.01 iterations per step. At 2 g1 walking (its sole moments weighted) got there and failed
-# the capped attempt from another instance's stale multipliers: 10-12 iterations with the cold re-solve after it; at
-QUIET_ITERATIONS = 1  # 1 never (walking in place 3.98 -> 3.84 iterations per step, 8 -> 0 such steps; standing same)
 # Fatrop instances kept per solver, the least recently used freed beyond: one per row-count pattern (the contact
 # schedule over the horizon) takes ~25 MB on g1 (BLASFEO blocks of every stage), its first build ~10 ms CPU, mostly
 # page faults on fresh memory. g1 walking meets ~30 patterns in its first gait cycle and none after, which all
@@ -98,37 +79,6 @@ _INVALID_INPUTS = (_REFUSED[-5], _REFUSED[-6])
 _C_DOUBLE = ctypes.c_double
 _F64 = np.dtype(np.float64)
 _DOUBLE_P = ctypes.POINTER(_C_DOUBLE)
-
-
-def default_threads() -> int:
-    """Threads of the stage evaluations when SolverConfig.threads is None: two where this process may run on two
-    cores (the 15 stages' functions split well in two; more threads wait for the Riccati recursion in between)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return min(2, max(cores, 1))
-
-
-def mpc_tolerances(config: SolverConfig, flat_feet: bool) -> tuple[float, float]:
-    """(KKT, constraint) tolerances of the binding: its MPC ones (flat feet: FLAT_FEET_MPC_TOLERANCE) while
-    SolverConfig keeps its defaults and `extra_options["mpc_tolerances"]` is not False, else SolverConfig's."""
-    defaults = SolverConfig()
-    own = config.extra_options.get("mpc_tolerances", True) and \
-        (config.tolerance, config.constraint_tolerance) == (defaults.tolerance, defaults.constraint_tolerance)
-    if not own:
-        return config.tolerance, config.constraint_tolerance
-    return FLAT_FEET_MPC_TOLERANCE if flat_feet else MPC_TOLERANCE, MPC_CONSTRAINT_TOLERANCE
-
-
-def multiplier_start(config: SolverConfig, flat_feet: bool) -> tuple[bool, float, int]:
-    """Whether warm attempts start from the multipliers the MPC gives (`extra_options["shifted_multipliers"]`, by
-    default on flat feet), and that attempt's barrier and iteration cap (`multiplier_barrier_init`,
-    `multiplier_max_iterations`)."""
-    options = config.extra_options
-    return (bool(options.get("shifted_multipliers", flat_feet)),
-            float(options.get("multiplier_barrier_init", MULTIPLIER_BARRIER_INIT)),
-            int(options.get("multiplier_max_iterations", MULTIPLIER_MAX_ITERATIONS)))
 
 
 def _ptr(array: np.ndarray):
@@ -329,6 +279,24 @@ class FatropDirectSolver:
         build costs ~11 ms of CPU on g1: allocation and first-touch page faults). The same instance as built then."""
         if self._fallback is None:
             self._solver_for(*(_f64(a) for a in (lbx, ubx, lbg, ubg)))
+
+    def prepare_structures(self, steps) -> None:
+        """`prepare_structure` for each of `steps` (lbx, ubx, lbg, ubg, p, x0: the first steps of a run), then each
+        instance built here rehearsed: solved from its first step's p and x0, capped at REHEARSAL_ITERATIONS, its
+        solution forgotten (no later warm start sees it), the first step's instance last, right before the clock."""
+        if self._fallback is not None:
+            return
+        new = {}
+        for lbx, ubx, lbg, ubg, p, x0 in steps:
+            bounds = tuple(_f64(a) for a in (lbx, ubx, lbg, ubg))
+            key = self.structure_key(*bounds)
+            if key not in self._by_structure and key not in new:
+                new[key] = (p, *bounds, x0)
+            self._solver_for(*bounds)
+        for key, (p, *bounds, x0) in reversed(new.items()):
+            if key in self._by_structure:  # (not freed meanwhile: more patterns than MAX_INSTANCES)
+                self._solve(p, *bounds, x0, self.config.barrier_init, REHEARSAL_ITERATIONS)
+                self._library.lib.wb_solver_forget(self._by_structure[key])
 
     def solve(self, p, lbx, ubx, lbg, ubg, x0, lam_g0=None, lam_x0=None, warm_start: bool = False,
               max_iterations: int | None = None, time_limit_s: float | None = None) -> NlpResult:

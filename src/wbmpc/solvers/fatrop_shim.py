@@ -97,6 +97,7 @@ class ShimLibrary:
         lib.wb_solver_new.restype = ctypes.c_void_p
         lib.wb_solver_new.argtypes = [ctypes.c_void_p] + [_DOUBLE_P] * 4 + [ctypes.c_int]
         lib.wb_solver_free.argtypes = [ctypes.c_void_p]
+        lib.wb_solver_forget.argtypes = [ctypes.c_void_p]
         for name, kind in (("wb_option_double", ctypes.c_double), ("wb_option_int", ctypes.c_int),
                            ("wb_option_bool", ctypes.c_int)):
             getattr(lib, name).argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]

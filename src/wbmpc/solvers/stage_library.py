@@ -273,13 +273,9 @@ def _generated(functions: list[ca.Function]) -> str:
 
 
 def compile_flags(config: CodegenConfig, source_mb: float) -> tuple[CodegenConfig, tuple[str, ...]]:
-    """The settings a stage library of this size compiles with. CodegenConfig's default -O1 (chosen for the
-    whole-NLP library's compile time) becomes -O2 up to `stage_o2_max_source_mb`: b1_z1's stage functions evaluate 2.63 ->
-    1.60 ms per closed-loop step for one longer, cached compile (7.6 MB of C, load ~4: 80 s and 0.86 GB at -O1,
-    254 s and 0.96 GB at -O2; 4.3 MB since `dense_writes` and `stage_covers`); g1's (17.9 MB then, 10.6 MB now) only
-    when asked (`stage_o2_max_source_mb=20`): thread CPU per solver iteration 4.41 -> 3.63 ms (30 recorded
-    walk-in-place states, interleaved in one run, the same iterations) for 768 s and 2.8 GB of compile at load ~4
-    (-O1: ~200 s); larger sources follow `codegen.for_source` (TALOS-sized at -O0)."""
+    """The settings a stage library of this size compiles with: CodegenConfig's flags (-O1), -O2 up to
+    `stage_o2_max_source_mb` (none by default; b1_z1's 4.4 MB: 340 s against 48 s at -O1 for 3.7 % per Fatrop
+    iteration, see CodegenConfig), larger sources following `codegen.for_source` (TALOS-sized at -O0)."""
     config = for_source(replace(config, large_source_mb=config.stage_large_source_mb), source_mb)
     optimize = source_mb <= config.stage_o2_max_source_mb
     return config, tuple("-O2" if flag == "-O1" and optimize else flag for flag in config.flags)

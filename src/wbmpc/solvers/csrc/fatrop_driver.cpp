@@ -198,6 +198,8 @@ int wbd_solve(void* handle, int warm, double z_floor) {
   if (ret == 0 || d->flag == IpSolverReturnFlag::StopAtAcceptablePoint) d->warm->store(d->data->current_iterate());
   return ret;
 }
+/* the instance forgets its last converged solution: the next warm start (1) falls back to Fatrop's own */
+void wbd_forget(void* d) { static_cast<Driver*>(d)->warm->valid_ = false; }
 const double* wbd_primal(void* d) { return static_cast<Driver*>(d)->algo->solution_primal().data(); }
 const double* wbd_dual(void* d) { return static_cast<Driver*>(d)->algo->solution_dual().data(); }
 const void* wbd_dims(void* d) { return &static_cast<Driver*>(d)->m->s; }

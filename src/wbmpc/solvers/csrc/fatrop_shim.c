@@ -247,6 +247,8 @@ void wb_solver_free(void* solver) {
   free(s->n_eq); free(s->n_ineq); free(s->nur); free(s);
 }
 
+void wb_solver_forget(void* solver) { if (solver) wbd_forget(((wb_solver*) solver)->solver); }
+
 int wb_option_double(void* solver, const char* name, double value) {
   return wbd_option_double(((wb_solver*) solver)->solver, name, value);
 }

@@ -17,6 +17,7 @@ int wbd_option_double(void* d, const char* name, double value);
 int wbd_option_int(void* d, const char* name, int value);
 int wbd_option_bool(void* d, const char* name, int value);
 int wbd_solve(void* d, int warm, double z_floor);
+void wbd_forget(void* d);
 double* wbd_given(void* d, int which, int* sizes);
 const double* wbd_primal(void* d);
 const double* wbd_dual(void* d);
