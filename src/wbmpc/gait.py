@@ -8,6 +8,7 @@ apex and touch-down, with the lift-off and touch-down velocities as boundary con
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,26 +65,31 @@ class Gait:
 
     def switch_times(self, start_s: float, end_s: float) -> np.ndarray:
         """The sorted times in (start_s, end_s) at which some foot's contact changes (touchdown: phase 0, lift-off:
-        the duty factor), each once (a trot's pairs switch together). Solved on each linear piece of the clock and
-        kept where `contact` changes across it (a standing interval holds the feet down)."""
+        the duty factor), each once (a trot's pairs switch together). Solved on each linear piece of the clock; with
+        standing intervals kept where `contact` changes across it (a standing interval holds the feet down)."""
         if self.duty_factor >= 1 or not end_s > start_s:
             return np.zeros(0)
         anchors = self.anchors
-        events = np.mod(-np.r_[np.asarray(self.phase_offsets), np.asarray(self.phase_offsets) - self.duty_factor], 1.0)
+        offsets = np.asarray(self.phase_offsets)
+        events = np.mod(-np.r_[offsets, offsets - self.duty_factor], 1.0)
+        first = max(next((i for i in range(len(anchors) - 1, -1, -1) if anchors[i][0] <= start_s), 0), 0)
         found = []
-        for i, (t0, c0, period) in enumerate(anchors):  # cycles = c0 + (t - t0) / period from t0 to the next anchor
+        for i in range(first, len(anchors)):  # cycles = c0 + (t - t0) / period from t0 to the next anchor
+            t0, c0, period = anchors[i]
             lo = max(start_s, t0)
             hi = min(end_s, anchors[i + 1][0]) if i + 1 < len(anchors) else end_s
+            if lo >= end_s:
+                break
             if not hi > lo:
                 continue
             c_lo, c_hi = c0 + (lo - t0) / period, c0 + (hi - t0) / period
-            whole = np.arange(np.floor(c_lo) - 1.0, np.ceil(c_hi) + 1.0)  # cycles where events fall: whole + event
-            cycles = (whole[:, None] + events[None, :]).ravel()
-            times = t0 + (cycles - c0) * period
+            whole = np.arange(math.floor(c_lo) - 1.0, math.ceil(c_hi) + 1.0)  # cycles where events fall: whole + event
+            times = t0 + ((whole[:, None] + events[None, :]).ravel() - c0) * period
             found.append(times[(times >= lo) & (times > start_s) & (times < hi)])  # (a piece may start on one)
-        times = np.unique(np.concatenate(found)) if found else np.zeros(0)
-        if times.size:
+        times = np.sort(np.concatenate(found)) if found else np.zeros(0)
+        if times.size > 1:
             times = times[np.r_[True, np.diff(times) > SWITCH_TOLERANCE_S]]
+        if times.size and getattr(self, "stand_intervals", None):
             before, after = self.contact(times - SWITCH_TOLERANCE_S), self.contact(times + SWITCH_TOLERANCE_S)
             times = times[(before != after).any(axis=1)]
         return times
