@@ -532,8 +532,9 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
                             if m.get("realtime_session_nice") is not None else ""))
         if m.get("plant_lateness_ms"):
             late, plan = m["plant_lateness_ms"], m.get("cpu_plan") or {}
-            shared = (f"; solver's {plan['helper_threads']} helper thread(s) on CPU {plan['helpers']}"
-                      if plan.get("helper_threads") else "")
+            shared = (f"; solver at {plan.get('solver_priority') or 'default'} on CPU {plan['solver']}, its "
+                      f"{plan['helper_threads']} helper thread(s) at {plan.get('helper_priority') or 'default'} on CPU "
+                      f"{plan['helpers']}" if plan.get("helper_threads") else "")
             lines.append(f"  plant loop lateness {late['mean']:.2f} ms mean, {late['p99']:.2f} p99, {late['max']:.2f} max "
                          f"({100 * m['plant_late_tick_share']:.1f} % of joint ticks over half a period){shared}")
         if m.get("realtime_step_anatomy_ms"):

@@ -1,6 +1,7 @@
-"""Where the real-time run's threads go (`solver_process.cpu_plan`, `place_helper_threads`): one core for the plant
-loop, the others for the solver; on two CPUs the solver's helper threads (its stage pool) take the loop's core below
-the loop's priority. The placement is checked on real threads of a child process, read back from the kernel."""
+"""Where the real-time run's threads go (`solver_process.cpu_plan`, `place_helper_threads`, `raise_solver_thread`):
+one core for the plant loop, the others for the solver; on two CPUs the solver's helper threads (its stage pool) take
+the loop's core at the loop's FIFO priority (below it where FIFO is refused) and its main thread its own core at FIFO.
+The placement is checked on real threads of a child process, read back from the kernel."""
 
 import multiprocessing
 import os
@@ -8,7 +9,18 @@ import threading
 
 import pytest
 
-from wbmpc.control.solver_process import HELPER_NICE, CpuPlan, cpu_plan, cpu_split, place_helper_threads, thread_ids
+from wbmpc.control.solver_process import (
+    HELPER_FIFO_PRIORITY,
+    HELPER_NICE,
+    SOLVER_FIFO_PRIORITY,
+    CpuPlan,
+    cpu_plan,
+    cpu_split,
+    helper_priority,
+    place_helper_threads,
+    raise_solver_thread,
+    thread_ids,
+)
 
 
 @pytest.mark.parametrize("cpus", [[], [3]])
@@ -60,29 +72,80 @@ def _placement_child(helpers, queue):
     others = len(thread_ids()) - 1  # the helper and any the libraries started (BLAS): all placed
     placed = place_helper_threads(plan, main)
     tid = helper.native_id
+    fifo = os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
     queue.put((placed == others >= 1, set(os.sched_getaffinity(tid)), start_nice, os.getpriority(os.PRIO_PROCESS, tid),
                os.getpriority(os.PRIO_PROCESS, main),
-               set(os.sched_getaffinity(0)) == all_cpus, tid in thread_ids() and main in thread_ids()))
+               set(os.sched_getaffinity(0)) == all_cpus, tid in thread_ids() and main in thread_ids(),
+               os.sched_getparam(tid).sched_priority if fifo else None, helper_priority(main),
+               os.sched_getscheduler(main) == os.SCHED_OTHER))
     done.set()
     helper.join()
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"),
                     reason="thread affinity is Linux's")
-def test_helper_threads_are_pinned_and_lowered_the_main_thread_is_not():
+def test_helper_threads_are_pinned_and_share_the_loops_priority_the_main_thread_is_not_moved():
     cpus = sorted(os.sched_getaffinity(0))
     context = multiprocessing.get_context("spawn")
     queue = context.Queue()
     child = context.Process(target=_placement_child, args=([cpus[0]], queue))
     child.start()
-    placed, helper_cpus, start_nice, helper_nice, main_nice, main_unchanged, listed = queue.get(timeout=60)
+    (placed, helper_cpus, start_nice, helper_nice, main_nice, main_unchanged, listed, helper_fifo, reported,
+     main_ordinary) = queue.get(timeout=60)
     child.join(timeout=60)
     assert placed and listed
     assert helper_cpus == {cpus[0]}
-    assert main_unchanged
-    # sharing the loop's core (loop == helpers here) the helper runs below the loop: nice HELPER_NICE (0) or its own
-    # if that is lower already; the main thread keeps its priority
-    assert helper_nice == max(HELPER_NICE, start_nice) and main_nice == start_nice
+    assert main_unchanged and main_ordinary and main_nice == start_nice  # the main thread keeps its place and priority
+    # sharing the loop's core (loop == helpers here) the helper runs at the loop's FIFO priority where permitted (root,
+    # CAP_SYS_NICE), else below the loop: nice HELPER_NICE (0) or its own if that is lower already
+    if helper_fifo is not None:
+        assert helper_fifo == HELPER_FIFO_PRIORITY and reported == f"fifo {HELPER_FIFO_PRIORITY}"
+    else:
+        assert helper_nice == max(HELPER_NICE, start_nice) and reported == f"nice {helper_nice}"
+
+
+def _solver_thread_child(plan, queue):
+    os.sched_setaffinity(0, plan.solver)
+    granted = raise_solver_thread(plan)
+    fifo = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+    queue.put((granted, fifo, os.sched_getparam(0).sched_priority, _fifo_permitted()))
+
+
+def _fifo_permitted() -> bool:
+    """Whether this process may take SCHED_FIFO (tried on a thread of its own, which then ends)."""
+    result = []
+
+    def attempt():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            result.append(True)
+        except OSError:
+            result.append(False)
+
+    thread = threading.Thread(target=attempt)
+    thread.start()
+    thread.join()
+    return result[0]
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setscheduler") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs two CPUs and Linux's scheduling policies")
+@pytest.mark.parametrize("share", [True, False])
+def test_the_solver_thread_takes_fifo_only_on_a_core_of_its_own_beside_a_fifo_loop(share):
+    """Two CPUs with a FIFO loop: the solver's main thread at SOLVER_FIFO_PRIORITY on its core where permitted (what
+    it reports is what the kernel says); a loop without FIFO (one core each): the main thread keeps the ordinary
+    policy."""
+    plan = cpu_plan(sorted(os.sched_getaffinity(0))[:2], share_loop_core=share)
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    child = context.Process(target=_solver_thread_child, args=(plan, queue))
+    child.start()
+    granted, fifo, priority, permitted = queue.get(timeout=60)
+    child.join(timeout=60)
+    if share and permitted:
+        assert fifo and priority == SOLVER_FIFO_PRIORITY and granted == f"fifo {SOLVER_FIFO_PRIORITY}"
+    else:
+        assert not fifo and granted.startswith("nice ")
 
 
 def test_the_session_group_is_raised_and_restored(tmp_path):

@@ -362,7 +362,7 @@ class ClosedLoop:
             restore_scheduling(log.realtime_priority, own_nice)
             restore_session_priority(session_before)
             raise
-        log.solver_helper_threads = solver.helper_threads
+        log.solver_helper_threads, log.solver_scheduling = solver.helper_threads, solver.scheduling
         if plan.loop:
             os.sched_setaffinity(0, plan.loop)
         gc.collect()

@@ -33,10 +33,21 @@ from wbmpc.control.step_anatomy import PROCESS_STAMPS, SOLVER_STAMPS
 from wbmpc.errors import RunError, WbmpcError
 
 REALTIME_NICE = -10  # asked for by both real-time processes; granted where the user may (root, CAP_SYS_NICE)
-# the plant loop's real-time priority (SCHED_FIFO, low: below kernel threads and audio) where permitted: it preempts
-# the solver's helper thread on its core at once. It sleeps between physics steps, so it takes only what it uses
+# the plant loop's real-time priority (SCHED_FIFO, low: below kernel threads and audio) where permitted. It sleeps
+# between physics steps, so it takes only what it uses
 LOOP_FIFO_PRIORITY = 10
-HELPER_NICE = 0  # the solver's helper threads on the plant loop's core: ordinary priority, below the loop's
+# the solver's helper threads on the plant loop's core: SCHED_FIFO at the loop's own priority where permitted. Between
+# equal FIFO priorities neither preempts the other: the loop's tick waits for the helper's tasks in hand (~0.1-0.4 ms
+# on g1) and the helper for the loop's tick. Below the loop (nice 0) the loop preempted a helper in the middle of a
+# stage's evaluation and the solver's main thread, which waits for every task taken, stalled until the loop slept
+# (g1 walk-in-place: 0.5-0.6 ms a solve); other sessions' processes on that core did the same (run-queue wait of
+# the helper 2.3-2.9 ms a solve at load 2.5)
+HELPER_FIFO_PRIORITY = LOOP_FIFO_PRIORITY
+HELPER_NICE = 0  # the helpers' priority where FIFO is refused: ordinary, below the loop's
+# the solver process's main thread on its own core: SCHED_FIFO where permitted (below the loop, whose core it never
+# shares). At nice -10 other sessions' processes still took turns on its core mid-solve (run-queue wait 0.4-0.8 ms a
+# solve at load 2.5, and what they left in its caches); it sleeps between requests, so the others keep that time
+SOLVER_FIFO_PRIORITY = LOOP_FIFO_PRIORITY - 1
 BUILD_TIMEOUT_S = 300.0
 # the garbage collector's young generations run after an answer where the next request is due later than this
 GC_MIN_IDLE_S = 0.6e-3
@@ -184,7 +195,8 @@ def thread_ids() -> list[int]:
 
 def place_helper_threads(plan: CpuPlan, main_thread: int) -> int:
     """Pin this process's threads other than `main_thread` (the stage pool's workers, started by the solver's build)
-    to `plan.helpers`, below the loop's priority where they share its core (`HELPER_NICE`); returns how many."""
+    to `plan.helpers`; where they share the loop's core, at the loop's FIFO priority (`HELPER_FIFO_PRIORITY`) or,
+    where that is refused, below the loop (`HELPER_NICE`). Returns how many; `helper_priority` says what they got."""
     placed = 0
     for tid in thread_ids():
         if tid == main_thread:
@@ -192,12 +204,51 @@ def place_helper_threads(plan: CpuPlan, main_thread: int) -> int:
         try:
             if plan.helpers:
                 os.sched_setaffinity(tid, plan.helpers)
-            if plan.shares_loop_core:
+            if plan.shares_loop_core and not _set_fifo(tid, HELPER_FIFO_PRIORITY):
                 os.setpriority(os.PRIO_PROCESS, tid, max(HELPER_NICE, os.getpriority(os.PRIO_PROCESS, tid)))
             placed += 1
         except OSError:  # the thread ended meanwhile, or affinity/priority not permitted
             continue
     return placed
+
+
+def _set_fifo(tid: int, priority: int) -> bool:
+    """Thread `tid` (0: this one) at SCHED_FIFO `priority` (its children start at the ordinary policy); whether that
+    was permitted."""
+    if not (hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_FIFO")):
+        return False
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(priority))
+        return True
+    except OSError:
+        return False
+
+
+def thread_priority(tid: int = 0) -> str:
+    """What the kernel says thread `tid` (0: this one) runs at: "fifo N" or "nice N" ("default" where it cannot
+    tell)."""
+    try:
+        policy = os.sched_getscheduler(tid) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+        if hasattr(os, "SCHED_FIFO") and policy == os.SCHED_FIFO:
+            return f"fifo {os.sched_getparam(tid).sched_priority}"
+        return f"nice {os.getpriority(os.PRIO_PROCESS, tid)}"
+    except (AttributeError, OSError):
+        return "default"
+
+
+def raise_solver_thread(plan: CpuPlan) -> str:
+    """The solver process's main thread, pinned to `plan.solver`: at SCHED_FIFO `SOLVER_FIFO_PRIORITY` where the plan
+    gives it a core of its own beside a FIFO loop (`shares_loop_core`: its helpers are on the loop's core), else at
+    what it has (nice -10 where permitted). Returns what it runs at (`thread_priority`)."""
+    if plan.shares_loop_core and not plan.solver & plan.helpers:
+        _set_fifo(0, SOLVER_FIFO_PRIORITY)
+    return thread_priority(0)
+
+
+def helper_priority(main_thread: int) -> str | None:
+    """What this process's threads other than `main_thread` run at (the first one's), None: there are none."""
+    others = [tid for tid in thread_ids() if tid != main_thread]
+    return thread_priority(others[0]) if others else None
 
 
 class SolverProcess:
@@ -214,6 +265,7 @@ class SolverProcess:
             cpus = CpuPlan(solver=frozenset(cpus), helpers=frozenset(cpus))
         self.cpus = cpus or CpuPlan()
         self.helper_threads = 0  # the solver's helper threads placed by `cpus` (told by the process when built)
+        self.scheduling: dict = {}
 
         context = multiprocessing.get_context("spawn")
         self._conn, child = context.Pipe()
@@ -246,6 +298,7 @@ class SolverProcess:
             self.close()
             raise RunError("the real-time MPC process did not start (see its error above)")
         self.helper_threads = answer[1]
+        self.scheduling = answer[2]  # what its threads were granted: solver_priority, helper_priority ("fifo 9", ...)
 
     def is_alive(self) -> bool:
         return self._process.is_alive()
@@ -305,7 +358,7 @@ class SolverProcess:
 
 def mpc_worker(spec, mpc_config, conn, cpus: CpuPlan | None = None, events=None) -> None:
     """The solver process: build the MPC on the CPUs of `cpus` (its stage pool sized from them), move its threads to
-    their places (`place_helper_threads`), then answer requests: through the pipe ("cpu" asks for the
+    their places and priorities (`place_helper_threads`, `raise_solver_thread`), then answer requests: through the pipe ("cpu" asks for the
     process's CPU time so far; (q, v, commands, t, delay_s, budget_s) a plan) until ("channel", layout,
     name) moves them to the shared-memory channel (`realtime_channel.py`, with `events`)."""
     import signal
@@ -323,12 +376,13 @@ def mpc_worker(spec, mpc_config, conn, cpus: CpuPlan | None = None, events=None)
     # ms in one step); the steps' own short-lived objects are still collected
     gc.collect()
     gc.freeze()
-    helpers = 0
+    helpers, scheduling = 0, {}
     if cpus.solver:
         main_thread = threading.get_native_id()
         os.sched_setaffinity(0, cpus.solver)
         helpers = place_helper_threads(cpus, main_thread)
-    conn.send(("ready", helpers))
+        scheduling = {"solver_priority": raise_solver_thread(cpus), "helper_priority": helper_priority(main_thread)}
+    conn.send(("ready", helpers, scheduling))
     while True:
         message = conn.recv()
         if message is None:

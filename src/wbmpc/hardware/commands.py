@@ -438,7 +438,9 @@ def _deploy_summary(report: dict, args: argparse.Namespace) -> list[str]:
     if scheduling is not None:
         plan = scheduling["cpu_plan"]
         lines.append(f"  controller loop at {scheduling['realtime_priority']} on CPU {plan['loop'] or 'any'}, solver on "
-                     f"{plan['solver'] or 'any'}, its {plan['helper_threads']} helper thread(s) on {plan['helpers'] or 'any'}")
+                     f"{plan['solver'] or 'any'}, its {plan['helper_threads']} helper thread(s) on {plan['helpers'] or 'any'}"
+                     + (f" (solver at {plan['solver_priority']}, helpers at {plan['helper_priority']})"
+                        if plan.get("solver_priority") else ""))
     if report["ee_rmse_estimated_m"] is not None:
         lines.append(f"  end effector RMSE {100 * report['ee_rmse_estimated_m']:.2f} cm (from the estimated state)")
     if arm is not None:

@@ -2,9 +2,10 @@
 
 The same plan as `wbmpc run --delay-mode realtime` (`control/solver_process.CpuPlan`): the controller loop (the
 thread answering every LowState) at SCHED_FIFO where permitted, pinned to one core; the solver process on the
-other, its helper threads (the stage evaluations' pool) on the loop's core below the loop, which preempts them at
-once; the run's session group at nice -10 where Linux groups processes by session (`raise_session_priority`).
-Where FIFO is refused the loop asks for nice -10 and the old one-core-each split stays (at nice -10 against
+other (its main thread at SCHED_FIFO there where permitted), its helper threads (the stage evaluations' pool) on
+the loop's core at the loop's FIFO priority (neither preempts the other's work mid-task:
+`solver_process.HELPER_FIFO_PRIORITY`), below the loop where that is refused; the run's session group at nice -10
+where Linux groups processes by session (`raise_session_priority`). Where FIFO is refused the loop asks for nice -10 and the old one-core-each split stays (at nice -10 against
 0 the helpers delayed g1's simulated loop by up to 100 ms); where neither is permitted, the default priority. The
 deploy report says what was granted (`summary`). Lock-step deploys solve in the loop's own thread: nothing is
 changed for them.
@@ -36,6 +37,7 @@ class DeployScheduling:
         self.priority: str | None = None  # "fifo 10", "nice -10", "default"; None: not raised (lock-step, not yet)
         self.plan = CpuPlan()
         self.helper_threads = 0
+        self.solver_scheduling: dict = {}  # the solver's threads' priorities (`SolverProcess.scheduling`)
         self.session_nice: int | None = None  # the session group's nice while raised (Linux autogroups), None: none
         self._own_cpus: list[int] = []
         self._own_nice: int | None = None
@@ -56,7 +58,7 @@ class DeployScheduling:
     def solver_process(self, robot, mpc_config) -> SolverProcess:
         """The solver process on the plan's cores (its helper threads placed by it)."""
         worker = SolverProcess(robot.spec, mpc_config, self.plan)
-        self.helper_threads = worker.helper_threads
+        self.helper_threads, self.solver_scheduling = worker.helper_threads, worker.scheduling
         return worker
 
     def pin_loop(self) -> None:
@@ -81,5 +83,5 @@ class DeployScheduling:
             return None
         plan = self.plan
         cpus = {"loop": sorted(plan.loop), "solver": sorted(plan.solver), "helpers": sorted(plan.helpers),
-                "helper_threads": int(self.helper_threads)}
+                "helper_threads": int(self.helper_threads), **self.solver_scheduling}
         return {"realtime_priority": self.priority, "session_nice": self.session_nice, "cpu_plan": cpus}

@@ -91,7 +91,7 @@ def realtime_plant_metrics(log: RunLog) -> dict:
     """Real time: the plant loop's own lateness per joint-loop tick (ms after its wall-clock time: mean, 99th
     percentile, max; the share of ticks later than half a joint-loop period), where each plan's delay went
     (`control/step_anatomy.py`: per segment mean, p95, max in ms) and the CPUs of the loop, the solver and
-    its helper threads (None for the other delay modes)."""
+    its helper threads with their priorities (None for the other delay modes)."""
     late = log.plant_lateness
     plan = log.cpu_plan
     out: dict = {"plant_lateness_ms": None, "plant_late_tick_share": None, "cpu_plan": None,
@@ -101,7 +101,7 @@ def realtime_plant_metrics(log: RunLog) -> dict:
         out["plant_late_tick_share"] = late.share_over()
     if plan is not None:
         out["cpu_plan"] = {"loop": sorted(plan.loop), "solver": sorted(plan.solver), "helpers": sorted(plan.helpers),
-                           "helper_threads": int(log.solver_helper_threads)}
+                           "helper_threads": int(log.solver_helper_threads), **log.solver_scheduling}
     return out
 
 
