@@ -8,6 +8,7 @@ apex and touch-down, with the lift-off and touch-down velocities as boundary con
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,10 @@ class Gait:
         if not 0 < self.duty_factor <= 1:
             raise ConfigError(f"gait duty factor must be in (0, 1], got {self.duty_factor}")
         object.__setattr__(self, "_offsets", np.asarray(self.phase_offsets, dtype=float)[None, :])  # (read by `phase`)
+        # the cycle phases (in [0, 1)) of the touchdowns and lift-offs (read by `switch_times`)
+        object.__setattr__(self, "_switch_phases", tuple(sorted({float((-o) % 1.0) for o in self.phase_offsets} |
+                                                                {float((self.duty_factor - o) % 1.0)
+                                                                 for o in self.phase_offsets})))
 
     @property
     def swing_duration_s(self) -> float:
@@ -64,26 +69,26 @@ class Gait:
 
     def switch_times(self, start_s: float, end_s: float) -> np.ndarray:
         """The sorted times in (start_s, end_s) at which some foot's contact changes (touchdown: phase 0, lift-off:
-        the duty factor), each once (a trot's pairs switch together). Solved on each linear piece of the clock and
-        kept where `contact` changes across it (a standing interval holds the feet down)."""
+        the duty factor), each once (a trot's pairs switch together). Solved on each linear piece of the clock (in
+        Python floats: a few per step); with standing intervals kept where `contact` changes across it."""
         if self.duty_factor >= 1 or not end_s > start_s:
             return np.zeros(0)
-        anchors = self.anchors
-        events = np.mod(-np.r_[np.asarray(self.phase_offsets), np.asarray(self.phase_offsets) - self.duty_factor], 1.0)
+        anchors, events = self.anchors, self._switch_phases
+        first = next((i for i in range(len(anchors) - 1, -1, -1) if anchors[i][0] <= start_s), 0)
         found = []
-        for i, (t0, c0, period) in enumerate(anchors):  # cycles = c0 + (t - t0) / period from t0 to the next anchor
-            lo = max(start_s, t0)
-            hi = min(end_s, anchors[i + 1][0]) if i + 1 < len(anchors) else end_s
-            if not hi > lo:
-                continue
-            c_lo, c_hi = c0 + (lo - t0) / period, c0 + (hi - t0) / period
-            whole = np.arange(np.floor(c_lo) - 1.0, np.ceil(c_hi) + 1.0)  # cycles where events fall: whole + event
-            cycles = (whole[:, None] + events[None, :]).ravel()
-            times = t0 + (cycles - c0) * period
-            found.append(times[(times >= lo) & (times > start_s) & (times < hi)])  # (a piece may start on one)
-        times = np.unique(np.concatenate(found)) if found else np.zeros(0)
-        if times.size:
-            times = times[np.r_[True, np.diff(times) > SWITCH_TOLERANCE_S]]
+        for i in range(first, len(anchors)):  # cycles = c0 + (t - t0) / period from t0 to the next anchor
+            t0, c0, period = anchors[i]
+            lo, hi = max(start_s, t0), min(end_s, anchors[i + 1][0]) if i + 1 < len(anchors) else end_s
+            if lo >= end_s:
+                break
+            for whole in range(math.floor(c0 + (lo - t0) / period) - 1, math.ceil(c0 + (hi - t0) / period) + 1):
+                for event in events:
+                    time_s = t0 + ((whole + event) - c0) * period
+                    if lo <= time_s < hi and time_s > start_s:  # (a piece may start on one)
+                        found.append(time_s)
+        found.sort()
+        times = np.array([t for k, t in enumerate(found) if k == 0 or t - found[k - 1] > SWITCH_TOLERANCE_S])
+        if times.size and getattr(self, "stand_intervals", None):
             before, after = self.contact(times - SWITCH_TOLERANCE_S), self.contact(times + SWITCH_TOLERANCE_S)
             times = times[(before != after).any(axis=1)]
         return times

@@ -50,13 +50,13 @@ def steps():
     robot = load_robot("go2")
     mpc = MPC(robot, MpcConfig(ocp=SMALL))
     records, current = [], {}
-    targets = mpc.references.targets
+    targets = mpc.references.targets_at  # (the NumPy path: `advance`, then the targets at the step's node times)
 
     def targets_spy(*args, **kwargs):
-        current["targets"] = targets(*args, **kwargs)
-        return current["targets"]
+        current["targets"] = (*targets(*args, **kwargs), None)
+        return current["targets"][:2]
 
-    mpc.references.targets = targets_spy
+    mpc.references.targets_at = targets_spy
     solve = mpc.solver.solve
 
     def solver_spy(p, lbx, ubx, lbg, ubg, x0, *args, **kwargs):

@@ -129,13 +129,13 @@ def test_a_slow_first_step_before_the_solver_is_not_taken_for_a_short_budget(mon
     clock = FakeClock(tick=1e-7)
     mpc = MPC(robot, MpcConfig(ocp=SMALL, gait="trot", solver=SolverConfig(name="sqp"), step_budget_s=0.01))
     mpc.solver.clock = clock
-    targets = mpc.references.targets  # the step's own work before the solver starts
+    advance = mpc.references.advance  # the step's own work before the solver starts
 
-    def slow_targets(*args, **kwargs):
+    def slow_advance(*args, **kwargs):
         clock.now += 9.7e-3
-        return targets(*args, **kwargs)
+        return advance(*args, **kwargs)
 
-    monkeypatch.setattr(mpc.references, "targets", slow_targets)
+    monkeypatch.setattr(mpc.references, "advance", slow_advance)
     assert mpc.solve(robot.q_nominal, np.zeros(robot.nv), t_s=0.0).success
 
 

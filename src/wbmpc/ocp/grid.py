@@ -10,6 +10,8 @@ discretisation changes when a switch passes the middle between two nodes and hop
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -81,29 +83,37 @@ class TimeGrid:
         a node on a switch stretched its neighbours' intervals by up to half of theirs at every hop (g1 walking
         forward at an 11 ms delay: 4.51 Fatrop iterations a step alone, 3.82 spread)."""
         times = self.node_times_s
-        switches = np.asarray(switch_times_s, dtype=float)
-        movable = self._movable_nodes
-        if not switches.size or not movable.any():
+        grid, edges, movable = self._cells  # (Python floats: a dozen nodes and a few switches per step)
+        best: dict[int, tuple[float, float]] = {}  # node -> (its switch's distance from the node's grid time, time)
+        for switch in np.asarray(switch_times_s, dtype=float).tolist():
+            node = bisect.bisect_right(edges, switch)  # the node whose cell holds the switch
+            if node < len(grid) and movable[node]:
+                away = abs(switch - grid[node])
+                if away < best.get(node, (math.inf,))[0]:
+                    best[node] = (away, switch + ON_SWITCH_AFTER_S)
+        for node in sorted(best):  # too close to a moved neighbour: the farther goes back
+            if node in best and node + 1 in best and best[node + 1][1] - best[node][1] < self.dt_first_s:
+                del best[node if best[node][0] > best[node + 1][0] else node + 1]
+        if not best:
             return times
-        edges = 0.5 * (times[:-1] + times[1:])  # cell k: [edges[k-1], edges[k])
-        edges[-1] = times[-1] - self.dt_first_s
-        cell = np.searchsorted(edges, switches, side="right")  # the node whose cell holds each switch
-        distance = np.abs(switches - times[np.minimum(cell, len(times) - 1)])
-        on_switch = times.copy()
-        best = np.full(len(times), np.inf)  # per node: its switch's distance from the node's grid time
-        for node, switch, away in zip(cell.tolist(), switches.tolist(), distance.tolist()):
-            if node < len(times) and movable[node] and away < best[node]:
-                best[node], on_switch[node] = away, switch + ON_SWITCH_AFTER_S
-        for node in np.flatnonzero(np.isfinite(best)).tolist():  # too close to a moved neighbour: the farther goes back
-            neighbour = node + 1
-            if np.isfinite(best[neighbour]) and on_switch[neighbour] - on_switch[node] < self.dt_first_s:
-                farther = node if best[node] > best[neighbour] else neighbour
-                on_switch[farther], best[farther] = times[farther], np.inf
-        anchors = np.isfinite(best)
-        if not anchors.any():
-            return times
-        anchors |= ~movable  # the fixed nodes (node 0, the first fine ones, node N) hold the warp
-        return _read_only(np.interp(times, times[anchors], on_switch[anchors]))
+        anchors = sorted([(k, grid[k]) for k in range(len(grid)) if not movable[k]] +
+                         [(k, time_s) for k, (_, time_s) in best.items()])
+        moved = list(grid)
+        for (k0, t0), (k1, t1) in zip(anchors, anchors[1:]):  # the nodes between spread linearly
+            scale = (t1 - t0) / (grid[k1] - grid[k0])
+            for k in range(k0 + 1, k1):
+                moved[k] = t0 + (grid[k] - grid[k0]) * scale
+            moved[k1] = t1
+        return _read_only(np.array(moved))
+
+    @cached_property
+    def _cells(self) -> tuple[list[float], list[float], list[bool]]:
+        """`on_switches`' grid times, cell edges (half-way, node N-1's to the last node less `dt_first_s`) and
+        movable nodes, as Python lists."""
+        grid = self.node_times_s.tolist()
+        edges = [0.5 * (a + b) for a, b in zip(grid[:-1], grid[1:])]
+        edges[-1] = grid[-1] - self.dt_first_s
+        return grid, edges, self._movable_nodes.tolist()
 
     @cached_property
     def _movable_nodes(self) -> np.ndarray:

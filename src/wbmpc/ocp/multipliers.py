@@ -14,6 +14,8 @@ multipliers then from the barrier's floor.
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from wbmpc.ocp.problem import OcpProblem
@@ -90,8 +92,10 @@ class MultiplierShift:
         the weight w of src1 and whether it has an identity (covered); in C with the compiled step packer on the
         grid's node times (`new_times`, `old_times`: each plan's own, relative to its start, if they moved)."""
         table, (group, node, place), covered, (first, last) = self.rows if rows else self.variables
-        if self._compiled is not None and new_times is None and old_times is None:
-            return (*self._compiled[rows](dt_s), covered)
+        if self._compiled is not None:
+            times = None if new_times is None and old_times is None else \
+                (self.node_times_s if new_times is None else new_times, self.node_times_s if old_times is None else old_times)
+            return (*self._compiled[rows](dt_s, times), covered)
         before, weight = self._sources(dt_s, new_times, old_times)
         node0 = np.clip(before[node], first, last)
         src0 = table[group, node0, place]
@@ -115,10 +119,10 @@ class MultiplierShift:
         """`lam` of the rows (`rows`) or variables of the last step, `kind_*` their `bound_kind` then and now,
         `dt_s` the time from the last step to this one (`new_times`, `old_times`: the plans' node times where they
         are not the grid's); in C with the compiled step packer (its sources too)."""
-        moved = new_times is not None or old_times is not None
-        if self._compiled is not None:  # (moved node times: the sources in NumPy, the kind rule in C)
-            sources = self.sources(dt_s, rows, new_times, old_times)[:3] if moved else None
-            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s, sources)
+        if self._compiled is not None:
+            times = None if new_times is None and old_times is None else \
+                (self.node_times_s if new_times is None else new_times, self.node_times_s if old_times is None else old_times)
+            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s, times)
         src0, src1, w, covered = self.sources(dt_s, rows, new_times, old_times)
         lam = np.asarray(lam, dtype=float)
         # the sources of the row's own kind: both, interpolated; one, its multiplier (a switch lies between them)
@@ -145,21 +149,34 @@ class CompiledShift:
         self._shift_tail = (*(a.ctypes.data for a in self._out), self._covered.ctypes.data)
         self._tail = (*addresses[:6], table.shape[1], table.shape[2], *(a.ctypes.data for a in self._out),
                       *addresses[7:])
+        self._times = (np.zeros(len(node_times_s)), np.zeros(len(node_times_s)))  # (new, old) off the grid
+        function = packer.wbsp_dual_sources_at
+        if function.argtypes is None:  # (the library's other entry points get theirs in solvers/step_pack.py)
+            pointer = ctypes.c_void_p
+            function.argtypes = [ctypes.c_int, pointer, pointer, ctypes.c_int, ctypes.c_double] + [pointer] * 6 + \
+                [ctypes.c_int, ctypes.c_int] + [pointer] * 5
 
-    def __call__(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """src0, src1, w (fresh arrays)."""
-        self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
+    def __call__(self, dt_s: float, times: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """src0, src1, w (fresh arrays); `times`: (new, old) node times of plans off the grid."""
+        self._sources(dt_s, times)
         return tuple(a.copy() for a in self._out)
 
-    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
-              sources: tuple | None = None) -> np.ndarray:
-        """`MultiplierShift.shift` (its sources and the kind rule) in two C calls (`wbsp_dual_shift`); `sources`:
-        (src0, src1, w) found elsewhere (node times off the grid), then one."""
-        if sources is None:
+    def _sources(self, dt_s: float, times: tuple | None) -> None:
+        """The sources into `_out`: on the grid (`wbsp_dual_sources`), or between the plans' own node times `times`
+        (new, old: `wbsp_dual_sources_at`, csrc/step_prepare.c)."""
+        if times is None:
             self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
-        else:
-            for out, values in zip(self._out, sources):
-                out[:] = values
+            return
+        new, old = self._times
+        new[:], old[:] = times
+        self._packer.wbsp_dual_sources_at(self._head[0], new.ctypes.data, old.ctypes.data, self._head[2], float(dt_s),
+                                          *self._tail)
+
+    def shift(self, lam: np.ndarray, kind_old: np.ndarray, kind_new: np.ndarray, dt_s: float,
+              times: tuple | None = None) -> np.ndarray:
+        """`MultiplierShift.shift` (its sources and the kind rule) in two C calls (`wbsp_dual_shift`); `times`: (new,
+        old) node times of plans off the grid."""
+        self._sources(dt_s, times)
         lam = np.ascontiguousarray(lam, dtype=float)
         kind_old, kind_new = (np.ascontiguousarray(kind, dtype=np.int64) for kind in (kind_old, kind_new))
         out = np.empty(self._covered.size)

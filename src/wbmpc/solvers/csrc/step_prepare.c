@@ -261,3 +261,43 @@ int wbsp_unpack(const wbsp_step *s, const double *x, const double *p, double *ou
   for (i = 0; i < n_tau; ++i) sum_tau += out[tau_start + i] * out[tau_start + i];
   return isfinite(sum_x + sum_tau) ? 1 : 0;
 }
+
+/* `MultiplierShift.sources` between plans with their own node times (`TimeGrid.follow_contact_switches`): new node k,
+ * at new_times[k] + dt_s on the old plan's clock, between the old nodes around it (old_times); then per row or variable
+ * of `wbsp_dual_sources` in step_pack.c, the same operations. */
+int wbsp_dual_sources_at(int n, const double *new_times, const double *old_times, int n_times, double dt_s,
+                         const int64_t *group, const int64_t *node, const int64_t *place, const int64_t *first,
+                         const int64_t *last, const int64_t *table, int n_table_nodes, int n_places, int64_t *src0,
+                         int64_t *src1, double *w, int64_t *before, double *weight) {
+  int k, i;
+  for (k = 0; k < n_times; ++k) {
+    double shifted = new_times[k] + dt_s, end = old_times[n_times - 1];
+    long b, lo = 0, hi = n_times; /* np.searchsorted(side="right"): the first index with times[i] > shifted */
+    shifted = shifted != shifted ? shifted : (shifted <= end ? shifted : end); /* np.minimum */
+    while (lo < hi) {
+      long mid = lo + (hi - lo) / 2;
+      if (old_times[mid] <= shifted) lo = mid + 1;
+      else hi = mid;
+    }
+    b = lo - 1;
+    b = b < 0 ? 0 : (b > n_times - 2 ? n_times - 2 : b);
+    before[k] = b;
+    {
+      double ratio = (shifted - old_times[b]) / (old_times[b + 1] - old_times[b]);
+      ratio = ratio != ratio ? ratio : (ratio >= 0.0 ? ratio : 0.0); /* np.clip(., 0, 1) */
+      weight[k] = ratio != ratio ? ratio : (ratio <= 1.0 ? ratio : 1.0);
+    }
+  }
+  for (i = 0; i < n; ++i) {
+    int64_t nd = node[i], lo_node = first[i], hi_node = last[i];
+    int64_t node0 = before[nd] < lo_node ? lo_node : (before[nd] > hi_node ? hi_node : before[nd]);
+    int64_t node1 = node0 + 1 < hi_node ? node0 + 1 : hi_node;
+    const int64_t *column = table + group[i] * (int64_t)n_table_nodes * n_places + place[i];
+    int64_t s0 = column[node0 * n_places], s1 = column[node1 * n_places];
+    double wi = node0 < hi_node ? weight[nd] : 0.0;
+    w[i] = s1 < 0 ? 0.0 : (s0 < 0 ? 1.0 : wi);
+    src0[i] = s0 < 0 ? s1 : s0;
+    src1[i] = s1 < 0 ? s0 : s1;
+  }
+  return 0;
+}
