@@ -539,6 +539,10 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
                          f"({100 * m['plant_late_tick_share']:.1f} % of joint ticks over half a period){shared}")
         if m.get("realtime_step_anatomy_ms"):
             lines.append(anatomy_line(m["realtime_step_anatomy_ms"]))
+        if m.get("realtime_competitors"):
+            lines.append(f"  warning: other processes ran threads at real-time priority as the run started (pids "
+                         f"{m['realtime_competitors']}): they share its cores and the kernel's cap on real-time time "
+                         "(/proc/sys/kernel/sched_rt_runtime_us), so its plans may be late; run one real-time job at a time")
     if m.get("est_base_vel_rmse_m_s") is not None:
         lines.append(f"  estimator RMSE: base position {100 * m['est_base_pos_rmse_m']:.2f} cm, velocity "
                      f"{m['est_base_vel_rmse_m_s']:.3f} m/s, orientation {math.degrees(m['est_orientation_rmse_rad']):.2f} deg")

@@ -173,3 +173,42 @@ def test_the_session_group_is_raised_and_restored(tmp_path):
     assert empty.read_text() == ""
     restore_session_priority(None, path=str(group))  # nothing changed: nothing to give back
     assert group.read_text().endswith("nice -15\n")
+
+
+def _fifo_child(ready, done):
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        ready.put(True)
+    except OSError:
+        ready.put(False)
+        return
+    done.wait(60)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task") or not hasattr(os, "sched_setscheduler"),
+                    reason="reads Linux's /proc")
+def test_other_processes_at_fifo_are_found_and_kernel_threads_are_not():
+    """`fifo_competitors`: another process with a FIFO thread is listed while it runs, not after; kernel threads (no
+    command line: migration, irq threads at FIFO) never are."""
+    from wbmpc.control.solver_process import fifo_competitors
+
+    context = multiprocessing.get_context("spawn")
+    ready, done = context.Queue(), context.Event()
+    child = context.Process(target=_fifo_child, args=(ready, done))
+    child.start()
+    permitted = ready.get(timeout=60)
+    try:
+        found = fifo_competitors()
+    finally:
+        done.set()
+        child.join(timeout=60)
+    if not permitted:
+        pytest.skip("SCHED_FIFO is not permitted here")
+    assert child.pid in found and os.getpid() not in found
+    assert child.pid not in fifo_competitors()
+    for pid in found:
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                assert f.read(1), f"kernel thread {pid} listed"
+        except FileNotFoundError:  # ended since (the child, or another session's process)
+            continue

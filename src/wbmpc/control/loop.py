@@ -31,6 +31,7 @@ from wbmpc.control.solver_process import (
     SolverProcess,
     available_cpus,
     cpu_plan,
+    fifo_competitors,
     raise_loop_priority,
     raise_session_priority,
     restore_scheduling,
@@ -352,7 +353,7 @@ class ClosedLoop:
         # the loop's priority first: the solver's helper threads share its core only where the loop preempts them at
         # once (SCHED_FIFO; at nice -10 against their nice 0 the fair scheduler let them delay g1's loop by up to 100 ms)
         log.start_writer()  # its thread at the ordinary policy, on every CPU: the loop never waits for the disk
-        log.realtime_priority = raise_loop_priority()
+        log.realtime_priority, log.realtime_competitors = raise_loop_priority(), fifo_competitors()
         session_before = raise_session_priority()  # against other sessions' load too (Linux autogroups)
         log.session_nice = None if session_before is None else min(session_before, REALTIME_NICE)
         plan = log.cpu_plan = cpu_plan(own_cpus, share_loop_core=log.realtime_priority.startswith("fifo"))

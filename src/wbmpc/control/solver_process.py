@@ -224,6 +224,34 @@ def _set_fifo(tid: int, priority: int) -> bool:
         return False
 
 
+def fifo_competitors(proc: str = "/proc") -> list[int]:
+    """Other user processes with a thread at a real-time policy (SCHED_FIFO / SCHED_RR; kernel threads, which have no
+    command line, left out): another real-time run shares the cores and the kernel's cap on FIFO time
+    (`sched_rt_runtime_us` per `sched_rt_period_us`), past which every FIFO thread of a core waits up to 50 ms.
+    Linux only ([] elsewhere)."""
+    found = []
+    try:
+        pids = [int(name) for name in os.listdir(proc) if name.isdigit()]
+    except OSError:
+        return []
+    for pid in pids:
+        if pid == os.getpid():
+            continue
+        try:
+            with open(f"{proc}/{pid}/cmdline", "rb") as f:
+                if not f.read(1):
+                    continue
+            for tid in os.listdir(f"{proc}/{pid}/task"):
+                with open(f"{proc}/{pid}/task/{tid}/stat") as f:
+                    policy = int(f.read().rsplit(")", 1)[1].split()[38])
+                if policy in (1, 2):  # SCHED_FIFO, SCHED_RR
+                    found.append(pid)
+                    break
+        except (OSError, ValueError, IndexError):
+            continue
+    return sorted(found)
+
+
 def thread_priority(tid: int = 0) -> str:
     """What the kernel says thread `tid` (0: this one) runs at: "fifo N" or "nice N" ("default" where it cannot
     tell)."""

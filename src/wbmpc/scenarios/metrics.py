@@ -100,6 +100,7 @@ def realtime_plant_metrics(log: RunLog) -> dict:
         out["plant_lateness_ms"] = {"mean": late.mean, "p99": late.percentile(99), "max": late.max}
         out["plant_late_tick_share"] = late.share_over()
     if plan is not None:
+        out["realtime_competitors"] = list(log.realtime_competitors)
         out["cpu_plan"] = {"loop": sorted(plan.loop), "solver": sorted(plan.solver), "helpers": sorted(plan.helpers),
                            "helper_threads": int(log.solver_helper_threads), **log.solver_scheduling}
     return out
