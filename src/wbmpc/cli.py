@@ -540,7 +540,7 @@ def _run_summary(m: dict, failure: str | None, paths: list, out_dir) -> list[str
         if m.get("realtime_step_anatomy_ms"):
             lines.append(anatomy_line(m["realtime_step_anatomy_ms"]))
         if m.get("realtime_competitors"):
-            lines.append(f"  warning: other processes ran threads at real-time priority as the run started (pids "
+            lines.append(f"  warning: other processes ran threads at real-time priority at the run's start or end (pids "
                          f"{m['realtime_competitors']}): they share its cores and the kernel's cap on real-time time "
                          "(/proc/sys/kernel/sched_rt_runtime_us), so its plans may be late; run one real-time job at a time")
     if m.get("est_base_vel_rmse_m_s") is not None:

@@ -385,6 +385,7 @@ class ClosedLoop:
             restore_scheduling(log.realtime_priority, own_nice)  # back to the caller's policy and priority
             restore_session_priority(session_before)
             solver.close()
+            log.realtime_competitors = sorted({*log.realtime_competitors, *fifo_competitors()})  # also at its end
         return log
 
     def _paced_loop(self, log: RunLog, solver: SolverProcess, active: Solution, t0: float, duration_s, commands,

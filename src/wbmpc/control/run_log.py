@@ -59,7 +59,7 @@ class RunLog:
         self.cpu_plan = None  # real time: where the loop and the solver's threads ran (`solver_process.CpuPlan`)
         self.solver_helper_threads = 0  # real time: the solver's helper threads placed by the plan
         self.solver_scheduling: dict = {}  # real time: its threads' priorities (`SolverProcess.scheduling`)
-        self.realtime_competitors: list[int] = []  # real time: other processes at FIFO as it started
+        self.realtime_competitors: list[int] = []  # real time: other processes at FIFO at its start or end
         # real time: how late after its wall-clock time each joint-loop tick ran (ms, `StreamingStats`: fixed memory)
         self.plant_lateness: StreamingStats | None = None
         self.recovered_solutions = 0  # counted as logged: progress reads it every control tick
