@@ -97,3 +97,22 @@ def test_bench_mpc_threads_are_checked(capsys):
     code = main(["bench", "mpc", "--steps", "2", "--solvers", "fatrop", "--threads", "1,2"])
     assert code == 2
     assert "fatrop-direct" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("foot_contact", ["surface", "point"])
+def test_bench_mpc_plans_on_the_grid_a_run_uses(tmp_path, foot_contact):
+    """`bench mpc` measures the MPC a run builds: flat feet's far nodes on the contact switches (the solver's
+    iterations on g1 depend on it), point feet on the fixed grid; the uniform comparison grid never moves."""
+    from tests.control.test_humanoid import _biped_urdf
+    from wbmpc.bench.mpc import grid_for, mpc_config
+    from wbmpc.control.policy import follows_contact_switches
+    from wbmpc.robots import RobotModel, RobotSpec
+
+    urdf = tmp_path / "biped.urdf"
+    urdf.write_text(_biped_urdf(with_box=True))
+    robot = RobotModel(RobotSpec(name="biped", urdf=str(urdf), feet=("l_foot", "r_foot"), foot_contact=foot_contact))
+    flat = foot_contact == "surface"
+    assert follows_contact_switches(robot) is flat
+    assert mpc_config(gait="walk", nodes=15, robot=robot).ocp.grid.follow_contact_switches is flat
+    assert grid_for(15, robot=robot).follow_contact_switches is flat
+    assert not grid_for(15, 40.0, robot=robot).follow_contact_switches

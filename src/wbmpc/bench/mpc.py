@@ -35,8 +35,10 @@ PLANTS = ("pinocchio", "mujoco")
 
 
 # ---------------------------------------------------------------------------- configuration
-def grid_for(nodes: int, uniform_dt_ms: float | None = None):
-    """Paper grid (geometric 10 ms -> 100 ms) on `nodes` nodes, or uniform steps of `uniform_dt_ms`."""
+def grid_for(nodes: int, uniform_dt_ms: float | None = None, robot=None):
+    """Paper grid (geometric 10 ms -> 100 ms) on `nodes` nodes, its far nodes on the contact switches where a run's
+    would be (`robot`'s flat feet: `policy.follows_contact_switches`), or uniform steps of `uniform_dt_ms`."""
+    from wbmpc.control.policy import follows_contact_switches
     from wbmpc.ocp.grid import MAX_INTERVALS, MAX_STEP_S, TimeGrid
 
     if isinstance(nodes, bool) or not isinstance(nodes, int):
@@ -45,7 +47,7 @@ def grid_for(nodes: int, uniform_dt_ms: float | None = None):
     if uniform_dt_ms is not None:
         check_number("uniform_dt_ms", uniform_dt_ms, low=0.0, high=1e3 * MAX_STEP_S, low_open=True, unit="ms")
         return TimeGrid.uniform_steps(nodes - 1, uniform_dt_ms / 1e3)
-    return TimeGrid(n_intervals=nodes - 1)
+    return TimeGrid(n_intervals=nodes - 1, follow_contact_switches=follows_contact_switches(robot))
 
 
 def check_names(formulation: str | None = None, gait: str | None = None, solvers: list[str] | None = None,
@@ -76,7 +78,7 @@ def mpc_config(formulation: str = "wb_inverse", gait: str = "trot", solver: str 
     from wbmpc.solvers.nlp import SolverConfig
 
     check_names(formulation=formulation, gait=gait, solvers=[solver])
-    grid = grid_for(nodes, uniform_dt_ms)
+    grid = grid_for(nodes, uniform_dt_ms, robot)
     # measure the requested solver alone: RTI and the anytime SQP (here without a deadline: iterated to
     # convergence) without their Fatrop recovery of failed QPs either
     extra = {"recovery_barrier_init": None} if solver in ("rti", "sqp") else {}
@@ -334,7 +336,7 @@ def bench_mpc(robot, steps: int = 100, gait: str = "trot", plant: str = "pinocch
     # one OCP build shared by every solver on the paper grid
     progress.update(done, "building the OCP")
     start = time.perf_counter()
-    problem = OcpProblem(robot, mpc_config(gait=gait, nodes=nodes).ocp)
+    problem = OcpProblem(robot, replace(mpc_config(gait=gait, nodes=nodes).ocp, grid=grid_for(nodes, robot=robot)))
     build = {"problem_s": time.perf_counter() - start}
     mpcs = {}
     for name in solvers:

@@ -207,6 +207,13 @@ def parse_solver_options(items: list[str] | None) -> dict:
     return options
 
 
+def follows_contact_switches(robot: RobotModel | None) -> bool:
+    """Whether the geometric grid's far nodes sit on the gait's contact switches (`TimeGrid.follow_contact_switches`):
+    for flat feet (g1 at an 11 ms delay, 5 s: walking in place 3.83 -> 3.11 Fatrop iterations a step, walking forward
+    4.58 -> 3.82; docs/design/solve-time.md); point feet keep the fixed grid."""
+    return robot is not None and bool(robot.soles)
+
+
 def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -> MpcConfig:
     """The complete MPC configuration of a task on `robot` (None: the paper robot's tuning, no obstacles nor
     object) with the user's `choices` (module docstring)."""
@@ -214,10 +221,8 @@ def mpc_config(robot: RobotModel | None, task: TaskNeeds, choices: MpcChoices) -
         choices = choices.for_robot(robot, task.sweeps_ee)
     n = choices.nodes - 1
     flat_feet = robot is not None and bool(robot.soles)
-    # flat feet: the far nodes on the gait's contact switches (g1 at an 11 ms delay, 5 s: walking in place 3.83 -> 3.11
-    # Fatrop iterations a step, walking forward 4.58 -> 3.82; docs/design/solve-time.md)
     grid = (TimeGrid.uniform_steps(n, choices.uniform_dt_ms / 1e3) if choices.uniform_dt_ms is not None
-            else TimeGrid(n_intervals=n, follow_contact_switches=flat_feet))
+            else TimeGrid(n_intervals=n, follow_contact_switches=follows_contact_switches(robot)))
     tuning = (tuning_for(robot) if robot is not None else RobotTuning()).for_task(task.commands_ee)
     collision = (CollisionConfig(margin_m=choices.collision_margin_m,
                                  obstacles=tuple(task.obstacles) if robot is not None else ())
