@@ -163,7 +163,7 @@ class CompiledShift:
 
     def _sources(self, dt_s: float, times: tuple | None) -> None:
         """The sources into `_out`: on the grid (`wbsp_dual_sources`), or between the plans' own node times `times`
-        (new, old: `wbsp_dual_sources_at`, csrc/step_prepare.c)."""
+        (new, old: `wbsp_dual_sources_at`, csrc/step_pack.c)."""
         if times is None:
             self._packer.wbsp_dual_sources(*self._head, float(dt_s), *self._tail)
             return

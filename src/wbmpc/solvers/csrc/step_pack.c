@@ -203,26 +203,27 @@ int wbsp_swing_vz(int n, const double *progress, double piece_s, double apex_m, 
 }
 
 /* `MultiplierShift.shift`'s sources (ocp/multipliers.py): for each of n items (rows or variables), the old items
- * src0, src1 it is re-sampled from dt_s later and the weight w of src1, found by identity (group, node, place:
- * table[group][node][place] the item there or -1) between the old nodes around its new node's time (node_times,
- * n_times). Which of them count (their bound kinds) stays the NumPy code's. before, weight: n_times scratch. */
-int wbsp_dual_sources(int n, const double *node_times, int n_times, double dt_s, const int64_t *group,
-                      const int64_t *node, const int64_t *place, const int64_t *first, const int64_t *last,
-                      const int64_t *table, int n_table_nodes, int n_places, int64_t *src0, int64_t *src1, double *w,
-                      int64_t *before, double *weight) {
+ * src0, src1 it is re-sampled from and the weight w of src1, found by identity (group, node, place:
+ * table[group][node][place] the item there or -1) between the old nodes (old_times) around its new node's time
+ * new_times[k] + dt_s on the old plan's clock (plans with their own node times: `TimeGrid.follow_contact_switches`).
+ * Which of them count (their bound kinds) stays the NumPy code's. before, weight: n_times scratch. */
+int wbsp_dual_sources_at(int n, const double *new_times, const double *old_times, int n_times, double dt_s,
+                         const int64_t *group, const int64_t *node, const int64_t *place, const int64_t *first,
+                         const int64_t *last, const int64_t *table, int n_table_nodes, int n_places, int64_t *src0,
+                         int64_t *src1, double *w, int64_t *before, double *weight) {
   int k, i;
   for (k = 0; k < n_times; ++k) { /* `MultiplierShift._sources` */
-    double shifted = wb_min(node_times[k] + dt_s, node_times[n_times - 1]);
+    double shifted = wb_min(new_times[k] + dt_s, old_times[n_times - 1]);
     long b, lo = 0, hi = n_times; /* np.searchsorted(side="right"): the first index with times[i] > shifted */
     while (lo < hi) {
       long mid = lo + (hi - lo) / 2;
-      if (node_times[mid] <= shifted) lo = mid + 1;
+      if (old_times[mid] <= shifted) lo = mid + 1;
       else hi = mid;
     }
     b = lo - 1;
     b = b < 0 ? 0 : (b > n_times - 2 ? n_times - 2 : b);
     before[k] = b;
-    weight[k] = wb_min(wb_max((shifted - node_times[b]) / (node_times[b + 1] - node_times[b]), 0.0), 1.0);
+    weight[k] = wb_min(wb_max((shifted - old_times[b]) / (old_times[b + 1] - old_times[b]), 0.0), 1.0);
   }
   for (i = 0; i < n; ++i) {
     int64_t nd = node[i], lo_node = first[i], hi_node = last[i];
@@ -236,6 +237,15 @@ int wbsp_dual_sources(int n, const double *node_times, int n_times, double dt_s,
     src1[i] = s1 < 0 ? s0 : s1;
   }
   return 0;
+}
+
+/* `wbsp_dual_sources_at` on one fixed grid (node_times, the plans' own and the last plan's alike). */
+int wbsp_dual_sources(int n, const double *node_times, int n_times, double dt_s, const int64_t *group,
+                      const int64_t *node, const int64_t *place, const int64_t *first, const int64_t *last,
+                      const int64_t *table, int n_table_nodes, int n_places, int64_t *src0, int64_t *src1, double *w,
+                      int64_t *before, double *weight) {
+  return wbsp_dual_sources_at(n, node_times, node_times, n_times, dt_s, group, node, place, first, last, table,
+                              n_table_nodes, n_places, src0, src1, w, before, weight);
 }
 
 /* `ocp/multipliers.bound_kind`: per row 0 free, 1 lower bound only, 2 upper only, 3 both, 4 equality */
