@@ -167,10 +167,7 @@ class ShiftedDuals:
             return ()
         kind_rows, kind_variables = self._bound_kinds(bounds)
         self._kinds = (bounds, kind_rows, kind_variables)  # `record` of this step's plan takes them (same bounds)
-        dt_s, times = t_s - last[0], {}
-        new_times, old_times = self._moved(node_times_s), last[5]
-        if new_times is not None or old_times is not None:  # re-sampled at the moved nodes, not the grid's
-            times = {"new_times": self._grid if new_times is None else new_times,
-                     "old_times": self._grid if old_times is None else old_times}
+        # re-sampled between the plans' own node times where either moved off the grid
+        dt_s, times = t_s - last[0], {"new_times": self._moved(node_times_s), "old_times": last[5]}
         return (self._shift.shift(last[1], last[3], kind_rows, dt_s, **times),
                 self._shift.shift(last[2], last[4], kind_variables, dt_s, rows=False, **times))

@@ -14,8 +14,6 @@ multipliers then from the barrier's floor.
 
 from __future__ import annotations
 
-import ctypes
-
 import numpy as np
 
 from wbmpc.ocp.problem import OcpProblem
@@ -86,6 +84,13 @@ class MultiplierShift:
         weight = np.clip((shifted - times[before]) / (times[before + 1] - times[before]), 0.0, 1.0)
         return before, weight
 
+    def _plan_times(self, new_times, old_times) -> tuple | None:
+        """(new, old) node times of the two plans, the grid's for one not given; None: both on the grid."""
+        if new_times is None and old_times is None:
+            return None
+        return (self.node_times_s if new_times is None else new_times,
+                self.node_times_s if old_times is None else old_times)
+
     def sources(self, dt_s: float, rows: bool = True, new_times=None,
                 old_times=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per row (`rows`) or variable: the old ones it is re-sampled from `dt_s` later (src0, src1; -1: none),
@@ -93,9 +98,7 @@ class MultiplierShift:
         grid's node times (`new_times`, `old_times`: each plan's own, relative to its start, if they moved)."""
         table, (group, node, place), covered, (first, last) = self.rows if rows else self.variables
         if self._compiled is not None:
-            times = None if new_times is None and old_times is None else \
-                (self.node_times_s if new_times is None else new_times, self.node_times_s if old_times is None else old_times)
-            return (*self._compiled[rows](dt_s, times), covered)
+            return (*self._compiled[rows](dt_s, self._plan_times(new_times, old_times)), covered)
         before, weight = self._sources(dt_s, new_times, old_times)
         node0 = np.clip(before[node], first, last)
         src0 = table[group, node0, place]
@@ -120,9 +123,7 @@ class MultiplierShift:
         `dt_s` the time from the last step to this one (`new_times`, `old_times`: the plans' node times where they
         are not the grid's); in C with the compiled step packer (its sources too)."""
         if self._compiled is not None:
-            times = None if new_times is None and old_times is None else \
-                (self.node_times_s if new_times is None else new_times, self.node_times_s if old_times is None else old_times)
-            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s, times)
+            return self._compiled[rows].shift(lam, kind_old, kind_new, dt_s, self._plan_times(new_times, old_times))
         src0, src1, w, covered = self.sources(dt_s, rows, new_times, old_times)
         lam = np.asarray(lam, dtype=float)
         # the sources of the row's own kind: both, interpolated; one, its multiplier (a switch lies between them)
@@ -150,11 +151,6 @@ class CompiledShift:
         self._tail = (*addresses[:6], table.shape[1], table.shape[2], *(a.ctypes.data for a in self._out),
                       *addresses[7:])
         self._times = (np.zeros(len(node_times_s)), np.zeros(len(node_times_s)))  # (new, old) off the grid
-        function = packer.wbsp_dual_sources_at
-        if function.argtypes is None:  # (the library's other entry points get theirs in solvers/step_pack.py)
-            pointer = ctypes.c_void_p
-            function.argtypes = [ctypes.c_int, pointer, pointer, ctypes.c_int, ctypes.c_double] + [pointer] * 6 + \
-                [ctypes.c_int, ctypes.c_int] + [pointer] * 5
 
     def __call__(self, dt_s: float, times: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """src0, src1, w (fresh arrays); `times`: (new, old) node times of plans off the grid."""

@@ -52,6 +52,8 @@ def library(config: CodegenConfig | None = None) -> ctypes.CDLL | None:
             lib.wbsp_swing_vz.argtypes = [ctypes.c_int, pointer] + [ctypes.c_double] * 4 + [pointer]
             lib.wbsp_dual_sources.argtypes = [ctypes.c_int, pointer, ctypes.c_int, ctypes.c_double] + [pointer] * 6 + \
                 [ctypes.c_int, ctypes.c_int] + [pointer] * 5
+            lib.wbsp_dual_sources_at.argtypes = [ctypes.c_int, pointer, pointer, ctypes.c_int, ctypes.c_double] + \
+                [pointer] * 6 + [ctypes.c_int, ctypes.c_int] + [pointer] * 5
             lib.wbsp_bound_kind.argtypes = [ctypes.c_int, pointer, pointer, pointer]
             lib.wbsp_dual_shift.argtypes = [ctypes.c_int] + [pointer] * 8
             lib.wbsp_prepare.argtypes = [pointer, pointer]  # (control/compiled_step.py)
