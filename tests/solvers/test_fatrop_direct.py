@@ -9,10 +9,11 @@ import pytest
 from tests.solvers.mpc_steps import TINY, capture_step_data
 from wbmpc.control import MPC, MpcConfig, RecoveryConfig
 from wbmpc.errors import ConfigError
-from wbmpc.solvers import fatrop_direct, make_solver
+from wbmpc.solvers import fatrop_direct, fatrop_settings, make_solver
 from wbmpc.solvers.blasfeo import cpu_has_avx2_fma
 from wbmpc.solvers.codegen import CodegenConfig
-from wbmpc.solvers.fatrop_direct import FatropDirectSolver, mpc_tolerances, multiplier_start
+from wbmpc.solvers.fatrop_direct import FatropDirectSolver
+from wbmpc.solvers.fatrop_settings import mpc_tolerances, multiplier_start
 from wbmpc.solvers.nlp import NlpSolver, SolverConfig, bound_violation
 
 
@@ -109,7 +110,7 @@ def test_mpc_solves_skip_iterative_refinement_at_the_same_iterations(direct, ste
     """At the MPC tolerances the binding asks Fatrop for no iterative refinement (MPC_ITERATIVE_REFINEMENT): the
     same iterations and the same point to rounding as with Fatrop's default (which refines here, so the bits
     differ: the option reaches Fatrop); a negative count is refused by name."""
-    assert fatrop_direct.MPC_ITERATIVE_REFINEMENT == 0 and direct.tolerance >= fatrop_direct.MPC_TOLERANCE
+    assert fatrop_settings.MPC_ITERATIVE_REFINEMENT == 0 and direct.tolerance >= fatrop_settings.MPC_TOLERANCE
     default = direct.recreated().solve(**step_data)
     none = direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": 0}}).solve(**step_data)
     refined = direct.recreated(extra_options={"fatrop": {"max_iterative_refinement": 5}}).solve(**step_data)
@@ -246,10 +247,10 @@ def test_the_mpc_hands_its_shifted_multipliers_to_a_solver_that_takes_them(robot
 
 
 def test_mpc_tolerances(robot, problem, codegen):
-    """By default the binding stops at its own MPC tolerances (fatrop_direct.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
+    """By default the binding stops at its own MPC tolerances (fatrop_settings.MPC_TOLERANCE, ..._CONSTRAINT_TOLERANCE):
     the plans stay within them of casadi's Fatrop at SolverConfig's tolerances, in no more iterations;
     tolerances set in SolverConfig are kept."""
-    from wbmpc.solvers.fatrop_direct import MPC_CONSTRAINT_TOLERANCE, MPC_TOLERANCE
+    from wbmpc.solvers.fatrop_settings import MPC_CONSTRAINT_TOLERANCE, MPC_TOLERANCE
 
     _, expected = _trot_steps(robot, problem, SolverConfig())
     mpc, got = _trot_steps(robot, problem, SolverConfig(name="fatrop-direct", codegen=codegen))
@@ -266,7 +267,7 @@ def test_mpc_tolerances(robot, problem, codegen):
 def test_flat_feet_defaults():
     """Flat feet: the KKT tolerance FLAT_FEET_MPC_TOLERANCE and warm attempts from the MPC's multipliers; point feet
     keep MPC_TOLERANCE and the instance's multipliers; set values win."""
-    from wbmpc.solvers.fatrop_direct import (
+    from wbmpc.solvers.fatrop_settings import (
         FLAT_FEET_MPC_TOLERANCE,
         MPC_CONSTRAINT_TOLERANCE,
         MPC_TOLERANCE,

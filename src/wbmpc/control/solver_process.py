@@ -141,7 +141,7 @@ def restore_scheduling(granted: str, nice: int | None) -> None:
 class CpuPlan:
     """Where a real-time run's threads run (empty sets: not pinned). `loop`: the plant loop (500 Hz joint loop and
     physics); `solver`: the solver process's main thread (the Riccati recursion, Python); `helpers`: the solver's
-    helper threads (the stage evaluations' pool, `fatrop_direct.default_threads`). On two CPUs the helpers share the
+    helper threads (the stage evaluations' pool, `fatrop_settings.default_threads`). On two CPUs the helpers share the
     loop's core at a lower priority than the loop (`shares_loop_core`): the loop takes ~a fifth of its core, the
     evaluations take its idle time and the loop preempts them."""
 

@@ -16,7 +16,7 @@ factorisation; `extra_options={"warm_duals": False}` turns it off; on flat feet 
 multipliers moved by constraint identity instead, `takes_multipliers`) and a time limit per call
 (`solve(..., max_iterations=, time_limit_s=)`, for anytime use: the last accepted iterate is returned).
 
-Its own tolerances for MPC steps (`MPC_TOLERANCE` or on flat feet `FLAT_FEET_MPC_TOLERANCE`,
+Its own tolerances for MPC steps (`fatrop_settings`: `MPC_TOLERANCE` or on flat feet `FLAT_FEET_MPC_TOLERANCE`,
 `MPC_CONSTRAINT_TOLERANCE`) apply while SolverConfig keeps its defaults. Fatrop's equality elimination runs on our AVX2 kernels (`csrc/fatrop_kernels.cpp`, same iterates;
 `extra_options={"fatrop_kernels": False}` leaves Fatrop's own), and its Riccati products with the sparse dynamics and
 inequality Jacobians on sparsity-aware ones (`csrc/fatrop_sparse.cpp`; `{"sparse_products": False}`: BLASFEO's).
@@ -39,13 +39,9 @@ from wbmpc.errors import ConfigError
 from wbmpc.ocp.problem import OcpProblem
 from wbmpc.solvers import stage_library
 from wbmpc.solvers.codegen import CompileError, CompileReport
-from wbmpc.solvers.fatrop_settings import (  # noqa: F401 (the settings' names, also here)
-    FLAT_FEET_MPC_TOLERANCE,
-    MPC_CONSTRAINT_TOLERANCE,
+from wbmpc.solvers.fatrop_settings import (
     MPC_ITERATIVE_REFINEMENT,
     MPC_TOLERANCE,
-    MULTIPLIER_BARRIER_INIT,
-    MULTIPLIER_MAX_ITERATIONS,
     QUIET_ITERATIONS,
     REHEARSAL_ITERATIONS,
     default_threads,

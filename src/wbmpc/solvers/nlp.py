@@ -58,7 +58,7 @@ class SolverConfig:
     solver_per_structure: bool = True  # Fatrop: one nlpsol per row-count pattern keeps our options (see NlpSolver)
     codegen: CodegenConfig = field(default_factory=CodegenConfig)
     # fatrop-direct: threads evaluating the stage functions (the caller and threads - 1 workers; the same iterates on
-    # any count); None: two where the process may use two cores (fatrop_direct.default_threads)
+    # any count); None: two where the process may use two cores (fatrop_settings.default_threads)
     threads: int | None = None
 
     def __post_init__(self):
